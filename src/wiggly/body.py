@@ -1,0 +1,231 @@
+"""A prepared body: mesh, linear FEM, eigenmodes and per-mode coefficients (SYSTEM.md §2–4).
+
+A :class:`Body` is what every later stage works on.  It holds the simulation tet mesh, the
+user's surface embedded in it, the assembled M and K, the lowest r eigenmodes, and the
+decoupled per-mode data of the spacetime energy (SYSTEM.md §4):
+
+    delta_i = (alpha + beta lambda_i) / 2,      g_i = phi_i^T g,   g = -M gravity.
+
+Everything is inspectable: ``body.M``, ``body.K``, ``body.modes.eigenvalues``,
+``body.modes.vectors``, ``body.delta``, ``body.modal_gravity``.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import scipy.sparse as sp
+
+from wiggly.errors import WigglyInputError
+from wiggly.fem import Material, gravity_term, mass_matrix, stiffness_matrix
+from wiggly.mesh import Model, Surface, TetMesh, embed, load_model
+from wiggly.modes import Modes, compute_modes
+
+Where = Literal["surface", "tets"]
+DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
+
+
+@dataclass(frozen=True)
+class Damping:
+    """Rayleigh damping D = alpha M + beta K (alpha in s^-1, beta in s), SYSTEM.md §2."""
+
+    alpha: float = 0.5
+    beta: float = 0.002
+
+    def __post_init__(self) -> None:
+        for name in ("alpha", "beta"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise WigglyInputError(
+                    f"damping {name} = {v!r} is invalid: it must be a finite number >= 0 "
+                    f"({'1/s' if name == 'alpha' else 's'})"
+                )
+
+
+@dataclass(eq=False)
+class Body:
+    """A body ready for animation (mesh + FEM + modes).  Build it with :func:`prepare`.
+
+    Attributes
+    ----------
+    model : Model
+        Tet mesh, the user's surface and its barycentric embedding.
+    material : Material
+    damping : Damping
+    gravity : (3,) gravity acceleration in m/s^2 (y-up by default).
+    fixed_vertices : (k,) tet-mesh vertex indices held at rest.
+    M, K : (3n, 3n) sparse mass and stiffness (interleaved xyz dofs).
+    modes : Modes
+        Phi (3n, r) M-orthonormal, lambda (r,), rigid modes first.
+    """
+
+    model: Model
+    material: Material
+    damping: Damping
+    gravity: np.ndarray
+    fixed_vertices: np.ndarray
+    M: sp.csr_matrix
+    K: sp.csr_matrix
+    modes: Modes
+    lumped: bool = False
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    # --- per-mode coefficients of the decoupled energy (SYSTEM.md §4) -------------------
+    @property
+    def r(self) -> int:
+        """Number of modes."""
+        return self.modes.r
+
+    @property
+    def eigenvalues(self) -> np.ndarray:
+        """lambda_i in s^-2 (rigid modes exactly 0)."""
+        return self.modes.eigenvalues
+
+    @property
+    def delta(self) -> np.ndarray:
+        """Per-mode damping delta_i = (alpha + beta lambda_i) / 2 in s^-1."""
+        return 0.5 * (self.damping.alpha + self.damping.beta * self.modes.eigenvalues)
+
+    @cached_property
+    def gravity_vector(self) -> np.ndarray:
+        """Full constant term g = -M (gravity per node) of dynamics (1)."""
+        return gravity_term(self.M, tuple(self.gravity))
+
+    @cached_property
+    def modal_gravity(self) -> np.ndarray:
+        """g_i = phi_i^T g (in sqrt(kg) m / s^2)."""
+        return self.modes.vectors.T @ self.gravity_vector
+
+    @property
+    def mass(self) -> float:
+        """Total mass in kg."""
+        return float(self.M.sum() / 3.0)
+
+    # --- geometry ------------------------------------------------------------------------
+    @property
+    def tets(self) -> TetMesh:
+        return self.model.tets
+
+    @property
+    def surface(self) -> Surface:
+        return self.model.surface
+
+    def rest_positions(self, on: Where = "surface") -> np.ndarray:
+        """Rest vertex positions (n, 3) of the surface or the tet mesh."""
+        return self.surface.vertices if on == "surface" else self.tets.vertices
+
+    def n_vertices(self, on: Where = "surface") -> int:
+        return len(self.rest_positions(on))
+
+    @cached_property
+    def surface_basis(self) -> np.ndarray:
+        """Modes evaluated on the embedded surface, (3p, r): E Phi (barycentric embedding)."""
+        E = self.model.embedding.dof_matrix(self.tets.n_vertices)
+        return np.ascontiguousarray(E @ self.modes.vectors)
+
+    def basis(self, on: Where = "surface") -> np.ndarray:
+        """Mode shapes as displacement rows (3n, r) for the surface or the tet mesh."""
+        return self.surface_basis if on == "surface" else self.modes.vectors
+
+    def basis_rows(self, vertices: np.ndarray, on: Where = "surface") -> np.ndarray:
+        """Rows of the mode basis for the xyz dofs of ``vertices``: shape (3k, r) (A_k Phi)."""
+        vertices = np.asarray(vertices, dtype=np.int64)
+        dofs = (3 * vertices[:, None] + np.arange(3)).ravel()
+        return self.basis(on)[dofs]
+
+    def vertex_masses(self, on: Where = "tets") -> np.ndarray:
+        """Lumped vertex masses (kg) of the tet mesh, or barycentrically spread to the surface."""
+        m = np.asarray(self.M.sum(axis=1)).ravel()[::3]
+        if on == "tets":
+            return m
+        B = self.model.embedding.matrix(self.tets.n_vertices)
+        w = np.asarray(B.sum(axis=0)).ravel()
+        w = np.where(w > 0, w, 1.0)
+        return B @ (m / w)
+
+
+def _check_fixed(fixed: np.ndarray | list[int] | None, n: int) -> np.ndarray:
+    if fixed is None:
+        return np.zeros(0, np.int64)
+    fixed = np.asarray(fixed)
+    if fixed.dtype == bool:
+        if fixed.shape != (n,):
+            raise WigglyInputError(
+                f"fixed vertex mask has shape {fixed.shape}; it must have one entry per tet vertex ({n})"
+            )
+        return np.flatnonzero(fixed)
+    fixed = np.unique(fixed.astype(np.int64).ravel())
+    bad = fixed[(fixed < 0) | (fixed >= n)]
+    if bad.size:
+        raise WigglyInputError(
+            f"fixed vertex index {int(bad[0])} is out of range: the tet mesh has {n} vertices "
+            f"(valid indices 0..{n - 1})"
+        )
+    return fixed
+
+
+def fixed_from_surface(model: Model, surface_vertices: np.ndarray) -> np.ndarray:
+    """Tet vertices carrying the given surface vertices (the corners of their tets)."""
+    idx = np.asarray(surface_vertices, np.int64)
+    n = model.surface.n_vertices
+    bad = idx[(idx < 0) | (idx >= n)]
+    if bad.size:
+        raise WigglyInputError(
+            f"surface vertex index {int(bad[0])} is out of range: the surface has {n} vertices"
+        )
+    emb = model.embedding
+    w = emb.barycentric[idx]
+    verts = emb.vertex_indices[idx]
+    return np.unique(verts[np.abs(w) > 1e-9])
+
+
+def prepare(
+    model: Model | str | os.PathLike[str],
+    *,
+    material: Material | None = None,
+    damping: Damping | None = None,
+    gravity: tuple[float, float, float] | np.ndarray = DEFAULT_GRAVITY,
+    fixed_vertices: np.ndarray | list[int] | None = None,
+    n_modes: int = 40,
+    lumped: bool = False,
+    cache_dir: str | os.PathLike[str] | Literal[False] | None = None,
+    resolution: int | None = None,
+    edge_length: float | None = None,
+    progress: bool = False,
+) -> Body:
+    """Load (if a path), assemble M and K, compute ``n_modes`` eigenmodes (cached on disk).
+
+    ``fixed_vertices`` are tet-mesh vertex indices (see :func:`fixed_from_surface` to fix
+    by surface vertices).  ``n_modes`` counts the rigid modes of a free body (6).
+    """
+    if not isinstance(model, Model):
+        path = Path(model)
+        model = load_model(path, resolution=resolution, edge_length=edge_length,
+                           progress=progress)
+    material = material or Material()
+    damping = damping or Damping()
+    gravity = np.asarray(gravity, dtype=float).reshape(-1)
+    if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
+        raise WigglyInputError(f"gravity must be 3 finite numbers (m/s^2); got {gravity.tolist()}")
+    V, T = model.tets.vertices, model.tets.tets
+    fixed = _check_fixed(fixed_vertices, len(V))
+    if progress:
+        _say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")
+    M = mass_matrix(V, T, material.density, lumped=lumped)
+    K = stiffness_matrix(V, T, material.young, material.poisson)
+    modes = compute_modes(K, M, n_modes, vertices=V, fixed_vertices=fixed,
+                          cache_dir=cache_dir, progress=progress)
+    if model.embedding is None:
+        model.embedding = embed(model.surface.vertices, model.tets)
+    return Body(model, material, damping, gravity, fixed, M, K, modes, lumped)
+
+
+def _say(message: str) -> None:
+    import sys
+
+    print(f"[wiggly] {message}", file=sys.stderr, flush=True)

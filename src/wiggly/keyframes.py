@@ -1,0 +1,187 @@
+"""Sparse spacetime constraints: partial keyframes (SYSTEM.md §4, energy E_C, eq. (4)).
+
+A keyframe constrains some vertices (of the user's surface or of the tet mesh) at one time:
+their positions (A_k u(t_k) = a_k) and/or their velocities (B_k u'(t_k) = b_k), as least
+squares with weights c_A, c_B.  Position targets are given as
+
+* absolute positions ``Keyframe(t, vertices, position=X)``,
+* offsets from rest ``Keyframe.offset(t, vertices, d)``,
+* a rigid transform of the selected rest vertices ``Keyframe.rigid(t, vertices, R, x)``,
+* the rest state ``Keyframe.rest(t, vertices)`` (optionally with zero velocity),
+
+and a full keyframe is the special case where every vertex is selected.
+
+Weights.  E_C = 1/2 sum_k c_A |A_k u - a_k|^2 + c_B |B_k u' - b_k|^2 (eq. (4)).  Unless given
+explicitly, c_A and c_B are set from a dimensionless ``stiffness`` s as
+c_A = s m / (k T^3) and c_B = s m / (k T), with m the body's mass, k the number of selected
+vertices and T the animation's duration: the units of the spacetime energy, so the same
+``stiffness`` pulls equally hard whatever the size, mass or duration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from wiggly.body import Body, Where
+from wiggly.errors import WigglyInputError
+
+DEFAULT_STIFFNESS = 1e6
+
+
+def _rotation(rotation: ArrayLike) -> np.ndarray:
+    """A 3x3 rotation from a matrix or a rotation vector (axis * angle in radians)."""
+    R = np.asarray(rotation, dtype=float)
+    if R.shape == (3,):
+        theta = float(np.linalg.norm(R))
+        if theta == 0:
+            return np.eye(3)
+        k = R / theta
+        Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        return np.eye(3) + np.sin(theta) * Kx + (1 - np.cos(theta)) * Kx @ Kx
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
+        raise WigglyInputError(f"rotation must be a 3x3 matrix or a rotation vector; got shape {R.shape}")
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
+        raise WigglyInputError("rotation matrix is not a proper rotation (R^T R = I, det R = 1)")
+    return R
+
+
+@dataclass
+class Keyframe:
+    """Constraints on some vertices at one time ``time`` (seconds).
+
+    ``position`` (k, 3) absolute target positions (or None); ``velocity`` (k, 3) or (3,)
+    target velocities in m/s (or None); ``on`` says whether ``vertices`` index the user's
+    surface (default) or the tet mesh.  ``stiffness`` (dimensionless, see module doc) or
+    explicit ``c_A`` / ``c_B`` set the weights.
+    """
+
+    time: float
+    vertices: np.ndarray
+    position: np.ndarray | None = None
+    velocity: np.ndarray | None = None
+    on: Where = "surface"
+    stiffness: float = DEFAULT_STIFFNESS
+    c_A: float | None = None
+    c_B: float | None = None
+    name: str = ""
+    # how the target was specified, kept for scene files and the editor
+    spec: dict = field(default_factory=dict, repr=False)
+
+    # --- constructors for the target kinds ----------------------------------------------
+    @classmethod
+    def rest(cls, body: Body, time: float, vertices: ArrayLike, *, still: bool = False,
+             **kw) -> Keyframe:
+        """Vertices at their rest positions (and at zero velocity if ``still``)."""
+        on = kw.pop("on", "surface")
+        v = _indices(vertices, body.n_vertices(on), on)
+        X = body.rest_positions(on)[v]
+        vel = np.zeros(3) if still else kw.pop("velocity", None)
+        return cls(time, v, X.copy(), vel, on, spec={"kind": "rest"}, **kw)
+
+    @classmethod
+    def offset(cls, body: Body, time: float, vertices: ArrayLike, offset: ArrayLike,
+               **kw) -> Keyframe:
+        """Vertices displaced from rest by ``offset`` ((3,) or (k, 3) metres)."""
+        on = kw.pop("on", "surface")
+        v = _indices(vertices, body.n_vertices(on), on)
+        d = np.broadcast_to(np.asarray(offset, float), (len(v), 3))
+        return cls(time, v, body.rest_positions(on)[v] + d, on=on,
+                   spec={"kind": "offset", "offset": np.asarray(offset, float)}, **kw)
+
+    @classmethod
+    def rigid(cls, body: Body, time: float, vertices: ArrayLike, rotation: ArrayLike = (0, 0, 0),
+              translation: ArrayLike = (0, 0, 0), center: ArrayLike | None = None,
+              **kw) -> Keyframe:
+        """Rest vertices rotated by ``rotation`` about ``center`` (default: their centroid),
+        then translated: x = R (X - c) + c + translation."""
+        on = kw.pop("on", "surface")
+        v = _indices(vertices, body.n_vertices(on), on)
+        X = body.rest_positions(on)[v]
+        R = _rotation(rotation)
+        c = X.mean(axis=0) if center is None else np.asarray(center, float)
+        x = (X - c) @ R.T + c + np.asarray(translation, float)
+        spec = {"kind": "rigid", "rotation": np.asarray(rotation, float),
+                "translation": np.asarray(translation, float), "center": c}
+        return cls(time, v, x, on=on, spec=spec, **kw)
+
+    # --- validation and weights ----------------------------------------------------------
+    def checked(self, body: Body, t0: float, t1: float, label: str = "") -> Keyframe:
+        """Validate against the body and the time range; return a normalized copy."""
+        what = label or (f"keyframe '{self.name}'" if self.name else f"keyframe at t={self.time}")
+        t = float(self.time)
+        if not np.isfinite(t) or t < t0 - 1e-9 or t > t1 + 1e-9:
+            raise WigglyInputError(
+                f"{what}: time {self.time!r} is outside the animation's time range [{t0}, {t1}] s"
+            )
+        if self.on not in ("surface", "tets"):
+            raise WigglyInputError(f"{what}: on = {self.on!r}; use 'surface' or 'tets'")
+        v = _indices(self.vertices, body.n_vertices(self.on), self.on, what)
+        pos = vel = None
+        if self.position is not None:
+            pos = np.asarray(self.position, float)
+            if pos.shape == (3,):
+                pos = np.broadcast_to(pos, (len(v), 3))
+            if pos.shape != (len(v), 3):
+                raise WigglyInputError(
+                    f"{what}: position targets have shape {pos.shape}; expected ({len(v)}, 3), one "
+                    "per selected vertex"
+                )
+            _finite(pos, f"{what}: position target")
+        if self.velocity is not None:
+            vel = np.broadcast_to(np.asarray(self.velocity, float), (len(v), 3)) \
+                if np.shape(self.velocity) in ((3,), (len(v), 3)) else None
+            if vel is None:
+                raise WigglyInputError(
+                    f"{what}: velocity has shape {np.shape(self.velocity)}; expected (3,) or "
+                    f"({len(v)}, 3)"
+                )
+            _finite(vel, f"{what}: velocity target")
+        if pos is None and vel is None:
+            raise WigglyInputError(f"{what}: it constrains neither positions nor velocities")
+        for name in ("stiffness", "c_A", "c_B"):
+            w = getattr(self, name)
+            if w is not None and (not np.isfinite(w) or w < 0):
+                raise WigglyInputError(f"{what}: {name} = {w!r} must be a finite number >= 0")
+        t = min(max(t, t0), t1)
+        return replace(self, time=t, vertices=v, position=pos, velocity=vel)
+
+    def weights(self, body: Body, duration: float) -> tuple[float, float]:
+        """(c_A, c_B) of eq. (4), from explicit values or the dimensionless stiffness."""
+        k = max(len(self.vertices), 1)
+        m = body.mass
+        c_A = self.c_A if self.c_A is not None else self.stiffness * m / (k * duration**3)
+        c_B = self.c_B if self.c_B is not None else self.stiffness * m / (k * duration)
+        return float(c_A), float(c_B)
+
+
+def _indices(vertices: ArrayLike, n: int, on: str, what: str = "keyframe") -> np.ndarray:
+    v = np.asarray(vertices)
+    if v.dtype == bool:
+        if v.shape != (n,):
+            raise WigglyInputError(f"{what}: vertex mask has {v.size} entries; the {on} has {n}")
+        v = np.flatnonzero(v)
+    if v.size == 0:
+        raise WigglyInputError(f"{what}: selects no vertices")
+    if not np.issubdtype(v.dtype, np.integer):
+        if not np.all(np.isfinite(v)) or np.any(v != np.round(v)):
+            raise WigglyInputError(f"{what}: vertex indices must be integers; got {v.ravel()[:5]}")
+        v = v.astype(np.int64)
+    v = v.astype(np.int64).ravel()
+    bad = v[(v < 0) | (v >= n)]
+    if bad.size:
+        raise WigglyInputError(
+            f"{what}: vertex index {int(bad[0])} does not exist: the {on} has {n} vertices "
+            f"(valid indices 0..{n - 1})"
+        )
+    return v
+
+
+def _finite(a: np.ndarray, what: str) -> None:
+    bad = np.argwhere(~np.isfinite(a))
+    if bad.size:
+        i, c = bad[0]
+        raise WigglyInputError(f"{what} of vertex #{i} (component {'xyz'[c]}) is {a[i, c]}; "
+                               "targets must be finite numbers")

@@ -1,0 +1,157 @@
+"""Sparse symmetric positive definite factorizations with a choice of backend.
+
+:func:`factorize_spd` factors a sparse SPD matrix once and returns a solver usable for many
+right-hand sides (eigenmode shift-invert, SYSTEM.md §3; warping's Poisson system, §6).
+Backends, in order of preference when ``backend=None``:
+
+``"cholmod"``
+    ``sksparse.cholmod`` (scikit-sparse, optional; fastest supernodal Cholesky).
+``"cholespy"``
+    ``cholespy.CholeskySolverD`` (a dependency, binary wheel; CHOLMOD inside).
+``"splu"``
+    ``scipy.sparse.linalg.splu`` with ``permc_spec="MMD_AT_PLUS_A"`` and ``SymmetricMode``
+    (always available; an LU, slower and fragile on large 3-D FEM matrices).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from wiggly.errors import WigglyInputError
+
+__all__ = ["BACKENDS", "SPDSolver", "available_backends", "factorize_spd"]
+
+BACKENDS = ("cholmod", "cholespy", "splu")
+
+
+def available_backends() -> list[str]:
+    """Names of the backends importable here, in order of preference."""
+    modules = {"cholmod": "sksparse", "cholespy": "cholespy", "splu": "scipy"}
+    found = []
+    for name in BACKENDS:
+        try:
+            spec = importlib.util.find_spec(modules[name])
+        except (ImportError, ValueError):
+            spec = None
+        if spec is not None:
+            found.append(name)
+    return found
+
+
+@dataclass(frozen=True)
+class SPDSolver:
+    """A factored SPD matrix A: ``solver(b)`` returns ``A^{-1} b`` for b of shape (n,) or (n, k).
+
+    Attributes
+    ----------
+    backend : str
+        Name of the factorization backend (one of :data:`BACKENDS`).
+    n : int
+        Size of A.
+    """
+
+    backend: str
+    n: int
+    _solve: Callable[[np.ndarray], np.ndarray]
+
+    def __call__(self, b: np.ndarray) -> np.ndarray:
+        b = np.asarray(b, dtype=np.float64)
+        if b.ndim not in (1, 2) or b.shape[0] != self.n:
+            raise WigglyInputError(
+                f"right-hand side should have shape ({self.n},) or ({self.n}, k); "
+                f"shape is {b.shape}"
+            )
+        if b.ndim == 2 and b.shape[1] == 0:
+            return np.zeros_like(b)
+        return self._solve(b)
+
+
+def _factor_cholmod(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
+    from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
+
+    try:
+        factor = cholesky(A.tocsc())
+    except CholmodNotPositiveDefiniteError as err:
+        raise np.linalg.LinAlgError(f"matrix is not positive definite ({err})") from err
+    return lambda b: np.asarray(factor(b))
+
+
+def _factor_cholespy(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
+    import cholespy
+
+    try:
+        solver = cholespy.CholeskySolverD(
+            A.shape[0],
+            A.indptr.astype(np.int32),
+            A.indices.astype(np.int32),
+            A.data.astype(np.float64),
+            cholespy.MatrixType.CSR,
+        )
+    except ValueError as err:  # "Matrix is not positive definite!"
+        raise np.linalg.LinAlgError(f"matrix is not positive definite ({err})") from err
+
+    def solve(b: np.ndarray) -> np.ndarray:
+        rhs = np.ascontiguousarray(b)  # (n,) or (n, k), C order, float64
+        x = np.empty_like(rhs)
+        solver.solve(rhs, x)
+        return x
+
+    return solve
+
+
+def _factor_splu(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
+    try:
+        lu = spla.splu(
+            A.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True}
+        )
+    except RuntimeError as err:  # "Factor is exactly singular"
+        raise np.linalg.LinAlgError(f"matrix is singular ({err})") from err
+    return lu.solve
+
+
+_FACTORS = {"cholmod": _factor_cholmod, "cholespy": _factor_cholespy, "splu": _factor_splu}
+
+
+def factorize_spd(A: sp.spmatrix, backend: str | None = None) -> SPDSolver:
+    """Factor a sparse symmetric positive definite matrix once, for repeated solves.
+
+    Parameters
+    ----------
+    A : (n, n) sparse, symmetric positive definite
+        Only its values are used as given; symmetry is not checked (cholmod and cholespy read
+        one triangle).
+    backend : {"cholmod", "cholespy", "splu"} or None
+        None picks the first available in that order.
+
+    Returns
+    -------
+    SPDSolver
+        Callable ``solver(b) -> A^{-1} b``; ``solver.backend`` names the backend used.
+
+    Raises
+    ------
+    WigglyInputError
+        Unknown or unavailable backend, or A not square.
+    numpy.linalg.LinAlgError
+        The Cholesky backends detected that A is not positive definite.
+    """
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or A.shape[0] == 0:
+        raise WigglyInputError(f"A should be a non-empty square matrix; shape is {A.shape}")
+    available = available_backends()
+    if backend is None:
+        backend = available[0]
+    elif backend not in BACKENDS:
+        raise WigglyInputError(f"backend should be one of {BACKENDS} or None; got {backend!r}")
+    elif backend not in available:
+        raise WigglyInputError(
+            f"backend {backend!r} is not installed here; available: {available}"
+        )
+    A = sp.csr_matrix(A, dtype=np.float64)
+    A.sum_duplicates()
+    return SPDSolver(backend=backend, n=A.shape[0], _solve=_FACTORS[backend](A))

@@ -1,0 +1,617 @@
+"""Rotation-strain warping of linear displacements (SYSTEM.md §6; Huang et al. 2011).
+
+Linear FEM displacements distort under large rotations (limbs grow). The warp map
+``W`` repairs this, one tetrahedron at a time: the displacement gradient
+``A = grad u`` is split into a rotation vector ``w = axial((A - A^T) / 2)`` and a
+strain ``S = (A + A^T) / 2``; the *target* deformation gradient is
+
+    F_t = exp([w]x) (I + S),
+
+and the warped displacement is the volume-weighted least-squares (Poisson) fit
+
+    W(u) = argmin_x  sum_t vol_t || grad(x)_t - (F_t - I) ||_F^2   (+ gauge),
+
+whose normal matrix is the scalar cotangent Laplacian ``L = G^T Vol G`` (one block
+per coordinate). ``L`` does not depend on ``u``: it is factored once per body.
+
+Gauge (the Laplacian only determines ``W(u)`` up to a constant per connected
+component of the mesh):
+
+* a component containing fixed vertices gets Dirichlet conditions: ``W(u) = 0``
+  on its fixed vertices (their rows and columns are eliminated from ``L``);
+* a free-floating component is solved with one vertex pinned to zero (its row and
+  column eliminated, which is exact because the right-hand side is orthogonal to
+  constants), then shifted by a constant so that its mass-weighted mean
+  displacement equals that of ``u``:  ``sum_i m_i W(u)_i = sum_i m_i u_i``.
+
+Consequences, exactly (up to round-off):
+
+* ``W(0) = 0``; for a free body, ``W(u + d) = W(u) + d`` for translations ``d``;
+* ``W(u) = u + O(|u|^2)`` (for ``u`` vanishing on the fixed vertices);
+* a linearized rotation ``u(X) = w x (X - c)`` of a free body is warped to the
+  exact rotation by the angle ``|w|`` about the axis ``w`` through the mass centre
+  ``c_m = sum_i m_i X_i / sum_i m_i``, followed by the translation ``u_bar``
+  (the mass-weighted mean of ``u``, equal to ``w x (c_m - c)``)::
+
+      X + W(u)(X) = R (X - c_m) + c_m + u_bar,   R = exp([w]x);
+
+  more generally, any ``u`` of a free body with a constant gradient ``A`` maps
+  to ``W(u)(X) = (exp([w]x)(I + S) - I)(X - c_m) + u_bar``;
+
+* with fixed vertices the Dirichlet gauge replaces the mean: a linearized rotation
+  ``u = w x (X - c)`` about a fixed vertex ``c`` (more fixed vertices on the axis
+  are fine) becomes exactly ``X + W(u) = R (X - c) + c``.
+
+Implementation: ``G`` is a sparse (3m, n) matrix acting on all frames at once as
+an (n, 3f) array; the per-tet map works on one array per matrix entry in
+cache-sized blocks (vectorized Rodrigues, no 3x3 matmul calls); the Laplacian of
+the free vertices is factored once (:func:`wiggly.linalg.factorize_spd`) and a
+batch of f frames is one solve with 3f right-hand sides. Derivatives use the
+left Jacobian ``J(w)`` of the rotation map: ``d exp([w]x)[dw] = [J(w) dw]x
+exp([w]x)``, stable at small angles.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from wiggly.errors import WigglyInputError
+from wiggly.linalg import factorize_spd
+
+__all__ = ["Warp", "rotation_coefficients", "tet_gradient_operator"]
+
+# Below this angle (radians) the coefficient c = (th - sin th) / th^3 of the rotation
+# derivative is evaluated by its Taylor series in th^2 (truncation error < 1e-19 there).
+_SERIES_ANGLE = 0.1
+# Angles are clamped below by this value so that sin(th) / th needs no special case.
+_TINY_ANGLE = 1e-300
+# Frames (columns) per chunk: bounds the memory of the per-tet gradient arrays.
+_CHUNK_COLUMNS = 16
+# Elements per component array in a block of the per-tet arithmetic (stays in cache).
+_BLOCK_ELEMENTS = 8192
+
+
+# --------------------------------------------------------------------------- #
+# Geometry: the P1 gradient operator
+# --------------------------------------------------------------------------- #
+def tet_gradient_operator(
+    vertices: np.ndarray, tets: np.ndarray
+) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Scalar P1 gradient operator and tetrahedron volumes.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float array
+        Rest positions ``X``.
+    tets : (m, 4) int array
+        Positively oriented tetrahedra.
+
+    Returns
+    -------
+    G : (3 m, n) csr_matrix
+        Row ``3 t + j`` gives ``d phi / d X_j`` on tetrahedron ``t`` of a P1
+        scalar field ``phi`` (tet-major rows). For a displacement field laid out
+        as columns ``U[:, i]`` (component ``i``), ``(G @ U)[3 t + j, i] = d u_i / d X_j``
+        on tet ``t``, so ``(G @ U).reshape(m, 3, 3)[t]`` is the transposed gradient.
+    vol : (m,) float array
+        Volumes (positive for positively oriented tets).
+
+    Notes
+    -----
+    With ``Dm = [X1 - X0, X2 - X0, X3 - X0]`` the gradients of the barycentric
+    basis functions ``phi_1..phi_3`` are the rows of ``inv(Dm)``, and
+    ``grad phi_0 = -(grad phi_1 + grad phi_2 + grad phi_3)``.
+    """
+    X = vertices[tets]  # (m, 4, 3)
+    Dm = (X[:, 1:] - X[:, :1]).transpose(0, 2, 1)  # columns are edge vectors
+    vol = np.linalg.det(Dm) / 6.0
+    if np.any(~(vol > 0.0)):
+        bad = np.flatnonzero(~(vol > 0.0))
+        raise WigglyInputError(
+            f"tets should be positively oriented with positive volume; {bad.size} tets are "
+            f"degenerate or inverted (first: tet {bad[0]}, volume {vol[bad[0]]:.3g})"
+        )
+    Dinv = np.linalg.inv(Dm)
+    m = tets.shape[0]
+    grads = np.empty((m, 4, 3))
+    grads[:, 1:] = Dinv
+    grads[:, 0] = -Dinv.sum(axis=1)
+    rows = np.broadcast_to((3 * np.arange(m)[:, None] + np.arange(3))[:, :, None], (m, 3, 4))
+    cols = np.broadcast_to(tets[:, None, :], (m, 3, 4))
+    data = grads.transpose(0, 2, 1)  # (m, 3 j, 4 k)
+    G = sp.csr_matrix(
+        (data.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * m, vertices.shape[0])
+    )
+    G.sum_duplicates()
+    return G, vol
+
+
+# --------------------------------------------------------------------------- #
+# Per-tet arithmetic on component fields (one array per matrix entry)
+# --------------------------------------------------------------------------- #
+# A block of per-tet 3x3 fields is a contiguous array ``B`` of shape (3, 3, c, mb):
+# ``B[i, j]`` is entry (i, j) for c columns (frames or directions) and mb tets.
+# Per-tet data shared by all columns has shape (1, mb) and broadcasts.
+Field = np.ndarray
+Mat = Sequence[Sequence[Field]]
+
+
+def _cross(u: Sequence[Field], v: Sequence[Field]) -> tuple[Field, Field, Field]:
+    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
+
+
+def _rotation_strain(E: Mat) -> tuple[tuple[Field, Field, Field], Mat]:
+    """Rotation vector ``w = axial((A - A^T)/2)`` and strain ``S = (A + A^T)/2`` of ``A``."""
+    w = (0.5 * (E[2][1] - E[1][2]), 0.5 * (E[0][2] - E[2][0]), 0.5 * (E[1][0] - E[0][1]))
+    s01 = 0.5 * (E[0][1] + E[1][0])
+    s02 = 0.5 * (E[0][2] + E[2][0])
+    s12 = 0.5 * (E[1][2] + E[2][1])
+    S = ((E[0][0], s01, s02), (s01, E[1][1], s12), (s02, s12, E[2][2]))
+    return w, S
+
+
+def rotation_coefficients(
+    theta2: np.ndarray, *, derivative: bool = False
+) -> tuple[np.ndarray, ...]:
+    """Rodrigues coefficients from ``theta2 = |w|^2``, accurate at every angle.
+
+    ``a = sin(th)/th`` and ``b = (1 - cos th)/th^2 = (sin(th/2)/th)^2 * 2``, so that
+    ``exp([w]x) = I + a [w]x + b [w]x^2``. With ``derivative=True`` also
+    ``c = (th - sin th)/th^3`` (Taylor series below ``th = 0.1``), so that the left
+    Jacobian of the rotation map is ``J(w) = I + b [w]x + c [w]x^2`` and
+    ``d exp([w]x)[dw] = [J(w) dw]x exp([w]x)``.
+    """
+    th = np.sqrt(theta2)
+    np.maximum(th, _TINY_ANGLE, out=th)
+    a = np.sin(th)
+    a /= th
+    b = np.sin(0.5 * th)
+    b /= th
+    b *= b
+    b *= 2.0
+    if not derivative:
+        return a, b
+    x = theta2
+    c_series = 1.0 / 6.0 - x / 120.0 * (1.0 - x / 42.0 * (1.0 - x / 72.0 * (1.0 - x / 110.0)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.where(x < _SERIES_ANGLE**2, c_series, (1.0 - a) / x)
+    return a, b, c
+
+
+def _rotation_minus_identity(w: Sequence[Field], a: Field, b: Field) -> Mat:
+    """``exp([w]x) - I = a [w]x + b (w w^T - |w|^2 I)``, free of cancellation for small ``w``."""
+    bw0, bw1, bw2 = b * w[0], b * w[1], b * w[2]
+    p01, p02, p12 = bw0 * w[1], bw0 * w[2], bw1 * w[2]
+    q0, q1, q2 = a * w[0], a * w[1], a * w[2]
+    return (
+        (-(bw1 * w[1] + bw2 * w[2]), p01 - q2, p02 + q1),
+        (p01 + q2, -(bw0 * w[0] + bw2 * w[2]), p12 - q0),
+        (p02 - q1, p12 + q0, -(bw0 * w[0] + bw1 * w[1])),
+    )
+
+
+def _target_block(out: np.ndarray, A: np.ndarray) -> None:
+    """Target displacement gradient ``exp([w]x)(I + S) - I`` (SYSTEM.md §6).
+
+    Evaluated as ``(R - I) + S + (R - I) S``, accurate for tiny gradients.
+    """
+    w, S = _rotation_strain(A)
+    a, b = rotation_coefficients(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    Rm = _rotation_minus_identity(w, a, b)
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = (
+                Rm[i][j] + S[i][j] + Rm[i][0] * S[0][j] + Rm[i][1] * S[1][j] + Rm[i][2] * S[2][j]
+            )
+
+
+def _linearization(A: np.ndarray) -> list[Field]:
+    """Per-tet quantities for derivatives at gradient ``A``: ``[w, b, c, R, F]`` (23 fields)."""
+    w, S = _rotation_strain(A)
+    t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    a, b, c = rotation_coefficients(t2, derivative=True)
+    Rm = _rotation_minus_identity(w, a, b)
+    R = [[Rm[i][j] + 1.0 if i == j else Rm[i][j] for j in range(3)] for i in range(3)]
+    F = [
+        [R[i][j] + R[i][0] * S[0][j] + R[i][1] * S[1][j] + R[i][2] * S[2][j] for j in range(3)]
+        for i in range(3)
+    ]
+    return [
+        *w,
+        b,
+        c,
+        *(R[i][j] for i in range(3) for j in range(3)),
+        *(F[i][j] for i in range(3) for j in range(3)),
+    ]
+
+
+def _unpack(lin: Sequence[Field]) -> tuple[Sequence[Field], Field, Field, Mat, Mat]:
+    return (
+        lin[0:3],
+        lin[3],
+        lin[4],
+        [lin[5 + 3 * i : 8 + 3 * i] for i in range(3)],
+        [lin[14 + 3 * i : 17 + 3 * i] for i in range(3)],
+    )
+
+
+def _jvp_block(out: np.ndarray, lin: Sequence[Field], dA: np.ndarray) -> None:
+    """``dH = [J(w) dw]x F + R dS`` with ``dw``, ``dS`` the rotation/strain parts of ``dA``."""
+    w, b, c, R, F = _unpack(lin)
+    dw, dS = _rotation_strain(dA)
+    wxd = _cross(w, dw)
+    wwd = _cross(w, wxd)
+    v = [dw[k] + b * wxd[k] + c * wwd[k] for k in range(3)]
+    for j in range(3):
+        vxF = _cross(v, (F[0][j], F[1][j], F[2][j]))
+        for i in range(3):
+            out[i, j] = vxF[i] + R[i][0] * dS[0][j] + R[i][1] * dS[1][j] + R[i][2] * dS[2][j]
+
+
+def _vjp_block(out: np.ndarray, lin: Sequence[Field], Yb: np.ndarray) -> None:
+    """Adjoint of :func:`_jvp_block`: ``sym(R^T Y) + [J(w)^T g]x / 2``, ``g = 2 axial(Y F^T)``."""
+    w, b, c, R, F = _unpack(lin)
+    Y = Yb
+    g = [
+        Y[2][0] * F[1][0]
+        + Y[2][1] * F[1][1]
+        + Y[2][2] * F[1][2]
+        - Y[1][0] * F[2][0]
+        - Y[1][1] * F[2][1]
+        - Y[1][2] * F[2][2],
+        Y[0][0] * F[2][0]
+        + Y[0][1] * F[2][1]
+        + Y[0][2] * F[2][2]
+        - Y[2][0] * F[0][0]
+        - Y[2][1] * F[0][1]
+        - Y[2][2] * F[0][2],
+        Y[1][0] * F[0][0]
+        + Y[1][1] * F[0][1]
+        + Y[1][2] * F[0][2]
+        - Y[0][0] * F[1][0]
+        - Y[0][1] * F[1][1]
+        - Y[0][2] * F[1][2],
+    ]
+    wxg = _cross(w, g)
+    wwg = _cross(w, wxg)
+    half = [0.5 * (g[k] - b * wxg[k] + c * wwg[k]) for k in range(3)]
+    P = [
+        [R[0][i] * Y[0][j] + R[1][i] * Y[1][j] + R[2][i] * Y[2][j] for j in range(3)]
+        for i in range(3)
+    ]
+    s01 = 0.5 * (P[0][1] + P[1][0])
+    s02 = 0.5 * (P[0][2] + P[2][0])
+    s12 = 0.5 * (P[1][2] + P[2][1])
+    out[:] = (
+        (P[0][0], s01 - half[2], s02 + half[1]),
+        (s01 + half[2], P[1][1], s12 - half[0]),
+        (s02 - half[1], s12 + half[0], P[2][2]),
+    )
+
+
+def _jvp_fused(out: np.ndarray, A: np.ndarray, dA: np.ndarray) -> None:
+    _jvp_block(out, _linearization(A), dA)
+
+
+def _vjp_fused(out: np.ndarray, A: np.ndarray, Yb: np.ndarray) -> None:
+    _vjp_block(out, _linearization(A), Yb)
+
+
+# --------------------------------------------------------------------------- #
+# The warp map
+# --------------------------------------------------------------------------- #
+class Warp:
+    """Rotation-strain warp map ``W`` of a body, and its derivatives (SYSTEM.md §6).
+
+    Built once per body: precomputes the P1 gradient operator, tet volumes, and a
+    factorization of the (reduced) scalar cotangent Laplacian ``L = G^T Vol G``.
+    See the module docstring for the map, the gauge and its exact consequences.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float array
+        Rest positions.
+    tets : (m, 4) int array
+        Positively oriented tetrahedra.
+    masses : (n,) float array, optional
+        Per-vertex lumped masses defining the mass-weighted-mean gauge. Default:
+        a quarter of the volume of the incident tets (volume-weighted).
+    fixed_vertices : int index array or (n,) bool mask, optional
+        Vertices where ``W(u) = 0`` (Dirichlet). Components of the mesh without
+        fixed vertices keep the mass-weighted-mean gauge.
+
+    Notes
+    -----
+    Displacements are ``(n, 3)`` arrays or batches ``(f, n, 3)``; a batch is
+    processed with one multi-right-hand-side solve (``3 f`` columns).
+    """
+
+    def __init__(
+        self,
+        vertices: np.ndarray,
+        tets: np.ndarray,
+        *,
+        masses: np.ndarray | None = None,
+        fixed_vertices: np.ndarray | None = None,
+    ) -> None:
+        V = np.asarray(vertices, dtype=np.float64)
+        T = np.asarray(tets)
+        if V.ndim != 2 or V.shape[1] != 3:
+            raise WigglyInputError(f"vertices should have shape (n, 3); shape is {V.shape}")
+        if not np.all(np.isfinite(V)):
+            raise WigglyInputError("vertices should be finite")
+        if T.ndim != 2 or T.shape[1] != 4 or T.shape[0] == 0:
+            raise WigglyInputError(f"tets should have shape (m, 4), m >= 1; shape is {T.shape}")
+        if not np.issubdtype(T.dtype, np.integer):
+            raise WigglyInputError(f"tets should be integer indices; dtype is {T.dtype}")
+        n = V.shape[0]
+        T = T.astype(np.int64)
+        if T.min() < 0 or T.max() >= n:
+            raise WigglyInputError(
+                f"tet indices should lie in [0, {n}); range is [{T.min()}, {T.max()}]"
+            )
+        self.n_vertices = n
+        self.n_tets = T.shape[0]
+
+        G, vol = tet_gradient_operator(V, T)
+        self.volumes = vol
+        self._G = G  # (3m, n): per-tet gradients
+        self._Gt = sp.csr_matrix(G.T)  # (n, 3m)
+        self._VG = sp.csr_matrix(sp.diags(np.tile(vol, 3)) @ G)  # Vol G
+        self._GtV = sp.csr_matrix(self._VG.T)  # G^T Vol: right-hand sides
+        laplacian = sp.csr_matrix(self._GtV @ G)
+
+        if masses is None:
+            m = np.bincount(T.ravel(), weights=np.repeat(vol / 4.0, 4), minlength=n)
+        else:
+            m = np.asarray(masses, dtype=np.float64)
+            if m.shape != (n,):
+                raise WigglyInputError(f"masses should have shape ({n},); shape is {m.shape}")
+            if not np.all(np.isfinite(m)) or np.any(m < 0):
+                raise WigglyInputError("masses should be finite and non-negative")
+        self.masses = m
+
+        fixed = np.zeros(n, dtype=bool)
+        if fixed_vertices is not None:
+            fv = np.asarray(fixed_vertices)
+            if fv.dtype == bool:
+                if fv.shape != (n,):
+                    raise WigglyInputError(
+                        f"fixed_vertices mask should have shape ({n},); shape is {fv.shape}"
+                    )
+                fixed = fv.copy()
+            elif np.issubdtype(fv.dtype, np.integer) or fv.size == 0:
+                fv = fv.astype(np.int64).ravel()
+                if fv.size and (fv.min() < 0 or fv.max() >= n):
+                    raise WigglyInputError(
+                        f"fixed_vertices should be indices in [0, {n}); "
+                        f"range is [{fv.min()}, {fv.max()}]"
+                    )
+                fixed[fv] = True
+            else:
+                raise WigglyInputError(
+                    f"fixed_vertices should be integer indices or a bool mask; dtype is {fv.dtype}"
+                )
+        self.fixed = fixed
+
+        # Gauge. Connected components (an isolated vertex is one of its own): those
+        # with fixed vertices are Dirichlet; the others get their lowest-index vertex
+        # pinned, then a constant shift restoring the mass-weighted mean of u.
+        n_comp, label = connected_components(laplacian, directed=False)
+        floating = np.ones(n_comp, dtype=bool)
+        floating[label[fixed]] = False
+        first = np.full(n_comp, n)
+        np.minimum.at(first, label, np.arange(n))
+        eliminated = fixed.copy()
+        eliminated[first[floating]] = True
+        self._free = np.flatnonzero(~eliminated)
+
+        n_float = int(floating.sum())
+        comp_id = np.full(n_comp, -1)
+        comp_id[floating] = np.arange(n_float)
+        vid = comp_id[label]
+        fv_idx = np.flatnonzero(vid >= 0)
+        fid = vid[fv_idx]
+        weight = m[fv_idx]
+        total = np.bincount(fid, weights=weight, minlength=n_float)
+        massless = total <= 0.0  # a component without mass uses the plain mean
+        weight = np.where(massless[fid], 1.0, weight)
+        total = np.where(massless, np.bincount(fid, minlength=n_float), total)
+        self._has_floating = n_float > 0
+        self._mean = sp.csr_matrix((weight / total[fid], (fid, fv_idx)), shape=(n_float, n))
+        self._spread = sp.csr_matrix((np.ones(fv_idx.size), (fv_idx, fid)), shape=(n, n_float))
+
+        if self._free.size:
+            self._solve = factorize_spd(laplacian[self._free][:, self._free])
+        else:
+            self._solve = None
+
+    # ------------------------------------------------------------------ layout
+    def _as_columns(self, U: np.ndarray, name: str) -> tuple[np.ndarray, bool]:
+        """(n, 3) -> (n, 3, 1) and (f, n, 3) -> (n, 3, f) view; flag: batched."""
+        U = np.asarray(U, dtype=np.float64)
+        n = self.n_vertices
+        if U.shape == (n, 3):
+            return U[:, :, None], False
+        if U.ndim == 3 and U.shape[1:] == (n, 3):
+            return U.transpose(1, 2, 0), True
+        raise WigglyInputError(
+            f"{name} should have shape ({n}, 3) or (f, {n}, 3); shape is {U.shape}"
+        )
+
+    @staticmethod
+    def _from_columns(X: np.ndarray, batched: bool) -> np.ndarray:
+        if batched:
+            return np.ascontiguousarray(X.transpose(2, 0, 1))
+        return X[:, :, 0]
+
+    # --------------------------------------------------------- per-tet pipeline
+    def _per_tet(
+        self,
+        kernel: Callable[..., None],
+        inputs: Sequence[tuple[sp.csr_matrix, np.ndarray]],
+        last: sp.csr_matrix,
+        lin: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """``last @ kernel(first_1 @ X_1, ...)`` column chunk by chunk, tet block by block.
+
+        ``inputs`` are pairs ``(first, X)`` with ``first`` (3m, n) and ``X`` (n, 3, c);
+        ``lin`` optional per-tet data (23, 1, m) shared by all columns. The kernel
+        gets contiguous (3, 3, c, mb) blocks and fills its first argument. Gradients
+        ``first @ X`` are laid out (m, 3 j, 3 i, c). Python
+        loops run over chunks of columns and blocks of tets, never single ones.
+        """
+        m = self.n_tets
+        c = inputs[0][1].shape[2]
+        result = np.empty((last.shape[0], 3, c))
+        for c0 in range(0, c, _CHUNK_COLUMNS):
+            cc = min(c, c0 + _CHUNK_COLUMNS) - c0
+            grads = [
+                (first @ np.ascontiguousarray(X[:, :, c0 : c0 + cc]).reshape(-1, 3 * cc)).reshape(
+                    m, 3, 3, cc
+                )
+                for first, X in inputs
+            ]
+            out = np.empty((m, 3, 3, cc))
+            mb = max(1, _BLOCK_ELEMENTS // cc)
+            for t0 in range(0, m, mb):
+                blk = slice(t0, t0 + mb)
+                ins = [np.ascontiguousarray(Y[blk].transpose(2, 1, 3, 0)) for Y in grads]
+                res = np.empty_like(ins[0])
+                extra = () if lin is None else (list(lin[:, :, blk]),)
+                kernel(res, *extra, *ins)
+                out[blk] = res.transpose(3, 1, 0, 2)
+            result[:, :, c0 : c0 + cc] = (last @ out.reshape(3 * m, 3 * cc)).reshape(-1, 3, cc)
+        return result
+
+    def _linearize(self, X: np.ndarray) -> np.ndarray:
+        """Per-tet linearization data (23, 1, m) at one displacement ``X`` (n, 3, 1)."""
+        m = self.n_tets
+        Y = (self._G @ np.ascontiguousarray(X).reshape(-1, 3)).reshape(m, 3, 3)
+        A = Y.transpose(2, 1, 0)[:, :, None, :]  # (3 i, 3 j, 1, m)
+        return np.stack(_linearization(A))
+
+    # ------------------------------------------------------------ Poisson + gauge
+    def _poisson(self, rhs: np.ndarray, X_in: np.ndarray) -> np.ndarray:
+        """Gauged least-squares fit from right-hand sides ``G^T Vol H`` (n, 3, c).
+
+        ``X_in`` (n, 3, c) supplies the mass-weighted means of floating components.
+        """
+        n = self.n_vertices
+        B = rhs.reshape(n, -1)
+        X = np.zeros_like(B)
+        if self._solve is not None:
+            X[self._free] = self._solve(B[self._free])
+        if self._has_floating:
+            X += self._spread @ (self._mean @ (X_in.reshape(n, -1) - X))
+        return X.reshape(rhs.shape)
+
+    def _poisson_adjoint(self, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Adjoint of :meth:`_poisson`: cotangents on ``rhs`` and on ``X_in`` (n, 3, c)."""
+        n = self.n_vertices
+        Yf = np.array(Y.reshape(n, -1))
+        Y_in = np.zeros_like(Yf)
+        if self._has_floating:
+            Y_in = self._mean.T @ (self._spread.T @ Yf)
+            Yf -= Y_in
+        Z = np.zeros_like(Yf)
+        if self._solve is not None:
+            Z[self._free] = self._solve(Yf[self._free])
+        return Z.reshape(Y.shape), Y_in.reshape(Y.shape)
+
+    # ---------------------------------------------------------------- public API
+    def apply(self, U: np.ndarray) -> np.ndarray:
+        """Warped displacements ``W(u)`` for ``U`` of shape (n, 3) or (f, n, 3).
+
+        Per tet the target gradient ``exp([w]x)(I + S) - I`` (batched Rodrigues),
+        then one Poisson solve with ``3 f`` right-hand sides and the gauge
+        (SYSTEM.md §6; Huang et al. 2011).
+        """
+        X, batched = self._as_columns(U, "U")
+        rhs = self._per_tet(_target_block, [(self._G, X)], self._GtV)
+        return self._from_columns(self._poisson(rhs, X), batched)
+
+    __call__ = apply
+
+    def jvp(self, U: np.ndarray, dU: np.ndarray) -> np.ndarray:
+        """Directional derivative ``DW(u)[du]`` (analytic), frame by frame for batches.
+
+        ``dF_t = [J(w) dw]x F_t + exp([w]x) dS`` with ``J`` the left Jacobian of the
+        rotation map, then the same Poisson solve and gauge.
+        """
+        X, batched = self._as_columns(U, "U")
+        dX, dbatched = self._as_columns(dU, "dU")
+        if dX.shape != X.shape or dbatched != batched:
+            raise WigglyInputError(
+                f"dU should have the shape of U {np.shape(U)}; shape is {np.shape(dU)}"
+            )
+        rhs = self._per_tet(_jvp_fused, [(self._G, X), (self._G, dX)], self._GtV)
+        return self._from_columns(self._poisson(rhs, dX), batched)
+
+    def vjp(self, U: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """Adjoint derivative ``DW(u)^T y``: ``<vjp(u, y), du> = <y, jvp(u, du)>``."""
+        X, batched = self._as_columns(U, "U")
+        Yc, ybatched = self._as_columns(Y, "Y")
+        if Yc.shape != X.shape or ybatched != batched:
+            raise WigglyInputError(
+                f"Y should have the shape of U {np.shape(U)}; shape is {np.shape(Y)}"
+            )
+        Z, Y_in = self._poisson_adjoint(Yc)
+        out = self._per_tet(_vjp_fused, [(self._G, X), (self._VG, Z)], self._Gt)
+        return self._from_columns(out + Y_in, batched)
+
+    def jacobian(self, u: np.ndarray, basis: np.ndarray) -> np.ndarray:
+        """``DW(u) @ basis`` for ``r`` displacement fields, with one multi-RHS solve.
+
+        Parameters
+        ----------
+        u : (n, 3) array
+            Linearization point.
+        basis : (n, 3, r) or (3 n, r) array
+            Columns are displacement fields (``3 n`` rows ordered vertex-major,
+            ``3 * vertex + component``), e.g. the ``r`` eigenmodes for Gauss-Newton.
+
+        Returns
+        -------
+        array of the shape of ``basis``.
+        """
+        n = self.n_vertices
+        X, batched = self._as_columns(u, "u")
+        if batched:
+            raise WigglyInputError(f"u should have shape ({n}, 3); shape is {np.shape(u)}")
+        B = np.asarray(basis, dtype=np.float64)
+        if B.ndim == 3 and B.shape[:2] == (n, 3):
+            r = B.shape[2]
+        elif B.ndim == 2 and B.shape[0] == 3 * n:
+            r = B.shape[1]
+        else:
+            raise WigglyInputError(
+                f"basis should have shape ({n}, 3, r) or ({3 * n}, r); shape is {B.shape}"
+            )
+        dX = B.reshape(n, 3, r)
+        M = self._tangent_matrices(X)
+        m = self.n_tets
+        rhs = np.empty((n, 3, r))
+        for c0 in range(0, r, _CHUNK_COLUMNS):
+            cc = min(r, c0 + _CHUNK_COLUMNS) - c0
+            dA = self._G @ np.ascontiguousarray(dX[:, :, c0 : c0 + cc]).reshape(n, 3 * cc)
+            dH = np.matmul(M, dA.reshape(m, 9, cc))
+            rhs[:, :, c0 : c0 + cc] = (self._GtV @ dH.reshape(3 * m, 3 * cc)).reshape(n, 3, cc)
+        return self._poisson(rhs, dX).reshape(B.shape)
+
+    def _tangent_matrices(self, X: np.ndarray) -> np.ndarray:
+        """Per-tet 9x9 matrices of ``dA -> dH`` at ``X`` (n, 3, 1), acting on (3 j, 3 i) vectors.
+
+        Built by applying the analytic tangent map to the 9 unit gradients, so that a
+        Jacobian against r fields costs one batched (m, 9, 9) @ (m, 9, r) product.
+        """
+        e = np.arange(9)
+        units = np.zeros((3, 3, 9, 1))
+        units[e % 3, e // 3, e, 0] = 1.0  # unit e = 3 j + i is E_ij
+        res = np.empty((3, 3, 9, self.n_tets))
+        _jvp_block(res, list(self._linearize(X)), units)
+        return np.ascontiguousarray(res.transpose(3, 1, 0, 2)).reshape(self.n_tets, 9, 9)
