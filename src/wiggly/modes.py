@@ -482,7 +482,10 @@ def _compute_modes(
             f"{unused.size} free vertices have no mass (not used by any tet), "
             f"e.g. vertex {unused[0]}; remove them or fix them"
         )
-    _check_connected(K, fixed, n)
+    # fixed vertices outside the mesh (no mass) hold nothing: leave them out of the analysis
+    used = M.diagonal().reshape(n, 3).min(axis=1) > 0
+    all_fixed, fixed = fixed, fixed[used[fixed]]
+    _check_connected(K, fixed, used)
     scale = float(np.median(dK / dM))  # ~ the highest eigenvalues of the mesh
     if not scale > 0:
         raise WigglyInputError("K has a non-positive diagonal; is it a stiffness matrix?")
@@ -543,26 +546,31 @@ def _compute_modes(
     vectors[free_dofs] = _normalize_signs(np.hstack([Rig, Phi_el]))
     eigenvalues = np.concatenate([np.zeros(n_rigid), lam_el])
     progress.say("done")
-    return Modes(eigenvalues=eigenvalues, vectors=vectors, n_rigid=n_rigid, fixed_vertices=fixed)
+    return Modes(
+        eigenvalues=eigenvalues, vectors=vectors, n_rigid=n_rigid, fixed_vertices=all_fixed
+    )
 
 
-def _check_connected(K: sp.csr_matrix, fixed: np.ndarray, n: int) -> None:
+def _check_connected(K: sp.csr_matrix, fixed: np.ndarray, used: np.ndarray) -> None:
     """Reject a body made of separate pieces one of which has no fixed vertex.
 
-    Pieces joined only through K's sparsity (a shared vertex or edge) pass this test; their
-    extra zero modes are caught after the eigensolve.
+    Only ``used`` vertices (those with mass) count.  Pieces joined only through K's sparsity
+    (a shared vertex or edge) pass this test; their extra zero modes are caught after the
+    eigensolve.
     """
+    n = used.size
     coo = K.tocoo()
     graph = sp.csr_matrix((np.ones(coo.nnz), (coo.row // 3, coo.col // 3)), shape=(n, n))
-    count, labels = connected_components(graph, directed=False)
-    if count == 1:
+    _, labels = connected_components(graph, directed=False)
+    parts, labels = np.unique(labels[used], return_inverse=True)
+    if parts.size == 1:
         return
-    held = np.zeros(count, dtype=bool)
-    held[labels[fixed]] = True
+    held = np.zeros(parts.size, dtype=bool)
+    held[labels[np.searchsorted(np.flatnonzero(used), fixed)]] = True
     if not np.all(held):
-        sizes = np.bincount(labels, minlength=count)
+        sizes = np.bincount(labels, minlength=parts.size)
         raise WigglyInputError(
-            f"the body has {count} disconnected parts (vertex counts "
+            f"the body has {parts.size} disconnected parts (vertex counts "
             f"{sorted(sizes.tolist(), reverse=True)[:8]}), and not every part has fixed "
             "vertices; its loose parts would float away: mesh it as one connected body"
         )

@@ -73,8 +73,13 @@ class Animation:
         return self.start + np.arange(n) / fps
 
     # --- modal trajectories ------------------------------------------------------------
-    def modal(self, times: ArrayLike, n_derivatives: int = 0) -> np.ndarray:
-        """q(t) and its time derivatives for all modes: shape (n_derivatives + 1, F, r)."""
+    def modal(self, times: ArrayLike, n_derivatives: int = 0,
+              side: str = "right") -> np.ndarray:
+        """q(t) and its time derivatives for all modes: shape (n_derivatives + 1, F, r).
+
+        At a node the spline of the interval to the ``side`` of it is used (the one-sided
+        limits differ in derivatives of order 2 or 3, Theorem 1).
+        """
         t = np.atleast_1d(np.asarray(times, dtype=float))
         tol = 1e-9 * max(1.0, self.duration)
         if np.any(~np.isfinite(t)) or np.any(t < self.start - tol) or np.any(t > self.end + tol):
@@ -84,7 +89,7 @@ class Animation:
             )
         t = np.clip(t, self.start, self.end)
         m, r = len(self.nodes) - 1, self.body.r
-        k = np.clip(np.searchsorted(self.nodes, t, side="right") - 1, 0, m - 1)
+        k = np.clip(np.searchsorted(self.nodes, t, side=side) - 1, 0, m - 1)
         h = np.diff(self.nodes)[k]
         tau = (t - self.nodes[k]) / h
         idx = (k[:, None] * r + np.arange(r)).ravel()  # (F*r,)
@@ -257,7 +262,11 @@ class SpacetimeProblem:
                 "the keyframes leave the motion undetermined and preroll is 0; give keyframes "
                 "that fix the start (positions and velocities of the whole body) or a preroll > 0"
             ) from err
-        z = s * sla.cho_solve_banded((cb, False), -f * s, check_finite=False)
+        z = sla.cho_solve_banded((cb, False), -f * s, check_finite=False)
+        for _ in range(2):  # iterative refinement: keyframe weights make H ill-conditioned
+            z += sla.cho_solve_banded((cb, False), -f * s - _band_matvec(abs_, bw, z),
+                                      check_finite=False)
+        z = s * z
         z = z.reshape(n_nodes, 2, r)
         anim = Animation(body, nodes, z[:, 0].copy(), z[:, 1].copy(), kfs, basis)
         anim.info["solve_seconds"] = _time.perf_counter() - t_start
@@ -277,6 +286,17 @@ def _band_scale(s: np.ndarray, bw: int) -> np.ndarray:
     for d in range(bw + 1):  # diagonal offset j - i = d, stored in row bw - d
         out[bw - d, d:] = s[: N - d] * s[d:]
     return out
+
+
+def _band_matvec(ab: np.ndarray, bw: int, x: np.ndarray) -> np.ndarray:
+    """y = H x for symmetric H in upper band storage ab[bw + i - j, j] = H[i, j]."""
+    N = len(x)
+    y = ab[bw] * x
+    for d in range(1, bw + 1):
+        row = ab[bw - d, d:]  # H[i, i + d] for i = 0 .. N-d-1
+        y[: N - d] += row * x[d:]
+        y[d:] += row * x[: N - d]
+    return y
 
 
 def _add_dense(ab: np.ndarray, bw: int, idx: np.ndarray, blocks: np.ndarray) -> None:

@@ -455,14 +455,12 @@ class Warp:
         kernel: Callable[..., None],
         inputs: Sequence[tuple[sp.csr_matrix, np.ndarray]],
         last: sp.csr_matrix,
-        lin: np.ndarray | None = None,
     ) -> np.ndarray:
         """``last @ kernel(first_1 @ X_1, ...)`` column chunk by chunk, tet block by block.
 
-        ``inputs`` are pairs ``(first, X)`` with ``first`` (3m, n) and ``X`` (n, 3, c);
-        ``lin`` optional per-tet data (23, 1, m) shared by all columns. The kernel
-        gets contiguous (3, 3, c, mb) blocks and fills its first argument. Gradients
-        ``first @ X`` are laid out (m, 3 j, 3 i, c). Python
+        ``inputs`` are pairs ``(first, X)`` with ``first`` (3m, n) and ``X`` (n, 3, c).
+        Gradients ``first @ X`` are laid out (m, 3 j, 3 i, c); the kernel gets
+        contiguous (3 i, 3 j, c, mb) blocks and fills its first argument. Python
         loops run over chunks of columns and blocks of tets, never single ones.
         """
         m = self.n_tets
@@ -482,18 +480,17 @@ class Warp:
                 blk = slice(t0, t0 + mb)
                 ins = [np.ascontiguousarray(Y[blk].transpose(2, 1, 3, 0)) for Y in grads]
                 res = np.empty_like(ins[0])
-                extra = () if lin is None else (list(lin[:, :, blk]),)
-                kernel(res, *extra, *ins)
+                kernel(res, *ins)
                 out[blk] = res.transpose(3, 1, 0, 2)
             result[:, :, c0 : c0 + cc] = (last @ out.reshape(3 * m, 3 * cc)).reshape(-1, 3, cc)
         return result
 
-    def _linearize(self, X: np.ndarray) -> np.ndarray:
-        """Per-tet linearization data (23, 1, m) at one displacement ``X`` (n, 3, 1)."""
+    def _linearize(self, X: np.ndarray) -> list[Field]:
+        """Per-tet linearization data (23 fields of shape (1, m)) at ``X`` (n, 3, 1)."""
         m = self.n_tets
         Y = (self._G @ np.ascontiguousarray(X).reshape(-1, 3)).reshape(m, 3, 3)
         A = Y.transpose(2, 1, 0)[:, :, None, :]  # (3 i, 3 j, 1, m)
-        return np.stack(_linearization(A))
+        return _linearization(A)
 
     # ------------------------------------------------------------ Poisson + gauge
     def _poisson(self, rhs: np.ndarray, X_in: np.ndarray) -> np.ndarray:
@@ -613,5 +610,5 @@ class Warp:
         units = np.zeros((3, 3, 9, 1))
         units[e % 3, e // 3, e, 0] = 1.0  # unit e = 3 j + i is E_ij
         res = np.empty((3, 3, 9, self.n_tets))
-        _jvp_block(res, list(self._linearize(X)), units)
+        _jvp_block(res, self._linearize(X), units)
         return np.ascontiguousarray(res.transpose(3, 1, 0, 2)).reshape(self.n_tets, 9, 9)

@@ -1,0 +1,79 @@
+"""The classic frame-based spacetime method, as an independent reference and baseline.
+
+Witkin & Kass (1988) style: the same functional E + E_C (SYSTEM.md §4) in the same modal
+coordinates, but with q_i sampled on a uniform time grid t_j = t_0 + j dt and the energy
+discretized by central differences,
+
+    E ~ 1/2 sum_i sum_{j interior} dt (D2 q_i + 2 delta_i D1 q_i + lambda_i q_i + g_i)_j^2,
+
+keyframes applied at their grid points (times must lie on the grid) and velocities by
+central (one-sided at the ends: second order) differences.  Solved directly as one sparse
+least-squares problem.  Used by the tests (convergence toward the wiggly solution as dt -> 0)
+and by the benchmarks (what the wiggly solver replaces).  No pre-roll: give keyframes that
+determine the start.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from wiggly.body import Body
+from wiggly.errors import WigglyInputError
+from wiggly.keyframes import Keyframe
+
+
+def solve_framebased(body: Body, keyframes: list[Keyframe], fps: float, start: float,
+                     end: float) -> tuple[np.ndarray, np.ndarray]:
+    """Frame-based minimiser of E + E_C; returns (times (N+1,), q (N+1, r))."""
+    n = int(round((end - start) * fps))
+    if n < 2 or abs(n / fps - (end - start)) > 1e-9 * max(1.0, end - start):
+        raise WigglyInputError(f"duration {end - start} s is not a whole number of frames at {fps} fps")
+    dt = 1.0 / fps
+    times = start + np.arange(n + 1) * dt
+    r = body.r
+    lam, delta, g = body.eigenvalues, body.delta, body.modal_gravity
+    N = (n + 1) * r  # unknown q_i(t_j) at index j * r + i
+
+    # energy rows: sqrt(dt) * (residual at interior frame j, mode i)
+    j = np.repeat(np.arange(1, n), r)
+    i = np.tile(np.arange(r), n - 1)
+    c_m = 1 / dt**2 - delta[i] / dt
+    c_0 = -2 / dt**2 + lam[i]
+    c_p = 1 / dt**2 + delta[i] / dt
+    rows = np.repeat(np.arange(len(j)), 3)
+    cols = np.stack([(j - 1) * r + i, j * r + i, (j + 1) * r + i], axis=1).ravel()
+    vals = np.sqrt(dt) * np.stack([c_m, c_0, c_p], axis=1).ravel()
+    blocks = [sp.csr_matrix((vals, (rows, cols)), shape=(len(j), N))]
+    rhs = [-np.sqrt(dt) * g[i]]
+
+    T = end - start
+    for kf in keyframes:
+        kf = kf.checked(body, start, end)
+        k = int(round((kf.time - start) * fps))
+        if abs(times[k] - kf.time) > 1e-9:
+            raise WigglyInputError(f"keyframe time {kf.time} is not on the {fps} fps grid")
+        c_A, c_B = kf.weights(body, T)
+        A = body.basis_rows(kf.vertices, kf.on)
+        rest = body.rest_positions(kf.on)[kf.vertices].ravel()
+        if kf.position is not None and c_A > 0:
+            S = sp.csr_matrix((np.ones(r), (np.arange(r), k * r + np.arange(r))), shape=(r, N))
+            blocks.append(np.sqrt(c_A) * sp.csr_matrix(A) @ S)
+            rhs.append(np.sqrt(c_A) * (kf.position.ravel() - rest))
+        if kf.velocity is not None and c_B > 0:
+            if 0 < k < n:
+                stencil = {k - 1: -0.5 / dt, k + 1: 0.5 / dt}
+            elif k == 0:
+                stencil = {0: -1.5 / dt, 1: 2.0 / dt, 2: -0.5 / dt}
+            else:
+                stencil = {n: 1.5 / dt, n - 1: -2.0 / dt, n - 2: 0.5 / dt}
+            D = sum(w * sp.csr_matrix((np.ones(r), (np.arange(r), f * r + np.arange(r))),
+                                      shape=(r, N)) for f, w in stencil.items())
+            blocks.append(np.sqrt(c_B) * sp.csr_matrix(A) @ D)
+            rhs.append(np.sqrt(c_B) * kf.velocity.ravel())
+    J = sp.vstack(blocks).tocsc()
+    b = np.concatenate(rhs)
+    H = (J.T @ J).tocsc()
+    q = spla.spsolve(H, J.T @ b)
+    return times, q.reshape(n + 1, r)

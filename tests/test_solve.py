@@ -1,0 +1,211 @@
+"""The linear sparse spacetime solve (Theorem 1) against mathematics and an independent method."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse.linalg as spla
+
+from wiggly.errors import WigglyInputError
+from wiggly.fem import Material
+from wiggly.framebased import solve_framebased
+from wiggly.keyframes import Keyframe
+from wiggly.solve import solve
+
+from .conftest import make_body
+
+
+def ends(body, on="tets"):
+    X = body.rest_positions(on)
+    return np.flatnonzero(X[:, 0] < 1e-9), np.flatnonzero(X[:, 0] > 1 - 1e-9)
+
+
+def sparse_keys(body, velocity):
+    left, right = ends(body)
+    allv = np.arange(body.n_vertices("tets"))
+    return [
+        Keyframe.rest(body, 0.0, allv, still=True, on="tets"),
+        Keyframe.offset(body, 0.5, right, (0, 0.2, 0), on="tets",
+                        velocity=(0, 1.0, 0) if velocity else None),
+        Keyframe.offset(body, 1.0, right, (0, -0.1, 0.1), on="tets"),
+    ]
+
+
+@pytest.mark.parametrize("velocity", [False, True])
+def test_theorem1_smoothness_at_nodes(bar, velocity):
+    """C2 at nodes without a velocity constraint, only C1 where one is prescribed."""
+    anim = solve(bar, sparse_keys(bar, velocity), end=1.5)
+    jumps = {}
+    for t in (0.5, 1.0):
+        L = anim.modal([t], 3, side="left")[:, 0]
+        R = anim.modal([t], 3, side="right")[:, 0]
+        jumps[t] = [np.max(np.abs(L[d] - R[d])) / np.max(np.abs(R[d])) for d in range(4)]
+    # position-only node t = 1: value, velocity, acceleration continuous; jerk jumps
+    assert max(jumps[1.0][:3]) < 1e-9 and jumps[1.0][3] > 1e-3
+    if velocity:  # value and velocity continuous, acceleration jumps
+        assert max(jumps[0.5][:2]) < 1e-9 and jumps[0.5][2] > 1e-3
+    else:
+        assert max(jumps[0.5][:3]) < 1e-9 and jumps[0.5][3] > 1e-3
+
+
+@pytest.mark.parametrize("velocity", [False, True])
+def test_matches_frame_based_solution_with_first_order_convergence(bar, velocity):
+    """An independent discretization of the same functional converges to our solution.
+
+    The frame-based scheme sums residuals at interior frames only (first-order quadrature of
+    the integral at the ends and at the keyframe kinks), so the expected rate is 1."""
+    keys = sparse_keys(bar, velocity)
+    anim = solve(bar, keys, end=1.5, preroll=0)
+    errors = []
+    for fps in (80, 160, 320, 640):
+        t, q = solve_framebased(bar, keys, fps, 0.0, 1.5)
+        exact = anim.modal(t)[0]
+        errors.append(np.max(np.abs(q - exact)) / np.max(np.abs(exact)))
+    rates = np.log2(np.array(errors[:-1]) / errors[1:])
+    assert errors[-1] < 2e-3
+    assert np.all(rates > 0.85) and np.all(rates < 1.3), rates
+
+
+def test_constraint_residual_shrinks_as_weight_grows(bar):
+    """Penalty method: the least-squares keyframe residual decreases monotonically to 0."""
+    _, right = ends(bar, "surface")
+    res = []
+    for stiffness in (1e2, 1e4, 1e6, 1e8, 1e10, 1e12):
+        keys = [Keyframe.rest(bar, 0.0, np.arange(bar.n_vertices()), still=True,
+                              stiffness=stiffness),
+                Keyframe.offset(bar, 1.0, right, (0, 0.3, 0), stiffness=stiffness)]
+        res.append(solve(bar, keys, end=1.5).constraint_residuals()[1]["position_rms"])
+    assert all(a > b for a, b in zip(res, res[1:], strict=False)), res
+    assert res[-1] < 1e-5 * res[0], res
+
+
+def test_rest_keyframes_without_gravity_give_the_rest_state(tmp_path_factory):
+    body = make_body(tmp_path_factory, gravity=(0, 0, 0))
+    left, right = ends(body, "surface")
+    keys = [Keyframe.rest(body, 0.0, left, still=True), Keyframe.rest(body, 0.7, right),
+            Keyframe.rest(body, 1.3, np.r_[left, right], still=True)]
+    anim = solve(body, keys, end=2.0)
+    u = anim.displacements(anim.frame_times(60), "tets")
+    assert np.max(np.abs(u)) < 1e-12
+    assert np.max(np.abs(anim.values)) < 1e-12 and np.max(np.abs(anim.velocities)) < 1e-12
+
+
+def test_free_fall_is_a_parabola(bar):
+    """At rest at t = 0 and nothing else: the centre of mass falls freely (E = 0 motion),
+    slowed only by the mass-proportional damping alpha: x'' = -alpha x' + g."""
+    keys = [Keyframe.rest(bar, 0.0, np.arange(bar.n_vertices()), still=True)]
+    anim = solve(bar, keys, end=1.0)
+    t = np.linspace(0, 1, 21)
+    m = bar.vertex_masses("tets")
+    com = np.einsum("i,fij->fj", m, anim.positions(t, "tets")) / m.sum()
+    a = bar.damping.alpha
+    expected = bar.gravity[1] * (t / a - (1 - np.exp(-a * t)) / a**2)
+    assert np.max(np.abs(com[:, 1] - com[0, 1] - expected)) < 1e-4
+    assert np.max(np.abs(com[:, [0, 2]] - com[0, [0, 2]])) < 1e-8
+    assert anim.energy() < 1e-6 * bar.mass
+
+
+def test_energy_equals_the_full_space_functional(bar):
+    """E of eq. (3) evaluated with the full M, D = alpha M + beta K and K (not the modal
+    decoupling) by quadrature agrees with the closed-form modal energy (free body:
+    g lies in the span of M Phi)."""
+    left, right = ends(bar, "surface")
+    keys = [Keyframe.rest(bar, 0.0, left, still=True),
+            Keyframe.offset(bar, 0.6, right, (0, 0.1, 0.05)),
+            Keyframe.rigid(bar, 1.2, left, rotation=(0, 0, 0.2))]
+    anim = solve(bar, keys, end=1.5)
+    x, w = np.polynomial.legendre.leggauss(12)
+    edges = np.linspace(0, 1.5, 61)
+    edges = np.unique(np.r_[edges, anim.nodes])
+    t = (edges[:-1, None] + (x + 1) / 2 * np.diff(edges)[:, None]).ravel()
+    wt = (w * np.diff(edges)[:, None] / 2).ravel()
+    q = anim.modal(t, 2)
+    Phi = bar.modes.vectors
+    u, du, ddu = (q[d] @ Phi.T for d in range(3))
+    M, K = bar.M, bar.K
+    D = bar.damping.alpha * M + bar.damping.beta * K
+    f = (M @ ddu.T + D @ du.T + K @ u.T).T + bar.gravity_vector
+    lu = spla.splu(M.tocsc())
+    Minv_f = lu.solve(f.T).T
+    E_full = 0.5 * np.sum(wt * np.einsum("fi,fi->f", f, Minv_f))
+    assert abs(E_full - anim.energy()) < 1e-8 * E_full
+
+
+def test_full_keyframes_are_interpolated(bar):
+    """Full keyframes (every vertex) as the special case: the motion passes through them."""
+    allv = np.arange(bar.n_vertices())
+    X = bar.rest_positions()
+    bend = np.c_[np.zeros(len(X)), 0.05 * np.sin(np.pi * X[:, 0]), np.zeros(len(X))]
+    keys = [Keyframe.rest(bar, 0.0, allv, still=True, stiffness=1e9),
+            Keyframe(1.0, allv, X + bend, stiffness=1e9)]
+    anim = solve(bar, keys, end=1.5)
+    P = anim.positions([1.0])[0]
+    # the target is reachable only within the span of the modes: compare with its projection
+    Phi = bar.surface_basis
+    coef, *_ = np.linalg.lstsq(Phi, bend.ravel(), rcond=None)
+    best = (Phi @ coef).reshape(-1, 3)
+    assert np.max(np.abs(P - X - best)) < 1e-5
+
+
+def test_cantilever_sags_under_gravity_to_static_equilibrium(cantilever):
+    """A fixed body with heavy damping and no keyframes settles at K u = -g (modal)."""
+    anim = solve(cantilever, [], end=30.0)
+    q = anim.modal([30.0])[0, 0]
+    q_eq = -cantilever.modal_gravity / cantilever.eigenvalues
+    assert np.allclose(q, q_eq, rtol=1e-6, atol=1e-9)
+    assert anim.energy() < 1e-9 * cantilever.mass  # it starts in equilibrium: free
+
+
+def test_solver_vectorized_sampling_matches_pointwise(bar):
+    keys = sparse_keys(bar, True)
+    anim = solve(bar, keys, end=1.5)
+    t = np.linspace(0, 1.5, 37)
+    P = anim.positions(t)
+    for k in (0, 11, 36):
+        assert np.allclose(P[k], anim.positions([t[k]])[0], atol=1e-14)
+
+
+# --- bad input ---------------------------------------------------------------------------
+def test_keyframe_outside_time_range(bar):
+    with pytest.raises(WigglyInputError, match=r"time 3.0 is outside .*\[0.0, 2.0\]"):
+        solve(bar, [Keyframe.rest(bar, 3.0, [0])], end=2.0)
+
+
+def test_unknown_vertex_index(bar):
+    n = bar.n_vertices()
+    with pytest.raises(WigglyInputError, match=f"vertex index {n + 5} does not exist.*{n} vertices"):
+        solve(bar, [Keyframe(0.5, [1, n + 5], np.zeros((2, 3)))], end=1.0)
+    with pytest.raises(WigglyInputError, match="vertex index -1"):
+        Keyframe.rest(bar, 0.0, [-1])
+
+
+def test_nan_target(bar):
+    target = bar.rest_positions()[[0, 1]].copy()
+    target[1, 2] = np.nan
+    with pytest.raises(WigglyInputError, match="vertex #1 .component z. is nan"):
+        solve(bar, [Keyframe(0.5, [0, 1], target)], end=1.0)
+
+
+def test_wrong_target_shape_and_empty_keyframe(bar):
+    with pytest.raises(WigglyInputError, match=r"shape \(4, 3\); expected \(2, 3\)"):
+        solve(bar, [Keyframe(0.5, [0, 1], np.zeros((4, 3)))], end=1.0)
+    with pytest.raises(WigglyInputError, match="neither positions nor velocities"):
+        solve(bar, [Keyframe(0.5, [0, 1])], end=1.0)
+
+
+@pytest.mark.parametrize("field,kwargs,pattern", [
+    ("young", dict(young=-1.0), "young"),
+    ("poisson", dict(poisson=0.5), "poisson"),
+    ("density", dict(density=0.0), "density"),
+])
+def test_negative_material_constants(field, kwargs, pattern):
+    with pytest.raises(WigglyInputError, match=pattern):
+        Material(**kwargs)
+
+
+def test_negative_damping_and_empty_range(bar):
+    from wiggly.body import Damping
+    with pytest.raises(WigglyInputError, match="alpha = -1"):
+        Damping(alpha=-1)
+    with pytest.raises(WigglyInputError, match="empty"):
+        solve(bar, [], start=1.0, end=1.0)

@@ -1,0 +1,317 @@
+"""Tests of rotation-strain warping (SYSTEM.md §6; Huang et al. 2011): the mathematics of W."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+import wiggly.warp as warp_module
+from wiggly.errors import WigglyInputError
+from wiggly.primitives import box_mesh
+from wiggly.warp import Warp, rotation_coefficients
+
+RNG_SEED = 20140727
+
+
+def rotation_matrix(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Rotation by ``angle`` about the unit vector ``axis`` (Rodrigues, written out)."""
+    k = axis / np.linalg.norm(axis)
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+
+
+def rel(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+
+
+@pytest.fixture(scope="module")
+def mesh() -> tuple[np.ndarray, np.ndarray]:
+    """A 2 x 1 x 0.8 box, off the origin, 6 x 3 x 3 cubes (648 tets)."""
+    return box_mesh((6, 3, 3), size=(2.0, 1.0, 0.8), origin=(0.3, -0.2, 0.1))
+
+
+@pytest.fixture(scope="module")
+def free_warp(mesh) -> Warp:
+    return Warp(*mesh)
+
+
+@pytest.fixture(scope="module")
+def clamped_warp(mesh) -> Warp:
+    V, T = mesh
+    return Warp(V, T, fixed_vertices=np.flatnonzero(V[:, 0] == V[:, 0].min()))
+
+
+@pytest.fixture(params=["free", "clamped"])
+def warp(request, free_warp, clamped_warp) -> Warp:
+    return free_warp if request.param == "free" else clamped_warp
+
+
+def random_displacement(V: np.ndarray, scale: float, seed: int = RNG_SEED) -> np.ndarray:
+    """Smooth-ish random field: a random quadratic map plus vertex noise (gradients ~ scale)."""
+    rng = np.random.default_rng(seed)
+    X = V - V.mean(axis=0)
+    quad = np.einsum("nj,nk,ijk->ni", X, X, rng.standard_normal((3, 3, 3)))
+    return scale * (X @ rng.standard_normal((3, 3)).T + 0.5 * quad) + 0.02 * scale * (
+        rng.standard_normal(V.shape)
+    )
+
+
+# --------------------------------------------------------------------------- #
+# Rodrigues coefficients
+# --------------------------------------------------------------------------- #
+def test_rotation_coefficients_match_closed_forms_and_limits():
+    edge = np.sqrt([np.nextafter(0.01, 0.0), 0.01])  # around the series/closed-form switch
+    th = np.array([0.0, 1e-9, 1e-4, *edge, 0.7, 2.0, 3.1])
+    a, b, c = rotation_coefficients(th**2, derivative=True)
+    big = th > 0.05
+    np.testing.assert_allclose(a[big], np.sin(th[big]) / th[big], rtol=1e-14)
+    np.testing.assert_allclose(b[big], (1 - np.cos(th[big])) / th[big] ** 2, rtol=1e-12)
+    np.testing.assert_allclose(c[big], (th[big] - np.sin(th[big])) / th[big] ** 3, rtol=1e-9)
+    np.testing.assert_allclose(a[:3], 1.0 - th[:3] ** 2 / 6, rtol=1e-15)
+    np.testing.assert_allclose(b[:3], 0.5 - th[:3] ** 2 / 24, rtol=1e-15)
+    np.testing.assert_allclose(c[:3], 1 / 6 - th[:3] ** 2 / 120, rtol=1e-15)
+    # no jump where the series for c hands over to the closed form
+    assert abs(c[3] - c[4]) < 1e-13
+
+
+# --------------------------------------------------------------------------- #
+# The map W
+# --------------------------------------------------------------------------- #
+def test_zero_maps_to_zero(warp, mesh):
+    out = warp.apply(np.zeros_like(mesh[0]))
+    assert out.shape == mesh[0].shape
+    assert np.max(np.abs(out)) == 0.0
+
+
+@pytest.mark.parametrize("degrees", [10.0, 90.0, 170.0])
+def test_linearized_rotation_becomes_exact_rotation_about_mass_centre(mesh, degrees):
+    """u = w x (X - c)  ->  X + W(u) = R (X - c_m) + c_m + u_bar (mass-weighted means)."""
+    V, T = mesh
+    rng = np.random.default_rng(int(degrees))
+    masses = rng.uniform(0.5, 2.0, len(V))  # the statement holds for any masses
+    W = Warp(V, T, masses=masses)
+    axis = rng.standard_normal(3)
+    axis /= np.linalg.norm(axis)
+    w = np.deg2rad(degrees) * axis
+    c = rng.standard_normal(3)
+    u = np.cross(w, V - c)
+    c_m = masses @ V / masses.sum()
+    u_bar = masses @ u / masses.sum()
+    expected = (V - c_m) @ rotation_matrix(axis, np.deg2rad(degrees)).T + c_m + u_bar
+    assert rel(W.apply(u), expected - V) < 1e-8
+    # the linear displacement itself is far from the rotation
+    assert rel(u, expected - V) > 0.05
+
+
+def test_homogeneous_gradient_is_warped_exactly(free_warp, mesh):
+    """Constant gradient A (compatible): W(u) = (expm(skew A)(I + sym A) - I)(X - c_m) + u_bar."""
+    V = mesh[0]
+    A = 0.6 * np.random.default_rng(11).standard_normal((3, 3))
+    u = (V - np.array([1.0, 2.0, -0.5])) @ A.T
+    K, S = (A - A.T) / 2, (A + A.T) / 2
+    target = expm(K) @ (np.eye(3) + S) - np.eye(3)  # independent of the Rodrigues code
+    m = free_warp.masses
+    c_m, u_bar = m @ V / m.sum(), m @ u / m.sum()
+    assert rel(free_warp.apply(u), (V - c_m) @ target.T + u_bar) < 1e-10
+
+
+def test_rotation_about_a_fixed_vertex_is_exact(mesh):
+    V, T = mesh
+    k = 17
+    W = Warp(V, T, fixed_vertices=[k])
+    axis = np.array([1.0, -2.0, 0.5])
+    angle = np.deg2rad(120.0)
+    u = np.cross(angle * axis / np.linalg.norm(axis), V - V[k])
+    expected = (V - V[k]) @ rotation_matrix(axis, angle).T + V[k]
+    assert rel(W.apply(u), expected - V) < 1e-8
+
+
+def test_translations_pass_through_unchanged(free_warp, mesh):
+    V = mesh[0]
+    d = np.array([0.3, -1.7, 2.5])
+    t = np.broadcast_to(d, V.shape)
+    np.testing.assert_allclose(free_warp.apply(t), t, rtol=0, atol=1e-12 * np.linalg.norm(d))
+    # and W commutes with translations: W(u + d) = W(u) + d
+    u = random_displacement(V, 0.4)
+    np.testing.assert_allclose(free_warp.apply(u + d), free_warp.apply(u) + d, atol=1e-12)
+
+
+def test_mass_weighted_mean_is_preserved(free_warp, mesh):
+    u = random_displacement(mesh[0], 0.5)
+    m = free_warp.masses
+    np.testing.assert_allclose(m @ free_warp.apply(u), m @ u, rtol=1e-12)
+    np.testing.assert_allclose(m.sum(), free_warp.volumes.sum(), rtol=1e-14)
+
+
+def test_first_order_exact(warp, mesh):
+    """||W(eps u) - eps u|| = O(eps^2): halving eps divides the defect by ~4."""
+    u = random_displacement(mesh[0], 1.0)
+    u[warp.fixed] = 0.0  # an admissible displacement
+    defect = [np.linalg.norm(warp.apply(eps * u) - eps * u) for eps in (1e-2, 5e-3, 2.5e-3)]
+    assert defect[0] > 1e-6 * np.linalg.norm(u)  # the map is not the identity
+    ratios = np.array(defect[:-1]) / np.array(defect[1:])
+    assert np.all(np.abs(ratios - 4.0) < 0.2), ratios
+
+
+def test_fixed_vertices_stay_at_zero(clamped_warp, mesh):
+    V = mesh[0]
+    u = random_displacement(V, 0.5) + 1.0  # nonzero on the fixed vertices too
+    out = clamped_warp.apply(u)
+    fixed = clamped_warp.fixed
+    assert fixed.sum() == 16
+    assert np.max(np.abs(out[fixed])) == 0.0
+    assert np.linalg.norm(out[~fixed]) > 1.0
+
+
+def test_batched_apply_equals_per_frame(warp, mesh, monkeypatch):
+    V = mesh[0]
+    U = np.stack([random_displacement(V, s, seed=i) for i, s in enumerate([0.1, 0.5, 1.0, 2.0, 0])])
+    single = np.stack([warp.apply(u) for u in U])
+    # small chunks and blocks: exercise the chunked and blocked code paths
+    monkeypatch.setattr(warp_module, "_CHUNK_COLUMNS", 2)
+    monkeypatch.setattr(warp_module, "_BLOCK_ELEMENTS", 100)
+    batched = warp.apply(U)
+    assert batched.shape == U.shape
+    np.testing.assert_allclose(batched, single, rtol=0, atol=1e-13 * np.abs(single).max())
+
+
+def test_components_get_their_own_gauge():
+    """Two disjoint boxes: one clamped (Dirichlet), one free (mean gauge), plus a loose vertex."""
+    V1, T1 = box_mesh((2, 2, 2))
+    V2, T2 = box_mesh((2, 2, 2), origin=(3.0, 0.0, 0.0))
+    V = np.vstack([V1, V2, [[10.0, 10.0, 10.0]]])
+    T = np.vstack([T1, T2 + len(V1)])
+    W = Warp(V, T, fixed_vertices=[0])
+    u = random_displacement(V, 0.5)
+    out = W.apply(u)
+    second = slice(len(V1), len(V1) + len(V2))
+    m = W.masses[second]
+    np.testing.assert_allclose(m @ out[second], m @ u[second], rtol=1e-12)
+    assert np.all(out[0] == 0.0)
+    np.testing.assert_array_equal(out[-1], u[-1])  # massless isolated vertex: plain mean
+    # each component is warped independently of the other
+    W2 = Warp(V2, T2)
+    np.testing.assert_allclose(out[second], W2.apply(u[second]), atol=1e-12)
+
+
+def test_warping_a_bent_cantilever_keeps_lengths_and_volumes():
+    """A linearized 90-degree bend of a thin beam: linear FEM grows it, the warp does not."""
+    length, h = 5.0, 0.2
+    V, T = box_mesh((25, 2, 2), size=(length, h, h), origin=(0.0, -h / 2, -h / 2))
+    W = Warp(V, T, fixed_vertices=np.flatnonzero(V[:, 0] == 0.0))
+    k = (np.pi / 2) / length  # curvature: the tip cross-section turns by 90 degrees
+    x, y = V[:, 0], V[:, 1]
+    u = np.column_stack([-k * x * y, 0.5 * k * x**2, np.zeros_like(x)])  # Euler-Bernoulli
+
+    edges = np.vstack([T[:, [a, b]] for a in range(4) for b in range(a + 1, 4)])
+
+    def edge_change(P):
+        rest = np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)
+        return np.abs(np.linalg.norm(P[edges[:, 0]] - P[edges[:, 1]], axis=1) / rest - 1)
+
+    def volume_change(P):
+        def vol(Q):
+            e = Q[T[:, 1:]] - Q[T[:, :1]]
+            return np.linalg.det(e) / 6
+
+        return np.abs(vol(P) / vol(V) - 1)
+
+    linear, warped = V + u, V + W.apply(u)
+    assert edge_change(linear).max() > 0.5 and volume_change(linear).max() > 1.0
+    # the bending strain itself is |k y| <= k h / 2 ~ 3 %
+    assert edge_change(warped).max() < 0.05
+    assert volume_change(warped).max() < 0.05
+    # and the centre line follows the circular arc of radius 1 / k
+    tip = np.flatnonzero((x == length) & (y == 0.0) & (V[:, 2] == 0.0))
+    arc_tip = np.array([np.sin(k * length), 1 - np.cos(k * length), 0.0]) / k
+    assert np.linalg.norm(warped[tip[0]] - arc_tip) < 0.02 * length
+
+
+# --------------------------------------------------------------------------- #
+# Derivatives
+# --------------------------------------------------------------------------- #
+def central_difference(W: Warp, u: np.ndarray, du: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    return (W.apply(u + h * du) - W.apply(u - h * du)) / (2 * h)
+
+
+def test_jvp_matches_finite_differences(warp, mesh):
+    V = mesh[0]
+    u = random_displacement(V, 0.8)  # rotations of up to ~1 rad per tet
+    du = random_displacement(V, 1.0, seed=1)
+    jvp = warp.jvp(u, du)
+    assert rel(jvp, central_difference(warp, u, du)) < 1e-6
+    assert rel(jvp, du) > 0.05  # the derivative away from 0 is not the identity
+
+
+def test_jvp_at_zero_is_identity(warp, mesh):
+    V = mesh[0]
+    du = random_displacement(V, 1.0, seed=3)
+    du[warp.fixed] = 0.0
+    assert rel(warp.jvp(np.zeros_like(V), du), du) < 1e-10
+
+
+def test_jacobian_matches_jvp_and_finite_differences(warp, mesh):
+    V = mesh[0]
+    n = len(V)
+    u = random_displacement(V, 0.8, seed=5)
+    basis = np.stack([random_displacement(V, 1.0, seed=10 + k) for k in range(7)], axis=-1)
+    J = warp.jacobian(u, basis)
+    assert J.shape == basis.shape
+    for k in (0, 6):
+        assert rel(J[:, :, k], central_difference(warp, u, basis[:, :, k])) < 1e-6
+        assert rel(J[:, :, k], warp.jvp(u, basis[:, :, k])) < 1e-12
+    flat = warp.jacobian(u, basis.reshape(3 * n, 7))
+    np.testing.assert_allclose(flat, J.reshape(3 * n, 7), rtol=0, atol=1e-12 * np.abs(J).max())
+
+
+def test_vjp_is_the_adjoint_of_jvp(warp, mesh):
+    V = mesh[0]
+    u = random_displacement(V, 0.8, seed=7)
+    du = random_displacement(V, 1.0, seed=8)
+    y = np.random.default_rng(9).standard_normal(V.shape)
+    lhs = np.sum(warp.vjp(u, y) * du)
+    rhs = np.sum(y * warp.jvp(u, du))
+    assert abs(lhs - rhs) < 1e-11 * np.linalg.norm(y) * np.linalg.norm(warp.jvp(u, du))
+
+
+def test_batched_derivatives_equal_per_frame(warp, mesh):
+    V = mesh[0]
+    U = np.stack([random_displacement(V, s, seed=i) for i, s in enumerate([0.2, 0.9, 1.5])])
+    dU = np.stack([random_displacement(V, 1.0, seed=20 + i) for i in range(3)])
+    np.testing.assert_allclose(
+        warp.jvp(U, dU), np.stack([warp.jvp(u, d) for u, d in zip(U, dU, strict=True)]), atol=1e-12
+    )
+    np.testing.assert_allclose(
+        warp.vjp(U, dU), np.stack([warp.vjp(u, d) for u, d in zip(U, dU, strict=True)]), atol=1e-12
+    )
+
+
+def test_jvp_near_half_turn(free_warp, mesh):
+    """Large per-tet rotations (~170 degrees) keep the analytic derivative accurate."""
+    V = mesh[0]
+    w = np.deg2rad(170.0) * np.array([0.0, 0.6, 0.8])
+    u = np.cross(w, V - V.mean(axis=0)) + random_displacement(V, 0.05)
+    du = random_displacement(V, 1.0, seed=4)
+    assert rel(free_warp.jvp(u, du), central_difference(free_warp, u, du, h=1e-7)) < 1e-6
+
+
+# --------------------------------------------------------------------------- #
+# Input validation
+# --------------------------------------------------------------------------- #
+def test_inputs_are_validated(free_warp, mesh):
+    V, T = mesh
+    with pytest.raises(WigglyInputError, match="positively oriented"):
+        Warp(V, T[:, [1, 0, 2, 3]])
+    with pytest.raises(WigglyInputError, match="shape"):
+        Warp(V[:, :2], T)
+    with pytest.raises(WigglyInputError, match="fixed_vertices"):
+        Warp(V, T, fixed_vertices=[len(V)])
+    with pytest.raises(WigglyInputError, match="masses"):
+        Warp(V, T, masses=np.ones(3))
+    with pytest.raises(WigglyInputError, match="U should have shape"):
+        free_warp.apply(np.zeros((len(V), 2)))
+    with pytest.raises(WigglyInputError, match="basis"):
+        free_warp.jacobian(np.zeros_like(V), np.zeros((len(V), 2, 4)))
+    with pytest.raises(WigglyInputError, match="dU"):
+        free_warp.jvp(np.zeros_like(V), np.zeros((2, len(V), 3)))
