@@ -134,9 +134,8 @@ def test_reference_tet_consistent_mass():
     rho = 2700.0
     M = mass_matrix(REF_V, REF_T, rho).toarray()
     vol = 1.0 / 6.0
-    scalar = rho * vol / 20.0 * np.array(
-        [[2, 1, 1, 1], [1, 2, 1, 1], [1, 1, 2, 1], [1, 1, 1, 2]], dtype=float
-    )
+    hand = np.array([[2, 1, 1, 1], [1, 2, 1, 1], [1, 1, 2, 1], [1, 1, 1, 2]], dtype=float)
+    scalar = rho * vol / 20.0 * hand
     expected = np.zeros((12, 12))
     for a, b, c in itertools.product(range(4), range(4), range(3)):
         expected[3 * a + c, 3 * b + c] = scalar[a, b]
@@ -324,11 +323,20 @@ def test_assembly_matches_naive_loop():
         for a in range(4):
             gx, gy, gz = G[a]
             B[:, 3 * a : 3 * a + 3] = [
-                [gx, 0, 0], [0, gy, 0], [0, 0, gz], [0, gz, gy], [gz, 0, gx], [gy, gx, 0],
+                [gx, 0, 0],
+                [0, gy, 0],
+                [0, 0, gz],
+                [0, gz, gy],
+                [gz, 0, gx],
+                [gy, gx, 0],
             ]
         dofs = (3 * tet[:, None] + np.arange(3)).ravel()
         K_ref[np.ix_(dofs, dofs)] += vol * B.T @ C @ B
         Me = rho * vol / 20 * (np.ones((4, 4)) + np.eye(4))
         M_ref[np.ix_(dofs, dofs)] += np.kron(Me, np.eye(3))
-    np.testing.assert_allclose(stiffness_matrix(V, T, E, nu).toarray(), K_ref, atol=1e-9 * abs(K_ref).max())
-    np.testing.assert_allclose(mass_matrix(V, T, rho).toarray(), M_ref, atol=1e-13 * abs(M_ref).max())
+    np.testing.assert_allclose(
+        stiffness_matrix(V, T, E, nu).toarray(), K_ref, atol=1e-9 * abs(K_ref).max()
+    )
+    np.testing.assert_allclose(
+        mass_matrix(V, T, rho).toarray(), M_ref, atol=1e-13 * abs(M_ref).max()
+    )

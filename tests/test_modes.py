@@ -131,9 +131,7 @@ def test_fixed_vertices(small_body, case, method):
     select, n_rigid = FIXED_CASES[case]
     fixed = select(V)
     r = 16
-    modes = compute_modes(
-        K, M, r, vertices=V, fixed_vertices=fixed, cache_dir=False, method=method
-    )
+    modes = compute_modes(K, M, r, vertices=V, fixed_vertices=fixed, cache_dir=False, method=method)
     assert modes.n_rigid == n_rigid
     np.testing.assert_array_equal(modes.fixed_vertices, np.sort(fixed))
     assert np.all(modes.eigenvalues[:n_rigid] == 0.0)
@@ -270,7 +268,9 @@ def test_mismatched_matrices(small_body):
     with pytest.raises(WigglyInputError, match=r"K should have shape \(213, 213\)"):
         compute_modes(K, M, 8, vertices=V[:-1], cache_dir=False)
     with pytest.raises(WigglyInputError, match="same mesh"):
-        compute_modes(K, M, 8, vertices=V[np.random.default_rng(0).permutation(len(V))], cache_dir=False)
+        compute_modes(
+            K, M, 8, vertices=V[np.random.default_rng(0).permutation(len(V))], cache_dir=False
+        )
     with pytest.raises(WigglyInputError, match="symmetric"):
         compute_modes(K + sp.triu(K, 1), M, 8, vertices=V, cache_dir=False)
 

@@ -25,6 +25,7 @@ from wiggly.errors import WigglyInputError
 from wiggly.fem import Material, gravity_term, mass_matrix, stiffness_matrix
 from wiggly.mesh import Model, Surface, TetMesh, embed, load_model
 from wiggly.modes import Modes, compute_modes
+from wiggly.warp import Warp
 
 Where = Literal["surface", "tets"]
 DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
@@ -137,6 +138,28 @@ class Body:
         vertices = np.asarray(vertices, dtype=np.int64)
         dofs = (3 * vertices[:, None] + np.arange(3)).ravel()
         return self.basis(on)[dofs]
+
+    @cached_property
+    def warp(self) -> Warp:
+        """Rotation-strain warp map W of this body (SYSTEM.md §6), factored once."""
+        return Warp(self.tets.vertices, self.tets.tets, masses=self.vertex_masses("tets"),
+                    fixed_vertices=self.fixed_vertices)
+
+    @cached_property
+    def surface_embedding(self) -> sp.csr_matrix:
+        """(p, n) barycentric interpolation from tet vertices to surface vertices."""
+        return self.model.embedding.matrix(self.tets.n_vertices)
+
+    def selection(self, vertices: np.ndarray, on: Where = "surface") -> sp.csr_matrix:
+        """Sparse (3k, 3n) map from tet-mesh displacements to those of ``vertices``."""
+        vertices = np.asarray(vertices, np.int64)
+        n = self.tets.n_vertices
+        if on == "tets":
+            S = sp.csr_matrix((np.ones(len(vertices)), (np.arange(len(vertices)), vertices)),
+                              shape=(len(vertices), n))
+        else:
+            S = self.surface_embedding[vertices]
+        return sp.kron(S, sp.eye(3), format="csr")
 
     def vertex_masses(self, on: Where = "tets") -> np.ndarray:
         """Lumped vertex masses (kg) of the tet mesh, or barycentrically spread to the surface."""

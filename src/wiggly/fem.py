@@ -49,9 +49,7 @@ def _check_young(young: float) -> float:
 def _check_poisson(poisson: float) -> float:
     value = float(poisson)
     if not (math.isfinite(value) and 0.0 <= value < 0.5):
-        raise WigglyInputError(
-            f"poisson (Poisson's ratio) should be in [0, 0.5); got {poisson!r}"
-        )
+        raise WigglyInputError(f"poisson (Poisson's ratio) should be in [0, 0.5); got {poisson!r}")
     return value
 
 
@@ -226,9 +224,7 @@ def mass_matrix(
     return _assemble_blocks(T, n, blocks)
 
 
-def stiffness_matrix(
-    V: np.ndarray, T: np.ndarray, young: float, poisson: float
-) -> sp.csr_matrix:
+def stiffness_matrix(V: np.ndarray, T: np.ndarray, young: float, poisson: float) -> sp.csr_matrix:
     """Stiffness matrix K of isotropic linear elasticity on P1 tets (SYSTEM.md §2).
 
     The elastic energy ``int mu eps:eps + lambda/2 tr(eps)^2 = 1/2 u^T K u`` with
@@ -266,7 +262,9 @@ def stiffness_matrix(
     return _assemble_blocks(T, V.shape[0], blocks)
 
 
-def gravity_term(M: sp.spmatrix, gravity: tuple[float, float, float] = DEFAULT_GRAVITY) -> np.ndarray:
+def gravity_term(
+    M: sp.spmatrix, gravity: tuple[float, float, float] = DEFAULT_GRAVITY
+) -> np.ndarray:
     """Constant term g of dynamics (1) for uniform gravity (SYSTEM.md §2).
 
     Gravity acts as the external force ``f = M G`` with ``G = tile(gravity, n)``; in (1),
@@ -291,9 +289,7 @@ def gravity_term(M: sp.spmatrix, gravity: tuple[float, float, float] = DEFAULT_G
     return -(M @ np.tile(G, M.shape[0] // 3))
 
 
-def rayleigh_damping(
-    M: sp.spmatrix, K: sp.spmatrix, alpha: float, beta: float
-) -> sp.csr_matrix:
+def rayleigh_damping(M: sp.spmatrix, K: sp.spmatrix, alpha: float, beta: float) -> sp.csr_matrix:
     """Rayleigh damping ``D = alpha M + beta K`` (SYSTEM.md §2).
 
     Parameters
@@ -307,7 +303,9 @@ def rayleigh_damping(
     """
     for name, value in (("alpha", alpha), ("beta", beta)):
         if not (math.isfinite(float(value)) and float(value) >= 0.0):
-            raise WigglyInputError(f"{name} (Rayleigh damping) should be finite and >= 0; got {value!r}")
+            raise WigglyInputError(
+                f"{name} (Rayleigh damping) should be finite and >= 0; got {value!r}"
+            )
     if M.shape != K.shape:
         raise WigglyInputError(f"M and K should have the same shape; got {M.shape} and {K.shape}")
     return (float(alpha) * sp.csr_matrix(M) + float(beta) * sp.csr_matrix(K)).tocsr()

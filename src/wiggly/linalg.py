@@ -73,11 +73,12 @@ class SPDSolver:
 
 
 def _factor_cholmod(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
-    from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
+    from sksparse import cholmod
 
+    not_pd = getattr(cholmod, "CholmodNotPositiveDefiniteError", cholmod.CholmodError)
     try:
-        factor = cholesky(A.tocsc())
-    except CholmodNotPositiveDefiniteError as err:
+        factor = cholmod.cholesky(A.tocsc())
+    except not_pd as err:
         raise np.linalg.LinAlgError(f"matrix is not positive definite ({err})") from err
     return lambda b: np.asarray(factor(b))
 
@@ -107,9 +108,7 @@ def _factor_cholespy(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
 
 def _factor_splu(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
     try:
-        lu = spla.splu(
-            A.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True}
-        )
+        lu = spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
     except RuntimeError as err:  # "Factor is exactly singular"
         raise np.linalg.LinAlgError(f"matrix is singular ({err})") from err
     return lu.solve
@@ -149,9 +148,7 @@ def factorize_spd(A: sp.spmatrix, backend: str | None = None) -> SPDSolver:
     elif backend not in BACKENDS:
         raise WigglyInputError(f"backend should be one of {BACKENDS} or None; got {backend!r}")
     elif backend not in available:
-        raise WigglyInputError(
-            f"backend {backend!r} is not installed here; available: {available}"
-        )
+        raise WigglyInputError(f"backend {backend!r} is not installed here; available: {available}")
     A = sp.csr_matrix(A, dtype=np.float64)
     A.sum_duplicates()
     return SPDSolver(backend=backend, n=A.shape[0], _solve=_FACTORS[backend](A))

@@ -160,7 +160,9 @@ def _as_csr(A: sp.spmatrix | np.ndarray, name: str, size: int) -> sp.csr_matrix:
     if not sp.issparse(A):
         A = np.asarray(A)
         if A.ndim != 2:
-            raise WigglyInputError(f"{name} should be a ({size}, {size}) matrix; shape is {A.shape}")
+            raise WigglyInputError(
+                f"{name} should be a ({size}, {size}) matrix; shape is {A.shape}"
+            )
     if A.shape != (size, size):
         raise WigglyInputError(
             f"{name} should have shape ({size}, {size}) = 3 x number of vertices; "
@@ -207,9 +209,7 @@ def _hash_update_csr(h: hashlib._Hash, A: sp.csr_matrix) -> None:
     h.update(np.ascontiguousarray(A.data, dtype=np.float64).tobytes())
 
 
-def _cache_key(
-    K: sp.csr_matrix, M: sp.csr_matrix, r: int, fixed: np.ndarray, V: np.ndarray
-) -> str:
+def _cache_key(K: sp.csr_matrix, M: sp.csr_matrix, r: int, fixed: np.ndarray, V: np.ndarray) -> str:
     h = hashlib.sha256(CACHE_FORMAT.encode())
     h.update(f"|r={r}|".encode())
     h.update(np.ascontiguousarray(fixed, dtype=np.int64).tobytes())
@@ -280,8 +280,10 @@ def _rigid_basis(V: np.ndarray, fixed: np.ndarray, free_dofs: np.ndarray, Mf: sp
     radius = np.sqrt(np.mean(np.sum((V - V.mean(axis=0)) ** 2, axis=1)))
     R[:, 3:] /= max(radius, np.finfo(float).tiny)
     if fixed.size:
-        fixed_dofs = (3 * fixed[:, None] + np.arange(3)).ravel()
-        _, s, Vt = la.svd(R[fixed_dofs], full_matrices=True)
+        A = R[(3 * fixed[:, None] + np.arange(3)).ravel()]
+        if A.shape[0] > 6:  # same singular values and right vectors as its 6x6 QR factor
+            A = la.qr(A, mode="r")[0][:6]
+        _, s, Vt = la.svd(A, full_matrices=True)
         rank = int(np.sum(s > 1e-9 * s[0]))
         R = R @ Vt[rank:].T
     Rf = R[free_dofs]
@@ -512,9 +514,7 @@ def _compute_modes(
     lam_el = np.zeros(0)
     Phi_el = np.zeros((nf, 0))
     if k_el:
-        dense = method == "dense" or (
-            method == "auto" and (nf <= DENSE_MAX_DOFS or r >= nf - 1)
-        )
+        dense = method == "dense" or (method == "auto" and (nf <= DENSE_MAX_DOFS or r >= nf - 1))
         if method == "sparse" and r >= nf - 1:
             raise WigglyInputError(
                 f"method='sparse' needs r < free dofs - 1 = {nf - 1}; got r = {r}; use 'dense'"

@@ -22,10 +22,12 @@ from __future__ import annotations
 
 import sys
 import time as _time
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.spatial.transform import Rotation
 from numpy.typing import ArrayLike
 
 from wiggly.body import Body, Where
@@ -53,6 +55,7 @@ class Animation:
     velocities: np.ndarray
     keyframes: list[Keyframe]
     basis: WigglyBasis = field(repr=False)
+    warped: bool = False
     info: dict = field(default_factory=dict)
 
     @property
@@ -102,11 +105,42 @@ class Animation:
     # --- vertex trajectories -------------------------------------------------------------
     def displacements(self, times: ArrayLike, on: Where = "surface", derivative: int = 0,
                       dtype: type = np.float64) -> np.ndarray:
-        """u(t) = Phi q(t) (or its ``derivative``-th time derivative): shape (F, n, 3)."""
-        q = self.modal(times, derivative)[derivative]
-        B = self.body.basis(on)
-        out = q.astype(dtype, copy=False) @ B.T.astype(dtype, copy=False)
-        return out.reshape(len(q), -1, 3)
+        """Displacements (or their ``derivative``-th time derivative): shape (F, n, 3).
+
+        Linear: u(t) = Phi q(t).  Warped: W(u(t)) and DW(u(t)) u'(t) (SYSTEM.md §6), computed
+        on the tet mesh in batches of frames (one multi-RHS Poisson solve per batch) and
+        carried to the surface by the barycentric embedding.
+        """
+        if not self.warped:
+            q = self.modal(times, derivative)[derivative]
+            B = self.body.basis(on)
+            out = q.astype(dtype, copy=False) @ B.T.astype(dtype, copy=False)
+            return out.reshape(len(q), -1, 3)
+        if derivative > 1:
+            raise WigglyInputError(
+                "accelerations are available for linear motion (warp=False) only; for the "
+                "warped motion sample positions densely and differentiate numerically"
+            )
+        q = self.modal(times, derivative)
+        body = self.body
+        n = body.tets.n_vertices
+        Phi = body.modes.vectors
+        F = q.shape[1]
+        out = np.empty((F, body.n_vertices(on), 3), dtype=dtype)
+        for f0 in range(0, F, _PLAYBACK_BATCH):
+            sl = slice(f0, min(F, f0 + _PLAYBACK_BATCH))
+            U = (q[0, sl] @ Phi.T).reshape(-1, n, 3)
+            if derivative == 0:
+                W = body.warp.apply(U)
+            else:
+                dU = (q[1, sl] @ Phi.T).reshape(-1, n, 3)
+                W = np.stack([body.warp.jvp(u, du) for u, du in zip(U, dU, strict=True)])
+            if on == "surface":
+                E = body.surface_embedding
+                W = (E @ W.transpose(1, 0, 2).reshape(n, -1)).reshape(E.shape[0], -1, 3)
+                W = W.transpose(1, 0, 2)
+            out[sl] = W
+        return out
 
     def positions(self, times: ArrayLike, on: Where = "surface",
                   dtype: type = np.float64) -> np.ndarray:
@@ -151,6 +185,9 @@ def _interval_data(values: np.ndarray, velocities: np.ndarray) -> np.ndarray:
     """Hermite data (q_k, q_k', q_k+1, q_k+1') per (interval, mode): shape (m*r, 4)."""
     return np.stack([values[:-1], velocities[:-1], values[1:], velocities[1:]],
                     axis=-1).reshape(-1, 4)
+
+
+_PLAYBACK_BATCH = 64
 
 
 class SpacetimeProblem:
@@ -205,7 +242,7 @@ class SpacetimeProblem:
             self._energy_cache[key] = (basis, form, idx)
         return self._energy_cache[key]
 
-    def _preroll(self) -> tuple[np.ndarray, np.ndarray]:
+    def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Least energy to reach (q, q') from rest in ``preroll`` seconds, without gravity:
         1/2 (q - q_eq, q')^T Q22 (q - q_eq, q') per mode; returns Q22 and its linear term."""
         body, r = self.body, self.body.r
@@ -213,33 +250,36 @@ class SpacetimeProblem:
         Q22 = energy_form(basis, np.zeros(r)).Q[:, 2:, 2:]
         q_eq = equilibrium(body.eigenvalues, body.modal_gravity)
         lin = -Q22[:, :, 0] * q_eq[:, None]  # -Q22 (q_eq, 0)
-        return Q22, np.r_[lin[:, 0], lin[:, 1]]
+        const = 0.5 * float(np.sum(Q22[:, 0, 0] * q_eq**2))
+        return Q22, np.r_[lin[:, 0], lin[:, 1]], const
 
-    def solve(self, keyframes: list[Keyframe]) -> Animation:
-        """Minimise E + E_C over node values and velocities; return the :class:`Animation`."""
-        t_start = _time.perf_counter()
-        body = self.body
-        kfs = [kf.checked(body, self.start, self.end, label=_label(kf, j))
-               for j, kf in enumerate(keyframes)]
-        nodes = self.nodes_for(kfs)
+    def _assemble_energy(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Band storage of E (+ pre-roll): 1/2 z^T H z + f^T z + c."""
         basis, form, idx = self._energy(nodes)
-        r, n_nodes = body.r, len(nodes)
-        N = 2 * r * n_nodes
+        r = self.body.r
+        N = 2 * r * len(nodes)
         bw = 4 * r - 1  # upper bandwidth of the node-major ordering
         ab = np.zeros((bw + 1, N))
         f = np.zeros(N)
         _add_dense(ab, bw, idx, form.Q)
         np.add.at(f, idx.ravel(), form.l.ravel())
-        T = self.duration
+        c = float(form.c0.sum())
         if self.preroll > 0:  # rest before t_0 (see module doc): 2x2 form per mode
-            Q22, f0 = self._preroll()
+            Q22, f0, c_pre = self._preroll()
             i = np.arange(r)
             _add_dense(ab, bw, np.stack([i, r + i], axis=1), Q22)
             f[:2 * r] += f0
-        # sparse least-squares keyframes, eq. (4), at their nodes
+            c += c_pre
+        return ab, f, c
+
+    def _add_linear_constraints(self, ab: np.ndarray, f: np.ndarray, kfs: list[Keyframe],
+                                nodes: np.ndarray) -> None:
+        """E_C of eq. (4): c_A |A_k Phi q_k - a_k|^2 + c_B |B_k Phi q'_k - b_k|^2 at node k."""
+        body, r = self.body, self.body.r
+        bw = ab.shape[0] - 1
         for kf in kfs:
-            k = int(np.argmin(np.abs(nodes - kf.time)))
-            c_A, c_B = kf.weights(body, T)
+            k = _node_index(nodes, kf.time)
+            c_A, c_B = kf.weights(body, self.duration)
             A = body.basis_rows(kf.vertices, kf.on)  # (3s, r) = A_k Phi
             AtA = A.T @ A
             rest = body.rest_positions(kf.on)[kf.vertices].ravel()
@@ -251,28 +291,291 @@ class SpacetimeProblem:
                 blk = 2 * r * k + r + np.arange(r)
                 _add_block(ab, bw, blk, c_B * AtA)
                 f[blk] -= c_B * (A.T @ kf.velocity.ravel())
-        # equilibrate (node values and velocities have different units), then banded Cholesky
-        d = ab[bw].copy()
-        s = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
-        abs_ = ab * _band_scale(s, bw)
-        try:
-            cb = sla.cholesky_banded(abs_, lower=False, check_finite=False)
-        except np.linalg.LinAlgError as err:
-            raise WigglyInputError(
-                "the keyframes leave the motion undetermined and preroll is 0; give keyframes "
-                "that fix the start (positions and velocities of the whole body) or a preroll > 0"
-            ) from err
-        z = sla.cho_solve_banded((cb, False), -f * s, check_finite=False)
-        for _ in range(2):  # iterative refinement: keyframe weights make H ill-conditioned
-            z += sla.cho_solve_banded((cb, False), -f * s - _band_matvec(abs_, bw, z),
-                                      check_finite=False)
-        z = s * z
+
+    def solve(self, keyframes: list[Keyframe], *, warped: bool = False,
+              initial: Animation | None = None, tolerance: float = 1e-10,
+              max_iterations: int = 30) -> Animation:
+        """Minimise E + E_C (linear, Theorem 1) or E + E_WC (warped, Theorem 2).
+
+        Both have the same unknowns, node values and velocities of every mode.  The warped
+        problem is solved by Gauss-Newton with Levenberg-Marquardt damping and a line search,
+        started from ``initial`` (a previous solution with the same nodes) or the linear
+        solution; see :func:`_gauss_newton`.
+        """
+        t_start = _time.perf_counter()
+        body = self.body
+        kfs = [kf.checked(body, self.start, self.end, label=_label(kf, j))
+               for j, kf in enumerate(keyframes)]
+        nodes = self.nodes_for(kfs)
+        basis = self._energy(nodes)[0]
+        r, n_nodes = body.r, len(nodes)
+        ab_E, f_E, c_E = self._assemble_energy(nodes)
+        info: dict = {"unknowns": 2 * r * n_nodes, "warped": warped}
+        if warped and initial is not None and initial.nodes.shape == nodes.shape \
+                and np.allclose(initial.nodes, nodes):
+            z = np.stack([initial.values, initial.velocities], axis=1).ravel()
+            info["warm_start"] = True
+        else:
+            ab, f = ab_E.copy(), f_E.copy()
+            start_keys = [_unwarped(kf, body) for kf in kfs] if warped else kfs
+            self._add_linear_constraints(ab, f, start_keys, nodes)
+            z = _solve_banded(ab, -f)
+            info["warm_start"] = False
+        info["linear_seconds"] = _time.perf_counter() - t_start
+        if warped:
+            z = _gauss_newton(self, kfs, nodes, ab_E, f_E, c_E, z, tolerance, max_iterations, info)
         z = z.reshape(n_nodes, 2, r)
-        anim = Animation(body, nodes, z[:, 0].copy(), z[:, 1].copy(), kfs, basis)
-        anim.info["solve_seconds"] = _time.perf_counter() - t_start
-        anim.info["unknowns"] = N
+        anim = Animation(body, nodes, z[:, 0].copy(), z[:, 1].copy(), kfs, basis,
+                         warped=warped, info=info)
+        info["solve_seconds"] = _time.perf_counter() - t_start
         return anim
 
+
+
+def _unwarped(kf: Keyframe, body: Body) -> Keyframe:
+    """A keyframe whose targets a *linear* motion can meet and whose warp is near the original.
+
+    The targets' best-fit rotation R about their centroid (Kabsch) is replaced by its
+    linearization with the same rotation vector w = log R (any angle below pi): x = R (X - c)
+    + c' + e becomes X + w x (X - c) + (c' - c) + R^T e; velocities are rotated back by R^T.
+    Warping maps a linearized rotation to the exact one (SYSTEM.md §6), so the linear solve
+    with these targets is the Gauss-Newton start for large-rotation keyframes.
+    """
+    if kf.position is None or len(kf.vertices) < 3:
+        return kf
+    X = body.rest_positions(kf.on)[kf.vertices]
+    c, c_t = X.mean(axis=0), kf.position.mean(axis=0)
+    A, B = X - c, kf.position - c_t
+    if np.linalg.matrix_rank(A, tol=1e-9 * max(np.abs(A).max(), 1e-300)) < 2:
+        return kf
+    rot, _ = Rotation.align_vectors(B, A)
+    R, w = rot.as_matrix(), rot.as_rotvec()
+    e = B - A @ R.T
+    position = X + np.cross(w, A) + (c_t - c) + e @ R
+    velocity = None if kf.velocity is None else kf.velocity @ R
+    return replace(kf, position=position, velocity=velocity)
+
+
+def _node_index(nodes: np.ndarray, t: float) -> int:
+    return int(np.argmin(np.abs(nodes - t)))
+
+
+def _solve_banded(ab: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve H z = rhs for SPD H in upper band storage: equilibrated banded Cholesky with
+    iterative refinement (keyframe weights make H ill-conditioned)."""
+    bw = ab.shape[0] - 1
+    d = ab[bw]
+    s = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
+    abs_ = ab * _band_scale(s, bw)
+    try:
+        cb = sla.cholesky_banded(abs_, lower=False, check_finite=False)
+    except np.linalg.LinAlgError as err:
+        raise WigglyInputError(
+            "the keyframes leave the motion undetermined and preroll is 0; give keyframes "
+            "that fix the start (positions and velocities of the whole body) or a preroll > 0"
+        ) from err
+    b = rhs * s
+    z = sla.cho_solve_banded((cb, False), b, check_finite=False)
+    for _ in range(2):
+        z += sla.cho_solve_banded((cb, False), b - _band_matvec(abs_, bw, z), check_finite=False)
+    return s * z
+
+
+@dataclass
+class _WarpedKey:
+    """One keyframe's warped least-squares terms at its node (E_WC, SYSTEM.md §6)."""
+
+    node: int
+    S: object  # (3s, 3n) sparse selection of tet displacements (embedding for surfaces)
+    d: np.ndarray | None  # position target minus rest, (3s,)
+    b: np.ndarray | None  # velocity target (3s,)
+    wA: float  # sqrt(c_A)
+    wB: float  # sqrt(c_B)
+
+
+class WarpedObjective:
+    """F(z) = 1/2 z^T H z + f^T z + c + 1/2 sum_k |r_k(z)|^2, the objective E + E_WC.
+
+    Residuals r_k = sqrt(c_A) (A_k W(Phi q_k) - a_k) and sqrt(c_B) (B_k DW(Phi q_k) Phi q'_k
+    - b_k) (SYSTEM.md §6) involve only the node of keyframe k, so their Gauss-Newton blocks
+    J^T J land on the diagonal blocks of the banded H.  W and DW are evaluated only at
+    constrained nodes; the gradient is exact (vector-Jacobian products of W).
+    """
+
+    def __init__(self, problem: SpacetimeProblem, kfs: list[Keyframe], nodes: np.ndarray,
+                 ab_E: np.ndarray, f_E: np.ndarray, c_E: float) -> None:
+        body = problem.body
+        self.body, self.r = body, body.r
+        self.warp, self.Phi = body.warp, body.modes.vectors
+        self.n = body.tets.n_vertices
+        self.ab_E, self.f_E, self.c_E = ab_E, f_E, c_E
+        self.bw = ab_E.shape[0] - 1
+        self.keys = []
+        for kf in kfs:
+            c_A, c_B = kf.weights(body, problem.duration)
+            rest = body.rest_positions(kf.on)[kf.vertices].ravel()
+            self.keys.append(_WarpedKey(
+                _node_index(nodes, kf.time), body.selection(kf.vertices, kf.on),
+                None if kf.position is None or c_A == 0 else kf.position.ravel() - rest,
+                None if kf.velocity is None or c_B == 0 else kf.velocity.ravel(),
+                np.sqrt(c_A), np.sqrt(c_B)))
+        self.active = sorted({k.node for k in self.keys if k.d is not None or k.b is not None})
+        self.has_vel = {k.node for k in self.keys if k.b is not None}
+        self.timing = {"W": 0.0, "DW": 0.0, "solve": 0.0}
+        self._jac: dict[int, tuple] = {}
+
+    def _state(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Z = z.reshape(-1, 2, self.r)
+        return Z[:, 0], Z[:, 1]
+
+    def _fields(self, z: np.ndarray):
+        q, v = self._state(z)
+        n, Phi = self.n, self.Phi
+        t0 = _time.perf_counter()
+        U = (q[self.active] @ Phi.T).reshape(len(self.active), n, 3)
+        WU = self.warp.apply(U) if len(self.active) else U
+        Vel = {k: self.warp.jvp(U[a], (Phi @ v[k]).reshape(n, 3)).ravel()
+               for a, k in enumerate(self.active) if k in self.has_vel}
+        self.timing["W"] += _time.perf_counter() - t0
+        return q, v, U, WU, Vel
+
+    def _residuals(self, WU, Vel):
+        out = []
+        for key in self.keys:
+            a = self.active.index(key.node)
+            rA = key.wA * (key.S @ WU[a].ravel() - key.d) if key.d is not None else None
+            rB = key.wB * (key.S @ Vel[key.node] - key.b) if key.b is not None else None
+            out.append((rA, rB))
+        return out
+
+    def value(self, z: np.ndarray) -> float:
+        """F(z)."""
+        *_, WU, Vel = self._fields(z)
+        F = 0.5 * z @ _band_matvec(self.ab_E, self.bw, z) + self.f_E @ z + self.c_E
+        for rA, rB in self._residuals(WU, Vel):
+            F += 0.5 * sum(float(x @ x) for x in (rA, rB) if x is not None)
+        return float(F)
+
+    def value_and_gradient(self, z: np.ndarray) -> tuple[float, np.ndarray]:
+        """F(z) and its exact gradient."""
+        q, v, U, WU, Vel = self._fields(z)
+        n, r, Phi = self.n, self.r, self.Phi
+        Hz = _band_matvec(self.ab_E, self.bw, z)
+        F = 0.5 * z @ Hz + self.f_E @ z + self.c_E
+        resid = self._residuals(WU, Vel)
+        for rA, rB in resid:
+            F += 0.5 * sum(float(x @ x) for x in (rA, rB) if x is not None)
+        t0 = _time.perf_counter()
+        g = Hz + self.f_E
+        G = g.reshape(-1, 2, r)
+        for a, k in enumerate(self.active):
+            yA, yB = np.zeros(3 * n), np.zeros(3 * n)
+            for key, (rA, rB) in zip(self.keys, resid, strict=True):
+                if key.node == k and rA is not None:
+                    yA += key.wA * (key.S.T @ rA)
+                if key.node == k and rB is not None:
+                    yB += key.wB * (key.S.T @ rB)
+            if yA.any():
+                G[k, 0] += Phi.T @ self.warp.vjp(U[a], yA.reshape(n, 3)).ravel()
+            if yB.any():
+                G[k, 1] += Phi.T @ self.warp.vjp(U[a], yB.reshape(n, 3)).ravel()
+                VJ = self.warp.velocity_jacobian(U[a], (Phi @ v[k]).reshape(n, 3), Phi)
+                G[k, 0] += VJ.reshape(3 * n, r).T @ yB
+        self.timing["DW"] += _time.perf_counter() - t0
+        return float(F), g
+
+    def normal_matrix(self, z: np.ndarray, reuse: float = 0.0) -> np.ndarray:
+        """Band storage of H + sum J^T J (Gauss-Newton).  A node's Jacobian is reused while
+        its state moved by less than ``reuse`` (relative), which changes the convergence
+        rate, never the stationary point (the gradient is always exact)."""
+        q, v = self._state(z)
+        n, r, Phi = self.n, self.r, self.Phi
+        ab = self.ab_E.copy()
+        t0 = _time.perf_counter()
+        for k in self.active:
+            xk = np.r_[q[k], v[k]]
+            cached = self._jac.get(k)
+            if cached is None or np.linalg.norm(xk - cached[0]) > reuse * np.linalg.norm(xk):
+                u = (Phi @ q[k]).reshape(n, 3)
+                J = self.warp.jacobian(u, Phi).reshape(3 * n, r)
+                VJ = (self.warp.velocity_jacobian(u, (Phi @ v[k]).reshape(n, 3), Phi)
+                      .reshape(3 * n, r) if k in self.has_vel else None)
+                self._jac[k] = (xk, J, VJ)
+            _, J, VJ = self._jac[k]
+            block = np.zeros((2 * r, 2 * r))
+            for key in self.keys:
+                if key.node == k and key.d is not None:
+                    JA = key.wA * (key.S @ J)
+                    block[:r, :r] += JA.T @ JA
+                if key.node == k and key.b is not None:
+                    JB = key.wB * np.hstack([key.S @ VJ, key.S @ J])
+                    block += JB.T @ JB
+            _add_block(ab, self.bw, 2 * r * k + np.arange(2 * r), block)
+        self.timing["DW"] += _time.perf_counter() - t0
+        return ab
+
+
+def _gauss_newton(problem: SpacetimeProblem, kfs: list[Keyframe], nodes: np.ndarray,
+                  ab_E: np.ndarray, f_E: np.ndarray, c_E: float, z: np.ndarray,
+                  tolerance: float, max_iterations: int, info: dict) -> np.ndarray:
+    """Minimise E + E_WC (Theorem 2) by Gauss-Newton with Levenberg-Marquardt damping and an
+    Armijo line search from ``z``.  Stops when the relative decrease of F is below
+    ``tolerance`` and the scaled gradient below sqrt(tolerance F)."""
+    obj = WarpedObjective(problem, kfs, nodes, ab_E, f_E, c_E)
+    bw = obj.bw
+    F, g = obj.value_and_gradient(z)
+    F_lin, mu, history, converged, it = F, 0.0, [F], False, 0
+    diag = ab_E[bw]
+    for it in range(1, max_iterations + 1):
+        ab = obj.normal_matrix(z, reuse=JACOBIAN_REUSE)
+        diag = ab[bw].copy()
+        t0 = _time.perf_counter()
+        accepted = False
+        while not accepted and mu <= 1e8:
+            ab_mu = ab.copy()
+            ab_mu[bw] += mu * diag
+            dz = _solve_banded(ab_mu, -g)
+            slope = float(g @ dz)
+            step = 1.0
+            for _ in range(12):  # Armijo backtracking on the true objective
+                F_new = obj.value(z + step * dz)
+                if F_new <= F + 1e-4 * step * slope:
+                    accepted = True
+                    break
+                step *= 0.5
+            if not accepted:
+                mu = max(1e-6, 10 * mu)  # Levenberg-Marquardt: damp and retry
+        obj.timing["solve"] += _time.perf_counter() - t0
+        if not accepted:
+            break
+        mu = mu / 10 if step == 1.0 else mu
+        z = z + step * dz
+        F_old = F
+        F, g = obj.value_and_gradient(z)
+        history.append(F)
+        scaled = float(np.sqrt(np.sum(g**2 / np.where(diag > 0, diag, 1.0))))
+        if F_old - F <= tolerance * F and scaled <= np.sqrt(tolerance * max(F, 1e-300)):
+            converged = True
+            break
+    scaled = float(np.sqrt(np.sum(g**2 / np.where(diag > 0, diag, 1.0))))
+    info.update(iterations=it, converged=converged, objective_linear=F_lin, objective=F,
+                objective_history=history, scaled_gradient=scaled,
+                seconds_W=obj.timing["W"], seconds_DW=obj.timing["DW"],
+                seconds_solve=obj.timing["solve"])
+    if not converged:
+        last = (history[-2] - history[-1]) / max(F, 1e-300) if len(history) > 1 else 0.0
+        warnings.warn(
+            f"warped solve did not converge in {it} iterations: objective {F:.6g} (linear "
+            f"start {F_lin:.6g}), last relative decrease {last:.2e}, scaled gradient "
+            f"{scaled:.2e}; the result is the best iterate", WarpedSolveWarning, stacklevel=3)
+    return z
+
+
+JACOBIAN_REUSE = 0.02
+
+
+class WarpedSolveWarning(UserWarning):
+    """The nonlinear (warped) solve stopped before meeting its tolerance."""
 
 
 def _label(kf: Keyframe, j: int) -> str:
@@ -312,12 +615,14 @@ def _add_block(ab: np.ndarray, bw: int, idx: np.ndarray, block: np.ndarray) -> N
 
 
 def solve(body: Body, keyframes: list[Keyframe], *, duration: float | None = None,
-          start: float = 0.0, end: float | None = None,
+          start: float = 0.0, end: float | None = None, warp: bool = True,
           preroll: float | None = None, progress: bool = False) -> Animation:
-    """Animate ``body`` through the sparse ``keyframes`` (linear solve, Theorem 1).
+    """Animate ``body`` through the sparse ``keyframes``.
 
-    The time range is [start, end] (``end = start + duration``; default: the last keyframe
-    time, at least start + 1 s).
+    ``warp=True`` (default) solves E + E_WC on the rotation-strain-warped motion (Theorem 2)
+    and plays back W(u(t)); ``warp=False`` is the linear solve of Theorem 1.  The time range
+    is [start, end] (``end = start + duration``; default: the last keyframe time, at least
+    start + 1 s).
     """
     if end is None:
         if duration is None:
@@ -325,9 +630,12 @@ def solve(body: Body, keyframes: list[Keyframe], *, duration: float | None = Non
             duration = max(float(last) - start, 1.0)
         end = start + float(duration)
     problem = SpacetimeProblem(body, start, end, preroll)
-    anim = problem.solve(keyframes)
+    anim = problem.solve(keyframes, warped=warp)
     if progress:
-        print(f"[wiggly] linear solve: {anim.info['unknowns']} unknowns in "
-              f"{anim.info['solve_seconds'] * 1e3:.1f} ms", file=sys.stderr)
+        extra = ""
+        if warp:
+            extra = (f", {anim.info['iterations']} Gauss-Newton iterations"
+                     f"{'' if anim.info['converged'] else ' (not converged)'}")
+        print(f"[wiggly] {'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
+              f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}", file=sys.stderr)
     return anim
-

@@ -612,3 +612,50 @@ class Warp:
         res = np.empty((3, 3, 9, self.n_tets))
         _jvp_block(res, self._linearize(X), units)
         return np.ascontiguousarray(res.transpose(3, 1, 0, 2)).reshape(self.n_tets, 9, 9)
+
+    def velocity_jacobian(self, u: np.ndarray, v: np.ndarray, basis: np.ndarray) -> np.ndarray:
+        """``d/du (DW(u)[v]) @ basis``: the second derivative ``D^2W(u)[basis_j, v]``.
+
+        Needed for velocity keyframes on the warped motion, ``B DW(u) u'`` (SYSTEM.md §6).
+        The Poisson fit and the gauge are linear, so only the per-tet map is differentiated
+        twice: its 9x9 derivative in the local gradient ``A`` is taken by central differences
+        of the analytic tangent map (step ~ eps^(1/3), error ~ 1e-10 relative), then applied
+        to the r fields with one multi-RHS solve.  Shapes as in :meth:`jacobian`.
+        """
+        n, m = self.n_vertices, self.n_tets
+        X, batched = self._as_columns(u, "u")
+        Vc, vbatched = self._as_columns(v, "v")
+        if batched or vbatched:
+            raise WigglyInputError(f"u and v should have shape ({n}, 3)")
+        B = np.asarray(basis, dtype=np.float64)
+        r = B.shape[-1]
+        if B.size != 3 * n * r:
+            raise WigglyInputError(
+                f"basis should have shape ({n}, 3, r) or ({3 * n}, r); shape is {B.shape}"
+            )
+        dX = B.reshape(n, 3, r)
+        A = (self._G @ X.reshape(n, 3)).reshape(m, 3, 3).transpose(2, 1, 0)[:, :, None, :]
+        gv = (self._G @ Vc.reshape(n, 3)).reshape(m, 3, 3).transpose(2, 1, 0)[:, :, None, :]
+        A = np.ascontiguousarray(A)
+        gv = np.ascontiguousarray(gv)
+        h = 6e-6 * max(1.0, float(np.abs(A).max()))
+        T2 = np.empty((m, 9, 9))
+        plus = np.empty_like(A)
+        minus = np.empty_like(A)
+        for e in range(9):  # unit e = 3 j + i perturbs A_ij
+            j, i = divmod(e, 3)
+            Ap = A.copy()
+            Ap[i, j] += h
+            _jvp_block(plus, _linearization(Ap), gv)
+            Ap[i, j] -= 2 * h
+            _jvp_block(minus, _linearization(Ap), gv)
+            d = (plus - minus) / (2 * h)
+            T2[:, :, e] = d[:, :, 0, :].transpose(2, 1, 0).reshape(m, 9)
+        rhs = np.empty((n, 3, r))
+        for c0 in range(0, r, _CHUNK_COLUMNS):
+            cc = min(r, c0 + _CHUNK_COLUMNS) - c0
+            dA = self._G @ np.ascontiguousarray(dX[:, :, c0 : c0 + cc]).reshape(n, 3 * cc)
+            dH = np.matmul(T2, dA.reshape(m, 9, cc))
+            rhs[:, :, c0 : c0 + cc] = (self._GtV @ dH.reshape(3 * m, 3 * cc)).reshape(n, 3, cc)
+        # the gauge's mean term of DW(u)[v] is the mean of v: independent of u
+        return self._poisson(rhs, np.zeros_like(rhs)).reshape(B.shape)
