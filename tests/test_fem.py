@@ -65,6 +65,8 @@ def test_material_defaults_and_lame():
         ({"poisson": math.nan}, "poisson", "nan"),
         ({"density": 0.0}, "density", "0.0"),
         ({"density": -5.0}, "density", "-5.0"),
+        ({"density": "heavy"}, "density", "'heavy'"),
+        ({"young": None}, "young", "None"),
     ],
 )
 def test_material_rejects_bad_values(kwargs, field, shown):

@@ -1,26 +1,32 @@
-"""Export of an animated triangle surface: glTF binary, USD, an OBJ sequence or npz (SYSTEM.md §9).
+"""Export of an animated triangle surface: glTF binary, USD, an OBJ sequence or npz.
 
-The last stage of the pipeline only sees plain arrays, a :class:`SurfaceAnimation`: frame times,
-per-frame vertex positions of the user's surface and its triangles (plus optional per-vertex
-texture coordinates and rest normals).  :func:`write_animation` picks the format from the file
-extension (:data:`SUPPORTED`); :func:`read_animation` reads every format back (tests, and
-``wiggly render`` of an exported file).
+The last stage of the pipeline (SYSTEM.md §1, step 4: "exports it to animation tools") only
+sees plain arrays, a :class:`SurfaceAnimation`: frame times, per-frame vertex positions of the
+user's own surface (same vertices, same order, same faces and UVs) and its triangles, plus
+optional per-vertex texture coordinates and rest normals.  :func:`write_animation` picks the
+format from the file extension (:data:`SUPPORTED`); :func:`read_animation` reads every format
+back (tests, and ``wiggly render`` of an exported file).
 
 Formats
 -------
 ``.glb``
-    glTF 2.0 binary.  The base mesh is frame 0 (POSITION, NORMAL, TEXCOORD_0, indices); frame k
-    is morph target k (POSITION and NORMAL deltas from the base), and one animation drives the
-    node's ``weights`` with a LINEAR sampler whose keyframe k has weight 1 on target k and 0
-    elsewhere, so playback between frames interpolates positions linearly.  Blender imports the
-    targets as shape keys (named by ``mesh.extras.targetNames``); three.js plays the clip with
-    an ``AnimationMixer``.  All data is float32, 4-byte aligned; accessors of POSITION carry
-    exact min/max.  glTF puts the texture origin at the top-left corner, so V is written as
-    ``1 - v`` (and flipped back on reading): :class:`SurfaceAnimation` uvs follow the OBJ/USD
-    convention (origin bottom-left).  glTF forbids negative times: if ``times[0] < 0`` the
-    clip is shifted to start at 0.  The exact times in seconds are kept in the animation's
-    ``extras.wiggly.times``.  Size is about ``F * n * 24`` bytes (positions + normals per
-    frame): 300 frames of 20k vertices take 144 MB.
+    glTF 2.0 binary (pygltflib).  The base mesh is frame 0: POSITION, NORMAL (the rest normals
+    when given, else frame 0's recomputed normals), TEXCOORD_0 (when uvs) and uint16/uint32
+    indices.  Frame k is morph target k (POSITION and NORMAL deltas from the base, so the
+    shading follows the deformation), and one animation drives the node's ``weights`` with a
+    LINEAR sampler whose keyframe k has weight 1 on target k and 0 elsewhere: between frames
+    positions interpolate linearly, and at most two targets are active at once.  The mesh's
+    default weights are 0 (a viewer that ignores animations shows frame 0).  Blender imports
+    the targets as shape keys (named ``frame_0000``, ... by ``mesh.extras.targetNames``);
+    three.js plays the clip with an ``AnimationMixer``.  All data is float32 and 4-byte
+    aligned; the deltas of all frames share one bufferView with ``byteStride`` 12; every
+    POSITION accessor (base and targets) has its exact min/max.  glTF puts the texture origin
+    at the top-left corner, so V is written as ``1 - v`` (and flipped back on reading):
+    :class:`SurfaceAnimation` uvs follow the OBJ/USD convention (origin bottom-left).  glTF
+    forbids negative times: if ``times[0] < 0`` the clip is shifted to start at 0; the exact
+    times in seconds are kept in the animation's ``extras.wiggly.times`` (and read back from
+    there).  Size is about ``F * n * 24`` bytes (position and normal deltas per frame): 300
+    frames of 20k vertices take 147 MB.
 ``.usd``, ``.usda``, ``.usdc``
     A ``UsdGeom.Mesh`` ``/<name>/mesh`` under an Xform ``/<name>`` (the default prim, kind
     component) with time-sampled ``points`` and ``extent``; ``subdivisionScheme = "none"``;
@@ -30,17 +36,20 @@ Formats
     times are uniform (dt equal to 1e-6 relative), ``timeCodesPerSecond = framesPerSecond =
     1 / dt`` (rounded to an integer when within 1e-6 of one) and frame k has time code
     ``times[0] / dt + k``; otherwise ``timeCodesPerSecond = 1000`` and time code =
-    milliseconds.  ``.usd`` is written in the binary crate format.
+    milliseconds.  Reading gives ``time = time code / timeCodesPerSecond``.  ``.usd`` is
+    written in the binary crate format (usd-core's default).
 ``.obj``
     An OBJ sequence: ``out/frame.obj`` writes ``out/frame_0000.obj``, ``out/frame_0001.obj``,
     ... (frame index zero-padded to at least 4 digits, more when F > 10000), each with
     ``v``, ``vt`` (when uvs), ``vn`` and ``f a/a/a`` lines (1-based, the same index for
-    position, uv and normal) and a ``# time <seconds>`` comment.  Vertex order and faces are
-    the input's.  Positions are written in fixed point with 9 significant digits for the
-    largest coordinate (float32 precision relative to the object's size), normals with 6
-    decimals.  Writing is vectorized (numpy builds the text): 300 frames of 20k vertices take
-    about 5 s (see ``tests/test_export.py``).  Overwriting a sequence also deletes frames of
-    an earlier, longer sequence with the same name.
+    position, uv and normal; ``f a//a`` without uvs), an ``o <name>`` line and a
+    ``# time <seconds>`` comment (read back as the frame time).  Vertex order and faces are
+    the input's.  Positions and uvs are written with ``%.9g`` (float32 values come back bit
+    for bit), normals with ``%.6g``.  Each frame's text is made by a single C-level ``%``
+    over a preformatted block (the uv and face lines are formatted once): 120 frames of 5k
+    vertices take about 2 s (106 MB), 300 frames of 20k vertices about 14 s (1.1 GB), on
+    two busy cores.  Overwriting a sequence also deletes the frames of an earlier, longer
+    sequence with the same name.
 ``.npz``
     Compressed numpy archive with ``format_version``, ``times`` (float64), ``positions``
     (float32), ``faces`` (int64), ``name`` and optional ``uvs`` and ``normals`` (float32).
@@ -52,8 +61,10 @@ recomputed frame-k normal, so frame 0 shows the file's normals exactly.
 
 Every write is atomic: data goes to a temporary file (or, for OBJ sequences, a temporary
 directory) in the output's directory and is moved into place with :func:`os.replace` only
-when complete.  An existing output is an error unless ``overwrite=True``.  Missing parent
-directories are created.
+when complete, so a failure never leaves a partial output (nor a temporary file).  For an OBJ
+sequence each frame file is replaced atomically, the sequence as a whole is not (the moves
+happen after every frame was written).  An existing output is an error unless
+``overwrite=True``.  Missing parent directories are created.
 """
 
 from __future__ import annotations
@@ -88,6 +99,8 @@ SUPPORTED = {
 
 #: Version of the npz layout and of the glTF extras written here.
 FORMAT_VERSION = 1
+#: OBJ number format of positions: 9 significant digits reproduce float32 values exactly.
+POSITION_FORMAT = "%.9g"
 #: Frame rate assumed for an OBJ sequence without ``# time`` comments.
 OBJ_DEFAULT_FPS = 30.0
 #: Normal of a vertex that belongs to no triangle of positive area (and has no rest normal).
@@ -165,6 +178,11 @@ def write_animation(
             f"supported: {', '.join(SUPPORTED)}"
         )
     anim = _checked(anim, f"cannot write {path}")
+    if ext == ".glb" and np.any(np.diff(_gltf_times(anim.times)) <= 0):
+        raise WigglyInputError(
+            f"cannot write {path}: frame times are too close to be distinct in float32, which "
+            "glTF uses; use a larger frame interval (or export .usd / .npz)"
+        )
     if path.is_dir():
         raise WigglyInputError(f"cannot write {path}: it is a directory; give a file name")
     if ext == ".obj":
@@ -219,8 +237,8 @@ def _checked(anim: SurfaceAnimation, where: str) -> SurfaceAnimation:
             a = np.asarray(value)
         except ValueError as e:
             fail(f"{name} should be an array of shape {ndim_shape}; {e}")
-        if a.dtype == object or not (np.issubdtype(a.dtype, np.number) or a.dtype == bool):
-            fail(f"{name} should be a numeric array of shape {ndim_shape}; dtype is {a.dtype}")
+        if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+            fail(f"{name} should be a real-valued array of shape {ndim_shape}; dtype is {a.dtype}")
         return a
 
     times = array("times", anim.times, "(F,)")
@@ -286,6 +304,7 @@ def _checked(anim: SurfaceAnimation, where: str) -> SurfaceAnimation:
                  f"{normals[v].tolist()}")
         normals = normals / length[:, None]
     name = anim.name if isinstance(anim.name, str) and anim.name.strip() else "wiggly"
+    name = re.sub(r"[\x00-\x1f]+", " ", name).strip()  # one line in OBJ's "o" statement
     return SurfaceAnimation(times, positions, faces, uvs, normals, name)
 
 
@@ -364,6 +383,16 @@ def _atomic_file(path: Path) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
+def _require(module: str, package: str, ext: str):
+    """Import an optional format library, or say which package to install."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError as e:
+        raise ImportError(f"{ext} files need the package {package}: pip install {package}") from e
+
+
 def _progress(iterable, total: int, enabled: bool, what: str):
     return tqdm(iterable, total=total, disable=not enabled, file=sys.stderr, unit="frame",
                 desc=what)
@@ -421,8 +450,13 @@ _GL_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 51
 _GL_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 
+def _gltf_times(times: np.ndarray) -> np.ndarray:
+    """Sampler input: float32 seconds, shifted to start at 0 if the first time is negative."""
+    return (times - min(times[0], 0.0)).astype(np.float32)
+
+
 def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False) -> None:
-    import pygltflib as gl
+    gl = _require("pygltflib", "pygltflib", ".glb")
 
     F, n = anim.n_frames, anim.n_vertices
     frame_normals = _FrameNormals(anim)
@@ -434,13 +468,7 @@ def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
     dN = np.empty_like(dP)
     for k in _progress(range(F), F, progress, "normals"):
         dN[k] = frame_normals(anim.positions[k]).astype(np.float32) - base_n
-    times = anim.times - min(anim.times[0], 0.0)
-    t32 = times.astype(np.float32)
-    if F > 1 and np.any(np.diff(t32) <= 0):
-        raise WigglyInputError(
-            f"cannot write {path.name}: frame times are too close to be distinct in float32, "
-            "which glTF uses; resample the animation with a larger frame interval"
-        )
+    t32 = _gltf_times(anim.times)
     index_type = _GL_UNSIGNED_SHORT if n <= 65535 else _GL_UNSIGNED_INT
 
     blob = bytearray()
@@ -547,7 +575,7 @@ def _gl_accessor(gltf, blob: bytes, index: int) -> np.ndarray:
 
 
 def _read_glb(path: Path) -> SurfaceAnimation:
-    import pygltflib as gl
+    gl = _require("pygltflib", "pygltflib", ".glb")
 
     try:
         gltf = gl.GLTF2().load(str(path))
@@ -619,14 +647,9 @@ def _usd_time_codes(times: np.ndarray) -> tuple[float, np.ndarray]:
     return 1000.0, times * 1000.0
 
 
-def _usd_prim_name(name: str) -> str:
-    from pxr import Tf
-
-    return Tf.MakeValidIdentifier(name)
-
-
 def _write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False) -> None:
-    from pxr import Gf, Kind, Sdf, Usd, UsdGeom, Vt
+    _require("pxr", "usd-core", "USD")
+    from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, Vt
 
     fps, codes = _usd_time_codes(anim.times)
     stage = Usd.Stage.CreateInMemory()
@@ -636,7 +659,7 @@ def _write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
     stage.SetFramesPerSecond(fps)
     stage.SetStartTimeCode(float(codes[0]))
     stage.SetEndTimeCode(float(codes[-1]))
-    root_name = _usd_prim_name(anim.name)
+    root_name = Tf.MakeValidIdentifier(anim.name)
     root = UsdGeom.Xform.Define(stage, Sdf.Path.absoluteRootPath.AppendChild(root_name))
     stage.SetDefaultPrim(root.GetPrim())
     Usd.ModelAPI(root.GetPrim()).SetKind(Kind.Tokens.component)
@@ -658,16 +681,15 @@ def _write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
         normals = mesh.CreateNormalsAttr()
         mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
         frame_normals = _FrameNormals(anim)
-    with Sdf.ChangeBlock():
-        for k in _progress(range(anim.n_frames), anim.n_frames, progress, "USD"):
-            t = Usd.TimeCode(float(codes[k]))
-            p = anim.positions[k].astype(np.float32)
-            points.Set(Vt.Vec3fArray.FromNumpy(p), t)
-            lo, hi = p.min(axis=0).tolist(), p.max(axis=0).tolist()
-            extent.Set(Vt.Vec3fArray([Gf.Vec3f(*lo), Gf.Vec3f(*hi)]), t)
-            if normals is not None:
-                nk = frame_normals(anim.positions[k]).astype(np.float32)
-                normals.Set(Vt.Vec3fArray.FromNumpy(nk), t)
+    for k in _progress(range(anim.n_frames), anim.n_frames, progress, "USD"):
+        t = Usd.TimeCode(float(codes[k]))
+        p = anim.positions[k].astype(np.float32)
+        points.Set(Vt.Vec3fArray.FromNumpy(p), t)
+        lo, hi = p.min(axis=0).tolist(), p.max(axis=0).tolist()
+        extent.Set(Vt.Vec3fArray([Gf.Vec3f(*lo), Gf.Vec3f(*hi)]), t)
+        if normals is not None:
+            nk = frame_normals(anim.positions[k]).astype(np.float32)
+            normals.Set(Vt.Vec3fArray.FromNumpy(nk), t)
     if not stage.GetRootLayer().Export(str(path)):
         raise OSError(f"USD could not write {path}")
 
@@ -682,6 +704,7 @@ def _forget_usd_layer(path: Path) -> None:
 
 
 def _read_usd(path: Path) -> SurfaceAnimation:
+    _require("pxr", "usd-core", "USD")
     from pxr import Usd, UsdGeom
 
     _forget_usd_layer(path)
@@ -739,50 +762,14 @@ def _obj_existing_frames(path: Path) -> dict[int, Path]:
     return found
 
 
-def _format_fixed(prefix: bytes, X: np.ndarray, decimals: int) -> bytes:
-    """Lines ``prefix x0 x1 ...`` for the rows of X, numbers in fixed point, vectorized.
+def _format_obj_block(prefix: str, X: np.ndarray, fmt: str) -> bytes:
+    """Lines ``prefix x0 x1 ...`` for the rows of X: one C-level ``%`` over the whole block.
 
-    Each number is rounded to ``decimals`` decimals; leading zeros of the integer part and
-    trailing zeros of the fraction are dropped ("0.5", "-12", "3.25").  Equivalent to
-    ``"%.{decimals}f"`` without trailing zeros, about ten times faster than ``%`` formatting:
-    every character is placed in a fixed-width uint8 grid, unused cells are NUL and removed.
+    (Faster than ``np.savetxt``, which formats row by row, and than building the digits with
+    numpy, which needs many passes over the array.)
     """
-    X = np.asarray(X, np.float64)
-    m, c = X.shape
-    q = np.rint(np.abs(X) * 10.0**decimals).astype(np.int64)
-    ndig = max(decimals + 1, len(str(int(q.max()))) if m else 1)
-    digits = (q[..., None] // 10 ** np.arange(ndig - 1, -1, -1, dtype=np.int64)) % 10
-    n_int = ndig - decimals
-    cells = np.zeros((m, c, ndig + 3), np.uint8)  # sign, digits, point, separator
-    cells[..., 0] = np.where((X < 0) & (q > 0), ord("-"), 0)
-    integer = digits[..., :n_int] + ord("0")
-    integer[..., :-1][np.cumsum(digits[..., : n_int - 1] != 0, axis=-1) == 0] = 0
-    cells[..., 1 : 1 + n_int] = integer
-    if decimals:
-        frac = digits[..., n_int:]
-        trailing = np.cumsum(frac[..., ::-1] != 0, axis=-1)[..., ::-1] == 0
-        cells[..., 1 + n_int] = np.where(trailing[..., 0], 0, ord("."))
-        cells[..., 2 + n_int :] [..., :decimals] = np.where(trailing, 0, frac + ord("0"))
-    cells[..., -1] = ord(" ")
-    cells[:, -1, -1] = ord("\n")
-    head = np.broadcast_to(np.frombuffer(prefix, np.uint8), (m, len(prefix)))
-    flat = np.concatenate([head, cells.reshape(m, -1)], axis=1).ravel()
-    return flat[flat != 0].tobytes()
-
-
-def _position_decimals(positions: np.ndarray) -> int | None:
-    """Decimals giving 9 significant digits to the largest coordinate; None if too large."""
-    largest = float(np.abs(positions).max())
-    if largest >= 1e9:
-        return None
-    return 8 if largest == 0 else max(0, 8 - int(np.floor(np.log10(largest))))
-
-
-def _format_obj_block(prefix: str, X: np.ndarray, decimals: int | None) -> bytes:
-    if decimals is None:  # huge coordinates: C-level %-formatting with 9 significant digits
-        row = prefix + " %.9g" * X.shape[1] + "\n"
-        return ((row * len(X)) % tuple(X.ravel().tolist())).encode()
-    return _format_fixed(prefix.encode(), X, decimals)
+    row = prefix + f" {fmt}" * X.shape[1] + "\n"
+    return ((row * len(X)) % tuple(X.ravel().tolist())).encode()
 
 
 def _write_frame_file(path: Path, data: bytes) -> None:
@@ -797,14 +784,13 @@ def _write_obj_sequence(path: Path, anim: SurfaceAnimation, *, overwrite: bool,
     if existing and not overwrite:
         first = existing[min(existing)]
         raise WigglyInputError(
-            f"{first} exists ({len(existing)} frame(s) of the OBJ sequence {path.name} in "
-            f"{path.parent}); pass overwrite=True / --overwrite to replace them"
+            f"{first} exists; pass overwrite=True / --overwrite to replace the "
+            f"{len(existing)} existing frame(s) of the OBJ sequence {path.name} in {path.parent}"
         )
     frame_normals = _FrameNormals(anim)
-    decimals = _position_decimals(anim.positions)
     f = anim.faces + 1
     if anim.uvs is not None:
-        uv_block = _format_obj_block("vt", anim.uvs, max(6, _position_decimals(anim.uvs) or 6))
+        uv_block = _format_obj_block("vt", anim.uvs, "%.9g")
         face_row = "f %d/%d/%d %d/%d/%d %d/%d/%d\n"
         face_values = np.repeat(f, 3, axis=1)
     else:
@@ -812,7 +798,7 @@ def _write_obj_sequence(path: Path, anim: SurfaceAnimation, *, overwrite: bool,
         face_row = "f %d//%d %d//%d %d//%d\n"
         face_values = np.repeat(f, 2, axis=1)
     face_block = ((face_row * len(f)) % tuple(face_values.ravel().tolist())).encode()
-    header = f"# wiggly {{k}} of {F}\n# time {{t!r}}\no {anim.name}\n"
+    header = f"# wiggly frame {{k}} of {F}\n# time {{t!r}}\no {anim.name}\n"
 
     path.parent.mkdir(parents=True, exist_ok=True)
     tmpdir = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.stem}.tmp-"))
@@ -820,9 +806,9 @@ def _write_obj_sequence(path: Path, anim: SurfaceAnimation, *, overwrite: bool,
         for k in _progress(range(F), F, progress, "OBJ"):
             data = b"".join([
                 header.format(k=k, t=float(anim.times[k])).encode(),
-                _format_obj_block("v", anim.positions[k], decimals),
+                _format_obj_block("v", anim.positions[k], POSITION_FORMAT),
                 uv_block,
-                _format_obj_block("vn", frame_normals(anim.positions[k]), 6),
+                _format_obj_block("vn", frame_normals(anim.positions[k]), "%.6g"),
                 face_block,
             ])
             _write_frame_file(tmpdir / names[k].name, data)
@@ -835,17 +821,20 @@ def _write_obj_sequence(path: Path, anim: SurfaceAnimation, *, overwrite: bool,
         shutil.rmtree(tmpdir, ignore_errors=True)
 
 
-_OBJ_V = re.compile(rb"^v[ \t]+(\S+)[ \t]+(\S+)[ \t]+(\S+)", re.M)
-_OBJ_VT = re.compile(rb"^vt[ \t]+(\S+)[ \t]+(\S+)", re.M)
-_OBJ_VN = re.compile(rb"^vn[ \t]+(\S+)[ \t]+(\S+)[ \t]+(\S+)", re.M)
+_OBJ_V = re.compile(rb"^v[ \t]+([^\n]*)", re.M)
+_OBJ_VT = re.compile(rb"^vt[ \t]+([^\n]*)", re.M)
+_OBJ_VN = re.compile(rb"^vn[ \t]+([^\n]*)", re.M)
 _OBJ_F = re.compile(rb"^f[ \t]+([^\n]*)", re.M)
 _OBJ_TIME = re.compile(rb"^# time[ \t]+(\S+)", re.M)
 _OBJ_NAME = re.compile(rb"^o[ \t]+([^\r\n]*)", re.M)
 
 
-def _obj_floats(matches: list, width: int) -> np.ndarray:
-    return np.array(b" ".join(b" ".join(m) for m in matches).split(), np.float64).reshape(
-        -1, width)
+def _obj_floats(rows: list[bytes], width: int) -> np.ndarray:
+    """The first ``width`` numbers of each row (a ``v``, ``vt`` or ``vn`` line's rest)."""
+    values = np.array(b" ".join(rows).split(), np.float64)
+    if len(values) != width * len(rows):  # optional extra values (v x y z w, vt u v w)
+        values = np.array([row.split()[:width] for row in rows], np.float64)
+    return values.reshape(-1, width)
 
 
 def _read_obj_faces(file: Path, data: bytes, n: int) -> np.ndarray:

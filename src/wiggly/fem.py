@@ -37,26 +37,34 @@ __all__ = [
 DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
 
 
+def _as_real(name: str, value: object, allowed: str) -> float:
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise WigglyInputError(f"{name} should be {allowed}; got {value!r}") from None
+
+
 def _check_young(young: float) -> float:
-    value = float(young)
+    allowed = "finite and > 0 Pa"
+    value = _as_real("young (Young's modulus)", young, allowed)
     if not (math.isfinite(value) and value > 0.0):
-        raise WigglyInputError(
-            f"young (Young's modulus) should be finite and > 0 Pa; got {young!r}"
-        )
+        raise WigglyInputError(f"young (Young's modulus) should be {allowed}; got {young!r}")
     return value
 
 
 def _check_poisson(poisson: float) -> float:
-    value = float(poisson)
+    allowed = "in [0, 0.5)"
+    value = _as_real("poisson (Poisson's ratio)", poisson, allowed)
     if not (math.isfinite(value) and 0.0 <= value < 0.5):
-        raise WigglyInputError(f"poisson (Poisson's ratio) should be in [0, 0.5); got {poisson!r}")
+        raise WigglyInputError(f"poisson (Poisson's ratio) should be {allowed}; got {poisson!r}")
     return value
 
 
 def _check_density(density: float) -> float:
-    value = float(density)
+    allowed = "finite and > 0 kg/m^3"
+    value = _as_real("density", density, allowed)
     if not (math.isfinite(value) and value > 0.0):
-        raise WigglyInputError(f"density should be finite and > 0 kg/m^3; got {density!r}")
+        raise WigglyInputError(f"density should be {allowed}; got {density!r}")
     return value
 
 
@@ -302,7 +310,8 @@ def rayleigh_damping(M: sp.spmatrix, K: sp.spmatrix, alpha: float, beta: float) 
         Stiffness-proportional damping in s, >= 0.
     """
     for name, value in (("alpha", alpha), ("beta", beta)):
-        if not (math.isfinite(float(value)) and float(value) >= 0.0):
+        number = _as_real(f"{name} (Rayleigh damping)", value, "finite and >= 0")
+        if not (math.isfinite(number) and number >= 0.0):
             raise WigglyInputError(
                 f"{name} (Rayleigh damping) should be finite and >= 0; got {value!r}"
             )

@@ -58,6 +58,8 @@ VOLUME_EXTENSIONS = tuple(
 DEGENERATE_VOLUME = 1e-12
 #: Surface vertices closer than this times the bounding-box diagonal are welded.
 WELD_TOLERANCE = 1e-6
+#: fTetWild's envelope (how far the tet mesh boundary may be from the surface), in edge lengths.
+ENVELOPE_PER_EDGE = 0.1
 #: Default target number of tet edges along the bounding-box diagonal in :func:`tetrahedralize`.
 DEFAULT_RESOLUTION = 20
 
@@ -633,11 +635,10 @@ def _load_trimesh(path: Path, ext: str) -> Surface:
     source = str(path)
     try:
         if ext == ".obj":
-            loaded = trimesh.load(
-                path, process=False, maintain_order=True, group_material=False, force="mesh"
-            )
-        else:
-            loaded = trimesh.load(path, process=False)
+            return _obj_surface(path)
+        loaded = trimesh.load(path, process=False)
+    except WigglyInputError:
+        raise
     except Exception as exc:  # trimesh raises many types for malformed files
         raise WigglyInputError(f"{source}: could not read the file with trimesh: {exc}") from exc
     if isinstance(loaded, trimesh.Scene):
@@ -646,13 +647,13 @@ def _load_trimesh(path: Path, ext: str) -> Surface:
         meshes = [("", loaded, _file_normals(loaded))]
     meshes = [m for m in meshes if isinstance(m[1], trimesh.Trimesh) and len(m[1].faces)]
     if not meshes:
-        raise WigglyInputError(
-            f"{source}: contains no triangles (only points or lines); give a closed triangle "
-            "surface."
-        )
-    if ext == ".obj":
-        return _obj_surface(path, meshes[0][1])
+        raise WigglyInputError(_NO_TRIANGLES.format(source=source))
     return _concatenate(meshes)
+
+
+_NO_TRIANGLES = (
+    "{source}: contains no triangles (only points or lines); give a closed triangle surface."
+)
 
 
 def _scene_meshes(scene) -> list[tuple[str, object, np.ndarray | None]]:
@@ -717,37 +718,62 @@ def _concatenate(meshes: list[tuple[str, object, np.ndarray | None]]) -> Surface
     )
 
 
-def _obj_surface(path: Path, ordered) -> Surface:
-    """An OBJ surface with the file's vertex order and unambiguous per-vertex UVs and normals.
+def _obj_surface(path: Path) -> Surface:
+    """An OBJ surface with the file's ``v`` order and unambiguous per-vertex UVs and normals.
 
-    The ordered load keeps the ``v`` lines but trimesh then guesses one UV per
-    vertex; a second load that splits vertices at seams gives each face corner
-    its true ``vt`` and ``vn``, which are kept per vertex only if they agree.
+    trimesh's ordered read keeps the ``v`` lines but then guesses one UV per
+    vertex; a second read that splits vertices at seams gives every face corner
+    its true ``vt`` and ``vn``, which are kept per vertex only where they agree.
     """
-    import trimesh
-
-    V = np.asarray(ordered.vertices, dtype=np.float64)
-    F = np.asarray(ordered.faces, dtype=np.int64)
+    ordered = _obj_chunks(path, maintain_order=True)
+    if not ordered:
+        raise WigglyInputError(_NO_TRIANGLES.format(source=path))
+    # with maintain_order every chunk holds a prefix of the file's v lines
+    V = np.asarray(max((c["vertices"] for c in ordered), key=len), dtype=np.float64)
+    F = np.concatenate([np.asarray(c["faces"], dtype=np.int64) for c in ordered])
     uvs = normals = None
-    if _file_uvs(ordered) is not None or _file_normals(ordered) is not None:
-        split = trimesh.load(
-            path, process=False, maintain_order=False, group_material=False, force="mesh"
-        )
-        same = split.faces.shape == F.shape and np.allclose(split.vertices[split.faces], V[F])
-        if same:
-            uv, nrm = _file_uvs(split), _file_normals(split)
-            if uv is not None:
-                uvs = _per_vertex(uv[split.faces], F, len(V))
+    if any(_chunk_uv(c) is not None or "vertex_normals" in c for c in ordered):
+        split = _obj_chunks(path, maintain_order=False)
+        corners = np.concatenate([np.asarray(c["vertices"])[c["faces"]] for c in split])
+        if corners.shape == (len(F), 3, 3) and np.allclose(corners, V[F], rtol=0, atol=0):
+            uv = [_chunk_uv(c) for c in split]
+            if all(u is not None for u in uv):
+                uvs = _per_vertex(
+                    np.concatenate([u[c["faces"]] for u, c in zip(uv, split, strict=True)]),
+                    F,
+                    len(V),
+                )
                 if uvs is None:
                     warnings.warn(
                         f"{path}: some vertices have several texture coordinates (UV seams); "
                         "per-vertex UVs cannot represent that, so the surface has no UVs. The "
                         "vertex order is the file's, so the animation still applies to it.",
-                        stacklevel=3,
+                        stacklevel=4,
                     )
-            if nrm is not None:
-                normals = _per_vertex(nrm[split.faces], F, len(V))
+            if all("vertex_normals" in c for c in split):
+                corner_normals = [np.asarray(c["vertex_normals"])[c["faces"]] for c in split]
+                normals = _per_vertex(np.concatenate(corner_normals), F, len(V))
     return Surface(V, F, uvs=uvs, normals=normals)
+
+
+def _obj_chunks(path: Path, maintain_order: bool) -> list[dict]:
+    """trimesh's OBJ reader output: one dict per material chunk, in file order."""
+    from trimesh.exchange.obj import load_obj
+
+    with open(path, "rb") as file:
+        kwargs = load_obj(
+            file, maintain_order=maintain_order, group_material=False, skip_materials=True
+        )
+    # trimesh builds the chunks from the end of the file backwards
+    return list(kwargs.get("geometry", {}).values())[::-1]
+
+
+def _chunk_uv(chunk: dict) -> np.ndarray | None:
+    """Per-vertex texture coordinates of one OBJ chunk, if any."""
+    uv = getattr(chunk.get("visual"), "uv", None)
+    if uv is None or len(uv) != len(chunk["vertices"]):
+        return None
+    return np.asarray(uv, dtype=np.float64)[:, :2]
 
 
 def _per_vertex(corner_values: np.ndarray, F: np.ndarray, n: int) -> np.ndarray | None:
@@ -846,10 +872,12 @@ def tetrahedralize(
         edge_length = diag / (resolution or DEFAULT_RESOLUTION)
     import pytetwild
 
+    envelope = float(np.clip(ENVELOPE_PER_EDGE * edge_length / diag, 1e-3, 1e-2))
     tv, tt = pytetwild.tetrahedralize(
         np.ascontiguousarray(V),
         np.ascontiguousarray(F, dtype=np.int32),
         edge_length_abs=float(edge_length),
+        epsilon=envelope,
         quiet=not progress,
         loglevel=2 if progress else 6,
     )

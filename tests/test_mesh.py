@@ -1,0 +1,480 @@
+"""Tests of stage 1, ``wiggly.mesh``: loading, checks, tetrahedralization, embedding."""
+
+from __future__ import annotations
+
+import re
+import warnings
+
+import meshio
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import trimesh
+
+from wiggly.errors import WigglyInputError
+from wiggly.mesh import (
+    Surface,
+    TetMesh,
+    _self_intersections_vtk,
+    check_surface,
+    check_tet_mesh,
+    embed,
+    load_mesh,
+    load_model,
+    tetrahedralize,
+)
+
+# --------------------------------------------------------------------------- fixtures
+
+
+def box_tets(nx: int, ny: int, nz: int, size=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """A box ``[0, a] x [0, b] x [0, c]`` split into cubes, each cut into 6 Kuhn tets.
+
+    The 6 tets of a cube follow the monotone paths from corner (0,0,0) to
+    (1,1,1); each has volume 1/6 of the cube, half of them negatively oriented.
+    """
+    axes = [np.linspace(0.0, s, k + 1) for s, k in zip(size, (nx, ny, nz), strict=True)]
+    V = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    idx = np.arange(len(V)).reshape(nx + 1, ny + 1, nz + 1)
+    corners = np.stack(
+        [
+            idx[i : i + nx, j : j + ny, k : k + nz].ravel()
+            for i in (0, 1)
+            for j in (0, 1)
+            for k in (0, 1)
+        ],
+        axis=1,
+    )  # corner 4i + 2j + k
+    paths = [[0, 4, 6, 7], [0, 4, 5, 7], [0, 2, 6, 7], [0, 2, 3, 7], [0, 1, 5, 7], [0, 1, 3, 7]]
+    return V, corners[:, paths].reshape(-1, 4)
+
+
+def cube_surface() -> tuple[np.ndarray, np.ndarray]:
+    """Unit cube ``[0, 1]^3``: 8 vertices, 12 outward triangles."""
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    return np.asarray(box.vertices) + 0.5, np.asarray(box.faces, dtype=np.int64)
+
+
+def signed_volume(V: np.ndarray, F: np.ndarray) -> float:
+    """Volume enclosed by a closed triangle surface (divergence theorem)."""
+    return float(np.einsum("ij,ij->i", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]])).sum() / 6)
+
+
+def write_obj(path, V, F, extra: str = "") -> None:
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()]
+    lines += [f"f {a} {b} {c}" for a, b, c in (F + 1).tolist()]
+    path.write_text(extra + "\n".join(lines) + "\n")
+
+
+def error_message(excinfo) -> str:
+    return str(excinfo.value)
+
+
+# --------------------------------------------------------------------------- TetMesh
+
+
+def test_kuhn_box_volumes_sum_to_box_volume():
+    size = (1.0, 0.3, 0.2)
+    V, T = box_tets(4, 3, 2, size)
+    mesh = check_tet_mesh(TetMesh(V, T))
+    vol = mesh.volumes()
+    assert (vol > 0).all()
+    np.testing.assert_allclose(vol, np.prod(size) / (4 * 3 * 2) / 6, rtol=1e-12)
+    assert vol.sum() == pytest.approx(np.prod(size), rel=1e-13)
+    # reorientation only swaps two vertices of the negative tets
+    raw = TetMesh(V, T).volumes()
+    assert (raw < 0).sum() == len(T) // 2
+    np.testing.assert_allclose(np.abs(raw), vol, rtol=1e-12)
+    assert np.array_equal(np.sort(mesh.tets, axis=1), np.sort(T, axis=1))
+
+
+def test_boundary_faces_are_closed_outward_and_counted():
+    nx, ny, nz = 3, 2, 2
+    V, T = box_tets(nx, ny, nz, (3.0, 2.0, 2.0))
+    mesh = check_tet_mesh(TetMesh(V, T))
+    F = mesh.boundary_faces()
+    assert len(F) == 2 * 2 * (nx * ny + ny * nz + nx * nz)  # two triangles per boundary square
+    assert signed_volume(V, F) == pytest.approx(12.0, rel=1e-12)  # outward: positive volume
+    assert np.isin(np.arange(mesh.n_vertices), F).sum() == mesh.n_vertices - (nx - 1) * (ny - 1) * (
+        nz - 1
+    )
+
+
+def test_components_counted():
+    V, T = box_tets(1, 1, 1)
+    mesh = TetMesh(np.vstack([V, V + 5.0]), np.vstack([T, T + len(V)]))
+    assert mesh.n_components == 2
+    assert TetMesh(V, T).n_components == 1
+
+
+def test_degenerate_tet_is_reported_with_count_and_index():
+    V, T = box_tets(2, 1, 1)
+    V = np.vstack([V, [[0.5, 0.5, 0.0], [0.6, 0.5, 0.0]]])  # two points on the face z = 0
+    flat = [[0, 2, len(V) - 2, len(V) - 1]]  # four coplanar vertices
+    T = np.vstack([T[:5], flat, T[5:]])
+    with pytest.raises(WigglyInputError) as excinfo:
+        check_tet_mesh(TetMesh(V, T), "flat.msh")
+    message = error_message(excinfo)
+    assert "flat.msh" in message
+    assert "1 of 13 tetrahedra are degenerate" in message
+    assert "tet 5" in message
+
+
+def test_nan_coordinate_is_reported_with_vertex_index():
+    V, T = box_tets(1, 1, 1)
+    V[3, 1] = np.nan
+    with pytest.raises(WigglyInputError, match=r"1 vertices have NaN or infinite.*vertex 3"):
+        check_tet_mesh(TetMesh(V, T))
+
+
+def test_out_of_range_index_is_reported():
+    V, T = box_tets(1, 1, 1)
+    T[4, 2] = 8
+    with pytest.raises(WigglyInputError) as excinfo:
+        check_tet_mesh(TetMesh(V, T))
+    message = error_message(excinfo)
+    assert "outside 0..7" in message and "tet 4" in message and "8" in message
+
+
+def test_wrong_shape_is_reported():
+    with pytest.raises(WigglyInputError, match=r"should have shape \(n, 4\); shape is \(2, 3\)"):
+        TetMesh(np.zeros((4, 3)), np.zeros((2, 3), dtype=int))
+
+
+# --------------------------------------------------------------------------- meshio
+
+
+@pytest.mark.parametrize(
+    ("ext", "fmt"), [(".msh", "gmsh22"), (".vtu", "vtu"), (".vtk", "vtk"), (".mesh", "medit")]
+)
+def test_tet_mesh_round_trip_through_meshio(tmp_path, ext, fmt):
+    V, T = box_tets(2, 2, 1, (1.0, 1.0, 0.5))
+    mixed = T.copy()  # file keeps the Kuhn split's mixed orientations
+    path = tmp_path / f"box{ext}"
+    meshio.write(path, meshio.Mesh(V, [("tetra", mixed)]), file_format=fmt)
+    mesh = load_mesh(path)
+    assert isinstance(mesh, TetMesh)
+    np.testing.assert_allclose(mesh.vertices, V, rtol=0, atol=1e-12)
+    assert np.array_equal(np.sort(mesh.tets, axis=1), np.sort(T, axis=1))
+    assert (mesh.volumes() > 0).all()
+    assert mesh.volumes().sum() == pytest.approx(0.5, rel=1e-12)
+
+
+def test_gmsh_physical_groups_and_point_data_become_groups(tmp_path):
+    V, T = box_tets(1, 1, 2)
+    base = np.array([[0, 4, 6], [0, 6, 2]])  # two triangles on x = 0
+    mesh = meshio.Mesh(
+        V,
+        [("tetra", T), ("triangle", base)],
+        cell_data={
+            "gmsh:physical": [np.full(len(T), 1), np.full(2, 2)],
+            "gmsh:geometrical": [np.full(len(T), 1), np.full(2, 2)],
+        },
+        field_data={"body": np.array([1, 3]), "fixed": np.array([2, 2])},
+        point_data={"tip": (V[:, 2] == V[:, 2].max()).astype(int)},
+    )
+    path = tmp_path / "groups.msh"
+    meshio.write(path, mesh, file_format="gmsh22")
+    loaded = load_mesh(path)
+    assert isinstance(loaded, TetMesh)
+    assert loaded.groups["fixed"].tolist() == [0, 2, 4, 6]
+    assert loaded.groups["body"].tolist() == list(range(len(V)))
+    assert loaded.groups["tip"].tolist() == np.flatnonzero(V[:, 2] == V[:, 2].max()).tolist()
+
+
+def test_negative_tets_in_file_are_reoriented(tmp_path):
+    V, T = box_tets(1, 1, 1)
+    path = tmp_path / "neg.vtu"
+    meshio.write(path, meshio.Mesh(V, [("tetra", T[:, [1, 0, 2, 3]])]))
+    assert (load_mesh(path).volumes() > 0).all()
+
+
+def test_triangle_only_file_gives_surface(tmp_path):
+    V, F = cube_surface()
+    path = tmp_path / "cube.vtu"
+    meshio.write(path, meshio.Mesh(V, [("triangle", F)]))
+    surface = load_mesh(path)
+    assert isinstance(surface, Surface)
+    np.testing.assert_array_equal(surface.vertices, V)
+    np.testing.assert_array_equal(surface.faces, F)
+
+
+def test_file_without_tets_or_triangles_is_rejected(tmp_path):
+    path = tmp_path / "lines.vtu"
+    meshio.write(path, meshio.Mesh(np.eye(3), [("line", np.array([[0, 1], [1, 2]]))]))
+    with pytest.raises(WigglyInputError, match=r"no tetrahedra and no triangles.*line"):
+        load_mesh(path)
+
+
+def test_missing_file_and_unknown_extension(tmp_path):
+    with pytest.raises(WigglyInputError, match=r"nothere\.obj: does not exist"):
+        load_mesh(tmp_path / "nothere.obj")
+    path = tmp_path / "model.xyz1"
+    path.write_text("1 2 3\n")
+    with pytest.raises(WigglyInputError) as excinfo:
+        load_mesh(path)
+    message = error_message(excinfo)
+    assert "'.xyz1'" in message and ".obj" in message and ".msh" in message and ".vtu" in message
+
+
+# --------------------------------------------------------------------------- trimesh formats
+
+
+def shuffled_cube() -> tuple[np.ndarray, np.ndarray]:
+    """A cube with permuted vertices plus one unreferenced vertex at the end."""
+    V, F = cube_surface()
+    perm = np.random.default_rng(1).permutation(len(V))
+    inverse = np.argsort(perm)
+    return np.vstack([V[perm], [[7.0, 8.0, 9.0]]]), inverse[F]
+
+
+@pytest.mark.parametrize("ext", [".obj", ".ply", ".off"])
+def test_surface_formats_keep_vertex_order(tmp_path, ext):
+    V, F = shuffled_cube()
+    path = tmp_path / f"cube{ext}"
+    if ext == ".obj":
+        write_obj(path, V, F)
+    else:
+        trimesh.Trimesh(V, F, process=False).export(path)
+    surface = load_mesh(path)
+    assert isinstance(surface, Surface)
+    np.testing.assert_array_equal(surface.vertices, V)
+    np.testing.assert_array_equal(surface.faces, F)
+
+
+def test_obj_with_several_materials_keeps_vertex_and_face_order(tmp_path):
+    V, F = shuffled_cube()
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()]
+    for k, (a, b, c) in enumerate((F + 1).tolist()):
+        if k % 5 == 0:
+            lines.append(f"usemtl material{k}")
+        lines.append(f"f {a} {b} {c}")
+    path = tmp_path / "materials.obj"
+    path.write_text("\n".join(lines) + "\n")
+    surface = load_mesh(path)
+    np.testing.assert_array_equal(surface.vertices, V)
+    np.testing.assert_array_equal(surface.faces, F)
+
+
+def test_stl_has_three_vertices_per_face_in_face_order(tmp_path):
+    V, F = shuffled_cube()
+    path = tmp_path / "cube.stl"
+    trimesh.Trimesh(V, F, process=False).export(path)
+    surface = load_mesh(path)
+    np.testing.assert_allclose(surface.vertices, V[F].reshape(-1, 3), atol=1e-6)  # float32 file
+    np.testing.assert_array_equal(surface.faces, np.arange(3 * len(F)).reshape(-1, 3))
+    check_surface(surface)  # closed once coincident corners are welded
+
+
+def test_obj_uvs_and_normals_per_vertex_and_at_seams(tmp_path):
+    V, F = cube_surface()
+    uv = np.random.default_rng(2).random((len(V), 2))
+    normals = V - 0.5
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()]
+    lines += [f"vt {u!r} {v!r}" for u, v in uv.tolist()]
+    lines += [f"vn {x!r} {y!r} {z!r}" for x, y, z in normals.tolist()]
+    lines += ["f " + " ".join(f"{i}/{i}/{i}" for i in face) for face in (F + 1).tolist()]
+    path = tmp_path / "uv.obj"
+    path.write_text("\n".join(lines) + "\n")
+    surface = load_mesh(path)
+    np.testing.assert_array_equal(surface.vertices, V)
+    np.testing.assert_array_equal(surface.faces, F)
+    np.testing.assert_allclose(surface.uvs, uv, rtol=1e-12)
+    np.testing.assert_allclose(surface.normals, normals, rtol=1e-12)
+
+    # a seam: the first corner of face 0 gets its own texture coordinate (vt number 9)
+    first = lines.index("f " + " ".join(f"{i}/{i}/{i}" for i in F[0] + 1))
+    a = F[0, 0] + 1
+    lines[first] = lines[first].replace(f"{a}/{a}/{a}", f"{a}/{len(V) + 1}/{a}", 1)
+    lines.insert(2 * len(V), "vt 0.5 0.25")
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.warns(UserWarning, match="UV seams"):
+        surface = load_mesh(path)
+    np.testing.assert_array_equal(surface.vertices, V)
+    np.testing.assert_array_equal(surface.faces, F)
+    assert surface.uvs is None
+
+
+def test_gltf_scene_is_concatenated_with_transforms(tmp_path):
+    scene = trimesh.Scene()
+    box = trimesh.creation.box(extents=(1, 2, 3))
+    ball = trimesh.creation.icosphere(1, radius=0.5)
+    turn = trimesh.transformations.rotation_matrix(0.7, [0, 0, 1])
+    turn[:3, 3] = [5.0, 0.0, 1.0]
+    scene.add_geometry(box, node_name="body", geom_name="box")
+    scene.add_geometry(ball, node_name="head", geom_name="ball", transform=turn)
+    path = tmp_path / "scene.glb"
+    scene.export(path)
+    surface = load_mesh(path)
+    assert set(surface.groups) == {"body", "head"}
+    head = surface.groups["head"]
+    expected = trimesh.transform_points(ball.vertices, turn)
+    np.testing.assert_allclose(surface.vertices[head], expected, atol=1e-6)
+    np.testing.assert_allclose(surface.vertices[surface.groups["body"]], box.vertices, atol=1e-6)
+    assert surface.n_faces == len(box.faces) + len(ball.faces)
+    assert signed_volume(surface.vertices, surface.faces) == pytest.approx(
+        6.0 + ball.volume, rel=1e-5
+    )
+
+
+# --------------------------------------------------------------------------- check_surface
+
+
+def test_closed_cube_passes_and_inverted_cube_is_flipped():
+    V, F = cube_surface()
+    surface = Surface(V, F)
+    assert check_surface(surface) is surface
+    inverted = check_surface(Surface(V, F[:, ::-1]))
+    assert signed_volume(V, inverted.faces) == pytest.approx(1.0)
+
+
+def test_open_surface_reports_number_of_open_edges():
+    V, F = cube_surface()
+    top = np.flatnonzero(np.isclose(V[F][:, :, 2], 1.0).all(axis=1))
+    assert len(top) == 2
+    with pytest.raises(WigglyInputError) as excinfo:
+        check_surface(Surface(V, np.delete(F, top, axis=0)), "box.obj")
+    message = error_message(excinfo)
+    assert "box.obj" in message and "4 open edges" in message and "repair=True" in message
+    a, b = map(int, re.search(r"between vertices (\d+) and (\d+)", message).groups())
+    assert V[a, 2] == 1.0 and V[b, 2] == 1.0  # the example edge is on the hole
+
+
+def test_inconsistent_orientation_is_reported():
+    V, F = cube_surface()
+    F = F.copy()
+    F[5] = F[5, ::-1]
+    with pytest.raises(WigglyInputError, match="3 edges join two triangles with opposite"):
+        check_surface(Surface(V, F))
+
+
+def two_overlapping_cubes() -> tuple[np.ndarray, np.ndarray]:
+    V, F = cube_surface()
+    return np.vstack([V, V + 0.5]), np.vstack([F, F + len(V)])
+
+
+def test_self_intersecting_surface_reports_pairs():
+    V, F = two_overlapping_cubes()
+    with pytest.raises(WigglyInputError) as excinfo:
+        check_surface(Surface(V, F), "cubes.obj")
+    message = error_message(excinfo)
+    assert "cubes.obj" in message and "repair=True" in message
+    count, i, j = map(int, re.search(r"(\d+) pairs .* faces (\d+) and (\d+)", message).groups())
+    assert count > 0
+    assert i < 12 <= j  # one face of each cube
+
+
+def test_self_intersection_backends_agree():
+    V, F = two_overlapping_cubes()
+    pairs = _self_intersections_vtk(V, F)
+    assert len(pairs) > 0 and (pairs[:, 0] < 12).all() and (pairs[:, 1] >= 12).all()
+    sphere = trimesh.creation.icosphere(3)
+    assert len(_self_intersections_vtk(sphere.vertices, sphere.faces)) == 0
+    igl = pytest.importorskip("igl.predicates")
+    found, exact, _ = igl.find_self_intersections(V, F)
+    assert found
+    assert {tuple(p) for p in np.sort(exact, axis=1)} == {tuple(p) for p in pairs}
+
+
+def test_disjoint_cubes_are_fine():
+    V, F = cube_surface()
+    check_surface(Surface(np.vstack([V, V + 2.0]), np.vstack([F, F + len(V)])))
+
+
+# --------------------------------------------------------------------------- embedding
+
+
+def test_embedding_reproduces_affine_maps_inside_and_outside():
+    rng = np.random.default_rng(3)
+    V, T = box_tets(4, 3, 3, (1.0, 0.7, 0.6))
+    V = V + 0.02 * rng.standard_normal(V.shape)  # irregular tets
+    mesh = check_tet_mesh(TetMesh(V, T))
+    inside = rng.uniform([0.05, 0.05, 0.05], [0.95, 0.65, 0.55], size=(500, 3))
+    outside = rng.uniform([-0.05, -0.05, -0.05], [1.05, 0.75, 0.65], size=(500, 3))
+    points = np.vstack([inside, outside])
+    embedding = embed(points, mesh)
+    A = rng.standard_normal((3, 3))
+    b = rng.standard_normal(3)
+    B = embedding.matrix(mesh.n_vertices)
+    assert B.shape == (1000, mesh.n_vertices)
+    np.testing.assert_allclose(B.sum(axis=1), 1.0, atol=1e-13)
+    moved = B @ (V @ A.T + b)
+    assert np.abs(moved - (points @ A.T + b)).max() < 1e-12
+    # interleaved dofs: dof 3 * i + c
+    u = rng.standard_normal((mesh.n_vertices, 3))
+    D = embedding.dof_matrix(mesh.n_vertices)
+    np.testing.assert_allclose(D @ u.ravel(), (B @ u).ravel(), atol=1e-14)
+    # points inside the (perturbed) box get a containing tet
+    assert (embedding.barycentric[:500].min(axis=1) > -1e-12).sum() >= 490
+
+
+def test_embedding_finds_containing_tet():
+    V, T = box_tets(5, 5, 5)
+    mesh = check_tet_mesh(TetMesh(V, T))
+    points = np.random.default_rng(4).uniform(0, 1, size=(2000, 3))
+    embedding = embed(points, mesh)
+    assert embedding.barycentric.min() > -1e-12
+    np.testing.assert_array_equal(embedding.vertex_indices, mesh.tets[embedding.tet_index])
+
+
+# --------------------------------------------------------------------------- tetrahedralize
+
+
+def test_tetrahedralized_sphere_has_sphere_volume():
+    r = 0.3
+    sphere = trimesh.creation.icosphere(4, radius=r)
+    mesh = tetrahedralize(Surface(sphere.vertices, sphere.faces), resolution=12)
+    vol = mesh.volumes()
+    assert (vol > 0).all()
+    assert vol.sum() == pytest.approx(4 / 3 * np.pi * r**3, rel=0.03)
+    assert mesh.n_components == 1
+    assert signed_volume(mesh.vertices, mesh.boundary_faces()) == pytest.approx(vol.sum())
+
+
+def test_tetrahedralize_rejects_bad_options():
+    V, F = cube_surface()
+    with pytest.raises(WigglyInputError, match="give only one"):
+        tetrahedralize(Surface(V, F), edge_length=0.1, resolution=10)
+    with pytest.raises(WigglyInputError, match="positive length"):
+        tetrahedralize(Surface(V, F), edge_length=-1.0)
+    with pytest.raises(WigglyInputError, match="4 open edges"):
+        tetrahedralize(Surface(V, F[2:]))
+
+
+# --------------------------------------------------------------------------- load_model
+
+
+def test_load_model_of_a_surface_embeds_the_surface(tmp_path):
+    box = trimesh.creation.box(extents=(0.4, 0.2, 0.2))
+    V, F = np.asarray(box.vertices), np.asarray(box.faces)
+    path = tmp_path / "box.obj"
+    write_obj(path, V, F)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model = load_model(path, resolution=8)
+    assert model.source == str(path)
+    np.testing.assert_array_equal(model.surface.vertices, V)
+    B = model.embedding.matrix(model.tets.n_vertices)
+    assert np.abs(B @ model.tets.vertices - V).max() < 1e-12
+    assert model.tets.volumes().sum() == pytest.approx(0.016, rel=0.01)
+
+
+def test_load_model_of_a_tet_mesh_uses_its_boundary(tmp_path):
+    V, T = box_tets(2, 2, 2)
+    path = tmp_path / "box.vtu"
+    meshio.write(path, meshio.Mesh(V, [("tetra", T)]))
+    model = load_model(path)
+    n = model.tets.n_vertices
+    assert model.surface.n_vertices == n
+    assert signed_volume(model.surface.vertices, model.surface.faces) == pytest.approx(1.0)
+    B = model.embedding.matrix(n)
+    assert (B != sp.eye(n)).nnz == 0
+
+
+def test_load_model_reports_the_file_for_surface_errors(tmp_path):
+    V, F = two_overlapping_cubes()
+    path = tmp_path / "cubes.off"
+    trimesh.Trimesh(V, F, process=False).export(path)
+    with pytest.raises(WigglyInputError, match=r"cubes\.off: the surface intersects itself"):
+        load_model(path)

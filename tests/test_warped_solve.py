@@ -1,0 +1,185 @@
+"""The warped sparse spacetime solve (Theorem 2, SYSTEM.md §6)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wiggly.keyframes import Keyframe
+from wiggly.solve import SpacetimeProblem, WarpedObjective, WarpedSolveWarning, solve
+
+from .conftest import make_body
+
+
+@pytest.fixture(scope="module")
+def free_bar(tmp_path_factory):
+    return make_body(tmp_path_factory, shape=(10, 2, 2), n_modes=16)
+
+
+@pytest.fixture(scope="module")
+def tail(tmp_path_factory):
+    """A slender 1 m x 5 cm x 5 cm bar ("tail") fixed at x = 0, stiff enough that its
+    gravity sag is small."""
+    from wiggly.primitives import box_mesh
+    V, _ = box_mesh((20, 2, 2), (1.0, 0.05, 0.05))
+    return make_body(tmp_path_factory, shape=(20, 2, 2), size=(1.0, 0.05, 0.05), n_modes=16,
+                     young=1e7, fixed=np.flatnonzero(V[:, 0] < 1e-9))
+
+
+def turn_keys(body, degrees=120.0):
+    allv = np.arange(body.n_vertices())
+    return [Keyframe.rest(body, 0.0, allv, still=True),
+            Keyframe.rigid(body, 1.0, allv, rotation=(0, 0, np.radians(degrees)))]
+
+
+def arc_bend(X, degrees, c=0.025):
+    """Pure bending of a bar along x (base at x = 0, centreline z = c) into a circular arc
+    toward +z turning the tip by ``degrees``: the natural large swing of a tail."""
+    phi_tip = np.radians(degrees)
+    rho = 1.0 / phi_tip  # arc length 1 m
+    x, y, z = X.T
+    d = z - c
+    phi = x / rho
+    return np.c_[(rho - d) * np.sin(phi), y, c + rho - (rho - d) * np.cos(phi)]
+
+
+def swing_keys(body, degrees=90.0):
+    X = body.rest_positions()
+    tip = np.flatnonzero(X[:, 0] > 0.8)
+    return [Keyframe(1.0, tip, arc_bend(X[tip], degrees))]
+
+
+def objective_at(anim, problem_end):
+    body = anim.body
+    problem = SpacetimeProblem(body, anim.start, problem_end)
+    nodes = anim.nodes
+    ab, f, c = problem._assemble_energy(nodes)
+    obj = WarpedObjective(problem, anim.keyframes, nodes, ab, f, c)
+    z = np.stack([anim.values, anim.velocities], axis=1).ravel()
+    return obj, z
+
+
+def edge_and_volume_change(body, P):
+    T = body.tets.tets
+    X = body.tets.vertices
+    e = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
+    L0 = np.linalg.norm(X[T[:, e[:, 0]]] - X[T[:, e[:, 1]]], axis=-1)
+    L1 = np.linalg.norm(P[T[:, e[:, 0]]] - P[T[:, e[:, 1]]], axis=-1)
+
+    def vol(Y):
+        d = Y[T[:, 1:]] - Y[T[:, :1]]
+        return np.linalg.det(d)
+
+    return np.max(np.abs(L1 / L0 - 1)), np.max(np.abs(vol(P) / vol(X) - 1))
+
+
+@pytest.mark.parametrize("which", ["turn", "swing", "velocity"])
+def test_warped_solution_is_stationary(free_bar, tail, which):
+    """At the solution the gradient of E + E_WC vanishes to the solver tolerance: for random
+    directions d, the central-difference slope obeys |g.d| <= sqrt(2 tol F d^T H d) (the
+    Newton-decrement bound), while at the linear solution it is far larger."""
+    if which == "turn":
+        body, keys = free_bar, turn_keys(free_bar)
+    elif which == "swing":
+        body, keys = tail, swing_keys(tail)
+    else:
+        body = free_bar
+        X = body.rest_positions()
+        tip = np.flatnonzero(X[:, 0] > 0.9)
+        keys = turn_keys(body, 60.0) + [Keyframe.offset(body, 0.5, tip, (0, 0.2, 0),
+                                                        velocity=(0.0, 1.5, 0.5))]
+    # velocity keys converge only linearly (Gauss-Newton omits their q-v curvature)
+    tol = 1e-10 if which == "velocity" else 1e-12
+    problem = SpacetimeProblem(body, 0.0, 1.5)
+    anim = problem.solve(keys, warped=True, tolerance=tol, max_iterations=100)
+    assert anim.info["converged"]
+    lin = solve(body, keys, end=1.5, warp=False)
+    obj, z = objective_at(anim, 1.5)
+    _, z_lin = objective_at(lin, 1.5)
+    F = obj.value(z)
+    rng = np.random.default_rng(3)
+    def slope(x, d, h=1e-5):  # Richardson-extrapolated central difference, O(h^4)
+        s1 = (obj.value(x + h * d) - obj.value(x - h * d)) / (2 * h)
+        s2 = (obj.value(x + h / 2 * d) - obj.value(x - h / 2 * d)) / h
+        return (4 * s2 - s1) / 3
+
+    for _ in range(3):
+        d = rng.standard_normal(z.size) * np.abs(z).max()
+        h = 1e-4
+        curvature = (obj.value(z + h * d) - 2 * F + obj.value(z - h * d)) / h**2
+        s, s_lin = slope(z, d), slope(z_lin, d)
+        noise = 1e-15 * F / 1e-5  # rounding in the differences
+        assert abs(s) <= 2 * np.sqrt(2 * tol * F * curvature) + noise, (s, curvature)
+        assert abs(s_lin) > 1e3 * abs(s)
+
+
+def test_warped_meets_a_large_turn_better_than_linear(free_bar):
+    lin = solve(free_bar, turn_keys(free_bar), end=1.5, warp=False).constraint_residuals()[-1]
+    war = solve(free_bar, turn_keys(free_bar), end=1.5, warp=True).constraint_residuals()[-1]
+    assert war["position_rms"] < 0.01 * lin["position_rms"]
+    assert war["position_rms"] < 1e-3
+
+
+def test_warping_keeps_every_tet_in_a_large_turn_while_linear_distorts(free_bar):
+    """A rigid 120 degree turn: no strain at all, so every edge and tet volume is kept."""
+    body, keys = free_bar, turn_keys(free_bar)
+    t = np.linspace(0, 1.5, 16)
+    lin = solve(body, keys, end=1.5, warp=False).positions(t, "tets")
+    war = solve(body, keys, end=1.5, warp=True).positions(t, "tets")
+    lin_edge, lin_vol = np.max([edge_and_volume_change(body, P) for P in lin], axis=0)
+    war_edge, war_vol = np.max([edge_and_volume_change(body, P) for P in war], axis=0)
+    assert lin_edge > 0.2 and lin_vol > 0.2  # the linear motion distorts visibly
+    assert war_edge < 0.01 and war_vol < 0.01
+
+
+def test_swung_tail_keeps_its_length_and_volume_while_linear_grows(tail):
+    """A tail bent by 90 degrees has real bending strain (+-kappa h/2 ~ 4 %) but must not
+    grow: total volume and centreline length stay within 2 %; the linear one grows."""
+    body, keys = tail, swing_keys(tail)
+    X, T = body.tets.vertices, body.tets.tets
+    centre = np.flatnonzero((np.abs(X[:, 1] - 0.025) < 1e-9) & (np.abs(X[:, 2] - 0.025) < 1e-9))
+    centre = centre[np.argsort(X[centre, 0])]
+
+    def growth(P):
+        d = P[T[:, 1:]] - P[T[:, :1]]
+        vol = np.linalg.det(d).sum() / np.linalg.det(X[T[:, 1:]] - X[T[:, :1]]).sum()
+        length = np.linalg.norm(np.diff(P[centre], axis=0), axis=1).sum()
+        return abs(vol - 1), abs(length - 1.0)
+
+    t = np.linspace(0, 1.5, 16)
+    war = solve(body, keys, end=1.5, warp=True)
+    lin = solve(body, keys, end=1.5, warp=False)
+    war_growth = np.max([growth(P) for P in war.positions(t, "tets")], axis=0)
+    lin_growth = np.max([growth(P) for P in lin.positions(t, "tets")], axis=0)
+    assert np.all(war_growth < 0.02), war_growth
+    assert lin_growth[0] > 0.2 and lin_growth[1] > 0.1, lin_growth
+    assert war.constraint_residuals()[0]["position_rms"] < 0.1 * lin.constraint_residuals()[0][
+        "position_rms"]
+
+
+def test_warped_velocity_is_the_time_derivative_of_warped_positions(free_bar):
+    anim = solve(free_bar, turn_keys(free_bar, 90.0), end=1.5, warp=True)
+    t, h = 0.63, 1e-5
+    P = anim.positions([t - h, t + h])
+    V = anim.velocities_at([t])[0]
+    fd = (P[1] - P[0]) / (2 * h)
+    assert np.max(np.abs(fd - V)) < 1e-6 * np.max(np.abs(V))
+
+
+def test_non_convergence_is_reported(free_bar):
+    keys = turn_keys(free_bar, 170.0)
+    problem = SpacetimeProblem(free_bar, 0.0, 1.5)
+    with pytest.warns(WarpedSolveWarning, match="did not converge in 1 iterations"):
+        anim = problem.solve(keys, warped=True, max_iterations=1, tolerance=1e-300)
+    assert anim.info["converged"] is False and anim.info["iterations"] == 1
+
+
+def test_warm_start_reuses_the_previous_solution(free_bar):
+    keys = turn_keys(free_bar)
+    problem = SpacetimeProblem(free_bar, 0.0, 1.5)
+    first = problem.solve(keys, warped=True, tolerance=1e-12)
+    keys[1] = Keyframe.rigid(free_bar, 1.0, keys[1].vertices, rotation=(0, 0, np.radians(125)))
+    second = problem.solve(keys, warped=True, initial=first, tolerance=1e-12)
+    cold = problem.solve(keys, warped=True, tolerance=1e-12)
+    assert second.info["warm_start"] and second.info["converged"]
+    assert np.allclose(second.values, cold.values, rtol=1e-5, atol=1e-7 * np.abs(cold.values).max())
