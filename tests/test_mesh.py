@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from pathlib import Path
 
 import meshio
 import numpy as np
@@ -11,6 +12,7 @@ import pytest
 import scipy.sparse as sp
 import trimesh
 
+import wiggly.mesh
 from wiggly.errors import WigglyInputError
 from wiggly.mesh import (
     Surface,
@@ -256,6 +258,15 @@ def test_obj_with_several_materials_keeps_vertex_and_face_order(tmp_path):
     np.testing.assert_array_equal(surface.faces, F)
 
 
+def test_nan_in_a_surface_file_is_reported(tmp_path):
+    V, F = cube_surface()
+    V[6] = [np.nan, 0.0, 1.0]
+    path = tmp_path / "nan.obj"
+    write_obj(path, V, F)
+    with pytest.raises(WigglyInputError, match=r"nan\.obj: 1 vertices have NaN.*vertex 6"):
+        load_mesh(path)
+
+
 def test_stl_has_three_vertices_per_face_in_face_order(tmp_path):
     V, F = shuffled_cube()
     path = tmp_path / "cube.stl"
@@ -432,6 +443,13 @@ def test_tetrahedralized_sphere_has_sphere_volume():
     assert signed_volume(mesh.vertices, mesh.boundary_faces()) == pytest.approx(vol.sum())
 
 
+def test_repair_fills_the_union_of_overlapping_cubes():
+    V, F = two_overlapping_cubes()
+    mesh = tetrahedralize(Surface(V, F), resolution=10, repair=True)
+    assert (mesh.volumes() > 0).all()
+    assert mesh.volumes().sum() == pytest.approx(2 - 0.5**3, rel=0.01)
+
+
 def test_tetrahedralize_rejects_bad_options():
     V, F = cube_surface()
     with pytest.raises(WigglyInputError, match="give only one"):
@@ -440,6 +458,31 @@ def test_tetrahedralize_rejects_bad_options():
         tetrahedralize(Surface(V, F), edge_length=-1.0)
     with pytest.raises(WigglyInputError, match="4 open edges"):
         tetrahedralize(Surface(V, F[2:]))
+
+
+# --------------------------------------------------------------------------- demo models
+
+DATA = Path(wiggly.mesh.__file__).parent / "data"
+
+
+@pytest.mark.parametrize(
+    ("name", "size"),
+    [("critter", (1.02, 0.81, 0.28)), ("plant", (0.65, 0.94, 0.19)), ("bar", (1.0, 0.1, 0.1))],
+)
+def test_bundled_models_are_valid_closed_surfaces(name, size):
+    surface = load_mesh(DATA / f"{name}.obj")
+    assert check_surface(surface) is surface  # closed, outward, no self-intersection
+    V = surface.vertices
+    np.testing.assert_allclose(V.max(axis=0) - V.min(axis=0), size, atol=0.01)
+    assert V[:, 1].min() == (-0.05 if name == "bar" else 0.0)
+    assert 2000 <= surface.n_faces <= 6500
+    assert (DATA / f"{name}.obj").stat().st_size < 300_000
+
+
+def test_bar_tetrahedralizes_to_its_volume():
+    mesh = tetrahedralize(load_mesh(DATA / "bar.obj"))
+    assert 500 < mesh.n_tets < 5000
+    assert mesh.volumes().sum() == pytest.approx(0.01, rel=0.01)
 
 
 # --------------------------------------------------------------------------- load_model

@@ -102,7 +102,7 @@ class Body:
         """g_i = phi_i^T g (in sqrt(kg) m / s^2)."""
         return self.modes.vectors.T @ self.gravity_vector
 
-    @property
+    @cached_property
     def mass(self) -> float:
         """Total mass in kg."""
         return float(self.M.sum() / 3.0)

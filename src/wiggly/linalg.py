@@ -16,6 +16,7 @@ Backends, in order of preference when ``backend=None``:
 from __future__ import annotations
 
 import importlib.util
+from contextlib import AbstractContextManager, nullcontext
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -152,3 +153,18 @@ def factorize_spd(A: sp.spmatrix, backend: str | None = None) -> SPDSolver:
     A = sp.csr_matrix(A, dtype=np.float64)
     A.sum_duplicates()
     return SPDSolver(backend=backend, n=A.shape[0], _solve=_FACTORS[backend](A))
+
+
+def blas_single_thread() -> AbstractContextManager[object]:
+    """Limit BLAS to one thread, if threadpoolctl is installed.
+
+    The eigensolve is dominated by level-2 BLAS and skinny products with tall (3n, r) blocks:
+    memory bound.  Multithreaded OpenBLAS busy-waits badly on such products when the cores are
+    shared (measured 5-10x slower on a loaded 2-core machine), so one thread is both safer
+    and, on an idle machine, hardly slower.
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")

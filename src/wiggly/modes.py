@@ -28,7 +28,6 @@ import sys
 import tempfile
 import time
 import warnings
-from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -40,7 +39,7 @@ import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
 from wiggly.errors import WigglyInputError
-from wiggly.linalg import factorize_spd
+from wiggly.linalg import blas_single_thread, factorize_spd
 
 __all__ = ["Modes", "compute_modes", "default_cache_dir", "rigid_motions"]
 
@@ -352,21 +351,6 @@ def _candidates_sparse(
     return lam, X
 
 
-def _blas_single_thread() -> AbstractContextManager[object]:
-    """Limit BLAS to one thread, if threadpoolctl is installed.
-
-    The eigensolve is dominated by level-2 BLAS and skinny products with tall (3n, r) blocks:
-    memory bound.  Multithreaded OpenBLAS busy-waits badly on such products when the cores are
-    shared (measured 5-10x slower on a loaded 2-core machine), so one thread is both safer
-    and, on an idle machine, hardly slower.
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        return nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
-
-
 def _normalize_signs(Phi: np.ndarray) -> np.ndarray:
     """Flip columns so that each one's largest-magnitude entry is positive (reproducible)."""
     if Phi.size == 0:
@@ -455,7 +439,7 @@ def compute_modes(
                 print(f"[wiggly.modes] loaded {r} modes from {path}", file=sys.stderr)
             return cached
 
-    with _blas_single_thread():
+    with blas_single_thread():
         modes = _compute_modes(K, M, r, V, fixed, free_dofs, method, backend, _Progress(progress))
     if path is not None:
         _save_cache(path, key, modes)

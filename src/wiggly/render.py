@@ -3,25 +3,27 @@
 Input is plain arrays, as produced by the solver: frame ``times`` (F,), surface vertex
 ``positions`` (F, n, 3) and triangle ``faces`` (m, 3).  One :class:`Preview` holds one
 offscreen pyvista plotter for the whole animation; every frame only updates the mesh in place
-(points, per-vertex normals and colors, the ground's contact shadow, the labels) and re-renders,
-so frames cost one draw each.  :func:`render_video` writes MP4 (H.264, yuv420p, through the
-ffmpeg binary shipped in the ``imageio-ffmpeg`` wheel) or GIF (Pillow, one global palette, loops
-forever), :func:`render_contact_sheet` a PNG grid of frames, :func:`render_frame` one image as an
-array, and :func:`plot_diagnostics` a matplotlib (Agg) figure of the modal amplitudes and the
-keyframe residuals.
+(points, per-vertex normals and colors, the contact shadow, the labels) and re-renders, so a
+frame costs one draw and one read-back.  :func:`render_video` writes MP4 (H.264, yuv420p,
+through the ffmpeg binary shipped in the ``imageio-ffmpeg`` wheel) or GIF (Pillow, one global
+palette, loops forever), :func:`render_contact_sheet` a PNG grid of frames,
+:func:`render_frame` one image as an array, and :func:`plot_diagnostics` a matplotlib (Agg)
+figure of the modal amplitudes and the keyframe residuals.
 
 Scene
 -----
-The object is drawn with smooth shading (area-weighted vertex normals recomputed every frame)
-under three soft directional lights (key, fill and rim, placed relative to the view).  A light
-grey checkered ground, fading into the background, lies at the lowest value of the
-``up``-coordinate over all frames; a soft blob shadow under the object (an elliptical Gaussian
-fitted to the object's footprint, darker and sharper when the object is close to the ground)
-shows contact.  The camera is fixed for the whole animation and frames the bounding box of all
-frames, so motion is visible; the default is a 3/4 perspective view with ``up`` up.  A
-:class:`Highlight` (a keyframed vertex group) is blended into the vertex colors over
-``window`` seconds (0.25 s) around its key time, fully at the key time, where its target
-positions also appear as small spheres.  The time is printed in the upper left corner.
+The object is drawn with smooth (Phong) shading of area-weighted vertex normals recomputed every
+frame, under soft directional key, fill and rim lights placed relative to the view, plus a faint
+bounce from below, with FXAA anti-aliasing (default for stills, optional for videos).  A light
+grey checkered ground (checker size 1, 2 or 5 x 10^k m, about half the object's size), fading
+into the background, lies at the lowest value of the ``up``-coordinate over all frames; a
+soft blob shadow under the object (an elliptical Gaussian fitted to the object's footprint,
+darker and sharper when the object is close to the ground) shows contact.  The camera is fixed
+for the whole animation and frames the bounding box of all frames, so motion is visible; the
+default is a 3/4 perspective view with ``up`` up.  A :class:`Highlight` (a keyframed vertex
+group) is blended into the vertex colors over ``window`` seconds (0.25 s) around its key time,
+fully at the key time, where its target positions also appear as small spheres.  The time is
+printed in the upper left corner, the labels of highlighted groups in the lower left.
 
 Headless rendering
 ------------------
@@ -34,16 +36,22 @@ raise but crashes the process (segmentation fault), so before the first plotter 
 :func:`check_offscreen` renders one pixel in a *subprocess* and raises :class:`RenderingError`
 with the fix if that fails.  Fixes, in order of preference:
 
-* install the Mesa EGL libraries (Debian/Ubuntu: ``apt-get install libegl1 libgl1-mesa-dri``;
-  they pull ``libegl-mesa0``, ``libgbm1`` and ``libglapi-mesa``);
-* or OSMesa: ``apt-get install libosmesa6`` and ``VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow``;
+* install the Mesa EGL libraries (Debian 12: ``apt-get install libegl1 libgl1-mesa-dri``;
+  they pull ``libegl-mesa0``, ``libglvnd0``, ``libgbm1``, ``libglapi-mesa`` and ``libllvm15``;
+  the EGL path opens no X11 or libGL library);
+* or OSMesa: ``apt-get install libosmesa6`` and
+  ``VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow``;
 * or a virtual X server: ``apt-get install xvfb libgl1 libglx-mesa0 libxcursor1`` and
   ``pyvista.start_xvfb()`` (or run under ``xvfb-run``).
 
 ``PYVISTA_OFF_SCREEN=true`` is not needed (plotters here are always created off-screen).  Set
 ``WIGGLY_RENDER_PROBE=0`` to skip the subprocess probe (saves about a second per process).
-Software rendering (llvmpipe, 2 cores) draws a 10k-face object at 960x540 at roughly 10-20
-frames/s; a GPU through EGL is much faster.
+
+Speed: with software rendering (Mesa llvmpipe on 2 shared cores) a 10k-face object at 960x540
+renders at about 20-24 frames/s, or 9-13 with FXAA (which is why videos default to no FXAA);
+the per-frame numpy work (normals, colors, shadow) is under 3 ms.  Creating a :class:`Preview`
+takes about 0.3 s (plus a second for the first VTK import and the probe).  A GPU through EGL
+is much faster.
 """
 
 from __future__ import annotations
@@ -51,6 +59,7 @@ from __future__ import annotations
 import functools
 import math
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -58,11 +67,15 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from tqdm import tqdm
 
 from wiggly.errors import WigglyInputError
+
+if TYPE_CHECKING:
+    from PIL import Image
 
 __all__ = [
     "Highlight",
@@ -199,13 +212,17 @@ def check_offscreen(timeout: float = 60.0) -> str:
         out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True,
                              timeout=timeout, env=os.environ.copy())
     except subprocess.TimeoutExpired as e:
-        raise RenderingError(f"offscreen OpenGL probe did not finish in {timeout} s. {_FIXES}") from e
-    words = out.stdout.split(maxsplit=1)
-    if out.returncode != 0 or len(words) < 2 or "(255, 128, 0)" not in words[1]:
-        log = [line for line in out.stderr.splitlines() if line.strip()][-4:]
         raise RenderingError(
-            f"offscreen OpenGL rendering does not work here (probe exit code {out.returncode}, "
-            f"output {out.stdout.strip()!r}; last messages: {' | '.join(log) or 'none'}). {_FIXES}")
+            f"offscreen OpenGL probe did not finish in {timeout} s. {_FIXES}") from e
+    if out.returncode != 0 or "(255, 128, 0)" not in out.stdout:
+        # VTK log lines: "<color codes>date (time) [thread] file:line  WARN| message<reset>"
+        log = [re.sub(r"\x1b\[[0-9;]*m", "", line).split("| ", 1)[-1].strip()
+               for line in out.stderr.splitlines() if line.strip()][-3:]
+        status = (f"crashed with signal {-out.returncode}" if out.returncode < 0 else
+                  f"exit code {out.returncode}, output {out.stdout.strip()!r}")
+        raise RenderingError(
+            f"offscreen OpenGL rendering does not work here (probe {status}; VTK says: "
+            f"{' / '.join(log) or 'nothing'}). {_FIXES}")
     return out.stdout.strip()
 
 
@@ -215,7 +232,9 @@ def check_offscreen(timeout: float = 60.0) -> str:
 
 def _check_animation(times, positions, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     times = np.atleast_1d(np.asarray(times, dtype=np.float64))
-    positions = np.asarray(positions, dtype=np.float64)
+    positions = np.asarray(positions)
+    if positions.dtype not in (np.float32, np.float64):  # float32 stays: half the memory
+        positions = positions.astype(np.float64)
     if positions.ndim == 2:
         positions = positions[None]
     if positions.ndim != 3 or positions.shape[2] != 3 or positions.shape[1] == 0:
@@ -233,7 +252,8 @@ def _check_animation(times, positions, faces) -> tuple[np.ndarray, np.ndarray, n
         raise WigglyInputError(f"positions contain NaN or inf (frames {bad[:5].tolist()})")
     faces = np.asarray(faces)
     if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
-        raise WigglyInputError(f"faces should have shape (m, 3) (triangles); shape is {faces.shape}")
+        raise WigglyInputError(
+            f"faces should have shape (m, 3) (triangles); shape is {faces.shape}")
     if not np.issubdtype(faces.dtype, np.integer):
         raise WigglyInputError(f"faces should be integer vertex indices; dtype is {faces.dtype}")
     n = positions.shape[1]
@@ -247,7 +267,8 @@ def _check_highlights(highlights: Sequence[Highlight], n: int) -> list[Highlight
     out = []
     for i, h in enumerate(highlights):
         if not isinstance(h, Highlight):
-            raise WigglyInputError(f"highlights[{i}] should be a Highlight; it is {type(h).__name__}")
+            raise WigglyInputError(
+                f"highlights[{i}] should be a Highlight; it is {type(h).__name__}")
         v = np.asarray(h.vertices)
         if v.ndim != 1 or len(v) == 0 or not np.issubdtype(v.dtype, np.integer):
             raise WigglyInputError(
@@ -402,10 +423,10 @@ def _camera_pose(camera, lo, hi, frame, aspect: float, view_angle: float):
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
                             for z in (lo[2], hi[2])]) - center
         cx, cy, cz = corners @ cam_right, corners @ view_up, corners @ d
-        tv = math.tan(math.radians(view_angle) / 2) * 0.86
+        tv = math.tan(math.radians(view_angle) / 2) * 0.92
         th = tv * aspect
         dist = max(np.max(cz + np.abs(cx) / th), np.max(cz + np.abs(cy) / tv))
-        dist = max(dist, 1e-6 + np.max(cz) * 1.05, 1e-9)
+        dist = max(dist, 1.05 * np.max(cz), 1e-3)  # outside the box, even a degenerate one
         return center + dist * d, center, view_up
     if cam.shape in ((2, 3), (3, 3)) and np.all(np.isfinite(cam)):
         position, focal = cam[0], cam[1]
@@ -451,7 +472,8 @@ class Preview:
     title : str, optional
         Printed at the top of every frame.
     anti_aliasing : bool
-        FXAA (a cheap screen-space pass).
+        FXAA, a screen-space pass: smooth silhouettes, but about half the frame rate with
+        software rendering (llvmpipe).
     """
 
     def __init__(self, times, positions, faces, *, highlights: Sequence[Highlight] = (),
@@ -467,12 +489,14 @@ class Preview:
         _configure_headless()
         import pyvista as pv  # deferred: importing VTK takes a second
 
-        right, upv, front = self.frame
+        upv = self.frame[1]
         lo = self.positions.min(axis=(0, 1))
         hi = self.positions.max(axis=(0, 1))
         first = self.positions[0]
         self.scale = float(np.linalg.norm(first.max(axis=0) - first.min(axis=0))) or 1.0
         w, h = self.size
+
+        position, focal, view_up = _camera_pose(camera, lo, hi, self.frame, w / h, 30.0)
 
         theme = pv.themes.DocumentTheme()
         theme.multi_samples = 0  # MSAA costs 3x with software rendering; FXAA instead
@@ -508,15 +532,12 @@ class Preview:
                     actor.SetVisibility(False)
                 self._targets.append(actor)
 
-            self._ground_level = float(np.min(self.positions @ upv)) - 1e-3 * self.scale
-            if ground:
-                self._build_ground(pv, lo, hi)
-            else:
-                self._ground = None
-
-            position, focal, view_up = _camera_pose(camera, lo, hi, self.frame, w / h, 30.0)
             pl.camera.view_angle = 30.0
             pl.camera_position = [tuple(position), tuple(focal), tuple(view_up)]
+            self._ground_level = float(np.min(self.positions @ upv)) - 1e-3 * self.scale
+            self._ground = self._shadow = None
+            if ground:
+                self._build_ground(pv, lo, hi)
             pl.renderer.ResetCameraClippingRange()
             self._add_lights(pv, np.asarray(position), np.asarray(focal), np.asarray(view_up))
             self._add_labels(title)
@@ -531,9 +552,9 @@ class Preview:
         """Checkered ground fading out with distance, and the blob shadow above it."""
         right, upv, front = self.frame
         center = np.array([0.5 * (lo + hi) @ right, 0.5 * (lo + hi) @ front])
-        radius = max(2.5 * np.linalg.norm(hi - lo), 4.0 * self.scale)
-        checker = _nice(self.scale / 2.0)
-        squares = 2 * math.ceil(radius / checker)  # checker squares per side
+        radius = max(1.5 * np.linalg.norm(hi - lo), 4.0 * self.scale)
+        checker = max(_nice(self.scale / 2.0), _nice(radius / 25))  # <= 100 squares per side
+        squares = 2 * math.ceil(radius / checker)
         sub = max(1, min(4, 220 // squares))  # cells per square side, for a smooth fade
         m = squares * sub
         corner = np.floor(center / checker) * checker - squares // 2 * checker
@@ -542,14 +563,16 @@ class Preview:
         cells = (np.arange(m) + 0.5) / sub  # cell centres in checker units
         cu, cv = np.meshgrid(cells, cells)
         parity = ((np.floor(cu) + np.floor(cv)) % 2).ravel().astype(int)
-        r = np.hypot(*(corner[:, None] + checker * np.stack([cu.ravel(), cv.ravel()])
-                       - center[:, None])) / radius
-        s = np.clip((r - 0.3) / 0.7, 0, 1)
-        rgba = np.empty((m * m, 4), dtype=np.uint8)
-        rgba[:, :3] = np.round(255 * np.asarray(GROUND_COLORS)[parity])
-        rgba[:, 3] = np.round(255 * (1 - s * s * (3 - 2 * s)))  # smooth fade out
-        self._ground.cell_data["rgba"] = rgba
-        self.plotter.add_mesh(self._ground, scalars="rgba", rgba=True, lighting=False,
+        uv = corner + checker * np.column_stack([cu.ravel(), cv.ravel()])
+        s = np.clip((np.linalg.norm(uv - center, axis=1) / radius - 0.3) / 0.7, 0, 1)
+        fade = (s * s * (3 - 2 * s))[:, None]
+        # Fade (opaque: translucency costs a third of the frame rate in software) into the
+        # background seen behind each cell: the vertical gradient at the cell's screen height.
+        y = self._screen_height(uv[:, :1] * right + uv[:, 1:] * front + self._ground_level * upv)
+        behind = (1 - y) * np.asarray(BACKGROUND_BOTTOM) + y * np.asarray(BACKGROUND_TOP)
+        rgb = (1 - fade) * np.asarray(GROUND_COLORS)[parity] + fade * behind
+        self._ground.cell_data["rgb"] = np.round(255 * rgb).astype(np.uint8)
+        self.plotter.add_mesh(self._ground, scalars="rgb", rgb=True, lighting=False,
                               show_scalar_bar=False, reset_camera=False)
 
         # blob shadow: a grid of 32 x 32 quads with per-vertex alpha, moved every frame
@@ -561,8 +584,17 @@ class Preview:
         self.plotter.add_mesh(self._shadow, scalars="rgba", rgba=True, lighting=False,
                               show_scalar_bar=False, reset_camera=False)
 
+    def _screen_height(self, points: np.ndarray) -> np.ndarray:
+        """Height of ``points`` on the image as (k, 1): 0 at the bottom, 1 at the top (clamped)."""
+        w, h = self.size
+        M = self.plotter.camera.GetCompositeProjectionTransformMatrix(w / h, -1, 1)
+        M = np.array([[M.GetElement(i, j) for j in range(4)] for i in range(4)])
+        clip = np.column_stack([points, np.ones(len(points))]) @ M.T
+        y = clip[:, 1] / np.maximum(clip[:, 3], 1e-12)
+        return np.clip(0.5 * (y + 1), 0, 1)[:, None]
+
     def _add_lights(self, pv, position, focal, view_up) -> None:
-        """Key (warm, upper right), fill (cool, left) and rim (behind) directional lights."""
+        """Key (warm, upper right), fill (cool, left), rim (behind) and a faint bounce light."""
         d = _unit(position - focal)
         vr = _unit(np.cross(view_up, d))  # camera right
         vu = np.cross(d, vr)
@@ -570,18 +602,19 @@ class Preview:
             ((0.8, 1.0, 0.9), (1.0, 0.97, 0.92), 0.80),
             ((-1.0, 0.2, 0.7), (0.88, 0.92, 1.0), 0.35),
             ((-0.3, 0.8, -1.0), (1.0, 1.0, 1.0), 0.45),
+            ((0.0, -1.0, 0.3), (0.95, 0.93, 0.9), 0.15),  # bounce from the ground
         ]
         for (a, b, c), color, intensity in lights:
             direction = _unit(a * vr + b * vu + c * d)
-            self.plotter.add_light(pv.Light(position=tuple(focal + direction), focal_point=tuple(focal),
-                                            color=color, intensity=intensity,
-                                            light_type="scene light"))
+            self.plotter.add_light(pv.Light(
+                position=tuple(focal + direction), focal_point=tuple(focal), color=color,
+                intensity=intensity, light_type="scene light"))
 
     def _add_labels(self, title: str | None) -> None:
         from vtkmodules.vtkRenderingCore import vtkTextActor
 
         w, h = self.size
-        font = max(10, round(h / 30))
+        font = max(12, round(h / 30))
         margin = max(6, round(h / 45))
 
         def text(position, justify="left", valign="top", bold=False, color=TEXT_COLOR, size=font):
@@ -602,12 +635,13 @@ class Preview:
             text((w - margin, h - margin), justify="right").SetInput(title)
         self._key_labels = []
         for k, hl in enumerate(self.highlights):
-            actor = text((margin, margin + k * round(1.3 * font)), valign="bottom",
+            actor = text((margin, margin), valign="bottom",
                          color=tuple(0.8 * np.asarray(hl.color)), bold=True)
             name = hl.label or f"keyframe {k + 1}"
             actor.SetInput(f"{name}  (key t = {hl.time:.2f} s)")
             actor.SetVisibility(False)
             self._key_labels.append(actor)
+        self._label_rows = (margin, round(1.3 * font))  # first row, row height
 
     # --- per frame ------------------------------------------------------------------------
     def positions_at(self, t: float) -> np.ndarray:
@@ -631,13 +665,18 @@ class Preview:
         self._normals.VTKObject.Modified()
 
         colors = np.array(self._base_rgb)
+        row = 0
         for hl, spheres, label in zip(self.highlights, self._targets, self._key_labels,
                                       strict=True):
             wgt = hl.weight(t)
             if wgt > 0:
                 colors[hl.vertices] = (1 - wgt) * colors[hl.vertices] + wgt * np.asarray(hl.color)
             label.SetVisibility(wgt > 0)
-            label.GetTextProperty().SetOpacity(min(1.0, 2 * wgt))
+            if wgt > 0:  # stack the visible labels from the bottom
+                first, height = self._label_rows
+                label.SetDisplayPosition(first, first + row * height)
+                row += 1
+            label.GetTextProperty().SetOpacity(min(1.0, 0.4 + 2 * wgt))
             if spheres is not None:
                 spheres.SetVisibility(wgt > 0)
                 spheres.GetProperty().SetOpacity(min(1.0, 1.5 * wgt))
@@ -700,7 +739,8 @@ class Preview:
 
 def render_frame(times_or_time, positions, faces, *, at: float | None = None,
                  highlights: Sequence[Highlight] = (), size=(960, 540), up=(0.0, 1.0, 0.0),
-                 ground: bool = True, camera=None, title: str | None = None) -> np.ndarray:
+                 ground: bool = True, camera=None, title: str | None = None,
+                 anti_aliasing: bool = True) -> np.ndarray:
     """Render one image of the animation: (height, width, 3) uint8.
 
     Either a single pose, ``render_frame(time, positions (n, 3), faces)``, or a frame of an
@@ -711,7 +751,7 @@ def render_frame(times_or_time, positions, faces, *, at: float | None = None,
     """
     times = np.atleast_1d(np.asarray(times_or_time, dtype=np.float64))
     with Preview(times, positions, faces, highlights=highlights, size=size, up=up, ground=ground,
-                 camera=camera, title=title) as preview:
+                 camera=camera, title=title, anti_aliasing=anti_aliasing) as preview:
         return preview.render(preview.times[0] if at is None else at)
 
 
@@ -725,6 +765,8 @@ def video_frame_times(times, fps: float | None = None,
     rate (default :data:`DEFAULT_FPS`) capped at ``max_fps``.
     """
     times = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    if times.ndim != 1 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+        raise WigglyInputError("times should be a 1-d array, finite and strictly increasing")
     if fps is not None and not (math.isfinite(fps) and fps > 0):
         raise WigglyInputError(f"fps should be a positive number; got {fps}")
     if fps is None and len(times) > 1:
@@ -737,7 +779,7 @@ def video_frame_times(times, fps: float | None = None,
     rate = float(fps or DEFAULT_FPS)
     if max_fps is not None:
         rate = min(rate, max_fps)
-    count = int(math.floor((times[-1] - times[0]) * rate + 1e-9)) + 1
+    count = math.floor((times[-1] - times[0]) * rate + 1e-9) + 1
     return times[0] + np.arange(count) / rate, rate
 
 
@@ -749,30 +791,39 @@ def _scene_progress(frames, enabled: bool, what: str):
 def render_video(path, times, positions, faces, *, highlights: Sequence[Highlight] = (),
                  fps: float | None = None, size=(960, 540), up=(0.0, 1.0, 0.0),
                  ground: bool = True, camera=None, title: str | None = None,
-                 progress: bool = False, overwrite: bool = False) -> Path:
+                 anti_aliasing: bool = False, progress: bool = False,
+                 overwrite: bool = False) -> Path:
     """Render the animation to an ``.mp4`` or ``.gif`` video; return the path.
 
-    Frame times follow :func:`video_frame_times` (``max_fps`` 20 for GIF, whose frame delays
-    are whole centiseconds, so the GIF rate is ``100 / round(100 / fps)``).  MP4: H.264,
-    yuv420p, constant quality (CRF :data:`MP4_CRF`), ``+faststart``; an odd width or height is
-    reduced by one pixel (yuv420p needs even sizes).  GIF: rendered at ``size`` and downscaled
-    (Lanczos) to at most :data:`GIF_MAX_SIDE` pixels per side, one 256-color palette for all
-    frames, looping forever.  Written atomically (temporary file, then :func:`os.replace`);
-    an existing ``path`` is kept unless ``overwrite``.  Scene parameters as in
-    :class:`Preview`; ``progress`` shows a progress bar on stderr.
+    ``anti_aliasing`` (FXAA) is off by default here: with software rendering it halves the
+    frame rate (about 10 instead of 20 frames/s for 10k faces at 960x540 on 2 cores).
+
+    Frame times follow :func:`video_frame_times`.  MP4: H.264, yuv420p, constant quality (CRF
+    :data:`MP4_CRF`), ``+faststart``; an odd width or height is reduced by one pixel (yuv420p
+    needs even sizes).  GIF: frame delays are whole centiseconds, so the rate is
+    ``100 / round(100 / fps)`` with fps capped at :data:`GIF_MAX_FPS`; frames are rendered at
+    ``size`` and downscaled (Lanczos, which anti-aliases too: no FXAA then) to at most
+    :data:`GIF_MAX_SIDE` pixels per side; one 256-color palette for all frames; loops forever.
+    Written atomically (temporary file in the same directory, then :func:`os.replace`); an
+    existing ``path`` is kept unless ``overwrite``.  Scene parameters as in :class:`Preview`;
+    ``progress`` shows a progress bar on stderr.
     """
     path = _check_output(path, VIDEO_FORMATS, overwrite)
     w, h = _check_size(size)
     gif = path.suffix.lower() == ".gif"
     if gif:
-        requested = fps if fps is not None else video_frame_times(times)[1]
-        delay_cs = max(round(100 / GIF_MAX_FPS), round(100 / requested))
-        frame_times, _ = video_frame_times(times, 100 / delay_cs)
+        anti_aliasing = anti_aliasing and GIF_MAX_SIDE / max(w, h) > 0.67
     else:
         w, h = w - w % 2, h - h % 2
-        frame_times, rate = video_frame_times(times, fps)
     with Preview(times, positions, faces, highlights=highlights, size=(w, h), up=up,
-                 ground=ground, camera=camera, title=title) as preview:
+                 ground=ground, camera=camera, title=title,
+                 anti_aliasing=anti_aliasing) as preview:
+        if gif:
+            requested = fps if fps is not None else video_frame_times(preview.times)[1]
+            delay_cs = max(round(100 / GIF_MAX_FPS), round(100 / requested))
+            frame_times, _ = video_frame_times(preview.times, 100 / delay_cs)
+        else:
+            frame_times, rate = video_frame_times(preview.times, fps)
         frames = _scene_progress(frame_times, progress, path.name)
         with _atomic_file(path) as tmp:
             if gif:
@@ -789,7 +840,7 @@ def _write_mp4(tmp: Path, preview: Preview, frames, fps: float) -> None:
     writer = imageio_ffmpeg.write_frames(
         str(tmp), (w, h), fps=fps, codec="libx264", pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
         quality=None, macro_block_size=1, ffmpeg_log_level="error",
-        output_params=["-crf", str(MP4_CRF), "-preset", "fast", "-movflags", "+faststart"])
+        output_params=["-crf", str(MP4_CRF), "-preset", "veryfast", "-movflags", "+faststart"])
     writer.send(None)  # start ffmpeg
     try:
         for t in frames:
@@ -813,11 +864,7 @@ def _write_gif(tmp: Path, preview: Preview, frame_times: np.ndarray, frames, del
     t0, t1 = frame_times[0], frame_times[-1]
     samples = list(np.linspace(t0, t1, 5)) + [hl.time for hl in preview.highlights
                                              if t0 <= hl.time <= t1]
-    strip = [image(t) for t in samples]
-    montage = Image.new("RGB", (out_size[0], out_size[1] * len(strip)))
-    for k, im in enumerate(strip):
-        montage.paste(im, (0, k * out_size[1]))
-    palette = montage.quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+    palette = _gif_palette([image(t) for t in samples])
 
     def quantized() -> Iterator[Image.Image]:
         for t in frames:
@@ -825,16 +872,29 @@ def _write_gif(tmp: Path, preview: Preview, frame_times: np.ndarray, frames, del
 
     it = quantized()
     first = next(it)
-    first.save(tmp, format="GIF", save_all=True, append_images=it, duration=10 * delay_cs,
-               loop=0, optimize=False, disposal=1)
+    # Pillow stores each frame cropped to where it differs from the previous one
+    first.save(tmp, format="GIF", save_all=True, append_images=it, duration=10 * delay_cs, loop=0)
+
+
+def _gif_palette(images) -> Image.Image:
+    """A 256-color palette image: median cut of the *distinct* colors of ``images``.
+
+    Median cut of all pixels spends the palette on the large smooth background and leaves
+    the object (and the few highlight-colored pixels) banded or grey; cutting the set of
+    distinct colors gives every region colors in proportion to its tonal range instead.
+    """
+    from PIL import Image
+
+    distinct = np.unique(np.concatenate([np.asarray(im).reshape(-1, 3) for im in images]), axis=0)
+    return Image.fromarray(distinct[None]).quantize(256, method=Image.Quantize.MEDIANCUT)
 
 
 def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, columns: int = 4,
                          at: Sequence[float] | None = None,
                          highlights: Sequence[Highlight] = (), tile_size=(480, 270),
                          up=(0.0, 1.0, 0.0), ground: bool = True, camera=None,
-                         title: str | None = None, progress: bool = False,
-                         overwrite: bool = False) -> Path:
+                         title: str | None = None, anti_aliasing: bool = True,
+                         progress: bool = False, overwrite: bool = False) -> Path:
     """A PNG grid of frames (each with its time label), row by row; return the path.
 
     The frames are at ``n_frames`` evenly spaced times from the first to the last (or at the
@@ -845,11 +905,11 @@ def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, co
     """
     path = _check_output(path, (".png",), overwrite)
     tw, th = _check_size(tile_size, "tile_size")
-    times_arr = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    times, positions, faces = _check_animation(times, positions, faces)
     if at is None:
         if not (isinstance(n_frames, int | np.integer) and n_frames >= 1):
             raise WigglyInputError(f"n_frames should be an integer >= 1; got {n_frames!r}")
-        sheet_times = np.linspace(times_arr[0], times_arr[-1], n_frames)
+        sheet_times = np.linspace(times[0], times[-1], n_frames)
     else:
         sheet_times = np.atleast_1d(np.asarray(at, dtype=np.float64))
         if sheet_times.ndim != 1 or len(sheet_times) == 0 or not np.all(np.isfinite(sheet_times)):
@@ -863,8 +923,8 @@ def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, co
     header = SHEET_HEADER if title else 0
     sheet = np.full((header + rows * th + (rows + 1) * gap, cols * tw + (cols + 1) * gap, 3), 250,
                     dtype=np.uint8)
-    with Preview(times_arr, positions, faces, highlights=highlights, size=(tw, th), up=up,
-                 ground=ground, camera=camera) as preview:
+    with Preview(times, positions, faces, highlights=highlights, size=(tw, th), up=up,
+                 ground=ground, camera=camera, anti_aliasing=anti_aliasing) as preview:
         for k, t in enumerate(_scene_progress(sheet_times, progress, path.name)):
             r, c = divmod(k, cols)
             y, x = header + gap + r * (th + gap), gap + c * (tw + gap)
@@ -912,7 +972,8 @@ def plot_diagnostics(path, times, modal, residuals: Sequence[dict], eigenvalues,
         raise WigglyInputError(f"n_rigid should be in 0..{len(lam)}; got {n_rigid}")
     for k, row in enumerate(residuals):
         if not isinstance(row, dict) or "time" not in row:
-            raise WigglyInputError(f"residuals[{k}] should be a dict with a 'time' key; got {row!r}")
+            raise WigglyInputError(
+                f"residuals[{k}] should be a dict with a 'time' key; got {row!r}")
 
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -924,17 +985,19 @@ def plot_diagnostics(path, times, modal, residuals: Sequence[dict], eigenvalues,
     key_times = [float(row["time"]) for row in residuals]
     for ax in axes:
         for t in key_times:
-            ax.axvline(t, color="0.55", lw=0.8, ls="--", zorder=0)
-        ax.grid(True, color="0.92")
+            ax.axvline(t, color="0.35", lw=0.9, ls=(0, (4, 3)), zorder=1.5)
+        ax.grid(True, color="0.92", zorder=0)
         ax.axhline(0, color="0.6", lw=0.6)
 
-    rigid_names = ["tx", "ty", "tz", "rx", "ry", "rz"] if n_rigid == 6 else None
+    # a free body's rigid modes are the translations, then rotations (M-orthonormalized)
+    rigid_names = ["tx", "ty", "tz", "rot 1", "rot 2", "rot 3"] if n_rigid == 6 else None
     for i in range(n_rigid):
         name = rigid_names[i] if rigid_names else f"rigid {i + 1}"
         ax_rigid.plot(times, modal[:, i], lw=1.5, label=name)
     ax_rigid.set_ylabel("rigid modes\nq (kg$^{1/2}$ m)")
     if n_rigid:
-        ax_rigid.legend(loc="upper left", ncols=min(n_rigid, 6), fontsize="small", frameon=False)
+        ax_rigid.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize="small",
+                        frameon=False)
     else:
         ax_rigid.text(0.5, 0.5, "no rigid modes (the body is fixed)", transform=ax_rigid.transAxes,
                       ha="center", va="center", color="0.4")
@@ -952,7 +1015,8 @@ def plot_diagnostics(path, times, modal, residuals: Sequence[dict], eigenvalues,
                             if j == max_labeled else None)
     ax_elastic.set_ylabel("elastic modes\nq (kg$^{1/2}$ m)")
     if n_el:
-        ax_elastic.legend(loc="upper left", ncols=3, fontsize="small", frameon=False)
+        ax_elastic.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize="small",
+                          frameon=False)
 
     span = float(times[-1] - times[0]) if len(times) > 1 else 1.0
     width = 0.012 * span
@@ -981,14 +1045,17 @@ def plot_diagnostics(path, times, modal, residuals: Sequence[dict], eigenvalues,
     else:
         ax_res.text(0.5, 0.5, "no keyframes", transform=ax_res.transAxes, ha="center",
                     va="center", color="0.4")
-    for row in residuals:
-        ax_res.annotate(str(row.get("name", "")), (row["time"], 1.0),
-                        xycoords=("data", "axes fraction"), xytext=(2, -2),
-                        textcoords="offset points", ha="left", va="top", fontsize="small",
-                        color="0.3", rotation=0)
+    for ax in (ax_res, ax_vel):  # headroom for the legend
+        top = ax.get_ylim()[1]
+        ax.set_ylim(0, 1.35 * top)
     ax_res.set_xlabel("time (s)")
     if len(times) > 1:
         ax_res.set_xlim(times[0], times[-1])
+    if residuals:  # keyframe names on top, over their dashed lines through all panels
+        names = ax_rigid.secondary_xaxis("top")
+        names.set_xticks(key_times, [str(row.get("name", "")) for row in residuals],
+                         fontsize="small", color="0.25")
+        names.tick_params(length=3)
     if title:
         fig.suptitle(title)
     with _atomic_file(path) as tmp:

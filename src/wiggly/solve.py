@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike
 from wiggly.body import Body, Where
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
+from wiggly.linalg import blas_single_thread
 from wiggly.splines import WigglyBasis, energy_form, equilibrium, evaluate, wiggly_basis
 
 
@@ -210,6 +211,8 @@ class SpacetimeProblem:
         self.start, self.end = float(start), float(end)
         self.preroll = preroll
         self._energy_cache: dict[tuple, tuple] = {}
+        self._group_cache: dict[tuple, tuple] = {}
+        self._jacobians: dict[float, tuple] = {}
 
     @property
     def duration(self) -> float:
@@ -241,6 +244,17 @@ class SpacetimeProblem:
                 self._energy_cache.clear()
             self._energy_cache[key] = (basis, form, idx)
         return self._energy_cache[key]
+
+    def _group_basis(self, vertices: np.ndarray, on: str) -> tuple:
+        """(A_k Phi, its Gram matrix, rest positions) of a vertex group, cached by group."""
+        key = (on, len(vertices), hash(vertices.tobytes()))
+        if key not in self._group_cache:
+            if len(self._group_cache) > 64:
+                self._group_cache.clear()
+            A = self.body.basis_rows(vertices, on)  # (3s, r)
+            rest = self.body.rest_positions(on)[vertices].ravel()
+            self._group_cache[key] = (A, A.T @ A, rest)
+        return self._group_cache[key]
 
     def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Least energy to reach (q, q') from rest in ``preroll`` seconds, without gravity:
@@ -280,9 +294,7 @@ class SpacetimeProblem:
         for kf in kfs:
             k = _node_index(nodes, kf.time)
             c_A, c_B = kf.weights(body, self.duration)
-            A = body.basis_rows(kf.vertices, kf.on)  # (3s, r) = A_k Phi
-            AtA = A.T @ A
-            rest = body.rest_positions(kf.on)[kf.vertices].ravel()
+            A, AtA, rest = self._group_basis(kf.vertices, kf.on)
             if kf.position is not None and c_A > 0:
                 blk = 2 * r * k + np.arange(r)
                 _add_block(ab, bw, blk, c_A * AtA)
@@ -302,6 +314,10 @@ class SpacetimeProblem:
         started from ``initial`` (a previous solution with the same nodes) or the linear
         solution; see :func:`_gauss_newton`.
         """
+        with blas_single_thread():
+            return self._solve(keyframes, warped, initial, tolerance, max_iterations)
+
+    def _solve(self, keyframes, warped, initial, tolerance, max_iterations) -> Animation:
         t_start = _time.perf_counter()
         body = self.body
         kfs = [kf.checked(body, self.start, self.end, label=_label(kf, j))
@@ -319,7 +335,13 @@ class SpacetimeProblem:
             ab, f = ab_E.copy(), f_E.copy()
             start_keys = [_unwarped(kf, body) for kf in kfs] if warped else kfs
             self._add_linear_constraints(ab, f, start_keys, nodes)
-            z = _solve_banded(ab, -f)
+            try:
+                z = _solve_banded(ab, -f)
+            except np.linalg.LinAlgError as err:
+                raise WigglyInputError(
+                    "the keyframes leave the motion undetermined and preroll is 0; give "
+                    "keyframes that fix the start (positions and velocities of the whole "
+                    "body) or a preroll > 0") from err
             info["warm_start"] = False
         info["linear_seconds"] = _time.perf_counter() - t_start
         if warped:
@@ -367,13 +389,7 @@ def _solve_banded(ab: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     d = ab[bw]
     s = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
     abs_ = ab * _band_scale(s, bw)
-    try:
-        cb = sla.cholesky_banded(abs_, lower=False, check_finite=False)
-    except np.linalg.LinAlgError as err:
-        raise WigglyInputError(
-            "the keyframes leave the motion undetermined and preroll is 0; give keyframes "
-            "that fix the start (positions and velocities of the whole body) or a preroll > 0"
-        ) from err
+    cb = sla.cholesky_banded(abs_, lower=False, check_finite=False)
     b = rhs * s
     z = sla.cho_solve_banded((cb, False), b, check_finite=False)
     for _ in range(2):
@@ -422,7 +438,10 @@ class WarpedObjective:
         self.active = sorted({k.node for k in self.keys if k.d is not None or k.b is not None})
         self.has_vel = {k.node for k in self.keys if k.b is not None}
         self.timing = {"W": 0.0, "DW": 0.0, "solve": 0.0}
-        self._jac: dict[int, tuple] = {}
+        # Jacobians DW(u_k) Phi depend on the node state only: shared across solves of the
+        # same problem (warm starts reuse them), keyed by node time
+        self._jac = problem._jacobians
+        self._node_time = {k: float(np.round(t, 9)) for k, t in enumerate(nodes)}
 
     def _state(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         Z = z.reshape(-1, 2, self.r)
@@ -478,9 +497,13 @@ class WarpedObjective:
             if yA.any():
                 G[k, 0] += Phi.T @ self.warp.vjp(U[a], yA.reshape(n, 3)).ravel()
             if yB.any():
-                G[k, 1] += Phi.T @ self.warp.vjp(U[a], yB.reshape(n, 3)).ravel()
-                VJ = self.warp.velocity_jacobian(U[a], (Phi @ v[k]).reshape(n, 3), Phi)
-                G[k, 0] += VJ.reshape(3 * n, r).T @ yB
+                Y = yB.reshape(n, 3)
+                G[k, 1] += Phi.T @ self.warp.vjp(U[a], Y).ravel()
+                # d/du <y, DW(u) w> = Hess(y.W)(u) w (symmetric): central difference of vjp
+                w = (Phi @ v[k]).reshape(n, 3)
+                h = 1e-6 * (1.0 + np.abs(U[a]).max()) / max(np.abs(w).max(), 1e-300)
+                pair = self.warp.vjp(np.stack([U[a] + h * w, U[a] - h * w]), np.stack([Y, Y]))
+                G[k, 0] += Phi.T @ ((pair[0] - pair[1]) / (2 * h)).ravel()
         self.timing["DW"] += _time.perf_counter() - t0
         return float(F), g
 
@@ -494,15 +517,16 @@ class WarpedObjective:
         t0 = _time.perf_counter()
         for k in self.active:
             xk = np.r_[q[k], v[k]]
-            cached = self._jac.get(k)
-            limit = 0.0 if k in self.has_vel else reuse  # q-v coupling: keep velocity nodes fresh
-            if cached is None or np.linalg.norm(xk - cached[0]) > limit * np.linalg.norm(xk):
+            cached = self._jac.get(self._node_time[k])
+            limit = 1e-3 if k in self.has_vel else reuse  # q-v coupling: keep these fresh
+            if cached is None or np.linalg.norm(xk - cached[0]) > limit * np.linalg.norm(xk) \
+                    or (k in self.has_vel and cached[2] is None):
                 u = (Phi @ q[k]).reshape(n, 3)
                 J = self.warp.jacobian(u, Phi).reshape(3 * n, r)
                 VJ = (self.warp.velocity_jacobian(u, (Phi @ v[k]).reshape(n, 3), Phi)
                       .reshape(3 * n, r) if k in self.has_vel else None)
-                self._jac[k] = (xk, J, VJ)
-            _, J, VJ = self._jac[k]
+                self._jac[self._node_time[k]] = (xk, J, VJ)
+            _, J, VJ = self._jac[self._node_time[k]]
             block = np.zeros((2 * r, 2 * r))
             for key in self.keys:
                 if key.node == k and key.d is not None:
@@ -549,7 +573,12 @@ def _gauss_newton(problem: SpacetimeProblem, kfs: list[Keyframe], nodes: np.ndar
             if mu > 0:
                 ab_mu = ab.copy()
                 ab_mu[bw] *= 1.0 + mu
-                dz = _solve_banded(ab_mu, -g)
+                try:
+                    dz = _solve_banded(ab_mu, -g)
+                except np.linalg.LinAlgError:
+                    mu = max(mu * nu, 1e-4)
+                    nu *= 2
+                    continue
             predicted = -(float(g @ dz) + 0.5 * float(dz @ _band_matvec(ab, bw, dz)))
             F_new = obj.value(z + dz)
             rho = (F - F_new) / predicted if predicted > 0 else -1.0
@@ -582,7 +611,7 @@ def _gauss_newton(problem: SpacetimeProblem, kfs: list[Keyframe], nodes: np.ndar
     return z
 
 
-JACOBIAN_REUSE = 0.02
+JACOBIAN_REUSE = 0.1
 
 
 class WarpedSolveWarning(UserWarning):

@@ -425,6 +425,8 @@ class Warp:
         self._mean = sp.csr_matrix((weight / total[fid], (fid, fv_idx)), shape=(n_float, n))
         self._spread = sp.csr_matrix((np.ones(fv_idx.size), (fv_idx, fid)), shape=(n, n_float))
 
+        self._gb_key: tuple | None = None
+        self._gb = np.zeros(0)
         if self._free.size:
             self._solve = factorize_spd(laplacian[self._free][:, self._free])
         else:
@@ -592,13 +594,21 @@ class Warp:
         dX = B.reshape(n, 3, r)
         M = self._tangent_matrices(X)
         m = self.n_tets
-        rhs = np.empty((n, 3, r))
-        for c0 in range(0, r, _CHUNK_COLUMNS):
-            cc = min(r, c0 + _CHUNK_COLUMNS) - c0
-            dA = self._G @ np.ascontiguousarray(dX[:, :, c0 : c0 + cc]).reshape(n, 3 * cc)
-            dH = np.matmul(M, dA.reshape(m, 9, cc))
-            rhs[:, :, c0 : c0 + cc] = (self._GtV @ dH.reshape(3 * m, 3 * cc)).reshape(n, 3, cc)
+        GB = self._basis_gradients(B, dX)
+        dH = np.matmul(M, GB)  # (m, 9, r)
+        rhs = (self._GtV @ dH.reshape(3 * m, 3 * r)).reshape(n, 3, r)
         return self._poisson(rhs, dX).reshape(B.shape)
+
+    def _basis_gradients(self, B: np.ndarray, dX: np.ndarray) -> np.ndarray:
+        """Per-tet gradients of the r basis fields, (m, 9, r), cached for the last basis
+        (the modal basis is fixed per body; treat it as immutable)."""
+        key = (B.ctypes.data, B.shape, B.strides)
+        if self._gb_key != key:
+            n, r = self.n_vertices, dX.shape[2]
+            self._gb = (self._G @ np.ascontiguousarray(dX).reshape(n, 3 * r)).reshape(
+                self.n_tets, 9, r)
+            self._gb_key = key
+        return self._gb
 
     def _tangent_matrices(self, X: np.ndarray) -> np.ndarray:
         """Per-tet 9x9 matrices of ``dA -> dH`` at ``X`` (n, 3, 1), acting on (3 j, 3 i) vectors.
@@ -651,11 +661,7 @@ class Warp:
             _jvp_block(minus, _linearization(Ap), gv)
             d = (plus - minus) / (2 * h)
             T2[:, :, e] = d[:, :, 0, :].transpose(2, 1, 0).reshape(m, 9)
-        rhs = np.empty((n, 3, r))
-        for c0 in range(0, r, _CHUNK_COLUMNS):
-            cc = min(r, c0 + _CHUNK_COLUMNS) - c0
-            dA = self._G @ np.ascontiguousarray(dX[:, :, c0 : c0 + cc]).reshape(n, 3 * cc)
-            dH = np.matmul(T2, dA.reshape(m, 9, cc))
-            rhs[:, :, c0 : c0 + cc] = (self._GtV @ dH.reshape(3 * m, 3 * cc)).reshape(n, 3, cc)
+        dH = np.matmul(T2, self._basis_gradients(B, dX))
+        rhs = (self._GtV @ dH.reshape(3 * m, 3 * r)).reshape(n, 3, r)
         # the gauge's mean term of DW(u)[v] is the mean of v: independent of u
         return self._poisson(rhs, np.zeros_like(rhs)).reshape(B.shape)

@@ -1,0 +1,61 @@
+# wiggly: two set-up commands (see README): `make demo` and `make test`.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN     = $(VENV)/bin
+STAMP   = $(VENV)/.installed
+
+.PHONY: demo test venv system-test-deps cholmod bench lint clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+## Animate the bundled critter and say where the results are.
+demo: $(STAMP)
+	$(BIN)/wiggly demo
+
+## Lint and run the test suite (installs what the tests need).
+test: $(STAMP) system-test-deps
+	$(BIN)/ruff check src tests benchmarks scripts
+	$(BIN)/python -m pytest -q -n 2 -p no:cacheprovider
+
+## System packages the tests use when available: headless Chromium (browser editor tests)
+## and Node.js/npm (Khronos glTF validator).  Installed with apt-get when running as root;
+## otherwise those tests skip with a reason.
+system-test-deps:
+	@missing=""; \
+	command -v chromium >/dev/null 2>&1 || missing="$$missing chromium chromium-driver"; \
+	command -v npm >/dev/null 2>&1 || missing="$$missing nodejs npm"; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "[make] installing system packages:$$missing"; \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null) \
+	      || echo "[make] could not install$$missing; the tests that need them will skip"; \
+	  else \
+	    echo "[make] not root or no apt-get: tests needing$$missing will skip"; \
+	  fi; \
+	fi
+	@$(BIN)/python -c "import playwright" 2>/dev/null || $(BIN)/python -m pip install --quiet playwright
+
+## Optional speed-up: CHOLMOD sparse Cholesky (SuiteSparse) for large bodies.
+cholmod: $(STAMP)
+	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	  (dpkg -s libsuitesparse-dev >/dev/null 2>&1 || (apt-get update -qq && \
+	   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libsuitesparse-dev >/dev/null)) && \
+	  $(BIN)/python -m pip install --quiet "scikit-sparse==0.4.16" \
+	  || echo "[make] CHOLMOD not available; wiggly uses cholespy"; \
+	else echo "[make] CHOLMOD needs root for libsuitesparse-dev; wiggly uses cholespy"; fi
+
+## Benchmarks of the issues' performance targets (prints tables).
+bench: $(STAMP) cholmod
+	$(BIN)/python benchmarks/run_all.py
+
+lint: $(STAMP)
+	$(BIN)/ruff check src tests benchmarks scripts
+
+clean:
+	rm -rf $(VENV) build dist *.egg-info .pytest_cache .ruff_cache wiggly-demo

@@ -1,0 +1,102 @@
+"""The ``wiggly`` command line: a thin layer over :mod:`wiggly.scene` and the library.
+
+Each subcommand is a module with ``add_args(parser)`` and ``run(args) -> int`` (meshio style);
+:func:`main` parses, dispatches and turns errors into exit codes:
+
+* 0: success;
+* 1: a user error (invalid scene or mesh, missing file, existing output, no OpenGL): one
+  message on stderr, no traceback; an unexpected exception (a bug) prints its traceback and
+  asks for a report;
+* 2: a usage error (unknown option, missing argument), reported by argparse.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+import warnings
+
+from wiggly.cli import animate, demo, modes, render, schema
+from wiggly.errors import WigglyInputError
+
+__all__ = ["main"]
+
+COMMANDS = {"animate": animate, "modes": modes, "render": render, "demo": demo,
+            "schema": schema}
+ISSUES = "https://github.com/wiggly/wiggly/issues"
+
+DESCRIPTION = """\
+Animate elastic 3D objects from sparse keyframes (sparse spacetime constraints,
+Schulz et al. 2014). A scene file (TOML) names the model, its material and the
+keyframes; `wiggly animate` solves for the motion and writes glTF/USD/OBJ/npz
+animations and MP4/GIF/PNG previews."""
+
+EPILOG = """\
+examples:
+  wiggly demo                                 # the bundled demo into ./wiggly-demo/
+  wiggly animate examples/jump.toml           # writes the scene's [output] paths
+  wiggly animate shot.toml -o shot.glb -o shot.mp4 --overwrite
+  wiggly modes builtin:plant -n 12            # eigenfrequencies of a model
+  wiggly render out/shot.npz -o shot.gif      # preview an exported animation
+  wiggly schema > scene.schema.json           # JSON Schema of scene files
+
+`wiggly COMMAND --help` describes each command. Scene format: docs/scene-format.md."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``wiggly`` and its subcommands."""
+    from wiggly import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="wiggly", description=DESCRIPTION, epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"wiggly {__version__}")
+    sub = parser.add_subparsers(title="commands", dest="command", metavar="COMMAND")
+    for name, module in COMMANDS.items():
+        p = sub.add_parser(name, help=module.HELP, description=module.DESCRIPTION,
+                           epilog=module.EPILOG,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.add_args(p)
+        p.set_defaults(run=module.run)
+    return parser
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"wiggly: warning: {message}", file=sys.stderr)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``wiggly`` with ``argv`` (default: ``sys.argv[1:]``); return the exit code."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit_:  # --help, --version (0) or a usage error (2)
+        return exit_.code if isinstance(exit_.code, int) else 2
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return 2
+    from wiggly.render import RenderingError
+
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            return int(args.run(args) or 0)
+        except (WigglyInputError, RenderingError) as err:
+            _error(str(err))
+        except OSError as err:  # missing file, permissions, disk full
+            where = f": {err.filename}" if err.filename else ""
+            _error(f"{err.strerror or err}{where}")
+        except KeyboardInterrupt:
+            print("wiggly: interrupted", file=sys.stderr)
+            return 130
+        except Exception:
+            traceback.print_exc()
+            print(f"wiggly: internal error (this is a bug); please report it at {ISSUES} with "
+                  "the traceback above and your scene file", file=sys.stderr)
+        return 1
+
+
+def _error(message: str) -> None:
+    for line in message.splitlines() or [""]:
+        print(f"wiggly: error: {line}", file=sys.stderr)

@@ -1,0 +1,97 @@
+"""``wiggly edit [SCENE_OR_MESH]``: the local web editor (:mod:`wiggly.editor`)."""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import sys
+import time
+from pathlib import Path
+
+HELP = "edit a scene in the browser (groups, keyframes, material; live solve)"
+DESCRIPTION = """\
+Start the local web editor on a scene file (.toml), a mesh (a new scene beside it) or a
+bundled model (builtin:critter, builtin:plant, builtin:bar), and open it in the browser.
+Select vertex groups on the surface, keyframe and pose them with gizmos, edit the material,
+damping and gravity: every edit re-solves in the background and updates the playback.
+Saves the same scene format as `wiggly animate` reads; exports glb/USD/MP4.
+
+The editor reads and writes files only inside the directory of the file it was started on
+(or the current directory), plus any --root; edits are autosaved beside the scene
+(.NAME.autosave.toml) and recovered when the editor is started again."""
+EPILOG = """\
+examples:
+  wiggly edit shot.toml
+  wiggly edit critter.obj                  # new scene critter.toml beside the mesh
+  wiggly edit builtin:plant --port 8800 --no-browser
+  wiggly edit shot.toml --host 0.0.0.0     # reachable from the network: see the warning"""
+
+
+def add_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("path", metavar="SCENE_OR_MESH", nargs="?",
+                        help="scene (.toml), mesh file, or builtin:<model>; default: choose in "
+                             "the browser")
+    parser.add_argument("--host", default="127.0.0.1",
+                        help="address to listen on (default 127.0.0.1: this machine only)")
+    parser.add_argument("--port", type=int, default=8765,
+                        help="port (default 8765; 0: any free port; a busy port falls back to "
+                             "a free one)")
+    parser.add_argument("--root", metavar="DIR", action="append", default=[],
+                        help="another directory the editor may read and write (repeatable)")
+    parser.add_argument("--no-browser", action="store_true", help="do not open a browser")
+    parser.add_argument("--no-autosave", action="store_true", help="do not autosave edits")
+    parser.add_argument("--max-upload-mb", type=float, default=256.0, metavar="MB",
+                        help="largest mesh upload accepted (default 256 MB)")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log every request")
+
+
+def roots_for(path: str | None, extra: list[str]) -> list[Path]:
+    """Directories the editor may use: the file's directory (else the current one) first."""
+    first = Path.cwd() if path is None or path.startswith("builtin:") else \
+        Path(path).expanduser().resolve().parent
+    return [first, *(Path(r).expanduser().resolve() for r in extra)]
+
+
+def run(args: argparse.Namespace) -> int:
+    from wiggly.editor import EditorServer, Sandbox, Session
+    from wiggly.errors import WigglyInputError
+
+    try:
+        exposed = not ipaddress.ip_address(args.host).is_loopback
+    except ValueError:
+        exposed = args.host != "localhost"
+    if exposed:
+        print(f"wiggly: warning: listening on {args.host}: anyone who can reach this machine "
+              "can read and write the scene files in the editor's directories. Use only on a "
+              "trusted network.", file=sys.stderr)
+    if args.path is not None and not args.path.startswith("builtin:") and \
+            not Path(args.path).expanduser().is_file():
+        raise WigglyInputError(f"{args.path}: no such file")
+    session = Session(Sandbox(roots_for(args.path, args.root)), autosave=not args.no_autosave)
+    if args.path is not None:
+        p = args.path if args.path.startswith("builtin:") else \
+            str(Path(args.path).expanduser().resolve())
+        opened = session.open(p)
+        for notice in opened["notices"]:
+            print(f"wiggly: {notice}", file=sys.stderr)
+    kw = dict(max_upload=int(args.max_upload_mb * 2**20), verbose=args.verbose)
+    try:
+        server = EditorServer(session, args.host, args.port, **kw)
+    except OSError:
+        if args.port == 0:
+            raise
+        server = EditorServer(session, args.host, 0, **kw)
+    server.start()
+    print(f"wiggly edit: {server.url}  (Ctrl+C to stop)", flush=True)
+    if not args.no_browser:
+        import webbrowser
+
+        webbrowser.open(server.url)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        print("wiggly edit: stopped", file=sys.stderr)
+    finally:
+        server.stop()
+    return 0

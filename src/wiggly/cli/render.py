@@ -1,0 +1,94 @@
+"""``wiggly render INPUT -o OUT``: a preview of a scene or of an exported animation."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+HELP = "render a preview (.mp4, .gif, .png) of a scene or an exported animation"
+DESCRIPTION = """\
+Render previews: an MP4 or GIF video, or a PNG contact sheet of 8 frames.
+INPUT is either a scene file (.toml), which is solved first (keyframed groups are
+highlighted at their key times, targets drawn as small spheres), or an animation
+written by wiggly (.npz, .glb, .usd, .usda, .usdc, or the first file name of an
+.obj sequence given as NAME.obj), which is rendered as it is."""
+EPILOG = """\
+examples:
+  wiggly render examples/turn.toml -o turn.gif
+  wiggly render out/jump.npz -o jump.mp4 --camera side
+  wiggly render out/jump.glb -o jump-sheet.png --overwrite"""
+
+ANIMATION_EXTENSIONS = (".npz", ".glb", ".usd", ".usda", ".usdc", ".obj")
+
+
+def add_args(parser: argparse.ArgumentParser) -> None:
+    from wiggly.scene import CAMERAS
+
+    parser.add_argument("input", metavar="INPUT",
+                        help="scene file (.toml) or animation (.npz .glb .usd* .obj)")
+    parser.add_argument("-o", "--output", metavar="OUT", action="append", required=True,
+                        help="preview to write: .mp4, .gif or .png (repeatable)")
+    parser.add_argument("--overwrite", action="store_true", default=None,
+                        help="replace existing files")
+    parser.add_argument("--fps", type=float, metavar="N",
+                        help="video frame rate (default: the scene's, or the animation's)")
+    parser.add_argument("--camera", choices=CAMERAS, default=None,
+                        help="camera preset (default: the scene's, or three_quarter)")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bars or stage messages")
+
+
+def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from wiggly.cli.animate import summary
+    from wiggly.errors import WigglyInputError
+    from wiggly.scene import (
+        PREVIEW_EXTENSIONS,
+        OutputSpec,
+        check_outputs,
+        load_scene,
+        render_preview,
+        with_overrides,
+    )
+    from wiggly.scene import run as run_scene
+
+    outputs = [Path(o) for o in args.output]
+    for out in outputs:
+        if out.suffix.lower() not in PREVIEW_EXTENSIONS:
+            raise WigglyInputError(f"{out}: render writes .mp4, .gif or .png previews; use "
+                                   "`wiggly animate` for geometry (.glb .usd .obj .npz)")
+    if args.fps is not None and not args.fps > 0:
+        raise WigglyInputError(f"--fps {args.fps:g} must be > 0")
+    source = Path(args.input)
+    ext = source.suffix.lower()
+    progress = not args.quiet
+    if ext == ".toml":
+        scene = load_scene(source)
+        scene = with_overrides(scene, fps=args.fps)
+        if args.camera is not None:
+            scene = replace(scene, output=replace(scene.output, camera=args.camera))
+        anim = run_scene(scene, outputs=outputs, overwrite=args.overwrite, progress=progress)
+        print(summary(scene, anim))
+        return 0
+    if ext not in ANIMATION_EXTENSIONS:
+        raise WigglyInputError(f"{source}: not a scene (.toml) or an animation "
+                               f"({', '.join(ANIMATION_EXTENSIONS)})")
+    from wiggly.export import read_animation
+
+    overwrite = bool(args.overwrite)
+    check_outputs(outputs, overwrite)
+    anim = read_animation(source)
+    spec = OutputSpec(camera=args.camera or "three_quarter")
+    for out in outputs:
+        if progress:
+            print(f"[wiggly] rendering {out}", file=sys.stderr, flush=True)
+        render_preview(out, anim.times, anim.positions, anim.faces, output=spec, title=anim.name,
+                       overwrite=overwrite, progress=progress, fps=args.fps)
+    print(f"{source}: {anim.n_frames} frames, {anim.n_vertices} vertices, "
+          f"[{anim.times[0]:g}, {anim.times[-1]:g}] s")
+    print("wrote")
+    for out in outputs:
+        print(f"  {out.resolve()}")
+    return 0

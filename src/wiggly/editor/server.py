@@ -1,0 +1,395 @@
+"""The editor's HTTP server: the static web app, JSON endpoints and an event stream.
+
+Standard library only (:class:`http.server.ThreadingHTTPServer`): one thread per connection,
+the state in one :class:`~wiggly.editor.session.Session`.
+
+Endpoints (JSON bodies are objects; errors answer ``{"error": message}``)::
+
+    GET  /                     the app (static/index.html and its files)
+    GET  /api/state            scene, resolved groups, version, undo/redo, dirty, notices
+    GET  /api/mesh             rest surface, binary (uint32 n, m; float32 n*3; uint32 m*3)
+    GET  /api/frames/<id>      playback frames, binary float32 (F, n, 3)
+    GET  /api/frames/latest    the newest frames (?final=1: newest final ones); meta in the
+                               X-Wiggly-Frames header
+    GET  /api/events           Server-Sent Events: state, frames, solve, physics, export, notice
+    GET  /api/files            scene and mesh files inside the sandbox
+    POST /api/edit             an edit {"op": ...} (see wiggly.editor.state), logged
+    POST /api/preview          the same, solved (linear) but not logged: gizmo drags
+    POST /api/undo, /api/redo
+    POST /api/open             {"path": "scene.toml" | "mesh.obj" | "builtin:critter"}
+    POST /api/save             {"path": optional}
+    POST /api/export           {"paths": ["out/shot.glb", ...], "overwrite": false}
+    PUT  /api/upload?name=F    a mesh file as the raw body, stored in <first root>/uploads/
+
+Safety: binds to 127.0.0.1 unless told otherwise; answers only requests whose ``Host`` is the
+address it listens on (or localhost) when bound to a loopback address (DNS rebinding); refuses
+cross-origin requests (``Origin`` must match) and JSON posted as anything but
+``application/json`` (so another web page cannot forge requests); bodies larger than the
+limits are refused with 413 before they are read; paths go through the sandbox; any error in a
+handler answers 4xx/5xx and leaves the session as it was.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import mimetypes
+import os
+import queue
+import re
+import threading
+import traceback
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from pathlib import Path
+from typing import Any
+from urllib.parse import parse_qs, urlsplit
+
+from wiggly.editor.session import MESH_SUFFIXES, SCENE_SUFFIX, Session, dumps
+from wiggly.editor.state import EditError
+from wiggly.errors import WigglyInputError
+
+__all__ = ["MAX_JSON_BYTES", "MAX_UPLOAD_BYTES", "EditorServer"]
+
+MAX_JSON_BYTES = 8 * 2**20
+MAX_UPLOAD_BYTES = 256 * 2**20
+HEARTBEAT_SECONDS = 10.0
+STATIC = Path(str(resources.files("wiggly.editor") / "static"))
+_TYPES = {".js": "text/javascript", ".html": "text/html", ".css": "text/css",
+          ".txt": "text/plain", ".md": "text/plain", ".svg": "image/svg+xml"}
+
+
+class _Handler(BaseHTTPRequestHandler):
+    protocol_version = "HTTP/1.1"
+    server_version = "wiggly-editor"
+    timeout = 120  # seconds of socket inactivity before a connection is dropped
+    server: EditorServer
+
+    # --- plumbing -------------------------------------------------------------------------
+    def log_message(self, format: str, *args: Any) -> None:
+        if self.server.verbose:
+            super().log_message(format, *args)
+
+    def _send(self, status: int, body: bytes, ctype: str = "application/json",
+              headers: dict[str, str] | None = None) -> None:
+        self.send_response(status)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("X-Content-Type-Options", "nosniff")
+        for k, v in (headers or {}).items():
+            self.send_header(k, v)
+        self.end_headers()
+        if self.command != "HEAD":
+            self.wfile.write(body)
+
+    def _json(self, obj: Any, status: int = 200) -> None:
+        self._send(status, dumps(obj))
+
+    def _error(self, status: int, message: str) -> None:
+        self.close_connection = True  # unread request bodies must not be parsed as requests
+        self._send(status, dumps({"error": message}), headers={"Connection": "close"})
+
+    def _allowed(self) -> bool:
+        """Host and Origin checks (DNS rebinding, cross-site requests)."""
+        host = self.headers.get("Host", "")
+        if self.server.check_host and host.rsplit(":", 1)[0].strip("[]") not in \
+                self.server.host_names:
+            self._error(403, f"requests for host {host!r} are not served")
+            return False
+        origin = self.headers.get("Origin")
+        if origin is not None and origin != "null":
+            if urlsplit(origin).netloc != host:
+                self._error(403, "cross-origin requests are not allowed")
+                return False
+        return True
+
+    def _body(self, limit: int) -> bytes | None:
+        length = self.headers.get("Content-Length")
+        if self.headers.get("Transfer-Encoding", "").lower() == "chunked":
+            self._error(411, "send a Content-Length (chunked bodies are not accepted)")
+            return None
+        if length is None:
+            self._error(411, "a Content-Length is required")
+            return None
+        try:
+            n = int(length)
+        except ValueError:
+            self._error(400, f"invalid Content-Length {length!r}")
+            return None
+        if n < 0:
+            self._error(400, "invalid Content-Length")
+            return None
+        if n > limit:
+            self._error(413, f"request body of {n} bytes exceeds the limit of {limit} bytes")
+            return None
+        data = self.rfile.read(n)
+        if len(data) != n:
+            self._error(400, "request body shorter than its Content-Length")
+            return None
+        return data
+
+    def _json_body(self) -> Any:
+        ctype = self.headers.get("Content-Type", "").split(";")[0].strip().lower()
+        if ctype != "application/json":
+            self._error(415, "send JSON with Content-Type: application/json")
+            return _NOTHING
+        data = self._body(self.server.max_json)
+        if data is None:
+            return _NOTHING
+        if not data:
+            return {}
+        try:
+            return json.loads(data)
+        except (ValueError, UnicodeDecodeError) as err:
+            self._error(400, f"invalid JSON: {err}")
+            return _NOTHING
+
+    def _dispatch(self, table: dict) -> None:
+        try:
+            if not self._allowed():
+                return
+            path = urlsplit(self.path).path
+            for pattern, handler in table.items():
+                m = re.fullmatch(pattern, path)
+                if m:
+                    handler(self, *m.groups())
+                    return
+            if self.command in ("GET", "HEAD"):
+                self._static(path)
+            else:
+                self._error(404, f"no endpoint {self.command} {path}")
+        except EditError as err:
+            self._error(err.status, str(err))
+        except WigglyInputError as err:
+            self._error(400, str(err))
+        except (BrokenPipeError, ConnectionResetError, TimeoutError):
+            self.close_connection = True
+        except Exception as err:  # a bug: answer 500, keep serving
+            traceback.print_exc()
+            try:
+                self._error(500, f"internal error: {type(err).__name__}: {err}")
+            except OSError:
+                self.close_connection = True
+
+    def do_GET(self) -> None:
+        self._dispatch(_GET)
+
+    def do_HEAD(self) -> None:
+        self._dispatch(_GET)
+
+    def do_POST(self) -> None:
+        self._dispatch(_POST)
+
+    def do_PUT(self) -> None:
+        self._dispatch(_PUT)
+
+    # --- static files ---------------------------------------------------------------------
+    def _static(self, path: str) -> None:
+        rel = "index.html" if path in ("", "/") else path.lstrip("/")
+        f = Path(os.path.realpath(STATIC / rel))
+        if not f.is_relative_to(Path(os.path.realpath(STATIC))) or not f.is_file():
+            self._error(404, f"no such file {path}")
+            return
+        ctype = _TYPES.get(f.suffix) or mimetypes.guess_type(f.name)[0] or \
+            "application/octet-stream"
+        self._send(200, f.read_bytes(), ctype + ("; charset=utf-8" if ctype.startswith("text")
+                                                 else ""))
+
+    # --- GET ------------------------------------------------------------------------------
+    def get_state(self) -> None:
+        self._json(self.server.session.describe())
+
+    def get_mesh(self) -> None:
+        self._send(200, self.server.session.mesh_bytes(), "application/octet-stream")
+
+    def get_frames(self, frame_id: str) -> None:
+        fs = self.server.session.frames(int(frame_id))
+        self._send(200, fs.positions.astype("<f4", copy=False).tobytes(),
+                   "application/octet-stream", {"X-Wiggly-Frames": json.dumps(fs.meta())})
+
+    def get_latest_frames(self) -> None:
+        query = parse_qs(urlsplit(self.path).query)
+        fs = self.server.session.latest_frames(final=query.get("final", ["0"])[0] == "1")
+        if fs is None:
+            self._error(404, "no frames yet")
+            return
+        self._send(200, fs.positions.astype("<f4", copy=False).tobytes(),
+                   "application/octet-stream", {"X-Wiggly-Frames": json.dumps(fs.meta())})
+
+    def get_files(self) -> None:
+        sb = self.server.session.sandbox
+        self._json({"scenes": sb.listing((SCENE_SUFFIX,)), "meshes": sb.listing(MESH_SUFFIXES),
+                    "builtin": ["builtin:critter", "builtin:plant", "builtin:bar"]})
+
+    def get_events(self) -> None:
+        bus = self.server.session.bus
+        if bus.n_subscribers >= self.server.max_streams:
+            self._error(503, "too many open event streams")
+            return
+        q = bus.subscribe()
+        self.close_connection = True
+        try:
+            self.send_response(200)
+            self.send_header("Content-Type", "text/event-stream")
+            self.send_header("Cache-Control", "no-store")
+            self.send_header("Connection", "close")
+            self.end_headers()
+            self.wfile.write(b"retry: 1000\n\n")
+            self.wfile.flush()
+            while not self.server.stopping.is_set():
+                try:
+                    event = q.get(timeout=HEARTBEAT_SECONDS)
+                except queue.Empty:
+                    self.wfile.write(b": keep-alive\n\n")
+                    self.wfile.flush()
+                    continue
+                self.wfile.write(b"data: " + dumps(event) + b"\n\n")
+                self.wfile.flush()
+        except OSError:
+            pass
+        finally:
+            bus.unsubscribe(q)
+
+    # --- POST -----------------------------------------------------------------------------
+    def _post(self, fn) -> None:
+        body = self._json_body()
+        if body is _NOTHING:
+            return
+        self._json(fn(body))
+
+    def post_edit(self) -> None:
+        self._post(self.server.session.edit)
+
+    def post_preview(self) -> None:
+        self._post(self.server.session.preview)
+
+    def post_undo(self) -> None:
+        self._post(lambda _: self.server.session.undo())
+
+    def post_redo(self) -> None:
+        self._post(lambda _: self.server.session.redo())
+
+    def post_open(self) -> None:
+        self._post(lambda b: self.server.session.open(_field(b, "path", str)))
+
+    def post_save(self) -> None:
+        self._post(lambda b: self.server.session.save(_field(b, "path", str, required=False)))
+
+    def post_export(self) -> None:
+        self._post(lambda b: self.server.session.export(_field(b, "paths", list),
+                                                        _field(b, "overwrite", bool, False,
+                                                               required=False)))
+
+    # --- PUT ------------------------------------------------------------------------------
+    def put_upload(self) -> None:
+        if self.headers.get("X-Wiggly-Upload") != "1":
+            self._error(400, "uploads need the header X-Wiggly-Upload: 1")
+            return
+        name = parse_qs(urlsplit(self.path).query).get("name", [""])[0]
+        if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,120}", name) or \
+                Path(name).suffix.lower() not in MESH_SUFFIXES:
+            self._error(400, f"upload name {name[:80]!r} must be a plain file name ending in "
+                             + ", ".join(MESH_SUFFIXES))
+            return
+        data = self._body(self.server.max_upload)
+        if data is None:
+            return
+        folder = self.server.session.sandbox.home / "uploads"
+        folder.mkdir(exist_ok=True)
+        target = folder / name
+        stem, k = target.stem, 1
+        while target.exists():
+            target = folder / f"{stem}-{k}{target.suffix}"
+            k += 1
+        target = self.server.session.sandbox.resolve(str(target))
+        tmp = target.with_name(f".{target.name}.part")
+        tmp.write_bytes(data)
+        os.replace(tmp, target)
+        self._json({"path": self.server.session.sandbox.relative(target), "bytes": len(data)})
+
+
+_NOTHING = object()
+
+
+def _field(body: Any, key: str, kind: type, default: Any = None, required: bool = True) -> Any:
+    if not isinstance(body, dict):
+        raise EditError(f"the request body must be a JSON object; got {type(body).__name__}")
+    if key not in body or body[key] is None:
+        if required:
+            raise EditError(f"the request needs the field {key!r}")
+        return default
+    v = body[key]
+    if not isinstance(v, kind) or (kind is not bool and isinstance(v, bool)):
+        raise EditError(f"{key} must be a {kind.__name__}; got {type(v).__name__}")
+    return v
+
+
+_GET = {r"/api/state": _Handler.get_state, r"/api/mesh": _Handler.get_mesh,
+        r"/api/frames/latest": _Handler.get_latest_frames,
+        r"/api/frames/(\d{1,12})": _Handler.get_frames, r"/api/files": _Handler.get_files,
+        r"/api/events": _Handler.get_events}
+_POST = {r"/api/edit": _Handler.post_edit, r"/api/preview": _Handler.post_preview,
+         r"/api/undo": _Handler.post_undo, r"/api/redo": _Handler.post_redo,
+         r"/api/open": _Handler.post_open, r"/api/save": _Handler.post_save,
+         r"/api/export": _Handler.post_export}
+_PUT = {r"/api/upload": _Handler.put_upload}
+
+
+class EditorServer(ThreadingHTTPServer):
+    """The editor's HTTP server for one :class:`Session`.
+
+    ``port=0`` picks a free port (see :attr:`url`).  :meth:`start` serves on a background
+    thread (tests, ``wiggly edit``); :meth:`stop` shuts down the server and the session.
+    """
+
+    daemon_threads = True
+    allow_reuse_address = True
+    request_queue_size = 64
+
+    def __init__(self, session: Session, host: str = "127.0.0.1", port: int = 0, *,
+                 max_json: int = MAX_JSON_BYTES, max_upload: int = MAX_UPLOAD_BYTES,
+                 max_streams: int = 16, verbose: bool = False):
+        self.session = session
+        self.max_json, self.max_upload, self.max_streams = max_json, max_upload, max_streams
+        self.verbose = verbose
+        self.stopping = threading.Event()
+        super().__init__((host, port), _Handler)
+        self.host = host
+        try:
+            loopback = ipaddress.ip_address(host).is_loopback
+        except ValueError:
+            loopback = host == "localhost"
+        self.check_host = loopback
+        self.host_names = {host, "localhost", "127.0.0.1", "::1"}
+        self._thread: threading.Thread | None = None
+
+    @property
+    def port(self) -> int:
+        return self.server_address[1]
+
+    @property
+    def url(self) -> str:
+        host = self.host if ":" not in self.host else f"[{self.host}]"
+        if host in ("0.0.0.0", "[::]"):
+            host = "127.0.0.1"
+        return f"http://{host}:{self.port}/"
+
+    def start(self) -> EditorServer:
+        self._thread = threading.Thread(target=self.serve_forever, kwargs={"poll_interval": 0.1},
+                                        name="wiggly-editor-http", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self.stopping.set()
+        self.shutdown()
+        self.server_close()
+        self.session.close()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+
+    def handle_error(self, request, client_address) -> None:  # never let a request kill us
+        if self.verbose:
+            super().handle_error(request, client_address)
+

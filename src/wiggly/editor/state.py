@@ -1,0 +1,424 @@
+"""The editor's state and its edits, as small pure functions on :class:`wiggly.scene.Scene`.
+
+The server holds one :class:`EditorState` (a scene plus stable keyframe ids) and an
+:class:`EditLog` of them (undo/redo).  Every edit the browser sends is a JSON object
+``{"op": <name>, ...}``; :func:`apply_edit` checks it and returns a *new* state, going through
+the scene's own dict form (:func:`wiggly.scene.scene_to_dict` / :func:`scene_from_dict`), so an
+edit can never produce a scene that the CLI would not read back.  An invalid edit raises
+:class:`EditError` (an HTTP 400 for the server) and leaves the state untouched.
+
+Operations (fields in brackets are optional):
+
+==================  ==========================================================================
+``set_group``       ``name, indices [, color, on]``: create or replace a group of vertices
+``rename_group``    ``name, new_name``: also renames it in keyframes and fixed groups
+``recolor_group``   ``name, color`` ("#rrggbb")
+``delete_group``    ``name``: also deletes its keyframes and its fixed entry
+``set_fixed``       ``name, fixed`` (bool): hold the group's vertices at rest or not
+``add_keyframe``    ``time, group [, position, velocity, stiffness, c_A, c_B, name]``
+``update_keyframe`` ``id`` and any of the fields above (``velocity: null`` removes it)
+``delete_keyframe`` ``id``
+``set``             ``section`` (material, damping, simulation, time, mesh, output) and
+                    ``values``: a table of that section's keys (``null`` removes a key)
+==================  ==========================================================================
+
+Positions are those of the scene format: ``"rest"``, ``{"offset": [...]}``,
+``{"absolute": [[...], ...]}`` or ``{"rotation": [...], "translation": [...],
+"center": [...]}`` (Euler angles in degrees, X then Y then Z about fixed axes).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from wiggly.errors import WigglyInputError
+from wiggly.scene import PALETTE, Scene, scene_from_dict, scene_to_dict
+
+__all__ = ["EditError", "EditLog", "EditorState", "apply_edit", "rebased", "rigid_fit",
+           "state_to_json"]
+
+#: Sections that ``set`` may change, and their keys.
+SETTABLE = {
+    "material": ("young", "poisson", "density"),
+    "damping": ("alpha", "beta"),
+    "simulation": ("gravity", "modes", "warp", "lumped_mass", "preroll"),
+    "time": ("start", "end", "duration", "fps"),
+    "mesh": ("resolution", "edge_length", "repair"),
+    "output": ("paths", "overwrite", "size", "camera"),
+}
+KEYFRAME_FIELDS = ("time", "group", "position", "velocity", "stiffness", "c_A", "c_B", "name")
+MAX_LOG = 500
+
+
+class EditError(WigglyInputError):
+    """An edit that cannot be applied; ``status`` is the HTTP status the server answers."""
+
+    def __init__(self, message: str, status: int = 400):
+        super().__init__(message)
+        self.status = status
+
+
+@dataclass(frozen=True)
+class EditorState:
+    """One state of the edited scene: the scene and a stable id per keyframe (same order)."""
+
+    scene: Scene
+    keyframe_ids: tuple[int, ...] = ()
+    next_id: int = 0
+
+    @classmethod
+    def of(cls, scene: Scene) -> EditorState:
+        n = len(scene.keyframes)
+        return cls(scene, tuple(range(n)), n)
+
+    def keyframe_index(self, kid: Any) -> int:
+        if isinstance(kid, bool) or not isinstance(kid, int):
+            raise EditError(f"keyframe id must be an integer; got {_show(kid)}")
+        try:
+            return self.keyframe_ids.index(kid)
+        except ValueError:
+            raise EditError(f"there is no keyframe with id {kid} (it may have been deleted); "
+                            f"ids are {list(self.keyframe_ids)}", 404) from None
+
+
+@dataclass
+class EditLog:
+    """Undo/redo over whole states: ``states[index]`` is current; a new edit drops the redo
+    branch.  At most :data:`MAX_LOG` states are kept (the oldest are forgotten)."""
+
+    states: list[EditorState]
+    index: int = 0
+    limit: int = MAX_LOG
+    saved: EditorState | None = field(default=None)
+
+    @property
+    def current(self) -> EditorState:
+        return self.states[self.index]
+
+    def push(self, state: EditorState) -> None:
+        del self.states[self.index + 1:]
+        self.states.append(state)
+        if len(self.states) > self.limit:
+            del self.states[: len(self.states) - self.limit]
+        self.index = len(self.states) - 1
+
+    def undo(self) -> bool:
+        if self.index == 0:
+            return False
+        self.index -= 1
+        return True
+
+    def redo(self) -> bool:
+        if self.index + 1 >= len(self.states):
+            return False
+        self.index += 1
+        return True
+
+    @property
+    def can_undo(self) -> bool:
+        return self.index > 0
+
+    @property
+    def can_redo(self) -> bool:
+        return self.index + 1 < len(self.states)
+
+    @property
+    def dirty(self) -> bool:
+        """Whether the current scene differs from the last saved (or loaded) one."""
+        return self.saved is None or self.saved.scene != self.current.scene
+
+
+# ----------------------------------------------------------------------------------------------
+# checks of JSON payloads
+
+
+def _show(v: Any, limit: int = 60) -> str:
+    text = repr(v)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _need(op: dict, key: str) -> Any:
+    if key not in op:
+        raise EditError(f"edit {op.get('op')!r} needs the field {key!r}")
+    return op[key]
+
+
+def _string(v: Any, what: str) -> str:
+    if not isinstance(v, str):
+        raise EditError(f"{what} must be a string; got {_show(v)}")
+    return v
+
+
+def _number(v: Any, what: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise EditError(f"{what} must be a finite number; got {_show(v)}")
+    return float(v)
+
+
+def _group_name(v: Any) -> str:
+    name = _string(v, "group name")
+    if not re.fullmatch(r"[A-Za-z0-9_-]{1,64}", name):
+        raise EditError(f"group name {_show(name)} is invalid: use 1 to 64 letters, digits, "
+                        "'_' or '-'")
+    return name
+
+
+def _color(v: Any) -> str:
+    c = _string(v, "color")
+    if not re.fullmatch(r"#[0-9a-fA-F]{6}", c):
+        raise EditError(f"color {_show(c)} is invalid: use \"#rrggbb\"")
+    return c.lower()
+
+
+def _indices(v: Any, n_vertices: int | None) -> list[int]:
+    if not isinstance(v, list) or not v:
+        raise EditError(f"indices must be a non-empty list of vertex indices; got {_show(v)}")
+    if not all(isinstance(i, int) and not isinstance(i, bool) for i in v):
+        raise EditError("indices must be integers")
+    idx = sorted(set(v))
+    if idx[0] < 0 or (n_vertices is not None and idx[-1] >= n_vertices):
+        bad = idx[0] if idx[0] < 0 else idx[-1]
+        raise EditError(f"vertex index {bad} is out of range"
+                        + (f": the surface has {n_vertices} vertices" if n_vertices else ""))
+    return idx
+
+
+# ----------------------------------------------------------------------------------------------
+# edits
+
+
+def _rebuild(state: EditorState, d: dict, ids: tuple[int, ...] | None = None,
+             next_id: int | None = None) -> EditorState:
+    """A new state from the scene's dict form, validated like a scene file."""
+    try:
+        scene = scene_from_dict(d, where="edit")
+    except WigglyInputError as err:
+        raise EditError(str(err)) from None
+    scene.source = state.scene.source
+    return EditorState(scene, state.keyframe_ids if ids is None else ids,
+                       state.next_id if next_id is None else next_id)
+
+
+def _keyframe_dict(op: dict, base: dict | None = None) -> dict:
+    """Keyframe fields of an edit merged into ``base`` (``None`` values remove a field)."""
+    d = dict(base or {})
+    for key in KEYFRAME_FIELDS:
+        if key not in op:
+            continue
+        v = op[key]
+        if v is None:
+            if key in ("time", "group"):
+                raise EditError(f"keyframe {key} cannot be removed")
+            d.pop(key, None)
+        elif key == "time":
+            d[key] = _number(v, "keyframe time")
+        elif key == "group":
+            d[key] = _group_name(v)
+        else:
+            d[key] = v
+    return d
+
+
+def apply_edit(state: EditorState, op: Any, n_vertices: int | None = None) -> EditorState:
+    """The state after the edit ``op`` (a JSON object, see the module doc).
+
+    ``n_vertices`` (of the surface) bounds group indices.  Raises :class:`EditError`.
+    """
+    if not isinstance(op, dict):
+        raise EditError(f"an edit must be a JSON object with an 'op' field; got {_show(op)}")
+    kind = op.get("op")
+    handler = _EDITS.get(kind) if isinstance(kind, str) else None
+    if handler is None:
+        raise EditError(f"unknown edit op {_show(kind)}; known: {', '.join(_EDITS)}")
+    return handler(state, op, n_vertices)
+
+
+def _set_group(state, op, n):
+    name = _group_name(_need(op, "name"))
+    d = scene_to_dict(state.scene)
+    old = d["groups"].get(name, {})
+    g: dict[str, Any] = {"indices": _indices(_need(op, "indices"), n)}
+    on = op.get("on", old.get("on", "surface"))
+    if on not in ("surface", "tets"):
+        raise EditError(f"group 'on' must be \"surface\" or \"tets\"; got {_show(on)}")
+    if on != "surface":
+        g["on"] = on
+    color = op.get("color") or old.get("color") or PALETTE[len(d["groups"]) % len(PALETTE)]
+    g["color"] = _color(color)
+    d["groups"][name] = g
+    return _rebuild(state, d)
+
+
+def _rename_group(state, op, n):
+    name, new = _group_name(_need(op, "name")), _group_name(_need(op, "new_name"))
+    d = scene_to_dict(state.scene)
+    if name not in d["groups"]:
+        raise EditError(f"there is no group {name!r}", 404)
+    if new != name and new in d["groups"]:
+        raise EditError(f"a group named {new!r} exists already")
+    d["groups"] = {(new if k == name else k): v for k, v in d["groups"].items()}
+    for k in d["keyframes"]:
+        if k["group"] == name:
+            k["group"] = new
+    d["simulation"]["fixed"] = [new if g == name else g for g in d["simulation"]["fixed"]]
+    return _rebuild(state, d)
+
+
+def _recolor_group(state, op, n):
+    name = _group_name(_need(op, "name"))
+    d = scene_to_dict(state.scene)
+    if name not in d["groups"]:
+        raise EditError(f"there is no group {name!r}", 404)
+    d["groups"][name]["color"] = _color(_need(op, "color"))
+    return _rebuild(state, d)
+
+
+def _delete_group(state, op, n):
+    name = _group_name(_need(op, "name"))
+    d = scene_to_dict(state.scene)
+    if name not in d["groups"]:
+        raise EditError(f"there is no group {name!r}", 404)
+    del d["groups"][name]
+    keep = [i for i, k in enumerate(d["keyframes"]) if k["group"] != name]
+    d["keyframes"] = [d["keyframes"][i] for i in keep]
+    d["simulation"]["fixed"] = [g for g in d["simulation"]["fixed"] if g != name]
+    return _rebuild(state, d, tuple(state.keyframe_ids[i] for i in keep))
+
+
+def _set_fixed(state, op, n):
+    name = _group_name(_need(op, "name"))
+    fixed = _need(op, "fixed")
+    if not isinstance(fixed, bool):
+        raise EditError(f"fixed must be true or false; got {_show(fixed)}")
+    d = scene_to_dict(state.scene)
+    if name not in d["groups"]:
+        raise EditError(f"there is no group {name!r}", 404)
+    names = [g for g in d["simulation"]["fixed"] if g != name]
+    d["simulation"]["fixed"] = [*names, name] if fixed else names
+    return _rebuild(state, d)
+
+
+def _add_keyframe(state, op, n):
+    _need(op, "time"), _need(op, "group")
+    k = _keyframe_dict(op)
+    if "position" not in k and "velocity" not in k:
+        k["position"] = "rest"
+    d = scene_to_dict(state.scene)
+    d["keyframes"].append(k)
+    return _rebuild(state, d, (*state.keyframe_ids, state.next_id), state.next_id + 1)
+
+
+def _update_keyframe(state, op, n):
+    i = state.keyframe_index(_need(op, "id"))
+    d = scene_to_dict(state.scene)
+    d["keyframes"][i] = _keyframe_dict(op, d["keyframes"][i])
+    return _rebuild(state, d)
+
+
+def _delete_keyframe(state, op, n):
+    i = state.keyframe_index(_need(op, "id"))
+    d = scene_to_dict(state.scene)
+    del d["keyframes"][i]
+    ids = state.keyframe_ids[:i] + state.keyframe_ids[i + 1:]
+    return _rebuild(state, d, ids)
+
+
+def _set(state, op, n):
+    section = _need(op, "section")
+    if section not in SETTABLE:
+        raise EditError(f"section {_show(section)} cannot be set; use one of "
+                        f"{', '.join(SETTABLE)}")
+    values = _need(op, "values")
+    if not isinstance(values, dict):
+        raise EditError(f"values must be a table of {section} keys; got {_show(values)}")
+    d = scene_to_dict(state.scene)
+    table = d.setdefault(section, {})
+    for key, v in values.items():
+        if key not in SETTABLE[section]:
+            raise EditError(f"{section}.{key} cannot be set here; keys: "
+                            f"{', '.join(SETTABLE[section])}")
+        if v is None:
+            table.pop(key, None)
+        else:
+            table[key] = v
+    if section == "time" and "end" in values and values["end"] is not None:
+        table.pop("duration", None)
+    if section == "time" and values.get("duration") is not None:
+        table.pop("end", None)
+    if section == "mesh" and values.get("resolution") is not None:
+        table.pop("edge_length", None)
+    if section == "mesh" and values.get("edge_length") is not None:
+        table.pop("resolution", None)
+    return _rebuild(state, d)
+
+
+_EDITS = {
+    "set_group": _set_group,
+    "rename_group": _rename_group,
+    "recolor_group": _recolor_group,
+    "delete_group": _delete_group,
+    "set_fixed": _set_fixed,
+    "add_keyframe": _add_keyframe,
+    "update_keyframe": _update_keyframe,
+    "delete_keyframe": _delete_keyframe,
+    "set": _set,
+}
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers for the browser
+
+
+def rigid_fit(rest: np.ndarray, current: np.ndarray) -> dict:
+    """The rigid position target closest to ``current`` (Kabsch fit of the rest vertices):
+    ``{"rotation": Euler XYZ degrees, "translation": [...], "center": rest centroid}``, so
+    that a keyframe added at the current pose starts where the group is."""
+    from scipy.spatial.transform import Rotation
+
+    rest, current = np.asarray(rest, float), np.asarray(current, float)
+    c, c_t = rest.mean(axis=0), current.mean(axis=0)
+    if len(rest) >= 3 and np.linalg.matrix_rank(rest - c, tol=1e-9) >= 2:
+        rot, _ = Rotation.align_vectors(current - c_t, rest - c)
+    else:
+        rot = Rotation.identity()
+    angles = rot.as_euler("xyz", degrees=True)
+    return {"rotation": [round(float(a), 6) for a in angles],
+            "translation": [round(float(x), 9) for x in c_t - c],
+            "center": [round(float(x), 9) for x in c]}
+
+
+def state_to_json(state: EditorState) -> dict:
+    """The scene as the browser sees it: the scene file's tables, keyframes with ids."""
+    d = scene_to_dict(state.scene)
+    for kid, k in zip(state.keyframe_ids, d["keyframes"], strict=True):
+        k["id"] = kid
+    d["time_range"] = list(state.scene.time_range())
+    d["name"] = state.scene.name
+    return d
+
+
+
+def rebased(scene: Scene, new_source) -> Scene:
+    """``scene`` to be saved as ``new_source``: relative mesh and output paths rewritten so
+    that they still name the same files from the new file's directory."""
+    import os
+    from dataclasses import replace
+    from pathlib import Path
+
+    new_dir = Path(new_source).parent
+    old_dir = scene.base_dir
+
+    def fix(p: str) -> str:
+        if p.startswith("builtin:") or Path(p).expanduser().is_absolute():
+            return p
+        return Path(os.path.relpath(old_dir / p, new_dir)).as_posix()
+
+    out = replace(scene, mesh=replace(scene.mesh, path=fix(scene.mesh.path)),
+                  output=replace(scene.output, paths=tuple(fix(p) for p in scene.output.paths)))
+    out.source = Path(new_source)
+    return out

@@ -1,0 +1,350 @@
+"""The ``wiggly`` command line, in-process through ``main([...])`` (and once as a subprocess)."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomli_w
+import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import wiggly
+from wiggly.cli import COMMANDS, main
+from wiggly.export import SurfaceAnimation, read_animation, write_animation
+from wiggly.scene import scene_schema
+
+# A small valid scene: the bundled bar, fixed at x = 0, its tip pulled up and released.
+SCENE = {
+    "mesh": {"path": "builtin:bar", "resolution": 6},
+    "material": {"young": 1e5, "poisson": 0.3, "density": 1000.0},
+    "damping": {"alpha": 0.5, "beta": 0.002},
+    "simulation": {"modes": 8, "fixed": ["left"]},
+    "time": {"end": 1.0, "fps": 10},
+    "groups": {
+        "left": {"box": {"min": [-0.01, -1.0, -1.0], "max": [0.01, 1.0, 1.0]}},
+        "tip": {"sphere": {"center": [1.0, 0.0, 0.0], "radius": 0.06}},
+        "some": {"indices": [3, 5, 8]},
+    },
+    "keyframes": [
+        {"time": 0.0, "group": "tip", "position": "rest", "velocity": [0.0, 0.0, 0.0]},
+        {"time": 0.5, "group": "tip", "position": {"offset": [0.0, 0.1, 0.0]},
+         "name": "pulled"},
+    ],
+    "output": {"paths": ["out/bar.npz"]},
+}
+
+
+def write_scene(directory: Path, data: dict, name: str = "shot.toml") -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    path = directory / name
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+def run_main(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+# ----------------------------------------------------------------------------------------------
+# usage, help, version
+
+
+def test_version(capsys):
+    code, out, _ = run_main(capsys, "--version")
+    assert code == 0 and out.strip() == f"wiggly {wiggly.__version__}"
+
+
+@pytest.mark.parametrize("command", [None, *COMMANDS])
+def test_help(capsys, command):
+    code, out, _ = run_main(capsys, *([command] if command else []), "--help")
+    assert code == 0
+    assert "usage: wiggly" in out and "examples:" in out
+
+
+@pytest.mark.parametrize("argv", [
+    [], ["animate"], ["frobnicate"], ["animate", "x.toml", "--bogus"],
+    ["animate", "x.toml", "--fps", "-1"], ["modes", "m.obj", "-n", "0"], ["render", "x.npz"]])
+def test_usage_errors_exit_2(capsys, argv):
+    code, _, err = run_main(capsys, *argv)
+    assert code == 2
+    assert "usage: wiggly" in err and "Traceback" not in err
+
+
+def test_schema_command(capsys):
+    code, out, _ = run_main(capsys, "schema")
+    assert code == 0 and json.loads(out) == scene_schema()
+
+
+# ----------------------------------------------------------------------------------------------
+# animate
+
+
+def test_animate(capsys, tmp_path):
+    scene = write_scene(tmp_path, SCENE)
+    code, out, err = run_main(capsys, "animate", scene)
+    assert code == 0, err
+    target = tmp_path / "out" / "bar.npz"
+    anim = read_animation(target)
+    assert anim.n_frames == 11 and np.isclose(anim.times[-1], 1.0)
+    assert f"wrote\n  {target.resolve()}" in out
+    assert "Gauss-Newton iterations" in out and "pulled" in out
+    assert "[wiggly] tetrahedralizing bar.obj" in err  # stage lines on stderr
+    rows = [line for line in out.splitlines() if line.strip().startswith(("0 ", "1 "))]
+    assert len(rows) == 2
+    for row in rows:  # position residuals (rms, max) in mm
+        assert [float(x) < 20 for x in re.findall(r"(\S+) mm(?!/)", row)] == [True, True]
+
+    # existing output: refused before any computation, file untouched
+    stamp = target.stat().st_mtime_ns
+    code, out, err = run_main(capsys, "animate", scene, "--quiet")
+    assert code == 1 and "exists; pass --overwrite" in err and "Traceback" not in err
+    assert "tetrahedralizing" not in err and target.stat().st_mtime_ns == stamp
+    # --overwrite, -o, --linear, --fps, --quiet
+    other = tmp_path / "elsewhere" / "b.npz"
+    code, out, err = run_main(capsys, "animate", scene, "-o", other, "--linear", "--fps", "20",
+                              "--quiet")
+    assert code == 0 and err == ""
+    assert read_animation(other).n_frames == 21 and "linear" in out
+    code, _, err = run_main(capsys, "animate", scene, "--overwrite", "-q")
+    assert code == 0 and target.stat().st_mtime_ns != stamp
+
+
+def test_animate_without_outputs(capsys, tmp_path):
+    data = copy.deepcopy(SCENE)
+    del data["output"]
+    code, out, _ = run_main(capsys, "animate", write_scene(tmp_path, data), "-q")
+    assert code == 0 and "wrote      nothing" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shot.toml"]
+
+
+def test_user_errors_exit_1(capsys, tmp_path):
+    code, _, err = run_main(capsys, "animate", tmp_path / "none.toml")
+    assert code == 1 and err == f"wiggly: error: {tmp_path / 'none.toml'}: no such scene file\n"
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[mesh\n")
+    code, _, err = run_main(capsys, "animate", bad)
+    assert code == 1 and "not valid TOML" in err and "Traceback" not in err
+    code, _, err = run_main(capsys, "animate", write_scene(tmp_path, SCENE), "-o", "x.mov")
+    assert code == 1 and "unsupported output extension '.mov'" in err
+    code, _, err = run_main(capsys, "modes", tmp_path / "nothing.obj")
+    assert code == 1 and "does not exist" in err and "Traceback" not in err
+
+
+def test_internal_error_prints_traceback(capsys, tmp_path, monkeypatch):
+    import wiggly.scene
+
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("boom")
+
+    monkeypatch.setattr(wiggly.scene, "run", broken)
+    code, _, err = run_main(capsys, "animate", write_scene(tmp_path, SCENE))
+    assert code == 1
+    assert "Traceback" in err and "ZeroDivisionError: boom" in err and "please report" in err
+
+
+def test_subprocess(tmp_path):
+    """``python -m wiggly`` as a real process: exit codes and a clean error message."""
+    env = {**os.environ, "PYTHONWARNINGS": "ignore"}
+    ok = subprocess.run([sys.executable, "-m", "wiggly", "--version"], capture_output=True,
+                        text=True, env=env, timeout=120)
+    assert ok.returncode == 0 and ok.stdout.strip() == f"wiggly {wiggly.__version__}"
+    data = copy.deepcopy(SCENE)
+    data["material"]["yuong"] = 1.0
+    write_scene(tmp_path, data)
+    bad = subprocess.run([sys.executable, "-m", "wiggly", "animate", "shot.toml"],
+                         capture_output=True, text=True, env=env, timeout=120, cwd=tmp_path)
+    assert bad.returncode == 1
+    assert bad.stderr == ("wiggly: error: shot.toml: unknown key 'yuong' in [material]; did you "
+                          "mean 'young'?\n")
+    usage = subprocess.run([sys.executable, "-m", "wiggly", "animate"], capture_output=True,
+                           text=True, env=env, timeout=120)
+    assert usage.returncode == 2
+
+
+# ----------------------------------------------------------------------------------------------
+# modes and render
+
+
+def test_modes_table(capsys):
+    code, out, _ = run_main(capsys, "modes", "builtin:bar", "-n", "9", "--resolution", "6",
+                            "--young", "2e6", "-q")
+    assert code == 0
+    assert "free, 6 rigid modes" in out and "E = 2e+06 Pa" in out
+    rows = [line.split() for line in out.splitlines() if line.split()[:1] and
+            line.split()[0].isdigit()]
+    assert [int(r[0]) for r in rows] == list(range(1, 10))
+    assert all(r[2] == "rigid" for r in rows[:6])
+    for r in rows[6:]:
+        lam, hz, period = map(float, r[1:4])
+        assert math.isclose(hz, math.sqrt(lam) / (2 * math.pi), rel_tol=1e-3)
+        assert math.isclose(period, 1 / hz, rel_tol=2e-3)
+    freqs = [float(r[2]) for r in rows[6:]]
+    assert freqs == sorted(freqs) and freqs[0] > 0
+
+
+def test_modes_of_a_scene_with_preview(capsys, tmp_path):
+    scene = write_scene(tmp_path, SCENE)
+    out_png = tmp_path / "modes.png"
+    code, out, _ = run_main(capsys, "modes", scene, "-n", "5", "-o", out_png, "-q")
+    assert code == 0 and "0 rigid modes" in out and "fixed at" in out
+    from PIL import Image
+
+    with Image.open(out_png) as im:
+        assert im.size[0] > 400 and im.size[1] > 100
+
+
+def small_animation() -> SurfaceAnimation:
+    """An icosphere bouncing once: 12 frames."""
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+    times = np.arange(12) / 12.0
+    lift = 0.3 * np.sin(np.pi * times)[:, None, None] * np.array([0.0, 1.0, 0.0])
+    positions = sphere.vertices[None] + lift + np.array([0.0, 0.2, 0.0])
+    return SurfaceAnimation(times, positions, sphere.faces, name="ball")
+
+
+def test_render_animation_file(capsys, tmp_path):
+    npz = write_animation(tmp_path / "ball.npz", small_animation())
+    sheet, gif = tmp_path / "previews" / "ball.png", tmp_path / "ball.gif"
+    code, out, err = run_main(capsys, "render", npz, "-o", sheet, "-o", gif, "--camera", "side",
+                              "-q")
+    assert code == 0, err
+    assert "ball.npz: 12 frames" in out and str(sheet.resolve()) in out
+    from PIL import Image
+
+    with Image.open(sheet) as im:
+        assert im.format == "PNG" and im.size[0] > im.size[1]
+    with Image.open(gif) as im:
+        assert im.format == "GIF" and im.n_frames >= 10
+    code, _, err = run_main(capsys, "render", npz, "-o", sheet)
+    assert code == 1 and "exists" in err
+    code, _, err = run_main(capsys, "render", npz, "-o", tmp_path / "x.glb")
+    assert code == 1 and "render writes .mp4, .gif or .png" in err
+
+
+def test_render_scene(capsys, tmp_path):
+    scene = write_scene(tmp_path, SCENE)
+    sheet = tmp_path / "sheet.png"
+    code, out, err = run_main(capsys, "render", scene, "-o", sheet, "-q")
+    assert code == 0, err
+    assert "pulled" in out
+    assert sheet.is_file() and not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_demo(capsys, tmp_path):
+    """The demo writes its three files and finishes well under a minute."""
+    start = time.perf_counter()
+    code, out, err = run_main(capsys, "demo", "-o", tmp_path / "demo", "-q")
+    seconds = time.perf_counter() - start
+    assert code == 0, err
+    names = ["critter.glb", "critter.mp4", "critter-sheet.png"]
+    for name in names:
+        path = (tmp_path / "demo" / name).resolve()
+        assert path.is_file() and path.stat().st_size > 10_000
+        assert f"  {path}\n" in out
+    assert sorted(p.name for p in (tmp_path / "demo").iterdir()) == sorted(names)
+    assert seconds < 60
+    code, _, err = run_main(capsys, "demo", "-o", tmp_path / "demo", "-q")
+    assert code == 1 and "exists; pass --overwrite" in err
+
+
+# ----------------------------------------------------------------------------------------------
+# malformed scenes: always exit code 1, a message, no traceback, nothing written
+
+NUMBER_FIELDS = ["material.young", "material.density", "material.poisson", "damping.alpha",
+                 "damping.beta", "simulation.modes", "time.end", "time.fps", "mesh.resolution",
+                 "groups.tip.sphere.radius", "keyframes.1.time"]
+POSITIVE_FIELDS = ["material.young", "material.density", "simulation.modes", "time.fps",
+                   "mesh.resolution", "groups.tip.sphere.radius"]
+STRING_FIELDS = ["mesh.path", "keyframes.0.group", "keyframes.1.name"]
+VECTOR_FIELDS = ["keyframes.1.position.offset", "keyframes.0.velocity",
+                 "groups.tip.sphere.center", "groups.left.box.min"]
+TABLES = ["", "mesh", "material", "damping", "simulation", "time", "groups.tip",
+          "groups.tip.sphere", "keyframes.0", "keyframes.1.position", "output"]
+REQUIRED = ["mesh", "mesh.path", "keyframes.0.time", "keyframes.1.group",
+            "groups.left.box.max", "groups.tip.sphere.radius"]
+KNOWN_KEYS = {"mesh", "path", "material", "young", "poisson", "density", "damping", "alpha",
+              "beta", "simulation", "time", "groups", "tip", "sphere", "keyframes", "output",
+              "format", "resolution", "edge_length", "repair", "gravity", "modes", "warp",
+              "lumped_mass", "fixed", "preroll", "start", "end", "duration", "fps", "box",
+              "nearest", "indices", "from_mesh", "on", "color", "center", "radius", "group",
+              "position", "velocity", "stiffness", "c_A", "c_B", "name", "offset", "absolute",
+              "rotation", "translation", "paths", "overwrite", "size", "camera"}
+
+
+def _node(data, path: str):
+    parts = [int(p) if p.isdigit() else p for p in path.split(".") if p]
+    for p in parts[:-1]:
+        data = data[p]
+    return data, parts[-1] if parts else None
+
+
+@st.composite
+def malformed(draw) -> dict:
+    """SCENE with one change that makes it invalid (by construction)."""
+    data = copy.deepcopy(SCENE)
+    kind = draw(st.sampled_from(["type", "missing", "nan", "negative", "unknown", "time",
+                                 "index", "vector"]))
+    if kind == "type":
+        path = draw(st.sampled_from(NUMBER_FIELDS + STRING_FIELDS))
+        node, key = _node(data, path)
+        wrong = st.sampled_from(["soft", True, [1.0], {"a": 1}]) if path in NUMBER_FIELDS \
+            else st.sampled_from([3, 2.5, False, ["x"], {"a": "b"}])
+        node[key] = draw(wrong)
+    elif kind == "missing":
+        node, key = _node(data, draw(st.sampled_from(REQUIRED)))
+        del node[key]
+    elif kind == "nan":
+        path = draw(st.sampled_from(NUMBER_FIELDS + VECTOR_FIELDS))
+        node, key = _node(data, path)
+        bad = draw(st.sampled_from([math.nan, math.inf, -math.inf]))
+        if path in VECTOR_FIELDS:
+            node[key] = [0.0, bad, 0.0]
+        else:
+            node[key] = bad
+    elif kind == "negative":
+        node, key = _node(data, draw(st.sampled_from(POSITIVE_FIELDS)))
+        node[key] = -draw(st.integers(0, 10**6)) * 1.0
+        if key in ("modes", "resolution"):
+            node[key] = int(node[key])
+    elif kind == "unknown":
+        table = draw(st.sampled_from(TABLES))
+        name = draw(st.from_regex(r"[a-z_]{1,10}", fullmatch=True).filter(
+            lambda s: s not in KNOWN_KEYS))
+        node = _node(data, table + ".x")[0] if table else data
+        node[name] = draw(st.sampled_from([1, "x", [1.0, 2.0]]))
+    elif kind == "time":
+        t = draw(st.floats(1.0001, 1e6) | st.floats(-1e6, -0.0001))
+        data["keyframes"][draw(st.integers(0, 1))]["time"] = t
+    elif kind == "index":
+        data["groups"]["some"]["indices"] = [3, draw(st.integers(10**6, 10**9))]
+    else:  # vectors of the wrong length
+        node, key = _node(data, draw(st.sampled_from(VECTOR_FIELDS)))
+        node[key] = draw(st.lists(st.floats(-1, 1), max_size=6).filter(lambda v: len(v) != 3))
+    return data
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=malformed())
+def test_malformed_scenes_exit_1(data, tmp_path_factory, capsys):
+    directory = tmp_path_factory.mktemp("malformed")
+    scene = write_scene(directory, data)
+    code, out, err = run_main(capsys, "animate", scene, "-o", directory / "out" / "a.glb")
+    assert code == 1, (data, out, err)
+    assert err.startswith("wiggly: error: ") and "Traceback" not in err
+    assert out == ""
+    assert sorted(p.name for p in directory.iterdir()) == ["shot.toml"]  # nothing written

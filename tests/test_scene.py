@@ -1,0 +1,579 @@
+"""Scene files: exact TOML round trip, every validation error, the JSON Schema, group selectors."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import os
+import tomllib
+from pathlib import Path
+
+import jsonschema
+import meshio
+import numpy as np
+import pytest
+import tomli_w
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from wiggly import WigglyInputError
+from wiggly.mesh import load_model
+from wiggly.primitives import box_mesh
+from wiggly.scene import (
+    Absolute,
+    Box,
+    DampingSpec,
+    FromMesh,
+    GroupSpec,
+    Indices,
+    KeyframeSpec,
+    MaterialSpec,
+    MeshSpec,
+    Nearest,
+    Offset,
+    OutputSpec,
+    Rest,
+    Rigid,
+    Scene,
+    SimulationSpec,
+    Sphere,
+    TimeSpec,
+    builtin_model,
+    keyframes_of,
+    load_scene,
+    resolve_groups,
+    save_scene,
+    scene_from_dict,
+    scene_schema,
+    scene_to_dict,
+    scene_to_toml,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = sorted((ROOT / "examples").glob("*.toml"))
+DEMO = ROOT / "src" / "wiggly" / "data" / "demo.toml"
+SCHEMA_FILE = ROOT / "src" / "wiggly" / "data" / "scene.schema.json"
+
+# A valid scene touching every table, selector and kind of position target.
+BASE = {
+    "format": 1,
+    "mesh": {"path": "builtin:bar", "resolution": 6},
+    "material": {"young": 1e5, "poisson": 0.3, "density": 1000.0},
+    "damping": {"alpha": 0.5, "beta": 0.002},
+    "simulation": {"gravity": [0.0, -9.81, 0.0], "modes": 8, "fixed": ["left"]},
+    "time": {"start": 0.0, "end": 1.0, "fps": 20},
+    "groups": {
+        "left": {"box": {"min": [-0.01, -1.0, -1.0], "max": [0.01, 1.0, 1.0]}},
+        "tip": {"sphere": {"center": [1.0, 0.0, 0.0], "radius": 0.06}, "color": "#ff0000"},
+        "mid": {"nearest": {"points": [[0.5, 0.05, 0.05]], "count": 4}},
+        "three": {"indices": [5, 3, 9]},
+    },
+    "keyframes": [
+        {"time": 0.0, "group": "tip", "position": "rest", "velocity": [0.0, 0.0, 0.0]},
+        {"time": 0.4, "group": "tip", "position": {"offset": [0.0, 0.1, 0.0]}},
+        {"time": 0.6, "group": "three",
+         "position": {"absolute": [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.0]]}},
+        {"time": 0.8, "group": "mid",
+         "position": {"rotation": [0.0, 0.0, 30.0], "center": [0.5, 0.0, 0.0]},
+         "stiffness": 1e3, "name": "twist"},
+    ],
+    "output": {"paths": ["out/bar.npz"]},
+}
+
+
+def write(tmp_path: Path, data: dict, name: str = "shot.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+def every_kind_scene() -> Scene:
+    """Every selector, position kind and optional key, with awkward values."""
+    return Scene(
+        mesh=MeshSpec("meshes/thing.obj", edge_length=0.0125, repair=True),
+        material=MaterialSpec(1.0 / 3.0 * 1e5, 0.0, 1e-3),
+        damping=DampingSpec(0.0, 1e-300),
+        simulation=SimulationSpec(gravity=(0.0, 0.0, -1.62), modes=1, warp=False,
+                                  lumped_mass=True, fixed=("base", "ring"), preroll=0.0),
+        time=TimeSpec(start=-0.5, duration=2.25, fps=23.976),
+        groups={
+            "base": GroupSpec(Box((-1.0, -2.0, -3.0), (1.0, 2.0, 3.0)), color="#00FF7f"),
+            "ball": GroupSpec(Sphere((0.1, 0.2, 0.3), 1e-3)),
+            "near": GroupSpec(Nearest(((0.0, 0.0, 0.0), (1.0, 1.0, 1.0)), count=7)),
+            "ring": GroupSpec(Indices((9, 0, 4)), on="tets"),
+            "saddle": GroupSpec(FromMesh("saddle group é \"q\"")),
+            "with-dash_1": GroupSpec(Indices(tuple(range(40)))),
+        },
+        keyframes=[
+            KeyframeSpec(-0.5, "base", Rest()),
+            KeyframeSpec(0.0, "ball", Offset((0.1, -0.2, 1e-12)), velocity=(1.0, 2.0, 3.0)),
+            KeyframeSpec(0.25, "ring", Absolute(((0.0, 0.0, 0.0), (1.0, 1.0, 1.0),
+                                                 (0.1, 0.2, 0.3)))),
+            KeyframeSpec(0.5, "near", Rigid((10.0, 20.0, 30.0))),
+            KeyframeSpec(0.75, "near", Rigid((0.0, 0.0, 0.0), (0.5, 0.0, 0.0), (1.0, 2.0, 3.0))),
+            KeyframeSpec(1.0, "saddle", None, velocity=(0.0, -1.0, 0.0), c_A=2.5, c_B=0.0,
+                         name="ünïcode 'name' \\ with # and \"quotes\""),
+            KeyframeSpec(1.75, "with-dash_1", Absolute(tuple((i * 0.1, 0.0, -i * 1e-3)
+                                                             for i in range(40))),
+                         stiffness=0.0),
+        ],
+        output=OutputSpec(paths=("a.glb", "b/c.usda", "frames/f.obj", "x.GIF"), overwrite=True,
+                          size=(640, 480), camera=(30.0, -10.5)),
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# round trip
+
+
+def test_round_trip_every_kind(tmp_path):
+    scene = every_kind_scene()
+    path = save_scene(scene, tmp_path / "s.toml")
+    text = path.read_text()
+    assert scene_from_dict(tomllib.loads(text)) == scene
+    assert tomllib.loads(text) == _without_none(scene_to_dict(scene))
+    # load_scene also checks that the mesh file exists
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "thing.obj").write_text("")
+    loaded = load_scene(path)
+    assert loaded == scene
+    assert loaded.source == path.resolve()
+    assert scene_to_toml(loaded) == text
+
+
+def _without_none(d):
+    if isinstance(d, dict):
+        return {k: _without_none(v) for k, v in d.items() if v is not None}
+    if isinstance(d, list | tuple):
+        return [_without_none(v) for v in d]
+    return d
+
+
+@pytest.mark.parametrize("path", [*EXAMPLES, DEMO], ids=lambda p: p.name)
+def test_round_trip_examples(path, tmp_path):
+    scene = load_scene(path)
+    copy_path = save_scene(scene, tmp_path / path.name)
+    assert load_scene(copy_path) == scene
+
+
+def test_saved_text_is_readable(tmp_path):
+    text = scene_to_toml(every_kind_scene())
+    assert "[groups.base]\nbox = { min = [-1.0, -2.0, -3.0], max = [1.0, 2.0, 3.0] }" in text
+    assert 'position = "rest"' in text
+    assert "[keyframes.position]\nabsolute = [\n    [0.0, 0.0, 0.0]," in text  # long: wrapped
+    assert "\n[[keyframes]]\ntime = 1.75\n" in text
+
+
+_finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+_positive = st.floats(1e-6, 1e9, allow_nan=False)
+_vec = st.tuples(_finite, _finite, _finite)
+_names = st.from_regex(r"[A-Za-z0-9_-]{1,12}", fullmatch=True)
+
+
+@st.composite
+def scenes(draw) -> Scene:
+    names = draw(st.lists(_names, min_size=1, max_size=4, unique=True))
+    selectors = st.one_of(
+        st.builds(lambda a, b: Box(tuple(map(min, a, b)), tuple(map(max, a, b))), _vec, _vec),
+        st.builds(Sphere, _vec, _positive),
+        st.builds(Nearest, st.lists(_vec, min_size=1, max_size=3).map(tuple),
+                  st.integers(1, 50)),
+        st.builds(Indices, st.lists(st.integers(0, 10**6), min_size=1, max_size=8,
+                                    unique=True).map(tuple)),
+        st.builds(FromMesh, st.text(min_size=1, max_size=10)))
+    groups = {n: GroupSpec(draw(selectors), draw(st.sampled_from(["surface", "tets"])),
+                           draw(st.none() | st.from_regex(r"#[0-9a-fA-F]{6}", fullmatch=True)))
+              for n in names}
+    start = draw(st.floats(-10, 10, allow_nan=False))
+    duration = draw(st.floats(0.01, 100, allow_nan=False))
+    positions = st.one_of(
+        st.none(), st.just(Rest()), st.builds(Offset, _vec),
+        st.builds(Absolute, st.lists(_vec, min_size=1, max_size=3).map(tuple)),
+        st.builds(Rigid, _vec, _vec, st.none() | _vec))
+    keys = []
+    for _ in range(draw(st.integers(0, 5))):
+        pos = draw(positions)
+        vel = draw(_vec) if pos is None else draw(st.none() | _vec)
+        t = draw(st.floats(start, start + duration, allow_nan=False))
+        w = st.none() | st.floats(0, 1e12, allow_nan=False)
+        keys.append(KeyframeSpec(t, draw(st.sampled_from(names)), pos, vel, draw(w), draw(w),
+                                 draw(w), draw(st.text(max_size=10))))
+    return Scene(
+        mesh=MeshSpec("builtin:bar", draw(st.none() | st.integers(1, 200))),
+        material=MaterialSpec(draw(_positive), draw(st.floats(0, 0.4999)), draw(_positive)),
+        damping=DampingSpec(draw(st.floats(0, 100)), draw(st.floats(0, 1))),
+        simulation=SimulationSpec(draw(_vec), draw(st.integers(1, 500)), draw(st.booleans()),
+                                  fixed=tuple(draw(st.lists(st.sampled_from(names),
+                                                            unique=True)))),
+        time=TimeSpec(start, end=start + duration, fps=draw(st.floats(0.1, 1000))),
+        groups=groups, keyframes=keys,
+        output=OutputSpec(tuple(draw(st.lists(st.sampled_from(
+            ["a.glb", "b.usd", "c.npz", "d.mp4", "e.png", "f/g.obj"]), unique=True)))))
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(scene=scenes())
+def test_round_trip_random_scenes(scene, tmp_path):
+    path = save_scene(scene, tmp_path / "random.toml", overwrite=True)
+    assert load_scene(path) == scene
+
+
+def test_save_refuses_existing_and_is_atomic(tmp_path):
+    scene = load_scene(write(tmp_path, BASE))
+    target = tmp_path / "copy.toml"
+    target.write_text("keep me")
+    with pytest.raises(WigglyInputError, match=r"copy.toml exists"):
+        save_scene(scene, target)
+    assert target.read_text() == "keep me"
+    save_scene(scene, target, overwrite=True)
+    assert load_scene(target) == scene
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["copy.toml", "shot.toml"]
+
+
+def test_save_refuses_invalid_scene(tmp_path):
+    scene = load_scene(write(tmp_path, BASE))
+    scene.keyframes.append(KeyframeSpec(0.5, "nope", Rest()))
+    with pytest.raises(WigglyInputError, match=r'keyframes\[4\].group = "nope" is not a group'):
+        save_scene(scene, tmp_path / "bad.toml")
+    assert not (tmp_path / "bad.toml").exists()
+
+
+# ----------------------------------------------------------------------------------------------
+# validation: every error path, with the exact key path
+
+
+def mutate(path: str, value=None, delete: bool = False) -> dict:
+    """A copy of BASE with the key at ``path`` (dots and [i]) set to ``value`` or deleted."""
+    data = copy.deepcopy(BASE)
+    parts = [int(p) if p.isdigit() else p
+             for p in path.replace("[", ".").replace("]", "").split(".")]
+    node = data
+    for p in parts[:-1]:
+        node = node[p]
+    if delete:
+        del node[parts[-1]]
+    else:
+        node[parts[-1]] = value
+    return data
+
+
+ERRORS = [
+    # (key path, new value or DELETE, expected message)
+    ("material.yuong", 1.0, "unknown key 'yuong' in [material]; did you mean 'young'?"),
+    ("meshh", {}, "unknown key 'meshh' at the top level; did you mean 'mesh'?"),
+    ("keyframes[1].position.ofset", [0, 0, 0],
+     "unknown key 'ofset' in keyframes[1].position; did you mean 'offset'?"),
+    ("groups.tip.zzz", 1, "unknown key 'zzz' in [groups.tip]; allowed keys: box, sphere"),
+    ("format", 2, "format = 2 must be 1 (the newest format this version of wiggly reads)"),
+    ("mesh", "DELETE", "mesh is missing; it is required"),
+    ("mesh.path", "DELETE", "mesh.path is missing; it is required: a non-empty string"),
+    ("mesh.path", "", 'mesh.path = "" must be a non-empty string'),
+    ("mesh.path", "builtin:crtter", 'mesh.path = "builtin:crtter" is not a bundled model'),
+    ("mesh.resolution", 0, "mesh.resolution = 0 must be an integer >= 1"),
+    ("mesh.resolution", 2.5, "mesh.resolution = 2.5 must be an integer >= 1"),
+    ("mesh.edge_length", 0.1, "mesh has both resolution and edge_length; give only one"),
+    ("mesh.repair", "yes", 'mesh.repair = "yes" must be true or false'),
+    ("material.young", -1.0, "material.young = -1.0 must be a number > 0 (Pa)"),
+    ("material.young", "soft", 'material.young = "soft" must be a number > 0 (Pa)'),
+    ("material.young", True, "material.young = true must be a number > 0 (Pa)"),
+    ("material.young", math.nan, "material.young = nan must be a number > 0 (Pa)"),
+    ("material.young", math.inf, "material.young = inf must be a number > 0 (Pa)"),
+    ("material.poisson", 0.5, "material.poisson = 0.5 must be a number in [0, 0.5)"),
+    ("material.density", 0, "material.density = 0 must be a number > 0 (kg/m^3)"),
+    ("damping.alpha", -0.1, "damping.alpha = -0.1 must be a number >= 0 (1/s)"),
+    ("damping.beta", [1], "damping.beta = [1] must be a number >= 0 (s)"),
+    ("simulation.gravity", [0, -9.81], "simulation.gravity = [0, -9.81] must be an array of 3 "
+                                       "numbers [gx, gy, gz] (m/s^2)"),
+    ("simulation.gravity", [0, math.nan, 0], "simulation.gravity = [0, nan, 0] must be"),
+    ("simulation.modes", 0, "simulation.modes = 0 must be an integer >= 1"),
+    ("simulation.warp", 1, "simulation.warp = 1 must be true or false"),
+    ("simulation.fixed", "left", 'simulation.fixed = "left" must be an array of group names'),
+    ("simulation.fixed", ["left", "left"], 'simulation.fixed[1] = "left" repeats '
+                                           "simulation.fixed[0]"),
+    ("simulation.fixed", ["lft"], 'simulation.fixed[0] = "lft" is not a group (did you mean '
+                                  "'left'?); groups are: left, tip, mid, three"),
+    ("simulation.preroll", -1, "simulation.preroll = -1 must be a number >= 0 (s)"),
+    ("time.end", -1.0, "time.end = -1.0 must be after time.start = 0.0"),
+    ("time.duration", 1.0, "time has both end and duration; give only one"),
+    ("time.fps", 0, "time.fps = 0 must be a number in (0, 1000]"),
+    ("time.fps", 5000, "time.fps = 5000 must be a number in (0, 1000]"),
+    ("groups", [], "groups = [] must be a table of named items"),
+    ("groups.tip", {"color": "#ff0000"}, "groups.tip has no selector; give exactly one of box, "
+                                         "sphere, nearest, indices, from_mesh"),
+    ("groups.tip.box", {"min": [0, 0, 0], "max": [1, 1, 1]},
+     "groups.tip has 2 selectors (box, sphere); give exactly one"),
+    ("groups.left.box.min", [0.5, -1, -1], "groups.left.box.min = [0.5, -1.0, -1.0] exceeds "
+                                           "groups.left.box.max = [0.01, 1.0, 1.0] in x"),
+    ("groups.left.box.max", "DELETE", "groups.left.box.max is missing; it is required"),
+    ("groups.tip.sphere.radius", -0.1, "groups.tip.sphere.radius = -0.1 must be a number > 0 (m)"),
+    ("groups.tip.color", "red", 'groups.tip.color = "red" must be a color "#rrggbb"'),
+    ("groups.tip.on", "volume", 'groups.tip.on = "volume" must be "surface" or "tets"'),
+    ("groups.mid.nearest.count", 0, "groups.mid.nearest.count = 0 must be an integer >= 1"),
+    ("groups.mid.nearest.points", [], "groups.mid.nearest.points = [] must have at least 1 item"),
+    ("groups.three.indices", [1, -2], "groups.three.indices[1] = -2 must be an integer >= 0"),
+    ("groups.three.indices", [1, 1], "groups.three.indices[1] = 1 repeats "
+                                     "groups.three.indices[0]"),
+    ("groups.three.indices", [], "groups.three.indices = [] must have at least 1 item"),
+    ("groups.three.from_mesh", "x", "groups.three has 2 selectors (indices, from_mesh)"),
+    ("keyframes", {"time": 0}, "keyframes = { time = 0 } must be an array of tables"),
+    ("keyframes[0].time", "DELETE", "keyframes[0].time is missing; it is required: a number (s)"),
+    ("keyframes[0].time", 3.5, "keyframes[0].time = 3.5 is outside the shot's time range "
+                               "[0.0, 1.0] s"),
+    ("keyframes[0].time", -0.1, "keyframes[0].time = -0.1 is outside the shot's time range"),
+    ("keyframes[0].group", "DELETE", "keyframes[0].group is missing; it is required"),
+    ("keyframes[0].group", "tpi", 'keyframes[0].group = "tpi" is not a group (did you mean '
+                                  "'tip'?); groups are: left, tip, mid, three"),
+    ("keyframes[0].position", "Rest", 'keyframes[0].position = "Rest" must be "rest" or a table'),
+    ("keyframes[0].position", [0, 1, 0], "keyframes[0].position = [0, 1, 0] must be \"rest\" or"),
+    ("keyframes[1].position", {}, "keyframes[1].position = {} must be \"rest\" or a table with "
+                                  "offset, absolute, or rotation/translation"),
+    ("keyframes[1].position.rotation", [0, 0, 1],
+     "keyframes[1].position = { offset = [0.0, 0.1, 0.0], rotation = [0, 0, 1] } must be "
+     '"rest" or a table with offset, absolute, or rotation/translation (and optional center); '
+     "it mixes offset and rigid targets"),
+    ("keyframes[1].position.offset", [0, "up", 0],
+     'keyframes[1].position.offset = [0, "up", 0] must be an array of 3 numbers [dx, dy, dz] (m)'),
+    ("keyframes[2].position.absolute", [[0, 0, 0], [1, 1]],
+     "keyframes[2].position.absolute[1] = [1, 1] must be an array of 3 numbers"),
+    ("keyframes[3].position", {"center": [0, 0, 0]},
+     "keyframes[3].position has a center but neither rotation nor translation"),
+    ("keyframes[3].position.rotation", [0, 0, math.inf],
+     "keyframes[3].position.rotation = [0, 0, inf] must be an array of 3 numbers "
+     "[rx, ry, rz] (degrees)"),
+    ("keyframes[0].velocity", "fast", 'keyframes[0].velocity = "fast" must be an array of 3 '
+                                      "numbers [vx, vy, vz] (m/s)"),
+    ("keyframes[1].position", "DELETE", "keyframes[1] has neither position nor velocity; give at "
+                                        "least one"),
+    ("keyframes[3].stiffness", -5, "keyframes[3].stiffness = -5 must be a number >= 0"),
+    ("keyframes[3].c_A", math.nan, "keyframes[3].c_A = nan must be a number >= 0"),
+    ("keyframes[3].name", 3, "keyframes[3].name = 3 must be a string"),
+    ("output.paths", ["a.mov"], 'output.paths[0] = "a.mov" must be a file name ending in .glb, '),
+    ("output.paths", ["a.glb", "a.glb"], 'output.paths[1] = "a.glb" repeats output.paths[0]'),
+    ("output.overwrite", "no", 'output.overwrite = "no" must be true or false'),
+    ("output.size", [10, 10], "output.size = [10, 10] must be [width, height] in pixels"),
+    ("output.size", [640], "output.size = [640] must be [width, height] in pixels"),
+    ("output.camera", "side2", 'output.camera = "side2" must be "three_quarter" or "front" or '
+                               '"side" or "back" or "top" or [azimuth, elevation] in degrees'),
+    ("output.camera", [1, 2, 3], "output.camera = [1, 2, 3] must be"),
+]
+
+
+@pytest.mark.parametrize("key, value, message", ERRORS, ids=[e[0] for e in ERRORS])
+def test_validation_errors(key, value, message, tmp_path):
+    data = mutate(key, delete=True) if value == "DELETE" else mutate(key, value)
+    path = write(tmp_path, data)
+    with pytest.raises(WigglyInputError) as err:
+        load_scene(path)
+    lines = str(err.value).splitlines()
+    assert any(line.startswith(f"{path}: ") and message in line for line in lines), lines
+
+
+def test_all_problems_reported_at_once(tmp_path):
+    data = mutate("material.young", -1.0)
+    data["damping"]["alpha"] = "x"
+    data["keyframes"][0]["time"] = "late"
+    with pytest.raises(WigglyInputError) as err:
+        load_scene(write(tmp_path, data))
+    assert len(err.value.problems) == 3
+    assert [p.split(" ")[0] for p in err.value.problems] == [
+        "material.young", "damping.alpha", "keyframes[0].time"]
+
+
+def test_file_errors(tmp_path):
+    with pytest.raises(WigglyInputError, match=r"missing.toml: no such scene file"):
+        load_scene(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("a = [\n")
+    with pytest.raises(WigglyInputError, match=r"bad.toml: not valid TOML"):
+        load_scene(bad)
+    data = mutate("mesh.path", "nothere.obj")
+    with pytest.raises(WigglyInputError, match=r'mesh.path = "nothere.obj": no such file'):
+        load_scene(write(tmp_path, data))
+
+
+def test_defaults_and_time_range(tmp_path):
+    scene = load_scene(write(tmp_path, {"mesh": {"path": "builtin:bar"}}))
+    assert scene == Scene(MeshSpec("builtin:bar"))
+    assert scene.time_range() == (0.0, 1.0)
+    assert scene.mesh_file() == builtin_model("bar")
+    data = {"mesh": {"path": "builtin:bar"}, "groups": {"a": {"indices": [0]}},
+            "keyframes": [{"time": 2.5, "group": "a", "position": "rest"}],
+            "time": {"start": 0.5}}
+    assert load_scene(write(tmp_path, data)).time_range() == (0.5, 2.5)
+    data["time"] = {"start": 0.5, "duration": 3.0}
+    assert load_scene(write(tmp_path, data)).time_range() == (0.5, 3.5)
+
+
+# ----------------------------------------------------------------------------------------------
+# JSON Schema
+
+
+def test_schema_file_is_current():
+    shipped = json.loads(SCHEMA_FILE.read_text())
+    assert shipped == scene_schema(), (
+        "src/wiggly/data/scene.schema.json is stale; regenerate it with "
+        "`wiggly schema > src/wiggly/data/scene.schema.json`")
+    jsonschema.Draft202012Validator.check_schema(shipped)
+
+
+@pytest.mark.parametrize("path", [*EXAMPLES, DEMO], ids=lambda p: p.name)
+def test_schema_accepts_examples(path):
+    jsonschema.Draft202012Validator(scene_schema()).validate(tomllib.loads(path.read_text()))
+
+
+# Errors the schema cannot express: references between keys, NaN/inf (not JSON), min <= max.
+NOT_IN_SCHEMA = ("is not a group", "outside the shot's time range", "must be after", "exceeds",
+                 "is not a bundled model", "nan", "inf")
+
+
+STRUCTURAL = [e for e in ERRORS if not any(s in e[2] for s in NOT_IN_SCHEMA)]
+
+
+@pytest.mark.parametrize("key, value, message", STRUCTURAL, ids=[e[0] for e in STRUCTURAL])
+def test_schema_rejects_malformed(key, value, message):
+    data = mutate(key, delete=True) if value == "DELETE" else mutate(key, value)
+    errors = list(jsonschema.Draft202012Validator(scene_schema()).iter_errors(data))
+    assert errors, f"the schema accepts {key} = {value!r}"
+
+
+def test_schema_accepts_base():
+    jsonschema.Draft202012Validator(scene_schema()).validate(BASE)
+
+
+# ----------------------------------------------------------------------------------------------
+# groups, against the bar model (x in [0, 1], y and z in [-0.05, 0.05])
+
+
+@pytest.fixture(scope="module")
+def bar_model():
+    return load_model(builtin_model("bar"), resolution=6)
+
+
+def scene_with(groups: dict, keyframes=()) -> Scene:
+    return Scene(MeshSpec("builtin:bar"), groups=groups, keyframes=list(keyframes))
+
+
+def test_selectors_on_the_bar(bar_model):
+    V = bar_model.surface.vertices
+    T = bar_model.tets.vertices
+    groups = resolve_groups(scene_with({
+        "end": GroupSpec(Box((-1.0, -1.0, -1.0), (1e-9, 1.0, 1.0))),
+        "corner": GroupSpec(Sphere((1.0, 0.05, 0.05), 0.0301)),
+        "near": GroupSpec(Nearest(((0.5123, 0.0131, 0.05), (0.0, 0.0471, 0.0317)), 3)),
+        "three": GroupSpec(Indices((5, 3, 9))),
+        "tets_end": GroupSpec(Box((0.99, -1.0, -1.0), (2.0, 1.0, 1.0)), on="tets"),
+    }), bar_model)
+    # hand-computed: loops over the vertices, plain Python arithmetic
+    end = [i for i, (x, _, _) in enumerate(V) if x <= 1e-9]
+    assert len(end) == 37  # the x = 0 face (see src/wiggly/data/README.md)
+    assert groups["end"].tolist() == end
+    corner = [i for i, v in enumerate(V) if math.dist(v, (1.0, 0.05, 0.05)) <= 0.0301]
+    assert groups["corner"].tolist() == corner and len(corner) > 0
+    near = set()
+    for p in ((0.5123, 0.0131, 0.05), (0.0, 0.0471, 0.0317)):
+        near |= set(sorted(range(len(V)), key=lambda i, p=p: math.dist(V[i], p))[:3])
+    assert groups["near"].tolist() == sorted(near)
+    assert groups["three"].tolist() == [5, 3, 9]  # order kept
+    assert groups["tets_end"].tolist() == [i for i, (x, _, _) in enumerate(T) if x >= 0.99]
+
+
+def test_from_mesh_groups(tmp_path):
+    V, T = box_mesh((4, 2, 2), (1.0, 0.2, 0.2))
+    top = (V[:, 1] > 0.15).astype(float)
+    path = tmp_path / "box.vtu"
+    meshio.write(path, meshio.Mesh(V, [("tetra", T)], point_data={"top": top}))
+    model = load_model(path)
+    scene = Scene(MeshSpec(str(path)), groups={
+        "top": GroupSpec(FromMesh("top")), "top_tets": GroupSpec(FromMesh("top"), on="tets")})
+    groups = resolve_groups(scene, model)
+    assert groups["top"].tolist() == np.flatnonzero(top).tolist()
+    assert groups["top_tets"].tolist() == np.flatnonzero(top).tolist()
+    with pytest.raises(WigglyInputError, match=r'groups.x.from_mesh = "tpo": the surface has no '
+                                               r"vertex group of that name \(did you mean 'top'"):
+        resolve_groups(Scene(MeshSpec(str(path)), groups={"x": GroupSpec(FromMesh("tpo"))}),
+                       model)
+
+
+@pytest.mark.parametrize("group, keyframe, message", [
+    (GroupSpec(Box((5.0, 5.0, 5.0), (6.0, 6.0, 6.0))), None,
+     "groups.g (box) selects no vertex of the surface; its bounding box is [0.0, -0.05, -0.05]"),
+    (GroupSpec(Sphere((0.5, 0.5, 0.5), 0.01)), None, "groups.g (sphere) selects no vertex"),
+    (GroupSpec(Indices((0, 1034))), None,
+     "groups.g.indices[1] = 1034 is out of range: the surface has 1034 vertices "
+     "(indices 0..1033)"),
+    (GroupSpec(Indices((0, 10**6)), on="tets"), None,
+     "groups.g.indices[1] = 1000000 is out of range: the tet mesh has"),
+    (GroupSpec(Nearest(((0.0, 0.0, 0.0),), 5000)), None,
+     "groups.g.nearest.count = 5000 exceeds the number of vertices of the surface (1034)"),
+    (GroupSpec(FromMesh("saddle")), None,
+     'groups.g.from_mesh = "saddle": the surface has no vertex group of that name; it has no '
+     "vertex groups"),
+    (GroupSpec(Indices((0, 1, 2))), KeyframeSpec(0.5, "g", Absolute(((0.0, 0.0, 0.0),) * 2)),
+     "keyframes[0].position.absolute has 2 rows but group 'g' has 3 vertices"),
+])
+def test_group_errors(bar_model, group, keyframe, message):
+    scene = scene_with({"g": group}, [keyframe] if keyframe else [])
+    with pytest.raises(WigglyInputError) as err:
+        resolve_groups(scene, bar_model)
+    assert str(err.value).startswith("scene: ")
+    assert message in str(err.value)
+
+
+# ----------------------------------------------------------------------------------------------
+# keyframes built from a scene
+
+
+def test_keyframe_targets(bar):
+    """Targets of every position kind, against hand-computed values (``bar``: conftest)."""
+    X = bar.surface.vertices
+    sel = np.array([1, 7, 20, 33])
+    groups = {"g": sel}
+    c = (0.5, 0.0, 0.0)
+    scene = scene_with({"g": GroupSpec(Indices(tuple(sel)))}, [
+        KeyframeSpec(0.0, "g", Rest(), velocity=(0.0, 0.0, 0.0)),
+        KeyframeSpec(0.1, "g", Offset((0.0, 0.2, 0.0)), stiffness=5.0, name="up"),
+        KeyframeSpec(0.2, "g", Absolute(tuple(map(tuple, X[sel] * 2)))),
+        KeyframeSpec(0.3, "g", Rigid((90.0, 90.0, 0.0), (1.0, 0.0, 0.0), c)),
+        KeyframeSpec(0.4, "g", None, velocity=(0.0, 1.0, 0.0), c_A=1.0, c_B=2.0),
+    ])
+    keys = keyframes_of(scene, bar, groups)
+    assert np.allclose(keys[0].position, X[sel]) and np.allclose(keys[0].velocity, 0)
+    assert np.allclose(keys[1].position, X[sel] + [0.0, 0.2, 0.0])
+    assert keys[1].stiffness == 5.0 and keys[1].name == "up" and keys[0].name == "g"
+    assert np.allclose(keys[2].position, 2 * X[sel])
+    # 90 degrees about X (y -> z, z -> -y), then 90 degrees about the fixed Y (z -> x, x -> -z)
+    Rx = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]])
+    Ry = np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]])
+    expected = (X[sel] - c) @ (Ry @ Rx).T + c + [1.0, 0.0, 0.0]
+    assert np.allclose(keys[3].position, expected)
+    assert keys[4].position is None and (keys[4].c_A, keys[4].c_B) == (1.0, 2.0)
+    assert all(k.on == "surface" for k in keys)
+
+
+def test_build_fixes_groups_and_checks_before_tetrahedralizing(tmp_path, monkeypatch):
+    from wiggly import mesh as mesh_module
+    from wiggly.scene import build
+
+    scene = load_scene(write(tmp_path, BASE))
+    body, keys = build(scene)
+    assert body.modes.n_rigid == 0 and len(body.fixed_vertices) > 0
+    assert np.all(body.tets.vertices[body.fixed_vertices, 0] < 0.3)
+    assert [k.time for k in keys] == [0.0, 0.4, 0.6, 0.8]
+
+    calls = []
+    monkeypatch.setattr(mesh_module, "tetrahedralize", lambda *a, **k: calls.append(1))
+    bad = mutate("groups.three.indices", [5, 3, 99999])
+    with pytest.raises(WigglyInputError, match=r"groups.three.indices\[2\] = 99999"):
+        build(load_scene(write(tmp_path, bad)))
+    assert calls == []  # the surface groups were checked before tetrahedralizing
+
+
+def test_environment_independent_paths(tmp_path, monkeypatch):
+    """Relative paths resolve against the scene file, not the working directory."""
+    (tmp_path / "sub").mkdir()
+    scene = load_scene(write(tmp_path / "sub", BASE, "s.toml"))
+    monkeypatch.chdir(tmp_path)
+    assert scene.resolve("out/bar.npz") == tmp_path / "sub" / "out" / "bar.npz"
+    assert scene.where() == os.path.join("sub", "s.toml")
