@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.installed
 
-.PHONY: demo test venv system-test-deps cholmod bench lint clean
+.PHONY: demo test venv system-render-deps system-test-deps cholmod bench lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -15,11 +15,22 @@ $(STAMP): pyproject.toml
 venv: $(STAMP)
 
 ## Animate the bundled critter and say where the results are.
-demo: $(STAMP)
+demo: $(STAMP) system-render-deps
 	$(BIN)/wiggly demo
 
+## Offscreen rendering (previews) uses EGL with Mesa's software rasterizer.  Installed with
+## apt-get when missing and running as root; otherwise wiggly explains what to install.
+system-render-deps:
+	@if ! dpkg -s libegl1 libgl1-mesa-dri >/dev/null 2>&1; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "[make] installing libegl1 libgl1-mesa-dri (offscreen rendering)"; \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+	      libegl1 libgl1-mesa-dri >/dev/null) || echo "[make] could not install them"; \
+	  else echo "[make] libegl1/libgl1-mesa-dri missing and not root: previews may fail"; fi; \
+	fi
+
 ## Lint and run the test suite (installs what the tests need).
-test: $(STAMP) system-test-deps
+test: $(STAMP) system-render-deps system-test-deps
 	$(BIN)/ruff check src tests benchmarks scripts
 	$(BIN)/python -m pytest -q -n 2 -p no:cacheprovider
 

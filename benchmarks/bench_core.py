@@ -14,28 +14,44 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(__file__))
-from common import box_body, box_model, median_time, table  # noqa: E402
+from common import box_body, box_model, median_time, table
+from wiggly.body import prepare
+from wiggly.fem import Material
+from wiggly.framebased import solve_framebased
+from wiggly.keyframes import Keyframe
+from wiggly.linalg import available_backends
+from wiggly.solve import SpacetimeProblem
 
-from wiggly.body import Damping, prepare  # noqa: E402
-from wiggly.fem import Material  # noqa: E402
-from wiggly.framebased import solve_framebased  # noqa: E402
-from wiggly.keyframes import Keyframe  # noqa: E402
-from wiggly.linalg import available_backends  # noqa: E402
-from wiggly.solve import SpacetimeProblem  # noqa: E402
+_RNG = np.random.default_rng(0)
 
 
 def bench_prepare(sizes: list[int], repeats: int) -> str:
     rows = []
     for n in sizes:
         model = box_model(n)
-        t = median_time(lambda m=model: prepare(m, material=Material(2e5, 0.45, 1000.0),
-                                                n_modes=40, cache_dir=False),
-                        repeats=repeats, warmup=0)
+        t = median_time(
+            lambda m=model: prepare(
+                m, material=Material(2e5, 0.45, 1000.0), n_modes=40, cache_dir=False
+            ),
+            repeats=repeats,
+            warmup=0,
+        )
         target = 5.0 if n <= 25000 else 30.0
-        rows.append([model.tets.n_tets, model.tets.n_vertices * 3, 40, t, target,
-                     "yes" if t < target else "NO"])
-    return table(f"Prepare a body: assemble + 40 modes (backends: {available_backends()})",
-                 ["tets", "dofs", "modes", "median s", "target s", "met"], rows)
+        rows.append(
+            [
+                model.tets.n_tets,
+                model.tets.n_vertices * 3,
+                40,
+                t,
+                target,
+                "yes" if t < target else "NO",
+            ]
+        )
+    return table(
+        f"Prepare a body: assemble + 40 modes (backends: {available_backends()})",
+        ["tets", "dofs", "modes", "median s", "target s", "met"],
+        rows,
+    )
 
 
 def keyframes_10(body, T=2.0):
@@ -48,8 +64,11 @@ def keyframes_10(body, T=2.0):
     keys = [Keyframe.rest(body, 0.0, np.arange(len(X)), still=True)]
     for j, t in enumerate(np.arange(1, 10) * 0.2):
         group = (left, right, mid)[j % 3]
-        keys.append(Keyframe.offset(body, round(t, 6), group,
-                                    (0.0, 0.15 * np.sin(3 * t), 0.08 * np.cos(2 * t))))
+        keys.append(
+            Keyframe.offset(
+                body, round(t, 6), group, (0.0, 0.15 * np.sin(3 * t), 0.08 * np.cos(2 * t))
+            )
+        )
     return keys
 
 
@@ -60,17 +79,22 @@ def bench_resolve(body, repeats: int) -> str:
     k = 5
 
     def one_change():
-        keys[k] = Keyframe.offset(body, keys[k].time, keys[k].vertices,
-                                  (0.0, np.random.uniform(0, 0.2), 0.0))
+        keys[k] = Keyframe.offset(
+            body, keys[k].time, keys[k].vertices, (0.0, _RNG.uniform(0, 0.2), 0.0)
+        )
         return problem.solve(keys)
 
     t = median_time(one_change, repeats=repeats)
     t_cold = median_time(lambda: SpacetimeProblem(body, 0.0, 2.0).solve(keys), repeats=repeats)
     n_unknowns = one_change().info["unknowns"]
-    return table("Linear re-solve after changing one keyframe (40 modes, 10 keyframe times)",
-                 ["case", "unknowns", "median ms", "target ms"],
-                 [["one keyframe changed", n_unknowns, 1e3 * t, 20],
-                  ["from scratch (new node times)", n_unknowns, 1e3 * t_cold, "-"]])
+    return table(
+        "Linear re-solve after changing one keyframe (40 modes, 10 keyframe times)",
+        ["case", "unknowns", "median ms", "target ms"],
+        [
+            ["one keyframe changed", n_unknowns, 1e3 * t, 20],
+            ["from scratch (new node times)", n_unknowns, 1e3 * t_cold, "-"],
+        ],
+    )
 
 
 def bench_evaluate(body, repeats: int) -> str:
@@ -82,8 +106,11 @@ def bench_evaluate(body, repeats: int) -> str:
         rows.append([body.surface.n_vertices, 300, np.dtype(dtype).name, 1e3 * t, 200])
     t_modal = median_time(lambda: anim.modal(times), repeats=repeats)
     rows.append([body.surface.n_vertices, 300, "modal q(t) only", 1e3 * t_modal, "-"])
-    return table("Evaluate 300 frames on the embedded surface (linear)",
-                 ["surface vertices", "frames", "output", "median ms", "target ms"], rows)
+    return table(
+        "Evaluate 300 frames on the embedded surface (linear)",
+        ["surface vertices", "frames", "output", "median ms", "target ms"],
+        rows,
+    )
 
 
 def bench_baseline(body, repeats: int) -> str:
@@ -105,14 +132,16 @@ def bench_baseline(body, repeats: int) -> str:
 
     scale = float(np.max(np.abs(q_ref @ B.T)))
     problem = SpacetimeProblem(body, 0.0, T, preroll=0.0)
-    t_w = median_time(lambda: SpacetimeProblem(body, 0.0, T, preroll=0.0).solve(keys),
-                      repeats=repeats)
+    t_w = median_time(
+        lambda: SpacetimeProblem(body, 0.0, T, preroll=0.0).solve(keys), repeats=repeats
+    )
     anim = problem.solve(keys)
     err_w = surface_error(anim.modal(t_eval)[0])
     rows = [["wiggly splines (exact in time)", 1e3 * t_w, 1.0, err_w, err_w / scale]]
     for fps in (30, 240):
-        t_f = median_time(lambda f=fps: solve_framebased(body, keys, f, 0.0, T),
-                          repeats=max(1, repeats // 2))
+        t_f = median_time(
+            lambda f=fps: solve_framebased(body, keys, f, 0.0, T), repeats=max(1, repeats // 2)
+        )
         _, q = solve_framebased(body, keys, fps, 0.0, T)
         err = surface_error(q[:: fps // 30])
         rows.append([f"frame-based, {fps} fps", 1e3 * t_f, t_f / t_w, err, err / scale])
@@ -121,7 +150,9 @@ def bench_baseline(body, repeats: int) -> str:
         f"T = {T} s); error = max surface displacement error vs a Richardson-extrapolated "
         f"1920/3840 fps reference ({t_ref:.1f} s to compute); displacement scale "
         f"{scale:.3f} m",
-        ["method", "median ms", "time / wiggly", "max error m", "relative error"], rows)
+        ["method", "median ms", "time / wiggly", "max error m", "relative error"],
+        rows,
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -133,8 +164,10 @@ def main(argv: list[str] | None = None) -> None:
     sizes = [21600] if args.quick else [21600, 103680]
     print(bench_prepare(sizes, repeats=1 if args.quick else 3))
     body = box_body(21600, surface_vertices=20000)
-    print(f"body: {body.tets.n_tets} tets, {body.tets.n_vertices} vertices, surface "
-          f"{body.surface.n_vertices} vertices, {body.r} modes\n")
+    print(
+        f"body: {body.tets.n_tets} tets, {body.tets.n_vertices} vertices, surface "
+        f"{body.surface.n_vertices} vertices, {body.r} modes\n"
+    )
     print(bench_resolve(body, repeats=repeats * 3))
     print(bench_evaluate(body, repeats=repeats))
     print(bench_baseline(body, repeats=repeats))

@@ -30,12 +30,18 @@ def median_time(fn: Callable[[], object], repeats: int = 5, warmup: int = 1) -> 
 
 def table(title: str, header: list[str], rows: list[list[object]]) -> str:
     """A Markdown table (printed by the benchmarks, pasted into notes)."""
+
     def fmt(v: object) -> str:
         if isinstance(v, float):
             return f"{v:.3g}" if abs(v) < 1e4 else f"{v:.3e}"
         return str(v)
-    lines = [f"### {title}", "", "| " + " | ".join(header) + " |",
-             "|" + "|".join("---" for _ in header) + "|"]
+
+    lines = [
+        f"### {title}",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "|".join("---" for _ in header) + "|",
+    ]
     lines += ["| " + " | ".join(fmt(v) for v in row) + " |" for row in rows]
     return "\n".join(lines) + "\n"
 
@@ -47,8 +53,7 @@ def box_shape_for(n_tets: int, aspect=(3.0, 1.0, 1.0)) -> tuple[int, int, int]:
     return tuple(int(max(1, round(s * x))) for x in a)
 
 
-def box_model(n_tets: int, surface_vertices: int | None = None,
-              size=(1.2, 0.4, 0.4)) -> Model:
+def box_model(n_tets: int, surface_vertices: int | None = None, size=(1.2, 0.4, 0.4)) -> Model:
     """A box tet mesh with ~n_tets tets and, optionally, a finer embedded box surface with
     ~surface_vertices vertices (the user's surface is independent of the simulation mesh)."""
     V, T = box_mesh(box_shape_for(n_tets, np.asarray(size) / min(size)), size)
@@ -67,8 +72,13 @@ def box_model(n_tets: int, surface_vertices: int | None = None,
 
 
 def box_body(n_tets: int, surface_vertices: int | None = None, n_modes: int = 40) -> Body:
-    return prepare(box_model(n_tets, surface_vertices), material=Material(2e5, 0.45, 1000.0),
-                   damping=Damping(0.5, 0.002), n_modes=n_modes, cache_dir=bench_cache())
+    return prepare(
+        box_model(n_tets, surface_vertices),
+        material=Material(2e5, 0.45, 1000.0),
+        damping=Damping(0.5, 0.002),
+        n_modes=n_modes,
+        cache_dir=bench_cache(),
+    )
 
 
 def bench_cache() -> str:

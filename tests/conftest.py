@@ -12,13 +12,29 @@ from wiggly.mesh import load_model
 from wiggly.primitives import box_mesh
 
 
-def make_body(tmp_path_factory, shape=(10, 2, 2), size=(1.0, 0.1, 0.1), n_modes=10,
-              fixed=None, young=1e5, damping=Damping(0.5, 0.002), gravity=(0, -9.81, 0)) -> Body:
+def make_body(
+    tmp_path_factory,
+    shape=(10, 2, 2),
+    size=(1.0, 0.1, 0.1),
+    n_modes=10,
+    fixed=None,
+    young=1e5,
+    damping=None,
+    gravity=(0, -9.81, 0),
+) -> Body:
+    damping = damping or Damping(0.5, 0.002)
     V, T = box_mesh(shape, size)
     path = tmp_path_factory.mktemp("mesh") / "bar.vtu"
     meshio.write(path, meshio.Mesh(V, [("tetra", T)]))
-    return prepare(load_model(path), material=Material(young, 0.3, 1000.0), damping=damping,
-                   n_modes=n_modes, fixed_vertices=fixed, gravity=gravity, cache_dir=False)
+    return prepare(
+        load_model(path),
+        material=Material(young, 0.3, 1000.0),
+        damping=damping,
+        n_modes=n_modes,
+        fixed_vertices=fixed,
+        gravity=gravity,
+        cache_dir=False,
+    )
 
 
 @pytest.fixture(scope="session")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
@@ -21,12 +23,13 @@ def ends(body, on="tets"):
 
 
 def sparse_keys(body, velocity):
-    left, right = ends(body)
+    _left, right = ends(body)
     allv = np.arange(body.n_vertices("tets"))
     return [
         Keyframe.rest(body, 0.0, allv, still=True, on="tets"),
-        Keyframe.offset(body, 0.5, right, (0, 0.2, 0), on="tets",
-                        velocity=(0, 1.0, 0) if velocity else None),
+        Keyframe.offset(
+            body, 0.5, right, (0, 0.2, 0), on="tets", velocity=(0, 1.0, 0) if velocity else None
+        ),
         Keyframe.offset(body, 1.0, right, (0, -0.1, 0.1), on="tets"),
     ]
 
@@ -71,19 +74,23 @@ def test_constraint_residual_shrinks_as_weight_grows(bar):
     _, right = ends(bar, "surface")
     res = []
     for stiffness in (1e2, 1e4, 1e6, 1e8, 1e10, 1e12):
-        keys = [Keyframe.rest(bar, 0.0, np.arange(bar.n_vertices()), still=True,
-                              stiffness=stiffness),
-                Keyframe.offset(bar, 1.0, right, (0, 0.3, 0), stiffness=stiffness)]
+        keys = [
+            Keyframe.rest(bar, 0.0, np.arange(bar.n_vertices()), still=True, stiffness=stiffness),
+            Keyframe.offset(bar, 1.0, right, (0, 0.3, 0), stiffness=stiffness),
+        ]
         res.append(solve(bar, keys, warp=False, end=1.5).constraint_residuals()[1]["position_rms"])
-    assert all(a > b for a, b in zip(res, res[1:], strict=False)), res
+    assert all(a > b for a, b in itertools.pairwise(res)), res
     assert res[-1] < 1e-5 * res[0], res
 
 
 def test_rest_keyframes_without_gravity_give_the_rest_state(tmp_path_factory):
     body = make_body(tmp_path_factory, gravity=(0, 0, 0))
     left, right = ends(body, "surface")
-    keys = [Keyframe.rest(body, 0.0, left, still=True), Keyframe.rest(body, 0.7, right),
-            Keyframe.rest(body, 1.3, np.r_[left, right], still=True)]
+    keys = [
+        Keyframe.rest(body, 0.0, left, still=True),
+        Keyframe.rest(body, 0.7, right),
+        Keyframe.rest(body, 1.3, np.r_[left, right], still=True),
+    ]
     anim = solve(body, keys, warp=False, end=2.0)
     u = anim.displacements(anim.frame_times(60), "tets")
     assert np.max(np.abs(u)) < 1e-12
@@ -110,9 +117,11 @@ def test_energy_equals_the_full_space_functional(bar):
     decoupling) by quadrature agrees with the closed-form modal energy (free body:
     g lies in the span of M Phi)."""
     left, right = ends(bar, "surface")
-    keys = [Keyframe.rest(bar, 0.0, left, still=True),
-            Keyframe.offset(bar, 0.6, right, (0, 0.1, 0.05)),
-            Keyframe.rigid(bar, 1.2, left, rotation=(0, 0, 0.2))]
+    keys = [
+        Keyframe.rest(bar, 0.0, left, still=True),
+        Keyframe.offset(bar, 0.6, right, (0, 0.1, 0.05)),
+        Keyframe.rigid(bar, 1.2, left, rotation=(0, 0, 0.2)),
+    ]
     anim = solve(bar, keys, warp=False, end=1.5)
     x, w = np.polynomial.legendre.leggauss(12)
     edges = np.linspace(0, 1.5, 61)
@@ -136,8 +145,10 @@ def test_full_keyframes_are_interpolated(bar):
     allv = np.arange(bar.n_vertices())
     X = bar.rest_positions()
     bend = np.c_[np.zeros(len(X)), 0.05 * np.sin(np.pi * X[:, 0]), np.zeros(len(X))]
-    keys = [Keyframe.rest(bar, 0.0, allv, still=True, stiffness=1e9),
-            Keyframe(1.0, allv, X + bend, stiffness=1e9)]
+    keys = [
+        Keyframe.rest(bar, 0.0, allv, still=True, stiffness=1e9),
+        Keyframe(1.0, allv, X + bend, stiffness=1e9),
+    ]
     anim = solve(bar, keys, warp=False, end=1.5)
     P = anim.positions([1.0])[0]
     # the target is reachable only within the span of the modes: compare with its projection
@@ -173,7 +184,9 @@ def test_keyframe_outside_time_range(bar):
 
 def test_unknown_vertex_index(bar):
     n = bar.n_vertices()
-    with pytest.raises(WigglyInputError, match=f"vertex index {n + 5} does not exist.*{n} vertices"):
+    with pytest.raises(
+        WigglyInputError, match=f"vertex index {n + 5} does not exist.*{n} vertices"
+    ):
         solve(bar, [Keyframe(0.5, [1, n + 5], np.zeros((2, 3)))], warp=False, end=1.0)
     with pytest.raises(WigglyInputError, match="vertex index -1"):
         Keyframe.rest(bar, 0.0, [-1])
@@ -182,7 +195,7 @@ def test_unknown_vertex_index(bar):
 def test_nan_target(bar):
     target = bar.rest_positions()[[0, 1]].copy()
     target[1, 2] = np.nan
-    with pytest.raises(WigglyInputError, match="vertex #1 .component z. is nan"):
+    with pytest.raises(WigglyInputError, match=r"vertex #1 .component z. is nan"):
         solve(bar, [Keyframe(0.5, [0, 1], target)], warp=False, end=1.0)
 
 
@@ -193,11 +206,14 @@ def test_wrong_target_shape_and_empty_keyframe(bar):
         solve(bar, [Keyframe(0.5, [0, 1])], warp=False, end=1.0)
 
 
-@pytest.mark.parametrize("field,kwargs,pattern", [
-    ("young", dict(young=-1.0), "young"),
-    ("poisson", dict(poisson=0.5), "poisson"),
-    ("density", dict(density=0.0), "density"),
-])
+@pytest.mark.parametrize(
+    "field,kwargs,pattern",
+    [
+        ("young", dict(young=-1.0), "young"),
+        ("poisson", dict(poisson=0.5), "poisson"),
+        ("density", dict(density=0.0), "density"),
+    ],
+)
 def test_negative_material_constants(field, kwargs, pattern):
     with pytest.raises(WigglyInputError, match=pattern):
         Material(**kwargs)
@@ -205,6 +221,7 @@ def test_negative_material_constants(field, kwargs, pattern):
 
 def test_negative_damping_and_empty_range(bar):
     from wiggly.body import Damping
+
     with pytest.raises(WigglyInputError, match="alpha = -1"):
         Damping(alpha=-1)
     with pytest.raises(WigglyInputError, match="empty"):

@@ -6,31 +6,39 @@ import mpmath
 import numpy as np
 import pytest
 
-from wiggly.splines import (OSCILLATORY, SERIES, SPLIT, SPLIT_SMALL, energy_form, equilibrium,
-                            evaluate, wiggly_basis)
+from wiggly.splines import (
+    OSCILLATORY,
+    SERIES,
+    SPLIT,
+    SPLIT_SMALL,
+    energy_form,
+    equilibrium,
+    evaluate,
+    wiggly_basis,
+)
 
 # (lam [s^-2], delta [s^-1], h [s], expected regime): every regime and the degenerate cases
 CASES = [
-    (0.0, 0.0, 1.0, SERIES),        # rigid, undamped: cubics
-    (0.0, 0.3, 1.0, SERIES),        # rigid, lightly damped
-    (0.0, 3.0, 1.0, SPLIT_SMALL),   # rigid, damped: 1, t, exp(+-2 delta t)
+    (0.0, 0.0, 1.0, SERIES),  # rigid, undamped: cubics
+    (0.0, 0.3, 1.0, SERIES),  # rigid, lightly damped
+    (0.0, 3.0, 1.0, SPLIT_SMALL),  # rigid, damped: 1, t, exp(+-2 delta t)
     (0.0, 5e5, 60.0, SPLIT_SMALL),  # rigid, extreme damping over a long interval
-    (0.5, 0.1, 1.0, SERIES),        # slow elastic mode
+    (0.5, 0.1, 1.0, SERIES),  # slow elastic mode
     (100.0, 0.0, 1.0, OSCILLATORY),  # undamped
     (100.0, 0.2, 1.0, OSCILLATORY),  # lightly under-damped
-    (100.0, 2.0, 1.0, SPLIT),       # under-damped
-    (100.0, 10.0, 1.0, SPLIT),      # critically damped
+    (100.0, 2.0, 1.0, SPLIT),  # under-damped
+    (100.0, 10.0, 1.0, SPLIT),  # critically damped
     (100.0, 10.0 - 1e-7, 1.0, SPLIT),  # near-critical (under)
     (100.0, 10.0 + 1e-7, 1.0, SPLIT),  # near-critical (over)
-    (100.0, 30.0, 1.0, SPLIT),      # over-damped
+    (100.0, 30.0, 1.0, SPLIT),  # over-damped
     (0.01, 5.0, 1.0, SPLIT_SMALL),  # strongly over-damped slow mode
     (1e4, 1e-9, 1.0, OSCILLATORY),  # almost undamped, fast
     (1e8, 0.0, 60.0, OSCILLATORY),  # the extremes the issue names
     (1e8, 1e-3, 60.0, OSCILLATORY),
     (1e8, 10.0, 60.0, SPLIT),
     (1e8, 5e3, 1.0, SPLIT),
-    (1e8, 1e4, 1.0, SPLIT),         # critical at lambda = 1e8
-    (1e8, 5e5, 60.0, SPLIT),        # beta-damped stiff mode: delta h = 3e7
+    (1e8, 1e4, 1.0, SPLIT),  # critical at lambda = 1e8
+    (1e8, 5e5, 60.0, SPLIT),  # beta-damped stiff mode: delta h = 3e7
 ]
 
 
@@ -64,7 +72,9 @@ def test_ode_residual_and_hermite_data(lam, delta, h, regime):
     q = derivatives(lam, delta, h, g, data, tau)
     assert np.all(np.isfinite(q))
     # q'''' + 2 (lam - 2 delta^2) q'' + lam (lam q + g) = 0, relative to the size of its terms
-    terms = np.array([q[4], 2 * (lam - 2 * delta**2) * q[2], lam * lam * (q[0] - equilibrium(lam, g))])
+    terms = np.array(
+        [q[4], 2 * (lam - 2 * delta**2) * q[2], lam * lam * (q[0] - equilibrium(lam, g))]
+    )
     scale = np.max(np.abs(terms)) + 1e-300
     assert np.max(np.abs(terms.sum(axis=0))) <= 1e-9 * scale
     # Hermite interpolation: values and velocities at both ends
@@ -108,13 +118,21 @@ def test_energy_undamped_stiff_long_interval_against_mpmath():
     w = mpmath.sqrt(mpmath.mpf(lam))
     H = mpmath.mpf(h)
     qp = -mpmath.mpf(g) / lam
-    fs = [lambda t: mpmath.cos(w * t), lambda t: mpmath.sin(w * t),
-          lambda t: t * mpmath.cos(w * t), lambda t: t * mpmath.sin(w * t)]
-    dfs = [lambda t: -w * mpmath.sin(w * t), lambda t: w * mpmath.cos(w * t),
-           lambda t: mpmath.cos(w * t) - t * w * mpmath.sin(w * t),
-           lambda t: mpmath.sin(w * t) + t * w * mpmath.cos(w * t)]
-    A = mpmath.matrix([[f(0) for f in fs], [f(0) for f in dfs], [f(H) for f in fs],
-                       [f(H) for f in dfs]])
+    fs = [
+        lambda t: mpmath.cos(w * t),
+        lambda t: mpmath.sin(w * t),
+        lambda t: t * mpmath.cos(w * t),
+        lambda t: t * mpmath.sin(w * t),
+    ]
+    dfs = [
+        lambda t: -w * mpmath.sin(w * t),
+        lambda t: w * mpmath.cos(w * t),
+        lambda t: mpmath.cos(w * t) - t * w * mpmath.sin(w * t),
+        lambda t: mpmath.sin(w * t) + t * w * mpmath.cos(w * t),
+    ]
+    A = mpmath.matrix(
+        [[f(0) for f in fs], [f(0) for f in dfs], [f(H) for f in fs], [f(H) for f in dfs]]
+    )
     rhs = mpmath.matrix([mpmath.mpf(data[0]) - qp, data[1], mpmath.mpf(data[2]) - qp, data[3]])
     c = mpmath.lu_solve(A, rhs)
     # L(t cos) = -2 w sin, L(t sin) = 2 w cos  =>  r = 2 w (c4 cos - c3 sin)
@@ -164,8 +182,10 @@ def test_free_motion_costs_nothing():
 
     def dq(t):
         e = np.exp(-delta * t)
-        return e * (-delta * (0.4 * np.cos(om * t) - 0.2 * np.sin(om * t))
-                    + om * (-0.4 * np.sin(om * t) - 0.2 * np.cos(om * t)))
+        return e * (
+            -delta * (0.4 * np.cos(om * t) - 0.2 * np.sin(om * t))
+            + om * (-0.4 * np.sin(om * t) - 0.2 * np.cos(om * t))
+        )
 
     data = np.array([q(0), dq(0), q(h), dq(h)])
     form = energy_form(wiggly_basis(lam, delta, h), g)

@@ -142,8 +142,12 @@ class Body:
     @cached_property
     def warp(self) -> Warp:
         """Rotation-strain warp map W of this body (SYSTEM.md §6), factored once."""
-        return Warp(self.tets.vertices, self.tets.tets, masses=self.vertex_masses("tets"),
-                    fixed_vertices=self.fixed_vertices)
+        return Warp(
+            self.tets.vertices,
+            self.tets.tets,
+            masses=self.vertex_masses("tets"),
+            fixed_vertices=self.fixed_vertices,
+        )
 
     @cached_property
     def surface_embedding(self) -> sp.csr_matrix:
@@ -155,8 +159,10 @@ class Body:
         vertices = np.asarray(vertices, np.int64)
         n = self.tets.n_vertices
         if on == "tets":
-            S = sp.csr_matrix((np.ones(len(vertices)), (np.arange(len(vertices)), vertices)),
-                              shape=(len(vertices), n))
+            S = sp.csr_matrix(
+                (np.ones(len(vertices)), (np.arange(len(vertices)), vertices)),
+                shape=(len(vertices), n),
+            )
         else:
             S = self.surface_embedding[vertices]
         return sp.kron(S, sp.eye(3), format="csr")
@@ -179,7 +185,8 @@ def _check_fixed(fixed: np.ndarray | list[int] | None, n: int) -> np.ndarray:
     if fixed.dtype == bool:
         if fixed.shape != (n,):
             raise WigglyInputError(
-                f"fixed vertex mask has shape {fixed.shape}; it must have one entry per tet vertex ({n})"
+                f"fixed vertex mask has shape {fixed.shape}; it must have one entry per tet "
+                f"vertex ({n})"
             )
         return np.flatnonzero(fixed)
     fixed = np.unique(fixed.astype(np.int64).ravel())
@@ -228,8 +235,7 @@ def prepare(
     """
     if not isinstance(model, Model):
         path = Path(model)
-        model = load_model(path, resolution=resolution, edge_length=edge_length,
-                           progress=progress)
+        model = load_model(path, resolution=resolution, edge_length=edge_length, progress=progress)
     material = material or Material()
     damping = damping or Damping()
     gravity = np.asarray(gravity, dtype=float).reshape(-1)
@@ -241,8 +247,9 @@ def prepare(
         _say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")
     M = mass_matrix(V, T, material.density, lumped=lumped)
     K = stiffness_matrix(V, T, material.young, material.poisson)
-    modes = compute_modes(K, M, n_modes, vertices=V, fixed_vertices=fixed,
-                          cache_dir=cache_dir, progress=progress)
+    modes = compute_modes(
+        K, M, n_modes, vertices=V, fixed_vertices=fixed, cache_dir=cache_dir, progress=progress
+    )
     if model.embedding is None:
         model.embedding = embed(model.surface.vertices, model.tets)
     return Body(model, material, damping, gravity, fixed, M, K, modes, lumped)

@@ -24,12 +24,15 @@ from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 
 
-def solve_framebased(body: Body, keyframes: list[Keyframe], fps: float, start: float,
-                     end: float) -> tuple[np.ndarray, np.ndarray]:
+def solve_framebased(
+    body: Body, keyframes: list[Keyframe], fps: float, start: float, end: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Frame-based minimiser of E + E_C; returns (times (N+1,), q (N+1, r))."""
-    n = int(round((end - start) * fps))
+    n = round((end - start) * fps)
     if n < 2 or abs(n / fps - (end - start)) > 1e-9 * max(1.0, end - start):
-        raise WigglyInputError(f"duration {end - start} s is not a whole number of frames at {fps} fps")
+        raise WigglyInputError(
+            f"duration {end - start} s is not a whole number of frames at {fps} fps"
+        )
     dt = 1.0 / fps
     times = start + np.arange(n + 1) * dt
     r = body.r
@@ -51,7 +54,7 @@ def solve_framebased(body: Body, keyframes: list[Keyframe], fps: float, start: f
     T = end - start
     for kf in keyframes:
         kf = kf.checked(body, start, end)
-        k = int(round((kf.time - start) * fps))
+        k = round((kf.time - start) * fps)
         if abs(times[k] - kf.time) > 1e-9:
             raise WigglyInputError(f"keyframe time {kf.time} is not on the {fps} fps grid")
         c_A, c_B = kf.weights(body, T)
@@ -68,8 +71,10 @@ def solve_framebased(body: Body, keyframes: list[Keyframe], fps: float, start: f
                 stencil = {0: -1.5 / dt, 1: 2.0 / dt, 2: -0.5 / dt}
             else:
                 stencil = {n: 1.5 / dt, n - 1: -2.0 / dt, n - 2: 0.5 / dt}
-            D = sum(w * sp.csr_matrix((np.ones(r), (np.arange(r), f * r + np.arange(r))),
-                                      shape=(r, N)) for f, w in stencil.items())
+            D = sum(
+                w * sp.csr_matrix((np.ones(r), (np.arange(r), f * r + np.arange(r))), shape=(r, N))
+                for f, w in stencil.items()
+            )
             blocks.append(np.sqrt(c_B) * sp.csr_matrix(A) @ D)
             rhs.append(np.sqrt(c_B) * kf.velocity.ravel())
     J = sp.vstack(blocks).tocsc()

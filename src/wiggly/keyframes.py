@@ -42,7 +42,9 @@ def _rotation(rotation: ArrayLike) -> np.ndarray:
         Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
         return np.eye(3) + np.sin(theta) * Kx + (1 - np.cos(theta)) * Kx @ Kx
     if R.shape != (3, 3) or not np.all(np.isfinite(R)):
-        raise WigglyInputError(f"rotation must be a 3x3 matrix or a rotation vector; got shape {R.shape}")
+        raise WigglyInputError(
+            f"rotation must be a 3x3 matrix or a rotation vector; got shape {R.shape}"
+        )
     if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
         raise WigglyInputError("rotation matrix is not a proper rotation (R^T R = I, det R = 1)")
     return R
@@ -72,8 +74,9 @@ class Keyframe:
 
     # --- constructors for the target kinds ----------------------------------------------
     @classmethod
-    def rest(cls, body: Body, time: float, vertices: ArrayLike, *, still: bool = False,
-             **kw) -> Keyframe:
+    def rest(
+        cls, body: Body, time: float, vertices: ArrayLike, *, still: bool = False, **kw
+    ) -> Keyframe:
         """Vertices at their rest positions (and at zero velocity if ``still``)."""
         on = kw.pop("on", "surface")
         v = _indices(vertices, body.n_vertices(on), on)
@@ -82,19 +85,33 @@ class Keyframe:
         return cls(time, v, X.copy(), vel, on, spec={"kind": "rest"}, **kw)
 
     @classmethod
-    def offset(cls, body: Body, time: float, vertices: ArrayLike, offset: ArrayLike,
-               **kw) -> Keyframe:
+    def offset(
+        cls, body: Body, time: float, vertices: ArrayLike, offset: ArrayLike, **kw
+    ) -> Keyframe:
         """Vertices displaced from rest by ``offset`` ((3,) or (k, 3) metres)."""
         on = kw.pop("on", "surface")
         v = _indices(vertices, body.n_vertices(on), on)
         d = np.broadcast_to(np.asarray(offset, float), (len(v), 3))
-        return cls(time, v, body.rest_positions(on)[v] + d, on=on,
-                   spec={"kind": "offset", "offset": np.asarray(offset, float)}, **kw)
+        return cls(
+            time,
+            v,
+            body.rest_positions(on)[v] + d,
+            on=on,
+            spec={"kind": "offset", "offset": np.asarray(offset, float)},
+            **kw,
+        )
 
     @classmethod
-    def rigid(cls, body: Body, time: float, vertices: ArrayLike, rotation: ArrayLike = (0, 0, 0),
-              translation: ArrayLike = (0, 0, 0), center: ArrayLike | None = None,
-              **kw) -> Keyframe:
+    def rigid(
+        cls,
+        body: Body,
+        time: float,
+        vertices: ArrayLike,
+        rotation: ArrayLike = (0, 0, 0),
+        translation: ArrayLike = (0, 0, 0),
+        center: ArrayLike | None = None,
+        **kw,
+    ) -> Keyframe:
         """Rest vertices rotated by ``rotation`` about ``center`` (default: their centroid),
         then translated: x = R (X - c) + c + translation."""
         on = kw.pop("on", "surface")
@@ -103,8 +120,12 @@ class Keyframe:
         R = _rotation(rotation)
         c = X.mean(axis=0) if center is None else np.asarray(center, float)
         x = (X - c) @ R.T + c + np.asarray(translation, float)
-        spec = {"kind": "rigid", "rotation": np.asarray(rotation, float),
-                "translation": np.asarray(translation, float), "center": c}
+        spec = {
+            "kind": "rigid",
+            "rotation": np.asarray(rotation, float),
+            "translation": np.asarray(translation, float),
+            "center": c,
+        }
         return cls(time, v, x, on=on, spec=spec, **kw)
 
     # --- validation and weights ----------------------------------------------------------
@@ -131,8 +152,11 @@ class Keyframe:
                 )
             _finite(pos, f"{what}: position target")
         if self.velocity is not None:
-            vel = np.broadcast_to(np.asarray(self.velocity, float), (len(v), 3)) \
-                if np.shape(self.velocity) in ((3,), (len(v), 3)) else None
+            vel = (
+                np.broadcast_to(np.asarray(self.velocity, float), (len(v), 3))
+                if np.shape(self.velocity) in ((3,), (len(v), 3))
+                else None
+            )
             if vel is None:
                 raise WigglyInputError(
                     f"{what}: velocity has shape {np.shape(self.velocity)}; expected (3,) or "
@@ -183,5 +207,7 @@ def _finite(a: np.ndarray, what: str) -> None:
     bad = np.argwhere(~np.isfinite(a))
     if bad.size:
         i, c = bad[0]
-        raise WigglyInputError(f"{what} of vertex #{i} (component {'xyz'[c]}) is {a[i, c]}; "
-                               "targets must be finite numbers")
+        raise WigglyInputError(
+            f"{what} of vertex #{i} (component {'xyz'[c]}) is {a[i, c]}; "
+            "targets must be finite numbers"
+        )

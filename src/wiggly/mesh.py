@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
+from importlib import resources
 from pathlib import Path
 
 import meshio
@@ -474,6 +475,21 @@ def _self_intersections_vtk(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------- loading
 
 
+BUILTIN_MODELS = ("critter", "plant", "bar")
+
+
+def resolve_builtin(path: str | Path) -> Path:
+    """``builtin:<name>`` names a bundled model (critter, plant, bar); other paths pass."""
+    text = str(path)
+    if not text.startswith("builtin:"):
+        return Path(path)
+    name = text.removeprefix("builtin:")
+    if name not in BUILTIN_MODELS:
+        raise WigglyInputError(f"{text} is not a bundled model; use one of "
+                               + ", ".join(f"builtin:{m}" for m in BUILTIN_MODELS))
+    return Path(str(resources.files("wiggly") / "data" / f"{name}.obj"))
+
+
 def load_mesh(path: str | Path) -> TetMesh | Surface:
     """Read a tetrahedral mesh or a triangle surface from a file.
 
@@ -521,7 +537,7 @@ def load_mesh(path: str | Path) -> TetMesh | Surface:
         triangles, other volume cells (hexahedra, quadratic tets), NaN or
         infinite coordinates, indices out of range, degenerate tets.
     """
-    path = Path(path)
+    path = resolve_builtin(path)
     source = str(path)
     ext = _extension(path)
     if not path.is_file():

@@ -27,15 +27,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.linalg as sla
-from scipy.spatial.transform import Rotation
 from numpy.typing import ArrayLike
+from scipy.spatial.transform import Rotation
 
 from wiggly.body import Body, Where
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread
 from wiggly.splines import WigglyBasis, energy_form, equilibrium, evaluate, wiggly_basis
-
 
 
 @dataclass(eq=False)
@@ -77,8 +76,7 @@ class Animation:
         return self.start + np.arange(n) / fps
 
     # --- modal trajectories ------------------------------------------------------------
-    def modal(self, times: ArrayLike, n_derivatives: int = 0,
-              side: str = "right") -> np.ndarray:
+    def modal(self, times: ArrayLike, n_derivatives: int = 0, side: str = "right") -> np.ndarray:
         """q(t) and its time derivatives for all modes: shape (n_derivatives + 1, F, r).
 
         At a node the spline of the interval to the ``side`` of it is used (the one-sided
@@ -97,15 +95,18 @@ class Animation:
         h = np.diff(self.nodes)[k]
         tau = (t - self.nodes[k]) / h
         idx = (k[:, None] * r + np.arange(r)).ravel()  # (F*r,)
-        data = np.stack([self.values[k], self.velocities[k], self.values[k + 1],
-                         self.velocities[k + 1]], axis=-1).reshape(-1, 4)
+        data = np.stack(
+            [self.values[k], self.velocities[k], self.values[k + 1], self.velocities[k + 1]],
+            axis=-1,
+        ).reshape(-1, 4)
         g = np.tile(self.body.modal_gravity, len(t))
         out = evaluate(self.basis.take(idx), data, g, np.repeat(tau, r), n_derivatives)
         return out.reshape(n_derivatives + 1, len(t), r)
 
     # --- vertex trajectories -------------------------------------------------------------
-    def displacements(self, times: ArrayLike, on: Where = "surface", derivative: int = 0,
-                      dtype: type = np.float64) -> np.ndarray:
+    def displacements(
+        self, times: ArrayLike, on: Where = "surface", derivative: int = 0, dtype: type = np.float64
+    ) -> np.ndarray:
         """Displacements (or their ``derivative``-th time derivative): shape (F, n, 3).
 
         Linear: u(t) = Phi q(t).  Warped: W(u(t)) and DW(u(t)) u'(t) (SYSTEM.md §6), computed
@@ -143,8 +144,9 @@ class Animation:
             out[sl] = W
         return out
 
-    def positions(self, times: ArrayLike, on: Where = "surface",
-                  dtype: type = np.float64) -> np.ndarray:
+    def positions(
+        self, times: ArrayLike, on: Where = "surface", dtype: type = np.float64
+    ) -> np.ndarray:
         """Vertex positions rest + u(t) for all ``times``: shape (F, n, 3)."""
         u = self.displacements(times, on, 0, dtype)
         u += self.body.rest_positions(on).astype(dtype, copy=False)
@@ -184,8 +186,9 @@ class Animation:
 
 def _interval_data(values: np.ndarray, velocities: np.ndarray) -> np.ndarray:
     """Hermite data (q_k, q_k', q_k+1, q_k+1') per (interval, mode): shape (m*r, 4)."""
-    return np.stack([values[:-1], velocities[:-1], values[1:], velocities[1:]],
-                    axis=-1).reshape(-1, 4)
+    return np.stack([values[:-1], velocities[:-1], values[1:], velocities[1:]], axis=-1).reshape(
+        -1, 4
+    )
 
 
 _PLAYBACK_BATCH = 64
@@ -198,8 +201,7 @@ class SpacetimeProblem:
     keyframe targets or weights change (interactive editing).
     """
 
-    def __init__(self, body: Body, start: float, end: float,
-                 preroll: float | None = None) -> None:
+    def __init__(self, body: Body, start: float, end: float, preroll: float | None = None) -> None:
         if not (np.isfinite(start) and np.isfinite(end)) or end <= start:
             raise WigglyInputError(
                 f"the animation's time range [{start}, {end}] s is empty: end must be after start"
@@ -238,8 +240,10 @@ class SpacetimeProblem:
             # global indices of (q_k,i, v_k,i, q_k+1,i, v_k+1,i)
             k = np.repeat(np.arange(m), r)
             i = np.tile(np.arange(r), m)
-            idx = np.stack([2 * r * k + i, 2 * r * k + r + i, 2 * r * (k + 1) + i,
-                            2 * r * (k + 1) + r + i], axis=1)
+            idx = np.stack(
+                [2 * r * k + i, 2 * r * k + r + i, 2 * r * (k + 1) + i, 2 * r * (k + 1) + r + i],
+                axis=1,
+            )
             if len(self._energy_cache) > 8:
                 self._energy_cache.clear()
             self._energy_cache[key] = (basis, form, idx)
@@ -269,7 +273,7 @@ class SpacetimeProblem:
 
     def _assemble_energy(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Band storage of E (+ pre-roll): 1/2 z^T H z + f^T z + c."""
-        basis, form, idx = self._energy(nodes)
+        _basis, form, idx = self._energy(nodes)
         r = self.body.r
         N = 2 * r * len(nodes)
         bw = 4 * r - 1  # upper bandwidth of the node-major ordering
@@ -282,12 +286,13 @@ class SpacetimeProblem:
             Q22, f0, c_pre = self._preroll()
             i = np.arange(r)
             _add_dense(ab, bw, np.stack([i, r + i], axis=1), Q22)
-            f[:2 * r] += f0
+            f[: 2 * r] += f0
             c += c_pre
         return ab, f, c
 
-    def _add_linear_constraints(self, ab: np.ndarray, f: np.ndarray, kfs: list[Keyframe],
-                                nodes: np.ndarray) -> None:
+    def _add_linear_constraints(
+        self, ab: np.ndarray, f: np.ndarray, kfs: list[Keyframe], nodes: np.ndarray
+    ) -> None:
         """E_C of eq. (4): c_A |A_k Phi q_k - a_k|^2 + c_B |B_k Phi q'_k - b_k|^2 at node k."""
         body, r = self.body, self.body.r
         bw = ab.shape[0] - 1
@@ -304,9 +309,16 @@ class SpacetimeProblem:
                 _add_block(ab, bw, blk, c_B * AtA)
                 f[blk] -= c_B * (A.T @ kf.velocity.ravel())
 
-    def solve(self, keyframes: list[Keyframe], *, warped: bool = False,
-              initial: Animation | None = None, tolerance: float = 1e-8,
-              max_iterations: int = 50) -> Animation:
+    def solve(
+        self,
+        keyframes: list[Keyframe],
+        *,
+        warped: bool = False,
+        initial: Animation | None = None,
+        tolerance: float = 1e-8,
+        max_iterations: int = 50,
+        stall: bool = True,
+    ) -> Animation:
         """Minimise E + E_C (linear, Theorem 1) or E + E_WC (warped, Theorem 2).
 
         Both have the same unknowns, node values and velocities of every mode.  The warped
@@ -315,20 +327,26 @@ class SpacetimeProblem:
         solution; see :func:`_gauss_newton`.
         """
         with blas_single_thread():
-            return self._solve(keyframes, warped, initial, tolerance, max_iterations)
+            return self._solve(keyframes, warped, initial, tolerance, max_iterations, stall)
 
-    def _solve(self, keyframes, warped, initial, tolerance, max_iterations) -> Animation:
+    def _solve(self, keyframes, warped, initial, tolerance, max_iterations, stall) -> Animation:
         t_start = _time.perf_counter()
         body = self.body
-        kfs = [kf.checked(body, self.start, self.end, label=_label(kf, j))
-               for j, kf in enumerate(keyframes)]
+        kfs = [
+            kf.checked(body, self.start, self.end, label=_label(kf, j))
+            for j, kf in enumerate(keyframes)
+        ]
         nodes = self.nodes_for(kfs)
         basis = self._energy(nodes)[0]
         r, n_nodes = body.r, len(nodes)
         ab_E, f_E, c_E = self._assemble_energy(nodes)
         info: dict = {"unknowns": 2 * r * n_nodes, "warped": warped}
-        if warped and initial is not None and initial.nodes.shape == nodes.shape \
-                and np.allclose(initial.nodes, nodes):
+        if (
+            warped
+            and initial is not None
+            and initial.nodes.shape == nodes.shape
+            and np.allclose(initial.nodes, nodes)
+        ):
             z = np.stack([initial.values, initial.velocities], axis=1).ravel()
             info["warm_start"] = True
         else:
@@ -341,17 +359,20 @@ class SpacetimeProblem:
                 raise WigglyInputError(
                     "the keyframes leave the motion undetermined and preroll is 0; give "
                     "keyframes that fix the start (positions and velocities of the whole "
-                    "body) or a preroll > 0") from err
+                    "body) or a preroll > 0"
+                ) from err
             info["warm_start"] = False
         info["linear_seconds"] = _time.perf_counter() - t_start
         if warped:
-            z = _gauss_newton(self, kfs, nodes, ab_E, f_E, c_E, z, tolerance, max_iterations, info)
+            z = _gauss_newton(
+                self, kfs, nodes, ab_E, f_E, c_E, z, tolerance, max_iterations, info, stall
+            )
         z = z.reshape(n_nodes, 2, r)
-        anim = Animation(body, nodes, z[:, 0].copy(), z[:, 1].copy(), kfs, basis,
-                         warped=warped, info=info)
+        anim = Animation(
+            body, nodes, z[:, 0].copy(), z[:, 1].copy(), kfs, basis, warped=warped, info=info
+        )
         info["solve_seconds"] = _time.perf_counter() - t_start
         return anim
-
 
 
 def _unwarped(kf: Keyframe, body: Body) -> Keyframe:
@@ -418,8 +439,15 @@ class WarpedObjective:
     constrained nodes; the gradient is exact (vector-Jacobian products of W).
     """
 
-    def __init__(self, problem: SpacetimeProblem, kfs: list[Keyframe], nodes: np.ndarray,
-                 ab_E: np.ndarray, f_E: np.ndarray, c_E: float) -> None:
+    def __init__(
+        self,
+        problem: SpacetimeProblem,
+        kfs: list[Keyframe],
+        nodes: np.ndarray,
+        ab_E: np.ndarray,
+        f_E: np.ndarray,
+        c_E: float,
+    ) -> None:
         body = problem.body
         self.body, self.r = body, body.r
         self.warp, self.Phi = body.warp, body.modes.vectors
@@ -430,11 +458,16 @@ class WarpedObjective:
         for kf in kfs:
             c_A, c_B = kf.weights(body, problem.duration)
             rest = body.rest_positions(kf.on)[kf.vertices].ravel()
-            self.keys.append(_WarpedKey(
-                _node_index(nodes, kf.time), body.selection(kf.vertices, kf.on),
-                None if kf.position is None or c_A == 0 else kf.position.ravel() - rest,
-                None if kf.velocity is None or c_B == 0 else kf.velocity.ravel(),
-                np.sqrt(c_A), np.sqrt(c_B)))
+            self.keys.append(
+                _WarpedKey(
+                    _node_index(nodes, kf.time),
+                    body.selection(kf.vertices, kf.on),
+                    None if kf.position is None or c_A == 0 else kf.position.ravel() - rest,
+                    None if kf.velocity is None or c_B == 0 else kf.velocity.ravel(),
+                    np.sqrt(c_A),
+                    np.sqrt(c_B),
+                )
+            )
         self.active = sorted({k.node for k in self.keys if k.d is not None or k.b is not None})
         self.has_vel = {k.node for k in self.keys if k.b is not None}
         self.timing = {"W": 0.0, "DW": 0.0, "solve": 0.0}
@@ -453,8 +486,11 @@ class WarpedObjective:
         t0 = _time.perf_counter()
         U = (q[self.active] @ Phi.T).reshape(len(self.active), n, 3)
         WU = self.warp.apply(U) if len(self.active) else U
-        Vel = {k: self.warp.jvp(U[a], (Phi @ v[k]).reshape(n, 3)).ravel()
-               for a, k in enumerate(self.active) if k in self.has_vel}
+        Vel = {
+            k: self.warp.jvp(U[a], (Phi @ v[k]).reshape(n, 3)).ravel()
+            for a, k in enumerate(self.active)
+            if k in self.has_vel
+        }
         self.timing["W"] += _time.perf_counter() - t0
         return q, v, U, WU, Vel
 
@@ -477,7 +513,7 @@ class WarpedObjective:
 
     def value_and_gradient(self, z: np.ndarray) -> tuple[float, np.ndarray]:
         """F(z) and its exact gradient."""
-        q, v, U, WU, Vel = self._fields(z)
+        _q, v, U, WU, Vel = self._fields(z)
         n, r, Phi = self.n, self.r, self.Phi
         Hz = _band_matvec(self.ab_E, self.bw, z)
         F = 0.5 * z @ Hz + self.f_E @ z + self.c_E
@@ -519,12 +555,20 @@ class WarpedObjective:
             xk = np.r_[q[k], v[k]]
             cached = self._jac.get(self._node_time[k])
             limit = 1e-3 if k in self.has_vel else reuse  # q-v coupling: keep these fresh
-            if cached is None or np.linalg.norm(xk - cached[0]) > limit * np.linalg.norm(xk) \
-                    or (k in self.has_vel and cached[2] is None):
+            if (
+                cached is None
+                or np.linalg.norm(xk - cached[0]) > limit * np.linalg.norm(xk)
+                or (k in self.has_vel and cached[2] is None)
+            ):
                 u = (Phi @ q[k]).reshape(n, 3)
                 J = self.warp.jacobian(u, Phi).reshape(3 * n, r)
-                VJ = (self.warp.velocity_jacobian(u, (Phi @ v[k]).reshape(n, 3), Phi)
-                      .reshape(3 * n, r) if k in self.has_vel else None)
+                VJ = (
+                    self.warp.velocity_jacobian(u, (Phi @ v[k]).reshape(n, 3), Phi).reshape(
+                        3 * n, r
+                    )
+                    if k in self.has_vel
+                    else None
+                )
                 self._jac[self._node_time[k]] = (xk, J, VJ)
             _, J, VJ = self._jac[self._node_time[k]]
             block = np.zeros((2 * r, 2 * r))
@@ -540,29 +584,49 @@ class WarpedObjective:
         return ab
 
 
-def _gauss_newton(problem: SpacetimeProblem, kfs: list[Keyframe], nodes: np.ndarray,
-                  ab_E: np.ndarray, f_E: np.ndarray, c_E: float, z: np.ndarray,
-                  tolerance: float, max_iterations: int, info: dict) -> np.ndarray:
+def _gauss_newton(
+    problem: SpacetimeProblem,
+    kfs: list[Keyframe],
+    nodes: np.ndarray,
+    ab_E: np.ndarray,
+    f_E: np.ndarray,
+    c_E: float,
+    z: np.ndarray,
+    tolerance: float,
+    max_iterations: int,
+    info: dict,
+    stall: bool = True,
+) -> np.ndarray:
     """Minimise E + E_WC (Theorem 2) by Levenberg-Marquardt from ``z``.
 
     Each iteration solves (H + mu diag H) dz = -g with the Gauss-Newton matrix H (banded)
     and the exact gradient g; the step is accepted when F decreases, and mu follows the
-    ratio of actual to predicted decrease (Nielsen's update).  Stops when the Newton
-    decrement m = -1/2 g^T H^-1 g is below ``tolerance * F``; then every directional
-    derivative is bounded, |g^T d| <= sqrt(2 m d^T H d) (Cauchy-Schwarz in the H-norm).
+    ratio of actual to predicted decrease (Nielsen's update).  Stopping rule:
+
+    * converged ("decrement") when the Newton decrement m = -1/2 g^T H^-1 g is below
+      ``tolerance * F``; then every directional derivative is bounded,
+      |g^T d| <= sqrt(2 m d^T H d) (Cauchy-Schwarz in the H-norm);
+    * converged ("stalled", unless ``stall=False``) when the relative decrease of F stayed
+      below ``STALL_DECREASE`` for three iterations while the model promises less than
+      ``STALL_PROMISE`` relative decrease (flat valleys where Gauss-Newton crawls);
+    * otherwise, after ``max_iterations``, a :class:`WarpedSolveWarning` reports it.
     """
     obj = WarpedObjective(problem, kfs, nodes, ab_E, f_E, c_E)
     bw = obj.bw
     F, g = obj.value_and_gradient(z)
     F_start, mu, nu, history, converged, it = F, 0.0, 2.0, [F], False, 0
-    decrement = np.inf
-    for it in range(1, max_iterations + 1):
+    decrement, reason, slow = np.inf, "", 0
+    while it < max_iterations:
+        it += 1
         ab = obj.normal_matrix(z, reuse=JACOBIAN_REUSE)
         t0 = _time.perf_counter()
         dz = _solve_banded(ab, -g)
         decrement = -0.5 * float(g @ dz)
-        if decrement <= tolerance * F:
-            converged = True
+        if len(history) > 1:
+            slow = slow + 1 if history[-2] - history[-1] < STALL_DECREASE * F else 0
+        stalled = stall and slow >= 3 and decrement <= STALL_PROMISE * F
+        if decrement <= tolerance * F or stalled:
+            converged, reason = True, "stalled" if decrement > tolerance * F else "decrement"
             F_try = obj.value(z + dz)  # the last (tiny) step, when it helps
             if F_try < F:
                 z, F = z + dz, F_try
@@ -598,20 +662,32 @@ def _gauss_newton(problem: SpacetimeProblem, kfs: list[Keyframe], nodes: np.ndar
         z = z + dz
         F, g = obj.value_and_gradient(z)
         history.append(F)
-    info.update(iterations=it, converged=converged, objective_start=F_start, objective=F,
-                objective_history=history, newton_decrement=decrement,
-                seconds_W=obj.timing["W"], seconds_DW=obj.timing["DW"],
-                seconds_solve=obj.timing["solve"])
+    info.update(
+        iterations=it,
+        converged=converged,
+        stop=reason,
+        objective_start=F_start,
+        objective=F,
+        objective_history=history,
+        newton_decrement=decrement,
+        seconds_W=obj.timing["W"],
+        seconds_DW=obj.timing["DW"],
+        seconds_solve=obj.timing["solve"],
+    )
     if not converged:
         warnings.warn(
             f"warped solve did not converge in {it} iterations: objective {F:.6g} (start "
             f"{F_start:.6g}), Newton decrement {decrement:.2e} > tolerance * objective = "
-            f"{tolerance * F:.2e}; the result is the best iterate", WarpedSolveWarning,
-            stacklevel=3)
+            f"{tolerance * F:.2e}; the result is the best iterate",
+            WarpedSolveWarning,
+            stacklevel=3,
+        )
     return z
 
 
 JACOBIAN_REUSE = 0.1
+STALL_DECREASE = 1e-6
+STALL_PROMISE = 1e-2
 
 
 class WarpedSolveWarning(UserWarning):
@@ -654,9 +730,17 @@ def _add_block(ab: np.ndarray, bw: int, idx: np.ndarray, block: np.ndarray) -> N
     _add_dense(ab, bw, idx[None], block[None])
 
 
-def solve(body: Body, keyframes: list[Keyframe], *, duration: float | None = None,
-          start: float = 0.0, end: float | None = None, warp: bool = True,
-          preroll: float | None = None, progress: bool = False) -> Animation:
+def solve(
+    body: Body,
+    keyframes: list[Keyframe],
+    *,
+    duration: float | None = None,
+    start: float = 0.0,
+    end: float | None = None,
+    warp: bool = True,
+    preroll: float | None = None,
+    progress: bool = False,
+) -> Animation:
     """Animate ``body`` through the sparse ``keyframes``.
 
     ``warp=True`` (default) solves E + E_WC on the rotation-strain-warped motion (Theorem 2)
@@ -674,8 +758,13 @@ def solve(body: Body, keyframes: list[Keyframe], *, duration: float | None = Non
     if progress:
         extra = ""
         if warp:
-            extra = (f", {anim.info['iterations']} Gauss-Newton iterations"
-                     f"{'' if anim.info['converged'] else ' (not converged)'}")
-        print(f"[wiggly] {'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
-              f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}", file=sys.stderr)
+            extra = (
+                f", {anim.info['iterations']} Gauss-Newton iterations"
+                f"{'' if anim.info['converged'] else ' (not converged)'}"
+            )
+        print(
+            f"[wiggly] {'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
+            f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}",
+            file=sys.stderr,
+        )
     return anim

@@ -44,8 +44,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 SERIES, OSCILLATORY, SPLIT_SMALL, SPLIT = 0, 1, 2, 3
-REGIME_NAMES = {SERIES: "series", OSCILLATORY: "oscillatory", SPLIT_SMALL: "split-small",
-                SPLIT: "split"}
+REGIME_NAMES = {
+    SERIES: "series",
+    OSCILLATORY: "oscillatory",
+    SPLIT_SMALL: "split-small",
+    SPLIT: "split",
+}
 _N_SERIES = 30  # Taylor terms; |root| <= 1 on the unit interval gives 1/30! ~ 4e-33
 _INV_FACT = np.array([1.0 / factorial(n) for n in range(_N_SERIES)])
 
@@ -92,8 +96,9 @@ class WigglyBasis:
         idx = np.asarray(index)
         return WigglyBasis(*(getattr(self, f)[idx] for f in self.__dataclass_fields__))
 
-    def kernel(self, tau: ArrayLike, n_derivatives: int = 0, *,
-               operator: bool = False) -> NDArray[np.complex128]:
+    def kernel(
+        self, tau: ArrayLike, n_derivatives: int = 0, *, operator: bool = False
+    ) -> NDArray[np.complex128]:
         """Slot functions and their tau-derivatives at ``tau`` (broadcast against the batch).
 
         Returns shape ``(n_derivatives + 1, P, 4)``.  With ``operator=True`` returns
@@ -138,8 +143,9 @@ class WigglyBasis:
         """Dimensionless characteristic roots (a, b); the kernel's roots are +-a, +-b."""
         return _roots(self.lam * self.h**2, self.delta * self.h)
 
-    def hermite(self, tau: ArrayLike, n_derivatives: int = 0, *,
-                operator: bool = False) -> NDArray[np.float64]:
+    def hermite(
+        self, tau: ArrayLike, n_derivatives: int = 0, *, operator: bool = False
+    ) -> NDArray[np.float64]:
         """Hermite basis H_j^{(d)}(tau), j = 0..3 for data (q0, q0', q1, q1') in tau units.
 
         Shape ``(n_derivatives + 1, P, 4)``; derivatives are with respect to tau.  With
@@ -164,8 +170,9 @@ def wiggly_basis(lam: ArrayLike, delta: ArrayLike, h: ArrayLike) -> WigglyBasis:
 
     Parameters broadcast to a common 1-D batch.  ``lam >= 0``, ``delta >= 0``, ``h > 0``.
     """
-    lam, delta, h = np.broadcast_arrays(*(np.atleast_1d(np.asarray(v, float))
-                                          for v in (lam, delta, h)))
+    lam, delta, h = np.broadcast_arrays(
+        *(np.atleast_1d(np.asarray(v, float)) for v in (lam, delta, h))
+    )
     lam, delta, h = lam.ravel().copy(), delta.ravel().copy(), h.ravel().copy()
     if np.any(~np.isfinite(lam) | (lam < 0)) or np.any(~np.isfinite(delta) | (delta < 0)):
         raise ValueError("wiggly_basis needs finite lam >= 0 and delta >= 0")
@@ -221,8 +228,9 @@ def wiggly_basis(lam: ArrayLike, delta: ArrayLike, h: ArrayLike) -> WigglyBasis:
             c[:, :, n + 4] = A2 * c[:, :, n + 2] - A0 * c[:, :, n]
         series[ser] = c
 
-    basis = WigglyBasis(lam, delta, h, regime, r1, r2, anchor, divided, series,
-                        np.zeros((P, 4, 4), complex))
+    basis = WigglyBasis(
+        lam, delta, h, regime, r1, r2, anchor, divided, series, np.zeros((P, 4, 4), complex)
+    )
     # Hermite matrix rows: f(0), f'(0), f(1), f'(1); equilibrated before inversion.
     f0 = basis.kernel(0.0, 1)
     f1 = basis.kernel(1.0, 1)
@@ -232,7 +240,9 @@ def wiggly_basis(lam: ArrayLike, delta: ArrayLike, h: ArrayLike) -> WigglyBasis:
     Bs = B / col
     row = np.max(np.abs(Bs), axis=2, keepdims=True)
     Bs = Bs / row
-    inv = np.linalg.inv(Bs)  # Bs = diag(1/row) B diag(1/col)  =>  B^-1 = diag(1/col) inv diag(1/row)
+    inv = np.linalg.inv(
+        Bs
+    )  # Bs = diag(1/row) B diag(1/col)  =>  B^-1 = diag(1/col) inv diag(1/row)
     hermite_inverse = inv / col.transpose(0, 2, 1) / row.transpose(0, 2, 1)
     return WigglyBasis(lam, delta, h, regime, r1, r2, anchor, divided, series, hermite_inverse)
 
@@ -250,11 +260,15 @@ class EnergyForm:
 
     def __call__(self, x: ArrayLike) -> NDArray[np.float64]:
         x = np.asarray(x, float)
-        return 0.5 * np.einsum("pi,pij,pj->p", x, self.Q, x) + np.einsum("pi,pi->p", self.l, x) + self.c0
+        return (
+            0.5 * np.einsum("pi,pij,pj->p", x, self.Q, x)
+            + np.einsum("pi,pi->p", self.l, x)
+            + self.c0
+        )
 
 
 def equilibrium(lam: ArrayLike, g: ArrayLike) -> NDArray[np.float64]:
-    """Particular (static) solution q_p = -g / lam of the wiggly ODE; 0 for rigid modes (lam = 0)."""
+    """Static solution q_p = -g / lam of the wiggly ODE; 0 for rigid modes (lam = 0)."""
     lam, g = np.broadcast_arrays(np.asarray(lam, float), np.asarray(g, float))
     safe = np.where(lam > 0, lam, 1.0)
     return np.where(lam > 0, -g / safe, 0.0)
@@ -270,7 +284,7 @@ def energy_form(basis: WigglyBasis, g: ArrayLike) -> EnergyForm:
     """
     g = np.broadcast_to(np.asarray(g, float), basis.lam.shape)
     h = basis.h
-    L = basis.lam * h**2
+    basis.lam * h**2
     D = basis.delta * h
     # R = L0 H = H'' + 2D H' + Lam H and its derivative R' at both ends, applied exactly
     R0, R0p = basis.hermite(0.0, 1, operator=True)
@@ -292,13 +306,17 @@ def energy_form(basis: WigglyBasis, g: ArrayLike) -> EnergyForm:
     Gp_p = np.einsum("pij,pj->pi", Gp, p)
     Q = Gp
     lin = -Gp_p + c[:, None] * ellp
-    c0 = 0.5 * np.einsum("pi,pi->p", p, Gp_p) - c * np.einsum("pi,pi->p", ellp, p) \
+    c0 = (
+        0.5 * np.einsum("pi,pi->p", p, Gp_p)
+        - c * np.einsum("pi,pi->p", ellp, p)
         + 0.5 * c**2 * scale
+    )
     return EnergyForm(Q, lin, c0)
 
 
-def evaluate(basis: WigglyBasis, data: ArrayLike, g: ArrayLike, tau: ArrayLike,
-             n_derivatives: int = 0) -> NDArray[np.float64]:
+def evaluate(
+    basis: WigglyBasis, data: ArrayLike, g: ArrayLike, tau: ArrayLike, n_derivatives: int = 0
+) -> NDArray[np.float64]:
     """Spline values and time derivatives at ``tau`` for physical Hermite ``data`` (P, 4).
 
     Returns shape ``(n_derivatives + 1, P)``: q, dq/dt, d2q/dt2, ... (physical time units).

@@ -197,6 +197,9 @@ class _Handler(BaseHTTPRequestHandler):
                                                  else ""))
 
     # --- GET ------------------------------------------------------------------------------
+    def get_favicon(self) -> None:
+        self._send(204, b"", "image/x-icon")
+
     def get_state(self) -> None:
         self._json(self.server.session.describe())
 
@@ -325,7 +328,7 @@ def _field(body: Any, key: str, kind: type, default: Any = None, required: bool 
     return v
 
 
-_GET = {r"/api/state": _Handler.get_state, r"/api/mesh": _Handler.get_mesh,
+_GET = {r"/favicon.ico": _Handler.get_favicon, r"/api/state": _Handler.get_state, r"/api/mesh": _Handler.get_mesh,
         r"/api/frames/latest": _Handler.get_latest_frames,
         r"/api/frames/(\d{1,12})": _Handler.get_frames, r"/api/files": _Handler.get_files,
         r"/api/events": _Handler.get_events}

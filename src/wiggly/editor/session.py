@@ -684,7 +684,7 @@ class Session:
             while len(problems) > 3:
                 problems.popitem(last=False)
         t0 = time.perf_counter()
-        want_warp = scene.simulation.warp and bool(keys)
+        want_warp = scene.simulation.warp
         if not warped:
             self.bus.publish("solve", seq=req.seq, version=req.version, stage="linear",
                              message="linear solve")

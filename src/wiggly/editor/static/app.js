@@ -63,6 +63,7 @@ window.wiggly = {                 // test and benchmark hooks (read-only use)
   S, latencies: [], framesApplied: 0,
   gizmoHandle: (axis) => gizmoHandle(axis),
   projectGroup: (name) => projectGroup(name),
+  screenBox: (indices) => screenBox(indices),
   rigidOfPose: () => poseTarget(),
   ready: false,
 };
@@ -189,7 +190,13 @@ async function refreshState() {
       stateAgain = false;
       const d = await api.get('/api/state');
       if (!d.open) { S.desc = d; setStatus('no scene open: Open… a scene or a mesh', ''); openDialog(); continue; }
-      if (d.mesh_key !== S.meshKey) { S.meshKey = d.mesh_key; await loadMesh(); }
+      if (d.mesh_key !== S.meshKey) {
+        S.meshKey = d.mesh_key;
+        await loadMesh();
+        const late = S.lateFrames;
+        S.lateFrames = null;
+        if (late) offerFrames(late);
+      }
       S.desc = d;
       S.groupVerts = {};
       for (const [name, idx] of Object.entries(d.groups)) S.groupVerts[name] = Int32Array.from(idx);
@@ -209,6 +216,7 @@ function offerFrames(meta) {
   const best = framesWanted || S.shown;
   if (meta.seq < best.seq || (meta.seq === best.seq && rank <= best.rank)) return;
   framesWanted = { ...meta, rank };
+  if (!S.n) { S.lateFrames = framesWanted; framesWanted = null; return; }
   if (!framesBusy) fetchFrames();
 }
 async function fetchFrames() {
@@ -220,7 +228,7 @@ async function fetchFrames() {
       if (meta.seq < S.shown.seq || (meta.seq === S.shown.seq && meta.rank <= S.shown.rank)) continue;
       let buf;
       try { ({ buf } = await api.bin(`/api/frames/${meta.id}`)); } catch { continue; }
-      if (meta.n_vertices !== S.n) continue;
+      if (meta.n_vertices !== S.n) { S.lateFrames = meta; continue; }  // mesh not loaded yet
       S.frames = { meta, data: new Float32Array(buf) };
       S.shown = { seq: meta.seq, rank: meta.rank, id: meta.id };
       window.wiggly.framesApplied += 1;
@@ -848,20 +856,23 @@ async function commitPose() {
   const r = await edit({ op: 'update_keyframe', id: k.id, position: poseTarget() });
   if (r && r.changed) S.release = { t: t0, version: r.version, done: false };
 }
-function gizmoHandle(axis) {   // screen point of a gizmo handle (tests)
+function gizmoHandle(axis) {   // screen point of the gizmo and the direction of an axis (tests)
   const r = canvas.getBoundingClientRect();
   const p = pivot.position.clone();
-  const size = gizmoHelper.children[0] ? new THREE.Vector3().setFromMatrixScale(gizmoHelper.children[0].matrixWorld).x : 1;
   const dir = { X: [1, 0, 0], Y: [0, 1, 0], Z: [0, 0, 1] }[axis] || [0, 0, 0];
-  const q = p.clone().add(new THREE.Vector3(...dir).multiplyScalar(0.6 * size)).project(camera);
+  const len = camera.position.distanceTo(p) * 0.05;
+  const q = p.clone().add(new THREE.Vector3(...dir).multiplyScalar(len)).project(camera);
   const o = p.clone().project(camera);
-  return { x: r.left + (q.x + 1) / 2 * r.width, y: r.top + (1 - q.y) / 2 * r.height,
-           ox: r.left + (o.x + 1) / 2 * r.width, oy: r.top + (1 - o.y) / 2 * r.height };
+  const ox = r.left + (o.x + 1) / 2 * r.width, oy = r.top + (1 - o.y) / 2 * r.height;
+  const dx = r.left + (q.x + 1) / 2 * r.width - ox, dy = r.top + (1 - q.y) / 2 * r.height - oy;
+  const n = Math.hypot(dx, dy) || 1;
+  return { x: ox, y: oy, dx: dx / n, dy: dy / n, axis: gizmo.axis };
 }
-function projectGroup(name) {  // screen bounding box of a group's vertices (tests)
+function projectGroup(name) { return screenBox(S.groupVerts[name] || []); }
+function screenBox(indices) {  // page-space bounding box of some vertices (tests)
   const sp = screenPositions(), r = canvas.getBoundingClientRect();
   let x0 = 1e9, y0 = 1e9, x1 = -1e9, y1 = -1e9;
-  for (const i of S.groupVerts[name] || []) { x0 = Math.min(x0, sp[3 * i]); x1 = Math.max(x1, sp[3 * i]); y0 = Math.min(y0, sp[3 * i + 1]); y1 = Math.max(y1, sp[3 * i + 1]); }
+  for (const i of indices) { x0 = Math.min(x0, sp[3 * i]); x1 = Math.max(x1, sp[3 * i]); y0 = Math.min(y0, sp[3 * i + 1]); y1 = Math.max(y1, sp[3 * i + 1]); }
   return { x0: x0 + r.left, y0: y0 + r.top, x1: x1 + r.left, y1: y1 + r.top };
 }
 
