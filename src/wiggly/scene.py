@@ -26,14 +26,13 @@ import time as _time
 import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from wiggly.errors import WigglyInputError
-from wiggly.mesh import DEFAULT_RESOLUTION
+from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION, resolve_builtin
 
 __all__ = [
     "FORMAT",
@@ -65,8 +64,6 @@ __all__ = [
 
 #: Scene format version written by :func:`save_scene` and the newest one read.
 FORMAT = 1
-#: Bundled models, addressed as ``builtin:<name>`` in ``mesh.path``.
-BUILTIN_MODELS = ("critter", "plant", "bar")
 GEOMETRY_EXTENSIONS = (".glb", ".usd", ".usda", ".usdc", ".obj", ".npz")
 PREVIEW_EXTENSIONS = (".mp4", ".gif", ".png")
 OUTPUT_EXTENSIONS = GEOMETRY_EXTENSIONS + PREVIEW_EXTENSIONS
@@ -366,10 +363,7 @@ class Scene:
 
 def builtin_model(name: str) -> Path:
     """Path of a bundled model (``critter``, ``plant``, ``bar``)."""
-    if name not in BUILTIN_MODELS:
-        raise WigglyInputError(f"builtin:{name} is not a bundled model; use one of "
-                               + ", ".join(f"builtin:{m}" for m in BUILTIN_MODELS))
-    return Path(str(resources.files("wiggly") / "data" / f"{name}.obj"))
+    return resolve_builtin(f"builtin:{name}")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -1,0 +1,21 @@
+"""Run every benchmark and print their tables (what `make bench` calls)."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(__file__))
+
+import bench_core  # noqa: E402
+import bench_warped  # noqa: E402
+
+if __name__ == "__main__":
+    quick = "--quick" in sys.argv
+    args = ["--quick"] if quick else []
+    bench_core.main(args)
+    bench_warped.main(args)
+    if os.path.exists(os.path.join(os.path.dirname(__file__), "bench_editor.py")):
+        import bench_editor  # noqa: E402
+
+        bench_editor.main(args)
