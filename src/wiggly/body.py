@@ -20,6 +20,7 @@ from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import ArrayLike
 
 from wiggly.errors import WigglyInputError
 from wiggly.fem import Material, gravity_term, mass_matrix, stiffness_matrix
@@ -178,25 +179,33 @@ class Body:
         return B @ (m / w)
 
 
-def _check_fixed(fixed: np.ndarray | list[int] | None, n: int) -> np.ndarray:
-    if fixed is None:
-        return np.zeros(0, np.int64)
-    fixed = np.asarray(fixed)
-    if fixed.dtype == bool:
-        if fixed.shape != (n,):
-            raise WigglyInputError(
-                f"fixed vertex mask has shape {fixed.shape}; it must have one entry per tet "
-                f"vertex ({n})"
-            )
-        return np.flatnonzero(fixed)
-    fixed = np.unique(fixed.astype(np.int64).ravel())
-    bad = fixed[(fixed < 0) | (fixed >= n)]
+def vertex_indices(vertices: ArrayLike, n: int, on: str = "surface",
+                   what: str = "selection", allow_empty: bool = False) -> np.ndarray:
+    """Validated int64 vertex indices from an index list or an (n,) boolean mask."""
+    v = np.asarray(vertices)
+    if v.dtype == bool:
+        if v.shape != (n,):
+            raise WigglyInputError(f"{what}: vertex mask has {v.size} entries; the {on} has {n}")
+        v = np.flatnonzero(v)
+    if v.size == 0 and not allow_empty:
+        raise WigglyInputError(f"{what}: selects no vertices")
+    if v.size and not np.issubdtype(v.dtype, np.integer):
+        if not np.all(np.isfinite(v)) or np.any(v != np.round(v)):
+            raise WigglyInputError(f"{what}: vertex indices must be integers; got {v.ravel()[:5]}")
+    v = v.astype(np.int64).ravel()
+    bad = v[(v < 0) | (v >= n)]
     if bad.size:
         raise WigglyInputError(
-            f"fixed vertex index {int(bad[0])} is out of range: the tet mesh has {n} vertices "
+            f"{what}: vertex index {int(bad[0])} does not exist: the {on} has {n} vertices "
             f"(valid indices 0..{n - 1})"
         )
-    return fixed
+    return v
+
+
+def _check_fixed(fixed: ArrayLike | None, n: int) -> np.ndarray:
+    if fixed is None:
+        return np.zeros(0, np.int64)
+    return np.unique(vertex_indices(fixed, n, "tet mesh", "fixed vertices", allow_empty=True))
 
 
 def fixed_from_surface(model: Model, surface_vertices: np.ndarray) -> np.ndarray:

@@ -74,8 +74,6 @@ import re
 import shutil
 import sys
 import tempfile
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -84,6 +82,7 @@ import scipy.sparse as sp
 from tqdm import tqdm
 
 from wiggly.errors import WigglyInputError
+from wiggly.files import atomic_file
 
 __all__ = ["SUPPORTED", "SurfaceAnimation", "read_animation", "vertex_normals", "write_animation"]
 
@@ -191,7 +190,7 @@ def write_animation(
     if path.exists() and not overwrite:
         raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
     writer = {".glb": _write_glb, ".npz": _write_npz}.get(ext, _write_usd)
-    with _atomic_file(path) as tmp:
+    with atomic_file(path) as tmp:
         writer(tmp, anim, progress=progress)
     if ext in (".usd", ".usda", ".usdc"):
         _forget_usd_layer(path)
@@ -359,28 +358,6 @@ class _FrameNormals:
 
 # ----------------------------------------------------------------------------------------------
 # atomic output
-
-
-def _fix_mode(path: Path) -> None:
-    """Give a mkstemp file (mode 0600) the mode a plain ``open`` would have given it."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(path, 0o666 & ~umask)
-
-
-@contextmanager
-def _atomic_file(path: Path) -> Iterator[Path]:
-    """Yield a temporary path next to ``path`` (same extension); move it to ``path`` on success."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
-        yield tmp
-        _fix_mode(tmp)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 def _require(module: str, package: str, ext: str):

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike
 
-from wiggly.body import Body, Where
+from wiggly.body import Body, Where, vertex_indices
 from wiggly.errors import WigglyInputError
 
 DEFAULT_STIFFNESS = 1e6
@@ -182,25 +182,7 @@ class Keyframe:
 
 
 def _indices(vertices: ArrayLike, n: int, on: str, what: str = "keyframe") -> np.ndarray:
-    v = np.asarray(vertices)
-    if v.dtype == bool:
-        if v.shape != (n,):
-            raise WigglyInputError(f"{what}: vertex mask has {v.size} entries; the {on} has {n}")
-        v = np.flatnonzero(v)
-    if v.size == 0:
-        raise WigglyInputError(f"{what}: selects no vertices")
-    if not np.issubdtype(v.dtype, np.integer):
-        if not np.all(np.isfinite(v)) or np.any(v != np.round(v)):
-            raise WigglyInputError(f"{what}: vertex indices must be integers; got {v.ravel()[:5]}")
-        v = v.astype(np.int64)
-    v = v.astype(np.int64).ravel()
-    bad = v[(v < 0) | (v >= n)]
-    if bad.size:
-        raise WigglyInputError(
-            f"{what}: vertex index {int(bad[0])} does not exist: the {on} has {n} vertices "
-            f"(valid indices 0..{n - 1})"
-        )
-    return v
+    return vertex_indices(vertices, n, on, what)
 
 
 def _finite(a: np.ndarray, what: str) -> None:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -39,6 +38,7 @@ import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
 from wiggly.errors import WigglyInputError
+from wiggly.files import atomic_file
 from wiggly.linalg import blas_single_thread, factorize_spd
 
 __all__ = ["Modes", "compute_modes", "default_cache_dir", "rigid_motions"]
@@ -247,22 +247,15 @@ def _load_cache(path: Path, key: str, r: int, n: int) -> Modes | None:
 def _save_cache(path: Path, key: str, modes: Modes) -> None:
     """Write atomically (temporary file in the same directory, then os.replace)."""
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.stem, suffix=".tmp")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(
-                    f,
-                    key=np.array(key),
-                    eigenvalues=modes.eigenvalues,
-                    vectors=modes.vectors,
-                    n_rigid=np.array(modes.n_rigid),
-                    fixed_vertices=modes.fixed_vertices,
-                )
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        with atomic_file(path) as tmp, open(tmp, "wb") as f:
+            np.savez(
+                f,
+                key=np.array(key),
+                eigenvalues=modes.eigenvalues,
+                vectors=modes.vectors,
+                n_rigid=np.array(modes.n_rigid),
+                fixed_vertices=modes.fixed_vertices,
+            )
     except OSError as err:
         warnings.warn(f"could not write the modes cache {path}: {err}", stacklevel=3)
 

@@ -62,9 +62,7 @@ import os
 import re
 import subprocess
 import sys
-import tempfile
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -73,6 +71,7 @@ import numpy as np
 from tqdm import tqdm
 
 from wiggly.errors import WigglyInputError
+from wiggly.files import atomic_file
 
 if TYPE_CHECKING:
     from PIL import Image
@@ -318,26 +317,6 @@ def _check_output(path, suffixes: Sequence[str], overwrite: bool) -> Path:
     if path.is_dir():
         raise WigglyInputError(f"{path} is a directory")
     return path
-
-
-@contextmanager
-def _atomic_file(path: Path) -> Iterator[Path]:
-    """Yield a temporary path next to ``path`` (same extension); move it to ``path`` on success.
-
-    Nothing is left behind when the body raises: the output either appears complete or not at all.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
-        yield tmp
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -825,7 +804,7 @@ def render_video(path, times, positions, faces, *, highlights: Sequence[Highligh
         else:
             frame_times, rate = video_frame_times(preview.times, fps)
         frames = _scene_progress(frame_times, progress, path.name)
-        with _atomic_file(path) as tmp:
+        with atomic_file(path) as tmp:
             if gif:
                 _write_gif(tmp, preview, frame_times, frames, delay_cs)
             else:
@@ -936,7 +915,7 @@ def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, co
         font = ImageFont.load_default(size=round(0.55 * header))
         ImageDraw.Draw(image).text((gap + 4, header / 2 + gap / 2), title, anchor="lm",
                                    fill=tuple(round(255 * c) for c in TEXT_COLOR), font=font)
-    with _atomic_file(path) as tmp:
+    with atomic_file(path) as tmp:
         image.save(tmp, format="PNG", optimize=True)
     return path
 
@@ -1058,6 +1037,6 @@ def plot_diagnostics(path, times, modal, residuals: Sequence[dict], eigenvalues,
         names.tick_params(length=3)
     if title:
         fig.suptitle(title)
-    with _atomic_file(path) as tmp:
+    with atomic_file(path) as tmp:
         fig.savefig(tmp, format="png")
     return path

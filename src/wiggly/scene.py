@@ -21,7 +21,6 @@ import math
 import os
 import re
 import sys
-import tempfile
 import time as _time
 import tomllib
 from collections.abc import Callable
@@ -32,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from wiggly.errors import WigglyInputError
+from wiggly.files import atomic_file
 from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION, resolve_builtin
 
 __all__ = [
@@ -1165,17 +1165,8 @@ def save_scene(scene: Scene, path: str | os.PathLike[str], overwrite: bool = Fal
         raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
     if path.is_dir():
         raise WigglyInputError(f"{path} is a directory")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".toml")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    with atomic_file(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
     return path
 
 

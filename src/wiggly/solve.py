@@ -364,9 +364,8 @@ class SpacetimeProblem:
             info["warm_start"] = False
         info["linear_seconds"] = _time.perf_counter() - t_start
         if warped:
-            z = _gauss_newton(
-                self, kfs, nodes, ab_E, f_E, c_E, z, tolerance, max_iterations, info, stall
-            )
+            obj = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E)
+            z = _gauss_newton(obj, z, tolerance, max_iterations, info, stall)
         z = z.reshape(n_nodes, 2, r)
         anim = Animation(
             body, nodes, z[:, 0].copy(), z[:, 1].copy(), kfs, basis, warped=warped, info=info
@@ -585,12 +584,7 @@ class WarpedObjective:
 
 
 def _gauss_newton(
-    problem: SpacetimeProblem,
-    kfs: list[Keyframe],
-    nodes: np.ndarray,
-    ab_E: np.ndarray,
-    f_E: np.ndarray,
-    c_E: float,
+    obj: WarpedObjective,
     z: np.ndarray,
     tolerance: float,
     max_iterations: int,
@@ -611,7 +605,6 @@ def _gauss_newton(
       ``STALL_PROMISE`` relative decrease (flat valleys where Gauss-Newton crawls);
     * otherwise, after ``max_iterations``, a :class:`WarpedSolveWarning` reports it.
     """
-    obj = WarpedObjective(problem, kfs, nodes, ab_E, f_E, c_E)
     bw = obj.bw
     F, g = obj.value_and_gradient(z)
     F_start, mu, nu, history, converged, it = F, 0.0, 2.0, [F], False, 0
