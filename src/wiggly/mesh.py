@@ -28,6 +28,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from wiggly.errors import WigglyInputError
+from wiggly.progress import activity
 
 __all__ = [
     "SURFACE_EXTENSIONS",
@@ -900,14 +901,15 @@ def tetrahedralize(
     import pytetwild
 
     envelope = float(np.clip(ENVELOPE_PER_EDGE * edge_length / diag, 1e-3, 1e-2))
-    tv, tt = pytetwild.tetrahedralize(
-        np.ascontiguousarray(V),
-        np.ascontiguousarray(F, dtype=np.int32),
-        edge_length_abs=float(edge_length),
-        epsilon=envelope,
-        quiet=not progress,
-        loglevel=2 if progress else 6,
-    )
+    with activity(f"tetrahedralizing {source} (fTetWild)", progress):
+        tv, tt = pytetwild.tetrahedralize(
+            np.ascontiguousarray(V),
+            np.ascontiguousarray(F, dtype=np.int32),
+            edge_length_abs=float(edge_length),
+            epsilon=envelope,
+            quiet=True,
+            loglevel=6,
+        )
     tt = np.asarray(tt, dtype=np.int64).reshape(-1, 4)
     if len(tt) == 0:
         raise WigglyInputError(

@@ -34,6 +34,7 @@ from wiggly.body import Body, Where
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread
+from wiggly.progress import iterations
 from wiggly.splines import WigglyBasis, energy_form, equilibrium, evaluate, wiggly_basis
 
 
@@ -318,18 +319,23 @@ class SpacetimeProblem:
         tolerance: float = 1e-8,
         max_iterations: int = 50,
         stall: bool = True,
+        progress: bool = False,
     ) -> Animation:
         """Minimise E + E_C (linear, Theorem 1) or E + E_WC (warped, Theorem 2).
 
         Both have the same unknowns, node values and velocities of every mode.  The warped
-        problem is solved by Gauss-Newton with Levenberg-Marquardt damping and a line search,
-        started from ``initial`` (a previous solution with the same nodes) or the linear
-        solution; see :func:`_gauss_newton`.
+        problem is solved by Levenberg-Marquardt (Gauss-Newton with damping), started from
+        ``initial`` (a previous solution with the same nodes) or from the linear solution with
+        unwarped targets; see :func:`_gauss_newton`.  ``progress`` shows a bar of iterations.
         """
         with blas_single_thread():
-            return self._solve(keyframes, warped, initial, tolerance, max_iterations, stall)
+            return self._solve(
+                keyframes, warped, initial, tolerance, max_iterations, stall, progress
+            )
 
-    def _solve(self, keyframes, warped, initial, tolerance, max_iterations, stall) -> Animation:
+    def _solve(
+        self, keyframes, warped, initial, tolerance, max_iterations, stall, progress=False
+    ) -> Animation:
         t_start = _time.perf_counter()
         body = self.body
         kfs = [
@@ -365,7 +371,8 @@ class SpacetimeProblem:
         info["linear_seconds"] = _time.perf_counter() - t_start
         if warped:
             obj = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E)
-            z = _gauss_newton(obj, z, tolerance, max_iterations, info, stall)
+            with iterations("warped solve (Gauss-Newton)", max_iterations, progress) as bar:
+                z = _gauss_newton(obj, z, tolerance, max_iterations, info, stall, bar)
         z = z.reshape(n_nodes, 2, r)
         anim = Animation(
             body, nodes, z[:, 0].copy(), z[:, 1].copy(), kfs, basis, warped=warped, info=info
@@ -590,6 +597,7 @@ def _gauss_newton(
     max_iterations: int,
     info: dict,
     stall: bool = True,
+    bar=None,
 ) -> np.ndarray:
     """Minimise E + E_WC (Theorem 2) by Levenberg-Marquardt from ``z``.
 
@@ -655,6 +663,9 @@ def _gauss_newton(
         z = z + dz
         F, g = obj.value_and_gradient(z)
         history.append(F)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix_str(f"objective {F:.6g}")
     info.update(
         iterations=it,
         converged=converged,
@@ -747,7 +758,7 @@ def solve(
             duration = max(float(last) - start, 1.0)
         end = start + float(duration)
     problem = SpacetimeProblem(body, start, end, preroll)
-    anim = problem.solve(keyframes, warped=warp)
+    anim = problem.solve(keyframes, warped=warp, progress=progress)
     if progress:
         extra = ""
         if warp:
