@@ -16,7 +16,12 @@ outside).
 
 from __future__ import annotations
 
+import os
+import tempfile
+import threading
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -814,6 +819,23 @@ def _per_vertex(corner_values: np.ndarray, F: np.ndarray, n: int) -> np.ndarray 
 # --------------------------------------------------------------------------- meshing
 
 
+_CWD_LOCK = threading.Lock()
+
+
+@contextmanager
+def _scratch_cwd() -> Iterator[None]:
+    """Run in a private temporary working directory: fTetWild writes a debug file
+    (``__tracked_surface.stl``) into the current directory, which must not litter the
+    user's folder.  The working directory is process-wide, hence the lock."""
+    with _CWD_LOCK, tempfile.TemporaryDirectory(prefix="wiggly-ftetwild-") as tmp:
+        old = os.getcwd()
+        os.chdir(tmp)
+        try:
+            yield
+        finally:
+            os.chdir(old)
+
+
 def tetrahedralize(
     surface: Surface,
     *,
@@ -901,7 +923,7 @@ def tetrahedralize(
     import pytetwild
 
     envelope = float(np.clip(ENVELOPE_PER_EDGE * edge_length / diag, 1e-3, 1e-2))
-    with activity(f"tetrahedralizing {source} (fTetWild)", progress):
+    with activity(f"tetrahedralizing {source} (fTetWild)", progress), _scratch_cwd():
         tv, tt = pytetwild.tetrahedralize(
             np.ascontiguousarray(V),
             np.ascontiguousarray(F, dtype=np.int32),
