@@ -51,19 +51,23 @@ def solve_framebased(
     blocks = [sp.csr_matrix((vals, (rows, cols)), shape=(len(j), N))]
     rhs = [-np.sqrt(dt) * g[i]]
 
+    J_E = sp.vstack(blocks).tocsr()
+    H = (J_E.T @ J_E).tolil()
+    b = J_E.T @ np.concatenate(rhs)
     T = end - start
-    for kf in keyframes:
+    for kf in keyframes:  # normal equations per keyframe, through the r x r Gram A^T A
         kf = kf.checked(body, start, end)
         k = round((kf.time - start) * fps)
         if abs(times[k] - kf.time) > 1e-9:
             raise WigglyInputError(f"keyframe time {kf.time} is not on the {fps} fps grid")
         c_A, c_B = kf.weights(body, T)
         A = body.basis_rows(kf.vertices, kf.on)
+        AtA = A.T @ A
         rest = body.rest_positions(kf.on)[kf.vertices].ravel()
         if kf.position is not None and c_A > 0:
-            S = sp.csr_matrix((np.ones(r), (np.arange(r), k * r + np.arange(r))), shape=(r, N))
-            blocks.append(np.sqrt(c_A) * sp.csr_matrix(A) @ S)
-            rhs.append(np.sqrt(c_A) * (kf.position.ravel() - rest))
+            sl = slice(k * r, (k + 1) * r)
+            H[sl, sl] = H[sl, sl] + c_A * AtA
+            b[sl] += c_A * (A.T @ (kf.position.ravel() - rest))
         if kf.velocity is not None and c_B > 0:
             if 0 < k < n:
                 stencil = {k - 1: -0.5 / dt, k + 1: 0.5 / dt}
@@ -71,14 +75,12 @@ def solve_framebased(
                 stencil = {0: -1.5 / dt, 1: 2.0 / dt, 2: -0.5 / dt}
             else:
                 stencil = {n: 1.5 / dt, n - 1: -2.0 / dt, n - 2: 0.5 / dt}
-            D = sum(
-                w * sp.csr_matrix((np.ones(r), (np.arange(r), f * r + np.arange(r))), shape=(r, N))
-                for f, w in stencil.items()
-            )
-            blocks.append(np.sqrt(c_B) * sp.csr_matrix(A) @ D)
-            rhs.append(np.sqrt(c_B) * kf.velocity.ravel())
-    J = sp.vstack(blocks).tocsc()
-    b = np.concatenate(rhs)
-    H = (J.T @ J).tocsc()
-    q = spla.spsolve(H, J.T @ b)
+            AtB = A.T @ kf.velocity.ravel()
+            for f1, w1 in stencil.items():
+                s1 = slice(f1 * r, (f1 + 1) * r)
+                b[s1] += c_B * w1 * AtB
+                for f2, w2 in stencil.items():
+                    s2 = slice(f2 * r, (f2 + 1) * r)
+                    H[s1, s2] = H[s1, s2] + c_B * w1 * w2 * AtA
+    q = spla.spsolve(H.tocsc(), b)
     return times, q.reshape(n + 1, r)
