@@ -557,13 +557,17 @@ class WarpedObjective:
         n, r, Phi = self.n, self.r, self.Phi
         ab = self.ab_E.copy()
         t0 = _time.perf_counter()
+        # a node's change is compared with the largest node state, so nodes near rest (u ~ 0,
+        # where DW ~ identity) do not count tiny absolute changes as large relative ones
+        floor = 0.05 * max((np.linalg.norm(np.r_[q[k], v[k]]) for k in self.active), default=0)
         for k in self.active:
             xk = np.r_[q[k], v[k]]
             cached = self._jac.get(self._node_time[k])
             limit = 1e-3 if k in self.has_vel else reuse  # q-v coupling: keep these fresh
+            scale = max(float(np.linalg.norm(xk)), floor)
             if (
                 cached is None
-                or np.linalg.norm(xk - cached[0]) > limit * np.linalg.norm(xk)
+                or np.linalg.norm(xk - cached[0]) > limit * scale
                 or (k in self.has_vel and cached[2] is None)
             ):
                 u = (Phi @ q[k]).reshape(n, 3)
