@@ -7,8 +7,8 @@ import sys
 
 sys.path.insert(0, os.path.dirname(__file__))
 
-import bench_core  # noqa: E402
-import bench_warped  # noqa: E402
+import bench_core
+import bench_warped
 
 if __name__ == "__main__":
     quick = "--quick" in sys.argv
@@ -16,6 +16,6 @@ if __name__ == "__main__":
     bench_core.main(args)
     bench_warped.main(args)
     if os.path.exists(os.path.join(os.path.dirname(__file__), "bench_editor.py")):
-        import bench_editor  # noqa: E402
+        import bench_editor
 
         bench_editor.main(args)

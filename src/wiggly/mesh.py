@@ -17,6 +17,7 @@ outside).
 from __future__ import annotations
 
 import os
+import signal
 import tempfile
 import threading
 import warnings
@@ -827,6 +828,8 @@ def _scratch_cwd() -> Iterator[None]:
     """Run in a private temporary working directory: fTetWild writes a debug file
     (``__tracked_surface.stl``) into the current directory, which must not litter the
     user's folder.  The working directory is process-wide, hence the lock."""
+    main = threading.current_thread() is threading.main_thread()
+    handler = signal.getsignal(signal.SIGINT) if main else None
     with _CWD_LOCK, tempfile.TemporaryDirectory(prefix="wiggly-ftetwild-") as tmp:
         old = os.getcwd()
         os.chdir(tmp)
@@ -834,6 +837,8 @@ def _scratch_cwd() -> Iterator[None]:
             yield
         finally:
             os.chdir(old)
+            if main and handler is not None:  # native code may replace Python's Ctrl+C handler
+                signal.signal(signal.SIGINT, handler)
 
 
 def tetrahedralize(

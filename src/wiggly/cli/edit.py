@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import argparse
 import ipaddress
+import signal
 import sys
-import time
+import threading
 from pathlib import Path
 
 HELP = "edit a scene in the browser (groups, keyframes, material; live solve)"
@@ -40,8 +41,8 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="another directory the editor may read and write (repeatable)")
     parser.add_argument("--no-browser", action="store_true", help="do not open a browser")
     parser.add_argument("--no-autosave", action="store_true", help="do not autosave edits")
-    parser.add_argument("--max-upload-mb", type=float, default=256.0, metavar="MB",
-                        help="largest mesh upload accepted (default 256 MB)")
+    parser.add_argument("--max-upload-mb", type=float, default=64.0, metavar="MB",
+                        help="largest mesh upload accepted (default 64 MB)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log every request")
 
 
@@ -52,46 +53,70 @@ def roots_for(path: str | None, extra: list[str]) -> list[Path]:
     return [first, *(Path(r).expanduser().resolve() for r in extra)]
 
 
-def run(args: argparse.Namespace) -> int:
+def exposure_warning(host: str) -> str | None:
+    """The warning printed when ``host`` is reachable from other machines (else None)."""
+    try:
+        exposed = not ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        exposed = host != "localhost"
+    if not exposed:
+        return None
+    return (f"listening on {host}: anyone who can reach this machine can read and write the "
+            "scene files in the editor's directories. Use only on a trusted network.")
+
+
+def start(args: argparse.Namespace):
+    """Open the file and start the server on a background thread (``run`` waits on it)."""
     from wiggly.editor import EditorServer, Sandbox, Session
     from wiggly.errors import WigglyInputError
 
-    try:
-        exposed = not ipaddress.ip_address(args.host).is_loopback
-    except ValueError:
-        exposed = args.host != "localhost"
-    if exposed:
-        print(f"wiggly: warning: listening on {args.host}: anyone who can reach this machine "
-              "can read and write the scene files in the editor's directories. Use only on a "
-              "trusted network.", file=sys.stderr)
+    warning = exposure_warning(args.host)
+    if warning:
+        print(f"wiggly: warning: {warning}", file=sys.stderr)
     if args.path is not None and not args.path.startswith("builtin:") and \
             not Path(args.path).expanduser().is_file():
         raise WigglyInputError(f"{args.path}: no such file")
     session = Session(Sandbox(roots_for(args.path, args.root)), autosave=not args.no_autosave)
-    if args.path is not None:
-        p = args.path if args.path.startswith("builtin:") else \
-            str(Path(args.path).expanduser().resolve())
-        opened = session.open(p)
-        for notice in opened["notices"]:
-            print(f"wiggly: {notice}", file=sys.stderr)
-    kw = dict(max_upload=int(args.max_upload_mb * 2**20), verbose=args.verbose)
     try:
-        server = EditorServer(session, args.host, args.port, **kw)
-    except OSError:
-        if args.port == 0:
-            raise
-        server = EditorServer(session, args.host, 0, **kw)
-    server.start()
+        if args.path is not None:
+            p = args.path if args.path.startswith("builtin:") else \
+                str(Path(args.path).expanduser().resolve())
+            for notice in session.open(p)["notices"]:
+                print(f"wiggly: {notice}", file=sys.stderr)
+        kw = dict(max_upload=int(args.max_upload_mb * 2**20), verbose=args.verbose)
+        try:
+            server = EditorServer(session, args.host, args.port, **kw)
+        except OSError:
+            if args.port == 0:
+                raise
+            server = EditorServer(session, args.host, 0, **kw)  # the port is busy
+    except BaseException:
+        session.close()
+        raise
+    return server.start()
+
+
+def run(args: argparse.Namespace) -> int:
+    server = start(args)
     print(f"wiggly edit: {server.url}  (Ctrl+C to stop)", flush=True)
     if not args.no_browser:
         import webbrowser
 
         webbrowser.open(server.url)
+    stop = threading.Event()
+
+    def on_signal(*_) -> None:
+        stop.set()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
-        while True:
-            time.sleep(3600)
-    except KeyboardInterrupt:
+        while not stop.wait(0.5):
+            # native code run by the background threads (the tetrahedralizer) may install its
+            # own SIGINT handler: take Ctrl+C back so that it stops the editor cleanly
+            signal.signal(signal.SIGINT, on_signal)
         print("wiggly edit: stopped", file=sys.stderr)
     finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
         server.stop()
     return 0

@@ -52,7 +52,8 @@ from wiggly.errors import WigglyInputError
 __all__ = ["MAX_JSON_BYTES", "MAX_UPLOAD_BYTES", "EditorServer"]
 
 MAX_JSON_BYTES = 8 * 2**20
-MAX_UPLOAD_BYTES = 256 * 2**20
+MAX_UPLOAD_BYTES = 64 * 2**20
+MAX_CONNECTIONS = 128
 HEARTBEAT_SECONDS = 10.0
 STATIC = Path(str(resources.files("wiggly.editor") / "static"))
 _TYPES = {".js": "text/javascript", ".html": "text/html", ".css": "text/css",
@@ -62,7 +63,7 @@ _TYPES = {".js": "text/javascript", ".html": "text/html", ".css": "text/css",
 class _Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
     server_version = "wiggly-editor"
-    timeout = 120  # seconds of socket inactivity before a connection is dropped
+    timeout = 30  # seconds of socket inactivity before a connection is dropped
     server: EditorServer
 
     # --- plumbing -------------------------------------------------------------------------
@@ -223,6 +224,7 @@ class _Handler(BaseHTTPRequestHandler):
     def get_files(self) -> None:
         sb = self.server.session.sandbox
         self._json({"scenes": sb.listing((SCENE_SUFFIX,)), "meshes": sb.listing(MESH_SUFFIXES),
+                    "unsaved": self.server.session.recoverable(),
                     "builtin": ["builtin:critter", "builtin:plant", "builtin:bar"]})
 
     def get_events(self) -> None:
@@ -328,7 +330,8 @@ def _field(body: Any, key: str, kind: type, default: Any = None, required: bool 
     return v
 
 
-_GET = {r"/favicon.ico": _Handler.get_favicon, r"/api/state": _Handler.get_state, r"/api/mesh": _Handler.get_mesh,
+_GET = {r"/favicon.ico": _Handler.get_favicon, r"/api/state": _Handler.get_state,
+        r"/api/mesh": _Handler.get_mesh,
         r"/api/frames/latest": _Handler.get_latest_frames,
         r"/api/frames/(\d{1,12})": _Handler.get_frames, r"/api/files": _Handler.get_files,
         r"/api/events": _Handler.get_events}
@@ -352,8 +355,10 @@ class EditorServer(ThreadingHTTPServer):
 
     def __init__(self, session: Session, host: str = "127.0.0.1", port: int = 0, *,
                  max_json: int = MAX_JSON_BYTES, max_upload: int = MAX_UPLOAD_BYTES,
-                 max_streams: int = 16, verbose: bool = False):
+                 max_streams: int = 16, max_connections: int = MAX_CONNECTIONS,
+                 verbose: bool = False):
         self.session = session
+        self._slots = threading.BoundedSemaphore(max_connections)
         self.max_json, self.max_upload, self.max_streams = max_json, max_upload, max_streams
         self.verbose = verbose
         self.stopping = threading.Event()
@@ -391,6 +396,20 @@ class EditorServer(ThreadingHTTPServer):
         self.session.close()
         if self._thread is not None:
             self._thread.join(timeout=5)
+
+    def process_request(self, request, client_address) -> None:
+        """One thread per connection, at most ``max_connections`` at once (others are closed
+        right away)."""
+        if not self._slots.acquire(blocking=False):
+            self.shutdown_request(request)
+            return
+        super().process_request(request, client_address)
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
 
     def handle_error(self, request, client_address) -> None:  # never let a request kill us
         if self.verbose:

@@ -8,18 +8,19 @@ Threads
   wait for a solve;
 * the *physics* thread (one) reads and tetrahedralizes the mesh, assembles the FEM and
   computes the modes (cached on disk by :func:`wiggly.prepare`), publishing its stage;
-* the *fast* worker answers every request with a linear solve (Theorem 1) and linear playback
-  (milliseconds: this is what the browser shows while a gizmo is dragged and right after it
-  is released);
-* the *warped* worker then refines committed states with the warped solve (Theorem 2), a few
-  Gauss-Newton iterations at a time, warm-started from the previous result, publishing frames
-  as it goes.
+* the *fast* worker thread answers every request with a linear solve (Theorem 1) and linear
+  playback (milliseconds: this is what the browser shows while a gizmo is dragged and right
+  after it is released);
+* the *warped* refinement then solves committed states with the warped solve (Theorem 2), a
+  few Gauss-Newton iterations at a time, warm-started from its previous result, publishing
+  frames as it goes.  It runs in a child process (:mod:`wiggly.editor.refine`) so that its
+  long calls holding the GIL never delay the server or the fast worker.
 
-Newest request wins: each worker has a one-slot :class:`Mailbox`; a request not yet taken is
-replaced by a newer one, and the warped worker abandons its solve between chunks of
-iterations as soon as a newer request is waiting.  Every request has a sequence number
-``seq``; the browser shows frames of the highest ``seq`` it has seen (and, within one ``seq``,
-warped frames over linear ones).
+Newest request wins: the fast worker has a one-slot :class:`Mailbox` (a request not yet taken
+is replaced by a newer one), and the refinement abandons its solve between chunks of
+iterations as soon as a newer request exists.  Every request has a sequence number ``seq``;
+the browser shows frames of the highest ``seq`` it has seen (and, within one ``seq``, warped
+frames over linear ones).  Exports solve the scene exactly as ``wiggly animate`` does.
 """
 
 from __future__ import annotations
@@ -33,13 +34,14 @@ import traceback
 import warnings
 from collections import OrderedDict
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import CancelledError, Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from wiggly.editor.refine import Refiner, residual_max
 from wiggly.editor.sandbox import Sandbox
 from wiggly.editor.state import (
     EditError,
@@ -68,9 +70,6 @@ __all__ = ["EventBus", "Mailbox", "Session", "autosave_path"]
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".msh", ".vtu", ".vtk",
                  ".mesh")
 SCENE_SUFFIX = ".toml"
-#: Target wall time of one chunk of warped Gauss-Newton iterations (abandon granularity).
-CHUNK_SECONDS = 0.6
-MAX_ITERATIONS = 50
 FRAME_SETS_KEPT = 6
 
 
@@ -340,10 +339,10 @@ def new_scene(mesh_file: Path, builtin: str | None = None) -> Scene:
     (or in the current directory for a bundled model)."""
     if builtin is not None:
         scene = Scene(MeshSpec(f"builtin:{builtin}"), time=TimeSpec(end=2.0))
-        scene.source = (Path.cwd() / f"{builtin}.toml").resolve()
+        scene.source = _free_name(Path.cwd(), builtin)
         return scene
     scene = Scene(MeshSpec(mesh_file.name), time=TimeSpec(end=2.0))
-    scene.source = mesh_file.with_suffix(SCENE_SUFFIX)
+    scene.source = _free_name(mesh_file.parent, mesh_file.stem)
     return scene
 
 
@@ -364,24 +363,20 @@ class Session:
         self.notices: list[str] = []
         self._frames: OrderedDict[int, FrameSet] = OrderedDict()
         self._frame_id = 0
-        self._latest: dict[int, Any] = {}  # version -> newest animation of that state
-        self._latest_anim = None
         self._groups_cache: tuple[Any, dict] | None = None
-        self.fast_box, self.warped_box = Mailbox(), Mailbox()
+        self.fast_box = Mailbox()
         self._export_pool = ThreadPoolExecutor(1, thread_name_prefix="wiggly-export")
         self._stop = threading.Event()
-        self._threads = [threading.Thread(target=self._worker, args=(self.fast_box, False),
-                                          name="wiggly-fast", daemon=True),
-                         threading.Thread(target=self._worker, args=(self.warped_box, True),
-                                          name="wiggly-warped", daemon=True)]
-        for t in self._threads:
-            t.start()
+        self.refiner = Refiner(self._on_refined)
+        self._thread = threading.Thread(target=self._worker, args=(self.fast_box,),
+                                        name="wiggly-fast", daemon=True)
+        self._thread.start()
 
     # --- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
         self._stop.set()
         self.fast_box.close()
-        self.warped_box.close()
+        self.refiner.close()
         self.physics.close()
         self._export_pool.shutdown(wait=False, cancel_futures=True)
 
@@ -406,11 +401,18 @@ class Session:
                 raise EditError(f"{path}: not a bundled model; use one of "
                                 + ", ".join(f"builtin:{m}" for m in BUILTIN_MODELS))
             scene = new_scene(builtin_model(name), builtin=name)
-            scene.source = self.sandbox.home / f"{name}.toml"
+            scene.source = _free_name(self.sandbox.home, name)
         else:
-            real = self.sandbox.resolve(path, must_exist=True,
-                                        suffixes=(SCENE_SUFFIX, *MESH_SUFFIXES))
-            if real.suffix.lower() == SCENE_SUFFIX:
+            real = self.sandbox.resolve(path, suffixes=(SCENE_SUFFIX, *MESH_SUFFIXES))
+            unsaved = real.suffix.lower() == SCENE_SUFFIX and not real.exists() and \
+                autosave_path(real).is_file()
+            if unsaved:  # a scene that was never saved, edited before a crash
+                scene = _load(autosave_path(real))
+                scene.source = real
+                notices.append(f"recovered the unsaved scene from {autosave_path(real).name}")
+            elif not real.is_file():
+                raise EditError(f"{path}: no such file", 404)
+            elif real.suffix.lower() == SCENE_SUFFIX:
                 scene = _load(real)
                 auto = autosave_path(real)
                 if auto.is_file():
@@ -517,21 +519,22 @@ class Session:
             return {"version": self.version, "changed": moved}
 
     def _expand(self, op: Any) -> Any:
-        """``position: "current"`` becomes the rigid pose nearest to the group's current
-        position in the playback (so adding a keyframe does not jump)."""
+        """``position: "current"`` becomes the rigid pose nearest to the group's position in
+        the newest playback frames at that time (so adding a keyframe does not jump)."""
         if not (isinstance(op, dict) and op.get("position") == "current"):
             return op
         op = dict(op)
-        anim, name, t = self._latest_anim, op.get("group"), op.get("time")
+        op["position"] = "rest"
+        name, t = op.get("group"), op.get("time")
+        fs = self.latest_frames()
         groups = self.groups()
-        if anim is None or name not in groups or not isinstance(t, int | float) or \
-                self.scene.groups[name].on != "surface":
-            op["position"] = "rest"
+        if fs is None or name not in groups or isinstance(t, bool) or \
+                not isinstance(t, int | float) or self.scene.groups[name].on != "surface" or \
+                fs.positions.shape[1] != self.surface.n_vertices:
             return op
+        k = int(np.clip(round((float(t) - fs.start) * fs.fps), 0, len(fs.positions) - 1))
         idx = groups[name]
-        t = float(np.clip(t, anim.start, anim.end))
-        x = anim.positions([t])[0][idx]
-        op["position"] = rigid_fit(anim.body.surface.vertices[idx], x)
+        op["position"] = rigid_fit(self.surface.vertices[idx], fs.positions[k][idx])
         return op
 
     def _changed(self, autosave: bool = True) -> None:
@@ -550,7 +553,8 @@ class Session:
     def _request(self, state: EditorState, kind: str) -> int:
         self._seq += 1
         req = Request(self._seq, self.version, state, kind)
-        self.fast_box.put(req)  # a running warped refinement sees the newer seq and stops
+        self.refiner.supersede(req.seq)  # a running warped refinement stops
+        self.fast_box.put(req)
         return self._seq
 
     # --- queries --------------------------------------------------------------------------
@@ -599,6 +603,16 @@ class Session:
                 "mesh_key": f"{self._opened}:{state.scene.mesh.path}",
             }
 
+    def recoverable(self) -> list[str]:
+        """Scenes never saved whose autosave exists (edited before a crash)."""
+        out = []
+        for root in self.sandbox.roots:
+            for auto in sorted(root.glob(".*.autosave.toml")):
+                scene = auto.with_name(auto.name[1:].removesuffix(".autosave.toml") + ".toml")
+                if not scene.exists() and self.sandbox.contains(auto):
+                    out.append(self.sandbox.relative(scene))
+        return out
+
     def mesh_bytes(self) -> bytes:
         """The rest surface: uint32 n, uint32 m, float32 vertices (n, 3), uint32 faces (m, 3)."""
         s = self.surface
@@ -615,45 +629,66 @@ class Session:
         return fs
 
     def latest_frames(self, final: bool = False) -> FrameSet | None:
+        """The frames of the newest request (``final``: the newest final ones)."""
         with self._lock:
-            for fs in reversed(self._frames.values()):
-                if not final or fs.final:
-                    return fs
-        return None
+            best = None
+            for fs in self._frames.values():
+                if final and not fs.final:
+                    continue
+                if best is None or (fs.seq, fs.stage == "warped", fs.final) >= \
+                        (best.seq, best.stage == "warped", best.final):
+                    best = fs
+            return best
 
     # --- workers --------------------------------------------------------------------------
-    def _publish_frames(self, req: Request, anim, stage: str, final: bool, info: dict) -> None:
-        scene = req.state.scene
-        times = anim.frame_times(scene.time.fps)
-        positions = anim.positions(times, dtype=np.float32)
+    def _publish_frames(self, seq: int, version: int, stage: str, final: bool, start: float,
+                        fps: float, positions: np.ndarray, info: dict) -> None:
         with self._lock:
             self._frame_id += 1
-            fs = FrameSet(self._frame_id, req.seq, req.version, stage, final, float(times[0]),
-                          float(scene.time.fps), positions, info)
+            fs = FrameSet(self._frame_id, seq, version, stage, final, start, fps, positions, info)
             self._frames[fs.id] = fs
             while len(self._frames) > FRAME_SETS_KEPT:
                 self._frames.popitem(last=False)
-            if req.seq >= max((f.seq for f in self._frames.values()), default=0):
-                self._latest_anim = anim
-            if final and req.kind == "final":
-                self._latest[req.version] = anim
-                while len(self._latest) > 4:
-                    self._latest.pop(next(iter(self._latest)))
         self.bus.publish("frames", **fs.meta())
 
-    def final_animation(self, version: int):
-        with self._lock:
-            return self._latest.get(version)
+    def _on_refined(self, kind: str, seq: int, version: int, payload: list) -> None:
+        """Answers of the warped refinement process (on its relay thread)."""
+        if kind == "frames":
+            final, start, fps, positions, info = payload
+            self._publish_frames(seq, version, "warped", final, start, fps, positions, info)
+            if final:
+                msg = (f"converged in {info['iterations']} iterations" if info["converged"]
+                       else f"stopped after {info['iterations']} iterations (not converged)")
+                self.bus.publish("solve", seq=seq, version=version, stage="done", message=msg,
+                                 **info)
+            else:
+                self.bus.publish("solve", seq=seq, version=version, stage="warped",
+                                 message=f"warped solve: {info['iterations']} iterations", **info)
+        elif kind == "progress":
+            info = payload[0]
+            self.bus.publish("solve", seq=seq, version=version, stage="warped",
+                             message=f"warped solve: {info['iterations']} iterations", **info)
+        elif kind == "abandoned":
+            self.bus.publish("solve", seq=seq, version=version, stage="abandoned",
+                             message="superseded by a newer edit", **payload[0])
+        elif kind == "error":
+            self.bus.publish("solve", seq=seq, version=version, stage="error",
+                             message=payload[0])
+        elif kind == "died" and not self._stop.is_set():
+            self.bus.publish("notice", level="error", message=payload[0]["message"] +
+                             "; restarting it")
+            self.refiner = Refiner(self._on_refined)
 
-    def _worker(self, box: Mailbox, warped: bool) -> None:
+    def _worker(self, box: Mailbox) -> None:
         problems: OrderedDict[tuple, Any] = OrderedDict()
-        previous: dict[int, Any] = {}  # id(problem) -> last warped animation (warm start)
         while not self._stop.is_set():
             req = box.take(timeout=0.5)
             if req is None:
                 continue
             try:
-                self._solve(req, box, warped, problems, previous)
+                self._solve(req, box, problems)
+            except CancelledError:  # the session is closing
+                return
             except WigglyInputError as err:
                 self.bus.publish("solve", seq=req.seq, version=req.version, stage="error",
                                  message=str(err))
@@ -662,15 +697,14 @@ class Session:
                 self.bus.publish("solve", seq=req.seq, version=req.version, stage="error",
                                  message=f"internal error: {type(err).__name__}: {err}")
 
-    def _solve(self, req: Request, box: Mailbox, warped: bool, problems, previous) -> None:
-        from wiggly.scene import keyframes_of
+    def _solve(self, req: Request, box: Mailbox, problems) -> None:
+        """Linear solve and linear playback (fast); then hand final requests of warped scenes
+        to the refinement process."""
+        from wiggly.scene import keyframes_of, scene_to_dict
         from wiggly.solve import SpacetimeProblem
 
         scene = req.state.scene
-        def abandon() -> bool:
-            return box.pending() or self._stop.is_set() or (warped and self._seq > req.seq)
-
-        body = self.physics.body(scene, abandon=abandon)
+        body = self.physics.body(scene, abandon=lambda: box.pending() or self._stop.is_set())
         if body is None:
             return
         groups = resolve_groups(scene, body.model)
@@ -679,65 +713,30 @@ class Session:
         pkey = (id(body), start, end, scene.simulation.preroll)
         problem = problems.get(pkey)
         if problem is None:
-            problem = SpacetimeProblem(body, start, end, scene.simulation.preroll)
-            problems[pkey] = problem
+            problem = problems[pkey] = SpacetimeProblem(body, start, end, scene.simulation.preroll)
             while len(problems) > 3:
                 problems.popitem(last=False)
         t0 = time.perf_counter()
-        want_warp = scene.simulation.warp
-        if not warped:
-            self.bus.publish("solve", seq=req.seq, version=req.version, stage="linear",
-                             message="linear solve")
-            anim = problem.solve(keys, warped=False)
-            final = not want_warp and req.kind == "final"
-            info = {"seconds": time.perf_counter() - t0, "request": req.kind,
-                    "residual_max": _residual_max(anim) if final else None}
-            self._publish_frames(req, anim, "linear", final, info)
-            if want_warp and req.kind == "final":
-                self.warped_box.put(req)
-            elif final:
-                self.bus.publish("solve", seq=req.seq, version=req.version, stage="done",
-                                 message="linear solve", **info)
-            return
-        # warped refinement, a chunk of Gauss-Newton iterations at a time
-        init = previous.get(id(problem))
-        total, per_iter, last_push = 0, None, time.perf_counter()
-        anim = None
-        while True:
-            if abandon():
-                self.bus.publish("solve", seq=req.seq, version=req.version, stage="abandoned",
-                                 message="superseded by a newer edit", iterations=total)
-                return
-            n_it = 2 if per_iter is None else int(np.clip(CHUNK_SECONDS / per_iter, 1, 10))
-            n_it = min(n_it, MAX_ITERATIONS - total)
-            tc = time.perf_counter()
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                anim = problem.solve(keys, warped=True, initial=init if total or init is not None
-                                     else None, max_iterations=n_it)
-            done_it = max(int(anim.info.get("iterations", n_it)), 1)
-            per_iter = (time.perf_counter() - tc) / done_it
-            total += done_it
-            init = anim
-            previous[id(problem)] = anim
-            converged = bool(anim.info.get("converged"))
-            finished = converged or total >= MAX_ITERATIONS
-            info = {"iterations": total, "converged": converged,
-                    "objective": float(anim.info.get("objective", np.nan)),
-                    "seconds": time.perf_counter() - t0}
-            if finished:
-                info["residual_max"] = _residual_max(anim)
-                self._publish_frames(req, anim, "warped", True, info)
-                msg = (f"converged in {total} iterations" if converged else
-                       f"stopped after {total} iterations (not converged)")
-                self.bus.publish("solve", seq=req.seq, version=req.version, stage="done",
-                                 message=msg, **info)
-                return
-            self.bus.publish("solve", seq=req.seq, version=req.version, stage="warped",
-                             message=f"warped solve: {total} iterations", **info)
-            if time.perf_counter() - last_push > 1.5:
-                self._publish_frames(req, anim, "warped", False, info)
-                last_push = time.perf_counter()
+        self.bus.publish("solve", seq=req.seq, version=req.version, stage="linear",
+                         message="linear solve")
+        anim = problem.solve(keys, warped=False)
+        if req.kind == "drag" and box.pending():
+            return  # a newer request waits: skip this stale preview's playback frames
+        times = anim.frame_times(scene.time.fps)
+        positions = anim.positions(times, dtype=np.float32)
+        warp = scene.simulation.warp
+        final = not warp and req.kind == "final"
+        info = {"seconds": time.perf_counter() - t0, "request": req.kind,
+                "residual_max": residual_max(anim) if final else None}
+        self._publish_frames(req.seq, req.version, "linear", final, float(times[0]),
+                             float(scene.time.fps), positions, info)
+        if final:
+            self.bus.publish("solve", seq=req.seq, version=req.version, stage="done",
+                             message="linear solve", **info)
+        elif warp and req.kind == "final":
+            model = self.physics.model_future(scene).result()
+            self.refiner.solve(req.seq, req.version, scene_to_dict(scene), scene.source,
+                               _model_key(scene), model)
 
     # --- export ---------------------------------------------------------------------------
     def export(self, paths: Any, overwrite: Any = False) -> dict:
@@ -758,40 +757,40 @@ class Session:
         return {"paths": [self.sandbox.relative(p) for p in real]}
 
     def _export(self, state: EditorState, version: int, paths: list[Path], overwrite: bool):
-        from wiggly.scene import highlights, keyframes_of, write_outputs
-        from wiggly.solve import solve
-
+        """Solve the scene as ``wiggly animate`` does (same body) and write ``paths``."""
         scene = state.scene
         names = [p.name for p in paths]
         self.bus.publish("export", stage="running", message=f"exporting {', '.join(names)}")
         try:
-            anim = self.final_animation(version)
+            from wiggly.scene import keyframe_highlights, keyframes_of, write_outputs
+            from wiggly.solve import solve
+
             body = self.physics.body(scene, abandon=self._stop.is_set)
             if body is None:
                 return
             groups = resolve_groups(scene, body.model)
-            if anim is None:
-                keys = keyframes_of(scene, body, groups)
-                start, end = scene.time_range()
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")
-                    anim = solve(body, keys, start=start, end=end, warp=scene.simulation.warp,
-                                 preroll=scene.simulation.preroll)
+            keys = keyframes_of(scene, body, groups)
+            start, end = scene.time_range()
+            with warnings.catch_warnings():  # the library's solve, as `wiggly animate` runs it
+                warnings.simplefilter("ignore")
+                anim = solve(body, keys, start=start, end=end, warp=scene.simulation.warp,
+                             preroll=scene.simulation.preroll)
             write_outputs(scene, anim, paths, overwrite=overwrite,
-                          highlights_=highlights(scene, body, anim.keyframes, groups))
+                          highlights=keyframe_highlights(scene, body, anim.keyframes, groups))
             self.bus.publish("export", stage="done", message=f"exported {', '.join(names)}",
                              paths=[self.sandbox.relative(p) for p in paths])
         except Exception as err:
+            if not isinstance(err, WigglyInputError):
+                traceback.print_exc()
             self.bus.publish("export", stage="error", message=f"export failed: {err}")
 
 
-def _residual_max(anim) -> float | None:
-    try:
-        rows = anim.constraint_residuals()
-    except Exception:
-        return None
-    vals = [r["position_max"] for r in rows if "position_max" in r]
-    return float(max(vals)) if vals else None
+def _free_name(folder: Path, stem: str) -> Path:
+    """``folder/stem.toml``, or ``stem-2.toml``, ... if taken (never overwrite a scene)."""
+    path, k = folder / f"{stem}{SCENE_SUFFIX}", 2
+    while path.exists() or autosave_path(path).exists():
+        path, k = folder / f"{stem}-{k}{SCENE_SUFFIX}", k + 1
+    return path
 
 
 def _load(path: Path) -> Scene:

@@ -30,8 +30,10 @@ Positions are those of the scene format: ``"rest"``, ``{"offset": [...]}``,
 from __future__ import annotations
 
 import math
+import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -406,10 +408,6 @@ def state_to_json(state: EditorState) -> dict:
 def rebased(scene: Scene, new_source) -> Scene:
     """``scene`` to be saved as ``new_source``: relative mesh and output paths rewritten so
     that they still name the same files from the new file's directory."""
-    import os
-    from dataclasses import replace
-    from pathlib import Path
-
     new_dir = Path(new_source).parent
     old_dir = scene.base_dir
 

@@ -10,6 +10,7 @@ const BASE = new THREE.Color(0.70, 0.74, 0.80);
 const SELECTED = new THREE.Color(1.0, 0.86, 0.25);
 const KEY_WINDOW = 0.25;       // s: a keyframed group is highlighted this close to its key time
 const STAGE_RANK = { linear: 0, warped: 1 };
+const VEL_SCALE = 0.25;        // s: the velocity arrow is v * VEL_SCALE long (metres)
 
 // ------------------------------------------------------------------------------------------
 // server access
@@ -58,6 +59,7 @@ const S = {
   dragging: false,
   previewInFlight: false, previewPending: null,
   release: null,         // {t, version}: latency measurement of a gizmo release
+  velBase: new THREE.Vector3(),  // where the selected keyframe's velocity arrow starts
 };
 window.wiggly = {                 // test and benchmark hooks (read-only use)
   S, latencies: [], framesApplied: 0,
@@ -66,14 +68,26 @@ window.wiggly = {                 // test and benchmark hooks (read-only use)
   screenBox: (indices) => screenBox(indices),
   rigidOfPose: () => poseTarget(),
   ready: false,
+  softwareGL: false,
 };
 
 // ------------------------------------------------------------------------------------------
 // three.js scene
 
 const canvas = $('canvas');
-const renderer = new THREE.WebGLRenderer({ canvas, antialias: true, preserveDrawingBuffer: true });
-renderer.setPixelRatio(Math.min(window.devicePixelRatio, 2));
+// Software GL (SwiftShader, llvmpipe: headless browsers, machines without a GPU) draws a frame
+// in ~0.1 s at full quality; there, skip MSAA and draw at one pixel per CSS pixel.
+const SOFTWARE_GL = (() => {
+  try {
+    const gl = document.createElement('canvas').getContext('webgl2');
+    const info = gl && gl.getExtension('WEBGL_debug_renderer_info');
+    const name = info ? gl.getParameter(info.UNMASKED_RENDERER_WEBGL) : '';
+    gl && gl.getExtension('WEBGL_lose_context') && gl.getExtension('WEBGL_lose_context').loseContext();
+    return /swiftshader|llvmpipe|software/i.test(name);
+  } catch { return false; }
+})();
+const renderer = new THREE.WebGLRenderer({ canvas, antialias: !SOFTWARE_GL, preserveDrawingBuffer: true });
+renderer.setPixelRatio(SOFTWARE_GL ? 1 : Math.min(window.devicePixelRatio, 2));
 const scene3 = new THREE.Scene();
 scene3.background = new THREE.Color(0x2a2f37);
 const camera = new THREE.PerspectiveCamera(40, 1, 0.01, 100);
@@ -115,6 +129,7 @@ scene3.add(gizmoHelper);
 gizmo.addEventListener('dragging-changed', (e) => {
   controls.enabled = !e.value && S.tool === 'orbit';
   S.dragging = e.value;
+  if (e.value) S.release = null;  // a new drag: stop measuring the previous release
   if (!e.value) commitPose();
 });
 gizmo.addEventListener('objectChange', () => { if (S.dragging) dragPose(); });
@@ -124,6 +139,7 @@ function resize() {
   renderer.setSize(Math.max(1, r.width), Math.max(1, r.height), false);
   camera.aspect = r.width / Math.max(1, r.height);
   camera.updateProjectionMatrix();
+  S.needsRender = true;
 }
 window.addEventListener('resize', () => { resize(); drawTimeline(); });
 
@@ -179,6 +195,7 @@ function makeGround() {
   ground.add(plane, grid);
   ground.name = 'ground';
   scene3.add(ground);
+  S.needsRender = true;
 }
 
 let stateBusy = false, stateAgain = false;
@@ -212,6 +229,9 @@ async function refreshState() {
 
 let framesWanted = null, framesBusy = false;
 function offerFrames(meta) {
+  // right after a gizmo release, frames of the drag previews are stale: skip them
+  if (S.committing && meta.version <= S.committing.base) return;
+  if (S.committing && meta.version > S.committing.base && !S.committing.event) S.committing.event = performance.now();
   const rank = STAGE_RANK[meta.stage] * 2 + (meta.final ? 1 : 0);
   const best = framesWanted || S.shown;
   if (meta.seq < best.seq || (meta.seq === best.seq && rank <= best.rank)) return;
@@ -226,21 +246,31 @@ async function fetchFrames() {
       const meta = framesWanted;
       framesWanted = null;
       if (meta.seq < S.shown.seq || (meta.seq === S.shown.seq && meta.rank <= S.shown.rank)) continue;
+      if (S.committing && meta.version <= S.committing.base) continue;
       let buf;
+      const requested = performance.now();
       try { ({ buf } = await api.bin(`/api/frames/${meta.id}`)); } catch { continue; }
+      const fetched = performance.now();
+      if (S.committing && meta.version <= S.committing.base) continue;
       if (meta.n_vertices !== S.n) { S.lateFrames = meta; continue; }  // mesh not loaded yet
       S.frames = { meta, data: new Float32Array(buf) };
       S.shown = { seq: meta.seq, rank: meta.rank, id: meta.id };
       window.wiggly.framesApplied += 1;
       showFrame();
+      if (S.committing) flushState();  // the committed edit's frames: panels may update now
       if (S.release && meta.version >= S.release.version) {
         const rel = S.release;
         const stage = meta.stage + (meta.final ? ' (final)' : '');
-        requestAnimationFrame(() => requestAnimationFrame(() => {
+        const applied = performance.now();
+        requestAnimationFrame(() => {   // the frame is drawn in this callback (tick renders)
           const ms = performance.now() - rel.t;
-          window.wiggly.latencies.push({ ms, stage, version: meta.version, first: !rel.done });
+          window.wiggly.latencies.push({ ms, stage, version: meta.version, first: !rel.done,
+            posted: rel.posted, requested: requested - rel.t,
+            event: S.lastCommit && S.lastCommit.t === rel.t && S.lastCommit.event ? S.lastCommit.event - rel.t : null,
+            fetched: fetched - rel.t, applied: applied - rel.t,
+            server_seconds: meta.seconds });
           rel.done = true;
-        }));
+        });
         if (meta.final) S.release = null;
       }
     }
@@ -254,7 +284,10 @@ function connect() {
   const es = new EventSource('/api/events');
   es.onmessage = (m) => {
     const e = JSON.parse(m.data);
-    if (e.type === 'state') refreshState();
+    if (e.type === 'state') {
+      if (S.committing) { S.stateDeferred = true; setTimeout(flushState, 1000); }  // frames first
+      else refreshState();
+    }
     else if (e.type === 'frames') offerFrames(e);
     else if (e.type === 'solve') onSolve(e);
     else if (e.type === 'physics') onPhysics(e);
@@ -324,10 +357,27 @@ async function openDialog() {
   const wrap = document.createElement('div');
   const input = document.createElement('input');
   input.type = 'text'; input.placeholder = 'scene.toml, mesh.obj or builtin:critter';
-  wrap.append(input);
-  for (const f of [...files.scenes, ...files.meshes, ...files.builtin]) {
+  const upload = document.createElement('input');
+  upload.type = 'file'; upload.accept = '.obj,.ply,.stl,.off,.glb,.gltf,.msh,.vtu,.vtk,.mesh';
+  upload.title = 'upload a mesh into the editor folder (uploads/)';
+  upload.onchange = async () => {
+    const f = upload.files[0];
+    if (!f) return;
+    const name = f.name.replace(/[^A-Za-z0-9_.-]/g, '_');
+    const r = await act(async () => {
+      const res = await fetch(`/api/upload?name=${encodeURIComponent(name)}`, {
+        method: 'PUT', body: f, headers: { 'X-Wiggly-Upload': '1', 'Content-Type': 'application/octet-stream' } });
+      const d = await res.json();
+      if (!res.ok) throw new Error(d.error || res.statusText);
+      return d;
+    });
+    if (r) { input.value = r.path; toast(`uploaded ${r.path}`); }
+  };
+  wrap.append(input, upload);
+  const label = (f) => (files.unsaved.includes(f) ? `${f}  (unsaved: recover from autosave)` : f);
+  for (const f of [...files.unsaved, ...files.scenes, ...files.meshes, ...files.builtin]) {
     const d = document.createElement('div');
-    d.className = 'file'; d.textContent = f;
+    d.className = 'file'; d.textContent = label(f);
     d.onclick = () => { input.value = f; };
     d.ondblclick = () => $('modal-ok').click();
     wrap.append(d);
@@ -350,7 +400,7 @@ function promptDialog(title, value, onOk) {
 // ------------------------------------------------------------------------------------------
 // panels
 
-function scene() { return S.desc && S.desc.scene; }
+function scene() { return S.desc && S.desc.open ? S.desc.scene : null; }
 function groupColor(name) {
   const g = scene().groups[name];
   return (g && g.color) || '#ff7f0e';
@@ -365,6 +415,7 @@ function keyKind(k) {
 }
 
 function renderPanels() {
+  if (!S.desc || !S.desc.open) return;
   const d = S.desc, sc = d.scene;
   $('file-name').textContent = d.path || sc.name;
   $('dirty').textContent = d.dirty ? '●' : '';
@@ -423,7 +474,7 @@ function renderPanels() {
     if (el.type === 'checkbox') el.checked = !!v;
     else el.value = v === undefined || v === null ? '' : v;
   }
-  if (sc.time.end === undefined) $('physics').querySelector('[data-set="time.end"]').value = sc.time_range[1];
+  if (sc.time.end === undefined) document.querySelector('[data-set="time.end"]').value = sc.time_range[1];
   renderKeyPanel();
   updatePoseHelpers();
   drawTimeline();
@@ -453,6 +504,7 @@ function renderKeyPanel() {
   ['key-vx', 'key-vy', 'key-vz'].forEach((id, i) => { if (document.activeElement !== $(id)) $(id).value = v[i]; });
   $('btn-pose-t').classList.toggle('active', !!S.posing && S.posing.mode === 'translate');
   $('btn-pose-r').classList.toggle('active', !!S.posing && S.posing.mode === 'rotate');
+  $('btn-pose-v').classList.toggle('active', !!S.posing && S.posing.mode === 'velocity');
 }
 
 function selectGroup(name, alsoSelection) {
@@ -506,6 +558,7 @@ function showFrame() {
   pos.needsUpdate = true;
   geometry.computeVertexNormals();
   updateColors();
+  S.needsRender = true;
   $('time-readout').textContent = `${S.t.toFixed(3)} s  ·  frame ${Math.max(i, 0)}${S.frames ? ' / ' + (S.frames.meta.n_frames - 1) : ''}  ·  ${S.frames ? S.frames.meta.stage : 'rest'}`;
   drawTimeline();
 }
@@ -535,6 +588,7 @@ function updateColors() {
     if (S.selection[i]) { c[3 * i] = SELECTED.r; c[3 * i + 1] = SELECTED.g; c[3 * i + 2] = SELECTED.b; }
   }
   col.needsUpdate = true;
+  S.needsRender = true;
 }
 function togglePlay() {
   S.playing = !S.playing;
@@ -779,22 +833,29 @@ function setGhost(k, rg) {
   ghostGeom.computeBoundingSphere();
   ghost.material.color.set(groupColor(k.group));
   ghost.visible = !!k.position;
-  if (k.velocity) {
-    const c = new THREE.Vector3(); for (let j = 0; j < idx.length; j++) c.x += arr[3 * j], c.y += arr[3 * j + 1], c.z += arr[3 * j + 2];
-    c.divideScalar(idx.length);
-    const vel = new THREE.Vector3(...k.velocity), len = vel.length();
-    velArrow.position.copy(c);
-    velArrow.visible = len > 1e-9;
-    if (len > 1e-9) { velArrow.setDirection(vel.clone().normalize()); velArrow.setLength(Math.max(0.05, 0.25 * len), 0.04, 0.025); }
-  } else velArrow.visible = false;
+  S.needsRender = true;
+  const c = new THREE.Vector3(); for (let j = 0; j < idx.length; j++) c.x += arr[3 * j], c.y += arr[3 * j + 1], c.z += arr[3 * j + 2];
+  S.velBase = c.divideScalar(Math.max(idx.length, 1));
+  showVelocity(k.velocity);
+}
+function showVelocity(v) {
+  const vel = new THREE.Vector3(...(v || [0, 0, 0])), len = vel.length() * VEL_SCALE;
+  velArrow.position.copy(S.velBase);
+  velArrow.visible = !!v && len > 1e-6;
+  if (velArrow.visible) { velArrow.setDirection(vel.normalize()); velArrow.setLength(len, Math.min(0.04, 0.4 * len), Math.min(0.025, 0.25 * len)); }
+  S.needsRender = true;
 }
 function updatePoseHelpers() {
   const k = currentKey();
+  S.needsRender = true;
   if (!k) { ghost.visible = false; velArrow.visible = false; gizmo.detach(); return; }
   if (S.dragging) return;
   const rg = rigidOf(k);
   setGhost(k, rg);
-  if (S.posing && rg) placePivot(rg);
+  if (S.posing && S.posing.mode === 'velocity') {
+    pivot.position.copy(S.velBase).addScaledVector(new THREE.Vector3(...(k.velocity || [0, 0, 0])), VEL_SCALE);
+    pivot.updateMatrixWorld();
+  } else if (S.posing && rg) placePivot(rg);
 }
 function placePivot(rg) {
   const c = new THREE.Vector3(...rg.center), t = new THREE.Vector3(...rg.translation);
@@ -806,6 +867,21 @@ function placePivot(rg) {
 function startPosing(mode) {
   const k = currentKey();
   if (!k) { toast('select a keyframe first', true); return; }
+  if (mode === 'velocity') {
+    S.posing = { id: k.id, mode };
+    S.playing = false; $('btn-play').textContent = '▶';
+    setTime(k.time);
+    setGhost(k, rigidOf(k));
+    const v = new THREE.Vector3(...(k.velocity || [0, 0, 0]));
+    pivot.position.copy(S.velBase).addScaledVector(v, VEL_SCALE);
+    pivot.quaternion.identity();
+    pivot.updateMatrixWorld();
+    gizmo.setMode('translate');
+    gizmo.setSpace('world');
+    gizmo.attach(pivot);
+    renderKeyPanel();
+    return;
+  }
   const rg = rigidOf(k);
   if (!rg) { toast('absolute targets cannot be posed with the gizmo; press Rest to start from the rest pose', true); return; }
   S.posing = { id: k.id, mode, center: rg.center };
@@ -817,7 +893,15 @@ function startPosing(mode) {
   gizmo.attach(pivot);
   renderKeyPanel();
 }
-function stopPosing() { S.posing = null; gizmo.detach(); }
+function stopPosing() { S.posing = null; gizmo.detach(); S.needsRender = true; }
+function velocityTarget() {
+  const r4 = (x) => Math.round(x * 1e4) / 1e4;
+  return pivot.position.clone().sub(S.velBase).divideScalar(VEL_SCALE).toArray().map(r4);
+}
+function poseOp(k) {
+  return S.posing.mode === 'velocity' ? { op: 'update_keyframe', id: k.id, velocity: velocityTarget() }
+    : { op: 'update_keyframe', id: k.id, position: poseTarget() };
+}
 function poseTarget() {
   if (!S.posing) return null;
   const e = new THREE.Euler().setFromQuaternion(pivot.quaternion, 'ZYX');
@@ -832,9 +916,9 @@ function poseTarget() {
 function dragPose() {
   const k = currentKey();
   if (!k || !S.posing) return;
-  const rg = poseTarget();
-  setGhost(k, rg);
-  const op = { op: 'update_keyframe', id: k.id, position: rg };
+  if (S.posing.mode === 'velocity') showVelocity(velocityTarget());
+  else setGhost(k, poseTarget());
+  const op = poseOp(k);
   if (S.previewInFlight) { S.previewPending = op; return; }
   sendPreview(op);
 }
@@ -846,15 +930,25 @@ async function sendPreview(op) {
   else S.previewPending = null;
 }
 let releaseT = null;
-window.addEventListener('pointerup', () => { if (S.dragging) releaseT = performance.now(); }, true);
+window.addEventListener('pointerup', () => {
+  if (!S.dragging) return;
+  releaseT = performance.now();
+  S.committing = { base: S.desc.version, t: releaseT, event: null };
+  S.lastCommit = S.committing;
+}, true);
+function flushState() {
+  S.committing = null;
+  if (S.stateDeferred) { S.stateDeferred = false; refreshState(); }
+}
 async function commitPose() {
   const k = currentKey();
   if (!k || !S.posing) return;
   const t0 = releaseT ?? performance.now();
   releaseT = null;
   S.previewPending = null;
-  const r = await edit({ op: 'update_keyframe', id: k.id, position: poseTarget() });
-  if (r && r.changed) S.release = { t: t0, version: r.version, done: false };
+  const r = await edit(poseOp(k));
+  if (r && r.changed) S.release = { t: t0, version: r.version, done: false, posted: performance.now() - t0 };
+  else flushState();
 }
 function gizmoHandle(axis) {   // screen point of the gizmo and the direction of an axis (tests)
   const r = canvas.getBoundingClientRect();
@@ -910,6 +1004,7 @@ $('btn-sel-clear').onclick = () => { S.selection.fill(0); updateSelCount(); };
 $('btn-key-add').onclick = addKey;
 $('btn-pose-t').onclick = () => (S.posing && S.posing.mode === 'translate' ? stopPosing() : startPosing('translate'), renderKeyPanel());
 $('btn-pose-r').onclick = () => (S.posing && S.posing.mode === 'rotate' ? stopPosing() : startPosing('rotate'), renderKeyPanel());
+$('btn-pose-v').onclick = () => (S.posing && S.posing.mode === 'velocity' ? stopPosing() : startPosing('velocity'), renderKeyPanel());
 $('btn-pose-rest').onclick = () => { const k = currentKey(); if (k) edit({ op: 'update_keyframe', id: k.id, position: 'rest' }); };
 $('btn-key-del').onclick = () => { const k = currentKey(); if (k) edit({ op: 'delete_keyframe', id: k.id }); };
 $('btn-play').onclick = togglePlay;
@@ -934,7 +1029,7 @@ $('btn-help').onclick = () => toast([
   'Space play/pause · ←/→ step a frame · Home/End',
   'Q/Esc orbit · B brush · X box · L lasso (Shift adds, Alt removes) · [ ] brush radius',
   'G new group from selection · K keyframe the selected group at the current time',
-  'W move / E rotate the selected keyframe (gizmo) · Delete removes the selected keyframe',
+  'W move / E rotate the selected keyframe (gizmo) · V drag its velocity arrow · Delete removes it',
   'Ctrl+Z undo · Ctrl+Shift+Z / Ctrl+Y redo · Ctrl+S save'].join('\n'));
 
 window.addEventListener('keydown', (e) => {
@@ -942,6 +1037,11 @@ window.addEventListener('keydown', (e) => {
   const mod = e.ctrlKey || e.metaKey;
   if (mod && e.key.toLowerCase() === 's') { e.preventDefault(); save(); return; }
   if (!$('modal').hidden) { if (e.key === 'Escape') $('modal-cancel').click(); return; }
+  if (typing && (e.key === 'Enter' || e.key === 'Escape') && document.activeElement.id !== 'group-name') {
+    document.activeElement.blur();   // commit the field, give the keys back to the shortcuts
+    canvas.focus();
+    return;
+  }
   if (typing) return;
   if (mod && e.key.toLowerCase() === 'z') { e.preventDefault(); (e.shiftKey ? redo : undo)(); return; }
   if (mod && e.key.toLowerCase() === 'y') { e.preventDefault(); redo(); return; }
@@ -963,20 +1063,31 @@ window.addEventListener('keydown', (e) => {
     case 'k': case 'K': addKey(); break;
     case 'w': case 'W': startPosing('translate'); break;
     case 'e': case 'E': startPosing('rotate'); break;
+    case 'v': case 'V': startPosing('velocity'); break;
     case '[': $('brush-radius').stepDown(5); break;
     case ']': $('brush-radius').stepUp(5); break;
     default: return;
   }
 });
 
+// Render on demand: only when something changed (software GL in a headless browser draws a
+// few frames per second, and an idle editor should leave the main thread to the network).
 function tick(now) {
   const dt = Math.min((now - S.lastTick) / 1000, 0.1);
   S.lastTick = now;
   step(dt);
-  controls.update();
-  renderer.render(scene3, camera);
+  if (S.needsRender || S.playing) {
+    S.needsRender = false;
+    renderer.render(scene3, camera);
+    window.wiggly.renders = (window.wiggly.renders || 0) + 1;
+    window.wiggly.renderMs = performance.now() - now;
+  }
   requestAnimationFrame(tick);
 }
+function redraw() { S.needsRender = true; }
+controls.addEventListener('change', redraw);
+gizmo.addEventListener('change', redraw);
+window.wiggly.softwareGL = SOFTWARE_GL;
 resize();
 connect();
 requestAnimationFrame((now) => { S.lastTick = now; tick(now); });

@@ -1,0 +1,283 @@
+"""The warped refinement (Theorem 2) in a separate, lower-priority process.
+
+The Gauss-Newton iterations of the warped solve spend most of their time in calls that hold
+Python's global interpreter lock (sparse products, small dense kernels); run in a thread they
+would delay the server's answers and the fast linear solves by seconds while a gizmo is
+dragged.  So they run in a child process (:func:`_child`, at ``nice`` +10),
+that keeps its own bodies: the parent sends the tet mesh once per model (fTetWild is
+randomized, so the child must not tetrahedralize again) and the modes come from the disk cache
+that the parent filled.
+
+Protocol: pickled messages, each preceded by its length (8 bytes, little endian), on the
+child's stdin and stdout.  The parent sends ``("model", key, model)``,
+``("solve", seq, version, scene_dict, source, model_key)`` and ``("newest", seq)``; the child
+answers ``("progress", seq, version, info)``, ``("frames", seq, version, final, start, fps,
+positions, info)``, ``("error", seq, version, message)`` and ``("abandoned", seq, version,
+info)``.  Between chunks of iterations the child reads what has arrived and stops as soon as a
+newer request exists (newest request wins).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+import traceback
+import warnings
+from typing import Any, BinaryIO
+
+import numpy as np
+
+CHUNK_SECONDS = 0.6
+MAX_ITERATIONS = 50
+PUSH_SECONDS = 1.5
+
+
+def write_message(stream: BinaryIO, obj: Any) -> None:
+    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    stream.write(len(data).to_bytes(8, "little") + data)
+    stream.flush()
+
+
+def read_message(stream: BinaryIO) -> Any:
+    """The next message (None at the end of the stream)."""
+    head = stream.read(8)
+    if len(head) < 8:
+        return None
+    n = int.from_bytes(head, "little")
+    data = stream.read(n)
+    if len(data) < n:
+        return None
+    return pickle.loads(data)
+
+
+class _Inbox:
+    """The child's view of its stdin: messages in order, and the newest request's seq."""
+
+    def __init__(self, stream: BinaryIO):
+        self.stream = stream
+        self.pending: list = []
+        self.newest = 0
+
+    def _take(self, msg) -> None:
+        if msg is None:
+            self.pending.append(None)
+            return
+        if msg[0] in ("solve", "newest"):
+            self.newest = max(self.newest, msg[1])
+        if msg[0] != "newest":
+            self.pending.append(msg)
+
+    def poll(self) -> None:
+        """Read every message that has arrived, without blocking."""
+        while select.select([self.stream], [], [], 0)[0]:
+            msg = read_message(self.stream)
+            self._take(msg)
+            if msg is None:
+                return
+
+    def get(self):
+        while not self.pending:
+            self._take(read_message(self.stream))
+        return self.pending.pop(0)
+
+
+def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end to end)
+    """The child's loop (started by :class:`Refiner`)."""
+    inp, out = sys.stdin.buffer, sys.stdout.buffer
+    sys.stdout = sys.stderr  # the protocol owns stdout
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C is the parent's; it closes our stdin
+    try:
+        os.nice(10)
+    except OSError:
+        pass
+    from wiggly.body import Damping, fixed_from_surface, prepare
+    from wiggly.errors import WigglyInputError
+    from wiggly.fem import Material
+    from wiggly.scene import keyframes_of, resolve_groups, scene_from_dict
+    from wiggly.solve import SpacetimeProblem
+
+    inbox = _Inbox(inp)
+    models: dict[tuple, Any] = {}
+    bodies: dict[tuple, Any] = {}
+    problems: dict[tuple, Any] = {}
+    previous: dict[tuple, Any] = {}
+    while True:
+        msg = inbox.get()
+        if msg is None:
+            return
+        if msg[0] == "model":
+            models[msg[1]] = msg[2]
+            while len(models) > 2:
+                models.pop(next(iter(models)))
+            continue
+        _, seq, version, data, source, model_key = msg
+        inbox.poll()
+        if inbox.newest > seq:
+            continue
+        try:
+            scene = scene_from_dict(data)
+            scene.source = source
+            model = models[model_key]
+            s, m = scene.simulation, scene.material
+            groups = resolve_groups(scene, model)
+            bkey = (model_key, m, s.modes, s.lumped_mass, scene.damping, s.gravity,
+                    tuple((g, scene.groups[g]) for g in s.fixed))
+            body = bodies.get(bkey)
+            if body is None:
+                fv = [groups[g] if scene.groups[g].on == "tets"
+                      else fixed_from_surface(model, groups[g]) for g in s.fixed]
+                body = prepare(model, material=Material(m.young, m.poisson, m.density),
+                               damping=Damping(scene.damping.alpha, scene.damping.beta),
+                               gravity=s.gravity,
+                               fixed_vertices=np.unique(np.concatenate(fv)) if fv else None,
+                               n_modes=s.modes, lumped=s.lumped_mass)
+                bodies.clear()
+                problems.clear()
+                previous.clear()
+                bodies[bkey] = body
+            keys = keyframes_of(scene, body, groups)
+            start, end = scene.time_range()
+            pkey = (start, end, s.preroll)
+            problem = problems.get(pkey)
+            if problem is None:
+                problem = problems[pkey] = SpacetimeProblem(body, start, end, s.preroll)
+            _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox)
+        except WigglyInputError as err:
+            write_message(out, ("error", seq, version, str(err)))
+        except Exception as err:
+            traceback.print_exc()
+            write_message(out, ("error", seq, version,
+                                f"internal error: {type(err).__name__}: {err}"))
+
+
+def _refine(seq, version, scene, problem, keys, previous, pkey, out,
+            inbox):  # pragma: no cover - runs in the subprocess
+    t0 = time.perf_counter()
+    init = previous.get(pkey)
+    total, per_iter, last_push = 0, None, time.perf_counter()
+    fps = float(scene.time.fps)
+    while True:
+        inbox.poll()
+        if inbox.newest > seq:
+            write_message(out, ("abandoned", seq, version, {"iterations": total}))
+            return
+        n_it = 2 if per_iter is None else int(np.clip(CHUNK_SECONDS / per_iter, 1, 10))
+        n_it = min(n_it, MAX_ITERATIONS - total)
+        tc = time.perf_counter()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            anim = problem.solve(keys, warped=True, initial=init, max_iterations=n_it)
+        done = max(int(anim.info.get("iterations", n_it)), 1)
+        per_iter = (time.perf_counter() - tc) / done
+        total += done
+        init = previous[pkey] = anim
+        converged = bool(anim.info.get("converged"))
+        finished = converged or total >= MAX_ITERATIONS
+        info = {"iterations": total, "converged": converged,
+                "objective": float(anim.info.get("objective", np.nan)),
+                "seconds": time.perf_counter() - t0}
+        if finished or time.perf_counter() - last_push > PUSH_SECONDS:
+            if finished:
+                info["residual_max"] = residual_max(anim)
+            times = anim.frame_times(fps)
+            positions = anim.positions(times, dtype=np.float32)
+            write_message(out, ("frames", seq, version, finished, float(times[0]), fps,
+                                positions, dict(info)))
+            last_push = time.perf_counter()
+            if finished:
+                return
+        else:
+            write_message(out, ("progress", seq, version, info))
+
+
+def residual_max(anim) -> float | None:
+    """Largest distance (m) of a keyframed vertex to its target, over all keyframes."""
+    try:
+        rows = anim.constraint_residuals()
+    except Exception:
+        return None
+    vals = [r["position_max"] for r in rows if "position_max" in r]
+    return float(max(vals)) if vals else None
+
+
+class Refiner:
+    """The parent side: starts the child, relays requests and answers.
+
+    ``on_result(kind, seq, version, payload)`` is called on the relay thread for every answer.
+    """
+
+    def __init__(self, on_result):
+        self._proc = subprocess.Popen(
+            [sys.executable, "-c", "from wiggly.editor.refine import _child; _child()"],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
+        self._lock = threading.Lock()
+        self._sent_models: list[tuple] = []
+        self._newest = 0
+        self._on_result = on_result
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._relay, name="wiggly-warped-relay",
+                                        daemon=True)
+        self._thread.start()
+
+    def _send(self, msg) -> None:
+        with self._lock:
+            try:
+                write_message(self._proc.stdin, msg)
+            except (BrokenPipeError, OSError, ValueError):
+                pass  # the relay reports a dead child
+
+    def supersede(self, seq: int) -> None:
+        """A newer request exists: the child stops refining older ones."""
+        if seq > self._newest:
+            self._newest = seq
+            self._send(("newest", seq))
+
+    def solve(self, seq: int, version: int, scene_dict: dict, source, model_key: tuple,
+              model) -> None:
+        if model_key not in self._sent_models:
+            self._send(("model", model_key, model))
+            self._sent_models = [*self._sent_models[-1:], model_key]
+        self._newest = max(self._newest, seq)
+        self._send(("solve", seq, version, scene_dict, source, model_key))
+
+    def _relay(self) -> None:
+        while True:
+            try:
+                msg = read_message(self._proc.stdout)
+            except (OSError, ValueError, pickle.UnpicklingError):
+                msg = None
+            if msg is None:
+                if not self._stop.is_set():
+                    code = self._proc.wait()
+                    self._on_result("died", 0, 0, [{"message": "the warped solver process "
+                                                    f"exited ({code})"}])
+                return
+            kind, seq, version, *rest = msg
+            try:
+                self._on_result(kind, seq, version, rest)
+            except Exception:
+                traceback.print_exc()
+
+    def close(self) -> None:
+        self._stop.set()
+        with self._lock:
+            try:
+                self._proc.stdin.close()
+            except OSError:
+                pass
+        try:
+            self._proc.wait(timeout=2)
+        except subprocess.TimeoutExpired:
+            self._proc.terminate()
+            try:
+                self._proc.wait(timeout=2)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+        self._thread.join(timeout=2)
+

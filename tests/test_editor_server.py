@@ -1,0 +1,548 @@
+"""The editor's server side: edits as pure functions, the sandbox, every endpoint with good and
+bad requests, concurrent edits, autosave recovery.  A small structured tet mesh (no
+tetrahedralizer) keeps every solve in milliseconds."""
+
+from __future__ import annotations
+
+import http.client
+import json
+import os
+import socket
+import threading
+import time
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+
+from wiggly.editor import EditorServer, Sandbox, Session
+from wiggly.editor.session import EventBus, Mailbox, autosave_path
+from wiggly.editor.state import EditError, EditLog, EditorState, apply_edit, rebased, rigid_fit
+from wiggly.primitives import box_mesh
+from wiggly.scene import load_scene, save_scene, scene_from_dict
+
+SCENE = """\
+format = 1
+[mesh]
+path = "bar.vtu"
+[material]
+young = 1e6
+[simulation]
+modes = 12
+fixed = ["left"]
+[time]
+end = 1.0
+fps = 20
+[groups.left]
+box = { min = [-0.01, -1, -1], max = [0.01, 1, 1] }
+[groups.right]
+box = { min = [0.99, -1, -1], max = [1.01, 1, 1] }
+[[keyframes]]
+time = 0.5
+group = "right"
+position = { offset = [0.0, 0.05, 0.0] }
+"""
+
+
+@pytest.fixture
+def project(tmp_path) -> Path:
+    """A directory with a tet-mesh bar (1 x 0.1 x 0.1 m) and a scene using it."""
+    V, T = box_mesh((8, 2, 2), (1.0, 0.1, 0.1))
+    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+    (tmp_path / "shot.toml").write_text(SCENE)
+    return tmp_path
+
+
+@pytest.fixture
+def server(project):
+    session = Session(Sandbox([project]))
+    session.open(str(project / "shot.toml"))
+    srv = EditorServer(session, "127.0.0.1", 0, max_json=64 * 1024, max_upload=256 * 1024)
+    srv.start()
+    yield srv
+    srv.stop()
+
+
+def call(srv, method, path, body=None, headers=None, raw: bytes | None = None):
+    conn = http.client.HTTPConnection("127.0.0.1", srv.port, timeout=10)
+    h = {"Content-Type": "application/json"}
+    h.update(headers or {})
+    data = raw if raw is not None else (None if body is None else json.dumps(body).encode())
+    conn.request(method, path, body=data, headers=h)
+    r = conn.getresponse()
+    payload = r.read()
+    conn.close()
+    if r.getheader("Content-Type", "").startswith("application/json"):
+        return r.status, json.loads(payload)
+    return r.status, payload
+
+
+def wait_final(session: Session, timeout: float = 30.0):
+    """The final frames of the session's current version (bounded wait)."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        fs = session.latest_frames(final=True)
+        if fs is not None and fs.version == session.version:
+            return fs
+        time.sleep(0.02)
+    raise AssertionError(f"no final frames for version {session.version} in {timeout} s")
+
+
+# ----------------------------------------------------------------------------------------------
+# edits: pure functions
+
+
+@pytest.fixture
+def state(project) -> EditorState:
+    return EditorState.of(load_scene(project / "shot.toml"))
+
+
+def test_group_edits(state):
+    s = apply_edit(state, {"op": "set_group", "name": "mid", "indices": [5, 3, 3, 4],
+                           "color": "#00FF00"})
+    g = s.scene.groups["mid"]
+    assert g.selector.indices == (3, 4, 5) and g.color == "#00ff00"
+    s = apply_edit(s, {"op": "rename_group", "name": "right", "new_name": "tip"})
+    assert "right" not in s.scene.groups and s.scene.keyframes[0].group == "tip"
+    s = apply_edit(s, {"op": "rename_group", "name": "left", "new_name": "base"})
+    assert s.scene.simulation.fixed == ("base",)
+    s = apply_edit(s, {"op": "recolor_group", "name": "tip", "color": "#123456"})
+    assert s.scene.groups["tip"].color == "#123456"
+    s = apply_edit(s, {"op": "set_fixed", "name": "base", "fixed": False})
+    assert s.scene.simulation.fixed == ()
+    s = apply_edit(s, {"op": "delete_group", "name": "tip"})
+    assert "tip" not in s.scene.groups and s.scene.keyframes == [] and s.keyframe_ids == ()
+
+
+def test_keyframe_edits_keep_ids(state):
+    s = apply_edit(state, {"op": "add_keyframe", "time": 0.0, "group": "right"})
+    s = apply_edit(s, {"op": "add_keyframe", "time": 1.0, "group": "left",
+                       "position": {"rotation": [0, 0, 30], "translation": [0, 0.1, 0]},
+                       "velocity": [0, 1, 0], "stiffness": 1e4, "name": "lift"})
+    assert s.keyframe_ids == (0, 1, 2)
+    assert s.scene.keyframes[1].position.__class__.__name__ == "Rest"
+    s = apply_edit(s, {"op": "delete_keyframe", "id": 1})
+    assert s.keyframe_ids == (0, 2)
+    s = apply_edit(s, {"op": "update_keyframe", "id": 2, "time": 0.25, "velocity": None})
+    k = s.scene.keyframes[1]
+    assert (k.time, k.velocity, k.stiffness, k.name) == (0.25, None, 1e4, "lift")
+    s = apply_edit(s, {"op": "set", "section": "material", "values": {"young": 5e5}})
+    assert s.scene.material.young == 5e5
+    s = apply_edit(s, {"op": "set", "section": "time", "values": {"duration": 2.0}})
+    assert s.scene.time_range() == (0.0, 2.0)
+
+
+BAD_EDITS = [
+    ("not an object", 400), ({"nop": 1}, 400), ({"op": 5}, 400), ({"op": "explode"}, 400),
+    ({"op": "set_group", "name": "x"}, 400),
+    ({"op": "set_group", "name": "a b", "indices": [1]}, 400),
+    ({"op": "set_group", "name": "x", "indices": []}, 400),
+    ({"op": "set_group", "name": "x", "indices": [1.5]}, 400),
+    ({"op": "set_group", "name": "x", "indices": [True]}, 400),
+    ({"op": "set_group", "name": "x", "indices": [10**9]}, 400),
+    ({"op": "set_group", "name": "x", "indices": [-1]}, 400),
+    ({"op": "set_group", "name": "x", "indices": [1], "color": "red"}, 400),
+    ({"op": "set_group", "name": "x", "indices": [1], "on": "volume"}, 400),
+    ({"op": "rename_group", "name": "nope", "new_name": "x"}, 404),
+    ({"op": "rename_group", "name": "left", "new_name": "right"}, 400),
+    ({"op": "delete_group", "name": "nope"}, 404),
+    ({"op": "set_fixed", "name": "left", "fixed": "yes"}, 400),
+    ({"op": "add_keyframe", "time": "soon", "group": "left"}, 400),
+    ({"op": "add_keyframe", "time": float("nan"), "group": "left"}, 400),
+    ({"op": "add_keyframe", "time": 0.5, "group": "nope"}, 400),
+    ({"op": "add_keyframe", "time": 7.0, "group": "left"}, 400),
+    ({"op": "add_keyframe", "time": 0.5, "group": "left", "position": "up"}, 400),
+    ({"op": "add_keyframe", "time": 0.5, "group": "left", "velocity": [1, 2]}, 400),
+    ({"op": "add_keyframe", "time": 0.5, "group": "left", "stiffness": -1}, 400),
+    ({"op": "update_keyframe", "id": 99, "time": 0.1}, 404),
+    ({"op": "update_keyframe", "id": "0", "time": 0.1}, 400),
+    ({"op": "update_keyframe", "id": 0, "time": None}, 400),
+    ({"op": "delete_keyframe", "id": 42}, 404),
+    ({"op": "set", "section": "mesh", "values": {"path": "/etc/passwd"}}, 400),
+    ({"op": "set", "section": "evil", "values": {}}, 400),
+    ({"op": "set", "section": "material", "values": {"young": -1}}, 400),
+    ({"op": "set", "section": "material", "values": {"young": "stiff"}}, 400),
+    ({"op": "set", "section": "material", "values": [1]}, 400),
+    ({"op": "set", "section": "simulation", "values": {"modes": 0}}, 400),
+]
+
+
+@pytest.mark.parametrize(("op", "status"), BAD_EDITS)
+def test_bad_edits_are_refused(state, op, status):
+    with pytest.raises(EditError) as err:
+        apply_edit(state, op, n_vertices=100)
+    assert err.value.status == status
+    assert str(err.value)
+
+
+def test_edit_log_undo_redo_dirty():
+    a, b, c = (EditorState.of(scene_from_dict({"mesh": {"path": p}})) for p in "abc")
+    log = EditLog([a], limit=3)
+    log.saved = a
+    assert not log.dirty and not log.can_undo
+    log.push(b)
+    assert log.dirty and log.undo() and log.current is a and log.can_redo
+    log.push(c)  # drops the redo branch
+    assert not log.can_redo and log.undo() and log.current is a
+    for s in (b, c, b, c):
+        log.push(s)
+    assert len(log.states) == 3 and log.current is c
+
+
+def test_rigid_fit_recovers_a_rigid_motion():
+    from scipy.spatial.transform import Rotation
+
+    X = np.random.default_rng(0).normal(size=(30, 3))
+    R = Rotation.from_euler("xyz", [10, -20, 35], degrees=True).as_matrix()
+    c = X.mean(axis=0)
+    x = (X - c) @ R.T + c + [0.1, 0.2, -0.3]
+    fit = rigid_fit(X, x)
+    assert np.allclose(fit["rotation"], [10, -20, 35], atol=1e-5)
+    assert np.allclose(fit["translation"], [0.1, 0.2, -0.3], atol=1e-8)
+
+
+def test_rebased_keeps_files(project, state):
+    (project / "sub").mkdir()
+    moved = rebased(state.scene, project / "sub" / "copy.toml")
+    assert moved.mesh.path == "../bar.vtu"
+    assert moved.mesh_file().resolve() == (project / "bar.vtu").resolve()
+
+
+# ----------------------------------------------------------------------------------------------
+# sandbox
+
+
+def test_sandbox_refuses_escapes(tmp_path):
+    root = tmp_path / "root"
+    (root / "d").mkdir(parents=True)
+    (root / "d" / "a.toml").write_text("")
+    (tmp_path / "secret.toml").write_text("")
+    os.symlink(tmp_path / "secret.toml", root / "link.toml")
+    os.symlink(tmp_path, root / "up")
+    sb = Sandbox([root])
+    assert sb.resolve("d/a.toml", must_exist=True) == (root / "d" / "a.toml").resolve()
+    assert sb.resolve(str(root / "d" / "a.toml")) == (root / "d" / "a.toml").resolve()
+    for bad in ["../secret.toml", "d/../../secret.toml", str(tmp_path / "secret.toml"),
+                "link.toml", "up/secret.toml", "/etc/passwd", "~/x.toml"]:
+        with pytest.raises(EditError) as err:
+            sb.resolve(bad)
+        assert err.value.status == 403, bad
+    for bad in ["", "a\x00b", 5, None, "x" * 5000]:
+        with pytest.raises(EditError):
+            sb.resolve(bad)
+    with pytest.raises(EditError):
+        sb.resolve("d/a.toml", suffixes=(".obj",))
+    with pytest.raises(EditError) as err:
+        sb.resolve("missing.toml", must_exist=True)
+    assert err.value.status == 404
+    assert "link.toml" not in sb.listing((".toml",))
+
+
+# ----------------------------------------------------------------------------------------------
+# plumbing
+
+
+def test_mailbox_newest_wins():
+    box = Mailbox()
+    for i in range(5):
+        box.put(i)
+    assert box.pending() and box.take(0.1) == 4 and box.dropped == 4
+    assert box.take(0.01) is None
+    box.close()
+    assert box.take() is None
+
+
+def test_event_bus_replays_last_events_and_bounds_queues():
+    bus = EventBus(backlog=3)
+    bus.publish("state", version=1)
+    q = bus.subscribe()
+    assert q.get_nowait()["version"] == 1
+    for i in range(10):
+        bus.publish("solve", i=i)
+    got = [q.get_nowait()["i"] for _ in range(q.qsize())]
+    assert got[-1] == 9 and len(got) == 3
+    bus.unsubscribe(q)
+    assert bus.n_subscribers == 0
+
+
+# ----------------------------------------------------------------------------------------------
+# the HTTP server
+
+
+def test_endpoints(server, project):
+    st, d = call(server, "GET", "/api/state")
+    assert st == 200 and d["open"] and set(d["groups"]) == {"left", "right"}
+    assert d["scene"]["keyframes"][0]["id"] == 0 and not d["dirty"]
+    st, mesh = call(server, "GET", "/api/mesh")
+    n, m = np.frombuffer(mesh[:8], "<u4")
+    assert st == 200 and len(mesh) == 8 + 12 * n + 12 * m
+    st, page = call(server, "GET", "/")
+    assert st == 200 and b"importmap" in page
+    st, js = call(server, "GET", "/vendor/three.module.js")
+    assert st == 200 and len(js) > 100_000
+    st, files = call(server, "GET", "/api/files")
+    assert "shot.toml" in files["scenes"] and "bar.vtu" in files["meshes"]
+
+    fs = wait_final(server.session)
+    st, data = call(server, "GET", f"/api/frames/{fs.id}")
+    assert st == 200 and len(data) == fs.positions.nbytes
+    assert fs.positions.shape == (21, n, 3)  # 1 s at 20 fps
+    right = np.array(d["groups"]["right"])
+    k = 10  # t = 0.5 s: the right end is lifted 5 cm
+    lift = (fs.positions[k, right] - server.session.surface.vertices[right]).mean(axis=0)
+    assert abs(lift[1] - 0.05) < 0.005
+
+    st, r = call(server, "POST", "/api/edit", {"op": "add_keyframe", "time": 1.0,
+                                               "group": "right", "position": "current"})
+    assert st == 200 and r["changed"] and r["id"] == 1
+    pos = server.session.scene.keyframes[1].position
+    assert pos.__class__.__name__ == "Rigid"  # the pose of the playback at t = 1
+    st, r = call(server, "POST", "/api/preview", {"op": "update_keyframe", "id": 1,
+                                                  "position": {"offset": [0, 0.1, 0]}})
+    assert st == 200 and r["seq"] > 0
+    assert server.session.scene.keyframes[1].position == pos  # a preview changes nothing
+    st, r = call(server, "POST", "/api/undo")
+    assert r["changed"] and len(server.session.scene.keyframes) == 1
+    st, r = call(server, "POST", "/api/redo")
+    assert r["changed"] and len(server.session.scene.keyframes) == 2
+    st, r = call(server, "POST", "/api/redo")
+    assert st == 200 and not r["changed"]
+    st, r = call(server, "POST", "/api/save", {"path": "saved.toml"})
+    assert st == 200 and r["path"] == "saved.toml"
+    assert load_scene(project / "saved.toml") == server.session.scene
+    st, r = call(server, "POST", "/api/export", {"paths": ["out/shot.npz"], "overwrite": True})
+    assert st == 200
+    deadline = time.time() + 30
+    while not (project / "out" / "shot.npz").exists() and time.time() < deadline:
+        time.sleep(0.05)
+    assert np.load(project / "out" / "shot.npz")["positions"].shape[1] == n
+    st, r = call(server, "PUT", "/api/upload?name=up.vtu", raw=(project / "bar.vtu").read_bytes(),
+                 headers={"X-Wiggly-Upload": "1", "Content-Type": "application/octet-stream"})
+    assert st == 200 and r["path"] == "uploads/up.vtu"
+    st, r = call(server, "POST", "/api/open", {"path": r["path"]})
+    assert st == 200 and server.session.scene.mesh.path == "up.vtu"
+    st, d = call(server, "GET", "/api/state")
+    assert d["scene"]["groups"] == {} and d["path"] == "uploads/up.toml"
+
+
+def test_event_stream(server):
+    conn = socket.create_connection(("127.0.0.1", server.port), timeout=10)
+    conn.sendall(b"GET /api/events HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+    data = b""
+    deadline = time.time() + 10
+    while b'"type":"state"' not in data and time.time() < deadline:
+        data += conn.recv(65536)
+    conn.close()
+    assert b"text/event-stream" in data and b'"type":"state"' in data
+
+
+def test_bad_requests_never_hurt(server, project):
+    before = server.session.scene
+    version = server.session.version
+    for op, _ in BAD_EDITS:
+        st, r = call(server, "POST", "/api/edit", op)
+        assert st in (400, 404) and "error" in r, op
+        st, r = call(server, "POST", "/api/preview", op)
+        assert st in (400, 404), op
+    checks = [
+        ("POST", "/api/edit", None, {}, b"{not json"),
+        ("POST", "/api/edit", None, {}, b"\xff\xfe"),
+        ("POST", "/api/edit", None, {"Content-Type": "text/plain"}, b'{"op": "set"}'),
+        ("POST", "/api/open", {"path": "../outside.toml"}, {}, None),
+        ("POST", "/api/open", {"path": "/etc/passwd"}, {}, None),
+        ("POST", "/api/open", {"path": 12}, {}, None),
+        ("POST", "/api/open", {}, {}, None),
+        ("POST", "/api/open", [], {}, None),
+        ("POST", "/api/open", {"path": "missing.toml"}, {}, None),
+        ("POST", "/api/open", {"path": "builtin:dragon"}, {}, None),
+        ("POST", "/api/save", {"path": "../escape.toml"}, {}, None),
+        ("POST", "/api/save", {"path": "shot.obj"}, {}, None),
+        ("POST", "/api/export", {"paths": ["../../x.glb"]}, {}, None),
+        ("POST", "/api/export", {"paths": "x.glb"}, {}, None),
+        ("POST", "/api/export", {"paths": ["x.exe"]}, {}, None),
+        ("POST", "/api/export", {"paths": ["x.glb"], "overwrite": "yes"}, {}, None),
+        ("PUT", "/api/upload?name=../x.obj", None, {"X-Wiggly-Upload": "1"}, b"v 0 0 0"),
+        ("PUT", "/api/upload?name=x.exe", None, {"X-Wiggly-Upload": "1"}, b"MZ"),
+        ("PUT", "/api/upload?name=x.obj", None, {}, b"v 0 0 0"),
+        ("PUT", "/api/upload?name=big.obj", None, {"X-Wiggly-Upload": "1"}, b"v" * 300_000),
+        ("POST", "/api/edit", None, {}, b" " * 100_000),
+        ("GET", "/api/frames/999999", None, {}, None),
+        ("GET", "/api/nothing", None, {}, None),
+        ("DELETE", "/api/state", None, {}, None),
+        ("GET", "/../../../etc/passwd", None, {}, None),
+        ("GET", "/%2e%2e/%2e%2e/etc/passwd", None, {}, None),
+        ("GET", "/api/state", None, {"Host": "evil.example:80"}, None),
+        ("POST", "/api/undo", {}, {"Origin": "http://evil.example"}, None),
+    ]
+    for method, path, body, headers, raw in checks:
+        st, r = call(server, method, path, body, headers, raw)
+        assert 400 <= st < 500 or st == 501, (method, path, st, r)
+    # a huge announced body is refused before it is read
+    conn = socket.create_connection(("127.0.0.1", server.port), timeout=10)
+    conn.sendall(b"POST /api/edit HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json"
+                 b"\r\nContent-Length: 10000000000\r\n\r\n{")
+    assert b" 413 " in conn.recv(4096)
+    conn.close()
+    for head in (b"Transfer-Encoding: chunked\r\n", b""):  # no Content-Length
+        conn = socket.create_connection(("127.0.0.1", server.port), timeout=10)
+        conn.sendall(b"POST /api/edit HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: "
+                     b"application/json\r\n" + head + b"\r\n")
+        assert b" 411 " in conn.recv(4096)
+        conn.close()
+    conn = socket.create_connection(("127.0.0.1", server.port), timeout=10)
+    conn.sendall(b"\x16\x03\x01garbage\r\n\r\n")  # not HTTP at all
+    conn.recv(4096)
+    conn.close()
+    assert not (project.parent / "escape.toml").exists()
+    assert server.session.scene == before and server.session.version == version
+    st, d = call(server, "GET", "/api/state")
+    assert st == 200 and d["version"] == version
+
+
+def test_connection_limit(project):
+    session = Session(Sandbox([project]))
+    srv = EditorServer(session, "127.0.0.1", 0, max_connections=3).start()
+    try:
+        idle = [socket.create_connection(("127.0.0.1", srv.port), timeout=5) for _ in range(6)]
+        time.sleep(0.2)
+        closed = 0
+        for s in idle[3:]:  # over the limit: closed by the server at once
+            s.settimeout(5)
+            closed += s.recv(16) == b""
+        assert closed == 3
+        for s in idle[:3]:
+            s.close()
+        deadline = time.time() + 5
+        while time.time() < deadline:
+            try:
+                st, d = call(srv, "GET", "/api/state")
+                break
+            except (ConnectionError, http.client.HTTPException):
+                time.sleep(0.05)
+        assert st == 200 and d["open"] is False
+    finally:
+        srv.stop()
+
+
+def test_concurrent_edits(server):
+    n_threads, per_thread = 6, 8
+    errors: list = []
+
+    def work(t: int) -> None:
+        try:
+            for i in range(per_thread):
+                st, r = call(server, "POST", "/api/edit", {
+                    "op": "set_group", "name": f"g{t}_{i}", "indices": [t, i + 10]})
+                assert st == 200, r
+                st, r = call(server, "POST", "/api/edit", {
+                    "op": "add_keyframe", "time": round(0.1 * (i % 10), 2), "group": f"g{t}_{i}"})
+                assert st == 200, r
+                call(server, "GET", "/api/state")
+        except Exception as err:  # pragma: no cover - reported below
+            errors.append(err)
+
+    threads = [threading.Thread(target=work, args=(t,), daemon=True) for t in range(n_threads)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    assert not any(t.is_alive() for t in threads) and not errors, errors
+    scene = server.session.scene
+    assert len(scene.groups) == 2 + n_threads * per_thread
+    assert len(scene.keyframes) == 1 + n_threads * per_thread
+    ids = server.session.state.keyframe_ids
+    assert len(set(ids)) == len(ids)
+    fs = wait_final(server.session, timeout=60)  # the newest state is solved
+    assert fs.version == server.session.version
+
+
+def test_autosave_recovery_after_a_crash(project):
+    s1 = Session(Sandbox([project]))
+    s1.open("shot.toml")
+    s1.edit({"op": "set_group", "name": "mid", "indices": [40, 41, 42]})
+    s1.edit({"op": "add_keyframe", "time": 0.2, "group": "mid", "velocity": [0, 1, 0]})
+    edited = s1.scene
+    s1.close()  # no save: the process dies
+    assert load_scene(project / "shot.toml") != edited
+    auto = autosave_path(project / "shot.toml")
+    assert auto.exists()
+
+    s2 = Session(Sandbox([project]))
+    opened = s2.open("shot.toml")
+    assert any("recovered" in n for n in opened["notices"])
+    assert s2.scene == edited and s2.log.dirty
+    s2.save()
+    assert not auto.exists() and load_scene(project / "shot.toml") == edited
+    s2.close()
+
+    auto.write_text("this is [not toml")  # a broken autosave is ignored, with a notice
+    s3 = Session(Sandbox([project]))
+    opened = s3.open("shot.toml")
+    assert s3.scene == edited and any("ignored" in n for n in opened["notices"])
+    s3.close()
+
+
+def test_unsaved_new_scene_is_recovered(project):
+    s1 = Session(Sandbox([project]))
+    s1.open("bar.vtu")  # a new scene: bar.toml (not written until saved)
+    s1.edit({"op": "set_group", "name": "end", "indices": [0, 1, 2]})
+    edited = s1.scene
+    s1.close()
+    assert not (project / "bar.toml").exists()
+    s2 = Session(Sandbox([project]))
+    opened = s2.open("bar.toml")
+    assert s2.scene == edited and any("unsaved" in n for n in opened["notices"])
+    assert s2.recoverable() == ["bar.toml"]
+    s3 = Session(Sandbox([project]))
+    s3.open("bar.vtu")  # never overwrites: the next new scene gets another name
+    assert s3.scene.source.name == "bar-2.toml"
+    s2.close()
+    s3.close()
+
+
+def test_save_round_trip_exact(server, project):
+    call(server, "POST", "/api/edit", {"op": "add_keyframe", "time": 0.75, "group": "right",
+                                       "position": {"rotation": [12.5, 0, -3], "center":
+                                                    [1.0, 0.0, 0.0]}, "stiffness": 1e4})
+    call(server, "POST", "/api/save", {})
+    text = (project / "shot.toml").read_text()
+    scene = load_scene(project / "shot.toml")
+    assert scene == server.session.scene
+    save_scene(scene, project / "again.toml")
+    assert (project / "again.toml").read_text() == text
+
+
+def test_solve_matches_library(server):
+    """The editor's final frames are the library's solve of the same scene."""
+    from wiggly.scene import build
+    from wiggly.solve import solve
+
+    fs = wait_final(server.session)
+    scene = server.session.scene
+    body, keys = build(scene)
+    anim = solve(body, keys, start=0.0, end=1.0, warp=True)
+    ref = anim.positions(anim.frame_times(scene.time.fps), dtype=np.float32)
+    assert np.abs(ref - fs.positions).max() < 1e-4
+
+
+def test_cli_edit(project, capsys):
+    import argparse
+
+    from wiggly.cli import edit
+
+    parser = argparse.ArgumentParser()
+    edit.add_args(parser)
+    args = parser.parse_args([str(project / "shot.toml"), "--port", "0", "--no-browser"])
+    assert args.host == "127.0.0.1"  # this machine only, unless told otherwise
+    assert edit.roots_for(args.path, []) == [project.resolve()]
+    assert edit.exposure_warning("127.0.0.1") is None and edit.exposure_warning("::1") is None
+    assert "trusted network" in edit.exposure_warning("0.0.0.0")
+    srv = edit.start(args)
+    try:
+        st, d = call(srv, "GET", "/api/state")
+        assert st == 200 and d["path"] == "shot.toml"
+    finally:
+        srv.stop()
+    with pytest.raises(Exception, match="no such file"):
+        edit.start(parser.parse_args([str(project / "missing.toml"), "--port", "0"]))
