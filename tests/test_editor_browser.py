@@ -105,13 +105,21 @@ def _box_select(page, indices) -> None:
 def _drag_gizmo(page, axis: str, pixels: float, steps: int = 10) -> None:
     """Grab the gizmo's ``axis`` arrow (found by hovering along it) and drag it ``pixels``
     along the arrow's screen direction, with real mouse events."""
-    h = page.evaluate(f"window.wiggly.gizmoHandle('{axis}')")
-    for d in range(12, 200, 4):
-        x, y = h["x"] + d * h["dx"], h["y"] + d * h["dy"]
-        page.mouse.move(x, y)
-        if page.evaluate(f"window.wiggly.gizmoHandle('{axis}').axis") == axis:
+    found = False
+    for _attempt in range(3):  # the gizmo picks against matrices updated when it renders
+        page.evaluate("() => new Promise(r => requestAnimationFrame(() => "
+                      "requestAnimationFrame(r)))")
+        h = page.evaluate(f"window.wiggly.gizmoHandle('{axis}')")
+        for d in range(12, 200, 4):
+            x, y = h["x"] + d * h["dx"], h["y"] + d * h["dy"]
+            page.mouse.move(x, y)
+            if page.evaluate(f"window.wiggly.gizmoHandle('{axis}').axis") == axis:
+                found = True
+                break
+        if found:
             break
-    else:
+        page.mouse.move(5, 5)
+    if not found:
         raise AssertionError(f"cannot find the gizmo's {axis} handle")
     page.mouse.down()
     for k in range(1, steps + 1):
