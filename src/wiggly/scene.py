@@ -23,6 +23,7 @@ import re
 import sys
 import time as _time
 import tomllib
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -422,14 +423,16 @@ def _num(x: float) -> str:
     return repr(int(x)) if float(x).is_integer() and abs(x) < 1e15 else repr(float(x))
 
 
-class _Spec:
+class _Spec(ABC):
     what = "a value"
 
+    @abstractmethod
     def parse(self, value: Any, path: str, p: _Problems) -> Any:
-        raise NotImplementedError
+        """Validate ``value`` at key ``path``; record problems in ``p``."""
 
+    @abstractmethod
     def schema(self) -> dict:
-        raise NotImplementedError
+        """The JSON Schema of this spec."""
 
     def fail(self, value, path: str, p: _Problems) -> _Bad:
         return p.bad(f"{path} = {_show(value)} must be {self.what}")

@@ -19,7 +19,7 @@ examples:
 
 
 def add_args(parser: argparse.ArgumentParser) -> None:
-    pass
+    """``wiggly schema`` has no options."""
 
 
 def run(args: argparse.Namespace) -> int:
