@@ -521,3 +521,21 @@ def test_load_model_reports_the_file_for_surface_errors(tmp_path):
     trimesh.Trimesh(V, F, process=False).export(path)
     with pytest.raises(WigglyInputError, match=r"cubes\.off: the surface intersects itself"):
         load_model(path)
+
+
+def test_tetrahedralization_is_cached_and_reproducible(tmp_path):
+    """fTetWild is randomized: the disk cache makes a second run identical; a corrupt cache
+    file is recomputed, and cache_dir=False bypasses it."""
+    from wiggly.mesh import load_mesh, tetrahedralize
+
+    surface = load_mesh("builtin:bar")
+    first = tetrahedralize(surface, resolution=8, cache_dir=tmp_path)
+    files = list((tmp_path / "tets").glob("*.npz"))
+    assert len(files) == 1
+    second = tetrahedralize(surface, resolution=8, cache_dir=tmp_path)
+    assert np.array_equal(first.tets, second.tets)
+    assert np.array_equal(first.vertices, second.vertices)
+    files[0].write_bytes(b"not an npz")
+    third = tetrahedralize(surface, resolution=8, cache_dir=tmp_path)
+    assert third.n_tets > 0 and np.load(files[0])["tets"].shape == third.tets.shape
+    assert tetrahedralize(surface, resolution=8, cache_dir=False).n_tets > 0

@@ -244,7 +244,10 @@ def prepare(
     """
     if not isinstance(model, Model):
         path = Path(model)
-        model = load_model(path, resolution=resolution, edge_length=edge_length, progress=progress)
+        model = load_model(
+            path, resolution=resolution, edge_length=edge_length, progress=progress,
+            cache_dir=cache_dir,
+        )
     material = material or Material()
     damping = damping or Damping()
     gravity = np.asarray(gravity, dtype=float).reshape(-1)

@@ -1,4 +1,4 @@
-"""Atomic output files: a result appears complete or not at all, never half-written."""
+"""Files: atomic outputs (complete or not at all, never half-written) and the disk cache."""
 
 from __future__ import annotations
 
@@ -31,3 +31,11 @@ def atomic_file(path: str | os.PathLike[str]) -> Iterator[Path]:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def default_cache_dir() -> Path:
+    """``$WIGGLY_CACHE_DIR``, else ``$XDG_CACHE_HOME/wiggly``, else ``~/.cache/wiggly``."""
+    if os.environ.get("WIGGLY_CACHE_DIR"):
+        return Path(os.environ["WIGGLY_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "wiggly"

@@ -16,6 +16,7 @@ outside).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import signal
 import tempfile
@@ -34,6 +35,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from wiggly.errors import WigglyInputError
+from wiggly.files import atomic_file, default_cache_dir
 from wiggly.progress import activity
 
 __all__ = [
@@ -821,6 +823,21 @@ def _per_vertex(corner_values: np.ndarray, F: np.ndarray, n: int) -> np.ndarray 
 
 
 _CWD_LOCK = threading.Lock()
+_TET_CACHE_VERSION = b"wiggly-tets-1"
+
+
+def _tet_cache(V: np.ndarray, F: np.ndarray, edge_length: float, envelope: float,
+               cache_dir: str | os.PathLike[str] | bool | None) -> Path | None:
+    """Cache file of a tetrahedralization: fTetWild is randomized, so caching makes re-runs
+    reproducible (and lets the modes cache hit).  Keyed by surface and options."""
+    if cache_dir is False:
+        return None
+    h = hashlib.sha256(_TET_CACHE_VERSION)
+    for a in (np.ascontiguousarray(V, np.float64), np.ascontiguousarray(F, np.int64),
+              np.array([edge_length, envelope])):
+        h.update(a.tobytes())
+    root = Path(cache_dir) if cache_dir not in (None, True) else default_cache_dir()
+    return root / "tets" / f"{h.hexdigest()[:32]}.npz"
 
 
 @contextmanager
@@ -849,8 +866,13 @@ def tetrahedralize(
     repair: bool = False,
     progress: bool = False,
     source: str = "surface",
+    cache_dir: str | os.PathLike[str] | bool | None = None,
 ) -> TetMesh:
     """Fill a closed surface with linear tetrahedra using fTetWild (pytetwild).
+
+    Results are cached on disk (``cache_dir``; None: :func:`wiggly.files.default_cache_dir`,
+    False: off), keyed by the surface and the options: fTetWild is randomized, so the cache
+    makes repeated runs reproducible.
 
     fTetWild (Hu et al. 2020) meshes the volume inside an envelope around the
     input: the boundary of the tet mesh stays within ``0.1 * edge_length``
@@ -928,15 +950,32 @@ def tetrahedralize(
     import pytetwild
 
     envelope = float(np.clip(ENVELOPE_PER_EDGE * edge_length / diag, 1e-3, 1e-2))
-    with activity(f"tetrahedralizing {source} (fTetWild)", progress), _scratch_cwd():
-        tv, tt = pytetwild.tetrahedralize(
-            np.ascontiguousarray(V),
-            np.ascontiguousarray(F, dtype=np.int32),
-            edge_length_abs=float(edge_length),
-            epsilon=envelope,
-            quiet=True,
-            loglevel=6,
-        )
+    cached = _tet_cache(V, F, edge_length, envelope, cache_dir)
+    if cached is not None and cached.exists():
+        try:
+            with np.load(cached) as data:
+                tv, tt = data["vertices"], data["tets"]
+        except (OSError, ValueError, KeyError):
+            cached.unlink(missing_ok=True)
+            tv = tt = None
+    else:
+        tv = tt = None
+    if tv is None:
+        with activity(f"tetrahedralizing {source} (fTetWild)", progress), _scratch_cwd():
+            tv, tt = pytetwild.tetrahedralize(
+                np.ascontiguousarray(V),
+                np.ascontiguousarray(F, dtype=np.int32),
+                edge_length_abs=float(edge_length),
+                epsilon=envelope,
+                quiet=True,
+                loglevel=6,
+            )
+        if cached is not None and len(tt):
+            try:
+                with atomic_file(cached) as tmp, open(tmp, "wb") as f:
+                    np.savez(f, vertices=np.asarray(tv), tets=np.asarray(tt))
+            except OSError:
+                pass  # a read-only cache directory only costs time
     tt = np.asarray(tt, dtype=np.int64).reshape(-1, 4)
     if len(tt) == 0:
         raise WigglyInputError(
@@ -1013,6 +1052,7 @@ def load_model(
     resolution: int | None = None,
     repair: bool = False,
     progress: bool = False,
+    cache_dir: str | os.PathLike[str] | bool | None = None,
 ) -> Model:
     """Load a model, tetrahedralize it if it is a surface and embed the surface.
 
@@ -1046,6 +1086,7 @@ def load_model(
             repair=repair,
             progress=progress,
             source=source,
+            cache_dir=cache_dir,
         )
         return Model(loaded, tets, embed(loaded.vertices, tets), source)
     tets = loaded

@@ -38,7 +38,7 @@ import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
 from wiggly.errors import WigglyInputError
-from wiggly.files import atomic_file
+from wiggly.files import atomic_file, default_cache_dir
 from wiggly.linalg import blas_single_thread, factorize_spd
 
 __all__ = ["Modes", "compute_modes", "default_cache_dir", "rigid_motions"]
@@ -113,14 +113,6 @@ def rigid_motions(V: np.ndarray) -> np.ndarray:
     R[:, :, 4] = np.column_stack([X[:, 2], zero, -X[:, 0]])  # e_y x X
     R[:, :, 5] = np.column_stack([-X[:, 1], X[:, 0], zero])  # e_z x X
     return R.reshape(3 * n, 6)
-
-
-def default_cache_dir() -> Path:
-    """``$WIGGLY_CACHE_DIR``, else ``$XDG_CACHE_HOME/wiggly``, else ``~/.cache/wiggly``."""
-    if os.environ.get("WIGGLY_CACHE_DIR"):
-        return Path(os.environ["WIGGLY_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "wiggly"
 
 
 class _Progress:
