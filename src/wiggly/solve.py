@@ -216,6 +216,8 @@ class SpacetimeProblem:
         self._energy_cache: dict[tuple, tuple] = {}
         self._group_cache: dict[tuple, tuple] = {}
         self._jacobians: dict[float, tuple] = {}
+        self._projection_cache: dict[tuple, np.ndarray] = {}
+        self._preroll_form: tuple | None = None
 
     @property
     def duration(self) -> float:
@@ -264,13 +266,16 @@ class SpacetimeProblem:
     def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Least energy to reach (q, q') from rest in ``preroll`` seconds, without gravity:
         1/2 (q - q_eq, q')^T Q22 (q - q_eq, q') per mode; returns Q22 and its linear term."""
+        if self._preroll_form is not None:
+            return self._preroll_form
         body, r = self.body, self.body.r
         basis = wiggly_basis(body.eigenvalues, body.delta, self.preroll)
         Q22 = energy_form(basis, np.zeros(r)).Q[:, 2:, 2:]
         q_eq = equilibrium(body.eigenvalues, body.modal_gravity)
         lin = -Q22[:, :, 0] * q_eq[:, None]  # -Q22 (q_eq, 0)
         const = 0.5 * float(np.sum(Q22[:, 0, 0] * q_eq**2))
-        return Q22, np.r_[lin[:, 0], lin[:, 1]], const
+        self._preroll_form = (Q22, np.r_[lin[:, 0], lin[:, 1]], const)
+        return self._preroll_form
 
     def _assemble_energy(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Band storage of E (+ pre-roll): 1/2 z^T H z + f^T z + c."""
@@ -304,11 +309,23 @@ class SpacetimeProblem:
             if kf.position is not None and c_A > 0:
                 blk = 2 * r * k + np.arange(r)
                 _add_block(ab, bw, blk, c_A * AtA)
-                f[blk] -= c_A * (A.T @ (kf.position.ravel() - rest))
+                f[blk] -= c_A * self._projected(A, kf.vertices, kf.on, kf.position, rest)
             if kf.velocity is not None and c_B > 0:
                 blk = 2 * r * k + r + np.arange(r)
                 _add_block(ab, bw, blk, c_B * AtA)
-                f[blk] -= c_B * (A.T @ kf.velocity.ravel())
+                f[blk] -= c_B * self._projected(A, kf.vertices, kf.on, kf.velocity, None)
+
+    def _projected(self, A: np.ndarray, vertices: np.ndarray, on: str, target: np.ndarray,
+                   rest: np.ndarray | None) -> np.ndarray:
+        """A^T (target - rest), cached by group and target (unchanged keyframes are free)."""
+        t = np.ascontiguousarray(target)
+        key = (on, len(vertices), hash(vertices.tobytes()), rest is None, hash(t.tobytes()))
+        if key not in self._projection_cache:
+            if len(self._projection_cache) > 256:
+                self._projection_cache.clear()
+            d = t.ravel() if rest is None else t.ravel() - rest
+            self._projection_cache[key] = A.T @ d
+        return self._projection_cache[key]
 
     def solve(
         self,
