@@ -60,7 +60,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from wiggly.errors import WigglyInputError
-from wiggly.linalg import factorize_spd
+from wiggly.linalg import available_backends, factorize_spd
 
 __all__ = ["Warp", "rotation_coefficients", "tet_gradient_operator"]
 
@@ -428,7 +428,12 @@ class Warp:
         self._gb_key: tuple | None = None
         self._gb = np.zeros(0)
         if self._free.size:
-            self._solve = factorize_spd(laplacian[self._free][:, self._free])
+            # many right-hand sides per solve (3 per frame): cholespy's multi-RHS solve is
+            # ~3x faster than scikit-sparse's CHOLMOD wrapper on these Laplacians
+            self._solve = factorize_spd(
+                laplacian[self._free][:, self._free],
+                backend="cholespy" if "cholespy" in available_backends() else None,
+            )
         else:
             self._solve = None
 
