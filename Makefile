@@ -52,11 +52,13 @@ system-test-deps:
 	fi
 	@$(BIN)/python -c "import playwright" 2>/dev/null || $(BIN)/python -m pip install --quiet playwright
 
-## Optional speed-up: CHOLMOD sparse Cholesky (SuiteSparse) for large bodies.
+## Optional speed-up: CHOLMOD sparse Cholesky (SuiteSparse) on OpenBLAS for large bodies
+## (on a 105k-tet box: factorization 24 s with the reference BLAS, 2.6 s with OpenBLAS).
 cholmod: $(STAMP)
 	@if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	  (dpkg -s libsuitesparse-dev >/dev/null 2>&1 || (apt-get update -qq && \
-	   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libsuitesparse-dev >/dev/null)) && \
+	  (dpkg -s libsuitesparse-dev libopenblas0-pthread >/dev/null 2>&1 || (apt-get update -qq && \
+	   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libsuitesparse-dev \
+	   libopenblas0-pthread >/dev/null)) && \
 	  $(BIN)/python -m pip install --quiet "scikit-sparse==0.4.16" \
 	  || echo "[make] CHOLMOD not available; wiggly uses cholespy"; \
 	else echo "[make] CHOLMOD needs root for libsuitesparse-dev; wiggly uses cholespy"; fi
