@@ -79,7 +79,7 @@ class Keyframe:
     ) -> Keyframe:
         """Vertices at their rest positions (and at zero velocity if ``still``)."""
         on = kw.pop("on", "surface")
-        v = _indices(vertices, body.n_vertices(on), on)
+        v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
         X = body.rest_positions(on)[v]
         vel = np.zeros(3) if still else kw.pop("velocity", None)
         return cls(time, v, X.copy(), vel, on, spec={"kind": "rest"}, **kw)
@@ -90,7 +90,7 @@ class Keyframe:
     ) -> Keyframe:
         """Vertices displaced from rest by ``offset`` ((3,) or (k, 3) metres)."""
         on = kw.pop("on", "surface")
-        v = _indices(vertices, body.n_vertices(on), on)
+        v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
         d = np.broadcast_to(np.asarray(offset, float), (len(v), 3))
         return cls(
             time,
@@ -115,7 +115,7 @@ class Keyframe:
         """Rest vertices rotated by ``rotation`` about ``center`` (default: their centroid),
         then translated: x = R (X - c) + c + translation."""
         on = kw.pop("on", "surface")
-        v = _indices(vertices, body.n_vertices(on), on)
+        v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
         X = body.rest_positions(on)[v]
         R = _rotation(rotation)
         c = X.mean(axis=0) if center is None else np.asarray(center, float)
@@ -139,7 +139,7 @@ class Keyframe:
             )
         if self.on not in ("surface", "tets"):
             raise WigglyInputError(f"{what}: on = {self.on!r}; use 'surface' or 'tets'")
-        v = _indices(self.vertices, body.n_vertices(self.on), self.on, what)
+        v = vertex_indices(self.vertices, body.n_vertices(self.on), self.on, what)
         pos = vel = None
         if self.position is not None:
             pos = np.asarray(self.position, float)
@@ -181,8 +181,6 @@ class Keyframe:
         return float(c_A), float(c_B)
 
 
-def _indices(vertices: ArrayLike, n: int, on: str, what: str = "keyframe") -> np.ndarray:
-    return vertex_indices(vertices, n, on, what)
 
 
 def _finite(a: np.ndarray, what: str) -> None:

@@ -526,23 +526,24 @@ class WarpedObjective:
             out.append((rA, rB))
         return out
 
-    def value(self, z: np.ndarray) -> float:
-        """F(z)."""
-        *_, WU, Vel = self._fields(z)
-        F = 0.5 * z @ _band_matvec(self.ab_E, self.bw, z) + self.f_E @ z + self.c_E
-        for rA, rB in self._residuals(WU, Vel):
-            F += 0.5 * sum(float(x @ x) for x in (rA, rB) if x is not None)
-        return float(F)
-
-    def value_and_gradient(self, z: np.ndarray) -> tuple[float, np.ndarray]:
-        """F(z) and its exact gradient."""
+    def _evaluate(self, z: np.ndarray):
+        """F(z) with what its gradient needs: H z, node fields and residuals."""
         _q, v, U, WU, Vel = self._fields(z)
-        n, r, Phi = self.n, self.r, self.Phi
         Hz = _band_matvec(self.ab_E, self.bw, z)
         F = 0.5 * z @ Hz + self.f_E @ z + self.c_E
         resid = self._residuals(WU, Vel)
         for rA, rB in resid:
             F += 0.5 * sum(float(x @ x) for x in (rA, rB) if x is not None)
+        return float(F), Hz, v, U, resid
+
+    def value(self, z: np.ndarray) -> float:
+        """F(z)."""
+        return self._evaluate(z)[0]
+
+    def value_and_gradient(self, z: np.ndarray) -> tuple[float, np.ndarray]:
+        """F(z) and its exact gradient."""
+        F, Hz, v, U, resid = self._evaluate(z)
+        n, r, Phi = self.n, self.r, self.Phi
         t0 = _time.perf_counter()
         g = Hz + self.f_E
         G = g.reshape(-1, 2, r)
