@@ -59,10 +59,11 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from wiggly import warp_kernels
 from wiggly.errors import WigglyInputError
 from wiggly.linalg import available_backends, factorize_spd
 
-__all__ = ["Warp", "rotation_coefficients", "tet_gradient_operator"]
+__all__ = ["Warp", "rotation_coefficients", "tet_gradient_operator", "tet_gradients"]
 
 # Below this angle (radians) the coefficient c = (th - sin th) / th^3 of the rotation
 # derivative is evaluated by its Taylor series in th^2 (truncation error < 1e-19 there).
@@ -78,6 +79,28 @@ _BLOCK_ELEMENTS = 8192
 # --------------------------------------------------------------------------- #
 # Geometry: the P1 gradient operator
 # --------------------------------------------------------------------------- #
+def tet_gradients(vertices: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients of the four P1 basis functions of every tet, (m, 4, 3), and volumes (m,).
+
+    With ``Dm = [X1 - X0, X2 - X0, X3 - X0]`` the gradients of ``phi_1..phi_3`` are the
+    rows of ``inv(Dm)`` and ``grad phi_0 = -(grad phi_1 + grad phi_2 + grad phi_3)``.
+    """
+    X = vertices[tets]  # (m, 4, 3)
+    Dm = (X[:, 1:] - X[:, :1]).transpose(0, 2, 1)  # columns are edge vectors
+    vol = np.linalg.det(Dm) / 6.0
+    if np.any(~(vol > 0.0)):
+        bad = np.flatnonzero(~(vol > 0.0))
+        raise WigglyInputError(
+            f"tets should be positively oriented with positive volume; {bad.size} tets are "
+            f"degenerate or inverted (first: tet {bad[0]}, volume {vol[bad[0]]:.3g})"
+        )
+    Dinv = np.linalg.inv(Dm)
+    grads = np.empty((tets.shape[0], 4, 3))
+    grads[:, 1:] = Dinv
+    grads[:, 0] = -Dinv.sum(axis=1)
+    return grads, vol
+
+
 def tet_gradient_operator(
     vertices: np.ndarray, tets: np.ndarray
 ) -> tuple[sp.csr_matrix, np.ndarray]:
@@ -106,20 +129,8 @@ def tet_gradient_operator(
     basis functions ``phi_1..phi_3`` are the rows of ``inv(Dm)``, and
     ``grad phi_0 = -(grad phi_1 + grad phi_2 + grad phi_3)``.
     """
-    X = vertices[tets]  # (m, 4, 3)
-    Dm = (X[:, 1:] - X[:, :1]).transpose(0, 2, 1)  # columns are edge vectors
-    vol = np.linalg.det(Dm) / 6.0
-    if np.any(~(vol > 0.0)):
-        bad = np.flatnonzero(~(vol > 0.0))
-        raise WigglyInputError(
-            f"tets should be positively oriented with positive volume; {bad.size} tets are "
-            f"degenerate or inverted (first: tet {bad[0]}, volume {vol[bad[0]]:.3g})"
-        )
-    Dinv = np.linalg.inv(Dm)
+    grads, vol = tet_gradients(vertices, tets)
     m = tets.shape[0]
-    grads = np.empty((m, 4, 3))
-    grads[:, 1:] = Dinv
-    grads[:, 0] = -Dinv.sum(axis=1)
     rows = np.broadcast_to((3 * np.arange(m)[:, None] + np.arange(3))[:, :, None], (m, 3, 4))
     cols = np.broadcast_to(tets[:, None, :], (m, 3, 4))
     data = grads.transpose(0, 2, 1)  # (m, 3 j, 4 k)
@@ -359,6 +370,10 @@ class Warp:
 
         G, vol = tet_gradient_operator(V, T)
         self.volumes = vol
+        self._tets = np.ascontiguousarray(T)
+        self._grads = tet_gradients(V, T)[0]
+        # fused compiled per-tet kernels (numba); False: the vectorized numpy path
+        self.compiled = warp_kernels.AVAILABLE
         self._G = G  # (3m, n): per-tet gradients
         self._Gt = sp.csr_matrix(G.T)  # (n, 3m)
         self._VG = sp.csr_matrix(sp.diags(np.tile(vol, 3)) @ G)  # Vol G
@@ -427,6 +442,8 @@ class Warp:
 
         self._gb_key: tuple | None = None
         self._gb = np.zeros(0)
+        self._frames_key: tuple | None = None
+        self._frames = np.zeros(0)
         if self._free.size:
             # many right-hand sides per solve (3 per frame): cholespy's multi-RHS solve is ~3x
             # faster than CHOLMOD on Debian's reference BLAS, and on a par with it on OpenBLAS
@@ -536,7 +553,13 @@ class Warp:
         (SYSTEM.md §6; Huang et al. 2011).
         """
         X, batched = self._as_columns(U, "U")
-        rhs = self._per_tet(_target_block, [(self._G, X)], self._GtV)
+        if self.compiled:
+            Uf = np.ascontiguousarray(X.transpose(2, 0, 1))
+            out = np.zeros_like(Uf)
+            warp_kernels.target_rhs(Uf, self._tets, self._grads, self.volumes, out)
+            rhs = out.transpose(1, 2, 0)
+        else:
+            rhs = self._per_tet(_target_block, [(self._G, X)], self._GtV)
         return self._from_columns(self._poisson(rhs, X), batched)
 
     __call__ = apply
@@ -553,7 +576,14 @@ class Warp:
             raise WigglyInputError(
                 f"dU should have the shape of U {np.shape(U)}; shape is {np.shape(dU)}"
             )
-        rhs = self._per_tet(_jvp_fused, [(self._G, X), (self._G, dX)], self._GtV)
+        if self.compiled:
+            Uf = np.ascontiguousarray(X.transpose(2, 0, 1))
+            dUf = np.ascontiguousarray(dX.transpose(2, 0, 1))
+            out = np.zeros_like(Uf)
+            warp_kernels.jvp_rhs(Uf, dUf, self._tets, self._grads, self.volumes, out)
+            rhs = out.transpose(1, 2, 0)
+        else:
+            rhs = self._per_tet(_jvp_fused, [(self._G, X), (self._G, dX)], self._GtV)
         return self._from_columns(self._poisson(rhs, dX), batched)
 
     def vjp(self, U: np.ndarray, Y: np.ndarray) -> np.ndarray:
@@ -565,7 +595,14 @@ class Warp:
                 f"Y should have the shape of U {np.shape(U)}; shape is {np.shape(Y)}"
             )
         Z, Y_in = self._poisson_adjoint(Yc)
-        out = self._per_tet(_vjp_fused, [(self._G, X), (self._VG, Z)], self._Gt)
+        if self.compiled:
+            Uf = np.ascontiguousarray(X.transpose(2, 0, 1))
+            Zf = np.ascontiguousarray(Z.transpose(2, 0, 1))
+            out = np.zeros_like(Uf)
+            warp_kernels.vjp_rhs(Uf, Zf, self._tets, self._grads, self.volumes, out)
+            out = out.transpose(1, 2, 0)
+        else:
+            out = self._per_tet(_vjp_fused, [(self._G, X), (self._VG, Z)], self._Gt)
         return self._from_columns(out + Y_in, batched)
 
     def jacobian(self, u: np.ndarray, basis: np.ndarray) -> np.ndarray:
@@ -597,12 +634,28 @@ class Warp:
                 f"basis should have shape ({n}, 3, r) or ({3 * n}, r); shape is {B.shape}"
             )
         dX = B.reshape(n, 3, r)
-        M = self._tangent_matrices(X)
-        m = self.n_tets
-        GB = self._basis_gradients(B, dX)
-        dH = np.matmul(M, GB)  # (m, 9, r)
-        rhs = (self._GtV @ dH.reshape(3 * m, 3 * r)).reshape(n, 3, r)
+        if self.compiled:
+            out = np.zeros((r, n, 3))
+            warp_kernels.jacobian_rhs(
+                np.ascontiguousarray(X[:, :, 0]), self._basis_frames(B, dX), self._tets,
+                self._grads, self.volumes, out,
+            )
+            rhs = out.transpose(1, 2, 0)
+        else:
+            M = self._tangent_matrices(X)
+            m = self.n_tets
+            GB = self._basis_gradients(B, dX)
+            dH = np.matmul(M, GB)  # (m, 9, r)
+            rhs = (self._GtV @ dH.reshape(3 * m, 3 * r)).reshape(n, 3, r)
         return self._poisson(rhs, dX).reshape(B.shape)
+
+    def _basis_frames(self, B: np.ndarray, dX: np.ndarray) -> np.ndarray:
+        """The r basis fields as a contiguous (r, n, 3) array, cached for the last basis."""
+        key = (B.ctypes.data, B.shape, B.strides)
+        if self._frames_key != key:
+            self._frames = np.ascontiguousarray(dX.transpose(2, 0, 1))
+            self._frames_key = key
+        return self._frames
 
     def _basis_gradients(self, B: np.ndarray, dX: np.ndarray) -> np.ndarray:
         """Per-tet gradients of the r basis fields, (m, 9, r), cached for the last basis

@@ -1,0 +1,302 @@
+"""Compiled per-tet kernels of the rotation-strain warp (SYSTEM.md §6; Huang et al. 2011).
+
+The warp's per-tet arithmetic (gradient of ``u``, rotation vector and strain, Rodrigues,
+and the scatter ``G^T Vol`` back to the vertices) fused into one pass over the tets, compiled
+with numba.  :mod:`wiggly.warp` uses these kernels when numba is importable and its
+vectorized numpy path otherwise (or when ``WIGGLY_NUMBA=0``); the two are independent
+implementations of the same formulas and are tested against each other.
+
+Conventions: ``tets`` (m, 4) int64, ``grads`` (m, 4, 3) the gradients of the four P1 basis
+functions of each tet, ``vol`` (m,) volumes.  Displacement fields are (f, n, 3) arrays (f
+frames or directions); outputs are accumulated into zeroed (f, n, 3) arrays, in parallel
+over the f fields.  A local 3x3 matrix ``M`` is a flat array of 9, ``M[3 i + j] = M_ij``,
+and the displacement gradient is ``A_ij = d u_i / d X_j``.
+
+Formulas (the same as the numpy path of :mod:`wiggly.warp`):
+
+* ``w = axial((A - A^T) / 2)``, ``S = (A + A^T) / 2``, ``R = exp([w]x) = I + a [w]x + b [w]x^2``
+  with ``a = sin(th)/th``, ``b = (1 - cos th)/th^2``; target ``H = (R - I) + S + (R - I) S``;
+* tangent ``dH = [J(w) dw]x F + R dS`` with ``F = R (I + S)`` and the left Jacobian
+  ``J(w) = I + b [w]x + c [w]x^2``, ``c = (th - sin th)/th^3``;
+* its adjoint ``dA = sym(R^T Y) + [J(w)^T g / 2]x`` with ``g = 2 axial(Y F^T)``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+try:  # numba is a dependency; the numpy path remains for platforms without its wheels
+    if os.environ.get("WIGGLY_NUMBA", "1") == "0":
+        raise ImportError("disabled by WIGGLY_NUMBA=0")
+    from numba import njit, prange
+
+    AVAILABLE = True
+except ImportError:  # pragma: no cover - exercised with WIGGLY_NUMBA=0
+    AVAILABLE = False
+
+    def njit(*_args, **_kwargs):
+        return lambda fn: fn
+
+    prange = range
+
+jit = njit(cache=True, fastmath=False, nogil=True)
+pjit = njit(cache=True, fastmath=False, nogil=True, parallel=True)
+
+__all__ = ["AVAILABLE", "jacobian_rhs", "jvp_rhs", "linearization", "target_rhs", "vjp_rhs"]
+
+# Series threshold for c = (th - sin th)/th^3, as in wiggly.warp.rotation_coefficients.
+_SERIES_ANGLE2 = 0.01
+_TINY_ANGLE = 1e-300
+# Per-tet linearization record: w (3), b, c, R (9), F (9).
+_LIN = 23
+
+
+@jit
+def gradient(U, tets, grads, t, A):
+    """``A_ij = sum_k U[v_k, i] grad_k_j`` on tet ``t``."""
+    for x in range(9):
+        A[x] = 0.0
+    for k in range(4):
+        v = tets[t, k]
+        g0, g1, g2 = grads[t, k, 0], grads[t, k, 1], grads[t, k, 2]
+        for i in range(3):
+            ui = U[v, i]
+            A[3 * i] += ui * g0
+            A[3 * i + 1] += ui * g1
+            A[3 * i + 2] += ui * g2
+
+
+@jit
+def scatter(H, scale, tets, grads, t, out):
+    """``out[v_k, i] += scale sum_j H_ij grad_k_j`` (the adjoint of :func:`gradient`)."""
+    for k in range(4):
+        v = tets[t, k]
+        g0, g1, g2 = grads[t, k, 0], grads[t, k, 1], grads[t, k, 2]
+        for i in range(3):
+            out[v, i] += scale * (H[3 * i] * g0 + H[3 * i + 1] * g1 + H[3 * i + 2] * g2)
+
+
+@jit
+def coefficients(t2):
+    th = max(math.sqrt(t2), _TINY_ANGLE)
+    a = math.sin(th) / th
+    s = math.sin(0.5 * th) / th
+    b = 2.0 * s * s
+    if t2 < _SERIES_ANGLE2:
+        x = t2
+        c = 1.0 / 6.0 - x / 120.0 * (1.0 - x / 42.0 * (1.0 - x / 72.0 * (1.0 - x / 110.0)))
+    else:
+        c = (1.0 - a) / t2
+    return a, b, c
+
+
+@jit
+def rotation_minus_identity(w0, w1, w2, a, b, Rm):
+    """``exp([w]x) - I = a [w]x + b (w w^T - |w|^2 I)``."""
+    Rm[0] = -b * (w1 * w1 + w2 * w2)
+    Rm[1] = b * w0 * w1 - a * w2
+    Rm[2] = b * w0 * w2 + a * w1
+    Rm[3] = b * w0 * w1 + a * w2
+    Rm[4] = -b * (w0 * w0 + w2 * w2)
+    Rm[5] = b * w1 * w2 - a * w0
+    Rm[6] = b * w0 * w2 - a * w1
+    Rm[7] = b * w1 * w2 + a * w0
+    Rm[8] = -b * (w0 * w0 + w1 * w1)
+
+
+@jit
+def strain(A, S):
+    for i in range(3):
+        for j in range(3):
+            S[3 * i + j] = 0.5 * (A[3 * i + j] + A[3 * j + i])
+
+
+@jit
+def target(A, S, Rm, H):
+    """``H = exp([w]x)(I + S) - I`` evaluated as ``(R - I) + S + (R - I) S``."""
+    w0 = 0.5 * (A[7] - A[5])
+    w1 = 0.5 * (A[2] - A[6])
+    w2 = 0.5 * (A[3] - A[1])
+    a, b, _ = coefficients(w0 * w0 + w1 * w1 + w2 * w2)
+    rotation_minus_identity(w0, w1, w2, a, b, Rm)
+    strain(A, S)
+    for i in range(3):
+        for j in range(3):
+            H[3 * i + j] = (
+                Rm[3 * i + j]
+                + S[3 * i + j]
+                + Rm[3 * i] * S[j]
+                + Rm[3 * i + 1] * S[3 + j]
+                + Rm[3 * i + 2] * S[6 + j]
+            )
+
+
+@jit
+def linearize(A, S, lin):
+    """``lin = [w, b, c, R, F]`` at gradient ``A``."""
+    w0 = 0.5 * (A[7] - A[5])
+    w1 = 0.5 * (A[2] - A[6])
+    w2 = 0.5 * (A[3] - A[1])
+    a, b, c = coefficients(w0 * w0 + w1 * w1 + w2 * w2)
+    lin[0], lin[1], lin[2], lin[3], lin[4] = w0, w1, w2, b, c
+    R = lin[5:14]
+    F = lin[14:23]
+    rotation_minus_identity(w0, w1, w2, a, b, R)
+    R[0] += 1.0
+    R[4] += 1.0
+    R[8] += 1.0
+    strain(A, S)
+    for i in range(3):
+        for j in range(3):
+            F[3 * i + j] = (
+                R[3 * i + j] + R[3 * i] * S[j] + R[3 * i + 1] * S[3 + j] + R[3 * i + 2] * S[6 + j]
+            )
+
+
+@jit
+def tangent(lin, dA, dS, dH):
+    """``dH = [J(w) dw]x F + R dS``."""
+    w0, w1, w2, b, c = lin[0], lin[1], lin[2], lin[3], lin[4]
+    R = lin[5:14]
+    F = lin[14:23]
+    d0 = 0.5 * (dA[7] - dA[5])
+    d1 = 0.5 * (dA[2] - dA[6])
+    d2 = 0.5 * (dA[3] - dA[1])
+    strain(dA, dS)
+    x0 = w1 * d2 - w2 * d1  # w x dw
+    x1 = w2 * d0 - w0 * d2
+    x2 = w0 * d1 - w1 * d0
+    y0 = w1 * x2 - w2 * x1  # w x (w x dw)
+    y1 = w2 * x0 - w0 * x2
+    y2 = w0 * x1 - w1 * x0
+    v0 = d0 + b * x0 + c * y0
+    v1 = d1 + b * x1 + c * y1
+    v2 = d2 + b * x2 + c * y2
+    for j in range(3):
+        f0, f1, f2 = F[j], F[3 + j], F[6 + j]
+        dH[j] = v1 * f2 - v2 * f1
+        dH[3 + j] = v2 * f0 - v0 * f2
+        dH[6 + j] = v0 * f1 - v1 * f0
+        for i in range(3):
+            dH[3 * i + j] += R[3 * i] * dS[j] + R[3 * i + 1] * dS[3 + j] + R[3 * i + 2] * dS[6 + j]
+
+
+@jit
+def cotangent(lin, Y, dA):
+    """Adjoint of :func:`tangent`: ``dA = sym(R^T Y) + [J(w)^T g / 2]x``."""
+    w0, w1, w2, b, c = lin[0], lin[1], lin[2], lin[3], lin[4]
+    R = lin[5:14]
+    F = lin[14:23]
+    # g = axial-difference of Y F^T: g_0 = (Y F^T)_21 - (Y F^T)_12, cyclic
+    P = dA  # scratch: (Y F^T) first
+    for i in range(3):
+        for j in range(3):
+            P[3 * i + j] = (
+                Y[3 * i] * F[3 * j] + Y[3 * i + 1] * F[3 * j + 1] + (Y[3 * i + 2] * F[3 * j + 2])
+            )
+    g0 = P[7] - P[5]
+    g1 = P[2] - P[6]
+    g2 = P[3] - P[1]
+    x0 = w1 * g2 - w2 * g1
+    x1 = w2 * g0 - w0 * g2
+    x2 = w0 * g1 - w1 * g0
+    y0 = w1 * x2 - w2 * x1
+    y1 = w2 * x0 - w0 * x2
+    y2 = w0 * x1 - w1 * x0
+    h0 = 0.5 * (g0 - b * x0 + c * y0)
+    h1 = 0.5 * (g1 - b * x1 + c * y1)
+    h2 = 0.5 * (g2 - b * x2 + c * y2)
+    for i in range(3):  # P = R^T Y
+        for j in range(3):
+            P[3 * i + j] = R[i] * Y[j] + R[3 + i] * Y[3 + j] + R[6 + i] * Y[6 + j]
+    s01 = 0.5 * (P[1] + P[3])
+    s02 = 0.5 * (P[2] + P[6])
+    s12 = 0.5 * (P[5] + P[7])
+    dA[1], dA[2] = s01 - h2, s02 + h1
+    dA[3], dA[5] = s01 + h2, s12 - h0
+    dA[6], dA[7] = s02 - h1, s12 + h0
+    # diagonal entries P[0], P[4], P[8] stay
+
+
+@pjit
+def target_rhs(U, tets, grads, vol, out):
+    """``out[s] += G^T Vol H(G U[s])``: right-hand sides of the warp's Poisson fit."""
+    for s in prange(U.shape[0]):
+        A = np.empty(9)
+        S = np.empty(9)
+        Rm = np.empty(9)
+        H = np.empty(9)
+        u, o = U[s], out[s]
+        for t in range(tets.shape[0]):
+            gradient(u, tets, grads, t, A)
+            target(A, S, Rm, H)
+            scatter(H, vol[t], tets, grads, t, o)
+
+
+@pjit
+def jvp_rhs(U, dU, tets, grads, vol, out):
+    """``out[s] += G^T Vol dH(G U[s]; G dU[s])``: the tangent map, per field pair."""
+    for s in prange(U.shape[0]):
+        A = np.empty(9)
+        dA = np.empty(9)
+        S = np.empty(9)
+        dH = np.empty(9)
+        lin = np.empty(_LIN)
+        u, du, o = U[s], dU[s], out[s]
+        for t in range(tets.shape[0]):
+            gradient(u, tets, grads, t, A)
+            linearize(A, S, lin)
+            gradient(du, tets, grads, t, dA)
+            tangent(lin, dA, S, dH)
+            scatter(dH, vol[t], tets, grads, t, o)
+
+
+@pjit
+def vjp_rhs(U, Z, tets, grads, vol, out):
+    """``out[s] += G^T dA`` with ``dA`` the cotangent of ``Y = Vol G Z[s]``."""
+    for s in prange(U.shape[0]):
+        A = np.empty(9)
+        Y = np.empty(9)
+        S = np.empty(9)
+        dA = np.empty(9)
+        lin = np.empty(_LIN)
+        u, z, o = U[s], Z[s], out[s]
+        for t in range(tets.shape[0]):
+            gradient(u, tets, grads, t, A)
+            linearize(A, S, lin)
+            gradient(z, tets, grads, t, Y)
+            for x in range(9):
+                Y[x] *= vol[t]
+            cotangent(lin, Y, dA)
+            scatter(dA, 1.0, tets, grads, t, o)
+
+
+@pjit
+def linearization(u, tets, grads):
+    """Per-tet records ``[w, b, c, R, F]`` (m, 23) at ``u`` (n, 3)."""
+    m = tets.shape[0]
+    lins = np.empty((m, _LIN))
+    for t in prange(m):
+        A = np.empty(9)
+        S = np.empty(9)
+        gradient(u, tets, grads, t, A)
+        linearize(A, S, lins[t])
+    return lins
+
+
+@pjit
+def jacobian_rhs(u, B, tets, grads, vol, out):
+    """``out[d] += G^T Vol dH(G u; G B[d])`` for every direction ``d`` of ``B`` (r, n, 3)."""
+    lins = linearization(u, tets, grads)
+    for d in prange(B.shape[0]):
+        dA = np.empty(9)
+        dS = np.empty(9)
+        dH = np.empty(9)
+        b, o = B[d], out[d]
+        for t in range(tets.shape[0]):
+            gradient(b, tets, grads, t, dA)
+            tangent(lins[t], dA, dS, dH)
+            scatter(dH, vol[t], tets, grads, t, o)
