@@ -179,12 +179,42 @@ def test_batched_apply_equals_per_frame(warp, mesh, monkeypatch):
     np.testing.assert_allclose(warp.apply(U), single, rtol=0, atol=1e-13 * np.abs(single).max())
 
 
+@pytest.fixture(scope="module")
+def jittered() -> tuple[np.ndarray, np.ndarray]:
+    """The box with interior vertices moved randomly: tets of unequal volumes and shapes."""
+    V, T = box_mesh((6, 3, 3), size=(2.0, 1.0, 0.8), origin=(0.3, -0.2, 0.1))
+    inner = np.all((V > V.min(axis=0) + 1e-9) & (V < V.max(axis=0) - 1e-9), axis=1)
+    V = V.copy()
+    V[inner] += np.random.default_rng(RNG_SEED).uniform(-0.08, 0.08, (inner.sum(), 3))
+    return V, T
+
+
+def test_poisson_matrix_is_the_volume_weighted_p1_laplacian(jittered):
+    """L_ab = sum_t vol_t grad phi_a . grad phi_b, assembled here tet by tet from edge
+    vectors (an independent computation), on a mesh with unequal tets."""
+    V, T = jittered
+    warp = Warp(V, T)
+    L = np.zeros((len(V), len(V)))
+    for tet in T:
+        X = V[tet]
+        D = (X[1:] - X[0]).T
+        vol = np.linalg.det(D) / 6.0
+        g = np.linalg.inv(D)  # rows: gradients of phi_1..phi_3 (phi_i(X_j) = delta_ij)
+        g = np.vstack([-g.sum(axis=0), g])
+        L[np.ix_(tet, tet)] += vol * g @ g.T
+    vols = np.array([np.linalg.det((V[t][1:] - V[t][0]).T) for t in T])
+    assert np.ptp(vols) > 0.5 * vols.mean()  # unequal tets: a wrong volume weighting shows
+    np.testing.assert_allclose((warp._GtV @ warp._G).toarray(), L, atol=1e-13 * np.abs(L).max())
+
+
 @pytest.mark.skipif(not warp_kernels.AVAILABLE, reason="numba not installed")
-def test_compiled_kernels_equal_the_vectorized_numpy_path(warp, mesh, monkeypatch):
+@pytest.mark.parametrize("fixed", [False, True])
+def test_compiled_kernels_equal_the_vectorized_numpy_path(jittered, fixed, monkeypatch):
     """Two independent implementations of the per-tet formulas (fused numba loops and
     vectorized numpy component arrays) agree on W, DW, DW^T and the Jacobian, at small and
     large gradients (rotation angles up to ~3 rad, near the series switch of c)."""
-    V = mesh[0]
+    V, T = jittered
+    warp = Warp(V, T, fixed_vertices=np.flatnonzero(V[:, 0] == V[:, 0].min()) if fixed else None)
     U = np.stack([random_displacement(V, s, seed=i) for i, s in enumerate([1e-3, 0.3, 1.5, 3.0])])
     dU = np.stack([random_displacement(V, 1.0, seed=10 + i) for i in range(4)])
     basis = np.stack([random_displacement(V, 1.0, seed=20 + i) for i in range(5)], axis=2)

@@ -24,12 +24,16 @@ from numpy.typing import ArrayLike
 
 from wiggly.errors import WigglyInputError
 from wiggly.fem import Material, gravity_term, mass_matrix, stiffness_matrix
-from wiggly.mesh import Model, Surface, TetMesh, embed, load_model
+from wiggly.mesh import Model, Surface, TetMesh, coarse_mesh, embed, load_model
 from wiggly.modes import Modes, compute_modes
-from wiggly.warp import Warp
+from wiggly.warp import CoarseJacobian, Warp
 
 Where = Literal["surface", "tets"]
 DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
+# Bodies with more tets get their Gauss-Newton Jacobians DW Phi on a coarse mesh of about
+# COARSE_TETS tets (see :class:`wiggly.warp.CoarseJacobian`); smaller ones exactly.
+COARSE_JACOBIAN_ABOVE = 6000
+COARSE_TETS = 3000
 
 
 @dataclass(frozen=True)
@@ -151,22 +155,48 @@ class Body:
         )
 
     @cached_property
+    def coarse_jacobian(self) -> CoarseJacobian:
+        """Gauss-Newton Jacobians DW Phi of the warped solve (SYSTEM.md §6): exact up to
+        ``COARSE_JACOBIAN_ABOVE`` tets, else on a coarse mesh of the same solid (built once,
+        fTetWild, cached on disk), which leaves the solution unchanged."""
+        Phi = self.modes.vectors
+        if self.tets.n_tets <= COARSE_JACOBIAN_ABOVE:
+            return CoarseJacobian.exact(self.warp, Phi)
+        coarse = coarse_mesh(self.tets, COARSE_TETS)
+        if coarse is None:
+            return CoarseJacobian.exact(self.warp, Phi)
+        n = self.tets.n_vertices
+        restrict = embed(coarse.vertices, self.tets).matrix(n)
+        lift = embed(self.tets.vertices, coarse).matrix(coarse.n_vertices)
+        masses = np.maximum(lift.T @ self.vertex_masses("tets"), 0.0)
+        fixed = np.zeros(n)
+        fixed[self.fixed_vertices] = 1.0
+        weight = abs(restrict)
+        share = (weight @ fixed) / np.maximum(weight @ np.ones(n), 1e-300)
+        warp_c = Warp(
+            coarse.vertices, coarse.tets, masses=masses, fixed_vertices=np.flatnonzero(share > 0.5)
+        )
+        return CoarseJacobian(warp_c, restrict, lift, Phi)
+
+    @cached_property
     def surface_embedding(self) -> sp.csr_matrix:
         """(p, n) barycentric interpolation from tet vertices to surface vertices."""
         return self.model.embedding.matrix(self.tets.n_vertices)
 
-    def selection(self, vertices: np.ndarray, on: Where = "surface") -> sp.csr_matrix:
-        """Sparse (3k, 3n) map from tet-mesh displacements to those of ``vertices``."""
+    def scalar_selection(self, vertices: np.ndarray, on: Where = "surface") -> sp.csr_matrix:
+        """Sparse (k, n) map from tet-mesh vertex values to those of ``vertices``."""
         vertices = np.asarray(vertices, np.int64)
         n = self.tets.n_vertices
         if on == "tets":
-            S = sp.csr_matrix(
+            return sp.csr_matrix(
                 (np.ones(len(vertices)), (np.arange(len(vertices)), vertices)),
                 shape=(len(vertices), n),
             )
-        else:
-            S = self.surface_embedding[vertices]
-        return sp.kron(S, sp.eye(3), format="csr")
+        return sp.csr_matrix(self.surface_embedding[vertices])
+
+    def selection(self, vertices: np.ndarray, on: Where = "surface") -> sp.csr_matrix:
+        """Sparse (3k, 3n) map from tet-mesh displacements to those of ``vertices``."""
+        return sp.kron(self.scalar_selection(vertices, on), sp.eye(3), format="csr")
 
     def vertex_masses(self, on: Where = "tets") -> np.ndarray:
         """Lumped vertex masses (kg) of the tet mesh, or barycentrically spread to the surface."""

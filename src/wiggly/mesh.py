@@ -47,6 +47,7 @@ __all__ = [
     "TetMesh",
     "check_surface",
     "check_tet_mesh",
+    "coarse_mesh",
     "embed",
     "load_mesh",
     "load_model",
@@ -987,6 +988,35 @@ def tetrahedralize(
     compact[used] = np.arange(len(used))
     mesh = TetMesh(np.asarray(tv, dtype=np.float64)[used], compact[tt])
     return check_tet_mesh(mesh, f"{source} (tetrahedralized)")
+
+
+def coarse_mesh(
+    mesh: TetMesh,
+    n_tets: int,
+    *,
+    cache_dir: str | os.PathLike[str] | bool | None = None,
+) -> TetMesh | None:
+    """A coarser tet mesh of the same solid, with about ``n_tets`` tets (fTetWild).
+
+    The boundary of ``mesh`` is tetrahedralized with an edge length ``(mesh.n_tets /
+    n_tets)^(1/3)`` times the mean edge length of ``mesh``.  If some vertex of ``mesh`` lies
+    far outside the result (a thin part lost at that size: its smallest barycentric
+    coordinate in the nearest coarse tet is below -0.5), the edge length shrinks by 1.5 and
+    fTetWild runs again, twice at most; then None.  Results are cached like
+    :func:`tetrahedralize`.
+    """
+    V, T = mesh.vertices, mesh.tets
+    edges = V[T[:, [0, 0, 0, 1, 1, 2]]] - V[T[:, [1, 2, 3, 2, 3, 3]]]
+    edge = float(np.mean(np.linalg.norm(edges, axis=-1))) * (len(T) / n_tets) ** (1 / 3)
+    surface = Surface(V, mesh.boundary_faces())
+    for _ in range(3):
+        coarse = tetrahedralize(
+            surface, edge_length=edge, repair=True, source="coarse mesh", cache_dir=cache_dir
+        )
+        if embed(V, coarse).barycentric.min() > -0.5:
+            return coarse
+        edge /= 1.5
+    return None
 
 
 def embed(points: np.ndarray, mesh: TetMesh) -> Embedding:

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.linalg as sla
+import scipy.sparse as sp
 from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
@@ -216,6 +217,7 @@ class SpacetimeProblem:
         self._energy_cache: dict[tuple, tuple] = {}
         self._group_cache: dict[tuple, tuple] = {}
         self._jacobians: dict[float, tuple] = {}
+        self._coarse_grams: dict[tuple, object] = {}
         self._projection_cache: dict[tuple, np.ndarray] = {}
         self._preroll_form: tuple | None = None
 
@@ -262,6 +264,18 @@ class SpacetimeProblem:
             rest = self.body.rest_positions(on)[vertices].ravel()
             self._group_cache[key] = (A, A.T @ A, rest)
         return self._group_cache[key]
+
+    def _coarse_gram(self, vertices: np.ndarray, on: str):
+        """(S_1 P)^T (S_1 P): scalar selection S_1 of a group composed with the coarse mesh's
+        lift P (:class:`wiggly.warp.CoarseJacobian`), cached by group."""
+        key = (on, len(vertices), hash(vertices.tobytes()))
+        if key not in self._coarse_grams:
+            if len(self._coarse_grams) > 64:
+                self._coarse_grams.clear()
+            lift = self.body.coarse_jacobian.lift
+            SP = sp.csr_matrix(self.body.scalar_selection(vertices, on) @ lift)
+            self._coarse_grams[key] = sp.csr_matrix(SP.T @ SP)
+        return self._coarse_grams[key]
 
     def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Least energy to reach (q, q') from rest in ``preroll`` seconds, without gravity:
@@ -447,6 +461,7 @@ class _WarpedKey:
 
     node: int
     S: object  # (3s, 3n) sparse selection of tet displacements (embedding for surfaces)
+    C: object  # (n_c, n_c) sparse Gram (S_1 P)^T (S_1 P) of the scalar selection, coarse mesh
     d: np.ndarray | None  # position target minus rest, (3s,)
     b: np.ndarray | None  # velocity target (3s,)
     wA: float  # sqrt(c_A)
@@ -459,7 +474,8 @@ class WarpedObjective:
     Residuals r_k = sqrt(c_A) (A_k W(Phi q_k) - a_k) and sqrt(c_B) (B_k DW(Phi q_k) Phi q'_k
     - b_k) (SYSTEM.md §6) involve only the node of keyframe k, so their Gauss-Newton blocks
     J^T J land on the diagonal blocks of the banded H.  W and DW are evaluated only at
-    constrained nodes; the gradient is exact (vector-Jacobian products of W).
+    constrained nodes, all nodes in one batch.  The gradient is exact (vector-Jacobian
+    products of W); the Gauss-Newton blocks use the body's :class:`CoarseJacobian`.
     """
 
     def __init__(
@@ -474,6 +490,7 @@ class WarpedObjective:
         body = problem.body
         self.body, self.r = body, body.r
         self.warp, self.Phi = body.warp, body.modes.vectors
+        self.coarse = body.coarse_jacobian
         self.n = body.tets.n_vertices
         self.ab_E, self.f_E, self.c_E = ab_E, f_E, c_E
         self.bw = ab_E.shape[0] - 1
@@ -485,6 +502,7 @@ class WarpedObjective:
                 _WarpedKey(
                     _node_index(nodes, kf.time),
                     body.selection(kf.vertices, kf.on),
+                    problem._coarse_gram(kf.vertices, kf.on),
                     None if kf.position is None or c_A == 0 else kf.position.ravel() - rest,
                     None if kf.velocity is None or c_B == 0 else kf.velocity.ravel(),
                     np.sqrt(c_A),
@@ -492,10 +510,12 @@ class WarpedObjective:
                 )
             )
         self.active = sorted({k.node for k in self.keys if k.d is not None or k.b is not None})
-        self.has_vel = {k.node for k in self.keys if k.b is not None}
-        self.timing = {"W": 0.0, "DW": 0.0, "solve": 0.0}
-        # Jacobians DW(u_k) Phi depend on the node state only: shared across solves of the
-        # same problem (warm starts reuse them), keyed by node time
+        self.slot = {k: a for a, k in enumerate(self.active)}
+        self.vel = sorted({k.node for k in self.keys if k.b is not None})
+        self.timing = {"W": 0.0, "vjp": 0.0, "jacobians": 0.0, "solve": 0.0}
+        self.counts = {"W": 0, "vjp": 0, "jacobians": 0}
+        # Jacobians depend on the node state only: shared across solves of the same problem
+        # (warm starts reuse them), keyed by node time
         self._jac = problem._jacobians
         self._node_time = {k: float(np.round(t, 9)) for k, t in enumerate(nodes)}
 
@@ -503,76 +523,73 @@ class WarpedObjective:
         Z = z.reshape(-1, 2, self.r)
         return Z[:, 0], Z[:, 1]
 
-    def _fields(self, z: np.ndarray):
+    def _evaluate(self, z: np.ndarray, gradient: bool):
+        """F(z) and, with ``gradient``, its exact gradient."""
         q, v = self._state(z)
-        n, Phi = self.n, self.Phi
+        n, r, Phi = self.n, self.r, self.Phi
         t0 = _time.perf_counter()
         U = (q[self.active] @ Phi.T).reshape(len(self.active), n, 3)
         WU = self.warp.apply(U) if len(self.active) else U
-        Vel = {
-            k: self.warp.jvp(U[a], (Phi @ v[k]).reshape(n, 3)).ravel()
-            for a, k in enumerate(self.active)
-            if k in self.has_vel
-        }
-        self.timing["W"] += _time.perf_counter() - t0
-        return q, v, U, WU, Vel
-
-    def _residuals(self, WU, Vel):
-        out = []
-        for key in self.keys:
-            a = self.active.index(key.node)
-            rA = key.wA * (key.S @ WU[a].ravel() - key.d) if key.d is not None else None
-            rB = key.wB * (key.S @ Vel[key.node] - key.b) if key.b is not None else None
-            out.append((rA, rB))
-        return out
-
-    def _evaluate(self, z: np.ndarray):
-        """F(z) with what its gradient needs: H z, node fields and residuals."""
-        _q, v, U, WU, Vel = self._fields(z)
+        iv = [self.slot[k] for k in self.vel]
+        dU = (v[self.vel] @ Phi.T).reshape(len(self.vel), n, 3)
+        Vel = self.warp.jvp(U[iv], dU) if self.vel else dU
+        self.counts["W"] += len(self.active) + len(self.vel)
+        t1 = _time.perf_counter()
+        self.timing["W"] += t1 - t0
         Hz = _band_matvec(self.ab_E, self.bw, z)
         F = 0.5 * z @ Hz + self.f_E @ z + self.c_E
-        resid = self._residuals(WU, Vel)
-        for rA, rB in resid:
-            F += 0.5 * sum(float(x @ x) for x in (rA, rB) if x is not None)
-        return float(F), Hz, v, U, resid
+        YA = np.zeros_like(U)
+        YB = np.zeros_like(dU)
+        for key in self.keys:
+            a = self.slot[key.node]
+            if key.d is not None:
+                rA = key.wA * (key.S @ WU[a].ravel() - key.d)
+                F += 0.5 * float(rA @ rA)
+                if gradient:
+                    YA[a] += key.wA * (key.S.T @ rA).reshape(n, 3)
+            if key.b is not None:
+                rB = key.wB * (key.S @ Vel[self.vel.index(key.node)].ravel() - key.b)
+                F += 0.5 * float(rB @ rB)
+                if gradient:
+                    YB[self.vel.index(key.node)] += key.wB * (key.S.T @ rB).reshape(n, 3)
+        if not gradient:
+            return float(F)
+        g = Hz + self.f_E
+        G = g.reshape(-1, 2, r)
+        # one batch of vjps: positions at every node; for velocity keyframes B DW(u) w also
+        # the derivative in u, Hess(y.W)(u) w, by a central difference of vjps
+        h = 1e-6 * (1.0 + np.abs(U[iv]).max(axis=(1, 2))) / np.maximum(
+            np.abs(dU).max(axis=(1, 2)), 1e-300
+        )
+        step = h[:, None, None] * dU
+        Ub = np.concatenate([U, U[iv], U[iv] + step, U[iv] - step])
+        Yb = np.concatenate([YA, YB, YB, YB])
+        out = self.warp.vjp(Ub, Yb).reshape(len(Ub), 3 * n) @ Phi
+        self.counts["vjp"] += len(Ub)
+        f, nv = len(self.active), len(self.vel)
+        G[self.active, 0] += out[:f]
+        if nv:
+            G[self.vel, 1] += out[f : f + nv]
+            G[self.vel, 0] += (out[f + nv : f + 2 * nv] - out[f + 2 * nv :]) / (2 * h[:, None])
+        self.timing["vjp"] += _time.perf_counter() - t1
+        return float(F), g
 
     def value(self, z: np.ndarray) -> float:
         """F(z)."""
-        return self._evaluate(z)[0]
+        return self._evaluate(z, False)
 
     def value_and_gradient(self, z: np.ndarray) -> tuple[float, np.ndarray]:
         """F(z) and its exact gradient."""
-        F, Hz, v, U, resid = self._evaluate(z)
-        n, r, Phi = self.n, self.r, self.Phi
-        t0 = _time.perf_counter()
-        g = Hz + self.f_E
-        G = g.reshape(-1, 2, r)
-        for a, k in enumerate(self.active):
-            yA, yB = np.zeros(3 * n), np.zeros(3 * n)
-            for key, (rA, rB) in zip(self.keys, resid, strict=True):
-                if key.node == k and rA is not None:
-                    yA += key.wA * (key.S.T @ rA)
-                if key.node == k and rB is not None:
-                    yB += key.wB * (key.S.T @ rB)
-            if yA.any():
-                G[k, 0] += Phi.T @ self.warp.vjp(U[a], yA.reshape(n, 3)).ravel()
-            if yB.any():
-                Y = yB.reshape(n, 3)
-                G[k, 1] += Phi.T @ self.warp.vjp(U[a], Y).ravel()
-                # d/du <y, DW(u) w> = Hess(y.W)(u) w (symmetric): central difference of vjp
-                w = (Phi @ v[k]).reshape(n, 3)
-                h = 1e-6 * (1.0 + np.abs(U[a]).max()) / max(np.abs(w).max(), 1e-300)
-                pair = self.warp.vjp(np.stack([U[a] + h * w, U[a] - h * w]), np.stack([Y, Y]))
-                G[k, 0] += Phi.T @ ((pair[0] - pair[1]) / (2 * h)).ravel()
-        self.timing["DW"] += _time.perf_counter() - t0
-        return float(F), g
+        return self._evaluate(z, True)
 
     def normal_matrix(self, z: np.ndarray, reuse: float = 0.0) -> np.ndarray:
-        """Band storage of H + sum J^T J (Gauss-Newton).  A node's Jacobian is reused while
-        its state moved by less than ``reuse`` (relative), which changes the convergence
-        rate, never the stationary point (the gradient is always exact)."""
+        """Band storage of H + sum J^T J (Gauss-Newton), J from :class:`CoarseJacobian`.
+
+        A node's Jacobian is reused while its state moved by less than ``reuse`` (relative),
+        which changes the convergence rate, never the stationary point (the gradient is
+        always exact)."""
         q, v = self._state(z)
-        n, r, Phi = self.n, self.r, self.Phi
+        n, r, Phi, cj = self.n, self.r, self.Phi, self.coarse
         ab = self.ab_E.copy()
         t0 = _time.perf_counter()
         # a node's change is compared with the largest node state, so nodes near rest (u ~ 0,
@@ -581,35 +598,40 @@ class WarpedObjective:
         for k in self.active:
             xk = np.r_[q[k], v[k]]
             cached = self._jac.get(self._node_time[k])
-            limit = 1e-3 if k in self.has_vel else reuse  # q-v coupling: keep these fresh
             scale = max(float(np.linalg.norm(xk)), floor)
             if (
                 cached is None
-                or np.linalg.norm(xk - cached[0]) > limit * scale
-                or (k in self.has_vel and cached[2] is None)
+                or np.linalg.norm(xk - cached[0]) > reuse * scale
+                or (k in self.vel and cached[2] is None)
             ):
                 u = (Phi @ q[k]).reshape(n, 3)
-                J = self.warp.jacobian(u, Phi).reshape(3 * n, r)
-                VJ = (
-                    self.warp.velocity_jacobian(u, (Phi @ v[k]).reshape(n, 3), Phi).reshape(
-                        3 * n, r
-                    )
-                    if k in self.has_vel
-                    else None
-                )
+                J = cj.jacobian(u)
+                VJ = cj.velocity_jacobian(u, (Phi @ v[k]).reshape(n, 3)) if k in self.vel else None
                 self._jac[self._node_time[k]] = (xk, J, VJ)
+                self.counts["jacobians"] += 1
             _, J, VJ = self._jac[self._node_time[k]]
             block = np.zeros((2 * r, 2 * r))
             for key in self.keys:
-                if key.node == k and key.d is not None:
-                    JA = key.wA * (key.S @ J)
-                    block[:r, :r] += JA.T @ JA
-                if key.node == k and key.b is not None:
-                    JB = key.wB * np.hstack([key.S @ VJ, key.S @ J])
-                    block += JB.T @ JB
+                if key.node != k:
+                    continue
+                if key.d is not None:
+                    block[:r, :r] += key.wA**2 * _gram(key.C, J, J)
+                if key.b is not None:
+                    w2 = key.wB**2
+                    block[:r, :r] += w2 * _gram(key.C, VJ, VJ)
+                    cross = w2 * _gram(key.C, VJ, J)
+                    block[:r, r:] += cross
+                    block[r:, :r] += cross.T
+                    block[r:, r:] += w2 * _gram(key.C, J, J)
             _add_block(ab, self.bw, 2 * r * k + np.arange(2 * r), block)
-        self.timing["DW"] += _time.perf_counter() - t0
+        self.timing["jacobians"] += _time.perf_counter() - t0
         return ab
+
+
+def _gram(C, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """X^T (C kron I_3) Y for fields X, Y of shape (n_c, 3, r) and a scalar (n_c, n_c) C."""
+    CY = (C @ Y.reshape(Y.shape[0], -1)).reshape(Y.shape)
+    return np.tensordot(X, CY, axes=([0, 1], [0, 1]))
 
 
 def _gauss_newton(
@@ -634,13 +656,14 @@ def _gauss_newton(
       below ``STALL_DECREASE`` for three iterations while the model promises less than
       ``STALL_PROMISE`` relative decrease (flat valleys where Gauss-Newton crawls);
     * otherwise, after ``max_iterations``, a :class:`WarpedSolveWarning` reports it.
+
+    The returned iterate is the one where the stopping rule was checked.
     """
     bw = obj.bw
     F, g = obj.value_and_gradient(z)
     F_start, mu, nu, history, converged, it = F, 0.0, 2.0, [F], False, 0
     decrement, reason, slow = np.inf, "", 0
     while it < max_iterations:
-        it += 1
         ab = obj.normal_matrix(z, reuse=JACOBIAN_REUSE)
         t0 = _time.perf_counter()
         dz = _solve_banded(ab, -g)
@@ -648,15 +671,13 @@ def _gauss_newton(
         if len(history) > 1:
             slow = slow + 1 if history[-2] - history[-1] < STALL_DECREASE * F else 0
         stalled = stall and slow >= 3 and decrement <= STALL_PROMISE * F
+        obj.timing["solve"] += _time.perf_counter() - t0
         if decrement <= tolerance * F or stalled:
             converged, reason = True, "stalled" if decrement > tolerance * F else "decrement"
-            F_try = obj.value(z + dz)  # the last (tiny) step, when it helps
-            if F_try < F:
-                z, F = z + dz, F_try
-                history.append(F)
-            obj.timing["solve"] += _time.perf_counter() - t0
             break
+        it += 1
         while True:
+            t0 = _time.perf_counter()
             if mu > 0:
                 ab_mu = ab.copy()
                 ab_mu[bw] *= 1.0 + mu
@@ -667,7 +688,8 @@ def _gauss_newton(
                     nu *= 2
                     continue
             predicted = -(float(g @ dz) + 0.5 * float(dz @ _band_matvec(ab, bw, dz)))
-            F_new = obj.value(z + dz)
+            obj.timing["solve"] += _time.perf_counter() - t0
+            F_new, g_new = obj.value_and_gradient(z + dz)
             rho = (F - F_new) / predicted if predicted > 0 else -1.0
             if rho > 1e-4:
                 mu *= max(1 / 3, 1 - (2 * rho - 1) ** 3)
@@ -679,11 +701,9 @@ def _gauss_newton(
             nu *= 2
             if mu > 1e10:
                 break
-        obj.timing["solve"] += _time.perf_counter() - t0
         if rho <= 1e-4:
             break
-        z = z + dz
-        F, g = obj.value_and_gradient(z)
+        z, F, g = z + dz, F_new, g_new
         history.append(F)
         if bar is not None:
             bar.update(1)
@@ -697,8 +717,10 @@ def _gauss_newton(
         objective_history=history,
         newton_decrement=decrement,
         seconds_W=obj.timing["W"],
-        seconds_DW=obj.timing["DW"],
+        seconds_vjp=obj.timing["vjp"],
+        seconds_jacobians=obj.timing["jacobians"],
         seconds_solve=obj.timing["solve"],
+        evaluations=dict(obj.counts),
     )
     if not converged:
         warnings.warn(
@@ -711,7 +733,7 @@ def _gauss_newton(
     return z
 
 
-JACOBIAN_REUSE = 0.1
+JACOBIAN_REUSE = 0.0
 STALL_DECREASE = 1e-6
 STALL_PROMISE = 1e-2
 

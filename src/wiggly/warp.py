@@ -376,7 +376,7 @@ class Warp:
         self.compiled = warp_kernels.AVAILABLE
         self._G = G  # (3m, n): per-tet gradients
         self._Gt = sp.csr_matrix(G.T)  # (n, 3m)
-        self._VG = sp.csr_matrix(sp.diags(np.tile(vol, 3)) @ G)  # Vol G
+        self._VG = sp.csr_matrix(sp.diags(np.repeat(vol, 3)) @ G)  # Vol G (rows 3 t + j)
         self._GtV = sp.csr_matrix(self._VG.T)  # G^T Vol: right-hand sides
         laplacian = sp.csr_matrix(self._GtV @ G)
 
@@ -723,3 +723,77 @@ class Warp:
         rhs = (self._GtV @ dH.reshape(3 * m, 3 * r)).reshape(n, 3, r)
         # the gauge's mean term of DW(u)[v] is the mean of v: independent of u
         return self._poisson(rhs, np.zeros_like(rhs)).reshape(B.shape)
+
+
+# --------------------------------------------------------------------------- #
+# Gauss-Newton Jacobians on a coarser mesh
+# --------------------------------------------------------------------------- #
+class CoarseJacobian:
+    """Jacobians ``DW(u) Phi`` approximated on a coarser tet mesh of the same body.
+
+    The warped solve (SYSTEM.md §6) needs ``J_k = DW(u_k) Phi`` only for its Gauss-Newton
+    matrix ``J_k^T J_k``; its gradient uses exact vector-Jacobian products of ``W``.  An
+    approximate matrix changes the convergence rate of the iteration, never its stationary
+    point.  On a fine body an exact ``J_k`` costs ``3 r`` Poisson solves per constrained node
+    and per iteration; here the displacement is restricted to a coarse mesh (barycentric
+    interpolation, exact for affine fields), differentiated there with that mesh's own warp,
+    and lifted back:
+
+        DW(u) Phi  ~  P  DW_c(R u)  R Phi,
+
+    with ``R`` (n_c, n) the interpolation at the coarse vertices and ``P`` (n, n_c) the
+    interpolation at the fine vertices.  Rigid motions pass through exactly.  With
+    ``warp_c = warp`` and ``R = P = I`` (:meth:`exact`) it is the exact Jacobian.
+
+    Parameters
+    ----------
+    warp_c : Warp
+        The warp of the coarse mesh (built with masses ``P^T m``, so that lifted fields keep
+        the fine mass-weighted mean).
+    restrict : (n_c, n) sparse
+        ``R``: fine vertex values to coarse vertices.
+    lift : (n, n_c) sparse
+        ``P``: coarse vertex values to fine vertices.
+    basis : (3 n, r) array
+        The modes ``Phi`` (vertex-major rows).
+    exact : bool
+        True when ``warp_c`` is the body's own warp and ``R = P = I``.
+    """
+
+    def __init__(
+        self,
+        warp_c: Warp,
+        restrict: sp.csr_matrix,
+        lift: sp.csr_matrix,
+        basis: np.ndarray,
+        *,
+        exact: bool = False,
+    ) -> None:
+        n_c, n = restrict.shape
+        self.exact = exact
+        r = basis.shape[1]
+        self.warp_c = warp_c
+        self.restrict = sp.csr_matrix(restrict)
+        self.lift = sp.csr_matrix(lift)
+        self.n_coarse, self.r = n_c, r
+        self.basis_c = np.ascontiguousarray(
+            (self.restrict @ basis.reshape(n, 3 * r)).reshape(n_c, 3, r)
+        )
+
+    @classmethod
+    def exact(cls, warp: Warp, basis: np.ndarray) -> CoarseJacobian:
+        """The exact Jacobian (no coarse mesh): ``R = P = I``."""
+        eye = sp.identity(warp.n_vertices, format="csr")
+        return cls(warp, eye, eye, basis, exact=True)
+
+
+    def _restricted(self, u: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(self.restrict @ np.asarray(u, dtype=np.float64))
+
+    def jacobian(self, u: np.ndarray) -> np.ndarray:
+        """``DW_c(R u) R Phi``, shape (n_c, 3, r); lift with :attr:`lift`."""
+        return self.warp_c.jacobian(self._restricted(u), self.basis_c)
+
+    def velocity_jacobian(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """``D^2 W_c(R u)[R Phi, R v]``, shape (n_c, 3, r) (velocity keyframes)."""
+        return self.warp_c.velocity_jacobian(self._restricted(u), self._restricted(v), self.basis_c)
