@@ -221,12 +221,22 @@ def test_compiled_kernels_equal_the_vectorized_numpy_path(jittered, fixed, monke
     assert warp.compiled
 
     def evaluate():
-        return [warp.apply(U), warp.jvp(U, dU), warp.vjp(U, dU), warp.jacobian(U[2], basis)]
+        return [
+            warp.apply(U),
+            warp.jvp(U, dU),
+            warp.vjp(U, dU),
+            warp.jacobian(U[2], basis),
+            warp.jacobians(U, basis),
+            warp.second_derivatives(U, dU, basis),
+        ]
 
     compiled = evaluate()
     monkeypatch.setattr(warp, "compiled", False)
-    for a, b in zip(compiled, evaluate(), strict=True):
+    numpy = evaluate()
+    for a, b in zip(compiled[:5], numpy[:5], strict=True):
         assert rel(a, b) < 1e-13
+    # second derivatives: central differences of the tangent in both (error ~ step^2)
+    assert rel(compiled[5], numpy[5]) < 1e-8
 
 
 def test_components_get_their_own_gauge():

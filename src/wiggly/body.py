@@ -33,7 +33,7 @@ DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
 # Bodies with more tets get their Gauss-Newton Jacobians DW Phi on a coarse mesh of about
 # COARSE_TETS tets (see :class:`wiggly.warp.CoarseJacobian`); smaller ones exactly.
 COARSE_JACOBIAN_ABOVE = 6000
-COARSE_TETS = 3000
+COARSE_TETS = 1000
 
 
 @dataclass(frozen=True)
@@ -166,17 +166,20 @@ class Body:
         if coarse is None:
             return CoarseJacobian.exact(self.warp, Phi)
         n = self.tets.n_vertices
-        restrict = embed(coarse.vertices, self.tets).matrix(n)
         lift = embed(self.tets.vertices, coarse).matrix(coarse.n_vertices)
-        masses = np.maximum(lift.T @ self.vertex_masses("tets"), 0.0)
+        m = self.vertex_masses("tets")
+        # coarse vertices held at rest: those whose nearby fine vertices are mostly fixed
+        weight = abs(embed(coarse.vertices, self.tets).matrix(n))
         fixed = np.zeros(n)
         fixed[self.fixed_vertices] = 1.0
-        weight = abs(restrict)
         share = (weight @ fixed) / np.maximum(weight @ np.ones(n), 1e-300)
         warp_c = Warp(
-            coarse.vertices, coarse.tets, masses=masses, fixed_vertices=np.flatnonzero(share > 0.5)
+            coarse.vertices,
+            coarse.tets,
+            masses=np.maximum(lift.T @ m, 0.0),
+            fixed_vertices=np.flatnonzero(share > 0.5),
         )
-        return CoarseJacobian(warp_c, restrict, lift, Phi)
+        return CoarseJacobian(warp_c, lift, m, Phi)
 
     @cached_property
     def surface_embedding(self) -> sp.csr_matrix:

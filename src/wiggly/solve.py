@@ -595,6 +595,7 @@ class WarpedObjective:
         # a node's change is compared with the largest node state, so nodes near rest (u ~ 0,
         # where DW ~ identity) do not count tiny absolute changes as large relative ones
         floor = 0.05 * max((np.linalg.norm(np.r_[q[k], v[k]]) for k in self.active), default=0)
+        stale = []
         for k in self.active:
             xk = np.r_[q[k], v[k]]
             cached = self._jac.get(self._node_time[k])
@@ -604,11 +605,21 @@ class WarpedObjective:
                 or np.linalg.norm(xk - cached[0]) > reuse * scale
                 or (k in self.vel and cached[2] is None)
             ):
-                u = (Phi @ q[k]).reshape(n, 3)
-                J = cj.jacobian(u)
-                VJ = cj.velocity_jacobian(u, (Phi @ v[k]).reshape(n, 3)) if k in self.vel else None
-                self._jac[self._node_time[k]] = (xk, J, VJ)
-                self.counts["jacobians"] += 1
+                stale.append(k)
+        if stale:  # all fresh Jacobians in one batch
+            U = (q[stale] @ Phi.T).reshape(len(stale), n, 3)
+            Js = cj.jacobians(U)
+            sv = [i for i, k in enumerate(stale) if k in self.vel]
+            VJs = (
+                cj.second_derivatives(U[sv], (v[[stale[i] for i in sv]] @ Phi.T).reshape(-1, n, 3))
+                if sv
+                else []
+            )
+            for i, k in enumerate(stale):
+                VJ = VJs[sv.index(i)] if i in sv else None
+                self._jac[self._node_time[k]] = (np.r_[q[k], v[k]], Js[i], VJ)
+            self.counts["jacobians"] += len(stale)
+        for k in self.active:
             _, J, VJ = self._jac[self._node_time[k]]
             block = np.zeros((2 * r, 2 * r))
             for key in self.keys:
@@ -733,7 +744,7 @@ def _gauss_newton(
     return z
 
 
-JACOBIAN_REUSE = 0.0
+JACOBIAN_REUSE = 0.01
 STALL_DECREASE = 1e-6
 STALL_PROMISE = 1e-2
 

@@ -444,6 +444,8 @@ class Warp:
         self._gb = np.zeros(0)
         self._frames_key: tuple | None = None
         self._frames = np.zeros(0)
+        self._fg_key: tuple | None = None
+        self._fg = np.zeros(0)
         if self._free.size:
             # many right-hand sides per solve (3 per frame): cholespy's multi-RHS solve is ~3x
             # faster than CHOLMOD on Debian's reference BLAS, and on a par with it on OpenBLAS
@@ -556,7 +558,9 @@ class Warp:
         if self.compiled:
             Uf = np.ascontiguousarray(X.transpose(2, 0, 1))
             out = np.zeros_like(Uf)
-            warp_kernels.target_rhs(Uf, self._tets, self._grads, self.volumes, out)
+            warp_kernels.target_rhs(
+                Uf, self._tets, self._grads, self.volumes, out, warp_kernels.chunks(len(Uf))
+            )
             rhs = out.transpose(1, 2, 0)
         else:
             rhs = self._per_tet(_target_block, [(self._G, X)], self._GtV)
@@ -580,7 +584,9 @@ class Warp:
             Uf = np.ascontiguousarray(X.transpose(2, 0, 1))
             dUf = np.ascontiguousarray(dX.transpose(2, 0, 1))
             out = np.zeros_like(Uf)
-            warp_kernels.jvp_rhs(Uf, dUf, self._tets, self._grads, self.volumes, out)
+            warp_kernels.jvp_rhs(
+                Uf, dUf, self._tets, self._grads, self.volumes, out, warp_kernels.chunks(len(Uf))
+            )
             rhs = out.transpose(1, 2, 0)
         else:
             rhs = self._per_tet(_jvp_fused, [(self._G, X), (self._G, dX)], self._GtV)
@@ -599,7 +605,9 @@ class Warp:
             Uf = np.ascontiguousarray(X.transpose(2, 0, 1))
             Zf = np.ascontiguousarray(Z.transpose(2, 0, 1))
             out = np.zeros_like(Uf)
-            warp_kernels.vjp_rhs(Uf, Zf, self._tets, self._grads, self.volumes, out)
+            warp_kernels.vjp_rhs(
+                Uf, Zf, self._tets, self._grads, self.volumes, out, warp_kernels.chunks(len(Uf))
+            )
             out = out.transpose(1, 2, 0)
         else:
             out = self._per_tet(_vjp_fused, [(self._G, X), (self._VG, Z)], self._Gt)
@@ -681,6 +689,77 @@ class Warp:
         _jvp_block(res, self._linearize(X), units)
         return np.ascontiguousarray(res.transpose(3, 1, 0, 2)).reshape(self.n_tets, 9, 9)
 
+    def jacobians(self, U: np.ndarray, basis: np.ndarray) -> np.ndarray:
+        """``DW(u_s) @ basis`` at f points ``U`` (f, n, 3): shape (f, n, 3, r), one solve.
+
+        ``basis`` is (n, 3, r) or (3 n, r), as in :meth:`jacobian`.
+        """
+        U = self._points(U)
+        dX = self._basis_fields(basis)
+        if not self.compiled:
+            return np.stack([self.jacobian(u, dX) for u in U])
+        f, r = len(U), dX.shape[2]
+        out = np.zeros((f, r, self.n_vertices, 3))
+        warp_kernels.jacobians_rhs(
+            U, self._field_gradients(dX), self._tets, self._grads, self.volumes, out
+        )
+        X_in = np.broadcast_to(dX.transpose(2, 0, 1), out.shape)
+        return self._solve_fields(out, X_in)
+
+    def second_derivatives(self, U: np.ndarray, V: np.ndarray, basis: np.ndarray) -> np.ndarray:
+        """``D^2W(u_s)[basis_j, v_s]`` at f points: shape (f, n, 3, r); see
+        :meth:`velocity_jacobian` (one point) for the method."""
+        U = self._points(U)
+        V = self._points(V, "V")
+        if V.shape != U.shape:
+            raise WigglyInputError(f"V should have the shape of U {U.shape}; shape is {V.shape}")
+        dX = self._basis_fields(basis)
+        if not self.compiled:
+            return np.stack([self.velocity_jacobian(u, v, dX) for u, v in zip(U, V, strict=True)])
+        f, r = len(U), dX.shape[2]
+        out = np.zeros((f, r, self.n_vertices, 3))
+        gradients = self._G @ U.transpose(1, 0, 2).reshape(self.n_vertices, -1)
+        step = 6e-6 * max(1.0, float(np.abs(gradients).max(initial=0.0)))
+        warp_kernels.second_derivatives_rhs(
+            U, V, self._field_gradients(dX), step, self._tets, self._grads, self.volumes, out
+        )
+        # the gauge's mean term of DW(u)[v] is the mean of v: independent of u
+        return self._solve_fields(out, np.zeros_like(out))
+
+    def _points(self, U: np.ndarray, name: str = "U") -> np.ndarray:
+        U = np.ascontiguousarray(U, dtype=np.float64)
+        n = self.n_vertices
+        if U.ndim != 3 or U.shape[1:] != (n, 3):
+            raise WigglyInputError(f"{name} should have shape (f, {n}, 3); shape is {U.shape}")
+        return U
+
+    def _basis_fields(self, basis: np.ndarray) -> np.ndarray:
+        n = self.n_vertices
+        B = np.asarray(basis, dtype=np.float64)
+        if B.ndim == 3 and B.shape[:2] == (n, 3):
+            return B
+        if B.ndim == 2 and B.shape[0] == 3 * n:
+            return B.reshape(n, 3, B.shape[1])
+        raise WigglyInputError(
+            f"basis should have shape ({n}, 3, r) or ({3 * n}, r); shape is {B.shape}"
+        )
+
+    def _field_gradients(self, dX: np.ndarray) -> np.ndarray:
+        """Per-tet gradients (r, m, 9) of the basis fields, cached for the last basis (the
+        modal basis is fixed per body; treat it as immutable)."""
+        frames = self._basis_frames(dX, dX)
+        if self._fg_key != self._frames_key:
+            self._fg = warp_kernels.field_gradients(frames, self._tets, self._grads)
+            self._fg_key = self._frames_key
+        return self._fg
+
+    def _solve_fields(self, rhs: np.ndarray, X_in: np.ndarray) -> np.ndarray:
+        """Poisson fit and gauge of (f, r, n, 3) right-hand sides: result (f, n, 3, r)."""
+        f, r, n, _ = rhs.shape
+        cols = rhs.transpose(2, 3, 0, 1).reshape(n, 3, f * r)
+        X = self._poisson(cols, X_in.transpose(2, 3, 0, 1).reshape(n, 3, f * r))
+        return np.ascontiguousarray(X.reshape(n, 3, f, r).transpose(2, 0, 1, 3))
+
     def velocity_jacobian(self, u: np.ndarray, v: np.ndarray, basis: np.ndarray) -> np.ndarray:
         """``d/du (DW(u)[v]) @ basis``: the second derivative ``D^2W(u)[basis_j, v]``.
 
@@ -735,65 +814,68 @@ class CoarseJacobian:
     matrix ``J_k^T J_k``; its gradient uses exact vector-Jacobian products of ``W``.  An
     approximate matrix changes the convergence rate of the iteration, never its stationary
     point.  On a fine body an exact ``J_k`` costs ``3 r`` Poisson solves per constrained node
-    and per iteration; here the displacement is restricted to a coarse mesh (barycentric
-    interpolation, exact for affine fields), differentiated there with that mesh's own warp,
-    and lifted back:
+    and per iteration; here the displacement is projected onto a coarse mesh, differentiated
+    there with that mesh's own warp, and interpolated back:
 
         DW(u) Phi  ~  P  DW_c(R u)  R Phi,
 
-    with ``R`` (n_c, n) the interpolation at the coarse vertices and ``P`` (n, n_c) the
-    interpolation at the fine vertices.  Rigid motions pass through exactly.  With
-    ``warp_c = warp`` and ``R = P = I`` (:meth:`exact`) it is the exact Jacobian.
+    with ``P`` (n, n_c) the barycentric interpolation at the fine vertices (exact for affine
+    fields, so rigid motions pass through) and ``R = (P^T M P)^-1 P^T M`` the mass-weighted
+    least-squares projection (``M`` the fine lumped masses), the best coarse approximation
+    of the modes.  With ``warp_c = warp`` and ``R = P = I`` (:meth:`exact`) it is exact.
 
     Parameters
     ----------
     warp_c : Warp
-        The warp of the coarse mesh (built with masses ``P^T m``, so that lifted fields keep
-        the fine mass-weighted mean).
-    restrict : (n_c, n) sparse
-        ``R``: fine vertex values to coarse vertices.
+        The warp of the coarse mesh (built with masses ``P^T m``, so that interpolated fields
+        keep the fine mass-weighted mean).
     lift : (n, n_c) sparse
         ``P``: coarse vertex values to fine vertices.
+    masses : (n,) array
+        Fine lumped vertex masses ``M``.
     basis : (3 n, r) array
         The modes ``Phi`` (vertex-major rows).
-    exact : bool
-        True when ``warp_c`` is the body's own warp and ``R = P = I``.
     """
 
     def __init__(
-        self,
-        warp_c: Warp,
-        restrict: sp.csr_matrix,
-        lift: sp.csr_matrix,
-        basis: np.ndarray,
-        *,
-        exact: bool = False,
+        self, warp_c: Warp, lift: sp.csr_matrix, masses: np.ndarray, basis: np.ndarray
     ) -> None:
-        n_c, n = restrict.shape
-        self.exact = exact
+        n, n_c = lift.shape
         r = basis.shape[1]
         self.warp_c = warp_c
-        self.restrict = sp.csr_matrix(restrict)
         self.lift = sp.csr_matrix(lift)
+        self.exact = False
         self.n_coarse, self.r = n_c, r
-        self.basis_c = np.ascontiguousarray(
-            (self.restrict @ basis.reshape(n, 3 * r)).reshape(n_c, 3, r)
-        )
+        self._PtM = sp.csr_matrix(self.lift.T @ sp.diags(masses))
+        self._project = factorize_spd(sp.csc_matrix(self._PtM @ self.lift), backend="splu")
+        self.basis_c = self.restrict(basis.reshape(n, 3, r).transpose(2, 0, 1)).transpose(1, 2, 0)
 
     @classmethod
     def exact(cls, warp: Warp, basis: np.ndarray) -> CoarseJacobian:
-        """The exact Jacobian (no coarse mesh): ``R = P = I``."""
-        eye = sp.identity(warp.n_vertices, format="csr")
-        return cls(warp, eye, eye, basis, exact=True)
+        """The exact Jacobians (no coarse mesh): ``R = P = I``."""
+        self = cls.__new__(cls)
+        n, r = warp.n_vertices, basis.shape[1]
+        self.warp_c, self.exact, self.n_coarse, self.r = warp, True, n, r
+        self.lift = sp.identity(n, format="csr")
+        self.basis_c = np.ascontiguousarray(basis.reshape(n, 3, r))
+        return self
 
+    def restrict(self, U: np.ndarray) -> np.ndarray:
+        """``R U`` for fields U (f, n, 3): shape (f, n_c, 3)."""
+        U = np.asarray(U, dtype=np.float64)
+        if self.exact:
+            return np.ascontiguousarray(U)
+        f, n = U.shape[:2]
+        rhs = self._PtM @ U.transpose(1, 0, 2).reshape(n, 3 * f)
+        return np.ascontiguousarray(
+            self._project(rhs).reshape(self.n_coarse, f, 3).transpose(1, 0, 2)
+        )
 
-    def _restricted(self, u: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(self.restrict @ np.asarray(u, dtype=np.float64))
+    def jacobians(self, U: np.ndarray) -> np.ndarray:
+        """``DW_c(R u_s) R Phi`` at f points U (f, n, 3): shape (f, n_c, 3, r); lift with
+        :attr:`lift`."""
+        return self.warp_c.jacobians(self.restrict(U), self.basis_c)
 
-    def jacobian(self, u: np.ndarray) -> np.ndarray:
-        """``DW_c(R u) R Phi``, shape (n_c, 3, r); lift with :attr:`lift`."""
-        return self.warp_c.jacobian(self._restricted(u), self.basis_c)
-
-    def velocity_jacobian(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """``D^2 W_c(R u)[R Phi, R v]``, shape (n_c, 3, r) (velocity keyframes)."""
-        return self.warp_c.velocity_jacobian(self._restricted(u), self._restricted(v), self.basis_c)
+    def second_derivatives(self, U: np.ndarray, V: np.ndarray) -> np.ndarray:
+        """``D^2 W_c(R u_s)[R Phi, R v_s]`` (velocity keyframes): shape (f, n_c, 3, r)."""
+        return self.warp_c.second_derivatives(self.restrict(U), self.restrict(V), self.basis_c)

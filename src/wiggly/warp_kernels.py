@@ -42,10 +42,21 @@ except ImportError:  # pragma: no cover - exercised with WIGGLY_NUMBA=0
 
     prange = range
 
-jit = njit(cache=True, fastmath=False, nogil=True)
-pjit = njit(cache=True, fastmath=False, nogil=True, parallel=True)
+jit = njit(cache=True, fastmath={"contract"}, nogil=True, inline="always")
+pjit = njit(cache=True, fastmath={"contract"}, nogil=True, parallel=True)
 
-__all__ = ["AVAILABLE", "jacobian_rhs", "jvp_rhs", "linearization", "target_rhs", "vjp_rhs"]
+__all__ = [
+    "AVAILABLE",
+    "chunks",
+    "field_gradients",
+    "jacobian_rhs",
+    "jacobians_rhs",
+    "jvp_rhs",
+    "linearization",
+    "second_derivatives_rhs",
+    "target_rhs",
+    "vjp_rhs",
+]
 
 # Series threshold for c = (th - sin th)/th^3, as in wiggly.warp.rotation_coefficients.
 _SERIES_ANGLE2 = 0.01
@@ -80,17 +91,21 @@ def scatter(H, scale, tets, grads, t, out):
 
 
 @jit
-def coefficients(t2):
+def rotation_ab(t2):
+    """``a = sin(th)/th`` and ``b = (1 - cos th)/th^2`` from ``t2 = th^2`` (one sin, one
+    cos of ``th/2``: ``a = 2 sin(th/2) cos(th/2)/th``, ``b = 2 (sin(th/2)/th)^2``)."""
     th = max(math.sqrt(t2), _TINY_ANGLE)
-    a = math.sin(th) / th
     s = math.sin(0.5 * th) / th
-    b = 2.0 * s * s
+    return 2.0 * s * math.cos(0.5 * th), 2.0 * s * s
+
+
+@jit
+def rotation_c(t2, a):
+    """``c = (th - sin th)/th^3`` (Taylor series below th = 0.1)."""
     if t2 < _SERIES_ANGLE2:
         x = t2
-        c = 1.0 / 6.0 - x / 120.0 * (1.0 - x / 42.0 * (1.0 - x / 72.0 * (1.0 - x / 110.0)))
-    else:
-        c = (1.0 - a) / t2
-    return a, b, c
+        return 1.0 / 6.0 - x / 120.0 * (1.0 - x / 42.0 * (1.0 - x / 72.0 * (1.0 - x / 110.0)))
+    return (1.0 - a) / t2
 
 
 @jit
@@ -120,7 +135,7 @@ def target(A, S, Rm, H):
     w0 = 0.5 * (A[7] - A[5])
     w1 = 0.5 * (A[2] - A[6])
     w2 = 0.5 * (A[3] - A[1])
-    a, b, _ = coefficients(w0 * w0 + w1 * w1 + w2 * w2)
+    a, b = rotation_ab(w0 * w0 + w1 * w1 + w2 * w2)
     rotation_minus_identity(w0, w1, w2, a, b, Rm)
     strain(A, S)
     for i in range(3):
@@ -140,7 +155,9 @@ def linearize(A, S, lin):
     w0 = 0.5 * (A[7] - A[5])
     w1 = 0.5 * (A[2] - A[6])
     w2 = 0.5 * (A[3] - A[1])
-    a, b, c = coefficients(w0 * w0 + w1 * w1 + w2 * w2)
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    a, b = rotation_ab(t2)
+    c = rotation_c(t2, a)
     lin[0], lin[1], lin[2], lin[3], lin[4] = w0, w1, w2, b, c
     R = lin[5:14]
     F = lin[14:23]
@@ -221,57 +238,94 @@ def cotangent(lin, Y, dA):
     # diagonal entries P[0], P[4], P[8] stay
 
 
+@jit
+def _frames(c, chunks, f):
+    """Frames ``[s0, s1)`` of chunk ``c`` of ``chunks``."""
+    return c * f // chunks, (c + 1) * f // chunks
+
+
+# Tets per block: a block's tets, gradients and volumes (~35 kB) stay in cache while every
+# frame of a chunk passes over them (streaming the whole mesh once per frame is memory bound).
+_TET_BLOCK = 256
+
+
 @pjit
-def target_rhs(U, tets, grads, vol, out):
-    """``out[s] += G^T Vol H(G U[s])``: right-hand sides of the warp's Poisson fit."""
-    for s in prange(U.shape[0]):
+def target_rhs(U, tets, grads, vol, out, chunks):
+    """``out[s] += G^T Vol H(G U[s])``: right-hand sides of the warp's Poisson fit.
+
+    The f frames are split into ``chunks`` (one per thread), each processed tet block by
+    tet block; the same blocking in :func:`jvp_rhs` and :func:`vjp_rhs`.
+    """
+    f, m = U.shape[0], tets.shape[0]
+    for c in prange(chunks):
+        s0, s1 = _frames(c, chunks, f)
         A = np.empty(9)
         S = np.empty(9)
         Rm = np.empty(9)
         H = np.empty(9)
-        u, o = U[s], out[s]
-        for t in range(tets.shape[0]):
-            gradient(u, tets, grads, t, A)
-            target(A, S, Rm, H)
-            scatter(H, vol[t], tets, grads, t, o)
+        for b0 in range(0, m, _TET_BLOCK):
+            b1 = min(m, b0 + _TET_BLOCK)
+            for s in range(s0, s1):
+                u, o = U[s], out[s]
+                for t in range(b0, b1):
+                    gradient(u, tets, grads, t, A)
+                    target(A, S, Rm, H)
+                    scatter(H, vol[t], tets, grads, t, o)
 
 
 @pjit
-def jvp_rhs(U, dU, tets, grads, vol, out):
+def jvp_rhs(U, dU, tets, grads, vol, out, chunks):
     """``out[s] += G^T Vol dH(G U[s]; G dU[s])``: the tangent map, per field pair."""
-    for s in prange(U.shape[0]):
+    f, m = U.shape[0], tets.shape[0]
+    for c in prange(chunks):
+        s0, s1 = _frames(c, chunks, f)
         A = np.empty(9)
         dA = np.empty(9)
         S = np.empty(9)
         dH = np.empty(9)
         lin = np.empty(_LIN)
-        u, du, o = U[s], dU[s], out[s]
-        for t in range(tets.shape[0]):
-            gradient(u, tets, grads, t, A)
-            linearize(A, S, lin)
-            gradient(du, tets, grads, t, dA)
-            tangent(lin, dA, S, dH)
-            scatter(dH, vol[t], tets, grads, t, o)
+        for b0 in range(0, m, _TET_BLOCK):
+            b1 = min(m, b0 + _TET_BLOCK)
+            for s in range(s0, s1):
+                u, du, o = U[s], dU[s], out[s]
+                for t in range(b0, b1):
+                    gradient(u, tets, grads, t, A)
+                    linearize(A, S, lin)
+                    gradient(du, tets, grads, t, dA)
+                    tangent(lin, dA, S, dH)
+                    scatter(dH, vol[t], tets, grads, t, o)
 
 
 @pjit
-def vjp_rhs(U, Z, tets, grads, vol, out):
+def vjp_rhs(U, Z, tets, grads, vol, out, chunks):
     """``out[s] += G^T dA`` with ``dA`` the cotangent of ``Y = Vol G Z[s]``."""
-    for s in prange(U.shape[0]):
+    f, m = U.shape[0], tets.shape[0]
+    for c in prange(chunks):
+        s0, s1 = _frames(c, chunks, f)
         A = np.empty(9)
         Y = np.empty(9)
         S = np.empty(9)
         dA = np.empty(9)
         lin = np.empty(_LIN)
-        u, z, o = U[s], Z[s], out[s]
-        for t in range(tets.shape[0]):
-            gradient(u, tets, grads, t, A)
-            linearize(A, S, lin)
-            gradient(z, tets, grads, t, Y)
-            for x in range(9):
-                Y[x] *= vol[t]
-            cotangent(lin, Y, dA)
-            scatter(dA, 1.0, tets, grads, t, o)
+        for b0 in range(0, m, _TET_BLOCK):
+            b1 = min(m, b0 + _TET_BLOCK)
+            for s in range(s0, s1):
+                u, z, o = U[s], Z[s], out[s]
+                for t in range(b0, b1):
+                    gradient(u, tets, grads, t, A)
+                    linearize(A, S, lin)
+                    gradient(z, tets, grads, t, Y)
+                    for x in range(9):
+                        Y[x] *= vol[t]
+                    cotangent(lin, Y, dA)
+                    scatter(dA, 1.0, tets, grads, t, o)
+
+
+def chunks(f: int) -> int:
+    """Frame chunks for ``f`` frames: one per thread (numba's current thread count)."""
+    from numba import get_num_threads
+
+    return max(1, min(f, get_num_threads()))
 
 
 @pjit
@@ -299,4 +353,90 @@ def jacobian_rhs(u, B, tets, grads, vol, out):
         for t in range(tets.shape[0]):
             gradient(b, tets, grads, t, dA)
             tangent(lins[t], dA, dS, dH)
+            scatter(dH, vol[t], tets, grads, t, o)
+
+
+@pjit
+def field_gradients(B, tets, grads):
+    """Per-tet gradients ``A`` (flat 3x3) of the fields ``B`` (r, n, 3): shape (r, m, 9)."""
+    r, m = B.shape[0], tets.shape[0]
+    out = np.empty((r, m, 9))
+    for d in prange(r):
+        for t in range(m):
+            gradient(B[d], tets, grads, t, out[d, t])
+    return out
+
+
+@pjit
+def jacobians_rhs(U, GB, tets, grads, vol, out):
+    """``out[s, d] += G^T Vol dH(G U[s]; GB[d])``: Jacobians against r fields at f points.
+
+    ``U`` (f, n, 3) linearization points, ``GB`` (r, m, 9) gradients of the fields (see
+    :func:`field_gradients`), ``out`` (f, r, n, 3).
+    """
+    f, r, m = U.shape[0], GB.shape[0], tets.shape[0]
+    lins = np.empty((f, m, _LIN))
+    for s in prange(f):
+        A = np.empty(9)
+        S = np.empty(9)
+        for t in range(m):
+            gradient(U[s], tets, grads, t, A)
+            linearize(A, S, lins[s, t])
+    for item in prange(f * r):
+        s = item // r
+        d = item - s * r
+        dS = np.empty(9)
+        dH = np.empty(9)
+        o = out[s, d]
+        for t in range(m):
+            tangent(lins[s, t], GB[d, t], dS, dH)
+            scatter(dH, vol[t], tets, grads, t, o)
+
+
+@pjit
+def second_derivatives_rhs(U, V, GB, step, tets, grads, vol, out):
+    """``out[s, d] += G^T Vol D^2H(G U[s])[GB[d], G V[s]]``: derivative of the tangent map
+    in the linearization point, for velocity keyframes ``B DW(u) u'`` (SYSTEM.md §6).
+
+    Per tet the 9x9 matrix ``dA -> d/dA' (dH(A'; G V[s]))[dA]`` is taken by central
+    differences of the analytic tangent with step ``step`` (error ~ step^2), then applied to
+    the r field gradients.  Shapes as in :func:`jacobians_rhs`; ``V`` (f, n, 3).
+    """
+    f, r, m = U.shape[0], GB.shape[0], tets.shape[0]
+    T2 = np.empty((f, m, 9, 9))
+    for item in prange(f * m):
+        s = item // m
+        t = item - s * m
+        A = np.empty(9)
+        Ah = np.empty(9)
+        gv = np.empty(9)
+        S = np.empty(9)
+        lin = np.empty(_LIN)
+        plus = np.empty(9)
+        minus = np.empty(9)
+        gradient(U[s], tets, grads, t, A)
+        gradient(V[s], tets, grads, t, gv)
+        for e in range(9):
+            for x in range(9):
+                Ah[x] = A[x]
+            Ah[e] += step
+            linearize(Ah, S, lin)
+            tangent(lin, gv, S, plus)
+            Ah[e] -= 2.0 * step
+            linearize(Ah, S, lin)
+            tangent(lin, gv, S, minus)
+            for x in range(9):
+                T2[s, t, x, e] = (plus[x] - minus[x]) / (2.0 * step)
+    for item in prange(f * r):
+        s = item // r
+        d = item - s * r
+        dH = np.empty(9)
+        o = out[s, d]
+        for t in range(m):
+            g = GB[d, t]
+            for x in range(9):
+                acc = 0.0
+                for e in range(9):
+                    acc += T2[s, t, x, e] * g[e]
+                dH[x] = acc
             scatter(dH, vol[t], tets, grads, t, o)
