@@ -26,13 +26,13 @@ from wiggly.errors import WigglyInputError
 from wiggly.fem import Material, gravity_term, mass_matrix, stiffness_matrix
 from wiggly.mesh import Model, Surface, TetMesh, coarse_mesh, embed, load_model
 from wiggly.modes import Modes, compute_modes
-from wiggly.warp import CoarseJacobian, Warp
+from wiggly.warp import CoarseWarp, Warp
 
 Where = Literal["surface", "tets"]
 DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
-# Bodies with more tets get their Gauss-Newton Jacobians DW Phi on a coarse mesh of about
-# COARSE_TETS tets (see :class:`wiggly.warp.CoarseJacobian`); smaller ones exactly.
-COARSE_JACOBIAN_ABOVE = 6000
+# Bodies with more tets get a coarse warp (a coarse mesh of about COARSE_TETS tets) for the
+# Gauss-Newton Jacobians DW Phi and a first solve (see wiggly.warp.CoarseWarp).
+COARSE_WARP_ABOVE = 6000
 COARSE_TETS = 1000
 
 
@@ -155,16 +155,16 @@ class Body:
         )
 
     @cached_property
-    def coarse_jacobian(self) -> CoarseJacobian:
-        """Gauss-Newton Jacobians DW Phi of the warped solve (SYSTEM.md §6): exact up to
-        ``COARSE_JACOBIAN_ABOVE`` tets, else on a coarse mesh of the same solid (built once,
-        fTetWild, cached on disk), which leaves the solution unchanged."""
+    def coarse_warp(self) -> CoarseWarp:
+        """The warp of a coarse mesh of the same solid (SYSTEM.md §6; built once, fTetWild,
+        cached on disk) for the warped solve; the fine warp itself up to
+        ``COARSE_WARP_ABOVE`` tets.  See :class:`wiggly.warp.CoarseWarp`."""
         Phi = self.modes.vectors
-        if self.tets.n_tets <= COARSE_JACOBIAN_ABOVE:
-            return CoarseJacobian.exact(self.warp, Phi)
+        if self.tets.n_tets <= COARSE_WARP_ABOVE:
+            return CoarseWarp.exact(self.warp, Phi)
         coarse = coarse_mesh(self.tets, COARSE_TETS)
         if coarse is None:
-            return CoarseJacobian.exact(self.warp, Phi)
+            return CoarseWarp.exact(self.warp, Phi)
         n = self.tets.n_vertices
         lift = embed(self.tets.vertices, coarse).matrix(coarse.n_vertices)
         m = self.vertex_masses("tets")
@@ -179,7 +179,7 @@ class Body:
             masses=np.maximum(lift.T @ m, 0.0),
             fixed_vertices=np.flatnonzero(share > 0.5),
         )
-        return CoarseJacobian(warp_c, lift, m, Phi)
+        return CoarseWarp(warp_c, lift, m, Phi)
 
     @cached_property
     def surface_embedding(self) -> sp.csr_matrix:

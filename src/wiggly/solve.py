@@ -218,6 +218,7 @@ class SpacetimeProblem:
         self._group_cache: dict[tuple, tuple] = {}
         self._jacobians: dict[float, tuple] = {}
         self._coarse_grams: dict[tuple, object] = {}
+        self._selections: dict[tuple, object] = {}
         self._projection_cache: dict[tuple, np.ndarray] = {}
         self._preroll_form: tuple | None = None
 
@@ -255,26 +256,45 @@ class SpacetimeProblem:
         return self._energy_cache[key]
 
     def _group_basis(self, vertices: np.ndarray, on: str) -> tuple:
-        """(A_k Phi, its Gram matrix, rest positions) of a vertex group, cached by group."""
+        """(S_1, S_1^T, Gram Phi^T A_k^T A_k Phi, rest positions (s, 3)) of a vertex group,
+        cached by group.  A_k = S_1 kron I_3 with S_1 the scalar selection (the barycentric
+        embedding rows for surface vertices); the Gram is sum_c Phi_c^T (S_1^T S_1) Phi_c
+        over the coordinates c, without forming A_k Phi."""
         key = (on, len(vertices), hash(vertices.tobytes()))
         if key not in self._group_cache:
             if len(self._group_cache) > 64:
                 self._group_cache.clear()
-            A = self.body.basis_rows(vertices, on)  # (3s, r)
-            rest = self.body.rest_positions(on)[vertices].ravel()
-            self._group_cache[key] = (A, A.T @ A, rest)
+            S, St = self._selection(vertices, on)
+            Phi = self.body.modes.vectors.reshape(-1, 3, self.body.r)
+            StS = St @ S
+            gram = sum(Phi[:, c].T @ (StS @ Phi[:, c]) for c in range(3))
+            rest = self.body.rest_positions(on)[vertices]
+            self._group_cache[key] = (S, St, gram, rest)
         return self._group_cache[key]
+
+    def _selection(self, vertices: np.ndarray, on: str, coarse: bool = False) -> tuple:
+        """A group's scalar selection S_1 (k, n) from tet-mesh vertex values and its transpose
+        (both CSR), or S_1 P (k, n_c) from the coarse mesh's (P the lift of
+        :class:`wiggly.warp.CoarseWarp`), cached by group."""
+        key = (on, len(vertices), hash(vertices.tobytes()), coarse)
+        if key not in self._selections:
+            if len(self._selections) > 64:
+                self._selections.clear()
+            S = self.body.scalar_selection(vertices, on)
+            if coarse:
+                S = sp.csr_matrix(S @ self.body.coarse_warp.lift)
+            self._selections[key] = (S, sp.csr_matrix(S.T))
+        return self._selections[key]
 
     def _coarse_gram(self, vertices: np.ndarray, on: str):
         """(S_1 P)^T (S_1 P): scalar selection S_1 of a group composed with the coarse mesh's
-        lift P (:class:`wiggly.warp.CoarseJacobian`), cached by group."""
+        lift P (:class:`wiggly.warp.CoarseWarp`), cached by group."""
         key = (on, len(vertices), hash(vertices.tobytes()))
         if key not in self._coarse_grams:
             if len(self._coarse_grams) > 64:
                 self._coarse_grams.clear()
-            lift = self.body.coarse_jacobian.lift
-            SP = sp.csr_matrix(self.body.scalar_selection(vertices, on) @ lift)
-            self._coarse_grams[key] = sp.csr_matrix(SP.T @ SP)
+            SP, SPt = self._selection(vertices, on, coarse=True)
+            self._coarse_grams[key] = sp.csr_matrix(SPt @ SP)
         return self._coarse_grams[key]
 
     def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
@@ -319,26 +339,27 @@ class SpacetimeProblem:
         for kf in kfs:
             k = _node_index(nodes, kf.time)
             c_A, c_B = kf.weights(body, self.duration)
-            A, AtA, rest = self._group_basis(kf.vertices, kf.on)
+            _S, St, AtA, rest = self._group_basis(kf.vertices, kf.on)
             if kf.position is not None and c_A > 0:
                 blk = 2 * r * k + np.arange(r)
                 _add_block(ab, bw, blk, c_A * AtA)
-                f[blk] -= c_A * self._projected(A, kf.vertices, kf.on, kf.position, rest)
+                f[blk] -= c_A * self._projected(St, kf.vertices, kf.on, kf.position, rest)
             if kf.velocity is not None and c_B > 0:
                 blk = 2 * r * k + r + np.arange(r)
                 _add_block(ab, bw, blk, c_B * AtA)
-                f[blk] -= c_B * self._projected(A, kf.vertices, kf.on, kf.velocity, None)
+                f[blk] -= c_B * self._projected(St, kf.vertices, kf.on, kf.velocity, None)
 
-    def _projected(self, A: np.ndarray, vertices: np.ndarray, on: str, target: np.ndarray,
+    def _projected(self, St, vertices: np.ndarray, on: str, target: np.ndarray,
                    rest: np.ndarray | None) -> np.ndarray:
-        """A^T (target - rest), cached by group and target (unchanged keyframes are free)."""
+        """A^T (target - rest) = Phi^T (S_1^T (target - rest)), cached by group and target
+        (unchanged keyframes are free)."""
         t = np.ascontiguousarray(target)
         key = (on, len(vertices), hash(vertices.tobytes()), rest is None, hash(t.tobytes()))
         if key not in self._projection_cache:
             if len(self._projection_cache) > 256:
                 self._projection_cache.clear()
-            d = t.ravel() if rest is None else t.ravel() - rest
-            self._projection_cache[key] = A.T @ d
+            d = t if rest is None else t - rest
+            self._projection_cache[key] = self.body.modes.vectors.T @ (St @ d).ravel()
         return self._projection_cache[key]
 
     def solve(
@@ -401,8 +422,17 @@ class SpacetimeProblem:
             info["warm_start"] = False
         info["linear_seconds"] = _time.perf_counter() - t_start
         if warped:
-            obj = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E)
             with iterations("warped solve (Gauss-Newton)", max_iterations, progress) as bar:
+                if not body.coarse_warp.exact:
+                    # first level: W~ of the coarse mesh in place of W, a start close to the
+                    # solution for a few fine iterations (the unknowns are the same)
+                    coarse = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E, coarse=True)
+                    info["coarse"] = {}
+                    z = _gauss_newton(
+                        coarse, z, COARSE_TOLERANCE, max_iterations, info["coarse"], stall, bar,
+                        warn=False,
+                    )
+                obj = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E)
                 z = _gauss_newton(obj, z, tolerance, max_iterations, info, stall, bar)
         z = z.reshape(n_nodes, 2, r)
         anim = Animation(
@@ -426,10 +456,13 @@ def _unwarped(kf: Keyframe, body: Body) -> Keyframe:
     X = body.rest_positions(kf.on)[kf.vertices]
     c, c_t = X.mean(axis=0), kf.position.mean(axis=0)
     A, B = X - c, kf.position - c_t
-    if np.linalg.matrix_rank(A, tol=1e-9 * max(np.abs(A).max(), 1e-300)) < 2:
+    spread = np.linalg.eigvalsh(A.T @ A)  # squared singular values of A, ascending
+    if spread[1] <= 1e-18 * max(spread[2], 1e-300):  # collinear: no unique rotation
         return kf
-    rot, _ = Rotation.align_vectors(B, A)
-    R, w = rot.as_matrix(), rot.as_rotvec()
+    U, _, Vt = np.linalg.svd(B.T @ A)  # Kabsch: R = argmax tr(R^T B^T A), det R = 1
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    R = U @ D @ Vt
+    w = Rotation.from_matrix(R).as_rotvec()
     e = B - A @ R.T
     position = X + np.cross(w, A) + (c_t - c) + e @ R
     velocity = None if kf.velocity is None else kf.velocity @ R
@@ -460,10 +493,11 @@ class _WarpedKey:
     """One keyframe's warped least-squares terms at its node (E_WC, SYSTEM.md §6)."""
 
     node: int
-    S: object  # (3s, 3n) sparse selection of tet displacements (embedding for surfaces)
+    S: object  # (s, n) sparse scalar selection of the level's vertex values (CSR)
+    St: object  # its transpose (CSR)
     C: object  # (n_c, n_c) sparse Gram (S_1 P)^T (S_1 P) of the scalar selection, coarse mesh
-    d: np.ndarray | None  # position target minus rest, (3s,)
-    b: np.ndarray | None  # velocity target (3s,)
+    d: np.ndarray | None  # position target minus rest, (s, 3)
+    b: np.ndarray | None  # velocity target (s, 3)
     wA: float  # sqrt(c_A)
     wB: float  # sqrt(c_B)
 
@@ -475,7 +509,9 @@ class WarpedObjective:
     - b_k) (SYSTEM.md §6) involve only the node of keyframe k, so their Gauss-Newton blocks
     J^T J land on the diagonal blocks of the banded H.  W and DW are evaluated only at
     constrained nodes, all nodes in one batch.  The gradient is exact (vector-Jacobian
-    products of W); the Gauss-Newton blocks use the body's :class:`CoarseJacobian`.
+    products of W); the Gauss-Newton blocks use the body's :class:`wiggly.warp.CoarseWarp`.
+    With ``coarse=True`` the coarse warp W~ stands in for W everywhere (its Gauss-Newton
+    blocks are then exact): the first, cheap level of the warped solve.
     """
 
     def __init__(
@@ -486,25 +522,31 @@ class WarpedObjective:
         ab_E: np.ndarray,
         f_E: np.ndarray,
         c_E: float,
+        coarse: bool = False,
     ) -> None:
         body = problem.body
         self.body, self.r = body, body.r
-        self.warp, self.Phi = body.warp, body.modes.vectors
-        self.coarse = body.coarse_jacobian
-        self.n = body.tets.n_vertices
+        self.coarse = body.coarse_warp
+        if coarse:  # everything on the coarse mesh: W~(Phi q) = P W_c(R Phi q)
+            self.warp, basis = self.coarse.warp_c, self.coarse.basis_c
+        else:
+            self.warp, basis = body.warp, body.modes.vectors
+        self.n = self.warp.n_vertices
+        self.Phi = basis.reshape(3 * self.n, self.r)
         self.ab_E, self.f_E, self.c_E = ab_E, f_E, c_E
         self.bw = ab_E.shape[0] - 1
+        self.H_E = _band_to_dense(ab_E)  # dense products are faster at these sizes
         self.keys = []
         for kf in kfs:
             c_A, c_B = kf.weights(body, problem.duration)
-            rest = body.rest_positions(kf.on)[kf.vertices].ravel()
+            rest = body.rest_positions(kf.on)[kf.vertices]
             self.keys.append(
                 _WarpedKey(
                     _node_index(nodes, kf.time),
-                    body.selection(kf.vertices, kf.on),
+                    *problem._selection(kf.vertices, kf.on, coarse),
                     problem._coarse_gram(kf.vertices, kf.on),
-                    None if kf.position is None or c_A == 0 else kf.position.ravel() - rest,
-                    None if kf.velocity is None or c_B == 0 else kf.velocity.ravel(),
+                    None if kf.position is None or c_A == 0 else kf.position - rest,
+                    None if kf.velocity is None or c_B == 0 else kf.velocity,
                     np.sqrt(c_A),
                     np.sqrt(c_B),
                 )
@@ -536,22 +578,22 @@ class WarpedObjective:
         self.counts["W"] += len(self.active) + len(self.vel)
         t1 = _time.perf_counter()
         self.timing["W"] += t1 - t0
-        Hz = _band_matvec(self.ab_E, self.bw, z)
+        Hz = self.H_E @ z
         F = 0.5 * z @ Hz + self.f_E @ z + self.c_E
         YA = np.zeros_like(U)
         YB = np.zeros_like(dU)
         for key in self.keys:
             a = self.slot[key.node]
             if key.d is not None:
-                rA = key.wA * (key.S @ WU[a].ravel() - key.d)
-                F += 0.5 * float(rA @ rA)
+                rA = key.wA * (key.S @ WU[a] - key.d)
+                F += 0.5 * float(np.vdot(rA, rA))
                 if gradient:
-                    YA[a] += key.wA * (key.S.T @ rA).reshape(n, 3)
+                    YA[a] += key.wA * (key.St @ rA)
             if key.b is not None:
-                rB = key.wB * (key.S @ Vel[self.vel.index(key.node)].ravel() - key.b)
-                F += 0.5 * float(rB @ rB)
+                rB = key.wB * (key.S @ Vel[self.vel.index(key.node)] - key.b)
+                F += 0.5 * float(np.vdot(rB, rB))
                 if gradient:
-                    YB[self.vel.index(key.node)] += key.wB * (key.S.T @ rB).reshape(n, 3)
+                    YB[self.vel.index(key.node)] += key.wB * (key.St @ rB)
         if not gradient:
             return float(F)
         g = Hz + self.f_E
@@ -583,13 +625,13 @@ class WarpedObjective:
         return self._evaluate(z, True)
 
     def normal_matrix(self, z: np.ndarray, reuse: float = 0.0) -> np.ndarray:
-        """Band storage of H + sum J^T J (Gauss-Newton), J from :class:`CoarseJacobian`.
+        """Band storage of H + sum J^T J (Gauss-Newton), J from :class:`wiggly.warp.CoarseWarp`.
 
         A node's Jacobian is reused while its state moved by less than ``reuse`` (relative),
         which changes the convergence rate, never the stationary point (the gradient is
         always exact)."""
         q, v = self._state(z)
-        n, r, Phi, cj = self.n, self.r, self.Phi, self.coarse
+        r, cj = self.r, self.coarse
         ab = self.ab_E.copy()
         t0 = _time.perf_counter()
         # a node's change is compared with the largest node state, so nodes near rest (u ~ 0,
@@ -600,18 +642,18 @@ class WarpedObjective:
             xk = np.r_[q[k], v[k]]
             cached = self._jac.get(self._node_time[k])
             scale = max(float(np.linalg.norm(xk)), floor)
+            limit = min(reuse, 1e-3) if k in self.vel else reuse  # q-v coupling: keep fresh
             if (
                 cached is None
-                or np.linalg.norm(xk - cached[0]) > reuse * scale
+                or np.linalg.norm(xk - cached[0]) > limit * scale
                 or (k in self.vel and cached[2] is None)
             ):
                 stale.append(k)
         if stale:  # all fresh Jacobians in one batch
-            U = (q[stale] @ Phi.T).reshape(len(stale), n, 3)
-            Js = cj.jacobians(U)
+            Js = cj.jacobians(q[stale])
             sv = [i for i, k in enumerate(stale) if k in self.vel]
             VJs = (
-                cj.second_derivatives(U[sv], (v[[stale[i] for i in sv]] @ Phi.T).reshape(-1, n, 3))
+                cj.second_derivatives(q[[stale[i] for i in sv]], v[[stale[i] for i in sv]])
                 if sv
                 else []
             )
@@ -653,6 +695,7 @@ def _gauss_newton(
     info: dict,
     stall: bool = True,
     bar=None,
+    warn: bool = True,
 ) -> np.ndarray:
     """Minimise E + E_WC (Theorem 2) by Levenberg-Marquardt from ``z``.
 
@@ -733,7 +776,7 @@ def _gauss_newton(
         seconds_solve=obj.timing["solve"],
         evaluations=dict(obj.counts),
     )
-    if not converged:
+    if not converged and warn:
         warnings.warn(
             f"warped solve did not converge in {it} iterations: objective {F:.6g} (start "
             f"{F_start:.6g}), Newton decrement {decrement:.2e} > tolerance * objective = "
@@ -745,6 +788,8 @@ def _gauss_newton(
 
 
 JACOBIAN_REUSE = 0.01
+# Tolerance of the coarse first level: its solution is only a start for the fine level.
+COARSE_TOLERANCE = 1e-6
 STALL_DECREASE = 1e-6
 STALL_PROMISE = 1e-2
 
@@ -764,6 +809,17 @@ def _band_scale(s: np.ndarray, bw: int) -> np.ndarray:
     for d in range(bw + 1):  # diagonal offset j - i = d, stored in row bw - d
         out[bw - d, d:] = s[: N - d] * s[d:]
     return out
+
+
+def _band_to_dense(ab: np.ndarray) -> np.ndarray:
+    """The symmetric matrix H of upper band storage ab[bw + i - j, j] = H[i, j]."""
+    bw, N = ab.shape[0] - 1, ab.shape[1]
+    H = np.zeros((N, N))
+    flat = H.reshape(-1)
+    for d in range(bw + 1):  # diagonal d: H[i, i + d] at flat index i (N + 1) + d
+        flat[d : (N - d) * N : N + 1] = ab[bw - d, d:]
+        flat[d * N :: N + 1] = ab[bw - d, d:]
+    return H
 
 
 def _band_matvec(ab: np.ndarray, bw: int, x: np.ndarray) -> np.ndarray:

@@ -63,7 +63,13 @@ from wiggly import warp_kernels
 from wiggly.errors import WigglyInputError
 from wiggly.linalg import available_backends, factorize_spd
 
-__all__ = ["Warp", "rotation_coefficients", "tet_gradient_operator", "tet_gradients"]
+__all__ = [
+    "CoarseWarp",
+    "Warp",
+    "rotation_coefficients",
+    "tet_gradient_operator",
+    "tet_gradients",
+]
 
 # Below this angle (radians) the coefficient c = (th - sin th) / th^3 of the rotation
 # derivative is evaluated by its Taylor series in th^2 (truncation error < 1e-19 there).
@@ -546,6 +552,44 @@ class Warp:
             Z[self._free] = self._solve(Yf[self._free])
         return Z.reshape(Y.shape), Y_in.reshape(Y.shape)
 
+    def _frames_of(self, U: np.ndarray, name: str) -> tuple[np.ndarray, bool]:
+        """(n, 3) -> (1, n, 3) and (f, n, 3) as contiguous float64 frames; flag: batched."""
+        U = np.asarray(U, dtype=np.float64)
+        n = self.n_vertices
+        if U.shape == (n, 3):
+            return np.ascontiguousarray(U[None]), False
+        if U.ndim == 3 and U.shape[1:] == (n, 3):
+            return np.ascontiguousarray(U), True
+        raise WigglyInputError(
+            f"{name} should have shape ({n}, 3) or (f, {n}, 3); shape is {U.shape}"
+        )
+
+    def _poisson_frames(self, rhs: np.ndarray, X_in: np.ndarray) -> np.ndarray:
+        """:meth:`_poisson` for frames: ``rhs`` and ``X_in`` (f, n, 3), result (f, n, 3)."""
+        f, n, _ = rhs.shape
+        B = rhs.transpose(1, 0, 2).reshape(n, 3 * f)
+        X = np.zeros_like(B)
+        if self._solve is not None:
+            X[self._free] = self._solve(B[self._free])
+        if self._has_floating:
+            X += self._spread @ (self._mean @ (X_in.transpose(1, 0, 2).reshape(n, 3 * f) - X))
+        return np.ascontiguousarray(X.reshape(n, f, 3).transpose(1, 0, 2))
+
+    def _poisson_adjoint_frames(self, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`_poisson_adjoint` for frames (f, n, 3); the second cotangent is None when
+        no component floats."""
+        f, n, _ = Y.shape
+        Yf = Y.transpose(1, 0, 2).reshape(n, 3 * f)
+        Y_in = None
+        if self._has_floating:
+            Y_in = self._mean.T @ (self._spread.T @ Yf)
+            Yf = Yf - Y_in
+            Y_in = Y_in.reshape(n, f, 3).transpose(1, 0, 2)
+        Z = np.zeros_like(Yf)
+        if self._solve is not None:
+            Z[self._free] = self._solve(Yf[self._free])
+        return np.ascontiguousarray(Z.reshape(n, f, 3).transpose(1, 0, 2)), Y_in
+
     # ---------------------------------------------------------------- public API
     def apply(self, U: np.ndarray) -> np.ndarray:
         """Warped displacements ``W(u)`` for ``U`` of shape (n, 3) or (f, n, 3).
@@ -554,16 +598,16 @@ class Warp:
         then one Poisson solve with ``3 f`` right-hand sides and the gauge
         (SYSTEM.md §6; Huang et al. 2011).
         """
-        X, batched = self._as_columns(U, "U")
         if self.compiled:
-            Uf = np.ascontiguousarray(X.transpose(2, 0, 1))
-            out = np.zeros_like(Uf)
+            Uf, batched = self._frames_of(U, "U")
+            rhs = np.zeros_like(Uf)
             warp_kernels.target_rhs(
-                Uf, self._tets, self._grads, self.volumes, out, warp_kernels.chunks(len(Uf))
+                Uf, self._tets, self._grads, self.volumes, rhs, warp_kernels.chunks(len(Uf))
             )
-            rhs = out.transpose(1, 2, 0)
-        else:
-            rhs = self._per_tet(_target_block, [(self._G, X)], self._GtV)
+            out = self._poisson_frames(rhs, Uf)
+            return out if batched else out[0]
+        X, batched = self._as_columns(U, "U")
+        rhs = self._per_tet(_target_block, [(self._G, X)], self._GtV)
         return self._from_columns(self._poisson(rhs, X), batched)
 
     __call__ = apply
@@ -581,15 +625,15 @@ class Warp:
                 f"dU should have the shape of U {np.shape(U)}; shape is {np.shape(dU)}"
             )
         if self.compiled:
-            Uf = np.ascontiguousarray(X.transpose(2, 0, 1))
-            dUf = np.ascontiguousarray(dX.transpose(2, 0, 1))
-            out = np.zeros_like(Uf)
+            Uf, _ = self._frames_of(U, "U")
+            dUf, _ = self._frames_of(dU, "dU")
+            rhs = np.zeros_like(Uf)
             warp_kernels.jvp_rhs(
-                Uf, dUf, self._tets, self._grads, self.volumes, out, warp_kernels.chunks(len(Uf))
+                Uf, dUf, self._tets, self._grads, self.volumes, rhs, warp_kernels.chunks(len(Uf))
             )
-            rhs = out.transpose(1, 2, 0)
-        else:
-            rhs = self._per_tet(_jvp_fused, [(self._G, X), (self._G, dX)], self._GtV)
+            out = self._poisson_frames(rhs, dUf)
+            return out if batched else out[0]
+        rhs = self._per_tet(_jvp_fused, [(self._G, X), (self._G, dX)], self._GtV)
         return self._from_columns(self._poisson(rhs, dX), batched)
 
     def vjp(self, U: np.ndarray, Y: np.ndarray) -> np.ndarray:
@@ -600,17 +644,18 @@ class Warp:
             raise WigglyInputError(
                 f"Y should have the shape of U {np.shape(U)}; shape is {np.shape(Y)}"
             )
-        Z, Y_in = self._poisson_adjoint(Yc)
         if self.compiled:
-            Uf = np.ascontiguousarray(X.transpose(2, 0, 1))
-            Zf = np.ascontiguousarray(Z.transpose(2, 0, 1))
+            Uf, _ = self._frames_of(U, "U")
+            Zf, Y_in = self._poisson_adjoint_frames(self._frames_of(Y, "Y")[0])
             out = np.zeros_like(Uf)
             warp_kernels.vjp_rhs(
                 Uf, Zf, self._tets, self._grads, self.volumes, out, warp_kernels.chunks(len(Uf))
             )
-            out = out.transpose(1, 2, 0)
-        else:
-            out = self._per_tet(_vjp_fused, [(self._G, X), (self._VG, Z)], self._Gt)
+            if Y_in is not None:
+                out += Y_in
+            return out if batched else out[0]
+        Z, Y_in = self._poisson_adjoint(Yc)
+        out = self._per_tet(_vjp_fused, [(self._G, X), (self._VG, Z)], self._Gt)
         return self._from_columns(out + Y_in, batched)
 
     def jacobian(self, u: np.ndarray, basis: np.ndarray) -> np.ndarray:
@@ -805,24 +850,26 @@ class Warp:
 
 
 # --------------------------------------------------------------------------- #
-# Gauss-Newton Jacobians on a coarser mesh
+# The warp of a coarser mesh of the same body
 # --------------------------------------------------------------------------- #
-class CoarseJacobian:
-    """Jacobians ``DW(u) Phi`` approximated on a coarser tet mesh of the same body.
+class CoarseWarp:
+    """The warp of a coarser tet mesh of the same solid, seen from the fine mesh.
 
-    The warped solve (SYSTEM.md §6) needs ``J_k = DW(u_k) Phi`` only for its Gauss-Newton
-    matrix ``J_k^T J_k``; its gradient uses exact vector-Jacobian products of ``W``.  An
-    approximate matrix changes the convergence rate of the iteration, never its stationary
-    point.  On a fine body an exact ``J_k`` costs ``3 r`` Poisson solves per constrained node
-    and per iteration; here the displacement is projected onto a coarse mesh, differentiated
-    there with that mesh's own warp, and interpolated back:
+    The displacement is projected onto the coarse mesh, warped there, and interpolated back:
 
-        DW(u) Phi  ~  P  DW_c(R u)  R Phi,
+        W~(u) = P W_c(R u),        DW~(u) Phi = P DW_c(R u) R Phi,
 
     with ``P`` (n, n_c) the barycentric interpolation at the fine vertices (exact for affine
     fields, so rigid motions pass through) and ``R = (P^T M P)^-1 P^T M`` the mass-weighted
     least-squares projection (``M`` the fine lumped masses), the best coarse approximation
-    of the modes.  With ``warp_c = warp`` and ``R = P = I`` (:meth:`exact`) it is exact.
+    of a fine field.  ``W~`` approximates ``W`` (SYSTEM.md §6) to the coarse mesh's
+    resolution, at a fraction of the cost.  The warped solve uses it twice (see
+    :func:`wiggly.solve.solve`): its Jacobians (fields on the coarse mesh, lifted by ``P``)
+    stand in for ``DW(u_k) Phi`` in the Gauss-Newton matrix, which changes the convergence
+    rate of the iteration, never its stationary point; and the problem with ``W~`` in place
+    of ``W`` is solved first, as a start close to the solution.
+
+    :meth:`exact` wraps the fine warp itself (``R = P = I``): for small bodies.
 
     Parameters
     ----------
@@ -845,37 +892,78 @@ class CoarseJacobian:
         self.warp_c = warp_c
         self.lift = sp.csr_matrix(lift)
         self.exact = False
-        self.n_coarse, self.r = n_c, r
-        self._PtM = sp.csr_matrix(self.lift.T @ sp.diags(masses))
+        self.n_vertices, self.n_coarse, self.r = n, n_c, r
+        self._masses = np.asarray(masses, dtype=np.float64)
+        self._PtM = sp.csr_matrix(self.lift.T @ sp.diags(self._masses))
         self._project = factorize_spd(sp.csc_matrix(self._PtM @ self.lift), backend="splu")
         self.basis_c = self.restrict(basis.reshape(n, 3, r).transpose(2, 0, 1)).transpose(1, 2, 0)
 
     @classmethod
-    def exact(cls, warp: Warp, basis: np.ndarray) -> CoarseJacobian:
-        """The exact Jacobians (no coarse mesh): ``R = P = I``."""
+    def exact(cls, warp: Warp, basis: np.ndarray) -> CoarseWarp:
+        """The fine warp itself (``R = P = I``)."""
         self = cls.__new__(cls)
         n, r = warp.n_vertices, basis.shape[1]
-        self.warp_c, self.exact, self.n_coarse, self.r = warp, True, n, r
+        self.warp_c, self.exact, self.r = warp, True, r
+        self.n_vertices = self.n_coarse = n
         self.lift = sp.identity(n, format="csr")
         self.basis_c = np.ascontiguousarray(basis.reshape(n, 3, r))
         return self
 
+    # ----------------------------------------------------------------- transfer
+    @staticmethod
+    def _apply_columns(A, U: np.ndarray, rows: int) -> np.ndarray:
+        """``A`` applied to each of f fields (f, k, 3): result (f, rows, 3)."""
+        f, k = U.shape[:2]
+        out = A(np.ascontiguousarray(U.transpose(1, 0, 2)).reshape(k, 3 * f))
+        return np.ascontiguousarray(out.reshape(rows, f, 3).transpose(1, 0, 2))
+
     def restrict(self, U: np.ndarray) -> np.ndarray:
-        """``R U`` for fields U (f, n, 3): shape (f, n_c, 3)."""
+        """``R U`` for fine fields (f, n, 3): coarse fields (f, n_c, 3)."""
         U = np.asarray(U, dtype=np.float64)
         if self.exact:
             return np.ascontiguousarray(U)
-        f, n = U.shape[:2]
-        rhs = self._PtM @ U.transpose(1, 0, 2).reshape(n, 3 * f)
-        return np.ascontiguousarray(
-            self._project(rhs).reshape(self.n_coarse, f, 3).transpose(1, 0, 2)
+        return self._apply_columns(lambda X: self._project(self._PtM @ X), U, self.n_coarse)
+
+    def _restrict_adjoint(self, Z: np.ndarray) -> np.ndarray:
+        """``R^T Z = M P (P^T M P)^-1 Z`` for coarse fields (f, n_c, 3)."""
+        return self._apply_columns(
+            lambda X: self._masses[:, None] * (self.lift @ self._project(X)), Z, self.n_vertices
         )
 
-    def jacobians(self, U: np.ndarray) -> np.ndarray:
-        """``DW_c(R u_s) R Phi`` at f points U (f, n, 3): shape (f, n_c, 3, r); lift with
-        :attr:`lift`."""
-        return self.warp_c.jacobians(self.restrict(U), self.basis_c)
+    def _lift(self, X: np.ndarray) -> np.ndarray:
+        return self._apply_columns(lambda Y: self.lift @ Y, X, self.n_vertices)
 
-    def second_derivatives(self, U: np.ndarray, V: np.ndarray) -> np.ndarray:
-        """``D^2 W_c(R u_s)[R Phi, R v_s]`` (velocity keyframes): shape (f, n_c, 3, r)."""
-        return self.warp_c.second_derivatives(self.restrict(U), self.restrict(V), self.basis_c)
+    def _lift_adjoint(self, Y: np.ndarray) -> np.ndarray:
+        return self._apply_columns(lambda X: self.lift.T @ X, Y, self.n_coarse)
+
+    # --------------------------------------------------------------- the map W~
+    def apply(self, U: np.ndarray) -> np.ndarray:
+        """``W~(u) = P W_c(R u)`` for U (f, n, 3)."""
+        if self.exact:
+            return self.warp_c.apply(U)
+        return self._lift(self.warp_c.apply(self.restrict(U)))
+
+    def jvp(self, U: np.ndarray, dU: np.ndarray) -> np.ndarray:
+        """``DW~(u)[du] = P DW_c(R u)[R du]`` for U, dU (f, n, 3)."""
+        if self.exact:
+            return self.warp_c.jvp(U, dU)
+        return self._lift(self.warp_c.jvp(self.restrict(U), self.restrict(dU)))
+
+    def vjp(self, U: np.ndarray, Y: np.ndarray) -> np.ndarray:
+        """``DW~(u)^T y = R^T DW_c(R u)^T P^T y`` for U, Y (f, n, 3)."""
+        if self.exact:
+            return self.warp_c.vjp(U, Y)
+        return self._restrict_adjoint(self.warp_c.vjp(self.restrict(U), self._lift_adjoint(Y)))
+
+    def jacobians(self, q: np.ndarray) -> np.ndarray:
+        """``DW_c(R Phi q_s) R Phi`` at f modal states q (f, r): shape (f, n_c, 3, r); the
+        Jacobian of ``W~`` at ``u = Phi q`` is ``P`` (:attr:`lift`) applied to it."""
+        U = np.asarray(q, dtype=np.float64) @ self.basis_c.reshape(-1, self.r).T
+        return self.warp_c.jacobians(U.reshape(len(U), -1, 3), self.basis_c)
+
+    def second_derivatives(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """``D^2 W_c(R Phi q_s)[R Phi, R Phi v_s]`` (velocity keyframes): (f, n_c, 3, r)."""
+        B = self.basis_c.reshape(-1, self.r).T
+        U = (np.asarray(q, dtype=np.float64) @ B).reshape(len(q), -1, 3)
+        V = (np.asarray(v, dtype=np.float64) @ B).reshape(len(v), -1, 3)
+        return self.warp_c.second_derivatives(U, V, self.basis_c)
