@@ -215,10 +215,11 @@ class SpacetimeProblem:
         self.start, self.end = float(start), float(end)
         self.preroll = preroll
         self._energy_cache: dict[tuple, tuple] = {}
-        self._group_cache: dict[tuple, tuple] = {}
+        # per vertex group (selections, Grams): properties of the body, shared by its problems
+        self._group_cache: dict[tuple, tuple] = body._cache.setdefault("group_basis", {})
         self._jacobians: dict[float, tuple] = {}
-        self._coarse_grams: dict[tuple, object] = {}
-        self._selections: dict[tuple, object] = {}
+        self._coarse_grams: dict[tuple, object] = body._cache.setdefault("coarse_grams", {})
+        self._selections: dict[tuple, object] = body._cache.setdefault("selections", {})
         self._projection_cache: dict[tuple, np.ndarray] = {}
         self._preroll_form: tuple | None = None
 
@@ -500,6 +501,10 @@ class _WarpedKey:
     b: np.ndarray | None  # velocity target (s, 3)
     wA: float  # sqrt(c_A)
     wB: float  # sqrt(c_B)
+    # coarse level: residual norms from the Gram, |S x - d|^2 = x.Cx - 2 x.S^T d + |d|^2
+    gram: bool = False
+    Std: np.ndarray | None = None
+    Stb: np.ndarray | None = None
 
 
 class WarpedObjective:
@@ -551,6 +556,11 @@ class WarpedObjective:
                     np.sqrt(c_B),
                 )
             )
+        if coarse:  # the cancellation in the Gram form costs ~eps |d|^2 / |r|^2: fine here
+            for key in self.keys:
+                key.gram = True
+                key.Std = None if key.d is None else key.St @ key.d
+                key.Stb = None if key.b is None else key.St @ key.b
         self.active = sorted({k.node for k in self.keys if k.d is not None or k.b is not None})
         self.slot = {k: a for a, k in enumerate(self.active)}
         self.vel = sorted({k.node for k in self.keys if k.b is not None})
@@ -584,6 +594,9 @@ class WarpedObjective:
         YB = np.zeros_like(dU)
         for key in self.keys:
             a = self.slot[key.node]
+            if key.gram:
+                F += self._gram_terms(key, WU[a], Vel, YA[a] if gradient else None, YB)
+                continue
             if key.d is not None:
                 rA = key.wA * (key.S @ WU[a] - key.d)
                 F += 0.5 * float(np.vdot(rA, rA))
@@ -615,6 +628,26 @@ class WarpedObjective:
             G[self.vel, 0] += (out[f + nv : f + 2 * nv] - out[f + 2 * nv :]) / (2 * h[:, None])
         self.timing["vjp"] += _time.perf_counter() - t1
         return float(F), g
+
+    def _gram_terms(self, key: _WarpedKey, x: np.ndarray, Vel, y, YB) -> float:
+        """1/2 |r|^2 of a keyframe from its Gram (coarse level); adds S^T r to the
+        cotangents ``y`` (positions) and ``YB`` (velocities) unless ``y`` is None."""
+        F = 0.0
+        if key.d is not None:
+            Cx = key.C @ x
+            dd = np.vdot(key.d, key.d)
+            F += 0.5 * key.wA**2 * (np.vdot(x, Cx) - 2 * np.vdot(x, key.Std) + dd)
+            if y is not None:
+                y += key.wA**2 * (Cx - key.Std)
+        if key.b is not None:
+            j = self.vel.index(key.node)
+            Cv = key.C @ Vel[j]
+            F += 0.5 * key.wB**2 * (
+                np.vdot(Vel[j], Cv) - 2 * np.vdot(Vel[j], key.Stb) + np.vdot(key.b, key.b)
+            )
+            if y is not None:
+                YB[j] += key.wB**2 * (Cv - key.Stb)
+        return float(F)
 
     def value(self, z: np.ndarray) -> float:
         """F(z)."""
@@ -661,30 +694,34 @@ class WarpedObjective:
                 VJ = VJs[sv.index(i)] if i in sv else None
                 self._jac[self._node_time[k]] = (np.r_[q[k], v[k]], Js[i], VJ)
             self.counts["jacobians"] += len(stale)
+        blocks = np.zeros((len(self.active), 2 * r, 2 * r))
+        J = {k: self._jac[self._node_time[k]][1] for k in self.active}
+        # position terms c_A J^T (C kron I_3) J, batched over the keyframes of each group
+        groups: dict[int, tuple] = {}
+        for key in self.keys:
+            if key.d is not None:
+                groups.setdefault(id(key.C), (key.C, []))[1].append(key)
+        for C, keys in groups.values():
+            grams = _grams(C, np.stack([J[key.node] for key in keys]))
+            for key, g in zip(keys, grams, strict=True):
+                blocks[self.slot[key.node], :r, :r] += key.wA**2 * g
+        for key in self.keys:  # velocity terms: [D^2W, DW] against (q, q')
+            if key.b is not None:
+                VJ = self._jac[self._node_time[key.node]][2]
+                X = np.concatenate([VJ, J[key.node]], axis=2)
+                blocks[self.slot[key.node]] += key.wB**2 * _grams(key.C, X[None])[0]
         for k in self.active:
-            _, J, VJ = self._jac[self._node_time[k]]
-            block = np.zeros((2 * r, 2 * r))
-            for key in self.keys:
-                if key.node != k:
-                    continue
-                if key.d is not None:
-                    block[:r, :r] += key.wA**2 * _gram(key.C, J, J)
-                if key.b is not None:
-                    w2 = key.wB**2
-                    block[:r, :r] += w2 * _gram(key.C, VJ, VJ)
-                    cross = w2 * _gram(key.C, VJ, J)
-                    block[:r, r:] += cross
-                    block[r:, :r] += cross.T
-                    block[r:, r:] += w2 * _gram(key.C, J, J)
-            _add_block(ab, self.bw, 2 * r * k + np.arange(2 * r), block)
+            _add_block(ab, self.bw, 2 * r * k + np.arange(2 * r), blocks[self.slot[k]])
         self.timing["jacobians"] += _time.perf_counter() - t0
         return ab
 
 
-def _gram(C, X: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """X^T (C kron I_3) Y for fields X, Y of shape (n_c, 3, r) and a scalar (n_c, n_c) C."""
-    CY = (C @ Y.reshape(Y.shape[0], -1)).reshape(Y.shape)
-    return np.tensordot(X, CY, axes=([0, 1], [0, 1]))
+def _grams(C, X: np.ndarray) -> np.ndarray:
+    """X_p^T (C kron I_3) X_p for p stacked fields X (p, n_c, 3, r), scalar (n_c, n_c) C."""
+    p, n_c, _, r = X.shape
+    CX = (C @ X.transpose(1, 0, 2, 3).reshape(n_c, -1)).reshape(n_c, p, 3 * r)
+    Xf = X.reshape(p, 3 * n_c, r)
+    return Xf.transpose(0, 2, 1) @ CX.transpose(1, 0, 2).reshape(p, 3 * n_c, r)
 
 
 def _gauss_newton(
@@ -823,14 +860,9 @@ def _band_to_dense(ab: np.ndarray) -> np.ndarray:
 
 
 def _band_matvec(ab: np.ndarray, bw: int, x: np.ndarray) -> np.ndarray:
-    """y = H x for symmetric H in upper band storage ab[bw + i - j, j] = H[i, j]."""
-    N = len(x)
-    y = ab[bw] * x
-    for d in range(1, bw + 1):
-        row = ab[bw - d, d:]  # H[i, i + d] for i = 0 .. N-d-1
-        y[: N - d] += row * x[d:]
-        y[d:] += row * x[: N - d]
-    return y
+    """y = H x for symmetric H in upper band storage ab[bw + i - j, j] = H[i, j] (BLAS
+    dsbmv, whose upper band storage is this one)."""
+    return sla.blas.dsbmv(bw, 1.0, ab, x)
 
 
 def _add_dense(ab: np.ndarray, bw: int, idx: np.ndarray, blocks: np.ndarray) -> None:
@@ -842,7 +874,10 @@ def _add_dense(ab: np.ndarray, bw: int, idx: np.ndarray, blocks: np.ndarray) -> 
 
 
 def _add_block(ab: np.ndarray, bw: int, idx: np.ndarray, block: np.ndarray) -> None:
-    _add_dense(ab, bw, idx[None], block[None])
+    """Add one symmetric block at distinct global indices idx (no repeated entries, so a
+    plain fancy-indexed += is exact)."""
+    rows, cols = np.triu_indices(len(idx))
+    ab[bw + idx[rows] - idx[cols], idx[cols]] += block[rows, cols]
 
 
 def solve(
