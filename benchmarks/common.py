@@ -53,10 +53,15 @@ def box_shape_for(n_tets: int, aspect=(3.0, 1.0, 1.0)) -> tuple[int, int, int]:
     return tuple(int(max(1, round(s * x))) for x in a)
 
 
-def box_model(n_tets: int, surface_vertices: int | None = None, size=(1.2, 0.4, 0.4)) -> Model:
-    """A box tet mesh with ~n_tets tets and, optionally, a finer embedded box surface with
-    ~surface_vertices vertices (the user's surface is independent of the simulation mesh)."""
-    V, T = box_mesh(box_shape_for(n_tets, np.asarray(size) / min(size)), size)
+def box_model(
+    n_tets: int, surface_vertices: int | None = None, size=(1.2, 0.4, 0.4), cells=None
+) -> Model:
+    """A box tet mesh with ~n_tets tets (or exactly 6 prod(cells)) and, optionally, a finer
+    embedded box surface with ~surface_vertices vertices (the user's surface is independent
+    of the simulation mesh)."""
+    if cells is None:
+        cells = box_shape_for(n_tets, np.asarray(size) / min(size))
+    V, T = box_mesh(tuple(cells), size)
     tets = TetMesh(V, T)
     if surface_vertices is None:
         surf = Surface(V, tets.boundary_faces())
@@ -71,9 +76,11 @@ def box_model(n_tets: int, surface_vertices: int | None = None, size=(1.2, 0.4, 
     return Model(surf, tets, embed(surf.vertices, tets), source=f"box{n_tets}")
 
 
-def box_body(n_tets: int, surface_vertices: int | None = None, n_modes: int = 40) -> Body:
+def box_body(
+    n_tets: int, surface_vertices: int | None = None, n_modes: int = 40, cells=None
+) -> Body:
     return prepare(
-        box_model(n_tets, surface_vertices),
+        box_model(n_tets, surface_vertices, cells=cells),
         material=Material(2e5, 0.45, 1000.0),
         damping=Damping(0.5, 0.002),
         n_modes=n_modes,

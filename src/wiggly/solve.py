@@ -563,6 +563,11 @@ class WarpedObjective:
                 key.Stb = None if key.b is None else key.St @ key.b
         self.active = sorted({k.node for k in self.keys if k.d is not None or k.b is not None})
         self.slot = {k: a for a, k in enumerate(self.active)}
+        # position keyframes sharing a selection are evaluated together (one sparse product)
+        self._batches: dict[int, list[_WarpedKey]] = {}
+        for key in self.keys:
+            if key.d is not None and not key.gram:
+                self._batches.setdefault(id(key.S), []).append(key)
         self.vel = sorted({k.node for k in self.keys if k.b is not None})
         self.timing = {"W": 0.0, "vjp": 0.0, "jacobians": 0.0, "solve": 0.0}
         self.counts = {"W": 0, "vjp": 0, "jacobians": 0}
@@ -592,16 +597,13 @@ class WarpedObjective:
         F = 0.5 * z @ Hz + self.f_E @ z + self.c_E
         YA = np.zeros_like(U)
         YB = np.zeros_like(dU)
+        for keys in self._batches.values():
+            F += self._position_terms(keys, WU, YA if gradient else None)
         for key in self.keys:
             a = self.slot[key.node]
             if key.gram:
                 F += self._gram_terms(key, WU[a], Vel, YA[a] if gradient else None, YB)
                 continue
-            if key.d is not None:
-                rA = key.wA * (key.S @ WU[a] - key.d)
-                F += 0.5 * float(np.vdot(rA, rA))
-                if gradient:
-                    YA[a] += key.wA * (key.St @ rA)
             if key.b is not None:
                 rB = key.wB * (key.S @ Vel[self.vel.index(key.node)] - key.b)
                 F += 0.5 * float(np.vdot(rB, rB))
@@ -618,16 +620,37 @@ class WarpedObjective:
         )
         step = h[:, None, None] * dU
         Ub = np.concatenate([U, U[iv], U[iv] + step, U[iv] - step])
-        Yb = np.concatenate([YA, YB, YB, YB])
-        out = self.warp.vjp(Ub, Yb).reshape(len(Ub), 3 * n) @ Phi
-        self.counts["vjp"] += len(Ub)
         f, nv = len(self.active), len(self.vel)
+        index = np.r_[np.arange(f), np.tile(f + np.arange(nv), 3)]
+        out = self.warp.vjp(Ub, np.concatenate([YA, YB]), index).reshape(len(Ub), 3 * n) @ Phi
+        self.counts["vjp"] += len(Ub)
         G[self.active, 0] += out[:f]
         if nv:
             G[self.vel, 1] += out[f : f + nv]
             G[self.vel, 0] += (out[f + nv : f + 2 * nv] - out[f + 2 * nv :]) / (2 * h[:, None])
         self.timing["vjp"] += _time.perf_counter() - t1
         return float(F), g
+
+    def _position_terms(self, keys: list[_WarpedKey], WU: np.ndarray, YA) -> float:
+        """1/2 sum |r|^2 of position keyframes sharing one selection S, r = sqrt(c_A) (S W(u)
+        - d); adds sqrt(c_A) S^T r to the cotangents ``YA`` unless it is None."""
+        S, St = keys[0].S, keys[0].St
+        slots = [self.slot[key.node] for key in keys]
+        p, n = len(keys), WU.shape[1]
+        X = WU[slots].transpose(1, 0, 2).reshape(n, 3 * p)
+        Sx = (S @ X).reshape(-1, p, 3)
+        F = 0.0
+        R = np.empty_like(Sx)
+        for j, key in enumerate(keys):
+            np.subtract(Sx[:, j], key.d, out=R[:, j])
+            R[:, j] *= key.wA
+            F += 0.5 * float(np.vdot(R[:, j], R[:, j]))
+            R[:, j] *= key.wA
+        if YA is not None:
+            Y = (St @ R.reshape(-1, 3 * p)).reshape(n, p, 3)
+            for j, a in enumerate(slots):
+                YA[a] += Y[:, j]
+        return F
 
     def _gram_terms(self, key: _WarpedKey, x: np.ndarray, Vel, y, YB) -> float:
         """1/2 |r|^2 of a keyframe from its Gram (coarse level); adds S^T r to the

@@ -420,16 +420,19 @@ class Warp:
         self.fixed = fixed
 
         # Gauge. Connected components (an isolated vertex is one of its own): those
-        # with fixed vertices are Dirichlet; the others get their lowest-index vertex
+        # with fixed vertices are Dirichlet; the others get their highest-index vertex
         # pinned, then a constant shift restoring the mass-weighted mean of u.
         n_comp, label = connected_components(laplacian, directed=False)
         floating = np.ones(n_comp, dtype=bool)
         floating[label[fixed]] = False
-        first = np.full(n_comp, n)
-        np.minimum.at(first, label, np.arange(n))
+        last = np.full(n_comp, -1)
+        np.maximum.at(last, label, np.arange(n))
         eliminated = fixed.copy()
-        eliminated[first[floating]] = True
+        eliminated[last[floating]] = True
         self._free = np.flatnonzero(~eliminated)
+        # free vertices 0..k-1 (one free body: all but the last vertex): slices, not copies
+        k = self._free.size
+        self._rows = slice(0, k) if k == 0 or self._free[-1] == k - 1 else self._free
 
         n_float = int(floating.sum())
         comp_id = np.full(n_comp, -1)
@@ -534,7 +537,7 @@ class Warp:
         B = rhs.reshape(n, -1)
         X = np.zeros_like(B)
         if self._solve is not None:
-            X[self._free] = self._solve(B[self._free])
+            X[self._rows] = self._solve(B[self._rows])
         if self._has_floating:
             X += self._spread @ (self._mean @ (X_in.reshape(n, -1) - X))
         return X.reshape(rhs.shape)
@@ -549,7 +552,7 @@ class Warp:
             Yf -= Y_in
         Z = np.zeros_like(Yf)
         if self._solve is not None:
-            Z[self._free] = self._solve(Yf[self._free])
+            Z[self._rows] = self._solve(Yf[self._rows])
         return Z.reshape(Y.shape), Y_in.reshape(Y.shape)
 
     def _frames_of(self, U: np.ndarray, name: str) -> tuple[np.ndarray, bool]:
@@ -570,9 +573,10 @@ class Warp:
         B = rhs.transpose(1, 0, 2).reshape(n, 3 * f)
         X = np.zeros_like(B)
         if self._solve is not None:
-            X[self._free] = self._solve(B[self._free])
+            X[self._rows] = self._solve(B[self._rows])
         if self._has_floating:
-            X += self._spread @ (self._mean @ (X_in.transpose(1, 0, 2).reshape(n, 3 * f) - X))
+            shift = self._mean @ X_in.transpose(1, 0, 2).reshape(n, 3 * f) - self._mean @ X
+            X += self._spread @ shift
         return np.ascontiguousarray(X.reshape(n, f, 3).transpose(1, 0, 2))
 
     def _poisson_adjoint_frames(self, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
@@ -583,11 +587,11 @@ class Warp:
         Y_in = None
         if self._has_floating:
             Y_in = self._mean.T @ (self._spread.T @ Yf)
-            Yf = Yf - Y_in
+            Yf = Yf - Y_in  # (not in place: for f = 1, Yf is a view of the caller's Y)
             Y_in = Y_in.reshape(n, f, 3).transpose(1, 0, 2)
         Z = np.zeros_like(Yf)
         if self._solve is not None:
-            Z[self._free] = self._solve(Yf[self._free])
+            Z[self._rows] = self._solve(Yf[self._rows])
         return np.ascontiguousarray(Z.reshape(n, f, 3).transpose(1, 0, 2)), Y_in
 
     # ---------------------------------------------------------------- public API
@@ -636,8 +640,25 @@ class Warp:
         rhs = self._per_tet(_jvp_fused, [(self._G, X), (self._G, dX)], self._GtV)
         return self._from_columns(self._poisson(rhs, dX), batched)
 
-    def vjp(self, U: np.ndarray, Y: np.ndarray) -> np.ndarray:
-        """Adjoint derivative ``DW(u)^T y``: ``<vjp(u, y), du> = <y, jvp(u, du)>``."""
+    def vjp(self, U: np.ndarray, Y: np.ndarray, index: np.ndarray | None = None) -> np.ndarray:
+        """Adjoint derivative ``DW(u)^T y``: ``<vjp(u, y), du> = <y, jvp(u, du)>``.
+
+        With ``index`` (compiled path, batches only), frame s uses the cotangent
+        ``Y[index[s]]``: the Poisson solve runs once per distinct cotangent.
+        """
+        if index is not None and self.compiled:
+            Uf, _ = self._frames_of(U, "U")
+            Zd, Y_in = self._poisson_adjoint_frames(self._frames_of(Y, "Y")[0])
+            out = np.zeros_like(Uf)
+            warp_kernels.vjp_rhs(
+                Uf, np.ascontiguousarray(Zd[index]), self._tets, self._grads, self.volumes,
+                out, warp_kernels.chunks(len(Uf)),
+            )
+            if Y_in is not None:
+                out += Y_in[index]
+            return out
+        if index is not None:
+            Y = np.asarray(Y)[index]
         X, batched = self._as_columns(U, "U")
         Yc, ybatched = self._as_columns(Y, "Y")
         if Yc.shape != X.shape or ybatched != batched:
