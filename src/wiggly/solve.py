@@ -564,10 +564,18 @@ class WarpedObjective:
         self.active = sorted({k.node for k in self.keys if k.d is not None or k.b is not None})
         self.slot = {k: a for a, k in enumerate(self.active)}
         # position keyframes sharing a selection are evaluated together (one sparse product)
-        self._batches: dict[int, list[_WarpedKey]] = {}
+        batches: dict[int, list[_WarpedKey]] = {}
         for key in self.keys:
             if key.d is not None and not key.gram:
-                self._batches.setdefault(id(key.S), []).append(key)
+                batches.setdefault(id(key.S), []).append(key)
+        self._batches = [
+            (
+                keys,
+                np.stack([key.d for key in keys], axis=1),  # targets (s, p, 3)
+                np.array([key.wA for key in keys])[None, :, None],
+            )
+            for keys in batches.values()
+        ]
         self.vel = sorted({k.node for k in self.keys if k.b is not None})
         self.timing = {"W": 0.0, "vjp": 0.0, "jacobians": 0.0, "solve": 0.0}
         self.counts = {"W": 0, "vjp": 0, "jacobians": 0}
@@ -597,8 +605,8 @@ class WarpedObjective:
         F = 0.5 * z @ Hz + self.f_E @ z + self.c_E
         YA = np.zeros_like(U)
         YB = np.zeros_like(dU)
-        for keys in self._batches.values():
-            F += self._position_terms(keys, WU, YA if gradient else None)
+        for keys, D, w in self._batches:
+            F += self._position_terms(keys, D, w, WU, YA if gradient else None)
         for key in self.keys:
             a = self.slot[key.node]
             if key.gram:
@@ -631,22 +639,19 @@ class WarpedObjective:
         self.timing["vjp"] += _time.perf_counter() - t1
         return float(F), g
 
-    def _position_terms(self, keys: list[_WarpedKey], WU: np.ndarray, YA) -> float:
+    def _position_terms(self, keys, D: np.ndarray, w: np.ndarray, WU: np.ndarray, YA) -> float:
         """1/2 sum |r|^2 of position keyframes sharing one selection S, r = sqrt(c_A) (S W(u)
-        - d); adds sqrt(c_A) S^T r to the cotangents ``YA`` unless it is None."""
+        - d) with targets D (s, p, 3) and weights w; adds sqrt(c_A) S^T r to the cotangents
+        ``YA`` unless it is None."""
         S, St = keys[0].S, keys[0].St
         slots = [self.slot[key.node] for key in keys]
         p, n = len(keys), WU.shape[1]
-        X = WU[slots].transpose(1, 0, 2).reshape(n, 3 * p)
-        Sx = (S @ X).reshape(-1, p, 3)
-        F = 0.0
-        R = np.empty_like(Sx)
-        for j, key in enumerate(keys):
-            np.subtract(Sx[:, j], key.d, out=R[:, j])
-            R[:, j] *= key.wA
-            F += 0.5 * float(np.vdot(R[:, j], R[:, j]))
-            R[:, j] *= key.wA
+        R = (S @ WU[slots].transpose(1, 0, 2).reshape(n, 3 * p)).reshape(-1, p, 3)
+        R -= D
+        R *= w
+        F = 0.5 * float(np.vdot(R, R))
         if YA is not None:
+            R *= w
             Y = (St @ R.reshape(-1, 3 * p)).reshape(n, p, 3)
             for j, a in enumerate(slots):
                 YA[a] += Y[:, j]
@@ -777,10 +782,13 @@ def _gauss_newton(
     F, g = obj.value_and_gradient(z)
     F_start, mu, nu, history, converged, it = F, 0.0, 2.0, [F], False, 0
     decrement, reason, slow = np.inf, "", 0
+    pair = None
     while it < max_iterations:
         ab = obj.normal_matrix(z, reuse=JACOBIAN_REUSE)
         t0 = _time.perf_counter()
         dz = _solve_banded(ab, -g)
+        if SECANT and pair is not None:
+            dz = _secant_step(ab, g, dz, *pair)
         decrement = -0.5 * float(g @ dz)
         if len(history) > 1:
             slow = slow + 1 if history[-2] - history[-1] < STALL_DECREASE * F else 0
@@ -817,6 +825,7 @@ def _gauss_newton(
                 break
         if rho <= 1e-4:
             break
+        pair = (dz, g_new - g) if float(dz @ (g_new - g)) > 0 else None
         z, F, g = z + dz, F_new, g_new
         history.append(F)
         if bar is not None:
@@ -845,6 +854,23 @@ def _gauss_newton(
             stacklevel=3,
         )
     return z
+
+
+SECANT = True
+
+
+def _secant_step(ab, g, dz, s, y):
+    """-B^-1 g for the BFGS update B = H - Hs (Hs)^T / s^T H s + y y^T / y^T s of the
+    Gauss-Newton matrix H (banded) with the last step s and gradient change y (Woodbury:
+    two more banded solves)."""
+    bw = ab.shape[0] - 1
+    Hs = _band_matvec(ab, bw, s)
+    U = np.stack([Hs, y], axis=1)
+    HinvU = np.stack([s, _solve_banded(ab, y)], axis=1)
+    Cinv = np.diag([-float(s @ Hs), float(y @ s)])
+    K = Cinv + U.T @ HinvU
+    # B^-1 (-g) = H^-1(-g) - H^-1 U K^-1 U^T H^-1 (-g),  H^-1(-g) = dz
+    return dz - HinvU @ np.linalg.solve(K, U.T @ dz)
 
 
 JACOBIAN_REUSE = 0.01
