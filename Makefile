@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.installed
 
-.PHONY: demo test venv system-render-deps system-test-deps cholmod bench lint clean
+.PHONY: demo test venv kernels system-render-deps system-test-deps cholmod bench lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -14,8 +14,14 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
+## Compile the warp's numba kernels into their on-disk cache (~20 s once; 1 s when cached).
+kernels: $(STAMP)
+	@$(BIN)/python -c "import time; t = time.perf_counter(); \
+	  from wiggly.warp_kernels import compile_all; compile_all(); \
+	  print(f'[wiggly] warp kernels ready ({time.perf_counter() - t:.1f} s)')"
+
 ## Animate the bundled critter and say where the results are.
-demo: $(STAMP) system-render-deps
+demo: $(STAMP) kernels system-render-deps
 	$(BIN)/wiggly demo
 
 ## Offscreen rendering (previews) uses EGL with Mesa's software rasterizer.  Installed with
@@ -30,7 +36,7 @@ system-render-deps:
 	fi
 
 ## Lint and run the test suite (installs what the tests need).
-test: $(STAMP) system-render-deps system-test-deps
+test: $(STAMP) kernels system-render-deps system-test-deps
 	$(BIN)/ruff check src tests benchmarks scripts
 	$(BIN)/python -m pytest -q -n 2 -p no:cacheprovider
 

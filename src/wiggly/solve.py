@@ -37,6 +37,7 @@ from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread
 from wiggly.progress import iterations
 from wiggly.splines import WigglyBasis, energy_form, equilibrium, evaluate, wiggly_basis
+from wiggly.warp import CoarseWarp
 
 
 @dataclass(eq=False)
@@ -218,6 +219,7 @@ class SpacetimeProblem:
         # per vertex group (selections, Grams): properties of the body, shared by its problems
         self._group_cache: dict[tuple, tuple] = body._cache.setdefault("group_basis", {})
         self._jacobians: dict[float, tuple] = {}
+        self._exact_jacobians: dict[float, tuple] = {}
         self._coarse_grams: dict[tuple, object] = body._cache.setdefault("coarse_grams", {})
         self._selections: dict[tuple, object] = body._cache.setdefault("selections", {})
         self._projection_cache: dict[tuple, np.ndarray] = {}
@@ -277,7 +279,7 @@ class SpacetimeProblem:
         """A group's scalar selection S_1 (k, n) from tet-mesh vertex values and its transpose
         (both CSR), or S_1 P (k, n_c) from the coarse mesh's (P the lift of
         :class:`wiggly.warp.CoarseWarp`), cached by group."""
-        key = (on, len(vertices), hash(vertices.tobytes()), coarse)
+        key = (on, len(vertices), hash(vertices.tobytes()), coarse and id(self.body.coarse_warp))
         if key not in self._selections:
             if len(self._selections) > 64:
                 self._selections.clear()
@@ -290,7 +292,7 @@ class SpacetimeProblem:
     def _coarse_gram(self, vertices: np.ndarray, on: str):
         """(S_1 P)^T (S_1 P): scalar selection S_1 of a group composed with the coarse mesh's
         lift P (:class:`wiggly.warp.CoarseWarp`), cached by group."""
-        key = (on, len(vertices), hash(vertices.tobytes()))
+        key = (on, len(vertices), hash(vertices.tobytes()), id(self.body.coarse_warp))
         if key not in self._coarse_grams:
             if len(self._coarse_grams) > 64:
                 self._coarse_grams.clear()
@@ -424,16 +426,22 @@ class SpacetimeProblem:
         info["linear_seconds"] = _time.perf_counter() - t_start
         if warped:
             with iterations("warped solve (Gauss-Newton)", max_iterations, progress) as bar:
-                if not body.coarse_warp.exact:
+                obj = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E)
+                if not body.coarse_warp.exact and TWO_LEVEL:
                     # first level: W~ of the coarse mesh in place of W, a start close to the
                     # solution for a few fine iterations (the unknowns are the same)
                     coarse = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E, coarse=True)
                     info["coarse"] = {}
-                    z = _gauss_newton(
+                    z_c = _gauss_newton(
                         coarse, z, COARSE_TOLERANCE, max_iterations, info["coarse"], stall, bar,
                         warn=False,
                     )
-                obj = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E)
+                    # a warm start may already be closer to the fine solution than the coarse
+                    # one is (the coarse warp's own error): keep the better start
+                    if not info["warm_start"] or obj.value(z_c) < obj.value(z):
+                        z = z_c
+                    else:
+                        info["coarse"]["kept_initial"] = True
                 z = _gauss_newton(obj, z, tolerance, max_iterations, info, stall, bar)
         z = z.reshape(n_nodes, 2, r)
         anim = Animation(
@@ -477,16 +485,29 @@ def _node_index(nodes: np.ndarray, t: float) -> int:
 def _solve_banded(ab: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     """Solve H z = rhs for SPD H in upper band storage: equilibrated banded Cholesky with
     iterative refinement (keyframe weights make H ill-conditioned)."""
+    return _factor_banded(ab)(rhs)
+
+
+def _factor_banded(ab: np.ndarray):
+    """Factor SPD H (upper band storage) once; returns ``solve(rhs)`` for (N,) or (N, k)
+    right-hand sides (equilibrated banded Cholesky, two steps of iterative refinement)."""
     bw = ab.shape[0] - 1
     d = ab[bw]
     s = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
     abs_ = ab * _band_scale(s, bw)
     cb = sla.cholesky_banded(abs_, lower=False, check_finite=False)
-    b = rhs * s
-    z = sla.cho_solve_banded((cb, False), b, check_finite=False)
-    for _ in range(2):
-        z += sla.cho_solve_banded((cb, False), b - _band_matvec(abs_, bw, z), check_finite=False)
-    return s * z
+
+    def solve(rhs: np.ndarray) -> np.ndarray:
+        if rhs.ndim == 2:
+            return np.stack([solve(col) for col in rhs.T], axis=1)
+        b = rhs * s
+        z = sla.cho_solve_banded((cb, False), b, check_finite=False)
+        for _ in range(2):
+            r = b - _band_matvec(abs_, bw, z)
+            z += sla.cho_solve_banded((cb, False), r, check_finite=False)
+        return s * z
+
+    return solve
 
 
 @dataclass
@@ -582,7 +603,24 @@ class WarpedObjective:
         # Jacobians depend on the node state only: shared across solves of the same problem
         # (warm starts reuse them), keyed by node time
         self._jac = problem._jacobians
+        self._exact_jac = problem._exact_jacobians
         self._node_time = {k: float(np.round(t, 9)) for k, t in enumerate(nodes)}
+        self.level = "coarse" if coarse else "fine"
+        self._last: tuple | None = None
+
+    def use_exact_jacobians(self) -> bool:
+        """Switch the Gauss-Newton matrix to the fine warp's exact Jacobians (the fallback
+        when the coarse mesh's ones converge slowly); False if they are already in use."""
+        if self.coarse.exact or self.level == "coarse":
+            return False
+        body = self.body
+        if "exact_jacobians" not in body._cache:
+            body._cache["exact_jacobians"] = CoarseWarp.exact(body.warp, body.modes.vectors)
+        self.coarse = body._cache["exact_jacobians"]
+        for key in self.keys:
+            key.C = sp.csr_matrix(key.St @ key.S)
+        self._jac = self._exact_jac
+        return True
 
     def _state(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         Z = z.reshape(-1, 2, self.r)
@@ -593,12 +631,16 @@ class WarpedObjective:
         q, v = self._state(z)
         n, r, Phi = self.n, self.r, self.Phi
         t0 = _time.perf_counter()
-        U = (q[self.active] @ Phi.T).reshape(len(self.active), n, 3)
-        WU = self.warp.apply(U) if len(self.active) else U
         iv = [self.slot[k] for k in self.vel]
-        dU = (v[self.vel] @ Phi.T).reshape(len(self.vel), n, 3)
-        Vel = self.warp.jvp(U[iv], dU) if self.vel else dU
-        self.counts["W"] += len(self.active) + len(self.vel)
+        if self._last is not None and np.array_equal(self._last[0], z):
+            U, WU, dU, Vel = self._last[1]  # W and DW v at the last point (value, then gradient)
+        else:
+            U = (q[self.active] @ Phi.T).reshape(len(self.active), n, 3)
+            WU = self.warp.apply(U) if len(self.active) else U
+            dU = (v[self.vel] @ Phi.T).reshape(len(self.vel), n, 3)
+            Vel = self.warp.jvp(U[iv], dU) if self.vel else dU
+            self.counts["W"] += len(self.active) + len(self.vel)
+            self._last = (z.copy(), (U, WU, dU, Vel))
         t1 = _time.perf_counter()
         self.timing["W"] += t1 - t0
         Hz = self.H_E @ z
@@ -782,14 +824,22 @@ def _gauss_newton(
     F, g = obj.value_and_gradient(z)
     F_start, mu, nu, history, converged, it = F, 0.0, 2.0, [F], False, 0
     decrement, reason, slow = np.inf, "", 0
-    pair = None
+    pairs: list[tuple[np.ndarray, np.ndarray]] = []
+    decrements: list[float] = []
     while it < max_iterations:
+        slow = len(decrements) >= 3 and all(
+            b > SLOW_RATIO * a for a, b in zip(decrements[-3:-1], decrements[-2:], strict=True)
+        )
+        if slow and obj.use_exact_jacobians():
+            info["exact_jacobians_from"] = it
         ab = obj.normal_matrix(z, reuse=JACOBIAN_REUSE)
         t0 = _time.perf_counter()
-        dz = _solve_banded(ab, -g)
-        if SECANT and pair is not None:
-            dz = _secant_step(ab, g, dz, *pair)
+        solve_H = _factor_banded(ab)
+        dz = solve_H(-g)
+        if pairs:
+            dz = _secant_step(ab, solve_H, dz, pairs)
         decrement = -0.5 * float(g @ dz)
+        decrements.append(decrement)
         if len(history) > 1:
             slow = slow + 1 if history[-2] - history[-1] < STALL_DECREASE * F else 0
         stalled = stall and slow >= 3 and decrement <= STALL_PROMISE * F
@@ -804,7 +854,7 @@ def _gauss_newton(
                 ab_mu = ab.copy()
                 ab_mu[bw] *= 1.0 + mu
                 try:
-                    dz = _solve_banded(ab_mu, -g)
+                    dz = _factor_banded(ab_mu)(-g)
                 except np.linalg.LinAlgError:
                     mu = max(mu * nu, 1e-4)
                     nu *= 2
@@ -825,7 +875,8 @@ def _gauss_newton(
                 break
         if rho <= 1e-4:
             break
-        pair = (dz, g_new - g) if float(dz @ (g_new - g)) > 0 else None
+        if SECANT and float(dz @ (g_new - g)) > 0:
+            pairs = [*pairs[-(SECANT - 1) :], (dz, g_new - g)] if SECANT > 1 else [(dz, g_new - g)]
         z, F, g = z + dz, F_new, g_new
         history.append(F)
         if bar is not None:
@@ -856,21 +907,39 @@ def _gauss_newton(
     return z
 
 
-SECANT = True
+# Steps kept for the quasi-Newton (BFGS) correction of the Gauss-Newton matrix; 0: none.
+SECANT = 1
+# Solve with the coarse warp first (bodies with a coarse mesh); False: fine level only.
+TWO_LEVEL = True
+# The fine level switches from the coarse mesh's Jacobians to exact ones when the Newton
+# decrement fell by less than this factor twice in a row (slow, linear convergence: strong
+# velocity keyframes); it usually falls by 100 or more per iteration.
+SLOW_RATIO = 0.25
 
 
-def _secant_step(ab, g, dz, s, y):
-    """-B^-1 g for the BFGS update B = H - Hs (Hs)^T / s^T H s + y y^T / y^T s of the
-    Gauss-Newton matrix H (banded) with the last step s and gradient change y (Woodbury:
-    two more banded solves)."""
+def _secant_step(ab: np.ndarray, solve_H, dz: np.ndarray, pairs: list) -> np.ndarray:
+    """-B^-1 g for the BFGS updates B of the Gauss-Newton matrix H (banded) by the last steps
+    s_i and gradient changes y_i, in compact form (Byrd, Nocedal & Schnabel 1994):
+
+        B = H - [H S, Y] K^-1 [H S, Y]^T,   K = [[S^T H S, L], [L^T, -D]],
+
+    L the strictly lower part of S^T Y and D its diagonal; solved with Woodbury, one banded
+    solve per pair (``solve_H``: the factored H).  ``dz = -H^-1 g``.  B s_i = y_i for the
+    last pair, and B is SPD when every s_i^T y_i > 0.  The correction captures curvature the
+    Gauss-Newton matrix lacks (a coarse mesh's Jacobians, residual curvature), along the
+    steps taken.
+    """
+    S = np.stack([s for s, _ in pairs], axis=1)
+    Y = np.stack([y for _, y in pairs], axis=1)
     bw = ab.shape[0] - 1
-    Hs = _band_matvec(ab, bw, s)
-    U = np.stack([Hs, y], axis=1)
-    HinvU = np.stack([s, _solve_banded(ab, y)], axis=1)
-    Cinv = np.diag([-float(s @ Hs), float(y @ s)])
-    K = Cinv + U.T @ HinvU
-    # B^-1 (-g) = H^-1(-g) - H^-1 U K^-1 U^T H^-1 (-g),  H^-1(-g) = dz
-    return dz - HinvU @ np.linalg.solve(K, U.T @ dz)
+    HS = np.stack([_band_matvec(ab, bw, s) for s, _ in pairs], axis=1)
+    SY = S.T @ Y
+    L = np.tril(SY, -1)
+    K = np.block([[S.T @ HS, L], [L.T, -np.diag(np.diag(SY))]])
+    U = np.concatenate([HS, Y], axis=1)
+    HinvU = np.concatenate([S, solve_H(Y)], axis=1)
+    # B = H - U K^-1 U^T  =>  B^-1 x = H^-1 x + H^-1 U (K - U^T H^-1 U)^-1 U^T H^-1 x
+    return dz + HinvU @ np.linalg.solve(K - U.T @ HinvU, U.T @ dz)
 
 
 JACOBIAN_REUSE = 0.01

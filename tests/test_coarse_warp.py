@@ -1,0 +1,208 @@
+"""The coarse warp W~ = P W_c(R u) and the two-level warped solve (SYSTEM.md §6).
+
+W~ stands in for W in the Gauss-Newton matrix and in a first solve; these tests check the
+mathematics it must keep (rigid motions exactly, derivatives consistent with the map) and
+that the two-level solve reaches the stationary point of the *fine* problem.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+
+import wiggly.body as body_module
+from wiggly.keyframes import Keyframe
+from wiggly.mesh import coarse_mesh, embed
+from wiggly.solve import SpacetimeProblem, WarpedObjective
+from wiggly.warp import CoarseWarp
+
+from .conftest import make_body
+
+solve_module = sys.modules["wiggly.solve"]  # the package's `solve` is the function
+
+
+@pytest.fixture(scope="module")
+def slab(tmp_path_factory):
+    """A free 1 m x 0.25 m x 0.25 m bar of 24 x 6 x 6 cubes (5184 tets), 16 modes, with a
+    coarse warp of about 400 tets (fTetWild)."""
+    body = make_body(tmp_path_factory, shape=(24, 6, 6), size=(1.0, 0.25, 0.25), n_modes=16)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(body_module, "COARSE_WARP_ABOVE", 1000)
+        mp.setattr(body_module, "COARSE_TETS", 400)
+        assert not body.coarse_warp.exact
+    return body
+
+
+def skew(w):
+    return np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+
+
+def test_coarse_mesh_is_coarser_and_covers_the_solid(slab):
+    fine = slab.tets
+    coarse = coarse_mesh(fine, 400)
+    assert coarse.n_tets < fine.n_tets / 4
+    assert embed(fine.vertices, coarse).barycentric.min() > -0.5
+    assert abs(coarse.volumes().sum() / fine.volumes().sum() - 1) < 0.05
+
+
+def test_coarse_warp_turns_linearized_rotations_into_exact_rotations(slab):
+    """R and P reproduce affine fields and the coarse masses P^T m keep the mass centre, so
+    W~ of a linearized rotation is the exact rotation about the fine mass centre, like W."""
+    cw = slab.coarse_warp
+    X = slab.tets.vertices
+    m = slab.vertex_masses("tets")
+    c_m = m @ X / m.sum()
+    for degrees in (10.0, 90.0, 170.0):
+        w = np.radians(degrees) * np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+        u = (X - c_m) @ skew(w).T + np.array([0.1, -0.2, 0.05])
+        exact = (X - c_m) @ expm(skew(w)).T + c_m + np.array([0.1, -0.2, 0.05]) - X
+        got = cw.apply(u[None])[0]
+        assert np.abs(got - exact).max() < 1e-9 * np.abs(exact).max()
+        np.testing.assert_allclose(got, slab.warp.apply(u), atol=1e-9 * np.abs(exact).max())
+
+
+def test_coarse_warp_derivatives_are_consistent(slab):
+    """vjp is the adjoint of jvp, jvp is the derivative of W~ (central differences), and the
+    Jacobians lifted by P are the jvp along every mode."""
+    cw = slab.coarse_warp
+    Phi = slab.modes.vectors
+    n, r = slab.tets.n_vertices, slab.r
+    rng = np.random.default_rng(7)
+    q = rng.standard_normal(r) * 0.3
+    u = (Phi @ q).reshape(1, n, 3)
+    du = (Phi @ rng.standard_normal(r)).reshape(1, n, 3)
+    y = rng.standard_normal((1, n, 3))
+    jvp = cw.jvp(u, du)
+    assert abs(np.vdot(cw.vjp(u, y), du) - np.vdot(y, jvp)) < 1e-11 * np.linalg.norm(
+        y
+    ) * np.linalg.norm(jvp)
+    h = 1e-6
+    fd = (cw.apply(u + h * du) - cw.apply(u - h * du)) / (2 * h)
+    assert np.linalg.norm(fd - jvp) < 1e-7 * np.linalg.norm(jvp)
+    J = cw.jacobians(q[None])[0]  # (n_c, 3, r) on the coarse mesh
+    lifted = (cw.lift @ J.reshape(cw.n_coarse, 3 * r)).reshape(n, 3, r)
+    for i in (0, 7, r - 1):
+        along = cw.jvp(u, Phi[:, i].reshape(1, n, 3))[0]
+        assert np.linalg.norm(lifted[:, :, i] - along) < 1e-10 * np.linalg.norm(along)
+
+
+def test_exact_coarse_warp_is_the_warp(slab):
+    cw = CoarseWarp.exact(slab.warp, slab.modes.vectors)
+    n = slab.tets.n_vertices
+    u = (slab.modes.vectors @ np.linspace(-0.3, 0.3, slab.r)).reshape(1, n, 3)
+    np.testing.assert_allclose(cw.apply(u)[0], slab.warp.apply(u[0]), atol=1e-14)
+    np.testing.assert_array_equal(cw.restrict(u), u)
+
+
+def turn_and_swing(body, velocity=None):
+    X = body.rest_positions()
+    allv = np.arange(len(X))
+    tip = np.flatnonzero(X[:, 0] > 0.8)
+    return [
+        Keyframe.rest(body, 0.0, allv, still=velocity is not None),
+        Keyframe.rigid(body, 0.6, allv, rotation=(0, np.radians(100.0), 0)),
+        Keyframe.offset(body, 1.0, tip, (0.0, 0.3, 0.0), velocity=velocity),
+    ]
+
+
+def assert_stationary(problem, anim, tol):
+    """Central-difference slopes of the fine E + E_WC obey the Newton-decrement bound
+    |g.d| <= sqrt(2 tol F d^T H d), and match the gradient the solver uses."""
+    ab, f, c = problem._assemble_energy(anim.nodes)
+    obj = WarpedObjective(problem, anim.keyframes, anim.nodes, ab, f, c)
+    z = np.stack([anim.values, anim.velocities], axis=1).ravel()
+    F, g = obj.value_and_gradient(z)
+    rng = np.random.default_rng(5)
+    for _ in range(2):
+        d = rng.standard_normal(z.size) * np.abs(z).max()
+        h = 1e-5
+        slope = (obj.value(z + h * d) - obj.value(z - h * d)) / (2 * h)
+        curvature = (obj.value(z + 1e-4 * d) - 2 * F + obj.value(z - 1e-4 * d)) / 1e-8
+        noise = 1e-15 * F / h
+        assert abs(slope) <= 2 * np.sqrt(2 * tol * F * curvature) + noise
+        assert abs(g @ d - slope) <= 1e-4 * np.sqrt(F * curvature) + noise
+
+
+def test_two_level_solve_reaches_the_fine_stationary_point(slab):
+    """The coarse first level and the coarse Gauss-Newton matrix change the path, never the
+    solution: the result is stationary for the fine E + E_WC and equals the solution of the
+    solve with exact Jacobians (one level)."""
+    keys = turn_and_swing(slab)
+    tol = 1e-11
+    problem = SpacetimeProblem(slab, 0.0, 1.2)
+    two_level = problem.solve(keys, warped=True, tolerance=tol, max_iterations=100, stall=False)
+    assert two_level.info["converged"] and two_level.info["coarse"]["iterations"] >= 1
+    assert "exact_jacobians_from" not in two_level.info  # the coarse Jacobians sufficed
+    saved = slab.__dict__["coarse_warp"]
+    slab.__dict__["coarse_warp"] = CoarseWarp.exact(slab.warp, slab.modes.vectors)
+    try:
+        one_level = SpacetimeProblem(slab, 0.0, 1.2).solve(
+            keys, warped=True, tolerance=tol, max_iterations=100, stall=False
+        )
+    finally:
+        slab.__dict__["coarse_warp"] = saved
+    assert "coarse" not in one_level.info
+    z2 = np.stack([two_level.values, two_level.velocities], axis=1).ravel()
+    z1 = np.stack([one_level.values, one_level.velocities], axis=1).ravel()
+    assert np.abs(z2 - z1).max() < 1e-5 * np.abs(z1).max()
+    assert_stationary(problem, two_level, tol)
+
+
+def test_two_level_solve_with_velocity_keyframes_is_stationary(slab):
+    """Velocity keyframes weigh the second derivative D^2W, which the coarse mesh renders
+    less well: the solve switches to exact Jacobians when it converges slowly, and ends at a
+    stationary point of the fine problem."""
+    keys = turn_and_swing(slab, velocity=(0.0, 1.5, 0.0))
+    tol = 1e-10
+    problem = SpacetimeProblem(slab, 0.0, 1.2)
+    anim = problem.solve(keys, warped=True, tolerance=tol, max_iterations=100, stall=False)
+    assert anim.info["converged"]
+    assert_stationary(problem, anim, tol)
+
+
+def test_band_helpers_match_dense_algebra():
+    rng = np.random.default_rng(0)
+    N, bw = 40, 6
+    H = rng.standard_normal((N, N))
+    H = H + H.T + 4 * N * np.eye(N)
+    H[np.abs(np.subtract.outer(np.arange(N), np.arange(N))) > bw] = 0.0
+    ab = np.zeros((bw + 1, N))
+    for i in range(N):
+        for j in range(i, min(N, i + bw + 1)):
+            ab[bw + i - j, j] = H[i, j]
+    np.testing.assert_array_equal(solve_module._band_to_dense(ab), H)
+    x = rng.standard_normal(N)
+    np.testing.assert_allclose(solve_module._band_matvec(ab, bw, x), H @ x, rtol=1e-13)
+    block = rng.standard_normal((4, 4))
+    block = block + block.T
+    idx = np.array([3, 4, 5, 6])
+    solve_module._add_block(ab, bw, idx, block)
+    H[np.ix_(idx, idx)] += block
+    np.testing.assert_array_equal(solve_module._band_to_dense(ab), H)
+    np.testing.assert_allclose(solve_module._solve_banded(ab, x), np.linalg.solve(H, x), rtol=1e-10)
+
+
+def test_secant_step_is_the_bfgs_update_of_the_gauss_newton_matrix():
+    """-B^-1 g with B = H - Hs(Hs)^T/s^T H s + y y^T/y^T s (dense): B s = y by construction."""
+    rng = np.random.default_rng(1)
+    N, bw = 30, 4
+    A = rng.standard_normal((N, N))
+    H = A @ A.T + N * np.eye(N)
+    H[np.abs(np.subtract.outer(np.arange(N), np.arange(N))) > bw] = 0.0
+    H += 2 * N * np.eye(N)  # still SPD after banding
+    ab = np.zeros((bw + 1, N))
+    for i in range(N):
+        for j in range(i, min(N, i + bw + 1)):
+            ab[bw + i - j, j] = H[i, j]
+    g, s = rng.standard_normal(N), rng.standard_normal(N)
+    y = H @ s + 0.3 * rng.standard_normal(N)
+    assert y @ s > 0
+    Hs = H @ s
+    B = H - np.outer(Hs, Hs) / (s @ Hs) + np.outer(y, y) / (y @ s)
+    np.testing.assert_allclose(B @ s, y, rtol=1e-12)
+    dz = solve_module._solve_banded(ab, -g)
+    step = solve_module._secant_step(ab, solve_module._factor_banded(ab), dz, [(s, y)])
+    np.testing.assert_allclose(step, np.linalg.solve(B, -g), rtol=1e-9)
