@@ -427,7 +427,8 @@ class SpacetimeProblem:
         if warped:
             with iterations("warped solve (Gauss-Newton)", max_iterations, progress) as bar:
                 obj = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E)
-                if not body.coarse_warp.exact and TWO_LEVEL:
+                continuation = info["warm_start"] and _same_keyframes(initial.keyframes, kfs)
+                if not body.coarse_warp.exact and TWO_LEVEL and not continuation:
                     # first level: W~ of the coarse mesh in place of W, a start close to the
                     # solution for a few fine iterations (the unknowns are the same)
                     coarse = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E, coarse=True)
@@ -449,6 +450,26 @@ class SpacetimeProblem:
         )
         info["solve_seconds"] = _time.perf_counter() - t_start
         return anim
+
+
+def _same_keyframes(a: list[Keyframe], b: list[Keyframe]) -> bool:
+    """Whether two keyframe lists pose the same problem (a warm start that continues a solve
+    needs no coarse first level)."""
+
+    def same(x, y) -> bool:
+        return (x is None and y is None) or (
+            x is not None and y is not None and np.array_equal(x, y)
+        )
+
+    return len(a) == len(b) and all(
+        p.time == q.time
+        and p.on == q.on
+        and (p.stiffness, p.c_A, p.c_B) == (q.stiffness, q.c_A, q.c_B)
+        and same(p.vertices, q.vertices)
+        and same(p.position, q.position)
+        and same(p.velocity, q.velocity)
+        for p, q in zip(a, b, strict=True)
+    )
 
 
 def _unwarped(kf: Keyframe, body: Body) -> Keyframe:
@@ -827,10 +848,10 @@ def _gauss_newton(
     pairs: list[tuple[np.ndarray, np.ndarray]] = []
     decrements: list[float] = []
     while it < max_iterations:
-        slow = len(decrements) >= 3 and all(
+        crawling = len(decrements) >= 3 and all(
             b > SLOW_RATIO * a for a, b in zip(decrements[-3:-1], decrements[-2:], strict=True)
         )
-        if slow and obj.use_exact_jacobians():
+        if crawling and obj.use_exact_jacobians():
             info["exact_jacobians_from"] = it
         ab = obj.normal_matrix(z, reuse=JACOBIAN_REUSE)
         t0 = _time.perf_counter()
