@@ -220,6 +220,7 @@ class SpacetimeProblem:
         self._group_cache: dict[tuple, tuple] = body._cache.setdefault("group_basis", {})
         self._jacobians: dict[float, tuple] = {}
         self._exact_jacobians: dict[float, tuple] = {}
+        self._coarse_gap: float | None = None  # fine objective gap at the coarse solution
         self._coarse_grams: dict[tuple, object] = body._cache.setdefault("coarse_grams", {})
         self._selections: dict[tuple, object] = body._cache.setdefault("selections", {})
         self._projection_cache: dict[tuple, np.ndarray] = {}
@@ -438,12 +439,22 @@ class SpacetimeProblem:
                         warn=False,
                     )
                     # a warm start may already be closer to the fine solution than the coarse
-                    # one is (the coarse warp's own error): keep the better start
-                    if not info["warm_start"] or obj.value(z_c) < obj.value(z):
+                    # one is (the coarse warp's own error, measured by earlier solves as the
+                    # fine level's decrease from the coarse solution): keep the better start
+                    coarse_gain = info["coarse"]["objective_start"] - info["coarse"]["objective"]
+                    if not info["warm_start"]:
+                        better = True
+                    elif self._coarse_gap is not None:
+                        better = coarse_gain > 2 * self._coarse_gap
+                    else:
+                        better = obj.value(z_c) < obj.value(z)
+                    if better:
                         z = z_c
                     else:
                         info["coarse"]["kept_initial"] = True
                 z = _gauss_newton(obj, z, tolerance, max_iterations, info, stall, bar)
+                if "coarse" in info and not info["coarse"].get("kept_initial"):
+                    self._coarse_gap = info["objective_start"] - info["objective"]
         z = z.reshape(n_nodes, 2, r)
         anim = Animation(
             body, nodes, z[:, 0].copy(), z[:, 1].copy(), kfs, basis, warped=warped, info=info
