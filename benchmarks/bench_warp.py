@@ -4,8 +4,8 @@ Usage: ``PYTHONPATH=src python benchmarks/bench_warp.py [cells_per_axis ...]``
 (default 8 15: about 3k and 20k tets). Prints the median of 5 runs (wall clock)
 of: Warp construction, the factorization of its Laplacian alone, batched apply
 per frame (100 frames in one call; also in process CPU time, which is steadier on
-a shared machine), a single-frame apply, and the Jacobian against r = 40 basis
-fields.
+a shared machine; and with the vectorized numpy path instead of the compiled kernels, with
+the ratio), a single-frame apply, and the Jacobian against r = 40 basis fields.
 """
 
 from __future__ import annotations
@@ -41,12 +41,16 @@ def bench(cells: int) -> dict[str, float]:
     V, T = box_mesh((cells, cells, cells))
     rng = np.random.default_rng(0)
     G, vol = tet_gradient_operator(V, T)
-    laplacian = sp.csr_matrix(G.T @ sp.diags(np.tile(vol, 3)) @ G)[1:, 1:]
+    laplacian = sp.csr_matrix(G.T @ sp.diags(np.repeat(vol, 3)) @ G)[1:, 1:]
     warp = Warp(V, T)
     U = 0.2 * rng.standard_normal((FRAMES, *V.shape))
     basis = rng.standard_normal((len(V), 3, MODES))
     warp.apply(U[:2])  # warm up
     batched = median_seconds(lambda: warp.apply(U)) / FRAMES
+    compiled = warp.compiled
+    warp.compiled = False  # the vectorized numpy path, for the ratio
+    numpy_batched = median_seconds(lambda: warp.apply(U), runs=3) / FRAMES
+    warp.compiled = compiled
     return {
         "verts": len(V),
         "tets": len(T),
@@ -54,6 +58,8 @@ def bench(cells: int) -> dict[str, float]:
         "factor ms": 1e3 * median_seconds(lambda: factorize_spd(laplacian)),
         "apply ms/frame": 1e3 * batched,
         "frames/s": 1.0 / batched,
+        "numpy ms/frame": 1e3 * numpy_batched,
+        "numpy/compiled": numpy_batched / batched,
         "apply cpu ms/fr": 1e3
         * median_seconds(lambda: warp.apply(U), clock=time.process_time)
         / FRAMES,
