@@ -77,7 +77,8 @@ def main(argv: list[str] | None = None) -> None:
     def cold():
         return SpacetimeProblem(body, 0.0, 2.0).solve(keys, warped=True)
 
-    # the very first solve also builds the per-group selections and Grams (cached on the body)
+    # the first solve also loads the compiled kernels from numba's cache and builds the
+    # per-group selections and Grams (cached on the body)
     t0 = time.perf_counter()
     cold()
     t_first = time.perf_counter() - t0
@@ -126,7 +127,8 @@ def main(argv: list[str] | None = None) -> None:
             [
                 ["linear solve (for reference)", 1e3 * t_lin, "-", "-", 0, res_l],
                 ["warped, from scratch", 1e3 * t_cold, 500, t_cold / 0.5, its(info), res_w],
-                ["warped, from scratch, first solve on these vertex groups", 1e3 * t_first,
+                ["warped, from scratch, first solve of the process (loads the compiled kernels, "
+                 "builds the per-group matrices)", 1e3 * t_first,
                  "-", "-", "-", "-"],
                 ["warped, after changing one keyframe (warm start)", 1e3 * t_warm, 200,
                  t_warm / 0.2, its(prev.info), "-"],
