@@ -569,30 +569,15 @@ class Warp:
 
     def _poisson_frames(self, rhs: np.ndarray, X_in: np.ndarray) -> np.ndarray:
         """:meth:`_poisson` for frames: ``rhs`` and ``X_in`` (f, n, 3), result (f, n, 3)."""
-        f, n, _ = rhs.shape
-        B = rhs.transpose(1, 0, 2).reshape(n, 3 * f)
-        X = np.zeros_like(B)
-        if self._solve is not None:
-            X[self._rows] = self._solve(B[self._rows])
-        if self._has_floating:
-            shift = self._mean @ X_in.transpose(1, 0, 2).reshape(n, 3 * f) - self._mean @ X
-            X += self._spread @ shift
-        return np.ascontiguousarray(X.reshape(n, f, 3).transpose(1, 0, 2))
+        X = self._poisson(rhs.transpose(1, 0, 2), X_in.transpose(1, 0, 2))
+        return np.ascontiguousarray(X.transpose(1, 0, 2))
 
     def _poisson_adjoint_frames(self, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """:meth:`_poisson_adjoint` for frames (f, n, 3); the second cotangent is None when
-        no component floats."""
-        f, n, _ = Y.shape
-        Yf = Y.transpose(1, 0, 2).reshape(n, 3 * f)
-        Y_in = None
-        if self._has_floating:
-            Y_in = self._mean.T @ (self._spread.T @ Yf)
-            Yf = Yf - Y_in  # (not in place: for f = 1, Yf is a view of the caller's Y)
-            Y_in = Y_in.reshape(n, f, 3).transpose(1, 0, 2)
-        Z = np.zeros_like(Yf)
-        if self._solve is not None:
-            Z[self._rows] = self._solve(Yf[self._rows])
-        return np.ascontiguousarray(Z.reshape(n, f, 3).transpose(1, 0, 2)), Y_in
+        no component floats (it is zero)."""
+        Z, Y_in = self._poisson_adjoint(Y.transpose(1, 0, 2))
+        Z = np.ascontiguousarray(Z.transpose(1, 0, 2))
+        return Z, Y_in.transpose(1, 0, 2) if self._has_floating else None
 
     # ---------------------------------------------------------------- public API
     def apply(self, U: np.ndarray) -> np.ndarray:
@@ -698,30 +683,17 @@ class Warp:
         X, batched = self._as_columns(u, "u")
         if batched:
             raise WigglyInputError(f"u should have shape ({n}, 3); shape is {np.shape(u)}")
-        B = np.asarray(basis, dtype=np.float64)
-        if B.ndim == 3 and B.shape[:2] == (n, 3):
-            r = B.shape[2]
-        elif B.ndim == 2 and B.shape[0] == 3 * n:
-            r = B.shape[1]
-        else:
-            raise WigglyInputError(
-                f"basis should have shape ({n}, 3, r) or ({3 * n}, r); shape is {B.shape}"
-            )
-        dX = B.reshape(n, 3, r)
+        dX = self._basis_fields(basis)
+        shape = np.shape(basis)
         if self.compiled:
-            out = np.zeros((r, n, 3))
-            warp_kernels.jacobian_rhs(
-                np.ascontiguousarray(X[:, :, 0]), self._basis_frames(B, dX), self._tets,
-                self._grads, self.volumes, out,
-            )
-            rhs = out.transpose(1, 2, 0)
-        else:
-            M = self._tangent_matrices(X)
-            m = self.n_tets
-            GB = self._basis_gradients(B, dX)
-            dH = np.matmul(M, GB)  # (m, 9, r)
-            rhs = (self._GtV @ dH.reshape(3 * m, 3 * r)).reshape(n, 3, r)
-        return self._poisson(rhs, dX).reshape(B.shape)
+            return self.jacobians(X[:, :, 0][None], dX)[0].reshape(shape)
+        r = dX.shape[2]
+        M = self._tangent_matrices(X)
+        m = self.n_tets
+        GB = self._basis_gradients(dX, dX)
+        dH = np.matmul(M, GB)  # (m, 9, r)
+        rhs = (self._GtV @ dH.reshape(3 * m, 3 * r)).reshape(n, 3, r)
+        return self._poisson(rhs, dX).reshape(shape)
 
     def _basis_frames(self, B: np.ndarray, dX: np.ndarray) -> np.ndarray:
         """The r basis fields as a contiguous (r, n, 3) array, cached for the last basis."""

@@ -50,10 +50,8 @@ __all__ = [
     "chunks",
     "compile_all",
     "field_gradients",
-    "jacobian_rhs",
     "jacobians_rhs",
     "jvp_rhs",
-    "linearization",
     "second_derivatives_rhs",
     "target_rhs",
     "vjp_rhs",
@@ -330,34 +328,6 @@ def chunks(f: int) -> int:
 
 
 @pjit
-def linearization(u, tets, grads):
-    """Per-tet records ``[w, b, c, R, F]`` (m, 23) at ``u`` (n, 3)."""
-    m = tets.shape[0]
-    lins = np.empty((m, _LIN))
-    for t in prange(m):
-        A = np.empty(9)
-        S = np.empty(9)
-        gradient(u, tets, grads, t, A)
-        linearize(A, S, lins[t])
-    return lins
-
-
-@pjit
-def jacobian_rhs(u, B, tets, grads, vol, out):
-    """``out[d] += G^T Vol dH(G u; G B[d])`` for every direction ``d`` of ``B`` (r, n, 3)."""
-    lins = linearization(u, tets, grads)
-    for d in prange(B.shape[0]):
-        dA = np.empty(9)
-        dS = np.empty(9)
-        dH = np.empty(9)
-        b, o = B[d], out[d]
-        for t in range(tets.shape[0]):
-            gradient(b, tets, grads, t, dA)
-            tangent(lins[t], dA, dS, dH)
-            scatter(dH, vol[t], tets, grads, t, o)
-
-
-@pjit
 def field_gradients(B, tets, grads):
     """Per-tet gradients ``A`` (flat 3x3) of the fields ``B`` (r, n, 3): shape (r, m, 9)."""
     r, m = B.shape[0], tets.shape[0]
@@ -459,7 +429,6 @@ def compile_all() -> None:
     target_rhs(U, tets, grads, vol, out, 1)
     jvp_rhs(U, U, tets, grads, vol, out, 1)
     vjp_rhs(U, U, tets, grads, vol, out, 1)
-    jacobian_rhs(U[0], U, tets, grads, vol, np.zeros_like(U))
     GB = field_gradients(U, tets, grads)
     jacobians_rhs(U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
     second_derivatives_rhs(U, U, GB, 1e-6, tets, grads, vol, np.zeros((2, 2, 4, 3)))
