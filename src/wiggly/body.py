@@ -197,10 +197,6 @@ class Body:
             )
         return sp.csr_matrix(self.surface_embedding[vertices])
 
-    def selection(self, vertices: np.ndarray, on: Where = "surface") -> sp.csr_matrix:
-        """Sparse (3k, 3n) map from tet-mesh displacements to those of ``vertices``."""
-        return sp.kron(self.scalar_selection(vertices, on), sp.eye(3), format="csr")
-
     def vertex_masses(self, on: Where = "tets") -> np.ndarray:
         """Lumped vertex masses (kg) of the tet mesh, or barycentrically spread to the surface."""
         m = np.asarray(self.M.sum(axis=1)).ravel()[::3]

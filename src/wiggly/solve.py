@@ -239,8 +239,7 @@ class SpacetimeProblem:
         return t
 
     def _energy(self, nodes: np.ndarray) -> tuple:
-        key = tuple(np.round(nodes, 12))
-        if key not in self._energy_cache:
+        def compute() -> tuple:
             body = self.body
             r, m = body.r, len(nodes) - 1
             h = np.repeat(np.diff(nodes), r)
@@ -254,52 +253,46 @@ class SpacetimeProblem:
                 [2 * r * k + i, 2 * r * k + r + i, 2 * r * (k + 1) + i, 2 * r * (k + 1) + r + i],
                 axis=1,
             )
-            if len(self._energy_cache) > 8:
-                self._energy_cache.clear()
-            self._energy_cache[key] = (basis, form, idx)
-        return self._energy_cache[key]
+            return basis, form, idx
+
+        return _cached(self._energy_cache, tuple(np.round(nodes, 12)), compute, limit=8)
 
     def _group_basis(self, vertices: np.ndarray, on: str) -> tuple:
         """(S_1, S_1^T, Gram Phi^T A_k^T A_k Phi, rest positions (s, 3)) of a vertex group,
         cached by group.  A_k = S_1 kron I_3 with S_1 the scalar selection (the barycentric
         embedding rows for surface vertices); the Gram is sum_c Phi_c^T (S_1^T S_1) Phi_c
         over the coordinates c, without forming A_k Phi."""
-        key = (on, len(vertices), hash(vertices.tobytes()))
-        if key not in self._group_cache:
-            if len(self._group_cache) > 64:
-                self._group_cache.clear()
+        def compute() -> tuple:
             S, St = self._selection(vertices, on)
             Phi = self.body.modes.vectors.reshape(-1, 3, self.body.r)
             StS = St @ S
             gram = sum(Phi[:, c].T @ (StS @ Phi[:, c]) for c in range(3))
-            rest = self.body.rest_positions(on)[vertices]
-            self._group_cache[key] = (S, St, gram, rest)
-        return self._group_cache[key]
+            return S, St, gram, self.body.rest_positions(on)[vertices]
+
+        return _cached(self._group_cache, (on, len(vertices), hash(vertices.tobytes())), compute)
 
     def _selection(self, vertices: np.ndarray, on: str, coarse: bool = False) -> tuple:
         """A group's scalar selection S_1 (k, n) from tet-mesh vertex values and its transpose
         (both CSR), or S_1 P (k, n_c) from the coarse mesh's (P the lift of
         :class:`wiggly.warp.CoarseWarp`), cached by group."""
-        key = (on, len(vertices), hash(vertices.tobytes()), coarse and id(self.body.coarse_warp))
-        if key not in self._selections:
-            if len(self._selections) > 64:
-                self._selections.clear()
+        def compute() -> tuple:
             S = self.body.scalar_selection(vertices, on)
             if coarse:
                 S = sp.csr_matrix(S @ self.body.coarse_warp.lift)
-            self._selections[key] = (S, sp.csr_matrix(S.T))
-        return self._selections[key]
+            return S, sp.csr_matrix(S.T)
+
+        key = (on, len(vertices), hash(vertices.tobytes()), coarse and id(self.body.coarse_warp))
+        return _cached(self._selections, key, compute)
 
     def _coarse_gram(self, vertices: np.ndarray, on: str):
         """(S_1 P)^T (S_1 P): scalar selection S_1 of a group composed with the coarse mesh's
         lift P (:class:`wiggly.warp.CoarseWarp`), cached by group."""
-        key = (on, len(vertices), hash(vertices.tobytes()), id(self.body.coarse_warp))
-        if key not in self._coarse_grams:
-            if len(self._coarse_grams) > 64:
-                self._coarse_grams.clear()
+        def compute():
             SP, SPt = self._selection(vertices, on, coarse=True)
-            self._coarse_grams[key] = sp.csr_matrix(SPt @ SP)
-        return self._coarse_grams[key]
+            return sp.csr_matrix(SPt @ SP)
+
+        key = (on, len(vertices), hash(vertices.tobytes()), id(self.body.coarse_warp))
+        return _cached(self._coarse_grams, key, compute)
 
     def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Least energy to reach (q, q') from rest in ``preroll`` seconds, without gravity:
@@ -359,12 +352,12 @@ class SpacetimeProblem:
         (unchanged keyframes are free)."""
         t = np.ascontiguousarray(target)
         key = (on, len(vertices), hash(vertices.tobytes()), rest is None, hash(t.tobytes()))
-        if key not in self._projection_cache:
-            if len(self._projection_cache) > 256:
-                self._projection_cache.clear()
-            d = t if rest is None else t - rest
-            self._projection_cache[key] = self.body.modes.vectors.T @ (St @ d).ravel()
-        return self._projection_cache[key]
+        return _cached(
+            self._projection_cache,
+            key,
+            lambda: self.body.modes.vectors.T @ (St @ (t if rest is None else t - rest)).ravel(),
+            limit=256,
+        )
 
     def solve(
         self,
@@ -461,6 +454,16 @@ class SpacetimeProblem:
         )
         info["solve_seconds"] = _time.perf_counter() - t_start
         return anim
+
+
+def _cached(cache: dict, key, compute, limit: int = 64):
+    """``cache[key]``, computed by ``compute()`` on a miss; the cache is emptied when it holds
+    more than ``limit`` entries (bounded memory for long editing sessions)."""
+    if key not in cache:
+        if len(cache) > limit:
+            cache.clear()
+        cache[key] = compute()
+    return cache[key]
 
 
 def _same_keyframes(a: list[Keyframe], b: list[Keyframe]) -> bool:
@@ -769,7 +772,6 @@ class WarpedObjective:
         always exact)."""
         q, v = self._state(z)
         r, cj = self.r, self.coarse
-        ab = self.ab_E.copy()
         t0 = _time.perf_counter()
         # a node's change is compared with the largest node state, so nodes near rest (u ~ 0,
         # where DW ~ identity) do not count tiny absolute changes as large relative ones
@@ -804,6 +806,7 @@ class WarpedObjective:
         ):
             self.timing["jacobians"] += _time.perf_counter() - t0
             return self._normal[1]  # the same Jacobians as last time: the same matrix
+        ab = self.ab_E.copy()
         blocks = np.zeros((len(self.active), 2 * r, 2 * r))
         J = {k: self._jac[self._node_time[k]][1] for k in self.active}
         # position terms c_A J^T (C kron I_3) J, batched over the keyframes of each group
