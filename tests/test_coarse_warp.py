@@ -163,6 +163,77 @@ def test_two_level_solve_with_velocity_keyframes_is_stationary(slab):
     assert_stationary(problem, anim, tol)
 
 
+def edited(keys, degrees=8.0, velocity=None):
+    """``keys`` with the 0.6 s pose turned further about y (one keyframe changed)."""
+    out = list(keys)
+    out[1] = Keyframe(
+        keys[1].time,
+        keys[1].vertices,
+        (keys[1].position - keys[1].position.mean(axis=0)) @ expm(
+            skew(np.radians(degrees) * np.array([0.0, 1.0, 0.0]))
+        ).T
+        + keys[1].position.mean(axis=0),
+    )
+    return out
+
+
+def test_edited_objective_at_the_last_point_pulls_back_only_changed_cotangents(slab):
+    """A warm start evaluates the edited objective at the last fine point from the kept W
+    values and vector-Jacobian products (DW^T is linear in the cotangent): the result is the
+    same as a fresh evaluation, and only the edited keyframe's node is pulled back."""
+    keys = turn_and_swing(slab, velocity=(0.0, 1.5, 0.0))
+    problem = SpacetimeProblem(slab, 0.0, 1.2)
+    anim = problem.solve(keys, warped=True, tolerance=1e-9, max_iterations=100)
+    z = np.stack([anim.values, anim.velocities], axis=1).ravel()
+    ab, f, c = problem._assemble_energy(anim.nodes)
+    new = [kf.checked(slab, 0.0, 1.2) for kf in edited(keys)]
+    kept = WarpedObjective(problem, new, anim.nodes, ab, f, c)
+    kept._last = problem._fine_last[2]
+    assert np.array_equal(kept._last[0], z)  # the solve kept its last point
+    F_kept, g_kept = kept.value_and_gradient(z)
+    assert kept.counts == {"W": 0, "vjp": 1, "jacobians": 0}  # one node, one cotangent
+    fresh = WarpedObjective(problem, new, anim.nodes, ab, f, c)
+    F, g = fresh.value_and_gradient(z)
+    assert abs(F_kept - F) <= 1e-12 * F
+    assert np.abs(g_kept - g).max() <= 1e-9 * np.abs(g).max()
+    assert np.abs(g).max() > 1e3 * np.abs(anim.info["objective"]) * 1e-9  # the edit matters
+
+
+@pytest.mark.parametrize("velocity", [None, (0.0, 1.5, 0.0)])
+def test_warm_start_after_an_edit_is_stationary_and_corrected(slab, velocity):
+    """After one keyframe changes, the coarse level starts from the last fine point with the
+    full-approximation-scheme correction (coarse gradient = fine gradient there), which
+    brings the coarse solution closer to the fine one than the plain coarse solve; with a
+    strong velocity keyframe the correction fails its check (the fine objective must drop)
+    and the plain coarse solve follows.  Either way the result is a stationary point of the
+    fine problem, the one a cold solve finds."""
+    keys = turn_and_swing(slab, velocity=velocity)
+    tol = 1e-10
+    problem = SpacetimeProblem(slab, 0.0, 1.2)
+    prev = problem.solve(keys, warped=True, tolerance=tol, max_iterations=100, stall=False)
+    new = edited(keys)
+    warm = problem.solve(
+        new, warped=True, initial=prev, tolerance=tol, max_iterations=100, stall=False
+    )
+    assert warm.info["warm_start"]
+    assert ("correction_failed" if velocity else "corrected") in warm.info["coarse"]
+    assert warm.info["converged"]
+    assert_stationary(problem, warm, tol)
+    cold = SpacetimeProblem(slab, 0.0, 1.2).solve(
+        new, warped=True, tolerance=tol, max_iterations=100, stall=False
+    )
+    assert "corrected" not in cold.info["coarse"]
+    zw = np.stack([warm.values, warm.velocities], axis=1).ravel()
+    zc = np.stack([cold.values, cold.velocities], axis=1).ravel()
+    assert np.abs(zw - zc).max() < 1e-4 * np.abs(zc).max()
+    if velocity:
+        return
+    # the fine level's decrease from its start: the coarse warp's error left in the start
+    gap_warm = warm.info["objective_start"] - warm.info["objective"]
+    gap_cold = cold.info["objective_start"] - cold.info["objective"]
+    assert gap_warm < 0.2 * gap_cold
+
+
 def test_band_helpers_match_dense_algebra():
     rng = np.random.default_rng(0)
     N, bw = 40, 6

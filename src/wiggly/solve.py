@@ -221,6 +221,8 @@ class SpacetimeProblem:
         self._jacobians: dict[float, tuple] = {}
         self._exact_jacobians: dict[float, tuple] = {}
         self._coarse_gap: float | None = None  # fine objective gap at the coarse solution
+        self._coarse_objective: WarpedObjective | None = None
+        self._fine_last: tuple | None = None  # the last fine point's W values (warm starts)
         self._coarse_grams: dict[tuple, object] = body._cache.setdefault("coarse_grams", {})
         self._selections: dict[tuple, object] = body._cache.setdefault("selections", {})
         self._projection_cache: dict[tuple, np.ndarray] = {}
@@ -421,39 +423,96 @@ class SpacetimeProblem:
         if warped:
             with iterations("warped solve (Gauss-Newton)", max_iterations, progress) as bar:
                 obj = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E)
+                # W, DW v and the pulled-back cotangents of the last fine point: a warm start
+                # from it evaluates the edited objective there almost for free
+                if (
+                    info["warm_start"]
+                    and self._fine_last is not None
+                    and self._fine_last[0] == (tuple(obj.active), tuple(obj.vel))
+                    and np.array_equal(self._fine_last[1], nodes)
+                ):
+                    obj._last = self._fine_last[2]
                 continuation = info["warm_start"] and _same_keyframes(initial.keyframes, kfs)
+                self._coarse_objective = None
                 if not body.coarse_warp.exact and TWO_LEVEL and not continuation:
-                    # first level: W~ of the coarse mesh in place of W, a start close to the
-                    # solution for a few fine iterations (the unknowns are the same)
-                    coarse = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E, coarse=True)
-                    info["coarse"] = {}
-                    z_c = _gauss_newton(
-                        coarse, z, COARSE_TOLERANCE, max_iterations, info["coarse"], stall, bar,
-                        warn=False,
-                    )
-                    # a warm start may already be closer to the fine solution than the coarse
-                    # one is (the coarse warp's own error, measured by earlier solves as the
-                    # fine level's decrease from the coarse solution): keep the better start
-                    coarse_gain = info["coarse"]["objective_start"] - info["coarse"]["objective"]
-                    if not info["warm_start"]:
-                        better = True
-                    elif self._coarse_gap is not None:
-                        better = coarse_gain > 2 * self._coarse_gap
-                    else:
-                        better = obj.value(z_c) < obj.value(z)
-                    if better:
-                        z = z_c
-                    else:
-                        info["coarse"]["kept_initial"] = True
+                    z = self._coarse_level(obj, kfs, nodes, z, info, max_iterations, stall, bar)
                 z = _gauss_newton(obj, z, tolerance, max_iterations, info, stall, bar)
-                if "coarse" in info and not info["coarse"].get("kept_initial"):
+                if "coarse" in info and not (
+                    info["coarse"].get("kept_initial") or info["coarse"].get("corrected")
+                ):
                     self._coarse_gap = info["objective_start"] - info["objective"]
+                self._fine_last = (
+                    (tuple(obj.active), tuple(obj.vel)), nodes.copy(), obj._last, kfs,
+                    obj.last_gradient, self._coarse_objective,
+                )
         z = z.reshape(n_nodes, 2, r)
         anim = Animation(
             body, nodes, z[:, 0].copy(), z[:, 1].copy(), kfs, basis, warped=warped, info=info
         )
         info["solve_seconds"] = _time.perf_counter() - t_start
         return anim
+
+
+    def _coarse_level(
+        self, obj: WarpedObjective, kfs, nodes, z, info, max_iterations, stall, bar
+    ) -> np.ndarray:
+        """The first level of the warped solve: minimise the objective with the coarse warp
+        W~ in place of W from ``z``; its solution is the fine level's start (the unknowns
+        are the same).
+
+        From a warm start at the last fine point the coarse objective gets the linear
+        correction tau^T z, tau = grad F(z0) - grad F~(z0) (full approximation scheme,
+        Brandt 1977): its gradient then equals the fine one at z0, so the coarse warp's error
+        enters the start only through its change over the edit, not at full size."""
+        ab_E, f_E, c_E = obj.ab_E, obj.f_E, obj.c_E
+        coarse = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E, coarse=True)
+        info["coarse"] = {}
+        prior = self._fine_last
+        corrected = (
+            FAS and obj._last is not None and np.array_equal(obj._last[0], z) and prior is not None
+        )
+        if corrected:  # full approximation scheme from the last fine point z0
+            old = prior[5]
+            if old is None:
+                old = WarpedObjective(self, prior[3], nodes, ab_E, f_E, c_E, coarse=True)
+            old.f_E, old.c_E = old.base
+            F_c, g_c = old.value_and_gradient(z)
+            tau = prior[4][1] - g_c  # fine minus coarse gradient at z0, with the keys of z0
+            if old.active == coarse.active and old.vel == coarse.vel:
+                coarse._last = old._last  # W~ at z: the same for the edited keyframes
+            coarse.f_E = f_E + tau
+            coarse.c_E = c_E + (prior[4][0] - F_c) - float(tau @ z)
+            info["coarse"]["corrected"] = True
+            # the correction is a first-order model of the coarse warp's error; it fails when
+            # the error changes fast over the edit (strong velocity keyframes weigh D^2W,
+            # which the coarse mesh renders less well): then the plain coarse solve follows
+            F_0 = obj.value(z)  # W at z is kept: no evaluation
+            z_c = _gauss_newton(
+                coarse, z, COARSE_TOLERANCE, FAS_ITERATIONS, info["coarse"], stall, bar, warn=False
+            )
+            if info["coarse"]["converged"] and obj.value(z_c) < F_0:
+                self._coarse_objective = coarse
+                return z_c
+            coarse.f_E, coarse.c_E = coarse.base
+            info["coarse"] = {"correction_failed": True}
+        z_c = _gauss_newton(
+            coarse, z, COARSE_TOLERANCE, max_iterations, info["coarse"], stall, bar, warn=False
+        )
+        self._coarse_objective = coarse
+        if not info["warm_start"]:
+            return z_c
+        # a warm start may already be closer to the fine solution than the coarse one is
+        # (the coarse warp's own error, measured by earlier solves as the fine level's
+        # decrease from the coarse solution): keep the better start
+        coarse_gain = info["coarse"]["objective_start"] - info["coarse"]["objective"]
+        if self._coarse_gap is not None:
+            better = coarse_gain > 2 * self._coarse_gap
+        else:
+            better = obj.value(z_c) < obj.value(z)
+        if better:
+            return z_c
+        info["coarse"]["kept_initial"] = True
+        return z
 
 
 def _cached(cache: dict, key, compute, limit: int = 64):
@@ -595,6 +654,8 @@ class WarpedObjective:
         self.n = self.warp.n_vertices
         self.Phi = basis.reshape(3 * self.n, self.r)
         self.ab_E, self.f_E, self.c_E = ab_E, f_E, c_E
+        self.base = (f_E, c_E)  # the linear and constant terms before any FAS correction
+        self.problem, self.kfs = problem, kfs
         self.bw = ab_E.shape[0] - 1
         self.H_E = _band_to_dense(ab_E)  # dense products are faster at these sizes
         self.keys = []
@@ -664,7 +725,12 @@ class WarpedObjective:
         return Z[:, 0], Z[:, 1]
 
     def _evaluate(self, z: np.ndarray, gradient: bool):
-        """F(z) and, with ``gradient``, its exact gradient."""
+        """F(z) and, with ``gradient``, its exact gradient.
+
+        W and DW v at the last point are kept, and so are the vector-Jacobian products of its
+        last gradient: at the same point with other keyframe targets or weights (a warm start
+        of an edited problem), only the cotangents that changed are pulled back (DW^T is
+        linear in them)."""
         q, v = self._state(z)
         n, r, Phi = self.n, self.r, self.Phi
         t0 = _time.perf_counter()
@@ -677,7 +743,7 @@ class WarpedObjective:
             dU = (v[self.vel] @ Phi.T).reshape(len(self.vel), n, 3)
             Vel = self.warp.jvp(U[iv], dU) if self.vel else dU
             self.counts["W"] += len(self.active) + len(self.vel)
-            self._last = (z.copy(), (U, WU, dU, Vel))
+            self._last = (z.copy(), (U, WU, dU, Vel), None)
         t1 = _time.perf_counter()
         self.timing["W"] += t1 - t0
         Hz = self.H_E @ z
@@ -709,8 +775,24 @@ class WarpedObjective:
         Ub = np.concatenate([U, U[iv], U[iv] + step, U[iv] - step])
         f, nv = len(self.active), len(self.vel)
         index = np.r_[np.arange(f), np.tile(f + np.arange(nv), 3)]
-        out = self.warp.vjp(Ub, np.concatenate([YA, YB]), index).reshape(len(Ub), 3 * n) @ Phi
-        self.counts["vjp"] += len(Ub)
+        Y = np.concatenate([YA, YB])
+        if self._last[2] is None:  # pull back every cotangent
+            frames, dY, out = np.arange(len(Ub)), Y, np.zeros((len(Ub), r))
+        else:  # the same point: pull back the change of the cotangents only
+            dY = Y - self._last[2][0]
+            changed = np.flatnonzero(np.any(dY != 0.0, axis=(1, 2)))
+            frames = np.flatnonzero(np.isin(index, changed))
+            out = self._last[2][1].copy()
+        if len(frames):
+            _, sub = np.unique(index[frames], return_inverse=True)
+            out[frames] += (
+                self.warp.vjp(Ub[frames], dY[np.unique(index[frames])], sub).reshape(
+                    len(frames), 3 * n
+                )
+                @ Phi
+            )
+            self.counts["vjp"] += len(frames)
+        self._last = (self._last[0], self._last[1], (Y, out))
         G[self.active, 0] += out[:f]
         if nv:
             G[self.vel, 1] += out[f : f + nv]
@@ -926,6 +1008,7 @@ def _gauss_newton(
         if bar is not None:
             bar.update(1)
             bar.set_postfix_str(f"objective {F:.6g}")
+    obj.last_gradient = (F, g)
     info.update(
         iterations=it,
         converged=converged,
@@ -951,8 +1034,12 @@ def _gauss_newton(
     return z
 
 
+
 # Steps kept for the quasi-Newton (BFGS) correction of the Gauss-Newton matrix; 0: none.
 SECANT = 1
+FAS = True
+# Iterations allowed to the corrected coarse level of a warm start before it is dropped.
+FAS_ITERATIONS = 10
 # Solve with the coarse warp first (bodies with a coarse mesh); False: fine level only.
 TWO_LEVEL = True
 # The fine level switches from the coarse mesh's Jacobians to exact ones when the Newton
