@@ -216,6 +216,7 @@ class SpacetimeProblem:
         self.start, self.end = float(start), float(end)
         self.preroll = preroll
         self._energy_cache: dict[tuple, tuple] = {}
+        self._assembled: dict[tuple, tuple] = {}
         # per vertex group (selections, Grams): properties of the body, shared by its problems
         self._group_cache: dict[tuple, tuple] = body._cache.setdefault("group_basis", {})
         self._jacobians: dict[float, tuple] = {}
@@ -311,7 +312,22 @@ class SpacetimeProblem:
         return self._preroll_form
 
     def _assemble_energy(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """Band storage of E (+ pre-roll): 1/2 z^T H z + f^T z + c."""
+        """Band storage of E (+ pre-roll): 1/2 z^T H z + f^T z + c (read-only, cached by node
+        times)."""
+        return _cached(
+            self._assembled, tuple(np.round(nodes, 12)), lambda: self._assembled_energy(nodes),
+            limit=8,
+        )[:3]
+
+    def _dense_energy(self, nodes: np.ndarray) -> np.ndarray:
+        """H of :meth:`_assemble_energy` as a dense matrix (dense products are faster at the
+        sizes of the warped solve's objective)."""
+        return _cached(
+            self._assembled, tuple(np.round(nodes, 12)), lambda: self._assembled_energy(nodes),
+            limit=8,
+        )[3]
+
+    def _assembled_energy(self, nodes: np.ndarray) -> tuple:
         _basis, form, idx = self._energy(nodes)
         r = self.body.r
         N = 2 * r * len(nodes)
@@ -327,7 +343,10 @@ class SpacetimeProblem:
             _add_dense(ab, bw, np.stack([i, r + i], axis=1), Q22)
             f[: 2 * r] += f0
             c += c_pre
-        return ab, f, c
+        H = _band_to_dense(ab)
+        for a in (ab, f, H):
+            a.flags.writeable = False
+        return ab, f, c, H
 
     def _add_linear_constraints(
         self, ab: np.ndarray, f: np.ndarray, kfs: list[Keyframe], nodes: np.ndarray
@@ -657,7 +676,7 @@ class WarpedObjective:
         self.base = (f_E, c_E)  # the linear and constant terms before any FAS correction
         self.problem, self.kfs = problem, kfs
         self.bw = ab_E.shape[0] - 1
-        self.H_E = _band_to_dense(ab_E)  # dense products are faster at these sizes
+        self.H_E = problem._dense_energy(nodes)
         self.keys = []
         for kf in kfs:
             c_A, c_B = kf.weights(body, problem.duration)
