@@ -163,7 +163,7 @@ def test_two_level_solve_with_velocity_keyframes_is_stationary(slab):
     assert_stationary(problem, anim, tol)
 
 
-def edited(keys, degrees=8.0, velocity=None):
+def edited(keys, degrees=8.0):
     """``keys`` with the 0.6 s pose turned further about y (one keyframe changed)."""
     out = list(keys)
     out[1] = Keyframe(
@@ -188,7 +188,7 @@ def test_edited_objective_at_the_last_point_pulls_back_only_changed_cotangents(s
     ab, f, c = problem._assemble_energy(anim.nodes)
     new = [kf.checked(slab, 0.0, 1.2) for kf in edited(keys)]
     kept = WarpedObjective(problem, new, anim.nodes, ab, f, c)
-    kept._last = problem._fine_last[2]
+    kept._last = problem._fine_last.last
     assert np.array_equal(kept._last[0], z)  # the solve kept its last point
     F_kept, g_kept = kept.value_and_gradient(z)
     assert kept.counts == {"W": 0, "vjp": 1, "jacobians": 0}  # one node, one cotangent

@@ -222,8 +222,7 @@ class SpacetimeProblem:
         self._jacobians: dict[float, tuple] = {}
         self._exact_jacobians: dict[float, tuple] = {}
         self._coarse_gap: float | None = None  # fine objective gap at the coarse solution
-        self._coarse_objective: WarpedObjective | None = None
-        self._fine_last: tuple | None = None  # the last fine point's W values (warm starts)
+        self._fine_last: _FinePoint | None = None  # the last solve's fine point (warm starts)
         self._coarse_grams: dict[tuple, object] = body._cache.setdefault("coarse_grams", {})
         self._selections: dict[tuple, object] = body._cache.setdefault("selections", {})
         self._projection_cache: dict[tuple, np.ndarray] = {}
@@ -314,18 +313,19 @@ class SpacetimeProblem:
     def _assemble_energy(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Band storage of E (+ pre-roll): 1/2 z^T H z + f^T z + c (read-only, cached by node
         times)."""
-        return _cached(
-            self._assembled, tuple(np.round(nodes, 12)), lambda: self._assembled_energy(nodes),
-            limit=8,
-        )[:3]
+        return self._energy_terms(nodes)[:3]
 
     def _dense_energy(self, nodes: np.ndarray) -> np.ndarray:
         """H of :meth:`_assemble_energy` as a dense matrix (dense products are faster at the
         sizes of the warped solve's objective)."""
+        return self._energy_terms(nodes)[3]
+
+    def _energy_terms(self, nodes: np.ndarray) -> tuple:
+        """(band H, f, c, dense H) of E for ``nodes``, cached by node times."""
         return _cached(
             self._assembled, tuple(np.round(nodes, 12)), lambda: self._assembled_energy(nodes),
             limit=8,
-        )[3]
+        )
 
     def _assembled_energy(self, nodes: np.ndarray) -> tuple:
         _basis, form, idx = self._energy(nodes)
@@ -444,25 +444,27 @@ class SpacetimeProblem:
                 obj = WarpedObjective(self, kfs, nodes, ab_E, f_E, c_E)
                 # W, DW v and the pulled-back cotangents of the last fine point: a warm start
                 # from it evaluates the edited objective there almost for free
+                prior = self._fine_last
                 if (
                     info["warm_start"]
-                    and self._fine_last is not None
-                    and self._fine_last[0] == (tuple(obj.active), tuple(obj.vel))
-                    and np.array_equal(self._fine_last[1], nodes)
+                    and prior is not None
+                    and prior.layout == obj.layout
+                    and np.array_equal(prior.nodes, nodes)
                 ):
-                    obj._last = self._fine_last[2]
+                    obj._last = prior.last
                 continuation = info["warm_start"] and _same_keyframes(initial.keyframes, kfs)
-                self._coarse_objective = None
+                coarse = None
                 if not body.coarse_warp.exact and TWO_LEVEL and not continuation:
-                    z = self._coarse_level(obj, kfs, nodes, z, info, max_iterations, stall, bar)
+                    z, coarse = self._coarse_level(
+                        obj, kfs, nodes, z, info, max_iterations, stall, bar
+                    )
                 z = _gauss_newton(obj, z, tolerance, max_iterations, info, stall, bar)
                 if "coarse" in info and not (
                     info["coarse"].get("kept_initial") or info["coarse"].get("corrected")
                 ):
                     self._coarse_gap = info["objective_start"] - info["objective"]
-                self._fine_last = (
-                    (tuple(obj.active), tuple(obj.vel)), nodes.copy(), obj._last, kfs,
-                    obj.last_gradient, self._coarse_objective,
+                self._fine_last = _FinePoint(
+                    obj.layout, nodes.copy(), obj._last, kfs, *obj.last_gradient, coarse
                 )
         z = z.reshape(n_nodes, 2, r)
         anim = Animation(
@@ -471,13 +473,12 @@ class SpacetimeProblem:
         info["solve_seconds"] = _time.perf_counter() - t_start
         return anim
 
-
     def _coarse_level(
         self, obj: WarpedObjective, kfs, nodes, z, info, max_iterations, stall, bar
-    ) -> np.ndarray:
+    ) -> tuple[np.ndarray, WarpedObjective]:
         """The first level of the warped solve: minimise the objective with the coarse warp
         W~ in place of W from ``z``; its solution is the fine level's start (the unknowns
-        are the same).
+        are the same).  Returns the start and the coarse objective.
 
         From a warm start at the last fine point the coarse objective gets the linear
         correction tau^T z, tau = grad F(z0) - grad F~(z0) (full approximation scheme,
@@ -491,16 +492,16 @@ class SpacetimeProblem:
             FAS and obj._last is not None and np.array_equal(obj._last[0], z) and prior is not None
         )
         if corrected:  # full approximation scheme from the last fine point z0
-            old = prior[5]
+            old = prior.coarse
             if old is None:
-                old = WarpedObjective(self, prior[3], nodes, ab_E, f_E, c_E, coarse=True)
+                old = WarpedObjective(self, prior.keyframes, nodes, ab_E, f_E, c_E, coarse=True)
             old.f_E, old.c_E = old.base
             F_c, g_c = old.value_and_gradient(z)
-            tau = prior[4][1] - g_c  # fine minus coarse gradient at z0, with the keys of z0
-            if old.active == coarse.active and old.vel == coarse.vel:
+            tau = prior.gradient - g_c  # fine minus coarse gradient at z0, with z0's keys
+            if old.layout == coarse.layout:
                 coarse._last = old._last  # W~ at z: the same for the edited keyframes
             coarse.f_E = f_E + tau
-            coarse.c_E = c_E + (prior[4][0] - F_c) - float(tau @ z)
+            coarse.c_E = c_E + (prior.objective - F_c) - float(tau @ z)
             info["coarse"]["corrected"] = True
             # the correction is a first-order model of the coarse warp's error; it fails when
             # the error changes fast over the edit (strong velocity keyframes weigh D^2W,
@@ -510,16 +511,14 @@ class SpacetimeProblem:
                 coarse, z, COARSE_TOLERANCE, FAS_ITERATIONS, info["coarse"], stall, bar, warn=False
             )
             if info["coarse"]["converged"] and obj.value(z_c) < F_0:
-                self._coarse_objective = coarse
-                return z_c
+                return z_c, coarse
             coarse.f_E, coarse.c_E = coarse.base
             info["coarse"] = {"correction_failed": True}
         z_c = _gauss_newton(
             coarse, z, COARSE_TOLERANCE, max_iterations, info["coarse"], stall, bar, warn=False
         )
-        self._coarse_objective = coarse
         if not info["warm_start"]:
-            return z_c
+            return z_c, coarse
         # a warm start may already be closer to the fine solution than the coarse one is
         # (the coarse warp's own error, measured by earlier solves as the fine level's
         # decrease from the coarse solution): keep the better start
@@ -529,9 +528,9 @@ class SpacetimeProblem:
         else:
             better = obj.value(z_c) < obj.value(z)
         if better:
-            return z_c
+            return z_c, coarse
         info["coarse"]["kept_initial"] = True
-        return z
+        return z, coarse
 
 
 def _cached(cache: dict, key, compute, limit: int = 64):
@@ -621,6 +620,19 @@ def _factor_banded(ab: np.ndarray):
         return s * z
 
     return solve
+
+
+@dataclass
+class _FinePoint:
+    """What a warped solve keeps of its last fine point z0 for the next (warm) solve."""
+
+    layout: tuple  # the objective's active and velocity nodes
+    nodes: np.ndarray
+    last: tuple  # WarpedObjective._last at z0: W values and pulled-back cotangents
+    keyframes: list
+    objective: float  # F(z0) and its gradient, with these keyframes
+    gradient: np.ndarray
+    coarse: WarpedObjective | None  # the coarse objective of the same solve
 
 
 @dataclass
@@ -722,7 +734,13 @@ class WarpedObjective:
         self._node_time = {k: float(np.round(t, 9)) for k, t in enumerate(nodes)}
         self.level = "coarse" if coarse else "fine"
         self._last: tuple | None = None
+        self.last_gradient: tuple | None = None  # (F, g) where _gauss_newton stopped
         self._normal: tuple | None = None  # (Jacobians used, band matrix) of the last call
+
+    @property
+    def layout(self) -> tuple:
+        """The active and velocity nodes, which fix the layout of :attr:`_last`."""
+        return tuple(self.active), tuple(self.vel)
 
     def use_exact_jacobians(self) -> bool:
         """Switch the Gauss-Newton matrix to the fine warp's exact Jacobians (the fallback
@@ -803,13 +821,9 @@ class WarpedObjective:
             frames = np.flatnonzero(np.isin(index, changed))
             out = self._last[2][1].copy()
         if len(frames):
-            _, sub = np.unique(index[frames], return_inverse=True)
-            out[frames] += (
-                self.warp.vjp(Ub[frames], dY[np.unique(index[frames])], sub).reshape(
-                    len(frames), 3 * n
-                )
-                @ Phi
-            )
+            cotangents, sub = np.unique(index[frames], return_inverse=True)
+            pulled = self.warp.vjp(Ub[frames], dY[cotangents], sub)
+            out[frames] += pulled.reshape(len(frames), 3 * n) @ Phi
             self.counts["vjp"] += len(frames)
         self._last = (self._last[0], self._last[1], (Y, out))
         G[self.active, 0] += out[:f]
@@ -1053,9 +1067,9 @@ def _gauss_newton(
     return z
 
 
-
 # Steps kept for the quasi-Newton (BFGS) correction of the Gauss-Newton matrix; 0: none.
 SECANT = 1
+# Correct the coarse level of a warm start by the full approximation scheme; False: plain.
 FAS = True
 # Iterations allowed to the corrected coarse level of a warm start before it is dropped.
 FAS_ITERATIONS = 10
