@@ -221,12 +221,14 @@ class SpacetimeProblem:
         self._group_cache: dict[tuple, tuple] = body._cache.setdefault("group_basis", {})
         self._jacobians: dict[float, tuple] = {}
         self._exact_jacobians: dict[float, tuple] = {}
+        self._blocks: dict[float, tuple] = {}  # Gauss-Newton blocks per node (normal_matrix)
         self._coarse_gap: float | None = None  # fine objective gap at the coarse solution
         self._fine_last: _FinePoint | None = None  # the last solve's fine point (warm starts)
         self._coarse_grams: dict[tuple, object] = body._cache.setdefault("coarse_grams", {})
         self._selections: dict[tuple, object] = body._cache.setdefault("selections", {})
         self._projection_cache: dict[tuple, np.ndarray] = {}
         self._preroll_form: tuple | None = None
+        self._targets: dict[tuple, tuple] = {}  # per keyframe: offsets d, S^T d (_target)
 
     @property
     def duration(self) -> float:
@@ -295,6 +297,34 @@ class SpacetimeProblem:
 
         key = (on, len(vertices), hash(vertices.tobytes()), id(self.body.coarse_warp))
         return _cached(self._coarse_grams, key, compute)
+
+    def _target(self, kf: Keyframe, what: str, St=None) -> np.ndarray:
+        """A keyframe's position target minus rest ``"d"`` (s, 3), or ``"Std"`` = S^T d and
+        ``"Stb"`` = S^T b for the selection transpose ``St`` (coarse level), kept while the
+        keyframe's targets are equal (an edit changes one keyframe; the others are not
+        recomputed)."""
+        arrays = (kf.position, kf.velocity, kf.vertices)
+        key = (id(kf.position), id(kf.velocity), kf.on, len(kf.vertices))
+        kept = self._targets.get(key)
+        if kept is None or not all(
+            (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+            for a, b in zip(kept[0], arrays, strict=True)
+        ):
+            if len(self._targets) > 256:
+                self._targets.clear()
+            copies = tuple(None if a is None else np.array(a) for a in arrays)
+            kept = self._targets[key] = (copies, {})
+        values = kept[1]
+        name = (what, id(St))
+        if name not in values:
+            if what == "d":
+                rest = self.body.rest_positions(kf.on)[kf.vertices]
+                value = kf.position - rest
+            else:
+                value = St @ (self._target(kf, "d") if what == "Std" else kf.velocity)
+            value.flags.writeable = False
+            values[name] = (St, value)
+        return values[name][1]
 
     def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Least energy to reach (q, q') from rest in ``preroll`` seconds, without gravity:
@@ -692,23 +722,22 @@ class WarpedObjective:
         self.keys = []
         for kf in kfs:
             c_A, c_B = kf.weights(body, problem.duration)
-            rest = body.rest_positions(kf.on)[kf.vertices]
             self.keys.append(
                 _WarpedKey(
                     _node_index(nodes, kf.time),
                     *problem._selection(kf.vertices, kf.on, coarse),
                     problem._coarse_gram(kf.vertices, kf.on),
-                    None if kf.position is None or c_A == 0 else kf.position - rest,
+                    None if kf.position is None or c_A == 0 else problem._target(kf, "d"),
                     None if kf.velocity is None or c_B == 0 else kf.velocity,
                     np.sqrt(c_A),
                     np.sqrt(c_B),
                 )
             )
-        if coarse:  # the cancellation in the Gram form costs ~eps |d|^2 / |r|^2: fine here
-            for key in self.keys:
+            if coarse:  # the cancellation in the Gram form costs ~eps |d|^2 / |r|^2: fine here
+                key = self.keys[-1]
                 key.gram = True
-                key.Std = None if key.d is None else key.St @ key.d
-                key.Stb = None if key.b is None else key.St @ key.b
+                key.Std = None if key.d is None else problem._target(kf, "Std", key.St)
+                key.Stb = None if key.b is None else problem._target(kf, "Stb", key.St)
         self.active = sorted({k.node for k in self.keys if k.d is not None or k.b is not None})
         self.slot = {k: a for a, k in enumerate(self.active)}
         # position keyframes sharing a selection are evaluated together (one sparse product)
@@ -731,6 +760,8 @@ class WarpedObjective:
         # (warm starts reuse them), keyed by node time
         self._jac = problem._jacobians
         self._exact_jac = problem._exact_jacobians
+        self._blocks = problem._blocks
+        self._signature = self._signatures()
         self._node_time = {k: float(np.round(t, 9)) for k, t in enumerate(nodes)}
         self.level = "coarse" if coarse else "fine"
         self._last: tuple | None = None
@@ -754,8 +785,19 @@ class WarpedObjective:
         for key in self.keys:
             key.C = sp.csr_matrix(key.St @ key.S)
         self._jac = self._exact_jac
+        self._signature = self._signatures()
         self._normal = None
         return True
+
+    def _signatures(self) -> dict[int, list]:
+        """Per active node, what its Gauss-Newton block depends on besides the Jacobians:
+        each keyframe's Gram C and weights."""
+        sig: dict[int, list] = {k: [] for k in self.active}
+        for key in self.keys:
+            if key.d is not None or key.b is not None:
+                wA = key.wA if key.d is not None else None
+                sig[key.node].append((key.C, wA, key.wB if key.b is not None else None))
+        return sig
 
     def _state(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         Z = z.reshape(-1, 2, self.r)
@@ -921,25 +963,43 @@ class WarpedObjective:
         ):
             self.timing["jacobians"] += _time.perf_counter() - t0
             return self._normal[1]  # the same Jacobians as last time: the same matrix
-        ab = self.ab_E.copy()
-        blocks = np.zeros((len(self.active), 2 * r, 2 * r))
-        J = {k: self._jac[self._node_time[k]][1] for k in self.active}
+        # a node's block depends on its Jacobians and its keyframes' Grams and weights only:
+        # kept per problem (the coarse and fine levels of a solve, and later solves, share it)
+        blocks, todo = {}, []
+        for k, entry in zip(self.active, used, strict=True):
+            kept = self._blocks.get(self._node_time[k])
+            sig = self._signature[k]
+            if (
+                kept is not None
+                and kept[0] is entry
+                and len(kept[1]) == len(sig)
+                and all(a[0] is b[0] and a[1:] == b[1:] for a, b in zip(kept[1], sig, strict=True))
+            ):
+                blocks[k] = kept[2]
+            else:
+                blocks[k] = np.zeros((2 * r, 2 * r))
+                todo.append(k)
+        J = {k: self._jac[self._node_time[k]][1] for k in todo}
         # position terms c_A J^T (C kron I_3) J, batched over the keyframes of each group
         groups: dict[int, tuple] = {}
         for key in self.keys:
-            if key.d is not None:
+            if key.d is not None and key.node in J:
                 groups.setdefault(id(key.C), (key.C, []))[1].append(key)
         for C, keys in groups.values():
             grams = _grams(C, np.stack([J[key.node] for key in keys]))
             for key, g in zip(keys, grams, strict=True):
-                blocks[self.slot[key.node], :r, :r] += key.wA**2 * g
+                blocks[key.node][:r, :r] += key.wA**2 * g
         for key in self.keys:  # velocity terms: [D^2W, DW] against (q, q')
-            if key.b is not None:
+            if key.b is not None and key.node in J:
                 VJ = self._jac[self._node_time[key.node]][2]
                 X = np.concatenate([VJ, J[key.node]], axis=2)
-                blocks[self.slot[key.node]] += key.wB**2 * _grams(key.C, X[None])[0]
+                blocks[key.node] += key.wB**2 * _grams(key.C, X[None])[0]
+        for k in todo:
+            t = self._node_time[k]
+            self._blocks[t] = (self._jac[t], self._signature[k], blocks[k])
+        ab = self.ab_E.copy()
         for k in self.active:
-            _add_block(ab, self.bw, 2 * r * k + np.arange(2 * r), blocks[self.slot[k]])
+            _add_block(ab, self.bw, 2 * r * k + np.arange(2 * r), blocks[k])
         self._normal = (used, ab)
         self.timing["jacobians"] += _time.perf_counter() - t0
         return ab
@@ -985,15 +1045,31 @@ def _gauss_newton(
     decrement, reason, slow = np.inf, "", 0
     pairs: list[tuple[np.ndarray, np.ndarray]] = []
     decrements: list[float] = []
+    last: tuple | None = None  # the last Gauss-Newton matrix and its factorization
     while it < max_iterations:
         crawling = len(decrements) >= 3 and all(
             b > SLOW_RATIO * a for a, b in zip(decrements[-3:-1], decrements[-2:], strict=True)
         )
         if crawling and obj.use_exact_jacobians():
             info["exact_jacobians_from"] = it
-        ab = obj.normal_matrix(z, reuse=JACOBIAN_REUSE)
+            last = None
+        if last is not None and CHECK_FIRST:
+            # the stopping test with the last matrix first: any SPD H bounds the slopes, and
+            # fresh Jacobians are only worth their cost for another step
+            t0 = _time.perf_counter()
+            dz = last[1](-g)
+            if pairs:
+                dz = _secant_step(*last, dz, pairs)
+            obj.timing["solve"] += _time.perf_counter() - t0
+            if -0.5 * float(g @ dz) <= tolerance * F:
+                decrement = -0.5 * float(g @ dz)
+                decrements.append(decrement)
+                converged, reason = True, "decrement"
+                break
+        ab = obj.normal_matrix(z, reuse=COARSE_REUSE if obj.level == "coarse" else JACOBIAN_REUSE)
         t0 = _time.perf_counter()
         solve_H = _factor_banded(ab)
+        last = (ab, solve_H)
         dz = solve_H(-g)
         if pairs:
             dz = _secant_step(ab, solve_H, dz, pairs)
@@ -1034,8 +1110,9 @@ def _gauss_newton(
                 break
         if rho <= 1e-4:
             break
-        if SECANT and float(dz @ (g_new - g)) > 0:
-            pairs = [*pairs[-(SECANT - 1) :], (dz, g_new - g)] if SECANT > 1 else [(dz, g_new - g)]
+        m = COARSE_SECANT if obj.level == "coarse" else SECANT
+        if m and float(dz @ (g_new - g)) > 0:
+            pairs = [*pairs, (dz, g_new - g)][-m:]
         z, F, g = z + dz, F_new, g_new
         history.append(F)
         if bar is not None:
@@ -1069,6 +1146,8 @@ def _gauss_newton(
 
 # Steps kept for the quasi-Newton (BFGS) correction of the Gauss-Newton matrix; 0: none.
 SECANT = 1
+COARSE_SECANT = 1
+CHECK_FIRST = True
 # Correct the coarse level of a warm start by the full approximation scheme; False: plain.
 FAS = True
 # Iterations allowed to the corrected coarse level of a warm start before it is dropped.
@@ -1107,6 +1186,7 @@ def _secant_step(ab: np.ndarray, solve_H, dz: np.ndarray, pairs: list) -> np.nda
 
 
 JACOBIAN_REUSE = 0.01
+COARSE_REUSE = 0.01
 # Tolerance of the coarse first level: its solution is only a start for the fine level.
 COARSE_TOLERANCE = 1e-6
 STALL_DECREASE = 1e-6
