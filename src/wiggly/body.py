@@ -33,7 +33,7 @@ DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
 # Bodies with more tets get a coarse warp (a coarse mesh of about COARSE_TETS tets) for the
 # Gauss-Newton Jacobians DW Phi and a first solve (see wiggly.warp.CoarseWarp).
 COARSE_WARP_ABOVE = 6000
-COARSE_TETS = 1000
+COARSE_TETS = 2000
 
 
 @dataclass(frozen=True)

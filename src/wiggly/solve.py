@@ -342,16 +342,7 @@ class SpacetimeProblem:
 
     def _assemble_energy(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Band storage of E (+ pre-roll): 1/2 z^T H z + f^T z + c (read-only, cached by node
-        times)."""
-        return self._energy_terms(nodes)[:3]
-
-    def _dense_energy(self, nodes: np.ndarray) -> np.ndarray:
-        """H of :meth:`_assemble_energy` as a dense matrix (dense products are faster at the
-        sizes of the warped solve's objective)."""
-        return self._energy_terms(nodes)[3]
-
-    def _energy_terms(self, nodes: np.ndarray) -> tuple:
-        """(band H, f, c, dense H) of E for ``nodes``, cached by node times."""
+        times; the band in Fortran order, which BLAS dsbmv reads in place)."""
         return _cached(
             self._assembled, tuple(np.round(nodes, 12)), lambda: self._assembled_energy(nodes),
             limit=8,
@@ -362,7 +353,7 @@ class SpacetimeProblem:
         r = self.body.r
         N = 2 * r * len(nodes)
         bw = 4 * r - 1  # upper bandwidth of the node-major ordering
-        ab = np.zeros((bw + 1, N))
+        ab = np.zeros((bw + 1, N), order="F")
         f = np.zeros(N)
         _add_dense(ab, bw, idx, form.Q)
         np.add.at(f, idx.ravel(), form.l.ravel())
@@ -373,10 +364,9 @@ class SpacetimeProblem:
             _add_dense(ab, bw, np.stack([i, r + i], axis=1), Q22)
             f[: 2 * r] += f0
             c += c_pre
-        H = _band_to_dense(ab)
-        for a in (ab, f, H):
+        for a in (ab, f):
             a.flags.writeable = False
-        return ab, f, c, H
+        return ab, f, c
 
     def _add_linear_constraints(
         self, ab: np.ndarray, f: np.ndarray, kfs: list[Keyframe], nodes: np.ndarray
@@ -636,7 +626,7 @@ def _factor_banded(ab: np.ndarray):
     bw = ab.shape[0] - 1
     d = ab[bw]
     s = 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
-    abs_ = ab * _band_scale(s, bw)
+    abs_ = np.multiply(ab, _band_scale(s, bw), order="F")  # BLAS dsbmv reads it in place
     cb = sla.cholesky_banded(abs_, lower=False, check_finite=False)
 
     def solve(rhs: np.ndarray) -> np.ndarray:
@@ -718,7 +708,6 @@ class WarpedObjective:
         self.base = (f_E, c_E)  # the linear and constant terms before any FAS correction
         self.problem, self.kfs = problem, kfs
         self.bw = ab_E.shape[0] - 1
-        self.H_E = problem._dense_energy(nodes)
         self.keys = []
         for kf in kfs:
             c_A, c_B = kf.weights(body, problem.duration)
@@ -825,7 +814,7 @@ class WarpedObjective:
             self._last = (z.copy(), (U, WU, dU, Vel), None)
         t1 = _time.perf_counter()
         self.timing["W"] += t1 - t0
-        Hz = self.H_E @ z
+        Hz = _band_matvec(self.ab_E, self.bw, z)
         F = 0.5 * z @ Hz + self.f_E @ z + self.c_E
         YA = np.zeros_like(U)
         YB = np.zeros_like(dU)
@@ -997,7 +986,7 @@ class WarpedObjective:
         for k in todo:
             t = self._node_time[k]
             self._blocks[t] = (self._jac[t], self._signature[k], blocks[k])
-        ab = self.ab_E.copy()
+        ab = np.array(self.ab_E, order="F")  # Fortran order: BLAS dsbmv reads it in place
         for k in self.active:
             _add_block(ab, self.bw, 2 * r * k + np.arange(2 * r), blocks[k])
         self._normal = (used, ab)
@@ -1053,22 +1042,10 @@ def _gauss_newton(
         if crawling and obj.use_exact_jacobians():
             info["exact_jacobians_from"] = it
             last = None
-        if last is not None and CHECK_FIRST:
-            # the stopping test with the last matrix first: any SPD H bounds the slopes, and
-            # fresh Jacobians are only worth their cost for another step
-            t0 = _time.perf_counter()
-            dz = last[1](-g)
-            if pairs:
-                dz = _secant_step(*last, dz, pairs)
-            obj.timing["solve"] += _time.perf_counter() - t0
-            if -0.5 * float(g @ dz) <= tolerance * F:
-                decrement = -0.5 * float(g @ dz)
-                decrements.append(decrement)
-                converged, reason = True, "decrement"
-                break
-        ab = obj.normal_matrix(z, reuse=COARSE_REUSE if obj.level == "coarse" else JACOBIAN_REUSE)
+        ab = obj.normal_matrix(z, reuse=JACOBIAN_REUSE)
         t0 = _time.perf_counter()
-        solve_H = _factor_banded(ab)
+        # the same Jacobians give the same matrix object: its factorization is kept
+        solve_H = last[1] if last is not None and last[0] is ab else _factor_banded(ab)
         last = (ab, solve_H)
         dz = solve_H(-g)
         if pairs:
@@ -1110,9 +1087,8 @@ def _gauss_newton(
                 break
         if rho <= 1e-4:
             break
-        m = COARSE_SECANT if obj.level == "coarse" else SECANT
-        if m and float(dz @ (g_new - g)) > 0:
-            pairs = [*pairs, (dz, g_new - g)][-m:]
+        if SECANT and float(dz @ (g_new - g)) > 0:
+            pairs = [*pairs, (dz, g_new - g)][-SECANT:]
         z, F, g = z + dz, F_new, g_new
         history.append(F)
         if bar is not None:
@@ -1146,8 +1122,6 @@ def _gauss_newton(
 
 # Steps kept for the quasi-Newton (BFGS) correction of the Gauss-Newton matrix; 0: none.
 SECANT = 1
-COARSE_SECANT = 1
-CHECK_FIRST = True
 # Correct the coarse level of a warm start by the full approximation scheme; False: plain.
 FAS = True
 # Iterations allowed to the corrected coarse level of a warm start before it is dropped.
@@ -1185,8 +1159,7 @@ def _secant_step(ab: np.ndarray, solve_H, dz: np.ndarray, pairs: list) -> np.nda
     return dz + HinvU @ np.linalg.solve(K - U.T @ HinvU, U.T @ dz)
 
 
-JACOBIAN_REUSE = 0.01
-COARSE_REUSE = 0.01
+JACOBIAN_REUSE = 0.02
 # Tolerance of the coarse first level: its solution is only a start for the fine level.
 COARSE_TOLERANCE = 1e-6
 STALL_DECREASE = 1e-6
