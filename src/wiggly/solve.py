@@ -229,6 +229,8 @@ class SpacetimeProblem:
         self._projection_cache: dict[tuple, np.ndarray] = {}
         self._preroll_form: tuple | None = None
         self._targets: dict[tuple, tuple] = {}  # per keyframe: offsets d, S^T d (_target)
+        self._stacks: dict[tuple, tuple] = {}  # stacked targets of a batch (_stacked)
+        self._batch_terms: dict[tuple, tuple] = {}  # a batch's F and S^T r per W values
 
     @property
     def duration(self) -> float:
@@ -325,6 +327,19 @@ class SpacetimeProblem:
             value.flags.writeable = False
             values[name] = (St, value)
         return values[name][1]
+
+    def _stacked(self, ds: list[np.ndarray]) -> np.ndarray:
+        """Targets ``ds`` of keyframes sharing a selection, stacked (s, p, 3); kept while they
+        are the same (read-only) arrays of :meth:`_target`."""
+        tag = tuple(id(d) for d in ds)
+        kept = self._stacks.get(tag)
+        if kept is None or not all(a is b for a, b in zip(kept[0], ds, strict=True)):
+            if len(self._stacks) > 64:
+                self._stacks.clear()
+            D = np.stack(ds, axis=1)
+            D.flags.writeable = False
+            kept = self._stacks[tag] = (tuple(ds), D)
+        return kept[1]
 
     def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Least energy to reach (q, q') from rest in ``preroll`` seconds, without gravity:
@@ -737,7 +752,7 @@ class WarpedObjective:
         self._batches = [
             (
                 keys,
-                np.stack([key.d for key in keys], axis=1),  # targets (s, p, 3)
+                problem._stacked([key.d for key in keys]),  # targets (s, p, 3)
                 np.array([key.wA for key in keys])[None, :, None],
             )
             for keys in batches.values()
@@ -868,19 +883,31 @@ class WarpedObjective:
         """1/2 sum |r|^2 of position keyframes sharing one selection S, r = sqrt(c_A) (S W(u)
         - d) with targets D (s, p, 3) and weights w; adds sqrt(c_A) S^T r to the cotangents
         ``YA`` unless it is None."""
-        S, St = keys[0].S, keys[0].St
         slots = [self.slot[key.node] for key in keys]
-        p, n = len(keys), WU.shape[1]
-        R = (S @ WU[slots].transpose(1, 0, 2).reshape(n, 3 * p)).reshape(-1, p, 3)
-        R -= D
-        R *= w
-        F = 0.5 * float(np.vdot(R, R))
-        if YA is not None:
+        # kept per (W values, targets): an edited objective at the last point (a warm start)
+        # recomputes the batches whose targets changed only
+        cache = self.problem._batch_terms
+        tag = (id(WU), id(D), tuple(slots), w.tobytes())
+        kept = cache.get(tag)
+        stale = kept is None or kept[0] is not WU or kept[1] is not D
+        if stale or (YA is not None and kept[3] is None):
+            S, St = keys[0].S, keys[0].St
+            p, n = len(keys), WU.shape[1]
+            R = (S @ WU[slots].transpose(1, 0, 2).reshape(n, 3 * p)).reshape(-1, p, 3)
+            R -= D
             R *= w
-            Y = (St @ R.reshape(-1, 3 * p)).reshape(n, p, 3)
+            F = 0.5 * float(np.vdot(R, R))
+            Y = None
+            if YA is not None:
+                R *= w
+                Y = (St @ R.reshape(-1, 3 * p)).reshape(n, p, 3)
+            if len(cache) >= 8:
+                cache.clear()
+            kept = cache[tag] = (WU, D, F, Y)
+        if YA is not None:
             for j, a in enumerate(slots):
-                YA[a] += Y[:, j]
-        return F
+                YA[a] += kept[3][:, j]
+        return kept[2]
 
     def _gram_terms(self, key: _WarpedKey, x: np.ndarray, Vel, y, YB) -> float:
         """1/2 |r|^2 of a keyframe from its Gram (coarse level); adds S^T r to the
