@@ -338,6 +338,19 @@ def test_vjp_is_the_adjoint_of_jvp(warp, mesh):
     assert abs(lhs - rhs) < 1e-11 * np.linalg.norm(y) * np.linalg.norm(warp.jvp(u, du))
 
 
+def test_apply_and_jvp_in_one_solve_equal_them_apart(warp, mesh):
+    """The fused evaluation (one Poisson solve for W and DW[du]) gives what apply and jvp
+    give, for selected frames, to rounding."""
+    V = mesh[0]
+    U = np.stack([random_displacement(V, s, seed=30 + i) for i, s in enumerate([0.3, 1.2, 0.7])])
+    dU = np.stack([random_displacement(V, 1.0, seed=40 + i) for i in range(2)])
+    W, D = warp.apply_and_jvp(U, [2, 0], dU)
+    scale = np.abs(warp.apply(U)).max()
+    np.testing.assert_allclose(W, warp.apply(U), rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(D, warp.jvp(U[[2, 0]], dU), rtol=0, atol=1e-12 * np.abs(D).max())
+    assert rel(D[0], central_difference(warp, U[2], dU[0])) < 1e-6
+
+
 def test_batched_derivatives_equal_per_frame(warp, mesh):
     V = mesh[0]
     U = np.stack([random_displacement(V, s, seed=i) for i, s in enumerate([0.2, 0.9, 1.5])])

@@ -822,9 +822,11 @@ class WarpedObjective:
             U, WU, dU, Vel = self._last[1]  # W and DW v at the last point (value, then gradient)
         else:
             U = (q[self.active] @ Phi.T).reshape(len(self.active), n, 3)
-            WU = self.warp.apply(U) if len(self.active) else U
             dU = (v[self.vel] @ Phi.T).reshape(len(self.vel), n, 3)
-            Vel = self.warp.jvp(U[iv], dU) if self.vel else dU
+            if self.vel:  # one Poisson solve for both
+                WU, Vel = self.warp.apply_and_jvp(U, iv, dU)
+            else:
+                WU, Vel = self.warp.apply(U) if len(self.active) else U, dU
             self.counts["W"] += len(self.active) + len(self.vel)
             self._last = (z.copy(), (U, WU, dU, Vel), None)
         t1 = _time.perf_counter()
@@ -889,18 +891,16 @@ class WarpedObjective:
         cache = self.problem._batch_terms
         tag = (id(WU), id(D), tuple(slots), w.tobytes())
         kept = cache.get(tag)
-        stale = kept is None or kept[0] is not WU or kept[1] is not D
-        if stale or (YA is not None and kept[3] is None):
+        if kept is None or kept[0] is not WU or kept[1] is not D:
+            # S^T r always: a value at a new point is followed by its gradient (line search)
             S, St = keys[0].S, keys[0].St
             p, n = len(keys), WU.shape[1]
             R = (S @ WU[slots].transpose(1, 0, 2).reshape(n, 3 * p)).reshape(-1, p, 3)
             R -= D
             R *= w
             F = 0.5 * float(np.vdot(R, R))
-            Y = None
-            if YA is not None:
-                R *= w
-                Y = (St @ R.reshape(-1, 3 * p)).reshape(n, p, 3)
+            R *= w
+            Y = (St @ R.reshape(-1, 3 * p)).reshape(n, p, 3)
             if len(cache) >= 8:
                 cache.clear()
             kept = cache[tag] = (WU, D, F, Y)

@@ -625,6 +625,32 @@ class Warp:
         rhs = self._per_tet(_jvp_fused, [(self._G, X), (self._G, dX)], self._GtV)
         return self._from_columns(self._poisson(rhs, dX), batched)
 
+    def apply_and_jvp(
+        self, U: np.ndarray, index: list[int] | np.ndarray, dU: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``W(U)`` for frames U (f, n, 3) and ``DW(U[index])[dU]`` for dU (k, n, 3), with one
+        Poisson solve for both (velocity keyframes evaluate them together)."""
+        Uf, _ = self._frames_of(U, "U")
+        index = np.asarray(index, dtype=np.int64)
+        if not self.compiled or index.size == 0:
+            return self.apply(Uf), self.jvp(Uf[index], dU)
+        dUf, _ = self._frames_of(dU, "dU")
+        f, k = len(Uf), len(dUf)
+        if dUf.shape != (index.size, *Uf.shape[1:]):
+            raise WigglyInputError(
+                f"dU should have shape ({index.size}, {self.n_vertices}, 3); shape is {dUf.shape}"
+            )
+        rhs = np.zeros((f + k, *Uf.shape[1:]))
+        warp_kernels.target_rhs(
+            Uf, self._tets, self._grads, self.volumes, rhs[:f], warp_kernels.chunks(f)
+        )
+        warp_kernels.jvp_rhs(
+            np.ascontiguousarray(Uf[index]), dUf, self._tets, self._grads, self.volumes, rhs[f:],
+            warp_kernels.chunks(k),
+        )
+        out = self._poisson_frames(rhs, np.concatenate([Uf, dUf]))
+        return out[:f], out[f:]
+
     def vjp(self, U: np.ndarray, Y: np.ndarray, index: np.ndarray | None = None) -> np.ndarray:
         """Adjoint derivative ``DW(u)^T y``: ``<vjp(u, y), du> = <y, jvp(u, du)>``.
 
