@@ -87,29 +87,43 @@ def test_jump_flight_is_ballistic(solved):
 
 
 def test_plant_swings_at_its_bending_frequency(solved):
-    """After the release the top oscillates freely: decaying amplitude, and the period
-    2 pi / sqrt(lambda) of the mode that dominates the motion of the top."""
+    """After the release the plant swings freely: its dominant bending mode is a free damped
+    oscillator (frequency sqrt(lambda - delta^2), decay rate delta), and the top's motion is
+    the free oscillation of its two dominant bending modes.  (The plant is nearly symmetric
+    about its axis, so on some meshes a second bending mode carries a third of the swing: a
+    single cosine does not describe the top, two modes at their analytic frequencies do.)"""
     scene, anim = solved("plant_swing")
     body = anim.body
     release = max(k.time for k in scene.keyframes)
     top = anim.info["scene"]["groups"]["top"]
     t = np.arange(release, anim.end, 1 / 120)
     x = anim.positions(t)[:, top, 0].mean(axis=1)
-    # the dominant mode: largest swing of q_i after the release times its share of top's x
+    # the modes by their swing after the release times their share of top's x
     q = anim.modal(t)[0]
     share = body.basis_rows(top)[0::3].mean(axis=0)
-    dominant = int(np.argmax(np.ptp(q, axis=0) * np.abs(share)))
-    period = 2 * np.pi / np.sqrt(body.eigenvalues[dominant])
+    order = np.argsort(np.ptp(q, axis=0) * np.abs(share))[::-1]
+    lam, delta = body.eigenvalues, body.delta
+    omega = np.sqrt(lam - delta**2)
 
     def damped(t, c, a, s, w, phase):
         return c + a * np.exp(-s * (t - release)) * np.cos(w * (t - release) + phase)
 
     late = t >= release + 0.2
-    p, _ = curve_fit(damped, t[late], x[late],
-                     p0=[x[-1], x[late][0] - x[-1], 0.3, 2 * np.pi / period, 0.0])
-    assert 2 * np.pi / p[3] == pytest.approx(period, rel=0.05)
-    assert p[2] > 0  # decaying
-    assert np.abs(p[1]) > 0.1  # a real swing (the top was pulled 0.22 m)
+    d = order[0]
+    qd = q[late, d]
+    p, _ = curve_fit(damped, t[late], qd, p0=[qd[-1], qd[0] - qd[-1], delta[d], omega[d], 0.0])
+    assert p[3] == pytest.approx(omega[d], rel=1e-3)
+    assert p[2] == pytest.approx(delta[d], rel=1e-3)
+    # the top: constant + two damped oscillations with the modes' own frequencies and decay
+    tau = t[late] - release
+    cols = [np.ones_like(tau)]
+    for j in order[:2]:
+        cols += [np.exp(-delta[j] * tau) * f(omega[j] * tau) for f in (np.cos, np.sin)]
+    A = np.stack(cols, axis=1)
+    coef = np.linalg.lstsq(A, x[late], rcond=None)[0]
+    swing = np.ptp(x[late])
+    assert swing > 0.1  # a real swing (the top was pulled 0.22 m)
+    assert np.sqrt(np.mean((x[late] - A @ coef) ** 2)) < 0.01 * swing
     # free and damped after the release: the modal energy 1/2 (q'^2 + lam (q - q_eq)^2)
     # never increases (dE/dt = -2 delta q'^2 <= 0), whatever beating the leaves show
     q, dq = anim.modal(t, 1)
