@@ -234,6 +234,16 @@ def test_warm_start_after_an_edit_is_stationary_and_corrected(slab, velocity):
     assert gap_warm < 0.2 * gap_cold
 
 
+def band_to_dense(ab: np.ndarray) -> np.ndarray:
+    """The symmetric matrix H of upper band storage ab[bw + i - j, j] = H[i, j]."""
+    bw, N = ab.shape[0] - 1, ab.shape[1]
+    H = np.zeros((N, N))
+    for i in range(N):
+        for j in range(i, min(N, i + bw + 1)):
+            H[i, j] = H[j, i] = ab[bw + i - j, j]
+    return H
+
+
 def test_band_helpers_match_dense_algebra():
     rng = np.random.default_rng(0)
     N, bw = 40, 6
@@ -244,7 +254,7 @@ def test_band_helpers_match_dense_algebra():
     for i in range(N):
         for j in range(i, min(N, i + bw + 1)):
             ab[bw + i - j, j] = H[i, j]
-    np.testing.assert_array_equal(solve_module._band_to_dense(ab), H)
+    np.testing.assert_array_equal(band_to_dense(ab), H)
     x = rng.standard_normal(N)
     np.testing.assert_allclose(solve_module._band_matvec(ab, bw, x), H @ x, rtol=1e-13)
     block = rng.standard_normal((4, 4))
@@ -252,7 +262,7 @@ def test_band_helpers_match_dense_algebra():
     idx = np.array([3, 4, 5, 6])
     solve_module._add_block(ab, bw, idx, block)
     H[np.ix_(idx, idx)] += block
-    np.testing.assert_array_equal(solve_module._band_to_dense(ab), H)
+    np.testing.assert_array_equal(band_to_dense(ab), H)
     np.testing.assert_allclose(solve_module._solve_banded(ab, x), np.linalg.solve(H, x), rtol=1e-10)
 
 

@@ -331,15 +331,12 @@ class SpacetimeProblem:
     def _stacked(self, ds: list[np.ndarray]) -> np.ndarray:
         """Targets ``ds`` of keyframes sharing a selection, stacked (s, p, 3); kept while they
         are the same (read-only) arrays of :meth:`_target`."""
-        tag = tuple(id(d) for d in ds)
-        kept = self._stacks.get(tag)
-        if kept is None or not all(a is b for a, b in zip(kept[0], ds, strict=True)):
-            if len(self._stacks) > 64:
-                self._stacks.clear()
+        def compute() -> tuple:
             D = np.stack(ds, axis=1)
             D.flags.writeable = False
-            kept = self._stacks[tag] = (tuple(ds), D)
-        return kept[1]
+            return tuple(ds), D  # the entry holds ds: their ids stay unique while it lives
+
+        return _cached(self._stacks, tuple(id(d) for d in ds), compute)[1]
 
     def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Least energy to reach (q, q') from rest in ``preroll`` seconds, without gravity:
@@ -886,12 +883,10 @@ class WarpedObjective:
         - d) with targets D (s, p, 3) and weights w; adds sqrt(c_A) S^T r to the cotangents
         ``YA`` unless it is None."""
         slots = [self.slot[key.node] for key in keys]
+
         # kept per (W values, targets): an edited objective at the last point (a warm start)
         # recomputes the batches whose targets changed only
-        cache = self.problem._batch_terms
-        tag = (id(WU), id(D), tuple(slots), w.tobytes())
-        kept = cache.get(tag)
-        if kept is None or kept[0] is not WU or kept[1] is not D:
+        def compute() -> tuple:
             # S^T r always: a value at a new point is followed by its gradient (line search)
             S, St = keys[0].S, keys[0].St
             p, n = len(keys), WU.shape[1]
@@ -901,9 +896,10 @@ class WarpedObjective:
             F = 0.5 * float(np.vdot(R, R))
             R *= w
             Y = (St @ R.reshape(-1, 3 * p)).reshape(n, p, 3)
-            if len(cache) >= 8:
-                cache.clear()
-            kept = cache[tag] = (WU, D, F, Y)
+            return WU, D, F, Y  # the entry holds WU and D: their ids stay unique while it lives
+
+        tag = (id(WU), id(D), tuple(slots), w.tobytes())
+        kept = _cached(self.problem._batch_terms, tag, compute, limit=8)
         if YA is not None:
             for j, a in enumerate(slots):
                 YA[a] += kept[3][:, j]
@@ -1208,17 +1204,6 @@ def _band_scale(s: np.ndarray, bw: int) -> np.ndarray:
     for d in range(bw + 1):  # diagonal offset j - i = d, stored in row bw - d
         out[bw - d, d:] = s[: N - d] * s[d:]
     return out
-
-
-def _band_to_dense(ab: np.ndarray) -> np.ndarray:
-    """The symmetric matrix H of upper band storage ab[bw + i - j, j] = H[i, j]."""
-    bw, N = ab.shape[0] - 1, ab.shape[1]
-    H = np.zeros((N, N))
-    flat = H.reshape(-1)
-    for d in range(bw + 1):  # diagonal d: H[i, i + d] at flat index i (N + 1) + d
-        flat[d : (N - d) * N : N + 1] = ab[bw - d, d:]
-        flat[d * N :: N + 1] = ab[bw - d, d:]
-    return H
 
 
 def _band_matvec(ab: np.ndarray, bw: int, x: np.ndarray) -> np.ndarray:
