@@ -68,6 +68,7 @@ class Body:
     M, K : (3n, 3n) sparse mass and stiffness (interleaved xyz dofs).
     modes : Modes
         Phi (3n, r) M-orthonormal, lambda (r,), rigid modes first.
+    cache_dir : where derived meshes (the coarse warp's) are cached, as in :func:`prepare`.
     """
 
     model: Model
@@ -79,6 +80,7 @@ class Body:
     K: sp.csr_matrix
     modes: Modes
     lumped: bool = False
+    cache_dir: str | os.PathLike[str] | Literal[False] | None = field(default=None, repr=False)
     _cache: dict = field(default_factory=dict, repr=False)
 
     # --- per-mode coefficients of the decoupled energy (SYSTEM.md §4) -------------------
@@ -162,7 +164,7 @@ class Body:
         Phi = self.modes.vectors
         if self.tets.n_tets <= COARSE_WARP_ABOVE:
             return CoarseWarp.exact(self.warp, Phi)
-        coarse = coarse_mesh(self.tets, COARSE_TETS)
+        coarse = coarse_mesh(self.tets, COARSE_TETS, cache_dir=self.cache_dir)
         if coarse is None:
             return CoarseWarp.exact(self.warp, Phi)
         n = self.tets.n_vertices
@@ -293,7 +295,7 @@ def prepare(
     )
     if model.embedding is None:
         model.embedding = embed(model.surface.vertices, model.tets)
-    return Body(model, material, damping, gravity, fixed, M, K, modes, lumped)
+    return Body(model, material, damping, gravity, fixed, M, K, modes, lumped, cache_dir)
 
 
 def _say(message: str) -> None:
