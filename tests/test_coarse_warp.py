@@ -268,6 +268,13 @@ def test_band_helpers_match_dense_algebra():
     solve_module._add_block(ab, bw, idx, block)
     H[np.ix_(idx, idx)] += block
     np.testing.assert_array_equal(band_to_dense(ab), H)
+    blocks = rng.standard_normal((2, 3, 3))
+    blocks = blocks + blocks.transpose(0, 2, 1)
+    idx = np.array([[0, 1, 2], [8, 9, 10]])  # a stack of blocks at once
+    solve_module._add_block(ab, bw, idx, blocks)
+    for i, b in zip(idx, blocks, strict=True):
+        H[np.ix_(i, i)] += b
+    np.testing.assert_allclose(band_to_dense(ab), H, rtol=1e-15)
     np.testing.assert_allclose(solve_module._solve_banded(ab, x), np.linalg.solve(H, x), rtol=1e-10)
 
 

@@ -344,6 +344,10 @@ def test_factorize_spd_backends_agree(small_body, backend):
     np.testing.assert_allclose(X, reference, rtol=1e-9, atol=1e-12 * abs(reference).max())
     X_other = factorize_spd(A, backend=available_backends()[-1])(B)
     np.testing.assert_allclose(X, X_other, rtol=1e-9, atol=1e-12 * abs(reference).max())
+    out = np.full((A.shape[0] + 2, 3), np.nan)  # solve into rows of a larger array
+    assert solver(B, out=out[1:-1]) is not None
+    np.testing.assert_array_equal(out[1:-1], X)
+    assert np.isnan(out[[0, -1]]).all()
 
 
 def test_factorize_spd_errors():
@@ -354,6 +358,8 @@ def test_factorize_spd_errors():
     solver = factorize_spd(sp.eye(3).tocsr())
     with pytest.raises(WigglyInputError, match=r"shape \(3,\)"):
         solver(np.ones(4))
+    with pytest.raises(WigglyInputError, match="C-contiguous"):
+        solver(np.ones((3, 2)), out=np.ones((2, 3)).T)
     if "cholespy" in available_backends():
         with pytest.raises(np.linalg.LinAlgError, match="positive definite"):
             factorize_spd(sp.diags([1.0, -1.0, 1.0]).tocsr(), backend="cholespy")

@@ -258,6 +258,36 @@ def test_components_get_their_own_gauge():
     np.testing.assert_allclose(out[second], W2.apply(u[second]), atol=1e-12)
 
 
+def test_derivatives_with_several_components_are_consistent():
+    """The same mesh (a clamped box, a free box, a loose vertex: a gauge per component): vjp
+    is the adjoint of jvp for single fields, batches and indexed cotangents, jvp the central
+    difference of W, and the Jacobians the jvp along each field."""
+    V1, T1 = box_mesh((2, 2, 2))
+    V2, T2 = box_mesh((2, 2, 2), origin=(3.0, 0.0, 0.0))
+    V = np.vstack([V1, V2, [[10.0, 10.0, 10.0]]])
+    W = Warp(V, np.vstack([T1, T2 + len(V1)]), fixed_vertices=[0])
+    U = np.stack([random_displacement(V, 0.5, seed=s) for s in range(3)])
+    dU = np.stack([random_displacement(V, 1.0, seed=10 + s) for s in range(3)])
+    Y = np.stack([random_displacement(V, 1.0, seed=20 + s) for s in range(2)])
+    jvp = W.jvp(U, dU)
+    assert rel(jvp[1], central_difference(W, U[1], dU[1])) < 1e-6
+    index = np.array([1, 0, 1])
+    vjp = W.vjp(U, Y, index)
+    for s in range(3):
+        assert abs(np.vdot(vjp[s], dU[s]) - np.vdot(Y[index[s]], jvp[s])) < 1e-12 * np.linalg.norm(
+            Y[index[s]]
+        ) * np.linalg.norm(jvp[s])
+        np.testing.assert_allclose(W.vjp(U[s], Y[index[s]]), vjp[s], atol=1e-13)
+    np.testing.assert_allclose(W.vjp(U, Y[index]), vjp, atol=1e-13)
+    basis = dU.transpose(1, 2, 0)  # three fields (n, 3, 3)
+    J = W.jacobians(U, basis)
+    for s in range(3):
+        for k in range(3):
+            assert rel(J[s, :, :, k], W.jvp(U[s], basis[:, :, k])) < 1e-12
+    with pytest.raises(WigglyInputError, match="index"):
+        W.vjp(U, Y, np.array([0, 1, 2]))
+
+
 def test_warping_a_bent_cantilever_keeps_lengths_and_volumes():
     """A linearized 90-degree bend of a thin beam: linear FEM grows it, the warp does not."""
     length, h = 5.0, 0.2

@@ -47,7 +47,8 @@ def available_backends() -> list[str]:
 
 @dataclass(frozen=True)
 class SPDSolver:
-    """A factored SPD matrix A: ``solver(b)`` returns ``A^{-1} b`` for b of shape (n,) or (n, k).
+    """A factored SPD matrix A: ``solver(b)`` returns ``A^{-1} b`` for b of shape (n,) or (n, k);
+    ``solver(b, out=x)`` writes it into ``x`` (b's shape, float64, C-contiguous rows) instead.
 
     Attributes
     ----------
@@ -59,18 +60,38 @@ class SPDSolver:
 
     backend: str
     n: int
-    _solve: Callable[[np.ndarray], np.ndarray]
+    _solve: Callable[[np.ndarray, np.ndarray | None], np.ndarray]
 
-    def __call__(self, b: np.ndarray) -> np.ndarray:
+    def __call__(self, b: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         b = np.asarray(b, dtype=np.float64)
         if b.ndim not in (1, 2) or b.shape[0] != self.n:
             raise WigglyInputError(
                 f"right-hand side should have shape ({self.n},) or ({self.n}, k); "
                 f"shape is {b.shape}"
             )
+        if out is not None and (
+            out.shape != b.shape or out.dtype != np.float64 or not out.flags.c_contiguous
+        ):
+            raise WigglyInputError(
+                f"out should be a C-contiguous float64 array of shape {b.shape}; got "
+                f"{out.dtype} {out.shape}"
+            )
         if b.ndim == 2 and b.shape[1] == 0:
-            return np.zeros_like(b)
-        return self._solve(b)
+            return np.zeros_like(b) if out is None else out
+        return self._solve(b, out)
+
+
+def _into(solve: Callable[[np.ndarray], np.ndarray]) -> Callable[..., np.ndarray]:
+    """``solve(b)`` with an optional output array (copied into)."""
+
+    def solve_into(b: np.ndarray, out: np.ndarray | None) -> np.ndarray:
+        x = solve(b)
+        if out is None:
+            return x
+        out[...] = x
+        return out
+
+    return solve_into
 
 
 def _factor_cholmod(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
@@ -81,7 +102,7 @@ def _factor_cholmod(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
         factor = cholmod.cholesky(A.tocsc())
     except not_pd as err:
         raise np.linalg.LinAlgError(f"matrix is not positive definite ({err})") from err
-    return lambda b: np.asarray(factor(b))
+    return _into(lambda b: np.asarray(factor(b)))
 
 
 def _factor_cholespy(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
@@ -98,9 +119,9 @@ def _factor_cholespy(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
     except ValueError as err:  # "Matrix is not positive definite!"
         raise np.linalg.LinAlgError(f"matrix is not positive definite ({err})") from err
 
-    def solve(b: np.ndarray) -> np.ndarray:
+    def solve(b: np.ndarray, out: np.ndarray | None) -> np.ndarray:
         rhs = np.ascontiguousarray(b)  # (n,) or (n, k), C order, float64
-        x = np.empty_like(rhs)
+        x = np.empty_like(rhs) if out is None else out
         solver.solve(rhs, x)
         return x
 
@@ -112,7 +133,7 @@ def _factor_splu(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
         lu = spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
     except RuntimeError as err:  # "Factor is exactly singular"
         raise np.linalg.LinAlgError(f"matrix is singular ({err})") from err
-    return lu.solve
+    return _into(lu.solve)
 
 
 _FACTORS = {"cholmod": _factor_cholmod, "cholespy": _factor_cholespy, "splu": _factor_splu}

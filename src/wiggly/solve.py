@@ -268,6 +268,7 @@ class SpacetimeProblem:
         cached by group.  A_k = S_1 kron I_3 with S_1 the scalar selection (the barycentric
         embedding rows for surface vertices); the Gram is sum_c Phi_c^T (S_1^T S_1) Phi_c
         over the coordinates c, without forming A_k Phi."""
+
         def compute() -> tuple:
             S, St = self._selection(vertices, on)
             Phi = self.body.modes.vectors.reshape(-1, 3, self.body.r)
@@ -281,6 +282,7 @@ class SpacetimeProblem:
         """A group's scalar selection S_1 (k, n) from tet-mesh vertex values and its transpose
         (both CSR), or S_1 P (k, n_c) from the coarse mesh's (P the lift of
         :class:`wiggly.warp.CoarseWarp`), cached by group."""
+
         def compute() -> tuple:
             S = self.body.scalar_selection(vertices, on)
             if coarse:
@@ -293,6 +295,7 @@ class SpacetimeProblem:
     def _coarse_gram(self, vertices: np.ndarray, on: str):
         """(S_1 P)^T (S_1 P): scalar selection S_1 of a group composed with the coarse mesh's
         lift P (:class:`wiggly.warp.CoarseWarp`), cached by group."""
+
         def compute():
             SP, SPt = self._selection(vertices, on, coarse=True)
             return sp.csr_matrix(SPt @ SP)
@@ -331,6 +334,7 @@ class SpacetimeProblem:
     def _stacked(self, ds: list[np.ndarray]) -> np.ndarray:
         """Targets ``ds`` of keyframes sharing a selection, stacked (s, p, 3); kept while they
         are the same (read-only) arrays of :meth:`_target`."""
+
         def compute() -> tuple:
             D = np.stack(ds, axis=1)
             D.flags.writeable = False
@@ -356,7 +360,9 @@ class SpacetimeProblem:
         """Band storage of E (+ pre-roll): 1/2 z^T H z + f^T z + c (read-only, cached by node
         times; the band in Fortran order, which BLAS dsbmv reads in place)."""
         return _cached(
-            self._assembled, tuple(np.round(nodes, 12)), lambda: self._assembled_energy(nodes),
+            self._assembled,
+            tuple(np.round(nodes, 12)),
+            lambda: self._assembled_energy(nodes),
             limit=8,
         )
 
@@ -399,8 +405,9 @@ class SpacetimeProblem:
                 _add_block(ab, bw, blk, c_B * AtA)
                 f[blk] -= c_B * self._projected(St, kf.vertices, kf.on, kf.velocity, None)
 
-    def _projected(self, St, vertices: np.ndarray, on: str, target: np.ndarray,
-                   rest: np.ndarray | None) -> np.ndarray:
+    def _projected(
+        self, St, vertices: np.ndarray, on: str, target: np.ndarray, rest: np.ndarray | None
+    ) -> np.ndarray:
         """A^T (target - rest) = Phi^T (S_1^T (target - rest)), cached by group and target
         (unchanged keyframes are free)."""
         t = np.ascontiguousarray(target)
@@ -850,8 +857,10 @@ class WarpedObjective:
         G = g.reshape(-1, 2, r)
         # one batch of vjps: positions at every node; for velocity keyframes B DW(u) w also
         # the derivative in u, Hess(y.W)(u) w, by a central difference of vjps
-        h = 1e-6 * (1.0 + np.abs(U[iv]).max(axis=(1, 2))) / np.maximum(
-            np.abs(dU).max(axis=(1, 2)), 1e-300
+        h = (
+            1e-6
+            * (1.0 + np.abs(U[iv]).max(axis=(1, 2)))
+            / np.maximum(np.abs(dU).max(axis=(1, 2)), 1e-300)
         )
         step = h[:, None, None] * dU
         Ub = np.concatenate([U, U[iv], U[iv] + step, U[iv] - step])
@@ -918,8 +927,10 @@ class WarpedObjective:
         if key.b is not None:
             j = self.vel.index(key.node)
             Cv = key.C @ Vel[j]
-            F += 0.5 * key.wB**2 * (
-                np.vdot(Vel[j], Cv) - 2 * np.vdot(Vel[j], key.Stb) + np.vdot(key.b, key.b)
+            F += (
+                0.5
+                * key.wB**2
+                * (np.vdot(Vel[j], Cv) - 2 * np.vdot(Vel[j], key.Stb) + np.vdot(key.b, key.b))
             )
             if y is not None:
                 YB[j] += key.wB**2 * (Cv - key.Stb)
@@ -1010,8 +1021,10 @@ class WarpedObjective:
             t = self._node_time[k]
             self._blocks[t] = (self._jac[t], self._signature[k], blocks[k])
         ab = np.array(self.ab_E, order="F")  # Fortran order: BLAS dsbmv reads it in place
-        for k in self.active:
-            _add_block(ab, self.bw, 2 * r * k + np.arange(2 * r), blocks[k])
+        if self.active:  # every active node's block at once
+            nodes = np.array(self.active)
+            idx = 2 * r * nodes[:, None] + np.arange(2 * r)
+            _add_block(ab, self.bw, idx, np.stack([blocks[k] for k in self.active]))
         self._normal = (used, ab)
         self.timing["jacobians"] += _time.perf_counter() - t0
         return ab
@@ -1221,10 +1234,13 @@ def _add_dense(ab: np.ndarray, bw: int, idx: np.ndarray, blocks: np.ndarray) -> 
 
 
 def _add_block(ab: np.ndarray, bw: int, idx: np.ndarray, block: np.ndarray) -> None:
-    """Add one symmetric block at distinct global indices idx (no repeated entries, so a
-    plain fancy-indexed += is exact)."""
-    rows, cols = np.triu_indices(len(idx))
-    ab[bw + idx[rows] - idx[cols], idx[cols]] += block[rows, cols]
+    """Add symmetric blocks (b, b), or a stack (P, b, b), at global indices idx (b,) or (P, b),
+    all distinct (no repeated entries, so one plain fancy-indexed += is exact)."""
+    idx = np.atleast_2d(idx)
+    rows, cols = np.triu_indices(idx.shape[1])
+    ab[bw + idx[:, rows] - idx[:, cols], idx[:, cols]] += block.reshape(
+        len(idx), *block.shape[-2:]
+    )[:, rows, cols]
 
 
 def solve(

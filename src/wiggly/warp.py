@@ -57,6 +57,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import blas
 from scipy.sparse.csgraph import connected_components
 
 from wiggly import warp_kernels
@@ -447,7 +448,12 @@ class Warp:
         total = np.where(massless, np.bincount(fid, minlength=n_float), total)
         self._has_floating = n_float > 0
         self._mean = sp.csr_matrix((weight / total[fid], (fid, fv_idx)), shape=(n_float, n))
-        self._spread = sp.csr_matrix((np.ones(fv_idx.size), (fv_idx, fid)), shape=(n, n_float))
+        self._mean_weights = self._mean.toarray()[0] if n_float == 1 else None
+        self._spread = (
+            None  # one floating component, every vertex: spreading is broadcasting
+            if n_float == 1 and fv_idx.size == n
+            else sp.csr_matrix((np.ones(fv_idx.size), (fv_idx, fid)), shape=(n, n_float))
+        )
 
         self._gb_key: tuple | None = None
         self._gb = np.zeros(0)
@@ -528,18 +534,58 @@ class Warp:
         return _linearization(A)
 
     # ------------------------------------------------------------ Poisson + gauge
+    def _solve_free(self, B: np.ndarray) -> np.ndarray:
+        """``L^-1 B`` on the free vertices and 0 on the eliminated ones, for B (n, c)."""
+        n, c = B.shape
+        X = np.empty((n, c))
+        if self._solve is None:
+            X[:] = 0.0
+        elif isinstance(self._rows, slice):  # free vertices first: solve into X's rows
+            k = self._rows.stop
+            self._solve(np.ascontiguousarray(B[:k]), out=X[:k])
+            X[k:] = 0.0
+        else:
+            X[:] = 0.0
+            X[self._rows] = self._solve(B[self._rows])
+        return X
+
+    def _gauge(self, X: np.ndarray, means_in: np.ndarray) -> None:
+        """Shift each floating component of X (n, c), in place, to the mass-weighted means
+        ``means_in`` (one row per floating component)."""
+        delta = means_in - self._mean @ X
+        if self._spread is None:  # one floating component, every vertex
+            X += delta
+        else:
+            X += self._spread @ delta
+
+    def _unmean(self, Y: np.ndarray) -> np.ndarray:
+        """Adjoint of the gauge's shift on Y (n, c), in place: ``Y -= mean^T spread^T Y``;
+        returns ``spread^T Y`` (the cotangent of ``means_in``)."""
+        if self._spread is None:  # one component: a rank-1 update, in place (BLAS dger)
+            s = Y.sum(axis=0, keepdims=True)
+            blas.dger(-1.0, s[0], self._mean_weights, a=Y.T, overwrite_a=True)
+            return s
+        s = self._spread.T @ Y
+        Y -= self._mean.T @ s
+        return s
+
+    def _frame_means(self, parts: Sequence[np.ndarray]) -> np.ndarray:
+        """Mass-weighted means of the frames of ``parts`` (each (f_i, n, 3)) as (n_float, 3 f)
+        columns, without transposing the frames."""
+        if self._spread is None:  # one component: weights @ frames
+            return np.concatenate([self._mean_weights @ p for p in parts]).reshape(1, -1)
+        frames = [self._mean @ x for p in parts for x in p]
+        return np.stack(frames, axis=1).reshape(self._mean.shape[0], -1)
+
     def _poisson(self, rhs: np.ndarray, X_in: np.ndarray) -> np.ndarray:
         """Gauged least-squares fit from right-hand sides ``G^T Vol H`` (n, 3, c).
 
         ``X_in`` (n, 3, c) supplies the mass-weighted means of floating components.
         """
         n = self.n_vertices
-        B = rhs.reshape(n, -1)
-        X = np.zeros_like(B)
-        if self._solve is not None:
-            X[self._rows] = self._solve(B[self._rows])
+        X = self._solve_free(rhs.reshape(n, -1))
         if self._has_floating:
-            X += self._spread @ (self._mean @ (X_in.reshape(n, -1) - X))
+            self._gauge(X, self._mean @ X_in.reshape(n, -1))
         return X.reshape(rhs.shape)
 
     def _poisson_adjoint(self, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -548,12 +594,8 @@ class Warp:
         Yf = np.array(Y.reshape(n, -1))
         Y_in = np.zeros_like(Yf)
         if self._has_floating:
-            Y_in = self._mean.T @ (self._spread.T @ Yf)
-            Yf -= Y_in
-        Z = np.zeros_like(Yf)
-        if self._solve is not None:
-            Z[self._rows] = self._solve(Yf[self._rows])
-        return Z.reshape(Y.shape), Y_in.reshape(Y.shape)
+            Y_in = self._mean.T @ self._unmean(Yf)
+        return self._solve_free(Yf).reshape(Y.shape), Y_in.reshape(Y.shape)
 
     def _frames_of(self, U: np.ndarray, name: str) -> tuple[np.ndarray, bool]:
         """(n, 3) -> (1, n, 3) and (f, n, 3) as contiguous float64 frames; flag: batched."""
@@ -567,17 +609,34 @@ class Warp:
             f"{name} should have shape ({n}, 3) or (f, {n}, 3); shape is {U.shape}"
         )
 
-    def _poisson_frames(self, rhs: np.ndarray, X_in: np.ndarray) -> np.ndarray:
-        """:meth:`_poisson` for frames: ``rhs`` and ``X_in`` (f, n, 3), result (f, n, 3)."""
-        X = self._poisson(rhs.transpose(1, 0, 2), X_in.transpose(1, 0, 2))
-        return np.ascontiguousarray(X.transpose(1, 0, 2))
+    def _poisson_frames(self, rhs: np.ndarray, X_in: Sequence[np.ndarray]) -> np.ndarray:
+        """:meth:`_poisson` for frames: ``rhs`` (f, n, 3) and ``X_in`` the same frames in parts
+        (each (f_i, n, 3)); the result (f, n, 3) is a view of the solve's (n, f, 3) columns
+        (no copy back to frame order)."""
+        f, n = rhs.shape[:2]
+        X = self._solve_free(np.ascontiguousarray(rhs.transpose(1, 0, 2)).reshape(n, 3 * f))
+        if self._has_floating:
+            self._gauge(X, self._frame_means(X_in))
+        return X.reshape(n, f, 3).transpose(1, 0, 2)
 
     def _poisson_adjoint_frames(self, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """:meth:`_poisson_adjoint` for frames (f, n, 3); the second cotangent is None when
-        no component floats (it is zero)."""
-        Z, Y_in = self._poisson_adjoint(Y.transpose(1, 0, 2))
-        Z = np.ascontiguousarray(Z.transpose(1, 0, 2))
-        return Z, Y_in.transpose(1, 0, 2) if self._has_floating else None
+        """Adjoint of :meth:`_poisson_frames` for cotangents Y (f, n, 3): the cotangent of the
+        right-hand sides as (n, f, 3) columns, and ``spread^T Y`` (n_float, f, 3), from which
+        :meth:`_means_adjoint` makes the cotangent of ``X_in``; None when no component
+        floats (it is zero)."""
+        f, n = Y.shape[:2]
+        Yc = np.array(Y.transpose(1, 0, 2), order="C").reshape(n, 3 * f)  # a copy: changed below
+        s = self._unmean(Yc).reshape(-1, f, 3) if self._has_floating else None
+        return self._solve_free(Yc).reshape(n, f, 3), s
+
+    def _means_adjoint(self, s: np.ndarray, index: np.ndarray) -> np.ndarray:
+        """Cotangents of ``X_in`` (len(index), n, 3): ``mean^T s[:, index[j]]`` per frame j."""
+        if self._spread is None:  # one component: mean^T s = w s, w the mass weights
+            return self._mean_weights[None, :, None] * s[0, index][:, None, :]
+        out = np.empty((len(index), self.n_vertices, 3))
+        for j, c in enumerate(index):
+            out[j] = self._mean.T @ s[:, c]
+        return out
 
     # ---------------------------------------------------------------- public API
     def apply(self, U: np.ndarray) -> np.ndarray:
@@ -593,7 +652,7 @@ class Warp:
             warp_kernels.target_rhs(
                 Uf, self._tets, self._grads, self.volumes, rhs, warp_kernels.chunks(len(Uf))
             )
-            out = self._poisson_frames(rhs, Uf)
+            out = self._poisson_frames(rhs, [Uf])
             return out if batched else out[0]
         X, batched = self._as_columns(U, "U")
         rhs = self._per_tet(_target_block, [(self._G, X)], self._GtV)
@@ -620,7 +679,7 @@ class Warp:
             warp_kernels.jvp_rhs(
                 Uf, dUf, self._tets, self._grads, self.volumes, rhs, warp_kernels.chunks(len(Uf))
             )
-            out = self._poisson_frames(rhs, dUf)
+            out = self._poisson_frames(rhs, [dUf])
             return out if batched else out[0]
         rhs = self._per_tet(_jvp_fused, [(self._G, X), (self._G, dX)], self._GtV)
         return self._from_columns(self._poisson(rhs, dX), batched)
@@ -645,47 +704,59 @@ class Warp:
             Uf, self._tets, self._grads, self.volumes, rhs[:f], warp_kernels.chunks(f)
         )
         warp_kernels.jvp_rhs(
-            np.ascontiguousarray(Uf[index]), dUf, self._tets, self._grads, self.volumes, rhs[f:],
+            np.ascontiguousarray(Uf[index]),
+            dUf,
+            self._tets,
+            self._grads,
+            self.volumes,
+            rhs[f:],
             warp_kernels.chunks(k),
         )
-        out = self._poisson_frames(rhs, np.concatenate([Uf, dUf]))
+        out = self._poisson_frames(rhs, [Uf, dUf])
         return out[:f], out[f:]
 
     def vjp(self, U: np.ndarray, Y: np.ndarray, index: np.ndarray | None = None) -> np.ndarray:
         """Adjoint derivative ``DW(u)^T y``: ``<vjp(u, y), du> = <y, jvp(u, du)>``.
 
-        With ``index`` (compiled path, batches only), frame s uses the cotangent
-        ``Y[index[s]]``: the Poisson solve runs once per distinct cotangent.
+        With ``index`` (batches only), frame s uses the cotangent ``Y[index[s]]``: the
+        Poisson solve runs once per distinct cotangent.
         """
-        if index is not None and self.compiled:
-            Uf, _ = self._frames_of(U, "U")
-            Zd, Y_in = self._poisson_adjoint_frames(self._frames_of(Y, "Y")[0])
-            out = np.zeros_like(Uf)
-            warp_kernels.vjp_rhs(
-                Uf, np.ascontiguousarray(Zd[index]), self._tets, self._grads, self.volumes,
-                out, warp_kernels.chunks(len(Uf)),
-            )
-            if Y_in is not None:
-                out += Y_in[index]
-            return out
-        if index is not None:
-            Y = np.asarray(Y)[index]
-        X, batched = self._as_columns(U, "U")
-        Yc, ybatched = self._as_columns(Y, "Y")
-        if Yc.shape != X.shape or ybatched != batched:
+        Uf, batched = self._frames_of(U, "U")
+        Yf, ybatched = self._frames_of(Y, "Y")
+        indexed = index is not None
+        if index is None:
+            if Yf.shape != Uf.shape or ybatched != batched:
+                raise WigglyInputError(
+                    f"Y should have the shape of U {np.shape(U)}; shape is {np.shape(Y)}"
+                )
+            index = np.arange(len(Uf))
+        index = np.asarray(index, dtype=np.int64)
+        if (
+            (indexed and not batched)
+            or index.shape != (len(Uf),)
+            or (index.size and not 0 <= index.min() <= index.max() < len(Yf))
+        ):
             raise WigglyInputError(
-                f"Y should have the shape of U {np.shape(U)}; shape is {np.shape(Y)}"
+                f"index should hold {len(Uf)} frame indices of Y in [0, {len(Yf)}) for a batch "
+                f"U; got shape {index.shape}, range [{index.min(initial=0)}, "
+                f"{index.max(initial=0)}]"
             )
         if self.compiled:
-            Uf, _ = self._frames_of(U, "U")
-            Zf, Y_in = self._poisson_adjoint_frames(self._frames_of(Y, "Y")[0])
-            out = np.zeros_like(Uf)
+            Zc, s = self._poisson_adjoint_frames(Yf)
+            out = np.zeros_like(Uf) if s is None else self._means_adjoint(s, index)
             warp_kernels.vjp_rhs(
-                Uf, Zf, self._tets, self._grads, self.volumes, out, warp_kernels.chunks(len(Uf))
+                Uf,
+                Zc,
+                index,
+                self._tets,
+                self._grads,
+                self.volumes,
+                out,
+                warp_kernels.chunks(len(Uf)),
             )
-            if Y_in is not None:
-                out += Y_in
             return out if batched else out[0]
+        X, _ = self._as_columns(Uf, "U")
+        Yc, _ = self._as_columns(Yf[index], "Y")
         Z, Y_in = self._poisson_adjoint(Yc)
         out = self._per_tet(_vjp_fused, [(self._G, X), (self._VG, Z)], self._Gt)
         return self._from_columns(out + Y_in, batched)
@@ -736,7 +807,8 @@ class Warp:
         if self._gb_key != key:
             n, r = self.n_vertices, dX.shape[2]
             self._gb = (self._G @ np.ascontiguousarray(dX).reshape(n, 3 * r)).reshape(
-                self.n_tets, 9, r)
+                self.n_tets, 9, r
+            )
             self._gb_key = key
         return self._gb
 
@@ -767,8 +839,7 @@ class Warp:
         warp_kernels.jacobians_rhs(
             U, self._field_gradients(dX), self._tets, self._grads, self.volumes, out
         )
-        X_in = np.broadcast_to(dX.transpose(2, 0, 1), out.shape)
-        return self._solve_fields(out, X_in)
+        return self._solve_fields(out, dX)
 
     def second_derivatives(self, U: np.ndarray, V: np.ndarray, basis: np.ndarray) -> np.ndarray:
         """``D^2W(u_s)[basis_j, v_s]`` at f points: shape (f, n, 3, r); see
@@ -788,7 +859,7 @@ class Warp:
             U, V, self._field_gradients(dX), step, self._tets, self._grads, self.volumes, out
         )
         # the gauge's mean term of DW(u)[v] is the mean of v: independent of u
-        return self._solve_fields(out, np.zeros_like(out))
+        return self._solve_fields(out, None)
 
     def _points(self, U: np.ndarray, name: str = "U") -> np.ndarray:
         U = np.ascontiguousarray(U, dtype=np.float64)
@@ -817,11 +888,18 @@ class Warp:
             self._fg_key = self._frames_key
         return self._fg
 
-    def _solve_fields(self, rhs: np.ndarray, X_in: np.ndarray) -> np.ndarray:
-        """Poisson fit and gauge of (f, r, n, 3) right-hand sides: result (f, n, 3, r)."""
+    def _solve_fields(self, rhs: np.ndarray, fields: np.ndarray | None) -> np.ndarray:
+        """Poisson fit and gauge of (f, r, n, 3) right-hand sides: result (f, n, 3, r).
+
+        The gauge takes the means of the r ``fields`` (n, 3, r) at every point (the
+        Jacobians' directions); None: zero means."""
         f, r, n, _ = rhs.shape
-        cols = rhs.transpose(2, 3, 0, 1).reshape(n, 3, f * r)
-        X = self._poisson(cols, X_in.transpose(2, 3, 0, 1).reshape(n, 3, f * r))
+        X = self._solve_free(rhs.transpose(2, 3, 0, 1).reshape(n, 3 * f * r))
+        if self._has_floating:
+            means = np.zeros((self._mean.shape[0], 3, 1, r))
+            if fields is not None:
+                means[:, :, 0] = (self._mean @ fields.reshape(n, 3 * r)).reshape(-1, 3, r)
+            self._gauge(X, np.broadcast_to(means, (len(means), 3, f, r)).reshape(-1, 3 * f * r))
         return np.ascontiguousarray(X.reshape(n, 3, f, r).transpose(2, 0, 1, 3))
 
     def velocity_jacobian(self, u: np.ndarray, v: np.ndarray, basis: np.ndarray) -> np.ndarray:

@@ -296,8 +296,9 @@ def jvp_rhs(U, dU, tets, grads, vol, out, chunks):
 
 
 @pjit
-def vjp_rhs(U, Z, tets, grads, vol, out, chunks):
-    """``out[s] += G^T dA`` with ``dA`` the cotangent of ``Y = Vol G Z[s]``."""
+def vjp_rhs(U, Z, index, tets, grads, vol, out, chunks):
+    """``out[s] += G^T dA`` with ``dA`` the cotangent of ``Y = Vol G Z[:, index[s]]``
+    (``Z`` (n, k, 3): the Poisson solve's columns, read in place)."""
     f, m = U.shape[0], tets.shape[0]
     for c in prange(chunks):
         s0, s1 = _frames(c, chunks, f)
@@ -309,7 +310,7 @@ def vjp_rhs(U, Z, tets, grads, vol, out, chunks):
         for b0 in range(0, m, _TET_BLOCK):
             b1 = min(m, b0 + _TET_BLOCK)
             for s in range(s0, s1):
-                u, z, o = U[s], Z[s], out[s]
+                u, z, o = U[s], Z[:, index[s], :], out[s]
                 for t in range(b0, b1):
                     gradient(u, tets, grads, t, A)
                     linearize(A, S, lin)
@@ -428,8 +429,7 @@ def compile_all() -> None:
     out = np.zeros_like(U)
     target_rhs(U, tets, grads, vol, out, 1)
     jvp_rhs(U, U, tets, grads, vol, out, 1)
-    vjp_rhs(U, U, tets, grads, vol, out, 1)
+    vjp_rhs(U, U.transpose(1, 0, 2).copy(), np.arange(2), tets, grads, vol, out, 1)
     GB = field_gradients(U, tets, grads)
     jacobians_rhs(U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
     second_derivatives_rhs(U, U, GB, 1e-6, tets, grads, vol, np.zeros((2, 2, 4, 3)))
-
