@@ -421,3 +421,30 @@ def test_inputs_are_validated(free_warp, mesh):
         free_warp.jacobian(np.zeros_like(V), np.zeros((len(V), 2, 4)))
     with pytest.raises(WigglyInputError, match="dU"):
         free_warp.jvp(np.zeros_like(V), np.zeros((2, len(V), 3)))
+
+
+@pytest.mark.skipif(not warp_kernels.AVAILABLE, reason="numba not installed")
+def test_compiled_rotation_coefficients_match_high_precision():
+    """The kernels' a, b, c (Taylor series up to th = pi, closed forms beyond) against 50-digit
+    values, at every angle and on both sides of the switch at th = pi."""
+    import mpmath
+
+    mpmath.mp.dps = 50
+    pi2 = float(mpmath.pi**2)
+    t2s = [0.0, 1e-12, 1e-4, 0.01, 0.5, 1.0, 4.0, np.nextafter(pi2, 0), pi2]
+    t2s += [np.nextafter(pi2, 20), 12.0, 30.0, 39.0]
+    for t2 in t2s:
+        a, b = warp_kernels.rotation_ab(t2)
+        c = warp_kernels.rotation_c(t2, a)
+        th = mpmath.sqrt(mpmath.mpf(t2))
+        if t2 == 0.0:
+            exact = (1, mpmath.mpf(1) / 2, mpmath.mpf(1) / 6)
+        else:
+            exact = (
+                mpmath.sin(th) / th,
+                (1 - mpmath.cos(th)) / th**2,
+                (th - mpmath.sin(th)) / th**3,
+            )
+        for got, want in zip((a, b, c), exact, strict=True):
+            # a few ulps of the largest series term (1.7 for a at th = pi): absolute error
+            assert abs(got - float(want)) <= 4e-16

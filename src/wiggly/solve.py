@@ -304,8 +304,9 @@ class SpacetimeProblem:
         return _cached(self._coarse_grams, key, compute)
 
     def _target(self, kf: Keyframe, what: str, St=None) -> np.ndarray:
-        """A keyframe's position target minus rest ``"d"`` (s, 3), or ``"Std"`` = S^T d and
-        ``"Stb"`` = S^T b for the selection transpose ``St`` (coarse level), kept while the
+        """A keyframe's position target minus rest ``"d"`` (s, 3), ``"dd"`` = |d|^2, or
+        ``"Std"`` = S^T d and ``"Stb"`` = S^T b for the selection transpose ``St`` (coarse
+        level), kept while the
         keyframe's targets are equal (an edit changes one keyframe; the others are not
         recomputed)."""
         arrays = (kf.position, kf.velocity, kf.vertices)
@@ -325,22 +326,29 @@ class SpacetimeProblem:
             if what == "d":
                 rest = self.body.rest_positions(kf.on)[kf.vertices]
                 value = kf.position - rest
+            elif what == "dd":
+                d = self._target(kf, "d")
+                value = np.array(np.vdot(d, d))
             else:
                 value = St @ (self._target(kf, "d") if what == "Std" else kf.velocity)
             value.flags.writeable = False
             values[name] = (St, value)
         return values[name][1]
 
-    def _stacked(self, ds: list[np.ndarray]) -> np.ndarray:
-        """Targets ``ds`` of keyframes sharing a selection, stacked (s, p, 3); kept while they
-        are the same (read-only) arrays of :meth:`_target`."""
+    def _stacked(self, ds: list[np.ndarray], w: np.ndarray | None = None) -> np.ndarray:
+        """Targets ``ds`` of keyframes sharing a selection, stacked (s, p, 3) and times the
+        weights ``w`` (p,) if given; kept while they are the same (read-only) arrays of
+        :meth:`_target` and the same weights."""
 
         def compute() -> tuple:
             D = np.stack(ds, axis=1)
+            if w is not None:
+                D *= w[:, None]
             D.flags.writeable = False
             return tuple(ds), D  # the entry holds ds: their ids stay unique while it lives
 
-        return _cached(self._stacks, tuple(id(d) for d in ds), compute)[1]
+        key = (*(id(d) for d in ds), None if w is None else w.tobytes())
+        return _cached(self._stacks, key, compute)[1]
 
     def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Least energy to reach (q, q') from rest in ``preroll`` seconds, without gravity:
@@ -690,6 +698,7 @@ class _WarpedKey:
     gram: bool = False
     Std: np.ndarray | None = None
     Stb: np.ndarray | None = None
+    dd: float | None = None  # |d|^2
 
 
 class WarpedObjective:
@@ -746,6 +755,7 @@ class WarpedObjective:
                 key.gram = True
                 key.Std = None if key.d is None else problem._target(kf, "Std", key.St)
                 key.Stb = None if key.b is None else problem._target(kf, "Stb", key.St)
+                key.dd = None if key.d is None else float(problem._target(kf, "dd"))
         self.active = sorted({k.node for k in self.keys if k.d is not None or k.b is not None})
         self.slot = {k: a for a, k in enumerate(self.active)}
         # position keyframes sharing a selection are evaluated together (one sparse product)
@@ -753,13 +763,24 @@ class WarpedObjective:
         for key in self.keys:
             if key.d is not None and not key.gram:
                 batches.setdefault(id(key.S), []).append(key)
-        self._batches = [
+        self._batches = []
+        for keys in batches.values():
+            w = np.array([key.wA for key in keys])
+            # weighted targets sqrt(c_A) d (s, p, 3)
+            self._batches.append((keys, problem._stacked([key.d for key in keys], w), w))
+        # coarse level: position keyframes sharing a Gram, likewise (one sparse product)
+        grams: dict[int, list[_WarpedKey]] = {}
+        for key in self.keys:
+            if key.d is not None and key.gram:
+                grams.setdefault(id(key.C), []).append(key)
+        self._gram_batches = [
             (
                 keys,
-                problem._stacked([key.d for key in keys]),  # targets (s, p, 3)
-                np.array([key.wA for key in keys])[None, :, None],
+                problem._stacked([key.Std for key in keys]),  # S^T d (n_c, p, 3)
+                np.array([key.wA**2 for key in keys]),
+                np.array([key.dd for key in keys]),
             )
-            for keys in batches.values()
+            for keys in grams.values()
         ]
         self.vel = sorted({k.node for k in self.keys if k.b is not None})
         self.timing = {"W": 0.0, "vjp": 0.0, "jacobians": 0.0, "solve": 0.0}
@@ -841,10 +862,12 @@ class WarpedObjective:
         YB = np.zeros_like(dU)
         for keys, D, w in self._batches:
             F += self._position_terms(keys, D, w, WU, YA if gradient else None)
+        for keys, Std, w2, dd in self._gram_batches:
+            F += self._gram_position_terms(keys, Std, w2, dd, WU, YA if gradient else None)
         for key in self.keys:
-            a = self.slot[key.node]
             if key.gram:
-                F += self._gram_terms(key, WU[a], Vel, YA[a] if gradient else None, YB)
+                if key.b is not None:
+                    F += self._gram_velocity_terms(key, Vel, YB if gradient else None)
                 continue
             if key.b is not None:
                 rB = key.wB * (key.S @ Vel[self.vel.index(key.node)] - key.b)
@@ -887,10 +910,10 @@ class WarpedObjective:
         self.timing["vjp"] += _time.perf_counter() - t1
         return float(F), g
 
-    def _position_terms(self, keys, D: np.ndarray, w: np.ndarray, WU: np.ndarray, YA) -> float:
+    def _position_terms(self, keys, wD: np.ndarray, w: np.ndarray, WU: np.ndarray, YA) -> float:
         """1/2 sum |r|^2 of position keyframes sharing one selection S, r = sqrt(c_A) (S W(u)
-        - d) with targets D (s, p, 3) and weights w; adds sqrt(c_A) S^T r to the cotangents
-        ``YA`` unless it is None."""
+        - d) = S (sqrt(c_A) W(u)) - sqrt(c_A) d with weights w = sqrt(c_A) (p,) and weighted
+        targets wD (s, p, 3); adds sqrt(c_A) S^T r to the cotangents ``YA`` unless it is None."""
         slots = [self.slot[key.node] for key in keys]
 
         # kept per (W values, targets): an edited objective at the last point (a warm start)
@@ -899,41 +922,49 @@ class WarpedObjective:
             # S^T r always: a value at a new point is followed by its gradient (line search)
             S, St = keys[0].S, keys[0].St
             p, n = len(keys), WU.shape[1]
-            R = (S @ WU[slots].transpose(1, 0, 2).reshape(n, 3 * p)).reshape(-1, p, 3)
-            R -= D
-            R *= w
+            X = WU.transpose(1, 0, 2)[:, slots] * w[:, None]  # (n, p, 3): weights on the small side
+            R = S @ X.reshape(n, 3 * p)
+            R -= wD.reshape(-1, 3 * p)
             F = 0.5 * float(np.vdot(R, R))
-            R *= w
-            Y = (St @ R.reshape(-1, 3 * p)).reshape(n, p, 3)
-            return WU, D, F, Y  # the entry holds WU and D: their ids stay unique while it lives
+            Y = (St @ R).reshape(n, p, 3)
+            Y *= w[:, None]
+            return WU, wD, F, Y  # the entry holds WU and wD: their ids stay unique while it lives
 
-        tag = (id(WU), id(D), tuple(slots), w.tobytes())
+        tag = (id(WU), id(wD), tuple(slots), w.tobytes())
         kept = _cached(self.problem._batch_terms, tag, compute, limit=8)
         if YA is not None:
             for j, a in enumerate(slots):
                 YA[a] += kept[3][:, j]
         return kept[2]
 
-    def _gram_terms(self, key: _WarpedKey, x: np.ndarray, Vel, y, YB) -> float:
-        """1/2 |r|^2 of a keyframe from its Gram (coarse level); adds S^T r to the
-        cotangents ``y`` (positions) and ``YB`` (velocities) unless ``y`` is None."""
-        F = 0.0
-        if key.d is not None:
-            Cx = key.C @ x
-            dd = np.vdot(key.d, key.d)
-            F += 0.5 * key.wA**2 * (np.vdot(x, Cx) - 2 * np.vdot(x, key.Std) + dd)
-            if y is not None:
-                y += key.wA**2 * (Cx - key.Std)
-        if key.b is not None:
-            j = self.vel.index(key.node)
-            Cv = key.C @ Vel[j]
-            F += (
-                0.5
-                * key.wB**2
-                * (np.vdot(Vel[j], Cv) - 2 * np.vdot(Vel[j], key.Stb) + np.vdot(key.b, key.b))
-            )
-            if y is not None:
-                YB[j] += key.wB**2 * (Cv - key.Stb)
+    def _gram_position_terms(self, keys, Std, w2, dd, WU: np.ndarray, YA) -> float:
+        """1/2 sum c_A |S x - d|^2 = 1/2 sum c_A (x.Cx - 2 x.S^T d + |d|^2) of position
+        keyframes sharing a Gram C (coarse level), with ``Std`` (n_c, p, 3), ``w2`` = c_A and
+        ``dd`` = |d|^2; adds c_A (Cx - S^T d) to the cotangents ``YA`` unless it is None."""
+        slots = [self.slot[key.node] for key in keys]
+        n, p = WU.shape[1], len(keys)
+        X = WU.transpose(1, 0, 2)[:, slots]  # (n_c, p, 3)
+        CX = (keys[0].C @ X.reshape(n, 3 * p)).reshape(n, p, 3)
+        F = 0.5 * float(w2 @ (np.einsum("npi,npi->p", X, CX - 2.0 * Std) + dd))
+        if YA is not None:
+            CX -= Std
+            CX *= w2[:, None]
+            for j, a in enumerate(slots):
+                YA[a] += CX[:, j]
+        return F
+
+    def _gram_velocity_terms(self, key: _WarpedKey, Vel, YB) -> float:
+        """1/2 c_B |S v - b|^2 of a velocity keyframe from its Gram (coarse level); adds
+        c_B (Cv - S^T b) to the cotangents ``YB`` unless it is None."""
+        j = self.vel.index(key.node)
+        Cv = key.C @ Vel[j]
+        F = (
+            0.5
+            * key.wB**2
+            * (np.vdot(Vel[j], Cv) - 2 * np.vdot(Vel[j], key.Stb) + np.vdot(key.b, key.b))
+        )
+        if YB is not None:
+            YB[j] += key.wB**2 * (Cv - key.Stb)
         return float(F)
 
     def value(self, z: np.ndarray) -> float:

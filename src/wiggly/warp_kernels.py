@@ -57,9 +57,14 @@ __all__ = [
     "vjp_rhs",
 ]
 
-# Series threshold for c = (th - sin th)/th^3, as in wiggly.warp.rotation_coefficients.
-_SERIES_ANGLE2 = 0.01
-_TINY_ANGLE = 1e-300
+# Up to th = pi the Rodrigues coefficients are their Taylor series in t2 = th^2 (no sqrt, sin,
+# cos or division): a = sum (-t2)^k/(2k+1)!, b = sum (-t2)^k/(2k+2)!, c = sum (-t2)^k/(2k+3)!.
+# The first omitted terms are below pi^28/29! ~ 1e-17 (a), pi^28/30! ~ 3e-19 (b) and
+# pi^26/29! ~ 1e-18 (c), and the largest term is 1.7 (a at th = pi): errors ~1e-16 absolute.
+_POLY_ANGLE2 = math.pi**2
+_A = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(14))
+_B = tuple((-1.0) ** k / math.factorial(2 * k + 2) for k in range(14))
+_C = tuple((-1.0) ** k / math.factorial(2 * k + 3) for k in range(13))
 # Per-tet linearization record: w (3), b, c, R (9), F (9).
 _LIN = 23
 
@@ -90,20 +95,31 @@ def scatter(H, scale, tets, grads, t, out):
 
 
 @jit
+def _series(coefficients, t2):
+    """``sum_k coefficients[k] t2^k`` (Horner)."""
+    acc = coefficients[len(coefficients) - 1]
+    for k in range(len(coefficients) - 2, -1, -1):
+        acc = acc * t2 + coefficients[k]
+    return acc
+
+
+@jit
 def rotation_ab(t2):
-    """``a = sin(th)/th`` and ``b = (1 - cos th)/th^2`` from ``t2 = th^2`` (one sin, one
-    cos of ``th/2``: ``a = 2 sin(th/2) cos(th/2)/th``, ``b = 2 (sin(th/2)/th)^2``)."""
-    th = max(math.sqrt(t2), _TINY_ANGLE)
+    """``a = sin(th)/th`` and ``b = (1 - cos th)/th^2`` from ``t2 = th^2``: Taylor series up
+    to th = pi, beyond it one sin and one cos of ``th/2`` (``a = 2 sin(th/2) cos(th/2)/th``,
+    ``b = 2 (sin(th/2)/th)^2``)."""
+    if t2 <= _POLY_ANGLE2:
+        return _series(_A, t2), _series(_B, t2)
+    th = math.sqrt(t2)
     s = math.sin(0.5 * th) / th
     return 2.0 * s * math.cos(0.5 * th), 2.0 * s * s
 
 
 @jit
 def rotation_c(t2, a):
-    """``c = (th - sin th)/th^3`` (Taylor series below th = 0.1)."""
-    if t2 < _SERIES_ANGLE2:
-        x = t2
-        return 1.0 / 6.0 - x / 120.0 * (1.0 - x / 42.0 * (1.0 - x / 72.0 * (1.0 - x / 110.0)))
+    """``c = (th - sin th)/th^3``: Taylor series up to th = pi, beyond it ``(1 - a)/t2``."""
+    if t2 <= _POLY_ANGLE2:
+        return _series(_C, t2)
     return (1.0 - a) / t2
 
 
