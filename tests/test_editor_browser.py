@@ -82,9 +82,18 @@ def _get(url: str) -> tuple[bytes, dict]:
         return r.read(), dict(r.headers)
 
 
-def _image(page) -> np.ndarray:
+def _image(page, shown: str | None = None) -> np.ndarray:
+    """The canvas as grey levels; with ``shown`` (a JS condition on ``t``, the time the canvas
+    shows; playback paused), once a render at such a time is followed by two more (on a loaded
+    machine the software-GL canvas can lag the clock by frames)."""
     from PIL import Image
 
+    if shown is not None:
+        condition = f"const t = window.wiggly.renderedT; return t !== undefined && ({shown})"
+        page.wait_for_function(f"(() => {{ {condition} }})()", timeout=20_000)
+        for _ in range(2):
+            renders = page.evaluate("window.wiggly.redraw(), window.wiggly.renders")
+            page.wait_for_function(f"window.wiggly.renders > {renders}", timeout=20_000)
     return np.asarray(Image.open(io.BytesIO(page.locator("#canvas").screenshot())).convert("L"),
                       dtype=float)
 
@@ -209,14 +218,15 @@ def test_edit_pose_play_save_reproduces(browser_page, shared_tets, tmp_path):
         assert meta["stage"] == "warped"
 
         # 4. play: the canvas shows something, and it changes over time
+        page.evaluate("window.wiggly.renderedT = undefined")
         page.keyboard.press("Home")
-        first = _image(page)
+        first = _image(page, shown="t === window.wiggly.S.t && t < 0.1")
         page.keyboard.press("Space")
         assert page.evaluate("window.wiggly.S.playing")
         page.wait_for_function("window.wiggly.S.t > 0.6", timeout=20_000)
-        second = _image(page)
         page.keyboard.press("Space")
         assert not page.evaluate("window.wiggly.S.playing")
+        second = _image(page, shown="t > 0.6")
         assert first.std() > 5 and second.std() > 5, "blank canvas"
         assert np.abs(first - second).mean() > 0.2, "playback does not move"
 

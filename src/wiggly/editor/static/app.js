@@ -67,6 +67,7 @@ window.wiggly = {                 // test and benchmark hooks (read-only use)
   projectGroup: (name) => projectGroup(name),
   screenBox: (indices) => screenBox(indices),
   rigidOfPose: () => poseTarget(),
+  redraw: () => redraw(),
   ready: false,
   softwareGL: false,
 };
@@ -1080,6 +1081,7 @@ function tick(now) {
     S.needsRender = false;
     renderer.render(scene3, camera);
     window.wiggly.renders = (window.wiggly.renders || 0) + 1;
+    window.wiggly.renderedT = S.t;   // the time the canvas shows (tests wait for it)
     window.wiggly.renderMs = performance.now() - now;
   }
   requestAnimationFrame(tick);
