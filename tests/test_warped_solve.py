@@ -197,3 +197,16 @@ def test_warm_start_reuses_the_previous_solution(free_bar):
     cold = problem.solve(keys, warped=True, tolerance=1e-12, stall=False)
     assert second.info["warm_start"] and second.info["converged"]
     assert np.allclose(second.values, cold.values, rtol=1e-5, atol=1e-7 * np.abs(cold.values).max())
+
+
+def test_keyframe_changed_in_place_between_solves_is_seen(free_bar):
+    """A keyframe's target array edited in place (same object) poses a new problem: the next
+    solve of the same problem equals a fresh problem's solve, not the kept targets'."""
+    keys = turn_keys(free_bar, degrees=60.0)
+    problem = SpacetimeProblem(free_bar, 0.0, 1.2)
+    before = problem.solve(keys, warped=True, tolerance=1e-10)
+    keys[1].position[:] += np.array([0.0, 0.2, 0.0])  # in place: same array, same Keyframe
+    again = problem.solve(keys, warped=True, tolerance=1e-10)
+    fresh = SpacetimeProblem(free_bar, 0.0, 1.2).solve(keys, warped=True, tolerance=1e-10)
+    assert np.abs(again.values - before.values).max() > 1e-2 * np.abs(before.values).max()
+    np.testing.assert_allclose(again.values, fresh.values, atol=1e-6 * np.abs(fresh.values).max())

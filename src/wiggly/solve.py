@@ -228,7 +228,8 @@ class SpacetimeProblem:
         self._selections: dict[tuple, object] = body._cache.setdefault("selections", {})
         self._projection_cache: dict[tuple, np.ndarray] = {}
         self._preroll_form: tuple | None = None
-        self._targets: dict[tuple, tuple] = {}  # per keyframe: offsets d, S^T d (_target)
+        self._targets: dict[tuple, list] = {}  # per keyframe: offsets d, S^T d (_target)
+        self._generation = 0  # solves so far: _target compares a keyframe's arrays once per solve
         self._stacks: dict[tuple, tuple] = {}  # stacked targets of a batch (_stacked)
         self._batch_terms: dict[tuple, tuple] = {}  # a batch's F and S^T r per W values
 
@@ -306,20 +307,25 @@ class SpacetimeProblem:
     def _target(self, kf: Keyframe, what: str, St=None) -> np.ndarray:
         """A keyframe's position target minus rest ``"d"`` (s, 3), ``"dd"`` = |d|^2, or
         ``"Std"`` = S^T d and ``"Stb"`` = S^T b for the selection transpose ``St`` (coarse
-        level), kept while the
-        keyframe's targets are equal (an edit changes one keyframe; the others are not
-        recomputed)."""
+        level), kept while the keyframe's targets are equal (an edit changes one keyframe; the
+        others are not recomputed).  The contents are compared once per solve."""
         arrays = (kf.position, kf.velocity, kf.vertices)
         key = (id(kf.position), id(kf.velocity), kf.on, len(kf.vertices))
         kept = self._targets.get(key)
-        if kept is None or not all(
-            (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
-            for a, b in zip(kept[0], arrays, strict=True)
-        ):
+        if kept is not None and kept[2] != self._generation:
+            if all(
+                (a is None and b is None)
+                or (a is not None and b is not None and np.array_equal(a, b))
+                for a, b in zip(kept[0], arrays, strict=True)
+            ):
+                kept[2] = self._generation
+            else:
+                kept = None
+        if kept is None:
             if len(self._targets) > 256:
                 self._targets.clear()
             copies = tuple(None if a is None else np.array(a) for a in arrays)
-            kept = self._targets[key] = (copies, {})
+            kept = self._targets[key] = [copies, {}, self._generation]
         values = kept[1]
         name = (what, id(St))
         if name not in values:
@@ -454,6 +460,7 @@ class SpacetimeProblem:
         self, keyframes, warped, initial, tolerance, max_iterations, stall, progress=False
     ) -> Animation:
         t_start = _time.perf_counter()
+        self._generation += 1
         body = self.body
         kfs = [
             kf.checked(body, self.start, self.end, label=_label(kf, j))
