@@ -210,3 +210,84 @@ def test_keyframe_changed_in_place_between_solves_is_seen(free_bar):
     fresh = SpacetimeProblem(free_bar, 0.0, 1.2).solve(keys, warped=True, tolerance=1e-10)
     assert np.abs(again.values - before.values).max() > 1e-2 * np.abs(before.values).max()
     np.testing.assert_allclose(again.values, fresh.values, atol=1e-6 * np.abs(fresh.values).max())
+
+
+@pytest.fixture(scope="module")
+def embedded_bar():
+    """A free 1 m x 0.1 m x 0.1 m bar of 10 x 2 x 2 cubes with a finer box surface embedded
+    in it (1.5k vertices): the surface's targets are not fitted exactly by vertex values."""
+    import trimesh
+
+    from wiggly.body import Damping, prepare
+    from wiggly.fem import Material
+    from wiggly.mesh import Model, Surface, TetMesh, embed
+    from wiggly.primitives import box_mesh
+
+    size = np.array([1.0, 0.1, 0.1])
+    V, T = box_mesh((10, 2, 2), tuple(size))
+    tets = TetMesh(V, T)
+    box = trimesh.creation.box(extents=size)
+    v, f = trimesh.remesh.subdivide_to_size(box.vertices + size / 2, box.faces, 0.02)
+    surface = Surface(v * (1 - 1e-9) + size * 0.5e-9, f)
+    model = Model(surface, tets, embed(surface.vertices, tets), source="embedded bar")
+    body = prepare(
+        model, material=Material(1e5, 0.3, 1000.0), damping=Damping(0.5, 0.002), n_modes=16,
+        cache_dir=False,
+    )
+    assert body.surface.n_vertices > 2 * body.tets.n_vertices
+    return body
+
+
+def test_fine_objective_is_the_warped_least_squares(embedded_bar):
+    """The fine objective (position terms from Grams about the targets' least-squares fit)
+    equals its definition E + 1/2 sum c_A |S W(Phi q) - d|^2 + 1/2 sum c_B |S DW[Phi q'] - b|^2
+    evaluated directly on the embedded surface, also far from the fit, and its gradient
+    matches central differences."""
+    free_bar = embedded_bar
+    X = free_bar.rest_positions()
+    tip = np.flatnonzero(X[:, 0] > 0.7)
+    ripple = 0.01 * np.sin(40.0 * X[tip])  # finer than the tets: no vertex values fit it
+    keys = [
+        *turn_keys(free_bar, degrees=80.0),
+        Keyframe(0.5, tip, X[tip] + [0.0, 0.3, 0.1] + ripple, velocity=(0.5, 0.0, 0.0)),
+        Keyframe(0.8, tip, X[tip] + [0.1, -0.2, 0.0] - ripple),
+    ]
+    problem = SpacetimeProblem(free_bar, 0.0, 1.2)
+    anim = problem.solve(keys, warped=True, tolerance=1e-8)
+    ab, f, c = problem._assemble_energy(anim.nodes)
+    kfs = [kf.checked(free_bar, 0.0, 1.2) for kf in keys]
+    obj = WarpedObjective(problem, kfs, anim.nodes, ab, f, c)
+    assert len(obj._batches) == 2  # the whole body, and the tip twice
+    fits = [problem._fit(keys[0].S, keys[0].St, wD)[3] for keys, wD, _ in obj._batches]
+    assert fits[1] > 1e-3 * max(fits)  # the ripple is not fitted: F* > 0 matters
+    rng = np.random.default_rng(4)
+    z0 = np.stack([anim.values, anim.velocities], axis=1).ravel()
+    r, n = free_bar.r, free_bar.n_vertices("tets")
+    Phi = free_bar.modes.vectors
+    for scale in (0.0, 0.02, 1.0):  # at the solution, near it, and far from it
+        z = z0 + scale * np.abs(z0).max() * rng.standard_normal(z0.size)
+        Z = z.reshape(-1, 2, r)
+        direct = 0.5 * z @ (ab_matvec(ab, z)) + f @ z + c
+        for key in obj.keys:
+            u = (Phi @ Z[key.node, 0]).reshape(n, 3)
+            if key.d is not None:
+                res = key.S @ free_bar.warp.apply(u) - key.d
+                direct += 0.5 * key.wA**2 * np.vdot(res, res)
+            if key.b is not None:
+                du = (Phi @ Z[key.node, 1]).reshape(n, 3)
+                res = key.S @ free_bar.warp.jvp(u, du) - key.b
+                direct += 0.5 * key.wB**2 * np.vdot(res, res)
+        obj._last = None
+        F, g = obj.value_and_gradient(z)
+        assert abs(F - direct) <= 1e-12 * abs(direct), (scale, F, direct)
+    d = rng.standard_normal(z.size)
+    h = 1e-6 * np.abs(z).max() / np.abs(d).max()
+    slope = (obj.value(z + h * d) - obj.value(z - h * d)) / (2 * h)
+    assert abs(g @ d) > 1e-3 * np.linalg.norm(g) * np.linalg.norm(d)  # a generic direction
+    assert abs(g @ d - slope) <= 1e-7 * abs(slope)
+
+
+def ab_matvec(ab, z):
+    from wiggly.solve import _band_matvec
+
+    return _band_matvec(ab, ab.shape[0] - 1, z)

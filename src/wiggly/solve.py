@@ -34,7 +34,7 @@ from scipy.spatial.transform import Rotation
 from wiggly.body import Body, Where
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
-from wiggly.linalg import blas_single_thread
+from wiggly.linalg import blas_single_thread, factorize_spd
 from wiggly.progress import iterations
 from wiggly.splines import WigglyBasis, energy_form, equilibrium, evaluate, wiggly_basis
 from wiggly.warp import CoarseWarp
@@ -232,6 +232,7 @@ class SpacetimeProblem:
         self._generation = 0  # solves so far: _target compares a keyframe's arrays once per solve
         self._stacks: dict[tuple, tuple] = {}  # stacked targets of a batch (_stacked)
         self._batch_terms: dict[tuple, tuple] = {}  # a batch's F and S^T r per W values
+        self._fits: dict[tuple, tuple] = {}  # least-squares fits of a batch's targets (_fit)
 
     @property
     def duration(self) -> float:
@@ -355,6 +356,34 @@ class SpacetimeProblem:
 
         key = (*(id(d) for d in ds), None if w is None else w.tobytes())
         return _cached(self._stacks, key, compute)[1]
+
+    def _fit(self, S, St, wD: np.ndarray) -> tuple:
+        """The least-squares fit of a batch's weighted targets ``wD`` (s, p, 3) by vertex
+        values: the Gram ``C = S^T S``, ``X*`` (n, p, 3) solving ``(C + mu I) X* = S^T wD``
+        (mu = 1e-8 mean diag C: C is singular off the selected vertices), ``G* = C X* -
+        S^T wD`` (~mu X*) and ``F* = 1/2 |S X* - wD|^2``.  Kept per selection and targets.
+
+        For every x,  1/2 |S x - d|^2 = F* + (x - X*).G* + 1/2 (x - X*)^T C (x - X*),  exactly;
+        the first and last terms are >= 0 and the middle one is tiny, so unlike the plain Gram
+        form (x^T C x - 2 x^T S^T d + |d|^2) nothing cancels."""
+
+        def gram() -> tuple:
+            C = sp.csr_matrix(St @ S)
+            mu = 1e-8 * max(float(C.diagonal().mean()), np.finfo(float).tiny)
+            return S, C, factorize_spd(C + mu * sp.identity(C.shape[0], format="csr"))
+
+        _, C, solve_C = _cached(self._fits, ("gram", id(S)), gram)
+
+        def fit() -> tuple:
+            s, p, _ = wD.shape
+            Std = St @ wD.reshape(s, 3 * p)
+            X = solve_C(Std)
+            G = C @ X - Std
+            R = S @ X - wD.reshape(s, 3 * p)
+            n = C.shape[0]
+            return wD, C, X.reshape(n, p, 3), G.reshape(n, p, 3), 0.5 * float(np.vdot(R, R))
+
+        return _cached(self._fits, ("fit", id(S), id(wD)), fit)[1:]
 
     def _preroll(self) -> tuple[np.ndarray, np.ndarray, float]:
         """Least energy to reach (q, q') from rest in ``preroll`` seconds, without gravity:
@@ -920,22 +949,24 @@ class WarpedObjective:
     def _position_terms(self, keys, wD: np.ndarray, w: np.ndarray, WU: np.ndarray, YA) -> float:
         """1/2 sum |r|^2 of position keyframes sharing one selection S, r = sqrt(c_A) (S W(u)
         - d) = S (sqrt(c_A) W(u)) - sqrt(c_A) d with weights w = sqrt(c_A) (p,) and weighted
-        targets wD (s, p, 3); adds sqrt(c_A) S^T r to the cotangents ``YA`` unless it is None."""
+        targets wD (s, p, 3), from the Gram about the targets' least-squares fit (see
+        :meth:`SpacetimeProblem._fit`: vertex-sized products only, nothing cancels); adds
+        sqrt(c_A) S^T r to the cotangents ``YA`` unless it is None."""
         slots = [self.slot[key.node] for key in keys]
 
         # kept per (W values, targets): an edited objective at the last point (a warm start)
         # recomputes the batches whose targets changed only
         def compute() -> tuple:
             # S^T r always: a value at a new point is followed by its gradient (line search)
-            S, St = keys[0].S, keys[0].St
+            C, Xs, Gs, Fs = self.problem._fit(keys[0].S, keys[0].St, wD)
             p, n = len(keys), WU.shape[1]
-            X = WU.transpose(1, 0, 2)[:, slots] * w[:, None]  # (n, p, 3): weights on the small side
-            R = S @ X.reshape(n, 3 * p)
-            R -= wD.reshape(-1, 3 * p)
-            F = 0.5 * float(np.vdot(R, R))
-            Y = (St @ R).reshape(n, p, 3)
-            Y *= w[:, None]
-            return WU, wD, F, Y  # the entry holds WU and wD: their ids stay unique while it lives
+            E = WU.transpose(1, 0, 2)[:, slots] * w[:, None]  # sqrt(c_A) W(u) (n, p, 3) ...
+            E -= Xs  # ... minus the fit: 1/2 |r|^2 = F* + E.G* + 1/2 E^T C E (see _fit)
+            CE = (C @ E.reshape(n, 3 * p)).reshape(n, p, 3)
+            F = Fs + float(np.vdot(E, Gs)) + 0.5 * float(np.vdot(E, CE))
+            CE += Gs  # S^T r = C E + G*
+            CE *= w[:, None]
+            return WU, wD, F, CE  # the entry holds WU and wD: their ids stay unique while it lives
 
         tag = (id(WU), id(wD), tuple(slots), w.tobytes())
         kept = _cached(self.problem._batch_terms, tag, compute, limit=8)
