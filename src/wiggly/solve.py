@@ -310,8 +310,9 @@ class SpacetimeProblem:
         ``"Std"`` = S^T d and ``"Stb"`` = S^T b for the selection transpose ``St`` (coarse
         level), kept while the keyframe's targets are equal (an edit changes one keyframe; the
         others are not recomputed).  The contents are compared once per solve."""
-        arrays = (kf.position, kf.velocity, kf.vertices)
-        key = (id(kf.position), id(kf.velocity), kf.on, len(kf.vertices))
+        target = kf.velocity if what == "Stb" else kf.position  # the one array it depends on
+        arrays = (target, kf.vertices)
+        key = (what == "Stb", id(target), kf.on, len(kf.vertices))
         kept = self._targets.get(key)
         if kept is not None and kept[2] != self._generation:
             if all(

@@ -561,7 +561,7 @@ class Warp:
     def _unmean(self, Y: np.ndarray) -> np.ndarray:
         """Adjoint of the gauge's shift on Y (n, c), in place: ``Y -= mean^T spread^T Y``;
         returns ``spread^T Y`` (the cotangent of ``means_in``)."""
-        if self._spread is None:  # one component: a rank-1 update, in place (BLAS dger)
+        if self._spread is None and Y.flags.c_contiguous:  # one component: rank-1, in place
             s = Y.sum(axis=0, keepdims=True)
             blas.dger(-1.0, s[0], self._mean_weights, a=Y.T, overwrite_a=True)
             return s
