@@ -302,7 +302,8 @@ def test_secant_step_is_the_bfgs_update_of_the_gauss_newton_matrix():
 
 
 def test_coarse_objective_is_the_coarse_warp_least_squares(slab):
-    """The coarse level's keyframe terms, summed from Grams in batches, equal their definition
+    """The coarse level's keyframe terms (positions from Grams about the targets' fit, in
+    batches; velocities from Grams) equal their definition
     1/2 sum c_A |S P W_c(R Phi q) - d|^2 + 1/2 sum c_B |S P DW_c(R Phi q)[R Phi q'] - b|^2
     evaluated directly, and the gradient matches central differences."""
     keys = turn_and_swing(slab, velocity=(0.0, 1.5, 0.0))
@@ -311,7 +312,7 @@ def test_coarse_objective_is_the_coarse_warp_least_squares(slab):
     ab, f, c = problem._assemble_energy(anim.nodes)
     kfs = [kf.checked(slab, 0.0, 1.2) for kf in keys]
     obj = WarpedObjective(problem, kfs, anim.nodes, ab, f, c, coarse=True)
-    assert obj._gram_batches and all(key.gram for key in obj.keys)
+    assert obj._batches and all(key.gram for key in obj.keys)
     rng = np.random.default_rng(3)
     z = np.stack([anim.values, anim.velocities], axis=1).ravel()
     z = z + 0.05 * np.abs(z).max() * rng.standard_normal(z.size)

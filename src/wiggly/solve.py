@@ -306,10 +306,10 @@ class SpacetimeProblem:
         return _cached(self._coarse_grams, key, compute)
 
     def _target(self, kf: Keyframe, what: str, St=None) -> np.ndarray:
-        """A keyframe's position target minus rest ``"d"`` (s, 3), ``"dd"`` = |d|^2, or
-        ``"Std"`` = S^T d and ``"Stb"`` = S^T b for the selection transpose ``St`` (coarse
-        level), kept while the keyframe's targets are equal (an edit changes one keyframe; the
-        others are not recomputed).  The contents are compared once per solve."""
+        """A keyframe's position target minus rest ``"d"`` (s, 3), or ``"Stb"`` = S^T b for
+        the selection transpose ``St`` (coarse level), kept while the keyframe's targets are
+        equal (an edit changes one keyframe; the others are not recomputed).  The contents are
+        compared once per solve."""
         target = kf.velocity if what == "Stb" else kf.position  # the one array it depends on
         arrays = (target, kf.vertices)
         key = (what == "Stb", id(target), kf.on, len(kf.vertices))
@@ -334,11 +334,8 @@ class SpacetimeProblem:
             if what == "d":
                 rest = self.body.rest_positions(kf.on)[kf.vertices]
                 value = kf.position - rest
-            elif what == "dd":
-                d = self._target(kf, "d")
-                value = np.array(np.vdot(d, d))
             else:
-                value = St @ (self._target(kf, "d") if what == "Std" else kf.velocity)
+                value = St @ kf.velocity
             value.flags.writeable = False
             values[name] = (St, value)
         return values[name][1]
@@ -731,11 +728,9 @@ class _WarpedKey:
     b: np.ndarray | None  # velocity target (s, 3)
     wA: float  # sqrt(c_A)
     wB: float  # sqrt(c_B)
-    # coarse level: residual norms from the Gram, |S x - d|^2 = x.Cx - 2 x.S^T d + |d|^2
+    # coarse level: velocity residual norms from the Gram, |S v - b|^2 = v.Cv - 2 v.S^T b + |b|^2
     gram: bool = False
-    Std: np.ndarray | None = None
     Stb: np.ndarray | None = None
-    dd: float | None = None  # |d|^2
 
 
 class WarpedObjective:
@@ -787,38 +782,22 @@ class WarpedObjective:
                     np.sqrt(c_B),
                 )
             )
-            if coarse:  # the cancellation in the Gram form costs ~eps |d|^2 / |r|^2: fine here
+            if coarse:  # the cancellation in the Gram form costs ~eps |b|^2 / |r|^2: fine here
                 key = self.keys[-1]
                 key.gram = True
-                key.Std = None if key.d is None else problem._target(kf, "Std", key.St)
                 key.Stb = None if key.b is None else problem._target(kf, "Stb", key.St)
-                key.dd = None if key.d is None else float(problem._target(kf, "dd"))
         self.active = sorted({k.node for k in self.keys if k.d is not None or k.b is not None})
         self.slot = {k: a for a, k in enumerate(self.active)}
         # position keyframes sharing a selection are evaluated together (one sparse product)
         batches: dict[int, list[_WarpedKey]] = {}
         for key in self.keys:
-            if key.d is not None and not key.gram:
+            if key.d is not None:
                 batches.setdefault(id(key.S), []).append(key)
         self._batches = []
         for keys in batches.values():
             w = np.array([key.wA for key in keys])
             # weighted targets sqrt(c_A) d (s, p, 3)
             self._batches.append((keys, problem._stacked([key.d for key in keys], w), w))
-        # coarse level: position keyframes sharing a Gram, likewise (one sparse product)
-        grams: dict[int, list[_WarpedKey]] = {}
-        for key in self.keys:
-            if key.d is not None and key.gram:
-                grams.setdefault(id(key.C), []).append(key)
-        self._gram_batches = [
-            (
-                keys,
-                problem._stacked([key.Std for key in keys]),  # S^T d (n_c, p, 3)
-                np.array([key.wA**2 for key in keys]),
-                np.array([key.dd for key in keys]),
-            )
-            for keys in grams.values()
-        ]
         self.vel = sorted({k.node for k in self.keys if k.b is not None})
         self.timing = {"W": 0.0, "vjp": 0.0, "jacobians": 0.0, "solve": 0.0}
         self.counts = {"W": 0, "vjp": 0, "jacobians": 0}
@@ -899,8 +878,6 @@ class WarpedObjective:
         YB = np.zeros_like(dU)
         for keys, D, w in self._batches:
             F += self._position_terms(keys, D, w, WU, YA if gradient else None)
-        for keys, Std, w2, dd in self._gram_batches:
-            F += self._gram_position_terms(keys, Std, w2, dd, WU, YA if gradient else None)
         for key in self.keys:
             if key.gram:
                 if key.b is not None:
@@ -975,22 +952,6 @@ class WarpedObjective:
             for j, a in enumerate(slots):
                 YA[a] += kept[3][:, j]
         return kept[2]
-
-    def _gram_position_terms(self, keys, Std, w2, dd, WU: np.ndarray, YA) -> float:
-        """1/2 sum c_A |S x - d|^2 = 1/2 sum c_A (x.Cx - 2 x.S^T d + |d|^2) of position
-        keyframes sharing a Gram C (coarse level), with ``Std`` (n_c, p, 3), ``w2`` = c_A and
-        ``dd`` = |d|^2; adds c_A (Cx - S^T d) to the cotangents ``YA`` unless it is None."""
-        slots = [self.slot[key.node] for key in keys]
-        n, p = WU.shape[1], len(keys)
-        X = WU.transpose(1, 0, 2)[:, slots]  # (n_c, p, 3)
-        CX = (keys[0].C @ X.reshape(n, 3 * p)).reshape(n, p, 3)
-        F = 0.5 * float(w2 @ (np.einsum("npi,npi->p", X, CX - 2.0 * Std) + dd))
-        if YA is not None:
-            CX -= Std
-            CX *= w2[:, None]
-            for j, a in enumerate(slots):
-                YA[a] += CX[:, j]
-        return F
 
     def _gram_velocity_terms(self, key: _WarpedKey, Vel, YB) -> float:
         """1/2 c_B |S v - b|^2 of a velocity keyframe from its Gram (coarse level); adds
