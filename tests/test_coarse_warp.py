@@ -271,7 +271,7 @@ def test_band_helpers_match_dense_algebra():
     blocks = rng.standard_normal((2, 3, 3))
     blocks = blocks + blocks.transpose(0, 2, 1)
     idx = np.array([[0, 1, 2], [8, 9, 10]])  # a stack of blocks at once
-    solve_module._add_block(ab, bw, idx, blocks)
+    solve_module._add_dense(ab, bw, idx, blocks)
     for i, b in zip(idx, blocks, strict=True):
         H[np.ix_(i, i)] += b
     np.testing.assert_allclose(band_to_dense(ab), H, rtol=1e-15)

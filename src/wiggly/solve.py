@@ -340,19 +340,18 @@ class SpacetimeProblem:
             values[name] = (St, value)
         return values[name][1]
 
-    def _stacked(self, ds: list[np.ndarray], w: np.ndarray | None = None) -> np.ndarray:
-        """Targets ``ds`` of keyframes sharing a selection, stacked (s, p, 3) and times the
-        weights ``w`` (p,) if given; kept while they are the same (read-only) arrays of
-        :meth:`_target` and the same weights."""
+    def _stacked(self, ds: list[np.ndarray], w: np.ndarray) -> np.ndarray:
+        """Targets ``ds`` of keyframes sharing a selection, stacked (s, p, 3) and times their
+        weights ``w`` (p,); kept while they are the same (read-only) arrays of :meth:`_target`
+        and the same weights."""
 
         def compute() -> tuple:
             D = np.stack(ds, axis=1)
-            if w is not None:
-                D *= w[:, None]
+            D *= w[:, None]
             D.flags.writeable = False
             return tuple(ds), D  # the entry holds ds: their ids stay unique while it lives
 
-        key = (*(id(d) for d in ds), None if w is None else w.tobytes())
+        key = (*(id(d) for d in ds), w.tobytes())
         return _cached(self._stacks, key, compute)[1]
 
     def _fit(self, S, St, wD: np.ndarray) -> tuple:
@@ -1055,7 +1054,7 @@ class WarpedObjective:
         if self.active:  # every active node's block at once
             nodes = np.array(self.active)
             idx = 2 * r * nodes[:, None] + np.arange(2 * r)
-            _add_block(ab, self.bw, idx, np.stack([blocks[k] for k in self.active]))
+            _add_dense(ab, self.bw, idx, np.stack([blocks[k] for k in self.active]))
         self._normal = (used, ab)
         self.timing["jacobians"] += _time.perf_counter() - t0
         return ab
@@ -1265,13 +1264,10 @@ def _add_dense(ab: np.ndarray, bw: int, idx: np.ndarray, blocks: np.ndarray) -> 
 
 
 def _add_block(ab: np.ndarray, bw: int, idx: np.ndarray, block: np.ndarray) -> None:
-    """Add symmetric blocks (b, b), or a stack (P, b, b), at global indices idx (b,) or (P, b),
-    all distinct (no repeated entries, so one plain fancy-indexed += is exact)."""
-    idx = np.atleast_2d(idx)
-    rows, cols = np.triu_indices(idx.shape[1])
-    ab[bw + idx[:, rows] - idx[:, cols], idx[:, cols]] += block.reshape(
-        len(idx), *block.shape[-2:]
-    )[:, rows, cols]
+    """Add one symmetric block at distinct global indices idx (no repeated entries, so a
+    plain fancy-indexed += is exact)."""
+    rows, cols = np.triu_indices(len(idx))
+    ab[bw + idx[rows] - idx[cols], idx[cols]] += block[rows, cols]
 
 
 def solve(
