@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-import wiggly.warp as warp_module
-from wiggly import warp_kernels
+from wiggly.warp import kernels_numpy
+from wiggly.warp import ModalWarp, compiled
 from wiggly.errors import WigglyInputError
 from wiggly.primitives import box_mesh
 from wiggly.warp import Warp, rotation_coefficients
@@ -166,17 +166,16 @@ def test_fixed_vertices_stay_at_zero(clamped_warp, mesh):
 
 
 def test_batched_apply_equals_per_frame(warp, mesh, monkeypatch):
-    V = mesh[0]
+    V, T = mesh
     U = np.stack([random_displacement(V, s, seed=i) for i, s in enumerate([0.1, 0.5, 1.0, 2.0, 0])])
     single = np.stack([warp.apply(u) for u in U])
     batched = warp.apply(U)
     assert batched.shape == U.shape
     np.testing.assert_allclose(batched, single, rtol=0, atol=1e-13 * np.abs(single).max())
-    # the numpy path with small chunks and blocks: exercise its chunked and blocked code
-    monkeypatch.setattr(warp, "compiled", False)
-    monkeypatch.setattr(warp_module, "_CHUNK_COLUMNS", 2)
-    monkeypatch.setattr(warp_module, "_BLOCK_ELEMENTS", 100)
-    np.testing.assert_allclose(warp.apply(U), single, rtol=0, atol=1e-13 * np.abs(single).max())
+    # the numpy path in chunks of two frames: exercise its chunking
+    monkeypatch.setattr(kernels_numpy, "_CHUNK_ENTRIES", 2 * len(T))
+    numpy_warp = Warp(V, T, fixed_vertices=warp.fixed, kernels="numpy")
+    np.testing.assert_allclose(numpy_warp.apply(U), single, rtol=0, atol=1e-13 * np.abs(single).max())
 
 
 @pytest.fixture(scope="module")
@@ -204,39 +203,48 @@ def test_poisson_matrix_is_the_volume_weighted_p1_laplacian(jittered):
         L[np.ix_(tet, tet)] += vol * g @ g.T
     vols = np.array([np.linalg.det((V[t][1:] - V[t][0]).T) for t in T])
     assert np.ptp(vols) > 0.5 * vols.mean()  # unequal tets: a wrong volume weighting shows
-    np.testing.assert_allclose((warp._GtV @ warp._G).toarray(), L, atol=1e-13 * np.abs(L).max())
+    np.testing.assert_allclose(warp.laplacian.toarray(), L, atol=1e-13 * np.abs(L).max())
 
 
-@pytest.mark.skipif(not warp_kernels.AVAILABLE, reason="numba not installed")
+@pytest.mark.skipif(not compiled.AVAILABLE, reason="numba not installed")
 @pytest.mark.parametrize("fixed", [False, True])
-def test_compiled_kernels_equal_the_vectorized_numpy_path(jittered, fixed, monkeypatch):
+def test_compiled_kernels_equal_the_vectorized_numpy_path(jittered, fixed):
     """Two independent implementations of the per-tet formulas (fused numba loops and
-    vectorized numpy component arrays) agree on W, DW, DW^T and the Jacobian, at small and
-    large gradients (rotation angles up to ~3 rad, near the series switch of c)."""
+    vectorized numpy component arrays) agree on W, DW, DW^T, the Jacobians, the second
+    derivatives and the curvature matrices, at small and large gradients (rotation angles up
+    to ~3 rad, near the series switch of c)."""
     V, T = jittered
-    warp = Warp(V, T, fixed_vertices=np.flatnonzero(V[:, 0] == V[:, 0].min()) if fixed else None)
+    fixed_vertices = np.flatnonzero(V[:, 0] == V[:, 0].min()) if fixed else None
     U = np.stack([random_displacement(V, s, seed=i) for i, s in enumerate([1e-3, 0.3, 1.5, 3.0])])
     dU = np.stack([random_displacement(V, 1.0, seed=10 + i) for i in range(4)])
     basis = np.stack([random_displacement(V, 1.0, seed=20 + i) for i in range(5)], axis=2)
-    assert warp.compiled
+    rng = np.random.default_rng(3)
+    Q, Qv = rng.standard_normal((3, 5)), rng.standard_normal((3, 5))
+    Qv[1] = 0.0  # a point without a velocity
+    Y, Yv = rng.standard_normal((3, len(V), 3)), rng.standard_normal((3, len(V), 3))
+    Yv[1] = 0.0
 
-    def evaluate():
+    def evaluate(kernels):
+        warp = Warp(V, T, fixed_vertices=fixed_vertices, kernels=kernels)
+        modal = ModalWarp(warp, basis)
+        curvatures = modal.curvatures(Q, Y, Qv, Yv)
         return [
             warp.apply(U),
             warp.jvp(U, dU),
             warp.vjp(U, dU),
-            warp.jacobian(U[2], basis),
-            warp.jacobians(U, basis),
-            warp.second_derivatives(U, dU, basis),
+            modal.jacobians(Q),
+            modal.second_derivatives(Q, Qv),
+            np.stack([qq for qq, _ in curvatures]),
+            np.stack([qv for _, qv in curvatures if qv is not None]),
         ]
 
-    compiled = evaluate()
-    monkeypatch.setattr(warp, "compiled", False)
-    numpy = evaluate()
-    for a, b in zip(compiled[:5], numpy[:5], strict=True):
+    compiled_, numpy_ = evaluate("numba"), evaluate("numpy")
+    assert compiled_[-1].shape[0] == 2  # the point without velocity has no q-q' block
+    for a, b in zip(compiled_[:4], numpy_[:4], strict=True):
         assert rel(a, b) < 1e-13
-    # second derivatives: central differences of the tangent in both (error ~ step^2)
-    assert rel(compiled[5], numpy[5]) < 1e-8
+    # second derivatives and curvatures: central differences of analytic derivatives
+    for a, b in zip(compiled_[4:], numpy_[4:], strict=True):
+        assert rel(a, b) < 1e-8
 
 
 def test_components_get_their_own_gauge():
@@ -280,10 +288,13 @@ def test_derivatives_with_several_components_are_consistent():
         np.testing.assert_allclose(W.vjp(U[s], Y[index[s]]), vjp[s], atol=1e-13)
     np.testing.assert_allclose(W.vjp(U, Y[index]), vjp, atol=1e-13)
     basis = dU.transpose(1, 2, 0)  # three fields (n, 3, 3)
-    J = W.jacobians(U, basis)
+    modal = ModalWarp(W, basis)
+    Q = np.linalg.lstsq(basis.reshape(-1, 3), U.reshape(3, -1).T, rcond=None)[0].T
+    J = modal.jacobians(Q)
     for s in range(3):
+        u = modal.displacements(Q[s : s + 1])[0]
         for k in range(3):
-            assert rel(J[s, :, :, k], W.jvp(U[s], basis[:, :, k])) < 1e-12
+            assert rel(J[s, :, :, k], W.jvp(u, basis[:, :, k])) < 1e-12
     with pytest.raises(WigglyInputError, match="index"):
         W.vjp(U, Y, np.array([0, 1, 2]))
 
@@ -349,13 +360,15 @@ def test_jacobian_matches_jvp_and_finite_differences(warp, mesh):
     n = len(V)
     u = random_displacement(V, 0.8, seed=5)
     basis = np.stack([random_displacement(V, 1.0, seed=10 + k) for k in range(7)], axis=-1)
-    J = warp.jacobian(u, basis)
+    basis[:, :, 0] = u  # u = Phi q with q = e_0
+    q = np.eye(7)[:1]
+    J = ModalWarp(warp, basis).jacobians(q)[0]
     assert J.shape == basis.shape
     for k in (0, 6):
         assert rel(J[:, :, k], central_difference(warp, u, basis[:, :, k])) < 1e-6
         assert rel(J[:, :, k], warp.jvp(u, basis[:, :, k])) < 1e-12
-    flat = warp.jacobian(u, basis.reshape(3 * n, 7))
-    np.testing.assert_allclose(flat, J.reshape(3 * n, 7), rtol=0, atol=1e-12 * np.abs(J).max())
+    flat = ModalWarp(warp, basis.reshape(3 * n, 7)).jacobians(q)[0]
+    np.testing.assert_allclose(flat, J, rtol=0, atol=1e-12 * np.abs(J).max())
 
 
 def test_vjp_is_the_adjoint_of_jvp(warp, mesh):
@@ -418,12 +431,14 @@ def test_inputs_are_validated(free_warp, mesh):
     with pytest.raises(WigglyInputError, match="U should have shape"):
         free_warp.apply(np.zeros((len(V), 2)))
     with pytest.raises(WigglyInputError, match="basis"):
-        free_warp.jacobian(np.zeros_like(V), np.zeros((len(V), 2, 4)))
+        ModalWarp(free_warp, np.zeros((len(V), 2, 4)))
+    with pytest.raises(WigglyInputError, match="kernels"):
+        Warp(V, T, kernels="fortran")
     with pytest.raises(WigglyInputError, match="dU"):
         free_warp.jvp(np.zeros_like(V), np.zeros((2, len(V), 3)))
 
 
-@pytest.mark.skipif(not warp_kernels.AVAILABLE, reason="numba not installed")
+@pytest.mark.skipif(not compiled.AVAILABLE, reason="numba not installed")
 def test_compiled_rotation_coefficients_match_high_precision():
     """The kernels' a, b, c (Taylor series up to th = pi, closed forms beyond) against 50-digit
     values, at every angle and on both sides of the switch at th = pi."""
@@ -434,8 +449,8 @@ def test_compiled_rotation_coefficients_match_high_precision():
     t2s = [0.0, 1e-12, 1e-4, 0.01, 0.5, 1.0, 4.0, np.nextafter(pi2, 0), pi2]
     t2s += [np.nextafter(pi2, 20), 12.0, 30.0, 39.0]
     for t2 in t2s:
-        a, b = warp_kernels.rotation_ab(t2)
-        c = warp_kernels.rotation_c(t2, a)
+        a, b = compiled.rotation_ab(t2)
+        c = compiled.rotation_c(t2, a)
         th = mpmath.sqrt(mpmath.mpf(t2))
         if t2 == 0.0:
             exact = (1, mpmath.mpf(1) / 2, mpmath.mpf(1) / 6)

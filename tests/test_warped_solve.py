@@ -1,4 +1,5 @@
-"""The warped sparse spacetime solve (Theorem 2, SYSTEM.md §6)."""
+"""The warped sparse spacetime solve (Theorem 2, SYSTEM.md §6): objective, Newton matrix,
+stopping rule and solutions."""
 
 from __future__ import annotations
 
@@ -6,7 +7,14 @@ import numpy as np
 import pytest
 
 from wiggly.keyframes import Keyframe
-from wiggly.solve import SpacetimeProblem, WarpedObjective, WarpedSolveWarning, solve
+from wiggly.solve import (
+    SolveOptions,
+    SpacetimeProblem,
+    WarpedObjective,
+    WarpedSolveWarning,
+    solve,
+)
+from wiggly.solve.banded import band_matvec, band_to_dense
 
 from .conftest import make_body
 
@@ -41,6 +49,15 @@ def turn_keys(body, degrees=120.0):
     ]
 
 
+def velocity_keys(body):
+    X = body.rest_positions()
+    tip = np.flatnonzero(X[:, 0] > 0.9)
+    return [
+        *turn_keys(body, 60.0),
+        Keyframe.offset(body, 0.5, tip, (0, 0.2, 0), velocity=(0.0, 1.5, 0.5)),
+    ]
+
+
 def arc_bend(X, degrees, c=0.025):
     """Pure bending of a bar along x (base at x = 0, centreline z = c) into a circular arc
     toward +z turning the tip by ``degrees``: the natural large swing of a tail."""
@@ -58,14 +75,11 @@ def swing_keys(body, degrees=90.0):
     return [Keyframe(1.0, tip, arc_bend(X[tip], degrees))]
 
 
-def objective_at(anim, problem_end):
-    body = anim.body
-    problem = SpacetimeProblem(body, anim.start, problem_end)
-    nodes = anim.nodes
-    ab, f, c = problem._assemble_energy(nodes)
-    obj = WarpedObjective(problem, anim.keyframes, nodes, ab, f, c)
-    z = np.stack([anim.values, anim.velocities], axis=1).ravel()
-    return obj, z
+def objective_at(anim, end=None):
+    """The fine objective E + E_WC of ``anim``'s problem, and ``anim``'s unknowns z."""
+    problem = SpacetimeProblem(anim.body, anim.start, anim.end if end is None else end)
+    obj = WarpedObjective(problem, anim.body.fine_level, anim.keyframes, anim.nodes)
+    return obj, np.stack([anim.values, anim.velocities], axis=1).ravel()
 
 
 def edge_and_volume_change(body, P):
@@ -87,42 +101,68 @@ def test_warped_solution_is_stationary(free_bar, tail, which):
     """At the solution the gradient of E + E_WC vanishes to the solver tolerance: for random
     directions d, the central-difference slope obeys |g.d| <= sqrt(2 tol F d^T H d) (the
     Newton-decrement bound), while at the linear solution it is far larger."""
-    if which == "turn":
-        body, keys = free_bar, turn_keys(free_bar)
-    elif which == "swing":
-        body, keys = tail, swing_keys(tail)
-    else:
-        body = free_bar
-        X = body.rest_positions()
-        tip = np.flatnonzero(X[:, 0] > 0.9)
-        keys = [
-            *turn_keys(body, 60.0),
-            Keyframe.offset(body, 0.5, tip, (0, 0.2, 0), velocity=(0.0, 1.5, 0.5)),
-        ]
-    # velocity keys converge only linearly (Gauss-Newton omits their q-v curvature)
-    tol = 1e-10 if which == "velocity" else 1e-12
+    body, keys = {
+        "turn": (free_bar, turn_keys(free_bar)),
+        "swing": (tail, swing_keys(tail)),
+        "velocity": (free_bar, velocity_keys(free_bar)),
+    }[which]
+    tol = 1e-12
     problem = SpacetimeProblem(body, 0.0, 1.5)
-    anim = problem.solve(keys, warped=True, tolerance=tol, max_iterations=100, stall=False)
+    anim = problem.solve(keys, warped=True, options=SolveOptions(tolerance=tol))
     assert anim.info["converged"]
     lin = solve(body, keys, end=1.5, warp=False)
-    obj, z = objective_at(anim, 1.5)
-    _, z_lin = objective_at(lin, 1.5)
-    F = obj.value(z)
+    obj, z = objective_at(anim)
+    _, z_lin = objective_at(lin)
+    F = obj.evaluate(z).F
     rng = np.random.default_rng(3)
 
+    def value(x):
+        return obj.evaluate(x).F
+
     def slope(x, d, h=1e-5):  # Richardson-extrapolated central difference, O(h^4)
-        s1 = (obj.value(x + h * d) - obj.value(x - h * d)) / (2 * h)
-        s2 = (obj.value(x + h / 2 * d) - obj.value(x - h / 2 * d)) / h
+        s1 = (value(x + h * d) - value(x - h * d)) / (2 * h)
+        s2 = (value(x + h / 2 * d) - value(x - h / 2 * d)) / h
         return (4 * s2 - s1) / 3
 
     for _ in range(3):
         d = rng.standard_normal(z.size) * np.abs(z).max()
         h = 1e-4
-        curvature = (obj.value(z + h * d) - 2 * F + obj.value(z - h * d)) / h**2
+        curvature = (value(z + h * d) - 2 * F + value(z - h * d)) / h**2
         s, s_lin = slope(z, d), slope(z_lin, d)
         noise = 1e-15 * F / 1e-5  # rounding in the differences
         assert abs(s) <= 2 * np.sqrt(2 * tol * F * curvature) + noise, (s, curvature)
         assert abs(s_lin) > 1e3 * abs(s)
+
+
+@pytest.mark.parametrize("which", ["positions", "velocities"])
+def test_newton_matrix_is_the_hessian(free_bar, which):
+    """With the fine level's own derivatives, the Newton matrix is the Hessian of E + E_WC:
+    its constrained-node blocks equal central differences of the exact gradient (Richardson
+    extrapolated), including the curvature Gauss-Newton omits, which is large here."""
+    keys = turn_keys(free_bar, 90.0) if which == "positions" else velocity_keys(free_bar)
+    problem = SpacetimeProblem(free_bar, 0.0, 1.5)
+    kfs = problem.checked(keys)
+    nodes = problem.nodes_for(kfs)
+    z = problem.solve_linear(kfs, nodes)  # far from the warped solution: large residuals
+    obj = WarpedObjective(problem, free_bar.fine_level, kfs, nodes)
+    gauss_newton, newton = (band_to_dense(m) for m in obj.newton_matrices(obj.evaluate(z)))
+    r = free_bar.r
+
+    def hessian_column(i, h):
+        e = np.zeros_like(z)
+        e[i] = h
+        return (obj.evaluate(z + e).g - obj.evaluate(z - e).g) / (2 * h)
+
+    omitted = []
+    for k in obj.active:
+        idx = 2 * r * k + np.arange(2 * r)
+        H = np.stack(
+            [(4 * hessian_column(i, 5e-5) - hessian_column(i, 1e-4)) / 3 for i in idx], axis=1
+        )[idx]
+        scale = np.abs(H).max()
+        assert np.abs(newton[np.ix_(idx, idx)] - H).max() < 1e-6 * scale
+        omitted.append(np.abs(gauss_newton[np.ix_(idx, idx)] - H).max() / scale)
+    assert max(omitted) > 1e-2
 
 
 def test_warped_meets_a_large_turn_better_than_linear(free_bar):
@@ -180,23 +220,62 @@ def test_warped_velocity_is_the_time_derivative_of_warped_positions(free_bar):
     assert np.max(np.abs(fd - V)) < 1e-6 * np.max(np.abs(V))
 
 
-def test_non_convergence_is_reported(free_bar):
-    keys = turn_keys(free_bar, 170.0)
+def test_non_convergence_is_reported_honestly(free_bar):
+    """A solve stopped early says so: converged is False, a warning gives the decrement."""
+    keys = velocity_keys(free_bar)
     problem = SpacetimeProblem(free_bar, 0.0, 1.5)
     with pytest.warns(WarpedSolveWarning, match="did not converge in 1 iterations"):
-        anim = problem.solve(keys, warped=True, max_iterations=1, tolerance=1e-300)
+        anim = problem.solve(keys, warped=True, options=SolveOptions(max_iterations=1))
     assert anim.info["converged"] is False and anim.info["iterations"] == 1
+    assert anim.info["newton_decrement"] > 1e-8 * anim.info["objective"]
 
 
-def test_warm_start_reuses_the_previous_solution(free_bar):
-    keys = turn_keys(free_bar)
+def test_convergence_means_the_stopping_rule_holds_and_bounds_the_distance(free_bar):
+    """``converged`` is reported only when the Newton decrement meets the tolerance, and the
+    reported distance bound (largest vertex move of the final Newton step, m) bounds the
+    distance to the minimiser, computed here by a solve to round-off."""
+    keys = velocity_keys(free_bar)
     problem = SpacetimeProblem(free_bar, 0.0, 1.5)
-    first = problem.solve(keys, warped=True, tolerance=1e-12, stall=False)
-    keys[1] = Keyframe.rigid(free_bar, 1.0, keys[1].vertices, rotation=(0, 0, np.radians(125)))
-    second = problem.solve(keys, warped=True, initial=first, tolerance=1e-12, stall=False)
-    cold = problem.solve(keys, warped=True, tolerance=1e-12, stall=False)
+    loose = problem.solve(keys, warped=True, options=SolveOptions(tolerance=1e-6))
+    exact = problem.solve(keys, warped=True, options=SolveOptions(tolerance=1e-15))
+    info = loose.info
+    assert info["converged"] and info["newton_decrement"] <= 1e-6 * info["objective"] + 1e-9
+    obj, z = objective_at(loose)
+    _, z_star = objective_at(exact)
+    dq = (z - z_star).reshape(-1, 2, free_bar.r)[:, 0]
+    moved = np.linalg.norm((free_bar.modes.vectors @ dq.T).reshape(-1, 3, len(dq)), axis=1)
+    assert moved.max() <= info["distance_bound"]
+
+
+def test_a_body_at_rest_converges(free_bar):
+    """Keyframes at rest without gravity: the objective is zero up to rounding, and the
+    stopping rule (decrement <= tol F + F's rounding level) says converged."""
+    from wiggly.body import prepare
+
+    body = prepare(
+        free_bar.model, material=free_bar.material, damping=free_bar.damping,
+        gravity=(0.0, 0.0, 0.0), n_modes=free_bar.r, cache_dir=False,
+    )
+    allv = np.arange(body.n_vertices())
+    keys = [Keyframe.rest(body, t, allv, still=True) for t in (0.0, 0.5, 1.0)]
+    anim = SpacetimeProblem(body, 0.0, 1.0).solve(keys, warped=True)
+    assert anim.info["converged"]
+    assert abs(anim.info["objective"]) < 1e-10
+
+
+def test_warm_start_after_an_edit_reaches_the_cold_solution(free_bar):
+    keys = velocity_keys(free_bar)
+    problem = SpacetimeProblem(free_bar, 0.0, 1.5)
+    tight = SolveOptions(tolerance=1e-13)
+    first = problem.solve(keys, warped=True, options=tight)
+    keys[1] = Keyframe.rigid(free_bar, 1.0, keys[1].vertices, rotation=(0, 0, np.radians(65)))
+    second = problem.solve(keys, warped=True, warm_start=first.warm_start, options=tight)
+    cold = SpacetimeProblem(free_bar, 0.0, 1.5).solve(keys, warped=True, options=tight)
     assert second.info["warm_start"] and second.info["converged"]
-    assert np.allclose(second.values, cold.values, rtol=1e-5, atol=1e-7 * np.abs(cold.values).max())
+    assert second.info["iterations"] < cold.info["iterations"]
+    np.testing.assert_allclose(
+        second.values, cold.values, rtol=0, atol=1e-7 * np.abs(cold.values).max()
+    )
 
 
 def test_keyframe_changed_in_place_between_solves_is_seen(free_bar):
@@ -204,12 +283,13 @@ def test_keyframe_changed_in_place_between_solves_is_seen(free_bar):
     solve of the same problem equals a fresh problem's solve, not the kept targets'."""
     keys = turn_keys(free_bar, degrees=60.0)
     problem = SpacetimeProblem(free_bar, 0.0, 1.2)
-    before = problem.solve(keys, warped=True, tolerance=1e-10)
+    options = SolveOptions(tolerance=1e-12)
+    before = problem.solve(keys, warped=True, options=options)
     keys[1].position[:] += np.array([0.0, 0.2, 0.0])  # in place: same array, same Keyframe
-    again = problem.solve(keys, warped=True, tolerance=1e-10)
-    fresh = SpacetimeProblem(free_bar, 0.0, 1.2).solve(keys, warped=True, tolerance=1e-10)
+    again = problem.solve(keys, warped=True, options=options)
+    fresh = SpacetimeProblem(free_bar, 0.0, 1.2).solve(keys, warped=True, options=options)
     assert np.abs(again.values - before.values).max() > 1e-2 * np.abs(before.values).max()
-    np.testing.assert_allclose(again.values, fresh.values, atol=1e-6 * np.abs(fresh.values).max())
+    np.testing.assert_allclose(again.values, fresh.values, atol=1e-9 * np.abs(fresh.values).max())
 
 
 @pytest.fixture(scope="module")
@@ -239,55 +319,64 @@ def embedded_bar():
 
 
 def test_fine_objective_is_the_warped_least_squares(embedded_bar):
-    """The fine objective (position terms from Grams about the targets' least-squares fit)
-    equals its definition E + 1/2 sum c_A |S W(Phi q) - d|^2 + 1/2 sum c_B |S DW[Phi q'] - b|^2
-    evaluated directly on the embedded surface, also far from the fit, and its gradient
-    matches central differences."""
-    free_bar = embedded_bar
-    X = free_bar.rest_positions()
+    """The objective equals its definition E + 1/2 sum c_A |S W(Phi q) - d|^2 + 1/2 sum c_B
+    |S DW[Phi q'] - b|^2 evaluated directly on the embedded surface, at and far from the
+    solution, and its gradient matches central differences."""
+    body = embedded_bar
+    X = body.rest_positions()
     tip = np.flatnonzero(X[:, 0] > 0.7)
     ripple = 0.01 * np.sin(40.0 * X[tip])  # finer than the tets: no vertex values fit it
     keys = [
-        *turn_keys(free_bar, degrees=80.0),
+        *turn_keys(body, degrees=80.0),
         Keyframe(0.5, tip, X[tip] + [0.0, 0.3, 0.1] + ripple, velocity=(0.5, 0.0, 0.0)),
         Keyframe(0.8, tip, X[tip] + [0.1, -0.2, 0.0] - ripple),
     ]
-    problem = SpacetimeProblem(free_bar, 0.0, 1.2)
-    anim = problem.solve(keys, warped=True, tolerance=1e-8)
-    ab, f, c = problem._assemble_energy(anim.nodes)
-    kfs = [kf.checked(free_bar, 0.0, 1.2) for kf in keys]
-    obj = WarpedObjective(problem, kfs, anim.nodes, ab, f, c)
-    assert len(obj._batches) == 2  # the whole body, and the tip twice
-    fits = [problem._fit(keys[0].S, keys[0].St, wD)[3] for keys, wD, _ in obj._batches]
-    assert fits[1] > 1e-3 * max(fits)  # the ripple is not fitted: F* > 0 matters
+    problem = SpacetimeProblem(body, 0.0, 1.2)
+    anim = problem.solve(keys, warped=True)
+    obj, z0 = objective_at(anim)
+    energy = problem.energy(anim.nodes)
     rng = np.random.default_rng(4)
-    z0 = np.stack([anim.values, anim.velocities], axis=1).ravel()
-    r, n = free_bar.r, free_bar.n_vertices("tets")
-    Phi = free_bar.modes.vectors
+    r, n = body.r, body.n_vertices("tets")
+    Phi = body.modes.vectors
+    E = body.surface_embedding
     for scale in (0.0, 0.02, 1.0):  # at the solution, near it, and far from it
         z = z0 + scale * np.abs(z0).max() * rng.standard_normal(z0.size)
         Z = z.reshape(-1, 2, r)
-        direct = 0.5 * z @ (ab_matvec(ab, z)) + f @ z + c
-        for key in obj.keys:
-            u = (Phi @ Z[key.node, 0]).reshape(n, 3)
-            if key.d is not None:
-                res = key.S @ free_bar.warp.apply(u) - key.d
-                direct += 0.5 * key.wA**2 * np.vdot(res, res)
-            if key.b is not None:
-                du = (Phi @ Z[key.node, 1]).reshape(n, 3)
-                res = key.S @ free_bar.warp.jvp(u, du) - key.b
-                direct += 0.5 * key.wB**2 * np.vdot(res, res)
-        obj._last = None
-        F, g = obj.value_and_gradient(z)
-        assert abs(F - direct) <= 1e-12 * abs(direct), (scale, F, direct)
+        direct = 0.5 * z @ band_matvec(energy.ab, z) + energy.f @ z + energy.c
+        for kf in anim.keyframes:
+            k = int(np.argmin(np.abs(anim.nodes - kf.time)))
+            c_A, c_B = kf.weights(body, 1.2)
+            u = (Phi @ Z[k, 0]).reshape(n, 3)
+            res = X[kf.vertices] + (E @ body.warp.apply(u))[kf.vertices] - kf.position
+            direct += 0.5 * c_A * np.vdot(res, res)
+            if kf.velocity is not None:
+                du = (Phi @ Z[k, 1]).reshape(n, 3)
+                res = (E @ body.warp.jvp(u, du))[kf.vertices] - kf.velocity
+                direct += 0.5 * c_B * np.vdot(res, res)
+        point = obj.evaluate(z)
+        assert abs(point.F - direct) <= 1e-12 * abs(direct), (scale, point.F, direct)
     d = rng.standard_normal(z.size)
     h = 1e-6 * np.abs(z).max() / np.abs(d).max()
-    slope = (obj.value(z + h * d) - obj.value(z - h * d)) / (2 * h)
+    slope = (obj.evaluate(z + h * d).F - obj.evaluate(z - h * d).F) / (2 * h)
+    g = point.g
     assert abs(g @ d) > 1e-3 * np.linalg.norm(g) * np.linalg.norm(d)  # a generic direction
     assert abs(g @ d - slope) <= 1e-7 * abs(slope)
 
 
-def ab_matvec(ab, z):
-    from wiggly.solve import _band_matvec
-
-    return _band_matvec(ab, ab.shape[0] - 1, z)
+def test_edited_objective_at_the_last_point_pulls_back_only_changed_cotangents(free_bar):
+    """A warm start evaluates the edited objective at the last point from its W values and
+    pull-backs (DW^T is linear in the cotangent): the same value and gradient as a fresh
+    evaluation, with one node pulled back."""
+    keys = velocity_keys(free_bar)
+    problem = SpacetimeProblem(free_bar, 0.0, 1.5)
+    anim = problem.solve(keys, warped=True)
+    kfs = problem.checked(keys)
+    kfs[1] = Keyframe.rigid(free_bar, 1.0, kfs[1].vertices, rotation=(0, 0, np.radians(70)))
+    kept = WarpedObjective(problem, free_bar.fine_level, kfs, anim.nodes)
+    z = anim.warm_start.z
+    point = kept.evaluate(z, prior=anim.warm_start.point)
+    assert kept.counts["W"] == 0 and kept.counts["vjp"] == 1
+    fresh = WarpedObjective(problem, free_bar.fine_level, kfs, anim.nodes).evaluate(z)
+    assert abs(point.F - fresh.F) <= 1e-12 * fresh.F
+    assert np.abs(point.g - fresh.g).max() <= 1e-9 * np.abs(fresh.g).max()
+    assert np.abs(fresh.g).max() > 1e-3 * np.abs(anim.warm_start.point.g).max() + 1e-6

@@ -26,7 +26,7 @@ from wiggly.errors import WigglyInputError
 from wiggly.fem import Material, gravity_term, mass_matrix, stiffness_matrix
 from wiggly.mesh import Model, Surface, TetMesh, coarse_mesh, embed, load_model
 from wiggly.modes import Modes, compute_modes
-from wiggly.warp import CoarseWarp, Warp
+from wiggly.warp import Warp, WarpLevel, coarse_level, fine_level
 
 Where = Literal["surface", "tets"]
 DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
@@ -157,31 +157,29 @@ class Body:
         )
 
     @cached_property
-    def coarse_warp(self) -> CoarseWarp:
-        """The warp of a coarse mesh of the same solid (SYSTEM.md §6; built once, fTetWild,
-        cached on disk) for the warped solve; the fine warp itself up to
-        ``COARSE_WARP_ABOVE`` tets.  See :class:`wiggly.warp.CoarseWarp`."""
-        Phi = self.modes.vectors
+    def fine_level(self) -> WarpLevel:
+        """The warp W bound to the modes (Jacobians, curvatures; SYSTEM.md §6)."""
+        return fine_level(self.warp, self.modes.vectors)
+
+    @cached_property
+    def coarse_level(self) -> WarpLevel:
+        """The warp of a coarse mesh of the same solid (fTetWild, about ``COARSE_TETS`` tets,
+        cached on disk) for the warped solve's first level and Newton matrices; the fine
+        level itself up to ``COARSE_WARP_ABOVE`` tets.  See :mod:`wiggly.warp.transfer`."""
         if self.tets.n_tets <= COARSE_WARP_ABOVE:
-            return CoarseWarp.exact(self.warp, Phi)
+            return self.fine_level
         coarse = coarse_mesh(self.tets, COARSE_TETS, cache_dir=self.cache_dir)
         if coarse is None:
-            return CoarseWarp.exact(self.warp, Phi)
+            return self.fine_level
         n = self.tets.n_vertices
-        lift = embed(self.tets.vertices, coarse).matrix(coarse.n_vertices)
-        m = self.vertex_masses("tets")
-        # coarse vertices held at rest: those whose nearby fine vertices are mostly fixed
-        weight = abs(embed(coarse.vertices, self.tets).matrix(n))
-        fixed = np.zeros(n)
-        fixed[self.fixed_vertices] = 1.0
-        share = (weight @ fixed) / np.maximum(weight @ np.ones(n), 1e-300)
-        warp_c = Warp(
+        return coarse_level(
+            self.warp,
             coarse.vertices,
             coarse.tets,
-            masses=np.maximum(lift.T @ m, 0.0),
-            fixed_vertices=np.flatnonzero(share > 0.5),
+            lift=embed(self.tets.vertices, coarse).matrix(coarse.n_vertices),
+            interpolation=embed(coarse.vertices, self.tets).matrix(n),
+            basis=self.modes.vectors,
         )
-        return CoarseWarp(warp_c, lift, m, Phi)
 
     @cached_property
     def surface_embedding(self) -> sp.csr_matrix:

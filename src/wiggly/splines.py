@@ -284,7 +284,6 @@ def energy_form(basis: WigglyBasis, g: ArrayLike) -> EnergyForm:
     """
     g = np.broadcast_to(np.asarray(g, float), basis.lam.shape)
     h = basis.h
-    basis.lam * h**2
     D = basis.delta * h
     # R = L0 H = H'' + 2D H' + Lam H and its derivative R' at both ends, applied exactly
     R0, R0p = basis.hermite(0.0, 1, operator=True)

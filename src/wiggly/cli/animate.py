@@ -71,7 +71,7 @@ def summary(scene, anim) -> str:
     ]
     solve = f"{'warped' if anim.warped else 'linear'}, {info['solve_seconds']:.2f} s"
     if anim.warped:
-        solve += (f", {info['iterations']} Gauss-Newton iterations"
+        solve += (f", {info['iterations']} Newton iterations"
                   + ("" if info.get("converged") else " (not converged)"))
     lines.append(f"solve      {solve}")
     seconds = info.get("scene", {}).get("seconds", {})

@@ -33,6 +33,8 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from wiggly.solve import SolveOptions
+
 CHUNK_SECONDS = 0.6
 MAX_ITERATIONS = 50
 PUSH_SECONDS = 1.5
@@ -172,7 +174,10 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
         tc = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            anim = problem.solve(keys, warped=True, initial=init, max_iterations=n_it)
+            anim = problem.solve(
+                keys, warped=True, warm_start=init.warm_start if init is not None else None,
+                options=SolveOptions(max_iterations=n_it, warn=False),
+            )
         done = max(int(anim.info.get("iterations", n_it)), 1)
         per_iter = (time.perf_counter() - tc) / done
         total += done

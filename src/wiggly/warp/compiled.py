@@ -1,24 +1,25 @@
 """Compiled per-tet kernels of the rotation-strain warp (SYSTEM.md §6; Huang et al. 2011).
 
-The warp's per-tet arithmetic (gradient of ``u``, rotation vector and strain, Rodrigues,
-and the scatter ``G^T Vol`` back to the vertices) fused into one pass over the tets, compiled
-with numba.  :mod:`wiggly.warp` uses these kernels when numba is importable and its
-vectorized numpy path otherwise (or when ``WIGGLY_NUMBA=0``); the two are independent
-implementations of the same formulas and are tested against each other.
+The warp's per-tet arithmetic (gradient of ``u``, rotation vector and strain, Rodrigues, and
+the scatter ``G^T Vol`` back to the vertices) fused into one pass over the tets, compiled with
+numba.  :class:`wiggly.warp.kernels.NumbaKernels` wraps them; the vectorized numpy path
+(:mod:`wiggly.warp.kernels_numpy`) is an independent implementation of the same formulas,
+and the two are tested against each other.
 
 Conventions: ``tets`` (m, 4) int64, ``grads`` (m, 4, 3) the gradients of the four P1 basis
 functions of each tet, ``vol`` (m,) volumes.  Displacement fields are (f, n, 3) arrays (f
-frames or directions); outputs are accumulated into zeroed (f, n, 3) arrays, in parallel
-over the f fields.  A local 3x3 matrix ``M`` is a flat array of 9, ``M[3 i + j] = M_ij``,
-and the displacement gradient is ``A_ij = d u_i / d X_j``.
+frames or directions); outputs are accumulated into zeroed (f, n, 3) arrays, in parallel over
+the f fields.  A local 3x3 matrix ``M`` is a flat array of 9, ``M[3 i + j] = M_ij``, and the
+displacement gradient is ``A_ij = d u_i / d X_j``.
 
-Formulas (the same as the numpy path of :mod:`wiggly.warp`):
+Formulas (the same as :mod:`wiggly.warp.tetmath`):
 
 * ``w = axial((A - A^T) / 2)``, ``S = (A + A^T) / 2``, ``R = exp([w]x) = I + a [w]x + b [w]x^2``
   with ``a = sin(th)/th``, ``b = (1 - cos th)/th^2``; target ``H = (R - I) + S + (R - I) S``;
 * tangent ``dH = [J(w) dw]x F + R dS`` with ``F = R (I + S)`` and the left Jacobian
   ``J(w) = I + b [w]x + c [w]x^2``, ``c = (th - sin th)/th^3``;
-* its adjoint ``dA = sym(R^T Y) + [J(w)^T g / 2]x`` with ``g = 2 axial(Y F^T)``.
+* its adjoint ``dA = sym(R^T Y) + [J(w)^T g / 2]x`` with ``g = 2 axial(Y F^T)``: the gradient
+  ``grad_A (Y : H(A))``, whose derivatives (by central differences) give the curvature terms.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ pjit = njit(cache=True, fastmath={"contract"}, nogil=True, parallel=True)
 __all__ = [
     "AVAILABLE",
     "chunks",
+    "curvature_products",
     "compile_all",
     "field_gradients",
     "jacobians_rhs",
@@ -67,8 +69,6 @@ _B = tuple((-1.0) ** k / math.factorial(2 * k + 2) for k in range(14))
 _C = tuple((-1.0) ** k / math.factorial(2 * k + 3) for k in range(13))
 # Per-tet linearization record: w (3), b, c, R (9), F (9).
 _LIN = 23
-
-
 @jit
 def gradient(U, tets, grads, t, A):
     """``A_ij = sum_k U[v_k, i] grad_k_j`` on tet ``t``."""
@@ -337,11 +337,6 @@ def vjp_rhs(U, Z, index, tets, grads, vol, out, chunks):
                     scatter(dA, 1.0, tets, grads, t, o)
 
 
-def chunks(f: int) -> int:
-    """Frame chunks for ``f`` frames: one per thread (numba's current thread count)."""
-    from numba import get_num_threads
-
-    return max(1, min(f, get_num_threads()))
 
 
 @pjit
@@ -430,9 +425,163 @@ def second_derivatives_rhs(U, V, GB, step, tets, grads, vol, out):
             scatter(dH, vol[t], tets, grads, t, o)
 
 
+@jit
+def _cotangent_at(A, shift, scale, Y, S, lin, Ah, out):
+    """``out = grad_A' (Y : H(A'))`` at ``A' = A + scale shift``."""
+    for x in range(9):
+        Ah[x] = A[x] + scale * shift[x]
+    linearize(Ah, S, lin)
+    cotangent(lin, Y, out)
+
+
+@jit
+def _hessians(A, Y1, Y2, two, step, S, lin, Ah, unit, plus, minus, H1, H2):
+    """Hessians (flat 9x9, symmetric) of ``A -> Y1 : H(A)`` and, with ``two``, of
+    ``A -> Y2 : H(A)``, by central differences of the analytic gradient (one linearization
+    per perturbed ``A`` serves both)."""
+    for e in range(9):
+        for x in range(9):
+            unit[x] = 0.0
+        unit[e] = 1.0
+        for x in range(9):
+            Ah[x] = A[x] + step * unit[x]
+        linearize(Ah, S, lin)
+        cotangent(lin, Y1, plus)
+        if two:
+            cotangent(lin, Y2, S)  # S: scratch after linearize
+            for x in range(9):
+                H2[9 * x + e] = S[x]
+        for x in range(9):
+            Ah[x] = A[x] - step * unit[x]
+        linearize(Ah, S, lin)
+        cotangent(lin, Y1, minus)
+        for x in range(9):
+            H1[9 * x + e] = (plus[x] - minus[x]) / (2.0 * step)
+        if two:
+            cotangent(lin, Y2, minus)
+            for x in range(9):
+                H2[9 * x + e] = (H2[9 * x + e] - minus[x]) / (2.0 * step)
+    for x in range(9):
+        for e in range(x + 1, 9):
+            h = 0.5 * (H1[9 * x + e] + H1[9 * e + x])
+            H1[9 * x + e] = h
+            H1[9 * e + x] = h
+            if two:
+                h = 0.5 * (H2[9 * x + e] + H2[9 * e + x])
+                H2[9 * x + e] = h
+                H2[9 * e + x] = h
+
+
+@jit
+def _third(A, Y, a, step, S, lin, Ah, Ae, unit, p, q, T):
+    """``T = d/dA (Hess(Y : H)(A) a)`` (flat 9x9, symmetric): the Hessian of the scalar
+    ``A -> Y : dH(A; a)``, by nested central differences of the analytic gradient (step
+    ``step`` in both, error ~ step^2)."""
+    for e in range(9):
+        for x in range(9):
+            unit[x] = 0.0
+        unit[e] = 1.0
+        for x in range(9):
+            T[9 * x + e] = 0.0
+        for sign in (1.0, -1.0):
+            for x in range(9):
+                Ae[x] = A[x] + sign * step * unit[x]
+            _cotangent_at(Ae, a, step, Y, S, lin, Ah, p)
+            _cotangent_at(Ae, a, -step, Y, S, lin, Ah, q)
+            for x in range(9):  # sign * (Hess(A + sign step e) a)
+                T[9 * x + e] += sign * (p[x] - q[x]) / (2.0 * step)
+        for x in range(9):
+            T[9 * x + e] /= 2.0 * step
+    for x in range(9):
+        for e in range(x + 1, 9):
+            h = 0.5 * (T[9 * x + e] + T[9 * e + x])
+            T[9 * x + e] = h
+            T[9 * e + x] = h
+
+
+@jit
+def _apply_to_fields(H, GB, t, C):
+    """``C[d, t] = H GB[d, t]`` for every field d (H flat 9x9)."""
+    r = GB.shape[0]
+    for d in range(r):
+        g = GB[d, t]
+        c = C[d, t]
+        for x in range(9):
+            acc = 0.0
+            for e in range(9):
+                acc += H[9 * x + e] * g[e]
+            c[x] = acc
+
+
+@pjit
+def curvature_products(u, z, zv, v, GB, step, step3, tets, grads, vol, Cqq, Cqv, velocity):
+    """Per tet the Hessians of ``y . W`` in the gradient, applied to r field gradients.
+
+    ``u`` (n, 3) the point, ``z`` and ``zv`` (n, 3) the Poisson adjoints of the cotangents
+    ``y`` and ``y_v`` (so that ``y . W(u) = sum_t vol_t (G z)_t : H(A_t) + linear``), ``v``
+    (n, 3) a velocity, ``GB`` (r, m, 9) the fields' gradients.  Writes (r, m, 9) arrays
+
+        Cqq[d, t] = vol_t (Hess(Z_t) + D Hess(Zv_t)[(G v)_t]) GB[d, t]
+        Cqv[d, t] = vol_t Hess(Zv_t) GB[d, t]          (only with ``velocity``)
+
+    with ``Z_t = (G z)_t`` and ``Hess(Y)`` the 9x9 Hessian of ``A -> Y : H(A)`` at
+    ``A_t = (G u)_t``; ``GB^T C`` then gives the modal curvature matrices (see
+    :meth:`wiggly.warp.kernels.NumbaKernels.curvature`).  ``step`` is the central-difference
+    step of the Hessians, ``step3`` that of the third derivative (in both directions).
+    """
+    m = tets.shape[0]
+    n_chunks = max(1, min(m, 64))
+    for c in prange(n_chunks):
+        t0, t1 = c * m // n_chunks, (c + 1) * m // n_chunks
+        A = np.empty(9)
+        Y1 = np.empty(9)
+        Y2 = np.empty(9)
+        a = np.empty(9)
+        S = np.empty(9)
+        lin = np.empty(_LIN)
+        Ah = np.empty(9)
+        Ae = np.empty(9)
+        unit = np.empty(9)
+        p = np.empty(9)
+        q = np.empty(9)
+        H1 = np.empty(81)
+        H2 = np.empty(81)
+        T = np.empty(81)
+        for t in range(t0, t1):
+            gradient(u, tets, grads, t, A)
+            gradient(z, tets, grads, t, Y1)
+            for x in range(9):
+                Y1[x] *= vol[t]
+            if velocity:
+                gradient(zv, tets, grads, t, Y2)
+                gradient(v, tets, grads, t, a)
+                for x in range(9):
+                    Y2[x] *= vol[t]
+            _hessians(A, Y1, Y2, velocity, step, S, lin, Ah, unit, p, q, H1, H2)
+            if velocity:
+                scale = 0.0
+                for x in range(9):
+                    scale = max(scale, abs(a[x]))
+                if scale > 0.0:
+                    for x in range(9):
+                        a[x] /= scale
+                    _third(A, Y2, a, step3, S, lin, Ah, Ae, unit, p, q, T)
+                    for x in range(81):
+                        H1[x] += scale * T[x]
+                _apply_to_fields(H2, GB, t, Cqv)
+            _apply_to_fields(H1, GB, t, Cqq)
+
+
+def chunks(f: int) -> int:
+    """Frame chunks for ``f`` frames: one per thread (numba's current thread count)."""
+    from numba import get_num_threads
+
+    return max(1, min(f, get_num_threads()))
+
+
 def compile_all() -> None:
-    """Compile every kernel (or load it from numba's on-disk cache: ~0.3 s when cached,
-    ~20 s the first time after installation) by running it on one tetrahedron."""
+    """Compile every kernel (or load it from numba's on-disk cache: ~0.5 s when cached, ~30 s
+    the first time after installation) by running it on one tetrahedron."""
     if not AVAILABLE:
         return
     tets = np.array([[0, 1, 2, 3]], dtype=np.int64)
@@ -449,3 +598,5 @@ def compile_all() -> None:
     GB = field_gradients(U, tets, grads)
     jacobians_rhs(U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
     second_derivatives_rhs(U, U, GB, 1e-6, tets, grads, vol, np.zeros((2, 2, 4, 3)))
+    C = np.zeros((2, 1, 9))
+    curvature_products(U[0], U[0], U[1], U[1], GB, 1e-6, 1e-4, tets, grads, vol, C, C.copy(), True)

@@ -1,0 +1,80 @@
+"""The sparse spacetime solve (SYSTEM.md §4-6, Theorems 1 and 2).
+
+Modules, in the order data flows:
+
+* :mod:`~wiggly.solve.nodes` -- node times of a shot;
+* :mod:`~wiggly.solve.banded` -- band storage, the equilibrated banded Cholesky with
+  extended-precision refinement;
+* :mod:`~wiggly.solve.problem` -- :class:`SpacetimeProblem`: the energy E over a node set,
+  sparse keyframes E_C, the linear solve (Theorem 1);
+* :mod:`~wiggly.solve.warped` -- the warped objective E + E_WC: value, exact gradient,
+  Newton matrix (Theorem 2);
+* :mod:`~wiggly.solve.optimizer` -- damped Newton with an honest stopping rule
+  (:class:`SolveOptions`);
+* :mod:`~wiggly.solve.levels` -- the coarse and fine levels, and :class:`WarmStart`;
+* :mod:`~wiggly.solve.animation` -- :class:`Animation`, the solved motion and its playback.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from wiggly.body import Body
+from wiggly.keyframes import Keyframe
+from wiggly.solve.animation import Animation
+from wiggly.solve.levels import WarmStart
+from wiggly.solve.optimizer import SolveOptions, WarpedSolveWarning
+from wiggly.solve.problem import SpacetimeProblem
+from wiggly.solve.warped import WarpedObjective, WarpedPoint
+
+__all__ = [
+    "Animation",
+    "SolveOptions",
+    "SpacetimeProblem",
+    "WarmStart",
+    "WarpedObjective",
+    "WarpedPoint",
+    "WarpedSolveWarning",
+    "solve",
+]
+
+
+def solve(
+    body: Body,
+    keyframes: list[Keyframe],
+    *,
+    duration: float | None = None,
+    start: float = 0.0,
+    end: float | None = None,
+    warp: bool = True,
+    preroll: float | None = None,
+    options: SolveOptions | None = None,
+    progress: bool = False,
+) -> Animation:
+    """Animate ``body`` through the sparse ``keyframes``.
+
+    ``warp=True`` (default) solves E + E_WC on the rotation-strain-warped motion (Theorem 2)
+    and plays back W(u(t)); ``warp=False`` is the linear solve of Theorem 1.  The time range
+    is [start, end] (``end = start + duration``; default: the last keyframe time, at least
+    start + 1 s).
+    """
+    if end is None:
+        if duration is None:
+            last = max((kf.time for kf in keyframes), default=start)
+            duration = max(float(last) - start, 1.0)
+        end = start + float(duration)
+    problem = SpacetimeProblem(body, start, end, preroll)
+    anim = problem.solve(keyframes, warped=warp, options=options, progress=progress)
+    if progress:
+        extra = ""
+        if warp:
+            extra = (
+                f", {anim.info['iterations']} Newton iterations"
+                f"{'' if anim.info['converged'] else ' (not converged)'}"
+            )
+        print(
+            f"[wiggly] {'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
+            f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}",
+            file=sys.stderr,
+        )
+    return anim

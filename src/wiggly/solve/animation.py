@@ -1,0 +1,188 @@
+"""A solved motion: wiggly splines in every mode (Theorem 1), and its playback.
+
+The unknowns of the spacetime solve are the node values q_i(t_k) and node velocities
+q_i'(t_k) of every mode; on each interval between nodes each mode is the wiggly spline with
+that Hermite data (:mod:`wiggly.splines`).  Linear playback is u(t) = Phi q(t); warped
+playback is W(u(t)) (and DW(u(t)) u'(t) for velocities), SYSTEM.md §6.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from wiggly.body import Body, Where
+from wiggly.errors import WigglyInputError
+from wiggly.keyframes import Keyframe
+from wiggly.splines import WigglyBasis, energy_form, evaluate
+
+if TYPE_CHECKING:
+    from wiggly.solve.levels import WarmStart
+
+__all__ = ["Animation"]
+
+
+@dataclass(eq=False)
+class Animation:
+    """A solved motion: wiggly splines in every mode, with nodes at the keyframe times.
+
+    Attributes
+    ----------
+    body : Body
+    nodes : (m+1,) node times t_0 < ... < t_m in seconds.
+    values, velocities : (m+1, r) q_i(t_k) and q_i'(t_k) of every mode at every node.
+    keyframes : the (validated) keyframes that produced it.
+    info : how it was solved (unknowns, timings; for warped motions the iterations,
+        ``converged``, the final Newton decrement and ``distance_bound``, see
+        :func:`wiggly.solve.optimizer.minimize`).
+    """
+
+    body: Body
+    nodes: np.ndarray
+    values: np.ndarray
+    velocities: np.ndarray
+    keyframes: list[Keyframe]
+    basis: WigglyBasis = field(repr=False)
+    warped: bool = False
+    info: dict = field(default_factory=dict)
+    #: what a later warped solve of an edited problem can start from (None for linear
+    #: motions): pass it as ``warm_start=`` to :meth:`SpacetimeProblem.solve`
+    warm_start: WarmStart | None = field(default=None, repr=False)
+
+    @property
+    def start(self) -> float:
+        return float(self.nodes[0])
+
+    @property
+    def end(self) -> float:
+        return float(self.nodes[-1])
+
+    @property
+    def duration(self) -> float:
+        return self.end - self.start
+
+    def frame_times(self, fps: float = 30.0) -> np.ndarray:
+        """Frame times start, start + 1/fps, ... up to and including the end (if on the grid)."""
+        n = int(np.floor(self.duration * fps + 1e-9)) + 1
+        return self.start + np.arange(n) / fps
+
+    # --- modal trajectories ------------------------------------------------------------
+    def modal(self, times: ArrayLike, n_derivatives: int = 0, side: str = "right") -> np.ndarray:
+        """q(t) and its time derivatives for all modes: shape (n_derivatives + 1, F, r).
+
+        At a node the spline of the interval to the ``side`` of it is used (the one-sided
+        limits differ in derivatives of order 2 or 3, Theorem 1).
+        """
+        t = np.atleast_1d(np.asarray(times, dtype=float))
+        tol = 1e-9 * max(1.0, self.duration)
+        if np.any(~np.isfinite(t)) or np.any(t < self.start - tol) or np.any(t > self.end + tol):
+            raise WigglyInputError(
+                f"times must lie in the animation's range [{self.start}, {self.end}] s; got "
+                f"[{np.nanmin(t)}, {np.nanmax(t)}]"
+            )
+        t = np.clip(t, self.start, self.end)
+        m, r = len(self.nodes) - 1, self.body.r
+        k = np.clip(np.searchsorted(self.nodes, t, side=side) - 1, 0, m - 1)
+        h = np.diff(self.nodes)[k]
+        tau = (t - self.nodes[k]) / h
+        idx = (k[:, None] * r + np.arange(r)).ravel()  # (F*r,)
+        data = np.stack(
+            [self.values[k], self.velocities[k], self.values[k + 1], self.velocities[k + 1]],
+            axis=-1,
+        ).reshape(-1, 4)
+        g = np.tile(self.body.modal_gravity, len(t))
+        out = evaluate(self.basis.take(idx), data, g, np.repeat(tau, r), n_derivatives)
+        return out.reshape(n_derivatives + 1, len(t), r)
+
+    # --- vertex trajectories -------------------------------------------------------------
+    def displacements(
+        self, times: ArrayLike, on: Where = "surface", derivative: int = 0, dtype: type = np.float64
+    ) -> np.ndarray:
+        """Displacements (or their ``derivative``-th time derivative): shape (F, n, 3).
+
+        Linear: u(t) = Phi q(t).  Warped: W(u(t)) and DW(u(t)) u'(t) (SYSTEM.md §6), computed
+        on the tet mesh in batches of frames (one multi-RHS Poisson solve per batch) and
+        carried to the surface by the barycentric embedding.
+        """
+        if not self.warped:
+            q = self.modal(times, derivative)[derivative]
+            B = self.body.basis(on)
+            out = q.astype(dtype, copy=False) @ B.T.astype(dtype, copy=False)
+            return out.reshape(len(q), -1, 3)
+        if derivative > 1:
+            raise WigglyInputError(
+                "accelerations are available for linear motion (warp=False) only; for the "
+                "warped motion sample positions densely and differentiate numerically"
+            )
+        q = self.modal(times, derivative)
+        body = self.body
+        n = body.tets.n_vertices
+        Phi = body.modes.vectors
+        F = q.shape[1]
+        out = np.empty((F, body.n_vertices(on), 3), dtype=dtype)
+        for f0 in range(0, F, _PLAYBACK_BATCH):
+            sl = slice(f0, min(F, f0 + _PLAYBACK_BATCH))
+            U = (q[0, sl] @ Phi.T).reshape(-1, n, 3)
+            if derivative == 0:
+                W = body.warp.apply(U)
+            else:
+                dU = (q[1, sl] @ Phi.T).reshape(-1, n, 3)
+                W = np.stack([body.warp.jvp(u, du) for u, du in zip(U, dU, strict=True)])
+            if on == "surface":
+                E = body.surface_embedding
+                W = (E @ W.transpose(1, 0, 2).reshape(n, -1)).reshape(E.shape[0], -1, 3)
+                W = W.transpose(1, 0, 2)
+            out[sl] = W
+        return out
+
+    def positions(
+        self, times: ArrayLike, on: Where = "surface", dtype: type = np.float64
+    ) -> np.ndarray:
+        """Vertex positions rest + u(t) for all ``times``: shape (F, n, 3)."""
+        u = self.displacements(times, on, 0, dtype)
+        u += self.body.rest_positions(on).astype(dtype, copy=False)
+        return u
+
+    def velocities_at(self, times: ArrayLike, on: Where = "surface") -> np.ndarray:
+        """Vertex velocities u'(t): shape (F, n, 3)."""
+        return self.displacements(times, on, 1)
+
+    def accelerations_at(self, times: ArrayLike, on: Where = "surface") -> np.ndarray:
+        """Vertex accelerations u''(t): shape (F, n, 3)."""
+        return self.displacements(times, on, 2)
+
+    # --- diagnostics ---------------------------------------------------------------------
+    def energy(self) -> float:
+        """E of eq. (3): the integrated squared extra force (M^-1 norm), summed over modes."""
+        x = _interval_data(self.values, self.velocities)
+        form = energy_form(self.basis, np.tile(self.body.modal_gravity, len(self.nodes) - 1))
+        return float(form(x).sum())
+
+    def constraint_residuals(self) -> list[dict]:
+        """Per keyframe: RMS and max distance (m) to the position targets, RMS velocity error."""
+        out = []
+        for kf in self.keyframes:
+            row: dict = {"time": kf.time, "name": kf.name, "n_vertices": len(kf.vertices)}
+            if kf.position is not None:
+                x = self.positions([kf.time], kf.on)[0][kf.vertices]
+                d = np.linalg.norm(x - kf.position, axis=1)
+                row.update(position_rms=float(np.sqrt(np.mean(d**2))), position_max=float(d.max()))
+            if kf.velocity is not None:
+                v = self.velocities_at([kf.time], kf.on)[0][kf.vertices]
+                d = np.linalg.norm(v - kf.velocity, axis=1)
+                row.update(velocity_rms=float(np.sqrt(np.mean(d**2))))
+            out.append(row)
+        return out
+
+
+def _interval_data(values: np.ndarray, velocities: np.ndarray) -> np.ndarray:
+    """Hermite data (q_k, q_k', q_k+1, q_k+1') per (interval, mode): shape (m*r, 4)."""
+    return np.stack([values[:-1], velocities[:-1], values[1:], velocities[1:]], axis=-1).reshape(
+        -1, 4
+    )
+
+
+_PLAYBACK_BATCH = 64

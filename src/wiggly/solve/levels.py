@@ -1,0 +1,132 @@
+"""The warped solve on two levels, and warm starts (SYSTEM.md §6, Theorem 2).
+
+Bodies above ``COARSE_WARP_ABOVE`` tets have a coarse level: the warp of a coarse mesh of
+the same solid (:mod:`wiggly.warp.transfer`).  The warped solve then runs
+
+1. on the coarse level: Newton's method on F~ (the objective with W~ in place of W), with
+   its exact Hessian; each iteration costs a few milliseconds, and its solution lies within
+   the coarse mesh's error of the fine one;
+2. on the fine level from there: the exact fine objective, with Newton matrices from the
+   coarse level (approximate: linear convergence, certified by the measured contraction;
+   exact fine matrices when it is slow).  This changes the path, never the solution.
+
+Smaller bodies solve on the fine level only, with exact Newton matrices.
+
+Warm starts.  A solve returns a :class:`WarmStart` (``Animation.warm_start``); the caller
+passes it back to re-solve the problem with edited keyframes.  It holds the last fine point
+z0 (with W and the pulled-back cotangents there, so the edited objective at z0 costs the
+changed keyframes only) and the measured contraction.  The coarse level then gets the full
+approximation scheme's correction (Brandt 1977): the linear term ``tau^T z``, ``tau = grad F(z0)
+- grad F~(z0)``, that makes its gradient equal the fine one at z0, so the coarse mesh's error
+reaches the new start only through its change over the edit.  The corrected start is kept
+only if the fine objective drops there; otherwise the plain coarse solve follows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from wiggly.keyframes import Keyframe
+from wiggly.progress import iterations
+from wiggly.solve.optimizer import SolveOptions, minimize, warn_unconverged
+from wiggly.solve.warped import WarpedObjective, WarpedPoint
+
+if TYPE_CHECKING:
+    from wiggly.solve.problem import SpacetimeProblem
+
+__all__ = ["WarmStart", "solve_warped"]
+
+
+@dataclass(frozen=True, eq=False)
+class WarmStart:
+    """What a warped solve leaves for the next solve of the same problem."""
+
+    nodes: np.ndarray
+    z: np.ndarray
+    keyframes: tuple[Keyframe, ...]
+    point: WarpedPoint  # the fine objective at z
+    contraction: float | None  # measured on the fine level (approximate Newton matrices)
+
+    def fits(self, nodes: np.ndarray) -> bool:
+        """Whether a problem with these node times can start here."""
+        return self.nodes.shape == nodes.shape and bool(np.allclose(self.nodes, nodes))
+
+
+def same_keyframes(a: tuple[Keyframe, ...] | list[Keyframe], b: list[Keyframe]) -> bool:
+    """Whether two validated keyframe lists pose the same problem."""
+
+    def same(x, y) -> bool:
+        return (x is None and y is None) or (
+            x is not None and y is not None and np.array_equal(x, y)
+        )
+
+    return len(a) == len(b) and all(
+        p.time == q.time
+        and p.on == q.on
+        and (p.stiffness, p.c_A, p.c_B) == (q.stiffness, q.c_A, q.c_B)
+        and same(p.vertices, q.vertices)
+        and same(p.position, q.position)
+        and same(p.velocity, q.velocity)
+        for p, q in zip(a, b, strict=True)
+    )
+
+
+def solve_warped(
+    problem: SpacetimeProblem,
+    kfs: list[Keyframe],
+    nodes: np.ndarray,
+    z0: np.ndarray,
+    options: SolveOptions,
+    warm: WarmStart | None,
+    progress: bool = False,
+) -> tuple[np.ndarray, dict, WarmStart]:
+    """Minimise E + E_WC from z0 (module docstring); returns z, a report, the warm start."""
+    body = problem.body
+    coarse = body.coarse_level if options.two_level else body.fine_level
+    two = not coarse.exact
+    fine = WarpedObjective(problem, body.fine_level, kfs, nodes, model=coarse if two else None)
+    report: dict = {}
+    with iterations("warped solve (Newton)", options.max_iterations, progress) as bar:
+        start = fine.evaluate(z0, prior=warm.point if warm is not None else None)
+        continuation = warm is not None and same_keyframes(warm.keyframes, kfs)
+        if two and not continuation:
+            start, report["coarse"] = _coarse_level(problem, coarse, kfs, nodes, fine, start,
+                                                    warm, options, bar)
+        point, fine_report = minimize(
+            fine, start, options, contraction=warm.contraction if warm else None, bar=bar
+        )
+    report.update(fine_report)
+    if not report["converged"] and options.warn:
+        warn_unconverged(report)
+    theta = fine_report["contraction"]
+    if theta is None and warm is not None:
+        theta = warm.contraction
+    return point.z, report, WarmStart(nodes.copy(), point.z, tuple(kfs), point, theta)
+
+
+def _coarse_level(problem, coarse, kfs, nodes, fine, start, warm, options, bar):
+    """The coarse first level from ``start`` (the fine point at z0); returns the fine point
+    where the fine level starts and the coarse level's report."""
+    plain = WarpedObjective(problem, coarse, kfs, nodes)
+    at_z0 = plain.evaluate(start.z)
+    if warm is not None:  # full approximation scheme from the last fine point
+        tau = start.g - at_z0.g
+        correction = (tau, start.F - at_z0.F - float(tau @ start.z))
+        corrected = WarpedObjective(problem, coarse, kfs, nodes, correction=correction)
+        point, report = minimize(
+            corrected, corrected.evaluate(start.z, prior=at_z0), options,
+            tolerance=options.coarse_tolerance, bar=bar,
+        )
+        report["corrected"] = True
+        candidate = fine.evaluate(point.z)
+        if report["converged"] and candidate.F < start.F:
+            return candidate, report
+    point, report = minimize(plain, at_z0, options, tolerance=options.coarse_tolerance, bar=bar)
+    candidate = fine.evaluate(point.z)
+    if warm is not None and candidate.F >= start.F:
+        report["kept_start"] = True
+        return start, report
+    return candidate, report

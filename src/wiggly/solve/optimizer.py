@@ -1,0 +1,299 @@
+"""Newton's method with Levenberg-Marquardt damping for E + E_WC (Theorem 2).
+
+Each iteration evaluates the objective F and its exact gradient g at z, asks the objective
+for a Newton matrix B (the spacetime energy's band plus, at each constrained node, the
+Gauss-Newton blocks J^T J *and* the curvature of the residuals, sum c r^T D^2 W; see
+:mod:`wiggly.solve.warped`), and solves (B + mu D) dz = -g.  A step is accepted when F drops
+by a fair share of what the quadratic model predicts; mu follows Nielsen's rule and is zero
+near the solution, where the iteration is Newton's.
+
+Stopping rule.  With the Newton decrement ``dec = -1/2 g^T dz`` (dz = -B^-1 g, B positive
+definite), the solve has converged when
+
+    dec <= tolerance * F + floor,    floor = 100 eps * (the sum of the magnitudes of F's terms)
+
+(the floor is the rounding level of F: at a body at rest F itself rounds to ~0) and the
+matrix is trustworthy:
+
+* *exact* (B is the Hessian of F at z): then ``|z - z*|_B ~ sqrt(2 dec)`` to second order,
+  and the Newton step dz is z* - z up to O(|dz|^2);
+* *approximate* (B from a coarse mesh, :mod:`wiggly.solve.levels`): the iteration converges
+  linearly, z_{k+1} - z* = (I - B^-1 H)(z_k - z*), with a contraction factor theta measured
+  from successive decrements (theta^2 ~ dec_{k+1}/dec_k); convergence is declared only while
+  theta <= ``contraction``, and then ``|z - z*| <= |dz| / (1 - theta)``.  If theta stays
+  larger, the objective switches to its exact matrix.
+
+``converged`` is true only when this rule holds; otherwise a :class:`WarpedSolveWarning`
+gives the decrement reached.  ``distance_bound`` reports ``|dz| / (1 - theta)`` in metres:
+the largest vertex displacement of the final Newton step at any node (tet mesh).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from wiggly.solve.banded import BandedCholesky, band_matvec
+
+__all__ = ["SolveOptions", "WarpedSolveWarning", "minimize"]
+
+
+class WarpedSolveWarning(UserWarning):
+    """The warped solve stopped before meeting its stopping rule."""
+
+
+@dataclass(frozen=True)
+class SolveOptions:
+    """Options of the warped (nonlinear) solve.
+
+    tolerance : the Newton decrement must fall below ``tolerance * F`` (plus F's rounding
+        level).
+    max_iterations : Newton iterations allowed per level.
+    contraction : largest measured contraction factor per iteration with which an
+        approximate (coarse-mesh) Newton matrix may certify convergence; above it the solve
+        switches to the exact matrix.
+    coarse_tolerance : tolerance of the coarse first level (its solution only starts the
+        fine one).
+    two_level : solve on the body's coarse mesh first (bodies above ``COARSE_WARP_ABOVE``
+        tets); False: the fine level only, with exact Newton matrices.
+    warn : emit a :class:`WarpedSolveWarning` when the solve stops unconverged.
+    """
+
+    tolerance: float = 1e-8
+    max_iterations: int = 100
+    contraction: float = 0.5
+    coarse_tolerance: float = 1e-6
+    two_level: bool = True
+    warn: bool = True
+
+    def __post_init__(self) -> None:
+        if not (self.tolerance > 0 and np.isfinite(self.tolerance)):
+            raise ValueError(f"tolerance = {self.tolerance!r} must be a number > 0")
+        if int(self.max_iterations) != self.max_iterations or self.max_iterations < 0:
+            raise ValueError(f"max_iterations = {self.max_iterations!r} must be an integer >= 0")
+        if not 0 < self.contraction < 1:
+            raise ValueError(f"contraction = {self.contraction!r} must lie in (0, 1)")
+
+
+class Point(Protocol):
+    z: np.ndarray
+    F: float
+    g: np.ndarray
+    magnitude: float
+
+
+class Objective(Protocol):
+    """What :func:`minimize` needs of an objective (see :mod:`wiggly.solve.warped`)."""
+
+    exact: bool
+    timing: dict
+    counts: dict
+
+    def evaluate(self, z: np.ndarray) -> Point: ...
+
+    def newton_matrices(self, point: Point) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def use_exact(self) -> bool: ...
+
+    def step_size(self, dz: np.ndarray) -> float: ...
+
+
+# Conjugate gradients of the trust-region steps: relative residual and iterations.
+CG_TOLERANCE = 1e-6
+CG_ITERATIONS = 200
+# Accept a step when F drops by at least this share of the model's prediction.
+ACCEPT = 1e-4
+DEBUG = False
+# Approximate matrices: switch to the exact one after this many iterations in a row where
+# the approximate matrix is indefinite or contracts by more than ``contraction``.
+SLOW_STEPS = 2
+# The rounding level of F, relative to the sum of its terms' magnitudes.
+ROUNDING = 100 * np.finfo(float).eps
+
+
+def _norm(ab: np.ndarray, x: np.ndarray) -> float:
+    """``sqrt(x^T A x)`` for A in band storage."""
+    return float(np.sqrt(max(float(x @ band_matvec(ab, x)), 0.0)))
+
+
+def steihaug(
+    B: np.ndarray, M: np.ndarray, precondition: BandedCholesky, g: np.ndarray, radius: float
+) -> np.ndarray:
+    """Approximate minimiser of ``g^T p + 1/2 p^T B p`` over ``|p|_M <= radius`` by
+    preconditioned conjugate gradients (Steihaug 1983, Toint 1981; Nocedal & Wright,
+    Alg. 7.2): stops on the boundary when it leaves the region or meets negative curvature
+    of B (which it then follows), or when the residual has fallen by CG_TOLERANCE."""
+    p = np.zeros_like(g)
+    r = g.copy()
+    y = precondition.solve(r, refine=False)
+    d = -y
+    ry = float(r @ y)
+    target = CG_TOLERANCE * np.sqrt(max(ry, 0.0))
+    for _ in range(CG_ITERATIONS):
+        Bd = band_matvec(B, d)
+        dBd = float(d @ Bd)
+        if dBd <= 0:
+            return p + _to_boundary(M, p, d, radius) * d
+        alpha = ry / dBd
+        p_next = p + alpha * d
+        if _norm(M, p_next) >= radius:
+            return p + _to_boundary(M, p, d, radius) * d
+        p = p_next
+        r = r + alpha * Bd
+        y = precondition.solve(r, refine=False)
+        ry_next = float(r @ y)
+        if np.sqrt(max(ry_next, 0.0)) <= target:
+            break
+        d = -y + (ry_next / ry) * d
+        ry = ry_next
+    return p
+
+
+def _to_boundary(M: np.ndarray, p: np.ndarray, d: np.ndarray, radius: float) -> float:
+    """The tau >= 0 with ``|p + tau d|_M = radius`` (p inside the region)."""
+    Md = band_matvec(M, d)
+    a, b, c = float(d @ Md), float(p @ Md), float(p @ band_matvec(M, p)) - radius**2
+    return (-b + np.sqrt(max(b * b - a * c, 0.0))) / a
+
+
+def _factor(ab: np.ndarray) -> BandedCholesky | None:
+    try:
+        return BandedCholesky(ab)
+    except np.linalg.LinAlgError:
+        return None
+
+
+def minimize(
+    objective: Objective,
+    point: Point,
+    options: SolveOptions,
+    *,
+    tolerance: float | None = None,
+    contraction: float | None = None,
+    bar=None,
+) -> tuple[Point, dict]:
+    """Minimise ``objective`` from ``point`` (evaluated); see the module docstring.
+
+    ``contraction`` is a contraction factor known from an earlier solve of the same problem
+    (a warm start), which lets an approximate matrix certify a start that already meets the
+    tolerance.  Returns the final point and a report.
+    """
+    tol = options.tolerance if tolerance is None else tolerance
+    F_start = point.F
+    history = [point.F]
+    radius: float | None = None
+    theta = contraction
+    last_full: float | None = None  # decrement of the last iteration that took a Newton step
+    slow, exact_from, newton_steps = 0, None, 0
+    converged, stop, it = False, "max_iterations", 0
+    decrement, dz_newton = np.inf, None
+    t_solve = 0.0
+    while True:
+        B_gn, B = objective.newton_matrices(point)
+        t0 = time.perf_counter()
+        chol = _factor(B)
+        dz_newton = chol.solve(-point.g) if chol is not None else None
+        decrement = -0.5 * float(point.g @ dz_newton) if dz_newton is not None else np.inf
+        if not decrement >= 0:  # not a descent direction: B is not positive definite
+            chol, decrement, dz_newton = None, np.inf, None
+        t_solve += time.perf_counter() - t0
+        if chol is not None and last_full is not None and last_full > 0:
+            theta = float(np.sqrt(decrement / last_full))
+        floor = ROUNDING * point.magnitude
+        small = decrement <= tol * max(point.F, 0.0) + floor
+        trusted = objective.exact or (theta is not None and theta <= options.contraction)
+        if small and (trusted or decrement <= floor):
+            converged, stop = True, "decrement" if decrement > floor else "round-off"
+            break
+        if not objective.exact:  # an approximate matrix must keep earning its keep
+            slow = slow + 1 if chol is None or (theta or 0.0) > options.contraction else 0
+            if slow >= SLOW_STEPS and objective.use_exact():
+                exact_from, theta, last_full, slow = it, None, None, 0
+                continue  # recompute the matrix at the same point
+        if it >= options.max_iterations:
+            break
+        it += 1
+        # trust region in the Gauss-Newton matrix's norm: Newton's step where B is positive
+        # definite and the step fits, else Steihaug-Toint conjugate gradients on B
+        # preconditioned by the Gauss-Newton matrix (which follows negative curvature)
+        t0 = time.perf_counter()
+        precondition = _factor(B_gn)
+        if precondition is None:  # only when H itself is singular (no pre-roll)
+            stop = "singular"
+            break
+        if radius is None:
+            dz0 = dz_newton if dz_newton is not None else precondition.solve(-point.g)
+            radius = _norm(B_gn, dz0)
+        newton = False
+        while True:
+            if dz_newton is not None and _norm(B_gn, dz_newton) <= radius * (1 + 1e-12):
+                dz, newton = dz_newton, True
+            else:
+                dz, newton = steihaug(B, B_gn, precondition, point.g, radius), False
+            size = _norm(B_gn, dz)
+            predicted = -(float(point.g @ dz) + 0.5 * float(dz @ band_matvec(B, dz)))
+            t_solve += time.perf_counter() - t0
+            if not predicted > floor:  # no decrease left above F's rounding level
+                radius = 0.0
+                break
+            new = objective.evaluate(point.z + dz)
+            t0 = time.perf_counter()
+            rho = (point.F - new.F) / predicted
+            if DEBUG:
+                print(f"  it={it} radius={radius:.3g} size={size:.3g} rho={rho:.3g} "
+                      f"newton={newton} step={objective.step_size(dz):.3g} F={new.F:.6g}")
+            if rho < 0.25:
+                radius = 0.25 * size
+            elif rho > 0.75 and size >= 0.99 * radius:
+                radius = 2.0 * radius
+            if rho > ACCEPT:
+                break
+            if radius <= 1e-14 * max(_norm(B_gn, point.z), 1e-300):
+                radius = 0.0
+                break
+        if radius == 0.0:
+            stop = "no progress"
+            break
+        newton_steps += newton
+        last_full = decrement if newton else None
+        point = new
+        history.append(point.F)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix_str(f"objective {point.F:.6g}")
+    distance = None
+    if dz_newton is not None:
+        distance = objective.step_size(dz_newton) / (1.0 - min(theta or 0.0, 0.99))
+    objective.timing["solve"] = objective.timing.get("solve", 0.0) + t_solve
+    report = {
+        "iterations": it,
+        "converged": converged,
+        "stop": stop,
+        "objective_start": F_start,
+        "objective": point.F,
+        "objective_history": history,
+        "newton_decrement": decrement,
+        "contraction": theta,
+        "distance_bound": distance,
+        "exact_newton_from": exact_from,
+        "newton_steps": newton_steps,
+        "evaluations": dict(objective.counts),
+        "seconds": dict(objective.timing),
+    }
+    return point, report
+
+
+def warn_unconverged(report: dict, level: str = "") -> None:
+    """A :class:`WarpedSolveWarning` with the decrement reached."""
+    warnings.warn(
+        f"warped solve{level} did not converge in {report['iterations']} iterations "
+        f"({report['stop']}): objective {report['objective']:.6g} (start "
+        f"{report['objective_start']:.6g}), Newton decrement {report['newton_decrement']:.2e}; "
+        "the result is the best iterate",
+        WarpedSolveWarning,
+        stacklevel=4,
+    )

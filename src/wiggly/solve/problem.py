@@ -1,0 +1,285 @@
+"""The sparse spacetime problem of one body over one time range (SYSTEM.md §4-5, Theorem 1).
+
+By Theorem 1 the minimiser of E + E_C is, in every mode, a wiggly spline with nodes at the
+keyframe times (and at the start and end).  The unknowns are the node values q_i(t_k) and
+node velocities q_i'(t_k) of every mode, z = (z_0, ..., z_m), z_k = (q_k, q'_k).  The energy
+E is a sum of exact per-interval quadratic forms (:func:`wiggly.splines.energy_form`), banded
+in time; E_C couples the modes at a node.  The linear minimiser solves one banded SPD system
+H z = -f (:class:`wiggly.solve.banded.BandedCholesky`).
+
+Pre-roll (our regularization).  E vanishes on every free motion, so with sparse keyframes
+E + E_C is only semi-definite.  We assume the body rests (at static equilibrium) until
+``preroll`` seconds before t_0 and add the least spacetime energy (same functional, same
+wiggly splines, no gravity) that brings each mode from rest to its state at t_0.  It is
+positive definite, so the system has a unique solution, and negligible when the keyframes fix
+the start.  ``preroll=None`` uses the shot's duration; ``preroll=0`` disables it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial.transform import Rotation
+
+from wiggly.body import Body
+from wiggly.errors import WigglyInputError
+from wiggly.keyframes import Keyframe
+from wiggly.linalg import blas_single_thread
+from wiggly.solve.animation import Animation
+from wiggly.solve.banded import BandedCholesky, add_block, add_blocks
+from wiggly.solve.levels import WarmStart, solve_warped
+from wiggly.solve.memo import Memo, value_key
+from wiggly.solve.nodes import node_index, node_times
+from wiggly.solve.optimizer import SolveOptions
+from wiggly.splines import WigglyBasis, energy_form, equilibrium, wiggly_basis
+from wiggly.warp import WarpLevel
+
+__all__ = ["Energy", "GroupSelection", "SpacetimeProblem"]
+
+
+@dataclass(frozen=True)
+class Energy:
+    """E (+ pre-roll) over a node set: 1/2 z^T H z + f^T z + c, H in upper band storage."""
+
+    nodes: np.ndarray
+    basis: WigglyBasis
+    ab: np.ndarray  # read-only, Fortran order (BLAS dsbmv reads it in place)
+    f: np.ndarray
+    c: float
+
+    @property
+    def bandwidth(self) -> int:
+        return self.ab.shape[0] - 1
+
+
+@dataclass(frozen=True)
+class GroupSelection:
+    """A vertex group on a warp level: the scalar selection ``S`` (s, n_L) of its vertices
+    from the level's vertex values (barycentric rows for surface vertices, composed with the
+    coarse level's lift P) and its Gram ``C = S^T S`` (n_L, n_L)."""
+
+    S: sp.csr_matrix
+    St: sp.csr_matrix
+    C: sp.csr_matrix
+
+
+class SpacetimeProblem:
+    """E + E_C (Theorem 1) and E + E_WC (Theorem 2) of ``body`` over [start, end].
+
+    The problem owns a :class:`~wiggly.solve.memo.Memo` of what an edit leaves unchanged:
+    the energy of a node set, the selections and Grams of vertex groups, the projections of
+    keyframe targets.  Its keys are values (node times, vertex indices, targets), so the same
+    problem serves every edit of a shot.
+    """
+
+    def __init__(self, body: Body, start: float, end: float, preroll: float | None = None) -> None:
+        if not (np.isfinite(start) and np.isfinite(end)) or end <= start:
+            raise WigglyInputError(
+                f"the animation's time range [{start}, {end}] s is empty: end must be after start"
+            )
+        preroll = end - start if preroll is None else float(preroll)
+        if not np.isfinite(preroll) or preroll < 0:
+            raise WigglyInputError(f"preroll = {preroll!r} s must be a number >= 0")
+        self.body = body
+        self.start, self.end = float(start), float(end)
+        self.preroll = preroll
+        self.memo = Memo(limit=512)
+
+    @property
+    def duration(self) -> float:
+        return self.end - self.start
+
+    # ------------------------------------------------------------------ keyframes
+    def checked(self, keyframes: list[Keyframe]) -> list[Keyframe]:
+        """Validated, normalized copies of ``keyframes`` (times clamped into the range)."""
+        out = []
+        for j, kf in enumerate(keyframes):
+            label = f"keyframe #{j}" + (f" ('{kf.name}')" if kf.name else "") + f" at t={kf.time}"
+            out.append(kf.checked(self.body, self.start, self.end, label=label))
+        return out
+
+    def nodes_for(self, keyframes: list[Keyframe]) -> np.ndarray:
+        """Node times: start, end and every keyframe time (:func:`node_times`)."""
+        return node_times(self.start, self.end, [kf.time for kf in keyframes])
+
+    # --------------------------------------------------------------------- energy
+    def energy(self, nodes: np.ndarray) -> Energy:
+        """E (+ pre-roll) over ``nodes``, kept per node set."""
+        nodes = np.asarray(nodes, dtype=np.float64)
+        return self.memo.get(("energy", value_key(nodes)), lambda: self._energy(nodes))
+
+    def _energy(self, nodes: np.ndarray) -> Energy:
+        body = self.body
+        r, m = body.r, len(nodes) - 1
+        h = np.repeat(np.diff(nodes), r)
+        basis = wiggly_basis(np.tile(body.eigenvalues, m), np.tile(body.delta, m), h)
+        form = energy_form(basis, np.tile(body.modal_gravity, m))
+        # global indices of (q_k,i, v_k,i, q_k+1,i, v_k+1,i)
+        k, i = np.repeat(np.arange(m), r), np.tile(np.arange(r), m)
+        idx = np.stack(
+            [2 * r * k + i, 2 * r * k + r + i, 2 * r * (k + 1) + i, 2 * r * (k + 1) + r + i],
+            axis=1,
+        )
+        N, bw = 2 * r * len(nodes), 4 * r - 1
+        ab = np.zeros((bw + 1, N), order="F")
+        f = np.zeros(N)
+        add_blocks(ab, idx, form.Q)
+        np.add.at(f, idx.ravel(), form.l.ravel())
+        c = float(form.c0.sum())
+        if self.preroll > 0:  # rest before t_0 (module doc): a 2x2 form per mode
+            pre = wiggly_basis(body.eigenvalues, body.delta, self.preroll)
+            Q22 = energy_form(pre, np.zeros(r)).Q[:, 2:, 2:]
+            q_eq = equilibrium(body.eigenvalues, body.modal_gravity)
+            add_blocks(ab, np.stack([np.arange(r), r + np.arange(r)], axis=1), Q22)
+            f[:r] -= Q22[:, 0, 0] * q_eq
+            f[r : 2 * r] -= Q22[:, 1, 0] * q_eq
+            c += 0.5 * float(np.sum(Q22[:, 0, 0] * q_eq**2))
+        for a in (ab, f):
+            a.flags.writeable = False
+        return Energy(nodes.copy(), basis, ab, f, c)
+
+    # --------------------------------------------------------------------- groups
+    def selection(self, level: WarpLevel, vertices: np.ndarray, on: str) -> GroupSelection:
+        """A vertex group's selection and Gram on ``level`` (kept per level and group)."""
+        name = "fine" if level.exact else "coarse"
+
+        def compute() -> GroupSelection:
+            S = self.body.scalar_selection(vertices, on)
+            if not level.exact:
+                S = sp.csr_matrix(S @ level.transfer.lift)
+            St = sp.csr_matrix(S.T)
+            return GroupSelection(S, St, sp.csr_matrix(St @ S))
+
+        return self.memo.get(("selection", name, on, value_key(vertices)), compute)
+
+    def modal_gram(self, vertices: np.ndarray, on: str) -> np.ndarray:
+        """``Phi^T A_k^T A_k Phi`` (r, r) of a group: ``sum_c Phi_c^T C Phi_c`` over the
+        coordinates, C the group's Gram on the tet mesh."""
+
+        def compute() -> np.ndarray:
+            C = self.selection(self.body.fine_level, vertices, on).C
+            Phi = self.body.modes.vectors.reshape(-1, 3, self.body.r)
+            return sum(Phi[:, c].T @ (C @ Phi[:, c]) for c in range(3))
+
+        return self.memo.get(("modal gram", on, value_key(vertices)), compute)
+
+    def projected(self, vertices: np.ndarray, on: str, target: np.ndarray) -> np.ndarray:
+        """``Phi^T A_k^T target`` (r,) for per-vertex vectors ``target`` (s, 3)."""
+
+        def compute() -> np.ndarray:
+            St = self.selection(self.body.fine_level, vertices, on).St
+            return self.body.modes.vectors.T @ (St @ target).ravel()
+
+        key = ("projected", on, value_key(vertices), value_key(target))
+        return self.memo.get(key, compute)
+
+    def offsets(self, kf: Keyframe) -> np.ndarray:
+        """A keyframe's position targets minus rest, (s, 3)."""
+        return kf.position - self.body.rest_positions(kf.on)[kf.vertices]
+
+    # ----------------------------------------------------------------- linear
+    def linear_system(self, kfs: list[Keyframe], nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Band storage and linear term of E + E_C (eq. (4)): ``c_A |A_k Phi q_k - a_k|^2 +
+        c_B |B_k Phi q'_k - b_k|^2`` added at the keyframes' nodes."""
+        energy = self.energy(nodes)
+        ab, f = np.array(energy.ab, order="F"), energy.f.copy()
+        r = self.body.r
+        for kf in kfs:
+            k = node_index(nodes, kf.time)
+            c_A, c_B = kf.weights(self.body, self.duration)
+            if kf.position is not None and c_A > 0:
+                blk = 2 * r * k + np.arange(r)
+                add_block(ab, blk, c_A * self.modal_gram(kf.vertices, kf.on))
+                f[blk] -= c_A * self.projected(kf.vertices, kf.on, self.offsets(kf))
+            if kf.velocity is not None and c_B > 0:
+                blk = 2 * r * k + r + np.arange(r)
+                add_block(ab, blk, c_B * self.modal_gram(kf.vertices, kf.on))
+                f[blk] -= c_B * self.projected(kf.vertices, kf.on, kf.velocity)
+        return ab, f
+
+    def solve_linear(self, kfs: list[Keyframe], nodes: np.ndarray) -> np.ndarray:
+        """The minimiser z of E + E_C (Theorem 1)."""
+        ab, f = self.linear_system(kfs, nodes)
+        try:
+            return BandedCholesky(ab).solve(-f)
+        except np.linalg.LinAlgError as err:
+            raise WigglyInputError(
+                "the keyframes leave the motion undetermined and preroll is 0; give keyframes "
+                "that fix the start (positions and velocities of the whole body) or a "
+                "preroll > 0"
+            ) from err
+
+    # ----------------------------------------------------------------- solve
+    def solve(
+        self,
+        keyframes: list[Keyframe],
+        *,
+        warped: bool = False,
+        warm_start: WarmStart | None = None,
+        options: SolveOptions | None = None,
+        progress: bool = False,
+    ) -> Animation:
+        """Minimise E + E_C (linear, Theorem 1) or E + E_WC (``warped``, Theorem 2).
+
+        Both have the same unknowns.  The warped problem starts from ``warm_start`` (the
+        :attr:`Animation.warm_start` of an earlier solve of this problem, also with edited
+        keyframes) or from the linear solution with unwarped targets, and is minimised by
+        :func:`wiggly.solve.levels.solve_warped` with ``options``
+        (:class:`wiggly.solve.optimizer.SolveOptions`).
+        """
+        options = options or SolveOptions()
+        t0 = time.perf_counter()
+        with blas_single_thread():
+            kfs = self.checked(keyframes)
+            nodes = self.nodes_for(kfs)
+            energy = self.energy(nodes)
+            r = self.body.r
+            info: dict = {"unknowns": 2 * r * len(nodes), "warped": warped}
+            warm = None
+            if warped:
+                if warm_start is not None and warm_start.fits(nodes):
+                    z, warm = warm_start.z.copy(), warm_start
+                else:
+                    z = self.solve_linear([unwarped(kf, self.body) for kf in kfs], nodes)
+                info["warm_start"] = warm is not None
+                info["linear_seconds"] = time.perf_counter() - t0
+                z, report, new_warm = solve_warped(self, kfs, nodes, z, options, warm, progress)
+                info.update(report)
+            else:
+                z, new_warm = self.solve_linear(kfs, nodes), None
+        Z = z.reshape(len(nodes), 2, r)
+        info["solve_seconds"] = time.perf_counter() - t0
+        return Animation(
+            self.body, nodes, Z[:, 0].copy(), Z[:, 1].copy(), kfs, energy.basis,
+            warped=warped, info=info, warm_start=new_warm,
+        )
+
+
+def unwarped(kf: Keyframe, body: Body) -> Keyframe:
+    """A keyframe whose targets a *linear* motion can meet and whose warp is near the original.
+
+    The targets' best-fit rotation R about their centroid (Kabsch) is replaced by its
+    linearization with the same rotation vector w = log R (any angle below pi): x = R (X - c)
+    + c' + e becomes X + w x (X - c) + (c' - c) + R^T e; velocities are rotated back by R^T.
+    Warping maps a linearized rotation to the exact one (SYSTEM.md §6), so the linear solve
+    with these targets starts the warped solve in the basin of large-rotation keyframes.
+    """
+    if kf.position is None or len(kf.vertices) < 3:
+        return kf
+    X = body.rest_positions(kf.on)[kf.vertices]
+    c, c_t = X.mean(axis=0), kf.position.mean(axis=0)
+    A, B = X - c, kf.position - c_t
+    spread = np.linalg.eigvalsh(A.T @ A)  # squared singular values of A, ascending
+    if spread[1] <= 1e-18 * max(spread[2], 1e-300):  # collinear: no unique rotation
+        return kf
+    U, _, Vt = np.linalg.svd(B.T @ A)  # Kabsch: R = argmax tr(R^T B^T A), det R = 1
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
+    R = U @ D @ Vt
+    w = Rotation.from_matrix(R).as_rotvec()
+    e = B - A @ R.T
+    position = X + np.cross(w, A) + (c_t - c) + e @ R
+    velocity = None if kf.velocity is None else kf.velocity @ R
+    return replace(kf, position=position, velocity=velocity)

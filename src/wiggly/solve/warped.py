@@ -1,0 +1,311 @@
+"""The warped objective E + E_WC (Theorem 2, SYSTEM.md §6): value, gradient, Newton matrix.
+
+    F(z) = 1/2 z^T H z + f^T z + c + 1/2 sum_k |r_k(z)|^2,
+    r_k = sqrt(c_A) (S_k W(Phi q_k) - d_k)   or   sqrt(c_B) (S_k DW(Phi q_k)[Phi q'_k] - b_k),
+
+with S_k the scalar selection of keyframe k's vertices (barycentric rows for surface
+vertices) and q_k, q'_k the modal state at its node.  On a coarse level (:mod:`wiggly.warp`)
+W is replaced by W~ = P W_c(R .), i.e. S_k by S_k P and the fine warp by the coarse one.
+
+* W and DW v are evaluated only at constrained nodes, all in one multi-right-hand-side
+  Poisson solve; the gradient pulls the residuals back with vector-Jacobian products (one
+  adjoint solve per distinct cotangent).  For velocity keyframes the q-part of the gradient,
+  ``Phi^T D^2W(u)[., Phi q']^T y``, is a central difference of two vjps (error ~1e-11).
+* The Newton matrix is the band of H plus, per constrained node, the Gauss-Newton blocks
+  J^T (C kron I_3) J (C = S^T S) and the curvature Gauss-Newton omits,
+  ``Phi^T grad^2(y . W) Phi`` with the cotangent ``y = sqrt(c) S^T r`` (for velocity keyframes
+  also the q-q' and the third-order q-q blocks, :class:`wiggly.warp.ModalWarp`).  At a
+  solution with stiff keyframes ``c r`` balances the energy's gradient, so the curvature is
+  as large as H: without it Gauss-Newton converges only linearly.  The matrix is taken on
+  the objective's own level (exact: Newton's method) or on a coarser one (approximate, with
+  the cotangents transferred by ``P^T``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+import scipy.sparse as sp
+
+from wiggly.keyframes import Keyframe
+from wiggly.solve.banded import add_blocks, band_matvec
+from wiggly.solve.nodes import node_index
+from wiggly.warp import WarpLevel
+
+if TYPE_CHECKING:
+    from wiggly.solve.problem import GroupSelection, SpacetimeProblem
+
+__all__ = ["WarpedObjective", "WarpedPoint"]
+
+# Relative step of the central difference of vjps that gives D^2W(u)[., v]^T y.
+VJP_STEP = 1e-6
+
+
+@dataclass(frozen=True)
+class _Term:
+    """One keyframe's residual on a level: ``w (S x - target)`` at node ``node``."""
+
+    node: int
+    w: float
+    vertices: np.ndarray
+    on: str
+    selection: GroupSelection  # on the objective's level
+    target: np.ndarray  # (s, 3): offsets from rest (positions) or velocities
+
+
+@dataclass(frozen=True, eq=False)
+class WarpedPoint:
+    """The objective at z, with what its gradient and Newton matrix were made of."""
+
+    z: np.ndarray
+    F: float
+    g: np.ndarray
+    magnitude: float  # sum of the magnitudes of F's terms (its rounding level / eps)
+    level: str
+    layout: tuple  # (active nodes, velocity nodes)
+    U: np.ndarray  # Phi q at the active nodes (f, n_L, 3)
+    WU: np.ndarray  # W(U)
+    V: np.ndarray  # Phi q' at the velocity nodes (k, n_L, 3)
+    Vel: np.ndarray  # DW(U[velocity nodes])[V]
+    YA: np.ndarray  # position cotangents per active node (f, n_L, 3)
+    YB: np.ndarray  # velocity cotangents per velocity node (k, n_L, 3)
+    pulled: np.ndarray  # their pull-backs to modal coordinates (f + 3 k, r)
+
+
+class WarpedObjective:
+    """E + E_WC of ``keyframes`` over ``nodes`` on warp ``level`` (module docstring).
+
+    ``model`` is the level whose derivatives build the Newton matrix (default: ``level``
+    itself, i.e. the exact Hessian); ``correction`` = (tau, c) adds ``tau^T z + c`` (the full
+    approximation scheme's correction of a coarse level, :mod:`wiggly.solve.levels`).
+    """
+
+    def __init__(
+        self,
+        problem: SpacetimeProblem,
+        level: WarpLevel,
+        keyframes: list[Keyframe],
+        nodes: np.ndarray,
+        *,
+        model: WarpLevel | None = None,
+        correction: tuple[np.ndarray, float] | None = None,
+    ) -> None:
+        body = problem.body
+        self.problem, self.level, self.model = problem, level, model or level
+        self.name = "fine" if level.exact else "coarse"
+        self.r = body.r
+        self.nodes = nodes
+        energy = problem.energy(nodes)
+        self.ab_E, self.f_E, self.c_E = energy.ab, energy.f, energy.c
+        if correction is not None:
+            self.f_E = self.f_E + correction[0]
+            self.c_E = self.c_E + correction[1]
+        self.positions: list[_Term] = []
+        self.velocities: list[_Term] = []
+        for kf in keyframes:
+            c_A, c_B = kf.weights(body, problem.duration)
+            k = node_index(nodes, kf.time)
+            sel = problem.selection(level, kf.vertices, kf.on)
+            if kf.position is not None and c_A > 0:
+                w = float(np.sqrt(c_A))
+                self.positions.append(_Term(k, w, kf.vertices, kf.on, sel, problem.offsets(kf)))
+            if kf.velocity is not None and c_B > 0:
+                w = float(np.sqrt(c_B))
+                self.velocities.append(_Term(k, w, kf.vertices, kf.on, sel, kf.velocity))
+        terms = self.positions + self.velocities
+        self.active = sorted({t.node for t in terms})
+        self.vel = sorted({t.node for t in self.velocities})
+        self.slot = {k: a for a, k in enumerate(self.active)}
+        self.vslot = {k: a for a, k in enumerate(self.vel)}
+        self.layout = (tuple(self.active), tuple(self.vel))
+        self.timing = {"W": 0.0, "vjp": 0.0, "newton": 0.0}
+        self.counts = {"W": 0, "vjp": 0, "newton": 0}
+        self._grams = self._node_grams(self.model)
+
+    @property
+    def exact(self) -> bool:
+        """Whether the Newton matrix is this objective's exact Hessian."""
+        return self.model is self.level
+
+    def use_exact(self) -> bool:
+        """Build Newton matrices from this level's own derivatives from now on; False if
+        they already are."""
+        if self.exact:
+            return False
+        self.model = self.level
+        self._grams = self._node_grams(self.model)
+        return True
+
+    def _node_grams(self, model: WarpLevel) -> dict[int, tuple]:
+        """Per active node, ``sum c_A C_k`` and ``sum c_B C_k`` over its position and
+        velocity keyframes, C_k the Gram of keyframe k's selection on ``model``'s level."""
+        grams: dict[int, list] = {k: [None, None] for k in self.active}
+        for j, terms in enumerate((self.positions, self.velocities)):
+            for t in terms:
+                C = t.w**2 * self.problem.selection(model, t.vertices, t.on).C
+                old = grams[t.node][j]
+                grams[t.node][j] = C if old is None else old + C
+        return {k: tuple(v) for k, v in grams.items()}
+
+    # -------------------------------------------------------------- evaluation
+    def _states(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Z = z.reshape(-1, 2, self.r)
+        return Z[:, 0], Z[:, 1]
+
+    def evaluate(self, z: np.ndarray, prior: WarpedPoint | None = None) -> WarpedPoint:
+        """F and its gradient at z.  With a ``prior`` point at the same z, level and node
+        layout (an earlier solve's last point: a warm start), its W values are reused and only
+        the cotangents that changed are pulled back (the vjp is linear in them)."""
+        z = np.asarray(z, dtype=np.float64)
+        q, v = self._states(z)
+        modal, warp = self.level.modal, self.level.warp
+        t0 = time.perf_counter()
+        reuse = (
+            prior is not None
+            and prior.level == self.name
+            and prior.layout == self.layout
+            and np.array_equal(prior.z, z)
+        )
+        if reuse:
+            U, WU, V, Vel = prior.U, prior.WU, prior.V, prior.Vel
+        else:
+            U = modal.displacements(q[self.active]) if self.active else np.zeros((0, modal.n_vertices, 3))
+            V = modal.displacements(v[self.vel]) if self.vel else np.zeros((0, modal.n_vertices, 3))
+            if self.vel:
+                WU, Vel = warp.apply_and_jvp(U, [self.slot[k] for k in self.vel], V)
+            else:
+                WU, Vel = (warp.apply(U) if self.active else U), V
+            self.counts["W"] += len(self.active) + len(self.vel)
+        t1 = time.perf_counter()
+        self.timing["W"] += t1 - t0
+        Hz = band_matvec(self.ab_E, z)
+        quad, lin = 0.5 * float(z @ Hz), float(self.f_E @ z)
+        YA, YB = np.zeros_like(U), np.zeros_like(V)
+        F_res = 0.0
+        for t in self.positions:
+            res = t.w * (t.selection.S @ WU[self.slot[t.node]] - t.target)
+            F_res += 0.5 * float(np.vdot(res, res))
+            YA[self.slot[t.node]] += t.w * (t.selection.St @ res)
+        for t in self.velocities:
+            res = t.w * (t.selection.S @ Vel[self.vslot[t.node]] - t.target)
+            F_res += 0.5 * float(np.vdot(res, res))
+            YB[self.vslot[t.node]] += t.w * (t.selection.St @ res)
+        F = quad + lin + self.c_E + F_res
+        magnitude = abs(quad) + abs(lin) + abs(self.c_E) + F_res
+        g = Hz + self.f_E
+        pulled = self._pull_back(U, V, YA, YB, prior if reuse else None)
+        G = g.reshape(-1, 2, self.r)
+        f, nv = len(self.active), len(self.vel)
+        G[self.active, 0] += pulled[:f]
+        if nv:
+            iv = [self.slot[k] for k in self.vel]
+            h = self._vjp_steps(U[iv], V)
+            G[self.vel, 1] += pulled[f : f + nv]
+            G[self.vel, 0] += (pulled[f + nv : f + 2 * nv] - pulled[f + 2 * nv :]) / (2 * h[:, None])
+        self.timing["vjp"] += time.perf_counter() - t1
+        return WarpedPoint(
+            z.copy(), float(F), g, magnitude, self.name, self.layout,
+            U, WU, V, Vel, YA, YB, pulled,
+        )
+
+    @staticmethod
+    def _vjp_steps(U: np.ndarray, V: np.ndarray) -> np.ndarray:
+        return (
+            VJP_STEP
+            * (1.0 + np.abs(U).max(axis=(1, 2), initial=0.0))
+            / np.maximum(np.abs(V).max(axis=(1, 2), initial=0.0), 1e-300)
+        )
+
+    def _pull_back(self, U, V, YA, YB, prior: WarpedPoint | None) -> np.ndarray:
+        """Modal pull-backs (f + 3 k, r): ``Phi^T DW(u_a)^T y_a`` at every active node, and at
+        velocity nodes ``Phi^T DW(u)^T y_v`` and ``Phi^T DW(u +- h v)^T y_v``."""
+        f, nv = len(U), len(V)
+        iv = [self.slot[k] for k in self.vel]
+        if nv:
+            step = self._vjp_steps(U[iv], V)[:, None, None] * V
+            frames = np.concatenate([U, U[iv], U[iv] + step, U[iv] - step])
+        else:
+            frames = U
+        index = np.r_[np.arange(f), np.tile(f + np.arange(nv), 3)].astype(np.int64)
+        Y = np.concatenate([YA, YB])
+        if prior is None:
+            todo, dY, out = np.arange(len(frames)), Y, np.zeros((len(frames), self.r))
+        else:  # the same point: pull back the change of the cotangents only
+            dY = Y - np.concatenate([prior.YA, prior.YB])
+            changed = np.flatnonzero(np.any(dY != 0.0, axis=(1, 2)))
+            todo = np.flatnonzero(np.isin(index, changed))
+            out = prior.pulled.copy()
+        if len(todo):
+            cotangents, sub = np.unique(index[todo], return_inverse=True)
+            back = self.level.warp.vjp(frames[todo], dY[cotangents], sub)
+            out[todo] += back.reshape(len(todo), -1) @ self.level.modal.matrix
+            self.counts["vjp"] += len(todo)
+        return out
+
+    # ------------------------------------------------------------ Newton matrix
+    def newton_matrices(self, point: WarpedPoint) -> tuple[np.ndarray, np.ndarray]:
+        """Band storage of the Gauss-Newton matrix (H plus each active node's J^T (C kron I)
+        J) and of the Newton matrix (plus the curvature blocks), from the derivatives of
+        :attr:`model` (module docstring).  The first is positive definite wherever H is; the
+        second is the Hessian (for an exact model) and may be indefinite far from a
+        minimiser."""
+        t0 = time.perf_counter()
+        model, r = self.model, self.r
+        q, v = self._states(point.z)
+        gn = np.array(self.ab_E, order="F")
+        if not self.active:
+            return gn, gn.copy(order="F")
+        f = len(self.active)
+        Qa = q[self.active]
+        J = model.modal.jacobians(Qa)  # (f, n_M, 3, r)
+        same = model is self.level
+        YA = point.YA if same else model.transfer.lift_adjoint(point.YA)
+        Qv = np.zeros_like(Qa)
+        Yv = np.zeros_like(YA)
+        iv = [self.slot[k] for k in self.vel]
+        if self.vel:
+            Qv[iv] = v[self.vel]
+            Yv[iv] = point.YB if same else model.transfer.lift_adjoint(point.YB)
+            JV = model.modal.second_derivatives(q[self.vel], v[self.vel])
+        curvatures = model.modal.curvatures(
+            Qa, YA, Qv if self.vel else None, Yv if self.vel else None
+        )
+        blocks = np.zeros((f, 2 * r, 2 * r))
+        curv = np.zeros((f, 2 * r, 2 * r))
+        for a, k in enumerate(self.active):
+            C_pos, C_vel = self._grams[k]
+            if C_pos is not None:
+                blocks[a, :r, :r] += _gram(C_pos, J[a])
+            if C_vel is not None:
+                X = np.concatenate([JV[self.vslot[k]], J[a]], axis=2)  # [D^2W[., v], DW]
+                blocks[a] += _gram(C_vel, X)
+            qq, qv = curvatures[a]
+            curv[a, :r, :r] = qq
+            if qv is not None:
+                curv[a, :r, r:] = qv
+                curv[a, r:, :r] = qv.T
+        idx = 2 * r * np.array(self.active)[:, None] + np.arange(2 * r)
+        add_blocks(gn, idx, 0.5 * (blocks + blocks.transpose(0, 2, 1)))
+        full = np.array(gn, order="F")
+        add_blocks(full, idx, 0.5 * (curv + curv.transpose(0, 2, 1)))
+        self.counts["newton"] += f
+        self.timing["newton"] += time.perf_counter() - t0
+        return gn, full
+
+    def step_size(self, dz: np.ndarray) -> float:
+        """The largest vertex displacement (m, tet mesh) of a change ``dz`` of the node
+        values, over all nodes."""
+        dq, _ = self._states(dz)
+        Phi = self.problem.body.modes.vectors
+        D = (Phi @ dq.T).reshape(-1, 3, len(dq))
+        return float(np.sqrt((D**2).sum(axis=1)).max(initial=0.0))
+
+
+def _gram(C: sp.spmatrix, X: np.ndarray) -> np.ndarray:
+    """``X^T (C kron I_3) X`` for fields X (n, 3, k) and a scalar Gram C (n, n)."""
+    n, _, k = X.shape
+    CX = (C @ X.reshape(n, 3 * k)).reshape(n, 3, k)
+    return X.reshape(3 * n, k).T @ CX.reshape(3 * n, k)

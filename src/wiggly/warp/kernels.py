@@ -1,0 +1,114 @@
+"""The warp's per-tet passes behind one interface, chosen once per mesh.
+
+:func:`kernels_for` returns :class:`NumbaKernels` (fused compiled loops,
+:mod:`wiggly.warp.compiled`) when numba is importable and ``WIGGLY_NUMBA`` is not ``0``, and
+:class:`wiggly.warp.kernels_numpy.NumpyKernels` (vectorized numpy) otherwise.  Both have the
+same methods with the same meaning; a :class:`wiggly.warp.Warp` never asks which one it has.
+
+Methods (fields are (f, n, 3) float64 arrays; ``GB`` (r, m, 9) the per-tet gradients of r
+fields from :meth:`field_gradients`):
+
+``target(U)``
+    right-hand sides ``G^T Vol H(G U[s])`` of the warp's Poisson fit, (f, n, 3);
+``tangent(U, dU)``
+    ``G^T Vol dH(G U[s]; G dU[s])``, (f, n, 3);
+``cotangent(U, Z, index, out)``
+    ``out[s] += G^T dA_s`` with ``dA_s`` the cotangent of ``Vol G Z[:, index[s]]``;
+``jacobians(U, GB)`` / ``second_derivatives(U, V, GB, step)``
+    ``G^T Vol dH(G U[s]; GB[d])`` and ``G^T Vol D^2H(G U[s])[GB[d], G V[s]]``, (f, r, n, 3);
+``curvature(u, z, zv, v, GB, step, step3)``
+    the modal curvature matrices (r, r) of one point (see :meth:`NumbaKernels.curvature`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wiggly.errors import WigglyInputError
+from wiggly.warp import compiled
+from wiggly.warp.kernels_numpy import NumpyKernels
+
+__all__ = ["NumbaKernels", "NumpyKernels", "kernels_for"]
+
+
+class NumbaKernels:
+    """Compiled per-tet passes of one tet mesh (:mod:`wiggly.warp.compiled`)."""
+
+    name = "numba"
+
+    def __init__(self, tets: np.ndarray, grads: np.ndarray, vol: np.ndarray, n: int) -> None:
+        self.tets = np.ascontiguousarray(tets, dtype=np.int64)
+        self.grads = np.ascontiguousarray(grads)
+        self.vol = np.ascontiguousarray(vol)
+        self.n, self.m = n, len(tets)
+
+    def target(self, U: np.ndarray) -> np.ndarray:
+        out = np.zeros_like(U)
+        compiled.target_rhs(U, self.tets, self.grads, self.vol, out, compiled.chunks(len(U)))
+        return out
+
+    def tangent(self, U: np.ndarray, dU: np.ndarray) -> np.ndarray:
+        out = np.zeros_like(U)
+        compiled.jvp_rhs(U, dU, self.tets, self.grads, self.vol, out, compiled.chunks(len(U)))
+        return out
+
+    def cotangent(self, U: np.ndarray, Z: np.ndarray, index: np.ndarray, out: np.ndarray) -> None:
+        compiled.vjp_rhs(
+            U, Z, index, self.tets, self.grads, self.vol, out, compiled.chunks(len(U))
+        )
+
+    def field_gradients(self, B: np.ndarray) -> np.ndarray:
+        return compiled.field_gradients(np.ascontiguousarray(B), self.tets, self.grads)
+
+    def jacobians(self, U: np.ndarray, GB: np.ndarray) -> np.ndarray:
+        out = np.zeros((len(U), GB.shape[0], self.n, 3))
+        compiled.jacobians_rhs(U, GB, self.tets, self.grads, self.vol, out)
+        return out
+
+    def second_derivatives(
+        self, U: np.ndarray, V: np.ndarray, GB: np.ndarray, step: float
+    ) -> np.ndarray:
+        out = np.zeros((len(U), GB.shape[0], self.n, 3))
+        compiled.second_derivatives_rhs(U, V, GB, step, self.tets, self.grads, self.vol, out)
+        return out
+
+    def curvature(
+        self,
+        u: np.ndarray,
+        z: np.ndarray,
+        zv: np.ndarray | None,
+        v: np.ndarray | None,
+        GB: np.ndarray,
+        step: float,
+        step3: float,
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """``qq = GB^T C_qq`` and ``qv = GB^T C_qv`` (r, r) from the per-tet products of
+        :func:`wiggly.warp.compiled.curvature_products`: one BLAS product each."""
+        r = GB.shape[0]
+        velocity = zv is not None
+        Cqq = np.empty((r, self.m, 9))
+        Cqv = np.empty((r, self.m, 9)) if velocity else Cqq[:0]
+        zero = np.zeros((self.n, 3))
+        compiled.curvature_products(
+            np.ascontiguousarray(u), np.ascontiguousarray(z),
+            np.ascontiguousarray(zv) if velocity else zero,
+            np.ascontiguousarray(v) if velocity else zero,
+            GB, step, step3, self.tets, self.grads, self.vol, Cqq, Cqv, velocity,
+        )
+        flat = GB.reshape(r, -1)
+        qq = flat @ Cqq.reshape(r, -1).T
+        return qq, (flat @ Cqv.reshape(r, -1).T if velocity else None)
+
+
+def kernels_for(
+    tets: np.ndarray, grads: np.ndarray, vol: np.ndarray, n: int, choice: str | None = None
+) -> NumbaKernels | NumpyKernels:
+    """The per-tet passes of a mesh: ``choice`` "numba" or "numpy"; None: compiled when
+    numba is available, else numpy."""
+    if choice not in (None, "numba", "numpy"):
+        raise WigglyInputError(f"kernels = {choice!r}; use 'numba', 'numpy' or None")
+    if choice == "numba" and not compiled.AVAILABLE:
+        raise WigglyInputError("kernels = 'numba' but numba is not available")
+    if choice == "numba" or (choice is None and compiled.AVAILABLE):
+        return NumbaKernels(tets, grads, vol, n)
+    return NumpyKernels(tets, grads, vol, n)
