@@ -6,11 +6,9 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from wiggly.warp import kernels_numpy
-from wiggly.warp import ModalWarp, compiled
 from wiggly.errors import WigglyInputError
 from wiggly.primitives import box_mesh
-from wiggly.warp import Warp, rotation_coefficients
+from wiggly.warp import ModalWarp, Warp, compiled, kernels_numpy, rotation_coefficients
 
 RNG_SEED = 20140727
 
@@ -175,7 +173,8 @@ def test_batched_apply_equals_per_frame(warp, mesh, monkeypatch):
     # the numpy path in chunks of two frames: exercise its chunking
     monkeypatch.setattr(kernels_numpy, "_CHUNK_ENTRIES", 2 * len(T))
     numpy_warp = Warp(V, T, fixed_vertices=warp.fixed, kernels="numpy")
-    np.testing.assert_allclose(numpy_warp.apply(U), single, rtol=0, atol=1e-13 * np.abs(single).max())
+    got = numpy_warp.apply(U)
+    np.testing.assert_allclose(got, single, rtol=0, atol=1e-13 * np.abs(single).max())
 
 
 @pytest.fixture(scope="module")
@@ -234,17 +233,22 @@ def test_compiled_kernels_equal_the_vectorized_numpy_path(jittered, fixed):
             warp.vjp(U, dU),
             modal.jacobians(Q),
             modal.second_derivatives(Q, Qv),
-            np.stack([qq for qq, _ in curvatures]),
+            np.stack([qq for qq, _ in modal.curvatures(Q, Y)]),
             np.stack([qv for _, qv in curvatures if qv is not None]),
+            np.stack([qq for qq, _ in curvatures]),
         ]
 
     compiled_, numpy_ = evaluate("numba"), evaluate("numpy")
-    assert compiled_[-1].shape[0] == 2  # the point without velocity has no q-q' block
+    assert compiled_[6].shape[0] == 2  # the point without velocity has no q-q' block
     for a, b in zip(compiled_[:4], numpy_[:4], strict=True):
         assert rel(a, b) < 1e-13
-    # second derivatives and curvatures: central differences of analytic derivatives
-    for a, b in zip(compiled_[4:], numpy_[4:], strict=True):
+    # second derivatives and Hessians: numba analytic, numpy central differences of the
+    # analytic first derivative (error ~ step^2 ~ 1e-10)
+    for a, b in zip(compiled_[4:7], numpy_[4:7], strict=True):
         assert rel(a, b) < 1e-8
+    # with the third-order velocity term: numpy nests central differences (step ~3e-4 at
+    # these gradients: truncation ~1e-7)
+    assert rel(compiled_[7], numpy_[7]) < 1e-6
 
 
 def test_components_get_their_own_gauge():
@@ -428,6 +432,8 @@ def test_inputs_are_validated(free_warp, mesh):
         Warp(V, T, fixed_vertices=[len(V)])
     with pytest.raises(WigglyInputError, match="masses"):
         Warp(V, T, masses=np.ones(3))
+    with pytest.raises(WigglyInputError, match="masses"):
+        Warp(V, T, masses=np.full(len(V), np.nan))
     with pytest.raises(WigglyInputError, match="U should have shape"):
         free_warp.apply(np.zeros((len(V), 2)))
     with pytest.raises(WigglyInputError, match="basis"):

@@ -181,7 +181,9 @@ class SpacetimeProblem:
         return kf.position - self.body.rest_positions(kf.on)[kf.vertices]
 
     # ----------------------------------------------------------------- linear
-    def linear_system(self, kfs: list[Keyframe], nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def linear_system(
+        self, kfs: list[Keyframe], nodes: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Band storage and linear term of E + E_C (eq. (4)): ``c_A |A_k Phi q_k - a_k|^2 +
         c_B |B_k Phi q'_k - b_k|^2`` added at the keyframes' nodes."""
         energy = self.energy(nodes)

@@ -172,8 +172,9 @@ class WarpedObjective:
         if reuse:
             U, WU, V, Vel = prior.U, prior.WU, prior.V, prior.Vel
         else:
-            U = modal.displacements(q[self.active]) if self.active else np.zeros((0, modal.n_vertices, 3))
-            V = modal.displacements(v[self.vel]) if self.vel else np.zeros((0, modal.n_vertices, 3))
+            empty = np.zeros((0, modal.n_vertices, 3))
+            U = modal.displacements(q[self.active]) if self.active else empty
+            V = modal.displacements(v[self.vel]) if self.vel else empty
             if self.vel:
                 WU, Vel = warp.apply_and_jvp(U, [self.slot[k] for k in self.vel], V)
             else:
@@ -204,7 +205,8 @@ class WarpedObjective:
             iv = [self.slot[k] for k in self.vel]
             h = self._vjp_steps(U[iv], V)
             G[self.vel, 1] += pulled[f : f + nv]
-            G[self.vel, 0] += (pulled[f + nv : f + 2 * nv] - pulled[f + 2 * nv :]) / (2 * h[:, None])
+            dq = pulled[f + nv : f + 2 * nv] - pulled[f + 2 * nv :]
+            G[self.vel, 0] += dq / (2 * h[:, None])
         self.timing["vjp"] += time.perf_counter() - t1
         return WarpedPoint(
             z.copy(), float(F), g, magnitude, self.name, self.layout,

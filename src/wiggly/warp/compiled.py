@@ -49,8 +49,8 @@ pjit = njit(cache=True, fastmath={"contract"}, nogil=True, parallel=True)
 __all__ = [
     "AVAILABLE",
     "chunks",
-    "curvature_products",
     "compile_all",
+    "curvature_products",
     "field_gradients",
     "jacobians_rhs",
     "jvp_rhs",
@@ -121,6 +121,28 @@ def rotation_c(t2, a):
     if t2 <= _POLY_ANGLE2:
         return _series(_C, t2)
     return (1.0 - a) / t2
+
+
+# t-derivatives of b and c (t = th^2), for second derivatives of the rotation map
+_BT = tuple(k * _B[k] for k in range(1, 14))
+_CT = tuple(k * _C[k] for k in range(1, 13))
+# unit gradient E_k (flat k = 3 i + j): its rotation vector is SIGN[k] e_COMPONENT[k]
+_COMPONENT = (-1, 2, 1, 2, -1, 0, 1, 0, -1)
+_SIGN = (0.0, -0.5, 0.5, 0.5, 0.0, -0.5, -0.5, 0.5, 0.0)
+
+
+@jit
+def rotation_bc_derivatives(t2):
+    """``db/dt`` and ``dc/dt`` with ``t = th^2``: Taylor series up to th = pi, beyond it
+    ``(th sin th - 2 + 2 cos th) / (2 th^4)`` and ``(th (1 - cos th) - 3 th + 3 sin th) /
+    (2 th^5)``."""
+    if t2 <= _POLY_ANGLE2:
+        return _series(_BT, t2), _series(_CT, t2)
+    th = math.sqrt(t2)
+    s, co = math.sin(th), math.cos(th)
+    return (th * s - 2.0 + 2.0 * co) / (2.0 * t2 * t2), (
+        th * (1.0 - co) - 3.0 * th + 3.0 * s
+    ) / (2.0 * t2 * t2 * th)
 
 
 @jit
@@ -251,6 +273,99 @@ def cotangent(lin, Y, dA):
     dA[3], dA[5] = s01 + h2, s12 - h0
     dA[6], dA[7] = s02 - h1, s12 + h0
     # diagonal entries P[0], P[4], P[8] stay
+
+
+@jit
+def _jacobian_matrix(w0, w1, w2, b, c, J):
+    """The left Jacobian ``J(w) = I + b [w]x + c [w]x^2`` (flat 3x3)."""
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    J[0] = 1.0 + c * (w0 * w0 - t2)
+    J[1] = -b * w2 + c * w0 * w1
+    J[2] = b * w1 + c * w0 * w2
+    J[3] = b * w2 + c * w1 * w0
+    J[4] = 1.0 + c * (w1 * w1 - t2)
+    J[5] = -b * w0 + c * w1 * w2
+    J[6] = -b * w1 + c * w2 * w0
+    J[7] = b * w0 + c * w2 * w1
+    J[8] = 1.0 + c * (w2 * w2 - t2)
+
+
+@jit
+def hessian(lin, Z, H, J, N, P):
+    """``H`` (flat 9x9, symmetric) = the Hessian of ``A -> Z : H(A)`` at the linearization
+    ``lin`` (analytic; scratch ``J`` (9), ``N`` (9), ``P`` (27)).
+
+    With ``phi = Z : (R (I + S))``, ``alpha_a = J(w) dw_a``, ``gamma(N) = (N12 - N21, N20 -
+    N02, N01 - N10)`` (so that ``Z : ([x]x M) = x . gamma(M Z^T)``):
+
+        d2phi[a, b] = dw_a^T (M + J^T K J) dw_b + alpha_a . L(dS_b) + alpha_b . L(dS_a),
+
+    ``K = F Z^T - tr(F Z^T) I``, ``L(dS) = gamma(R dS Z^T)``, and ``M`` the bilinear form of
+    ``(DJ(w)[dw_b] dw_a) . gamma(F Z^T)`` (the second derivative of the rotation map).
+    """
+    w0, w1, w2, b, c = lin[0], lin[1], lin[2], lin[3], lin[4]
+    R = lin[5:14]
+    F = lin[14:23]
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    bt, ct = rotation_bc_derivatives(t2)
+    for i in range(3):  # N = F Z^T
+        for j in range(3):
+            N[3 * i + j] = (
+                F[3 * i] * Z[3 * j] + F[3 * i + 1] * Z[3 * j + 1] + F[3 * i + 2] * Z[3 * j + 2]
+            )
+    g0, g1, g2 = N[5] - N[7], N[6] - N[2], N[1] - N[3]
+    tr = N[0] + N[4] + N[8]
+    N[0] -= tr
+    N[4] -= tr
+    N[8] -= tr  # N is now K
+    _jacobian_matrix(w0, w1, w2, b, c, J)
+    # Q = J^T K J (into P[0:9]), via P[9:18] = K J
+    for i in range(3):
+        for j in range(3):
+            P[9 + 3 * i + j] = N[3 * i] * J[j] + N[3 * i + 1] * J[3 + j] + N[3 * i + 2] * J[6 + j]
+    for i in range(3):
+        for j in range(3):
+            P[3 * i + j] = J[i] * P[9 + j] + J[3 + i] * P[12 + j] + J[6 + i] * P[15 + j]
+    # + M: 2 bt (g x w) w^T + b [g]x + 2 ct ([w]x^2 g) w^T + c ((w.g) I - g w^T) + c [g x w]x
+    wg = w0 * g0 + w1 * g1 + w2 * g2
+    u0, u1, u2 = g1 * w2 - g2 * w1, g2 * w0 - g0 * w2, g0 * w1 - g1 * w0  # g x w
+    v0, v1, v2 = w0 * wg - t2 * g0, w1 * wg - t2 * g1, w2 * wg - t2 * g2  # [w]x^2 g
+    p0 = 2.0 * bt * u0 + 2.0 * ct * v0 - c * g0
+    p1 = 2.0 * bt * u1 + 2.0 * ct * v1 - c * g1
+    p2 = 2.0 * bt * u2 + 2.0 * ct * v2 - c * g2
+    P[0] += p0 * w0 + c * wg
+    P[1] += p0 * w1 - b * g2 - c * u2
+    P[2] += p0 * w2 + b * g1 + c * u1
+    P[3] += p1 * w0 + b * g2 + c * u2
+    P[4] += p1 * w1 + c * wg
+    P[5] += p1 * w2 - b * g0 - c * u0
+    P[6] += p2 * w0 - b * g1 - c * u1
+    P[7] += p2 * w1 + b * g0 + c * u0
+    P[8] += p2 * w2 + c * wg
+    # vectors P_l = J^T L(dS_l), L(dS_l) = (R_i x Z_j + R_j x Z_i) / 2 for l = 3 i + j
+    for l in range(9):
+        i, j = l // 3, l % 3
+        x0 = 0.5 * (
+            R[3 + i] * Z[6 + j] - R[6 + i] * Z[3 + j] + R[3 + j] * Z[6 + i] - R[6 + j] * Z[3 + i]
+        )
+        x1 = 0.5 * (R[6 + i] * Z[j] - R[i] * Z[6 + j] + R[6 + j] * Z[i] - R[j] * Z[6 + i])
+        x2 = 0.5 * (R[i] * Z[3 + j] - R[3 + i] * Z[j] + R[j] * Z[3 + i] - R[3 + j] * Z[i])
+        P[9 + 3 * l] = J[0] * x0 + J[3] * x1 + J[6] * x2
+        P[10 + 3 * l] = J[1] * x0 + J[4] * x1 + J[7] * x2
+        P[11 + 3 * l] = J[2] * x0 + J[5] * x1 + J[8] * x2
+    for k in range(9):
+        ck, sk = _COMPONENT[k], _SIGN[k]
+        for l in range(k, 9):
+            cl, sl = _COMPONENT[l], _SIGN[l]
+            h = 0.0
+            if ck >= 0:
+                h += sk * P[9 + 3 * l + ck]
+                if cl >= 0:
+                    h += 0.5 * sk * sl * (P[3 * ck + cl] + P[3 * cl + ck])
+            if cl >= 0:
+                h += sl * P[9 + 3 * k + cl]
+            H[9 * k + l] = h
+            H[9 * l + k] = h
 
 
 @jit
@@ -426,80 +541,6 @@ def second_derivatives_rhs(U, V, GB, step, tets, grads, vol, out):
 
 
 @jit
-def _cotangent_at(A, shift, scale, Y, S, lin, Ah, out):
-    """``out = grad_A' (Y : H(A'))`` at ``A' = A + scale shift``."""
-    for x in range(9):
-        Ah[x] = A[x] + scale * shift[x]
-    linearize(Ah, S, lin)
-    cotangent(lin, Y, out)
-
-
-@jit
-def _hessians(A, Y1, Y2, two, step, S, lin, Ah, unit, plus, minus, H1, H2):
-    """Hessians (flat 9x9, symmetric) of ``A -> Y1 : H(A)`` and, with ``two``, of
-    ``A -> Y2 : H(A)``, by central differences of the analytic gradient (one linearization
-    per perturbed ``A`` serves both)."""
-    for e in range(9):
-        for x in range(9):
-            unit[x] = 0.0
-        unit[e] = 1.0
-        for x in range(9):
-            Ah[x] = A[x] + step * unit[x]
-        linearize(Ah, S, lin)
-        cotangent(lin, Y1, plus)
-        if two:
-            cotangent(lin, Y2, S)  # S: scratch after linearize
-            for x in range(9):
-                H2[9 * x + e] = S[x]
-        for x in range(9):
-            Ah[x] = A[x] - step * unit[x]
-        linearize(Ah, S, lin)
-        cotangent(lin, Y1, minus)
-        for x in range(9):
-            H1[9 * x + e] = (plus[x] - minus[x]) / (2.0 * step)
-        if two:
-            cotangent(lin, Y2, minus)
-            for x in range(9):
-                H2[9 * x + e] = (H2[9 * x + e] - minus[x]) / (2.0 * step)
-    for x in range(9):
-        for e in range(x + 1, 9):
-            h = 0.5 * (H1[9 * x + e] + H1[9 * e + x])
-            H1[9 * x + e] = h
-            H1[9 * e + x] = h
-            if two:
-                h = 0.5 * (H2[9 * x + e] + H2[9 * e + x])
-                H2[9 * x + e] = h
-                H2[9 * e + x] = h
-
-
-@jit
-def _third(A, Y, a, step, S, lin, Ah, Ae, unit, p, q, T):
-    """``T = d/dA (Hess(Y : H)(A) a)`` (flat 9x9, symmetric): the Hessian of the scalar
-    ``A -> Y : dH(A; a)``, by nested central differences of the analytic gradient (step
-    ``step`` in both, error ~ step^2)."""
-    for e in range(9):
-        for x in range(9):
-            unit[x] = 0.0
-        unit[e] = 1.0
-        for x in range(9):
-            T[9 * x + e] = 0.0
-        for sign in (1.0, -1.0):
-            for x in range(9):
-                Ae[x] = A[x] + sign * step * unit[x]
-            _cotangent_at(Ae, a, step, Y, S, lin, Ah, p)
-            _cotangent_at(Ae, a, -step, Y, S, lin, Ah, q)
-            for x in range(9):  # sign * (Hess(A + sign step e) a)
-                T[9 * x + e] += sign * (p[x] - q[x]) / (2.0 * step)
-        for x in range(9):
-            T[9 * x + e] /= 2.0 * step
-    for x in range(9):
-        for e in range(x + 1, 9):
-            h = 0.5 * (T[9 * x + e] + T[9 * e + x])
-            T[9 * x + e] = h
-            T[9 * e + x] = h
-
-
-@jit
 def _apply_to_fields(H, GB, t, C):
     """``C[d, t] = H GB[d, t]`` for every field d (H flat 9x9)."""
     r = GB.shape[0]
@@ -514,7 +555,7 @@ def _apply_to_fields(H, GB, t, C):
 
 
 @pjit
-def curvature_products(u, z, zv, v, GB, step, step3, tets, grads, vol, Cqq, Cqv, velocity):
+def curvature_products(u, z, zv, v, GB, step3, tets, grads, vol, Cqq, Cqv, velocity):
     """Per tet the Hessians of ``y . W`` in the gradient, applied to r field gradients.
 
     ``u`` (n, 3) the point, ``z`` and ``zv`` (n, 3) the Poisson adjoints of the cotangents
@@ -524,50 +565,57 @@ def curvature_products(u, z, zv, v, GB, step, step3, tets, grads, vol, Cqq, Cqv,
         Cqq[d, t] = vol_t (Hess(Z_t) + D Hess(Zv_t)[(G v)_t]) GB[d, t]
         Cqv[d, t] = vol_t Hess(Zv_t) GB[d, t]          (only with ``velocity``)
 
-    with ``Z_t = (G z)_t`` and ``Hess(Y)`` the 9x9 Hessian of ``A -> Y : H(A)`` at
-    ``A_t = (G u)_t``; ``GB^T C`` then gives the modal curvature matrices (see
-    :meth:`wiggly.warp.kernels.NumbaKernels.curvature`).  ``step`` is the central-difference
-    step of the Hessians, ``step3`` that of the third derivative (in both directions).
+    with ``Z_t = (G z)_t`` and ``Hess(Y)`` the analytic 9x9 Hessian of ``A -> Y : H(A)`` at
+    ``A_t = (G u)_t`` (:func:`hessian`); its derivative along ``(G v)_t`` is a central
+    difference with step ``step3`` (error ~ step3^2).  ``GB^T C`` then gives the modal
+    curvature matrices (:meth:`wiggly.warp.kernels.NumbaKernels.curvature`).
     """
     m = tets.shape[0]
     n_chunks = max(1, min(m, 64))
-    for c in prange(n_chunks):
-        t0, t1 = c * m // n_chunks, (c + 1) * m // n_chunks
+    for ch in prange(n_chunks):
+        t0, t1 = ch * m // n_chunks, (ch + 1) * m // n_chunks
         A = np.empty(9)
+        Ah = np.empty(9)
         Y1 = np.empty(9)
         Y2 = np.empty(9)
         a = np.empty(9)
         S = np.empty(9)
         lin = np.empty(_LIN)
-        Ah = np.empty(9)
-        Ae = np.empty(9)
-        unit = np.empty(9)
-        p = np.empty(9)
-        q = np.empty(9)
+        J = np.empty(9)
+        N = np.empty(9)
+        P = np.empty(36)
         H1 = np.empty(81)
         H2 = np.empty(81)
-        T = np.empty(81)
+        Tp = np.empty(81)
+        Tm = np.empty(81)
         for t in range(t0, t1):
             gradient(u, tets, grads, t, A)
+            linearize(A, S, lin)
             gradient(z, tets, grads, t, Y1)
             for x in range(9):
                 Y1[x] *= vol[t]
+            hessian(lin, Y1, H1, J, N, P)
             if velocity:
                 gradient(zv, tets, grads, t, Y2)
                 gradient(v, tets, grads, t, a)
                 for x in range(9):
                     Y2[x] *= vol[t]
-            _hessians(A, Y1, Y2, velocity, step, S, lin, Ah, unit, p, q, H1, H2)
-            if velocity:
+                hessian(lin, Y2, H2, J, N, P)
                 scale = 0.0
                 for x in range(9):
                     scale = max(scale, abs(a[x]))
                 if scale > 0.0:
+                    h = step3 / scale
                     for x in range(9):
-                        a[x] /= scale
-                    _third(A, Y2, a, step3, S, lin, Ah, Ae, unit, p, q, T)
+                        Ah[x] = A[x] + h * a[x]
+                    linearize(Ah, S, lin)
+                    hessian(lin, Y2, Tp, J, N, P)
+                    for x in range(9):
+                        Ah[x] = A[x] - h * a[x]
+                    linearize(Ah, S, lin)
+                    hessian(lin, Y2, Tm, J, N, P)
                     for x in range(81):
-                        H1[x] += scale * T[x]
+                        H1[x] += (Tp[x] - Tm[x]) / (2.0 * h)
                 _apply_to_fields(H2, GB, t, Cqv)
             _apply_to_fields(H1, GB, t, Cqq)
 
@@ -599,4 +647,4 @@ def compile_all() -> None:
     jacobians_rhs(U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
     second_derivatives_rhs(U, U, GB, 1e-6, tets, grads, vol, np.zeros((2, 2, 4, 3)))
     C = np.zeros((2, 1, 9))
-    curvature_products(U[0], U[0], U[1], U[1], GB, 1e-6, 1e-4, tets, grads, vol, C, C.copy(), True)
+    curvature_products(U[0], U[0], U[1], U[1], GB, 1e-5, tets, grads, vol, C, C.copy(), True)

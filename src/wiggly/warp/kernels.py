@@ -83,7 +83,8 @@ class NumbaKernels:
         step3: float,
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """``qq = GB^T C_qq`` and ``qv = GB^T C_qv`` (r, r) from the per-tet products of
-        :func:`wiggly.warp.compiled.curvature_products`: one BLAS product each."""
+        :func:`wiggly.warp.compiled.curvature_products` (analytic Hessians; ``step`` is not
+        used): one BLAS product each."""
         r = GB.shape[0]
         velocity = zv is not None
         Cqq = np.empty((r, self.m, 9))
@@ -93,7 +94,7 @@ class NumbaKernels:
             np.ascontiguousarray(u), np.ascontiguousarray(z),
             np.ascontiguousarray(zv) if velocity else zero,
             np.ascontiguousarray(v) if velocity else zero,
-            GB, step, step3, self.tets, self.grads, self.vol, Cqq, Cqv, velocity,
+            GB, step3, self.tets, self.grads, self.vol, Cqq, Cqv, velocity,
         )
         flat = GB.reshape(r, -1)
         qq = flat @ Cqq.reshape(r, -1).T

@@ -65,8 +65,10 @@ class Warp:
     ----------
     vertices : (n, 3) rest positions.
     tets : (m, 4) positively oriented tetrahedra.
-    masses : (n,) vertex masses of the mass-weighted-mean gauge (default: a quarter of the
-        incident tets' volumes).
+    masses : (n,) vertex weights of the mass-weighted-mean gauge (default: a quarter of the
+        incident tets' volumes).  They may be signed (a coarse level's ``P^T m`` is, where
+        fine vertices lie outside the coarse mesh); a component whose weights do not sum to
+        a positive total uses the plain mean.
     fixed_vertices : indices or an (n,) bool mask of vertices where ``W(u) = 0``.
     kernels : "numba" or "numpy" per-tet passes (default: numba when available).
 
@@ -99,8 +101,8 @@ class Warp:
             m = np.asarray(masses, dtype=np.float64)
             if m.shape != (n,):
                 raise WigglyInputError(f"masses should have shape ({n},); shape is {m.shape}")
-            if not np.all(np.isfinite(m)) or np.any(m < 0):
-                raise WigglyInputError("masses should be finite and non-negative")
+            if not np.all(np.isfinite(m)):
+                raise WigglyInputError("masses should be finite")
         self.masses = m
         self.fixed = _fixed_mask(fixed_vertices, n)
         self.gauge = Gauge(self.laplacian, m, self.fixed)

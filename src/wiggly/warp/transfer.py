@@ -180,7 +180,7 @@ def coarse_level(
     warp_c = Warp(
         coarse_vertices,
         coarse_tets,
-        masses=np.maximum(P.T @ m, 0.0),
+        masses=P.T @ m,  # signed where fine vertices are extrapolated: the mean stays exact
         fixed_vertices=np.flatnonzero(share > 0.5) if fine.fixed.any() else None,
     )
     n, r = fine.n_vertices, np.shape(basis)[-1]
