@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, counted
 from wiggly.fem import Material, gravity_term, mass_matrix, stiffness_matrix
 from wiggly.mesh import Model, Surface, TetMesh, coarse_mesh, embed, load_model
 from wiggly.modes import Modes, compute_modes
@@ -227,7 +227,8 @@ def vertex_indices(vertices: ArrayLike, n: int, on: str = "surface",
     bad = v[(v < 0) | (v >= n)]
     if bad.size:
         raise WigglyInputError(
-            f"{what}: vertex index {int(bad[0])} does not exist: the {on} has {n} vertices "
+            f"{what}: vertex index {int(bad[0])} does not exist: the {on} has "
+            f"{counted(n, 'vertex')} "
             f"(valid indices 0..{n - 1})"
         )
     return v
@@ -246,7 +247,8 @@ def fixed_from_surface(model: Model, surface_vertices: np.ndarray) -> np.ndarray
     bad = idx[(idx < 0) | (idx >= n)]
     if bad.size:
         raise WigglyInputError(
-            f"surface vertex index {int(bad[0])} is out of range: the surface has {n} vertices"
+            f"surface vertex index {int(bad[0])} is out of range: the surface has "
+            f"{counted(n, 'vertex')}"
         )
     emb = model.embedding
     w = emb.barycentric[idx]
