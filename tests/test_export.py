@@ -310,7 +310,7 @@ def test_usd_stage_read_with_pxr(tmp_path, ext):
     assert stage.GetTimeCodesPerSecond() == 24.0 and stage.GetFramesPerSecond() == 24.0
     assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0.0, 7.0)
     assert stage.GetDefaultPrim().GetPath() == "/ball"
-    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/ball/mesh"))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/ball/ball"))
     assert mesh.GetSubdivisionSchemeAttr().Get() == UsdGeom.Tokens.none
     counts = mesh.GetFaceVertexCountsAttr().Get()
     indices = mesh.GetFaceVertexIndicesAttr().Get()
@@ -340,7 +340,7 @@ def test_usd_non_uniform_times_use_milliseconds(tmp_path):
     path = write_animation(tmp_path / "a.usda", sphere_animation(F=4, times=times))
     stage = Usd.Stage.Open(str(path))
     assert stage.GetTimeCodesPerSecond() == 1000.0
-    points = stage.GetPrimAtPath("/ball/mesh").GetAttribute("points")
+    points = stage.GetPrimAtPath("/ball/ball").GetAttribute("points")
     np.testing.assert_allclose(points.GetTimeSamples(), [0, 100, 150, 1000])
 
 
@@ -430,11 +430,11 @@ def test_npz_from_the_future_is_refused(tmp_path):
 def fail_after(original, partial: bool):
     """A writer that writes (part of) its output, then fails."""
 
-    def writer(path, anim, progress=False):
+    def writer(path, anim, progress=False, **options):
         if partial:
             Path(path).write_bytes(b"half a file")
         else:
-            original(path, anim, progress=progress)
+            original(path, anim, progress=progress, **options)
         raise OSError("disk full")
 
     return writer

@@ -1444,29 +1444,40 @@ def _output_paths(scene: Scene, outputs) -> list[Path]:
     return [Path(o).expanduser() for o in outputs]
 
 
-def check_outputs(paths: list[Path], overwrite: bool, where: str = "outputs") -> None:
-    """Every output has a known extension, and none exists unless ``overwrite``."""
+def check_outputs(paths: list[Path], overwrite: bool, where: str = "outputs",
+                  labels: list[str] | None = None) -> None:
+    """Every output has a known extension, none exists unless ``overwrite``, and each can be
+    written: its folder exists or can be created (no path component is a file) and accepts
+    new files.  ``labels`` name the outputs in messages (``output.paths[0] = "a.glb"``);
+    default: the paths.  Raises one :class:`WigglyInputError` listing every problem."""
+    from wiggly.files import check_writable
+
     problems = []
     seen = set()
-    for path in paths:
+    labels = labels or [str(p) for p in paths]
+    for path, label in zip(paths, labels, strict=True):
         ext = path.suffix.lower()
         if ext not in OUTPUT_EXTENSIONS:
-            problems.append(f"{path}: unsupported output extension {path.suffix or '(none)'!r}; "
-                            f"use one of {', '.join(OUTPUT_EXTENSIONS)}")
+            problems.append(f"{label}: unsupported output extension "
+                            f"{path.suffix or '(none)'!r}; use one of "
+                            f"{', '.join(OUTPUT_EXTENSIONS)}")
             continue
         if path.resolve() in seen:
-            problems.append(f"{path} is given twice")
+            problems.append(f"{label}: {path} is given twice")
         seen.add(path.resolve())
-        if path.is_dir():
-            problems.append(f"{path} is a directory; give a file name")
+        why = check_writable(path)
+        if why is not None:
+            problems.append(f"{label}: {why}")
+        elif path.is_dir():
+            problems.append(f"{label}: {path} is a directory; give a file name")
         elif not overwrite:
             existing = path if path.exists() else None
             if ext == ".obj" and existing is None:
                 first = path.with_name(f"{path.stem}_0000.obj")
                 existing = first if first.exists() else None
             if existing is not None:
-                problems.append(f"{existing} exists; pass --overwrite (or overwrite = true in "
-                                "[output]) to replace it")
+                problems.append(f"{label}: {existing} exists; pass --overwrite (or overwrite = "
+                                "true in [output]) to replace it")
     if problems:
         raise _error(where, problems)
 
@@ -1515,7 +1526,10 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
 
     overwrite = scene.output.overwrite if overwrite is None else overwrite
     paths = _output_paths(scene, outputs)
-    check_outputs(paths, overwrite, scene.where())
+    labels = ([f"output.paths[{i}] = {_show(p)}" for i, p in enumerate(scene.output.paths)]
+              if outputs is None else [f"-o {o}" for o in outputs])
+    check_outputs(paths, overwrite, scene.where(), labels)
+    _check_gltf_targets(scene, paths)
     timings: dict[str, float] = {}
     t = _time.perf_counter()
     body, keyframes, groups = _build(scene, progress)
@@ -1534,36 +1548,59 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
     return anim
 
 
+def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
+    if scene.output.gltf_targets == "modes" and scene.simulation.warp and \
+            any(p.suffix.lower() == ".glb" for p in paths):
+        raise _error(scene.where(), [
+            'output.gltf_targets = "modes" needs a linear shot: a warped motion is no linear '
+            "combination of modes; set simulation.warp = false (or pass --linear), or use "
+            '"frames"'])
+
+
 def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
                   progress: bool = False, highlights=(), timings: dict | None = None
                   ) -> list[Path]:
-    """Sample ``anim`` at the scene's fps and write ``paths`` (geometry first)."""
-    from wiggly.export import SurfaceAnimation, write_animation
+    """Sample ``anim`` at the scene's fps and write ``paths`` (geometry first), all or
+    nothing: every output goes to a temporary file first and all are moved into place once
+    all are written (:class:`wiggly.files.OutputSet`); on a failure none is replaced."""
+    from wiggly.export import SurfaceAnimation, stage_animation
+    from wiggly.files import OutputSet
 
     timings = {} if timings is None else timings
     if not paths:
         return []
+    _check_gltf_targets(scene, paths)
     t = _time.perf_counter()
     times = anim.frame_times(scene.time.fps)
-    _say(f"sampling {len(times)} frames at {scene.time.fps:g} fps", progress)
+    _say(f"sampling {counted(len(times), 'frame')} at {scene.time.fps:g} fps", progress)
     positions = anim.positions(times, dtype=np.float32)
     surf = anim.body.surface
     data = SurfaceAnimation(times, positions, surf.faces, surf.uvs, surf.normals,
-                            scene.mesh_file().stem)
+                            scene.mesh_file().stem, rest=surf.vertices)
+    targets = scene.output.gltf_targets or "frames"
+    if targets == "modes" and any(p.suffix.lower() == ".glb" for p in paths):
+        basis = anim.body.surface_basis  # (3p, r): positions = rest + basis q(t)
+        data.mode_shapes = basis.T.reshape(anim.body.r, -1, 3)
+        data.modal = anim.modal(times)[0]
     timings["sample"] = _time.perf_counter() - t
     written = []
-    for path in sorted(paths, key=lambda q: q.suffix.lower() in PREVIEW_EXTENSIONS):
-        t = _time.perf_counter()
-        ext = path.suffix.lower()
-        _say(f"writing {path}", progress)
-        if ext in GEOMETRY_EXTENSIONS:
-            write_animation(path, data, overwrite=overwrite, progress=progress)
-        else:
-            render_preview(path, times, positions, surf.faces, highlights=highlights,
-                           output=scene.output, title=scene.name, overwrite=overwrite,
-                           progress=progress)
-        timings[f"write {path.name}"] = _time.perf_counter() - t
-        written.append(path)
+    with OutputSet() as outputs:
+        for path in sorted(paths, key=lambda q: q.suffix.lower() in PREVIEW_EXTENSIONS):
+            t = _time.perf_counter()
+            ext = path.suffix.lower()
+            _say(f"writing {path}", progress)
+            if ext in GEOMETRY_EXTENSIONS:
+                stage_animation(outputs, path, data, overwrite=overwrite, progress=progress,
+                                frame_start=scene.output.frame_start, gltf_targets=targets)
+            else:
+                if path.exists() and not overwrite:
+                    raise WigglyInputError(f"{path} exists; pass --overwrite (or overwrite = "
+                                           "true in [output]) to replace it")
+                render_preview(outputs.stage(path), times, positions, surf.faces,
+                               highlights=highlights, output=scene.output, title=scene.name,
+                               overwrite=True, progress=progress)
+            timings[f"write {path.name}"] = _time.perf_counter() - t
+            written.append(path)
     return written
 
 
@@ -1588,9 +1625,14 @@ def render_preview(path: Path, times, positions, faces, *, highlights=(),
 
 
 def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None = None,
-                   resolution: int | None = None, modes: int | None = None) -> Scene:
+                   resolution: int | None = None, modes: int | None = None,
+                   frame_start: int | None = None, gltf_targets: str | None = None) -> Scene:
     """A copy of ``scene`` with some settings replaced (command-line options, tests)."""
     s = scene
+    if frame_start is not None:
+        s = replace(s, output=replace(s.output, frame_start=int(frame_start)))
+    if gltf_targets is not None:
+        s = replace(s, output=replace(s.output, gltf_targets=gltf_targets))
     if fps is not None:
         s = replace(s, time=replace(s.time, fps=float(fps)))
     if warp is not None:
