@@ -10,32 +10,31 @@ back (tests, and ``wiggly render`` of an exported file).
 Formats
 -------
 ``.glb``
-    glTF 2.0 binary (pygltflib).  The base mesh is the rest pose (``rest``; frame 0 when it
-    is not given): POSITION, NORMAL (the rest normals when given, else the recomputed ones),
+    glTF 2.0 binary (pygltflib).  The base mesh is the rest pose (``rest``; frame 0 when it is
+    not given): POSITION, NORMAL (the rest normals when given, else the recomputed ones),
     TEXCOORD_0 (when uvs) and uint16/uint32 indices.  Frame k is morph target k (POSITION and
     NORMAL deltas from the base, so the shading follows the deformation), and one animation
-    drives the node's ``weights`` with a LINEAR sampler whose keyframe k has weight 1 on
-    target k and 0 elsewhere: between frames positions interpolate linearly, and at most two
-    targets are active at once.  The mesh's default weights are 0 (a viewer that ignores
-    animations shows the rest pose).  Blender imports the base as the ``Basis`` shape key and
-    the targets as shape keys (named ``frame_0000``, ... by ``mesh.extras.targetNames``);
-    three.js plays the clip with an ``AnimationMixer``.  **Compact layout**
-    (``gltf_targets="modes"``, linear motions): target i is mode i on the surface, scaled so
-    that its weights q_i(t) / s_i stay in [-1, 1], and the sampler's keyframe k holds the
-    modal coordinates of frame k: the positions are exactly those of the per-frame layout
-    (linear in the weights, also between frames); the NORMAL deltas are the normals'
-    derivatives at rest (first order).  Size about ``n * r * 24 + F * r * 4`` bytes instead
-    of ``F * n * 24``.  All data is float32 and 4-byte
-    aligned; the deltas of all frames share one bufferView with ``byteStride`` 12; every
-    POSITION accessor (base and targets) has its exact min/max.  glTF puts the texture origin
-    at the top-left corner, so V is written as ``1 - v`` (and flipped back on reading):
-    :class:`SurfaceAnimation` uvs follow the OBJ/USD convention (origin bottom-left).  glTF
-    forbids negative times: if ``times[0] < 0`` the clip is shifted to start at 0; with
-    ``frame_start`` frame k is at ``(frame_start + k) / fps`` s (Blender puts a key at t s on
-    frame ``t * fps`` of its scene, so at the same fps keys land on frames ``frame_start``,
-    ``frame_start + 1``, ...); the exact times in seconds are kept in the animation's
-    ``extras.wiggly.times`` (and read back from there).  Size is about ``F * n * 24`` bytes
-    (position and normal deltas per frame): 300 frames of 20k vertices take 147 MB.
+    drives the node's ``weights`` with a LINEAR sampler whose keyframe k has weight 1 on target
+    k and 0 elsewhere: between frames positions interpolate linearly, and at most two targets
+    are active at once.  The mesh's default weights are 0 (a viewer that ignores animations
+    shows the rest pose).  Blender imports the base as the ``Basis`` shape key and the targets
+    as shape keys (named ``frame_0000``, ...  by ``mesh.extras.targetNames``); three.js plays
+    the clip with an ``AnimationMixer``.  **Compact layout** (``gltf_targets="modes"``, linear
+    motions): two targets per mode i on the surface, its shape scaled by s_i = max |q_i| and
+    negated, with weights max(+-q_i(t) / s_i, 0) in [0, 1] (Blender clamps shape keys to that
+    range): the positions are exactly those of the per-frame layout, at and between frames; the
+    NORMAL deltas are the normals' derivatives at rest (first order).  Size about ``2 n r 24 + 2
+    F r 4`` bytes instead of ``F n 24``.  All data is float32 and 4-byte aligned; the deltas of
+    all frames share one bufferView with ``byteStride`` 12; every POSITION accessor (base and
+    targets) has its exact min/max.  glTF puts the texture origin at the top-left corner, so V
+    is written as ``1 - v`` (and flipped back on reading): :class:`SurfaceAnimation` uvs follow
+    the OBJ/USD convention (origin bottom-left).  glTF forbids negative times: if ``times[0] <
+    0`` the clip is shifted to start at 0; with ``frame_start`` frame k is at ``(frame_start +
+    k) / fps`` s (Blender puts a key at t s on frame ``t * fps`` of its scene, so at the same
+    fps keys land on frames ``frame_start``, ``frame_start + 1``, ...); the exact times in
+    seconds are kept in the animation's ``extras.wiggly.times`` (and read back from there).
+    Size is about ``F * n * 24`` bytes (position and normal deltas per frame): 300 frames of 20k
+    vertices take 147 MB.
 ``.usd``, ``.usda``, ``.usdc``
     A ``UsdGeom.Mesh`` ``/<name>/<name>`` under an Xform ``/<name>`` (the default prim, kind
     component; Blender names the imported object ``<name>``) with time-sampled ``points`` and
@@ -643,22 +642,33 @@ def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False,
 
 def _modal_targets(anim: SurfaceAnimation, frame_normals: _FrameNormals, base_n: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
-    """Morph targets of the compact layout: mode i scaled by s_i = max_k |q_i(t_k)| (so its
-    weights q_i / s_i lie in [-1, 1]; modes that stay at zero are left out), and the
-    derivative of the vertex normals along it at rest (central differences): positions are
-    exact, normals first-order."""
+    """Morph targets of the compact layout (module docstring).
+
+    Mode i, scaled by s_i = max_k |q_i(t_k)|, becomes a target ``+`` with weights
+    max(q_i / s_i, 0) and a target ``-`` (the shape negated) with weights max(-q_i / s_i, 0):
+    weights stay in [0, 1], the range of Blender's shape-key sliders (it clamps to them), and
+    their difference interpolates linearly between frames, so positions are exact at and
+    between frames.  A half whose weights are all 0 (and modes that stay at 0) is left out.
+    NORMAL deltas are the normals' derivatives along the target at rest (central
+    differences): first order.
+    """
     scale = np.abs(anim.modal).max(axis=0)
-    keep = np.flatnonzero(scale > 0)
-    shapes = anim.mode_shapes[keep] * scale[keep, None, None]
-    dP = shapes.astype(np.float32)
+    shapes, weights, names = [], [], []
+    for i in np.flatnonzero(scale > 0):
+        w = anim.modal[:, i] / scale[i]
+        for sign, label in ((1.0, "+"), (-1.0, "-")):
+            if (sign * w > 0).any():
+                shapes.append(sign * scale[i] * anim.mode_shapes[i])
+                weights.append(np.maximum(sign * w, 0.0))
+                names.append(f"mode_{i:03d}{label}")
+    dP = np.asarray(shapes, dtype=np.float32).reshape(-1, anim.n_vertices, 3)
     dN = np.empty_like(dP)
     eps = 1e-3
     for j, shape in enumerate(shapes):
         plus = frame_normals(anim.rest + eps * shape)
         minus = frame_normals(anim.rest - eps * shape)
         dN[j] = ((plus - minus) / (2 * eps)).astype(np.float32)
-    weights = anim.modal[:, keep] / scale[keep]
-    return dP, dN, weights, [f"mode_{i:03d}" for i in keep]
+    return dP, dN, np.asarray(weights).reshape(len(shapes), -1).T, names
 
 
 def _gl_accessor(gltf, blob: bytes, index: int) -> np.ndarray:
