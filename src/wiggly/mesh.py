@@ -978,8 +978,10 @@ def _tetrahedralize(
     source: str,
     cache_dir: str | os.PathLike[str] | bool | None,
     checked: CheckedSurface | None = None,
+    simplify: bool = True,
 ) -> tuple[TetMesh, SurfaceReport, dict]:
-    """:func:`tetrahedralize`, also returning the surface report and what was done."""
+    """:func:`tetrahedralize`, also returning the surface report and what was done
+    (``simplify=False``: fTetWild gets the surface as it is)."""
     if checked is None:
         _check_surface_arrays(surface, source)
         edge_length_for(1.0, edge_length, resolution, source)  # options first: fail fast
@@ -994,7 +996,7 @@ def _tetrahedralize(
         f"resolution={resolution or DEFAULT_RESOLUTION}"
     estimate = check_tet_budget(report, h, source, asked)
     V, F = checked.vertices, checked.faces
-    simple = mesh_checks.simplified_envelope(V, F, h, report.area)
+    simple = mesh_checks.simplified_envelope(V, F, h, report.area) if simplify else None
     if simple is not None:
         V, F = simple
     used = np.unique(F)
@@ -1078,7 +1080,8 @@ def coarse_mesh(
     for _ in range(3):
         coarse, _, _ = _tetrahedralize(
             Surface(V, B), edge_length=edge, resolution=None, repair=True, progress=False,
-            source="coarse mesh", cache_dir=cache_dir, checked=checked)
+            source="coarse mesh", cache_dir=cache_dir, checked=checked,
+            simplify=False)  # its boundary must follow the fine mesh (the warp's lift)
         if embed(V, coarse).barycentric.min() > -0.5:
             return coarse
         edge /= 1.5
