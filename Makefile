@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.installed
 
-.PHONY: demo test venv kernels system-render-deps system-test-deps cholmod bench lint clean
+.PHONY: demo test venv kernels system-render-deps system-test-deps blender cholmod bench lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -36,7 +36,7 @@ system-render-deps:
 	fi
 
 ## Lint and run the test suite (installs what the tests need).
-test: $(STAMP) kernels system-render-deps system-test-deps
+test: $(STAMP) kernels system-render-deps system-test-deps blender
 	$(BIN)/ruff check src tests benchmarks scripts
 	$(BIN)/python -m pytest -q -n 2 -p no:cacheprovider
 
@@ -58,6 +58,18 @@ system-test-deps:
 	fi
 	@$(BIN)/python -c "import playwright" 2>/dev/null || $(BIN)/python -m pip install --quiet playwright
 
+## Blender as a Python module (PyPI bpy 5, Python 3.11 only, ~800 MB, ~20 s) in its own venv,
+## since bpy pins its own numpy: tests/test_blender.py imports our .glb/.usd in it (and skips
+## with the reason when it is missing).
+BLENDER_VENV ?= .venv-blender
+blender:
+	@if ! $(BLENDER_VENV)/bin/python -c "import bpy" >/dev/null 2>&1; then \
+	  echo "[make] installing bpy (Blender as a Python module) into $(BLENDER_VENV)"; \
+	  ($(PYTHON) -m venv $(BLENDER_VENV) && \
+	   $(BLENDER_VENV)/bin/python -m pip install --quiet "bpy>=5,<6") \
+	  || echo "[make] could not install bpy (it needs Python 3.11); the Blender test will skip"; \
+	fi
+
 ## Optional speed-up: CHOLMOD sparse Cholesky (SuiteSparse) on OpenBLAS for large bodies
 ## (on a 105k-tet box: factorization 24 s with the reference BLAS, 2.6 s with OpenBLAS).
 cholmod: $(STAMP)
@@ -77,4 +89,4 @@ lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks scripts
 
 clean:
-	rm -rf $(VENV) build dist *.egg-info .pytest_cache .ruff_cache wiggly-demo
+	rm -rf $(VENV) $(BLENDER_VENV) build dist *.egg-info .pytest_cache .ruff_cache wiggly-demo

@@ -310,7 +310,7 @@ def test_usd_stage_read_with_pxr(tmp_path, ext):
     assert stage.GetTimeCodesPerSecond() == 24.0 and stage.GetFramesPerSecond() == 24.0
     assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0.0, 7.0)
     assert stage.GetDefaultPrim().GetPath() == "/ball"
-    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/ball/mesh"))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/ball/ball"))
     assert mesh.GetSubdivisionSchemeAttr().Get() == UsdGeom.Tokens.none
     counts = mesh.GetFaceVertexCountsAttr().Get()
     indices = mesh.GetFaceVertexIndicesAttr().Get()
@@ -340,7 +340,7 @@ def test_usd_non_uniform_times_use_milliseconds(tmp_path):
     path = write_animation(tmp_path / "a.usda", sphere_animation(F=4, times=times))
     stage = Usd.Stage.Open(str(path))
     assert stage.GetTimeCodesPerSecond() == 1000.0
-    points = stage.GetPrimAtPath("/ball/mesh").GetAttribute("points")
+    points = stage.GetPrimAtPath("/ball/ball").GetAttribute("points")
     np.testing.assert_allclose(points.GetTimeSamples(), [0, 100, 150, 1000])
 
 
@@ -430,11 +430,11 @@ def test_npz_from_the_future_is_refused(tmp_path):
 def fail_after(original, partial: bool):
     """A writer that writes (part of) its output, then fails."""
 
-    def writer(path, anim, progress=False):
+    def writer(path, anim, progress=False, **options):
         if partial:
             Path(path).write_bytes(b"half a file")
         else:
-            original(path, anim, progress=progress)
+            original(path, anim, progress=progress, **options)
         raise OSError("disk full")
 
     return writer
@@ -599,3 +599,94 @@ def test_progress_bar_on_stderr(tmp_path, capsys, ext):
     assert "4/4" in err
     write_animation(tmp_path / f"a{ext}", sphere_animation(F=4), overwrite=True)
     assert capsys.readouterr().err == ""
+
+
+# ----------------------------------------------------------------------------------------------
+# rest pose as the glTF base, frame_start, compact (modal) glTF
+
+
+def modal_animation(F: int = 90, r: int = 8) -> SurfaceAnimation:
+    """A linear motion of an icosphere: rest + sum_i q_i(t) shape_i, with signed weights."""
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    V, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    rng = np.random.default_rng(2)
+    shapes = np.stack([np.sin((i + 1) * V @ rng.standard_normal(3))[:, None]
+                       * rng.standard_normal(3) * 0.1 for i in range(r)])
+    t = np.arange(F) / 30.0
+    q = np.stack([np.sin((i + 1) * 2.0 * t + i) * (1 + i) for i in range(r)], axis=1)
+    q[:, 3] = np.abs(q[:, 3])  # one mode that never goes negative
+    q[:, 5] = 0.0  # and one that stays at rest
+    P = V + np.einsum("fr,rnc->fnc", q, shapes)
+    return SurfaceAnimation(t, P, faces, name="blob", rest=V, mode_shapes=shapes, modal=q)
+
+
+def test_glb_base_is_the_rest_pose(tmp_path):
+    import pygltflib
+
+    anim = modal_animation(F=5)
+    path = write_animation(tmp_path / "a.glb", anim)
+    gltf = pygltflib.GLTF2().load(str(path))
+    base = raw_accessor(gltf, gltf.meshes[0].primitives[0].attributes.POSITION)
+    np.testing.assert_array_equal(base, anim.rest.astype(np.float32))
+    back = read_animation(path)
+    assert np.abs(back.positions - anim.positions).max() < position_tolerance(anim)
+
+
+@pytest.mark.parametrize("ext", [".glb", ".usda"])
+def test_frame_start_puts_frame_k_on_frame_start_plus_k(tmp_path, ext):
+    anim = sphere_animation(F=6, times=0.2 + np.arange(6) / 24)  # starts at 0.2 s = frame 4.8
+    path = write_animation(tmp_path / f"a{ext}", anim, frame_start=1)
+    if ext == ".glb":
+        import pygltflib
+
+        gltf = pygltflib.GLTF2().load(str(path))
+        sampler = gltf.animations[0].samplers[0]
+        keys = raw_accessor(gltf, sampler.input).ravel()
+        np.testing.assert_allclose(keys * 24, np.arange(1, 7), rtol=1e-6)
+    else:
+        from pxr import Usd
+
+        stage = Usd.Stage.Open(str(path))
+        assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (1.0, 6.0)
+        assert stage.GetTimeCodesPerSecond() == 24.0
+    back = read_animation(path)  # the shot's own times come back
+    np.testing.assert_allclose(back.times, anim.times, rtol=0, atol=1e-9)
+    with pytest.raises(WigglyInputError, match="negative glTF times"):
+        write_animation(tmp_path / "b.glb", anim, frame_start=-3)
+
+
+def test_compact_glb_is_exact_small_and_valid(tmp_path, gltf_validator):
+    """One pair of targets per mode: the same positions as the per-frame form at every frame
+    and between frames, a fraction of its size, and no validator errors."""
+    anim = modal_animation()
+    frames = write_animation(tmp_path / "frames.glb", anim)
+    modes = write_animation(tmp_path / "modes.glb", anim, gltf_targets="modes")
+    a, b = read_animation(frames), read_animation(modes)
+    tol = position_tolerance(anim)
+    assert np.abs(b.positions - anim.positions).max() < tol
+    np.testing.assert_array_equal(b.times, a.times)
+    # between frames both layouts interpolate linearly: the weights' difference is linear too
+    import pygltflib
+
+    gltf = pygltflib.GLTF2().load(str(modes))
+    names = gltf.meshes[0].extras["targetNames"]
+    assert len(names) == 2 * 8 - 1 - 2  # mode 3 needs no "-" half, mode 5 nothing at all
+    weights = raw_accessor(gltf, gltf.animations[0].samplers[0].output).reshape(90, -1)
+    assert weights.min() >= 0 and weights.max() <= 1  # Blender's shape-key slider range
+    sizes = frames.stat().st_size, modes.stat().st_size
+    assert sizes[1] < sizes[0] / 4, sizes
+    reports = gltf_validator([frames, modes])
+    for report in reports:
+        assert report["issues"]["numErrors"] == 0, report["issues"]["messages"][:3]
+    print(f"per-frame {sizes[0]} B, modes {sizes[1]} B; validator warnings "
+          f"{[r['issues']['numWarnings'] for r in reports]}")
+
+
+def test_compact_glb_refuses_a_motion_that_is_not_modal(tmp_path):
+    anim = modal_animation(F=4)
+    with pytest.raises(WigglyInputError, match="has no mode shapes"):
+        write_animation(tmp_path / "a.glb", SurfaceAnimation(anim.times, anim.positions,
+                                                             anim.faces), gltf_targets="modes")
+    anim.positions = anim.positions + 0.01  # not rest + modal . shapes
+    with pytest.raises(WigglyInputError, match="linear motions only"):
+        write_animation(tmp_path / "b.glb", anim, gltf_targets="modes")

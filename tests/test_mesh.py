@@ -17,7 +17,6 @@ from wiggly.errors import WigglyInputError
 from wiggly.mesh import (
     Surface,
     TetMesh,
-    _self_intersections_vtk,
     check_surface,
     check_tet_mesh,
     embed,
@@ -25,6 +24,7 @@ from wiggly.mesh import (
     load_model,
     tetrahedralize,
 )
+from wiggly.mesh_checks import _self_intersections_vtk
 
 # --------------------------------------------------------------------------- fixtures
 
@@ -118,14 +118,14 @@ def test_degenerate_tet_is_reported_with_count_and_index():
         check_tet_mesh(TetMesh(V, T), "flat.msh")
     message = error_message(excinfo)
     assert "flat.msh" in message
-    assert "1 of 13 tetrahedra are degenerate" in message
+    assert "1 of 13 tetrahedra is degenerate" in message
     assert "tet 5" in message
 
 
 def test_nan_coordinate_is_reported_with_vertex_index():
     V, T = box_tets(1, 1, 1)
     V[3, 1] = np.nan
-    with pytest.raises(WigglyInputError, match=r"1 vertices have NaN or infinite.*vertex 3"):
+    with pytest.raises(WigglyInputError, match=r"1 vertex has NaN or infinite.*vertex 3"):
         check_tet_mesh(TetMesh(V, T))
 
 
@@ -263,7 +263,7 @@ def test_nan_in_a_surface_file_is_reported(tmp_path):
     V[6] = [np.nan, 0.0, 1.0]
     path = tmp_path / "nan.obj"
     write_obj(path, V, F)
-    with pytest.raises(WigglyInputError, match=r"nan\.obj: 1 vertices have NaN.*vertex 6"):
+    with pytest.raises(WigglyInputError, match=r"nan\.obj: 1 vertex has NaN.*vertex 6"):
         load_mesh(path)
 
 
@@ -356,7 +356,8 @@ def test_inconsistent_orientation_is_reported():
     V, F = cube_surface()
     F = F.copy()
     F[5] = F[5, ::-1]
-    with pytest.raises(WigglyInputError, match="3 edges join two triangles with opposite"):
+    with pytest.raises(WigglyInputError, match="3 edges between triangles with opposite "
+                                               "orientations"):
         check_surface(Surface(V, F))
 
 
@@ -445,7 +446,8 @@ def test_tetrahedralized_sphere_has_sphere_volume():
 
 def test_repair_fills_the_union_of_overlapping_cubes():
     V, F = two_overlapping_cubes()
-    mesh = tetrahedralize(Surface(V, F), resolution=10, repair=True)
+    with pytest.warns(wiggly.mesh.MeshRepairWarning, match=r"\d+ pairs of triangles that cross"):
+        mesh = tetrahedralize(Surface(V, F), resolution=10)
     assert (mesh.volumes() > 0).all()
     assert mesh.volumes().sum() == pytest.approx(2 - 0.5**3, rel=0.01)
 
@@ -457,7 +459,9 @@ def test_tetrahedralize_rejects_bad_options():
     with pytest.raises(WigglyInputError, match="positive length"):
         tetrahedralize(Surface(V, F), edge_length=-1.0)
     with pytest.raises(WigglyInputError, match="4 open edges"):
-        tetrahedralize(Surface(V, F[2:]))
+        tetrahedralize(Surface(V, F[2:]), repair=False)
+    with pytest.raises(WigglyInputError, match=r"resolution must be an integer in \[1, 200\]"):
+        tetrahedralize(Surface(V, F), resolution=100000)
 
 
 # --------------------------------------------------------------------------- demo models
@@ -519,8 +523,9 @@ def test_load_model_reports_the_file_for_surface_errors(tmp_path):
     V, F = two_overlapping_cubes()
     path = tmp_path / "cubes.off"
     trimesh.Trimesh(V, F, process=False).export(path)
-    with pytest.raises(WigglyInputError, match=r"cubes\.off: the surface intersects itself"):
-        load_model(path)
+    with pytest.raises(WigglyInputError, match=r"cubes\.off: the surface is not a clean closed "
+                                               r"surface: \d+ pairs of triangles that cross"):
+        load_model(path, repair=False)
 
 
 def test_tetrahedralization_is_cached_and_reproducible(tmp_path):
@@ -539,3 +544,131 @@ def test_tetrahedralization_is_cached_and_reproducible(tmp_path):
     third = tetrahedralize(surface, resolution=8, cache_dir=tmp_path)
     assert third.n_tets > 0 and np.load(files[0])["tets"].shape == third.tets.shape
     assert tetrahedralize(surface, resolution=8, cache_dir=False).n_tets > 0
+
+
+# --------------------------------------------------------------------------- imperfect surfaces
+
+
+def icosphere(subdivisions: int = 3, radius: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    sphere = trimesh.creation.icosphere(subdivisions, radius=radius)
+    return np.asarray(sphere.vertices), np.asarray(sphere.faces, dtype=np.int64)
+
+
+def test_counts_in_messages_agree_in_number():
+    from wiggly.errors import counted
+
+    assert counted(1, "vertex") == "1 vertex" and counted(2, "vertex") == "2 vertices"
+    assert counted(1, "pair") == "1 pair" and counted(0, "open edge") == "0 open edges"
+    V, F = cube_surface()
+    V = V.copy()
+    V[3] = np.nan
+    with pytest.raises(WigglyInputError, match="1 vertex has NaN"):
+        check_surface(Surface(V, F))
+
+
+def test_orientation_is_made_consistent_and_outward():
+    from wiggly.mesh_checks import inspect_surface
+
+    V, F = icosphere(2)
+    flip = np.random.default_rng(5).random(len(F)) < 0.3
+    messy = np.where(flip[:, None], F[:, ::-1], F)
+    checked = inspect_surface(V, messy)
+    np.testing.assert_array_equal(np.sort(checked.faces, axis=1), np.sort(F, axis=1))
+    # every triangle runs the same way as the sphere's own (outward) triangle
+    same = [np.array_equal(np.roll(a, -int(np.argmin(a))), np.roll(b, -int(np.argmin(b))))
+            for a, b in zip(checked.faces, F, strict=True)]
+    assert all(same)
+    report = checked.report
+    assert report.misoriented_edges > 0 and report.open_edges == 0
+    assert report.volume == pytest.approx(signed_volume(V, F), rel=1e-12)
+    # an inside-out sphere is turned outward and is no defect
+    inside_out = inspect_surface(V, F[:, ::-1])
+    assert inside_out.report.clean
+    assert signed_volume(V, inside_out.faces) == pytest.approx(signed_volume(V, F))
+
+
+def test_open_and_misoriented_surfaces_are_filled_with_one_warning():
+    V, F = cube_surface()
+    top = np.flatnonzero(np.isclose(V[F][:, :, 2], 1.0).all(axis=1))
+    open_box = np.delete(F, top, axis=0)
+    with pytest.warns(wiggly.mesh.MeshRepairWarning) as caught:
+        mesh = tetrahedralize(Surface(V, open_box), resolution=10, source="box.obj")
+    assert len(caught) == 1
+    message = str(caught[0].message)
+    assert message.startswith("box.obj: the surface has 4 open edges;") and "\n" not in message
+    assert mesh.volumes().sum() == pytest.approx(1.0, rel=0.02)  # winding numbers close it
+    misoriented = F.copy()
+    misoriented[[1, 6]] = misoriented[[1, 6], ::-1]
+    with pytest.warns(wiggly.mesh.MeshRepairWarning, match="between triangles with opposite"):
+        mesh = tetrahedralize(Surface(V, misoriented), resolution=10)
+    assert mesh.volumes().sum() == pytest.approx(1.0, rel=0.02)
+
+
+@pytest.mark.parametrize("case", ["flat", "one triangle", "no triangles"])
+def test_what_cannot_be_filled_is_refused(case):
+    if case == "flat":  # a grid of triangles in a plane: open, no volume
+        V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0]])
+        F = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 5], [1, 5, 2]])
+        expected = "encloses no volume"
+    elif case == "one triangle":
+        V, F = np.eye(3), np.array([[0, 1, 2]])
+        expected = "encloses no volume"
+    else:
+        V, F = np.eye(3), np.zeros((0, 3), dtype=np.int64)
+        expected = "has no triangles"
+    with pytest.raises(WigglyInputError, match=expected):
+        tetrahedralize(Surface(V, F), source="x.obj")
+
+
+def test_tet_count_estimate_bounds_fTetWild_and_inverts():
+    from wiggly.limits import MAX_TETS
+    from wiggly.mesh_checks import estimate_tets, max_resolution
+
+    V, F = icosphere(3)
+    report = wiggly.mesh.inspect_surface(Surface(V, F))
+    mesh = tetrahedralize(Surface(V, F), resolution=14)
+    estimate = estimate_tets(report.volume, report.area, report.diagonal / 14)
+    assert 0.5 * estimate < mesh.n_tets < 1.1 * estimate
+    r = max_resolution(report.volume, report.area, report.diagonal, MAX_TETS)
+    assert estimate_tets(report.volume, report.area, report.diagonal / r) <= MAX_TETS
+    assert estimate_tets(report.volume, report.area, report.diagonal / (r + 1)) > MAX_TETS
+
+
+def test_too_many_tets_are_refused_before_fTetWild_runs(monkeypatch):
+    import pytetwild
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("fTetWild ran")
+
+    monkeypatch.setattr(pytetwild, "tetrahedralize", forbidden)
+    V, F = icosphere(2)
+    with pytest.raises(wiggly.mesh.TetBudgetError, match=r"resolution=190 would make about "
+                       r"\S+ tetrahedra .* limit of 400000 .* use resolution <= (\d+)") as err:
+        tetrahedralize(Surface(V, F), resolution=190, cache_dir=False)
+    assert 50 < err.value.max_resolution < 190
+    with pytest.raises(wiggly.mesh.TetBudgetError, match=r"edge_length=0\.001 would make"):
+        tetrahedralize(Surface(V, F), edge_length=1e-3, cache_dir=False)
+
+
+def test_a_fine_surface_is_simplified_before_fTetWild(monkeypatch):
+    """An 82k-triangle sphere at 12 edges per diagonal: fTetWild gets a simplified envelope of
+    a few hundred triangles; the tets still fill the sphere and embed its surface closely."""
+    import pytetwild
+
+    seen = []
+    original = pytetwild.tetrahedralize
+
+    def spy(V, F, **kwargs):
+        seen.append(len(F))
+        return original(V, F, **kwargs)
+
+    monkeypatch.setattr(pytetwild, "tetrahedralize", spy)
+    V, F = icosphere(6)
+    assert len(F) == 81920
+    mesh = tetrahedralize(Surface(V, F), resolution=12, cache_dir=False)
+    report = wiggly.mesh.inspect_surface(Surface(V, F))
+    edge = report.diagonal / 12
+    assert seen and seen[0] < 4 * report.area / edge**2 < len(F) / 50
+    assert mesh.volumes().sum() == pytest.approx(4 / 3 * np.pi * 0.5**3, rel=0.04)
+    outside = embed(V, mesh).outside_distance(mesh)
+    assert outside.max() < 0.2 * edge

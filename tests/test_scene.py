@@ -199,17 +199,21 @@ def scenes(draw) -> Scene:
         w = st.none() | st.floats(0, 1e12, allow_nan=False)
         keys.append(KeyframeSpec(t, draw(st.sampled_from(names)), pos, vel, draw(w), draw(w),
                                  draw(w), draw(st.text(max_size=10))))
+    fixed = tuple(draw(st.lists(st.sampled_from(names), unique=True)))
     return Scene(
-        mesh=MeshSpec("builtin:bar", draw(st.none() | st.integers(1, 200))),
+        mesh=MeshSpec("builtin:bar", draw(st.none() | st.integers(1, 200)),
+                      repair=draw(st.none() | st.booleans())),
         material=MaterialSpec(draw(_positive), draw(st.floats(0, 0.4999)), draw(_positive)),
         damping=DampingSpec(draw(st.floats(0, 100)), draw(st.floats(0, 1))),
-        simulation=SimulationSpec(draw(_vec), draw(st.integers(1, 500)), draw(st.booleans()),
-                                  fixed=tuple(draw(st.lists(st.sampled_from(names),
-                                                            unique=True)))),
-        time=TimeSpec(start, end=start + duration, fps=draw(st.floats(0.1, 1000))),
+        simulation=SimulationSpec(draw(_vec), draw(st.integers(1 if fixed else 6, 500)),
+                                  draw(st.booleans()), fixed=fixed),
+        time=TimeSpec(start, end=start + duration,
+                      fps=draw(st.floats(0.1, min(1000, 19_999 / duration)))),
         groups=groups, keyframes=keys,
         output=OutputSpec(tuple(draw(st.lists(st.sampled_from(
-            ["a.glb", "b.usd", "c.npz", "d.mp4", "e.png", "f/g.obj"]), unique=True)))))
+            ["a.glb", "b.usd", "c.npz", "d.mp4", "e.png", "f/g.obj"]), unique=True))),
+            frame_start=draw(st.none() | st.integers(-1000, 1000)),
+            gltf_targets=draw(st.none() | st.sampled_from(["frames", "modes"]))))
 
 
 @settings(max_examples=40, deadline=None,
@@ -271,8 +275,9 @@ ERRORS = [
     ("mesh.path", "DELETE", "mesh.path is missing; it is required: a non-empty string"),
     ("mesh.path", "", 'mesh.path = "" must be a non-empty string'),
     ("mesh.path", "builtin:crtter", 'mesh.path = "builtin:crtter" is not a bundled model'),
-    ("mesh.resolution", 0, "mesh.resolution = 0 must be an integer >= 1"),
-    ("mesh.resolution", 2.5, "mesh.resolution = 2.5 must be an integer >= 1"),
+    ("mesh.resolution", 0, "mesh.resolution = 0 must be an integer in [1, 200]"),
+    ("mesh.resolution", 2.5, "mesh.resolution = 2.5 must be an integer in [1, 200]"),
+    ("mesh.resolution", 100000, "mesh.resolution = 100000 must be an integer in [1, 200]"),
     ("mesh.edge_length", 0.1, "mesh has both resolution and edge_length; give only one"),
     ("mesh.repair", "yes", 'mesh.repair = "yes" must be true or false'),
     ("material.young", -1.0, "material.young = -1.0 must be a number > 0 (Pa)"),
@@ -287,7 +292,11 @@ ERRORS = [
     ("simulation.gravity", [0, -9.81], "simulation.gravity = [0, -9.81] must be an array of 3 "
                                        "numbers [gx, gy, gz] (m/s^2)"),
     ("simulation.gravity", [0, math.nan, 0], "simulation.gravity = [0, nan, 0] must be"),
-    ("simulation.modes", 0, "simulation.modes = 0 must be an integer >= 1"),
+    ("simulation.modes", 0, "simulation.modes = 0 must be an integer in [1, 500]"),
+    ("simulation.modes", 100000, "simulation.modes = 100000 must be an integer in [1, 500]"),
+    ("output.gltf_targets", "mode", 'output.gltf_targets = "mode" must be "frames" or '
+                                    '"modes"'),
+    ("output.frame_start", 1.5, "output.frame_start = 1.5 must be an integer in "),
     ("simulation.warp", 1, "simulation.warp = 1 must be true or false"),
     ("simulation.fixed", "left", 'simulation.fixed = "left" must be an array of group names'),
     ("simulation.fixed", ["left", "left"], 'simulation.fixed[1] = "left" repeats '

@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, counted
 from wiggly.fem import Material, gravity_term, mass_matrix, stiffness_matrix
 from wiggly.mesh import Model, Surface, TetMesh, coarse_mesh, embed, load_model
 from wiggly.modes import Modes, compute_modes
@@ -31,7 +31,7 @@ from wiggly.warp import Warp, WarpLevel, coarse_level, fine_level
 Where = Literal["surface", "tets"]
 DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
 # Bodies with more tets get a coarse warp (a coarse mesh of about COARSE_TETS tets) for the
-# Gauss-Newton Jacobians DW Phi and a first solve (see wiggly.warp.CoarseWarp).
+# Gauss-Newton Jacobians DW Phi and a first solve (see wiggly.warp.transfer).
 COARSE_WARP_ABOVE = 6000
 COARSE_TETS = 2000
 
@@ -225,7 +225,8 @@ def vertex_indices(vertices: ArrayLike, n: int, on: str = "surface",
     bad = v[(v < 0) | (v >= n)]
     if bad.size:
         raise WigglyInputError(
-            f"{what}: vertex index {int(bad[0])} does not exist: the {on} has {n} vertices "
+            f"{what}: vertex index {int(bad[0])} does not exist: the {on} has "
+            f"{counted(n, 'vertex')} "
             f"(valid indices 0..{n - 1})"
         )
     return v
@@ -244,7 +245,8 @@ def fixed_from_surface(model: Model, surface_vertices: np.ndarray) -> np.ndarray
     bad = idx[(idx < 0) | (idx >= n)]
     if bad.size:
         raise WigglyInputError(
-            f"surface vertex index {int(bad[0])} is out of range: the surface has {n} vertices"
+            f"surface vertex index {int(bad[0])} is out of range: the surface has "
+            f"{counted(n, 'vertex')}"
         )
     emb = model.embedding
     w = emb.barycentric[idx]

@@ -10,33 +10,45 @@ back (tests, and ``wiggly render`` of an exported file).
 Formats
 -------
 ``.glb``
-    glTF 2.0 binary (pygltflib).  The base mesh is frame 0: POSITION, NORMAL (the rest normals
-    when given, else frame 0's recomputed normals), TEXCOORD_0 (when uvs) and uint16/uint32
-    indices.  Frame k is morph target k (POSITION and NORMAL deltas from the base, so the
-    shading follows the deformation), and one animation drives the node's ``weights`` with a
-    LINEAR sampler whose keyframe k has weight 1 on target k and 0 elsewhere: between frames
-    positions interpolate linearly, and at most two targets are active at once.  The mesh's
-    default weights are 0 (a viewer that ignores animations shows frame 0).  Blender imports
-    the targets as shape keys (named ``frame_0000``, ... by ``mesh.extras.targetNames``);
-    three.js plays the clip with an ``AnimationMixer``.  All data is float32 and 4-byte
-    aligned; the deltas of all frames share one bufferView with ``byteStride`` 12; every
-    POSITION accessor (base and targets) has its exact min/max.  glTF puts the texture origin
-    at the top-left corner, so V is written as ``1 - v`` (and flipped back on reading):
-    :class:`SurfaceAnimation` uvs follow the OBJ/USD convention (origin bottom-left).  glTF
-    forbids negative times: if ``times[0] < 0`` the clip is shifted to start at 0; the exact
-    times in seconds are kept in the animation's ``extras.wiggly.times`` (and read back from
-    there).  Size is about ``F * n * 24`` bytes (position and normal deltas per frame): 300
-    frames of 20k vertices take 147 MB.
+    glTF 2.0 binary (pygltflib).  The base mesh is the rest pose (``rest``; frame 0 when it is
+    not given): POSITION, NORMAL (the rest normals when given, else the recomputed ones),
+    TEXCOORD_0 (when uvs) and uint16/uint32 indices.  Frame k is morph target k (POSITION and
+    NORMAL deltas from the base, so the shading follows the deformation), and one animation
+    drives the node's ``weights`` with a LINEAR sampler whose keyframe k has weight 1 on target
+    k and 0 elsewhere: between frames positions interpolate linearly, and at most two targets
+    are active at once.  The mesh's default weights are 0 (a viewer that ignores animations
+    shows the rest pose).  Blender imports the base as the ``Basis`` shape key and the targets
+    as shape keys (named ``frame_0000``, ...  by ``mesh.extras.targetNames``); three.js plays
+    the clip with an ``AnimationMixer``.  **Compact layout** (``gltf_targets="modes"``, linear
+    motions): two targets per mode i on the surface, its shape scaled by s_i = max |q_i| and
+    negated, with weights max(+-q_i(t) / s_i, 0) in [0, 1] (Blender clamps shape keys to that
+    range): the positions are exactly those of the per-frame layout, at and between frames; the
+    NORMAL deltas are the normals' derivatives at rest (first order).  Size about ``2 n r 24 + 2
+    F r 4`` bytes instead of ``F n 24``.  All data is float32 and 4-byte aligned; the deltas of
+    all frames share one bufferView with ``byteStride`` 12; every POSITION accessor (base and
+    targets) has its exact min/max.  glTF puts the texture origin at the top-left corner, so V
+    is written as ``1 - v`` (and flipped back on reading): :class:`SurfaceAnimation` uvs follow
+    the OBJ/USD convention (origin bottom-left).  glTF forbids negative times: if ``times[0] <
+    0`` the clip is shifted to start at 0; with ``frame_start`` frame k is at ``(frame_start +
+    k) / fps`` s (Blender puts a key at t s on frame ``t * fps`` of its scene, so at the same
+    fps keys land on frames ``frame_start``, ``frame_start + 1``, ...); the exact times in
+    seconds are kept in the animation's ``extras.wiggly.times`` (and read back from there).
+    Size is about ``F * n * 24`` bytes (position and normal deltas per frame): 300 frames of 20k
+    vertices take 147 MB.
 ``.usd``, ``.usda``, ``.usdc``
-    A ``UsdGeom.Mesh`` ``/<name>/mesh`` under an Xform ``/<name>`` (the default prim, kind
-    component) with time-sampled ``points`` and ``extent``; ``subdivisionScheme = "none"``;
+    A ``UsdGeom.Mesh`` ``/<name>/<name>`` under an Xform ``/<name>`` (the default prim, kind
+    component; Blender names the imported object ``<name>``) with time-sampled ``points`` and
+    ``extent``; ``subdivisionScheme = "none"``;
     ``primvars:st`` (vertex interpolation) from the uvs; time-sampled vertex ``normals`` only
     when the animation has rest normals (otherwise renderers compute smooth normals).  Stage
     metadata: upAxis Y, metersPerUnit 1, start/end time codes.  Time codes: when the frame
     times are uniform (dt equal to 1e-6 relative), ``timeCodesPerSecond = framesPerSecond =
     1 / dt`` (rounded to an integer when within 1e-6 of one) and frame k has time code
-    ``times[0] / dt + k``; otherwise ``timeCodesPerSecond = 1000`` and time code =
-    milliseconds.  Reading gives ``time = time code / timeCodesPerSecond``.  ``.usd`` is
+    ``times[0] / dt + k`` (``frame_start + k`` with ``frame_start``); otherwise
+    ``timeCodesPerSecond = 1000`` and time code = milliseconds.  Reading gives ``time = time
+    code / timeCodesPerSecond`` (shifted by the start time and frame kept in the layer's
+    ``customLayerData["wiggly"]``).  Blender's importer sets its scene's frame range from the
+    time codes but ignores the frame rate: export at the Blender scene's fps.  ``.usd`` is
     written in the binary crate format (usd-core's default).
 ``.obj``
     An OBJ sequence: ``out/frame.obj`` writes ``out/frame_0000.obj``, ``out/frame_0001.obj``,
@@ -59,21 +71,17 @@ animation has rest normals (e.g. smooth normals across a UV seam), frame k's nor
 rest normal rotated by the smallest rotation taking the recomputed frame-0 normal to the
 recomputed frame-k normal, so frame 0 shows the file's normals exactly.
 
-Every write is atomic: data goes to a temporary file (or, for OBJ sequences, a temporary
-directory) in the output's directory and is moved into place with :func:`os.replace` only
-when complete, so a failure never leaves a partial output (nor a temporary file).  For an OBJ
-sequence each frame file is replaced atomically, the sequence as a whole is not (the moves
-happen after every frame was written).  An existing output is an error unless
-``overwrite=True``.  Missing parent directories are created.
+Every write is all or nothing: data goes to temporary files in the output's directory and
+is moved into place only when every file is complete (:class:`wiggly.files.OutputSet`;
+:func:`stage_animation` adds an animation to a set shared with other outputs), so a failure
+never leaves a partial output, a temporary file, or a replaced one.  An existing output is
+an error unless ``overwrite=True``.  Missing parent directories are created.
 """
 
 from __future__ import annotations
 
-import os
 import re
-import shutil
 import sys
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,9 +90,10 @@ import scipy.sparse as sp
 from tqdm import tqdm
 
 from wiggly.errors import WigglyInputError
-from wiggly.files import atomic_file
+from wiggly.files import OutputSet
 
-__all__ = ["SUPPORTED", "SurfaceAnimation", "read_animation", "vertex_normals", "write_animation"]
+__all__ = ["GLTF_TARGETS", "SUPPORTED", "SurfaceAnimation", "read_animation", "stage_animation",
+           "vertex_normals", "write_animation"]
 
 #: Output formats by file extension.
 SUPPORTED = {
@@ -96,6 +105,8 @@ SUPPORTED = {
     ".npz": "compressed numpy archive (times, positions, faces, uvs, normals)",
 }
 
+#: glTF morph target layouts: one target per frame, or one per mode (linear motions).
+GLTF_TARGETS = ("frames", "modes")
 #: Version of the npz layout and of the glTF extras written here.
 FORMAT_VERSION = 1
 #: OBJ number format of positions: 9 significant digits reproduce float32 values exactly.
@@ -123,7 +134,15 @@ class SurfaceAnimation:
     normals : (n, 3) float array or None
         Rest normals from the user's file; per-frame normals are recomputed.
     name : str
-        Object name (glTF mesh/node name, USD prim name, OBJ ``o`` line).
+        Object name (glTF mesh/node name, USD prim names, OBJ ``o`` line).
+    rest : (n, 3) float array or None
+        The rest positions: the glTF base mesh (Blender's ``Basis`` shape key), with every
+        frame a morph target relative to it.  None: frame 0 is the base.
+    mode_shapes : (r, n, 3) float array or None
+        For a linear motion, ``positions[k] = rest + sum_i modal[k, i] * mode_shapes[i]``
+        (the modes on the surface): the compact glTF layout (``gltf_targets="modes"``).
+    modal : (F, r) float array or None
+        The modal coordinates q(t) of every frame, with ``mode_shapes``.
     """
 
     times: np.ndarray
@@ -132,6 +151,9 @@ class SurfaceAnimation:
     uvs: np.ndarray | None = None
     normals: np.ndarray | None = None
     name: str = "wiggly"
+    rest: np.ndarray | None = None
+    mode_shapes: np.ndarray | None = None
+    modal: np.ndarray | None = None
 
     @property
     def n_frames(self) -> int:
@@ -143,7 +165,8 @@ class SurfaceAnimation:
 
 
 def write_animation(
-    path, anim: SurfaceAnimation, *, overwrite: bool = False, progress: bool = False
+    path, anim: SurfaceAnimation, *, overwrite: bool = False, progress: bool = False,
+    frame_start: int | None = None, gltf_targets: str = "frames",
 ) -> Path:
     """Write ``anim`` to ``path`` in the format of its extension (:data:`SUPPORTED`).
 
@@ -158,6 +181,15 @@ def write_animation(
         Replace existing output (for OBJ: any existing frame of the sequence).
     progress : bool
         Show a tqdm progress bar over frames on stderr (OBJ and USD).
+    frame_start : int, optional
+        glTF and USD: put frame k on frame ``frame_start + k`` at the frames' rate (glTF time
+        ``(frame_start + k) / fps``, USD time code ``frame_start + k``), so that keys land on
+        whole frames from ``frame_start`` on (Blender's scenes start at frame 1).  Needs
+        uniform frame times; glTF needs ``frame_start >= 0``.  None: the frames' own times
+        (module docstring).  The exact times are kept in the file either way.
+    gltf_targets : {"frames", "modes"}
+        glTF morph targets: one per frame, or one per mode with the modal coordinates as
+        weights (exact for a linear motion; needs ``anim.rest``, ``mode_shapes``, ``modal``).
 
     Returns
     -------
@@ -170,6 +202,19 @@ def write_animation(
         Unknown extension, existing output without ``overwrite``, or invalid arrays.
     """
     path = Path(path)
+    with OutputSet() as outputs:
+        stage_animation(outputs, path, anim, overwrite=overwrite, progress=progress,
+                        frame_start=frame_start, gltf_targets=gltf_targets)
+    return path
+
+
+def stage_animation(
+    outputs: OutputSet, path, anim: SurfaceAnimation, *, overwrite: bool = False,
+    progress: bool = False, frame_start: int | None = None, gltf_targets: str = "frames",
+) -> None:
+    """:func:`write_animation` into temporary files of ``outputs``
+    (:class:`wiggly.files.OutputSet`), which moves them into place with the other outputs."""
+    path = Path(path)
     ext = path.suffix.lower()
     if ext not in SUPPORTED:
         raise WigglyInputError(
@@ -177,7 +222,16 @@ def write_animation(
             f"supported: {', '.join(SUPPORTED)}"
         )
     anim = _checked(anim, f"cannot write {path}")
-    if ext == ".glb" and np.any(np.diff(_gltf_times(anim.times)) <= 0):
+    if gltf_targets not in GLTF_TARGETS:
+        raise WigglyInputError(f"cannot write {path}: gltf_targets = {gltf_targets!r}; use one "
+                               f"of {', '.join(map(repr, GLTF_TARGETS))}")
+    if gltf_targets == "modes" and ext == ".glb" and anim.mode_shapes is None:
+        raise WigglyInputError(f"cannot write {path} with one morph target per mode: the "
+                               "animation has no mode shapes (a warped motion is not a linear "
+                               "combination of modes); use gltf_targets='frames'")
+    if frame_start is not None:
+        _frame_codes(anim.times, frame_start, f"cannot write {path}", gltf=ext == ".glb")
+    if ext == ".glb" and np.any(np.diff(_gltf_times(anim.times, frame_start)) <= 0):
         raise WigglyInputError(
             f"cannot write {path}: frame times are too close to be distinct in float32, which "
             "glTF uses; use a larger frame interval (or export .usd / .npz)"
@@ -185,16 +239,17 @@ def write_animation(
     if path.is_dir():
         raise WigglyInputError(f"cannot write {path}: it is a directory; give a file name")
     if ext == ".obj":
-        _write_obj_sequence(path, anim, overwrite=overwrite, progress=progress)
-        return path
+        _stage_obj_sequence(outputs, path, anim, overwrite=overwrite, progress=progress)
+        return
     if path.exists() and not overwrite:
         raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
-    writer = {".glb": _write_glb, ".npz": _write_npz}.get(ext, _write_usd)
-    with atomic_file(path) as tmp:
-        writer(tmp, anim, progress=progress)
-    if ext in (".usd", ".usda", ".usdc"):
-        _forget_usd_layer(path)
-    return path
+    tmp = outputs.stage(path)
+    if ext == ".glb":
+        _write_glb(tmp, anim, progress=progress, frame_start=frame_start, targets=gltf_targets)
+    elif ext == ".npz":
+        _write_npz(tmp, anim, progress=progress)
+    else:
+        _write_usd(tmp, anim, progress=progress, frame_start=frame_start)
 
 
 def read_animation(path) -> SurfaceAnimation:
@@ -304,7 +359,32 @@ def _checked(anim: SurfaceAnimation, where: str) -> SurfaceAnimation:
         normals = normals / length[:, None]
     name = anim.name if isinstance(anim.name, str) and anim.name.strip() else "wiggly"
     name = re.sub(r"[\x00-\x1f]+", " ", name).strip()  # one line in OBJ's "o" statement
-    return SurfaceAnimation(times, positions, faces, uvs, normals, name)
+    rest = shapes = modal = None
+    if anim.rest is not None:
+        rest = array("rest", anim.rest, "(n, 3)").astype(np.float64)
+        if rest.shape != (n, 3) or not np.all(np.isfinite(rest)):
+            fail(f"rest should be finite with shape (n, 3) = ({n}, 3); shape is {rest.shape}")
+    if (anim.mode_shapes is None) != (anim.modal is None):
+        fail("give mode_shapes and modal together (or neither)")
+    if anim.mode_shapes is not None:
+        if rest is None:
+            fail("mode_shapes need the rest positions (rest)")
+        shapes = array("mode_shapes", anim.mode_shapes, "(r, n, 3)").astype(np.float64)
+        modal = array("modal", anim.modal, "(F, r)").astype(np.float64)
+        r = len(shapes)
+        if shapes.ndim != 3 or shapes.shape[1:] != (n, 3) or modal.shape != (F, r):
+            fail(f"mode_shapes should have shape (r, n, 3) and modal (F, r) with n = {n}, "
+                 f"F = {F}; shapes are {shapes.shape} and {modal.shape}")
+        if not (np.all(np.isfinite(shapes)) and np.all(np.isfinite(modal))):
+            fail("mode_shapes and modal should be finite")
+        # they must be the positions: checked on the first, middle and last frames
+        for k in sorted({0, F // 2, F - 1}):
+            err = np.abs(rest + np.tensordot(modal[k], shapes, axes=1) - positions[k]).max()
+            scale = max(float(np.abs(positions[k]).max()), 1e-300)
+            if err > 1e-5 * scale:
+                fail(f"positions[{k}] differ from rest + modal[{k}] . mode_shapes by {err:.3g}; "
+                     "the compact layout is for linear motions only")
+    return SurfaceAnimation(times, positions, faces, uvs, normals, name, rest, shapes, modal)
 
 
 def _incidence(faces: np.ndarray, n: int) -> sp.csr_matrix:
@@ -336,7 +416,8 @@ class _FrameNormals:
     def __init__(self, anim: SurfaceAnimation):
         self.faces = anim.faces
         self.incidence = _incidence(anim.faces, anim.n_vertices)
-        self.rest_computed = vertex_normals(anim.positions[0], anim.faces, self.incidence)
+        base = anim.positions[0] if anim.rest is None else anim.rest
+        self.rest_computed = vertex_normals(base, anim.faces, self.incidence)
         self.rest = anim.normals
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
@@ -427,25 +508,56 @@ _GL_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 51
 _GL_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 
-def _gltf_times(times: np.ndarray) -> np.ndarray:
-    """Sampler input: float32 seconds, shifted to start at 0 if the first time is negative."""
+def _gltf_times(times: np.ndarray, frame_start: int | None = None) -> np.ndarray:
+    """Sampler input: float32 seconds, shifted to start at 0 if the first time is negative;
+    with ``frame_start``, ``(frame_start + k) / fps``."""
+    if frame_start is not None:
+        fps, codes = _frame_codes(times, frame_start, "glTF", gltf=True)
+        return (codes / fps).astype(np.float32)
     return (times - min(times[0], 0.0)).astype(np.float32)
 
 
-def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False) -> None:
+def _frame_codes(times: np.ndarray, frame_start: int | None, where: str,
+                 gltf: bool = False) -> tuple[float, np.ndarray]:
+    """(frames per second, frame number of every frame): ``frame_start + k`` when given
+    (uniform times only), else the USD time codes of the module docstring."""
+    fps, codes = _usd_time_codes(times)
+    if frame_start is None:
+        return fps, codes
+    if len(times) > 1 and fps == 1000.0 and not np.allclose(np.diff(times), 1e-3):
+        raise WigglyInputError(f"{where}: frame_start needs uniformly spaced frame times")
+    if isinstance(frame_start, bool) or int(frame_start) != frame_start:
+        raise WigglyInputError(f"{where}: frame_start must be an integer, got {frame_start!r}")
+    if gltf and frame_start < 0:
+        raise WigglyInputError(f"{where}: frame_start = {frame_start} would give negative glTF "
+                               "times, which glTF forbids; use frame_start >= 0")
+    if len(times) == 1:
+        fps = 1.0
+    return fps, int(frame_start) + np.arange(len(times), dtype=np.float64)
+
+
+def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False,
+               frame_start: int | None = None, targets: str = "frames") -> None:
     gl = _require("pygltflib", "pygltflib", ".glb")
 
     F, n = anim.n_frames, anim.n_vertices
     frame_normals = _FrameNormals(anim)
     P = anim.positions.astype(np.float32)
-    base_p = P[0]
-    base_n = (anim.normals if anim.normals is not None else frame_normals(anim.positions[0]))
+    rest = anim.positions[0] if anim.rest is None else anim.rest
+    base_p = rest.astype(np.float32)
+    base_n = (anim.normals if anim.normals is not None else frame_normals(rest))
     base_n = base_n.astype(np.float32)
-    dP = P - base_p
-    dN = np.empty_like(dP)
-    for k in _progress(range(F), F, progress, "normals"):
-        dN[k] = frame_normals(anim.positions[k]).astype(np.float32) - base_n
-    t32 = _gltf_times(anim.times)
+    if targets == "modes":
+        dP, dN, weights, names = _modal_targets(anim, frame_normals, base_n)
+    else:
+        dP = P - base_p
+        dN = np.empty_like(dP)
+        for k in _progress(range(F), F, progress, "normals"):
+            dN[k] = frame_normals(anim.positions[k]).astype(np.float32) - base_n
+        weights = np.eye(F, dtype=np.float32)  # keyframe k: weight 1 on target k
+        names = [f"frame_{k:04d}" for k in range(F)]
+    n_targets = len(dP)
+    t32 = _gltf_times(anim.times, frame_start)
     index_type = _GL_UNSIGNED_SHORT if n <= 65535 else _GL_UNSIGNED_INT
 
     blob = bytearray()
@@ -484,17 +596,21 @@ def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
     # All position deltas in one strided view, all normal deltas in another.
     view_dp = add_view(dP, _GL_ARRAY_BUFFER, stride=12)
     view_dn = add_view(dN, _GL_ARRAY_BUFFER, stride=12)
-    targets = [
+    morph = [
         gl.Attributes(
             POSITION=add_accessor(view_dp, dP[k], _GL_FLOAT, "VEC3", offset=k * n * 12,
                                   bounds=True),
             NORMAL=add_accessor(view_dn, dN[k], _GL_FLOAT, "VEC3", offset=k * n * 12),
         )
-        for k in range(F)
+        for k in range(n_targets)
     ]
     time_accessor = add_accessor(add_view(t32), t32, _GL_FLOAT, "SCALAR", bounds=True)
-    weights = np.eye(F, dtype=np.float32).ravel()  # keyframe k: weight 1 on target k
-    weight_accessor = add_accessor(add_view(weights), weights, _GL_FLOAT, "SCALAR")
+    flat = weights.astype(np.float32).ravel()
+    weight_accessor = add_accessor(add_view(flat), flat, _GL_FLOAT, "SCALAR")
+    extras = {"format_version": FORMAT_VERSION, "times": anim.times.tolist(),
+              "targets": targets}
+    if frame_start is not None:
+        extras["frame_start"] = int(frame_start)
 
     gltf = gl.GLTF2(
         asset=gl.Asset(version="2.0", generator="wiggly"),
@@ -504,9 +620,9 @@ def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
         meshes=[gl.Mesh(
             name=anim.name,
             primitives=[gl.Primitive(attributes=attributes, indices=index_accessor,
-                                     mode=_GL_TRIANGLES, targets=targets)],
-            weights=[0.0] * F,
-            extras={"targetNames": [f"frame_{k:04d}" for k in range(F)]},
+                                     mode=_GL_TRIANGLES, targets=morph)],
+            weights=[0.0] * n_targets,
+            extras={"targetNames": names},
         )],
         animations=[gl.Animation(
             name=anim.name,
@@ -514,8 +630,7 @@ def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
                                           interpolation="LINEAR")],
             channels=[gl.AnimationChannel(sampler=0, target=gl.AnimationChannelTarget(
                 node=0, path="weights"))],
-            extras={"wiggly": {"format_version": FORMAT_VERSION,
-                               "times": anim.times.tolist()}},
+            extras={"wiggly": extras},
         )],
         accessors=accessors,
         bufferViews=views,
@@ -523,6 +638,37 @@ def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
     )
     gltf.set_binary_blob(bytes(blob))
     gltf.save_binary(str(path))
+
+
+def _modal_targets(anim: SurfaceAnimation, frame_normals: _FrameNormals, base_n: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    """Morph targets of the compact layout (module docstring).
+
+    Mode i, scaled by s_i = max_k |q_i(t_k)|, becomes a target ``+`` with weights
+    max(q_i / s_i, 0) and a target ``-`` (the shape negated) with weights max(-q_i / s_i, 0):
+    weights stay in [0, 1], the range of Blender's shape-key sliders (it clamps to them), and
+    their difference interpolates linearly between frames, so positions are exact at and
+    between frames.  A half whose weights are all 0 (and modes that stay at 0) is left out.
+    NORMAL deltas are the normals' derivatives along the target at rest (central
+    differences): first order.
+    """
+    scale = np.abs(anim.modal).max(axis=0)
+    shapes, weights, names = [], [], []
+    for i in np.flatnonzero(scale > 0):
+        w = anim.modal[:, i] / scale[i]
+        for sign, label in ((1.0, "+"), (-1.0, "-")):
+            if (sign * w > 0).any():
+                shapes.append(sign * scale[i] * anim.mode_shapes[i])
+                weights.append(np.maximum(sign * w, 0.0))
+                names.append(f"mode_{i:03d}{label}")
+    dP = np.asarray(shapes, dtype=np.float32).reshape(-1, anim.n_vertices, 3)
+    dN = np.empty_like(dP)
+    eps = 1e-3
+    for j, shape in enumerate(shapes):
+        plus = frame_normals(anim.rest + eps * shape)
+        minus = frame_normals(anim.rest - eps * shape)
+        dN[j] = ((plus - minus) / (2 * eps)).astype(np.float32)
+    return dP, dN, np.asarray(weights).reshape(len(shapes), -1).T, names
 
 
 def _gl_accessor(gltf, blob: bytes, index: int) -> np.ndarray:
@@ -624,11 +770,12 @@ def _usd_time_codes(times: np.ndarray) -> tuple[float, np.ndarray]:
     return 1000.0, times * 1000.0
 
 
-def _write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False) -> None:
+def _write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False,
+               frame_start: int | None = None) -> None:
     _require("pxr", "usd-core", "USD")
     from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, Vt
 
-    fps, codes = _usd_time_codes(anim.times)
+    fps, codes = _frame_codes(anim.times, frame_start, f"cannot write {path}")
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -642,7 +789,8 @@ def _write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
     Usd.ModelAPI(root.GetPrim()).SetKind(Kind.Tokens.component)
     if root_name != anim.name:
         root.GetPrim().SetDisplayName(anim.name)
-    mesh = UsdGeom.Mesh.Define(stage, root.GetPath().AppendChild("mesh"))
+    # Blender names the imported object after the Mesh prim (merging the Xform into it)
+    mesh = UsdGeom.Mesh.Define(stage, root.GetPath().AppendChild(root_name))
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
     mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(anim.faces), 3,
@@ -667,6 +815,9 @@ def _write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
         if normals is not None:
             nk = frame_normals(anim.positions[k]).astype(np.float32)
             normals.Set(Vt.Vec3fArray.FromNumpy(nk), t)
+    stage.GetRootLayer().customLayerData = {"wiggly": {
+        "format_version": FORMAT_VERSION, "start_time": float(anim.times[0]),
+        "frame_start": int(codes[0]), "frames_per_second": float(fps)}}
     if not stage.GetRootLayer().Export(str(path)):
         raise OSError(f"USD could not write {path}")
 
@@ -702,6 +853,9 @@ def _read_usd(path: Path) -> SurfaceAnimation:
     positions = np.stack([np.asarray(points.Get(c), np.float32) for c in codes])
     tcps = stage.GetTimeCodesPerSecond()
     times = (np.asarray(codes, np.float64) / tcps if points.GetTimeSamples() else np.zeros(1))
+    ours = stage.GetRootLayer().customLayerData.get("wiggly", {})
+    if points.GetTimeSamples() and "start_time" in ours and "frame_start" in ours:
+        times = ours["start_time"] + (np.asarray(codes, np.float64) - ours["frame_start"]) / tcps
     uvs = normals = None
     st = UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st")
     if st and st.HasValue():
@@ -753,8 +907,8 @@ def _write_frame_file(path: Path, data: bytes) -> None:
     path.write_bytes(data)
 
 
-def _write_obj_sequence(path: Path, anim: SurfaceAnimation, *, overwrite: bool,
-                        progress: bool) -> None:
+def _stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *,
+                        overwrite: bool, progress: bool) -> None:
     F = anim.n_frames
     names = _obj_frame_names(path, F)
     existing = _obj_existing_frames(path)
@@ -777,25 +931,18 @@ def _write_obj_sequence(path: Path, anim: SurfaceAnimation, *, overwrite: bool,
     face_block = ((face_row * len(f)) % tuple(face_values.ravel().tolist())).encode()
     header = f"# wiggly frame {{k}} of {F}\n# time {{t!r}}\no {anim.name}\n"
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmpdir = Path(tempfile.mkdtemp(dir=path.parent, prefix=f".{path.stem}.tmp-"))
-    try:
-        for k in _progress(range(F), F, progress, "OBJ"):
-            data = b"".join([
-                header.format(k=k, t=float(anim.times[k])).encode(),
-                _format_obj_block("v", anim.positions[k], POSITION_FORMAT),
-                uv_block,
-                _format_obj_block("vn", frame_normals(anim.positions[k]), "%.6g"),
-                face_block,
-            ])
-            _write_frame_file(tmpdir / names[k].name, data)
-        for name in names:
-            os.replace(tmpdir / name.name, name)
-        for stale in existing.values():  # frames of an earlier, longer sequence
-            if stale not in names:
-                stale.unlink(missing_ok=True)
-    finally:
-        shutil.rmtree(tmpdir, ignore_errors=True)
+    for k in _progress(range(F), F, progress, "OBJ"):
+        data = b"".join([
+            header.format(k=k, t=float(anim.times[k])).encode(),
+            _format_obj_block("v", anim.positions[k], POSITION_FORMAT),
+            uv_block,
+            _format_obj_block("vn", frame_normals(anim.positions[k]), "%.6g"),
+            face_block,
+        ])
+        _write_frame_file(outputs.stage(names[k]), data)
+    for stale in existing.values():  # frames of an earlier, longer sequence
+        if stale not in names:
+            outputs.remove_on_commit(stale)
 
 
 _OBJ_V = re.compile(rb"^v[ \t]+([^\n]*)", re.M)

@@ -39,3 +39,107 @@ def default_cache_dir() -> Path:
         return Path(os.environ["WIGGLY_CACHE_DIR"])
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "wiggly"
+
+
+def check_writable(path: str | os.PathLike[str]) -> str | None:
+    """Why ``path`` cannot be written, or None.  The nearest existing ancestor must be a
+    directory (not a file) in which a file can be created: tested by creating and removing a
+    temporary file there, since permissions alone do not tell (root, read-only mounts,
+    immutable folders)."""
+    path = Path(path)
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        return f"{parent} is a file, so {path} cannot be created inside it"
+    try:
+        fd, probe = tempfile.mkstemp(dir=parent, prefix=".wiggly-probe-")
+    except OSError as err:
+        return f"cannot create files in {parent} ({err.strerror or err})"
+    os.close(fd)
+    os.unlink(probe)
+    return None
+
+
+class OutputSet:
+    """Several output files written all or nothing.
+
+    :meth:`stage` gives a temporary path next to each output (same extension); once every
+    output is written, :meth:`commit` moves them all into place.  An existing file is first
+    moved aside and restored if a later move fails, so on any failure no output is replaced
+    and no temporary file is left; directories created for the outputs are removed again if
+    they stay empty.  Use as a context manager: commit on success, roll back on an exception.
+    """
+
+    def __init__(self) -> None:
+        self._staged: list[tuple[Path, Path]] = []
+        self._remove: list[Path] = []
+        self._created: list[Path] = []
+
+    def stage(self, path: str | os.PathLike[str]) -> Path:
+        """A new temporary file next to ``path`` that :meth:`commit` moves to ``path``."""
+        path = Path(path)
+        missing = []
+        parent = path.parent
+        while not parent.exists():
+            missing.append(parent)
+            parent = parent.parent
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self._created += missing
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
+        os.close(fd)
+        self._staged.append((Path(tmp), path))
+        return Path(tmp)
+
+    def remove_on_commit(self, path: str | os.PathLike[str]) -> None:
+        """Delete ``path`` when the outputs are committed (stale frames of a sequence)."""
+        self._remove.append(Path(path))
+
+    def commit(self) -> None:
+        """Move every staged file into place, all or none."""
+        moved: list[tuple[Path, Path | None]] = []  # (output, its old file moved aside)
+        try:
+            for tmp, path in self._staged:
+                fix_mode(tmp)
+                aside = None
+                if path.exists() or path.is_symlink():
+                    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.old-")
+                    os.close(fd)
+                    aside = Path(name)
+                    os.replace(path, aside)
+                moved.append((path, aside))
+                os.replace(tmp, path)
+        except BaseException:
+            for path, aside in reversed(moved):
+                if aside is not None:
+                    os.replace(aside, path)
+                else:
+                    path.unlink(missing_ok=True)
+            self.abort()
+            raise
+        for _, aside in moved:
+            if aside is not None:
+                aside.unlink(missing_ok=True)
+        for path in self._remove:
+            path.unlink(missing_ok=True)
+        self._staged.clear()
+
+    def abort(self) -> None:
+        """Delete every staged file and the directories created for them (when empty)."""
+        for tmp, _ in self._staged:
+            tmp.unlink(missing_ok=True)
+        self._staged.clear()
+        for directory in self._created:  # deepest first
+            try:
+                directory.rmdir()
+            except OSError:
+                pass
+
+    def __enter__(self) -> OutputSet:
+        return self
+
+    def __exit__(self, kind, value, traceback) -> None:
+        if kind is None:
+            self.commit()
+        else:
+            self.abort()

@@ -34,21 +34,35 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from wiggly.errors import WigglyInputError
+from wiggly import mesh_checks
+from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, default_cache_dir
+from wiggly.limits import MAX_RESOLUTION, MAX_TETS
+from wiggly.mesh_checks import (
+    DEGENERATE_VOLUME,
+    CheckedSurface,
+    SurfaceReport,
+    diagonal,
+)
 from wiggly.progress import activity
 
 __all__ = [
     "SURFACE_EXTENSIONS",
     "VOLUME_EXTENSIONS",
     "Embedding",
+    "MeshRepairWarning",
     "Model",
     "Surface",
+    "SurfaceDefectError",
+    "TetBudgetError",
     "TetMesh",
+    "build_model",
     "check_surface",
     "check_tet_mesh",
+    "checked_surface",
     "coarse_mesh",
     "embed",
+    "inspect_surface",
     "load_mesh",
     "load_model",
     "tetrahedralize",
@@ -65,10 +79,6 @@ VOLUME_EXTENSIONS = tuple(
     )
 )
 
-#: A tet whose volume is at most this times the cube of the bounding-box diagonal is degenerate.
-DEGENERATE_VOLUME = 1e-12
-#: Surface vertices closer than this times the bounding-box diagonal are welded.
-WELD_TOLERANCE = 1e-6
 #: fTetWild's envelope (how far the tet mesh boundary may be from the surface), in edge lengths.
 ENVELOPE_PER_EDGE = 0.1
 #: Default target number of tet edges along the bounding-box diagonal in :func:`tetrahedralize`.
@@ -257,6 +267,23 @@ class Embedding:
         """
         return sp.kron(self.matrix(n_vertices), sp.eye(3), format="csr")
 
+    def outside_distance(self, mesh: TetMesh) -> np.ndarray:
+        """How far each point lies outside its tet (0 inside), in metres: the largest
+        ``-lambda_i * h_i`` over the tet's faces, ``h_i`` the tet's height over face i.
+
+        Returns
+        -------
+        ndarray, shape (p,)
+        """
+        T = mesh.tets[self.tet_index]
+        V = mesh.vertices
+        volume = np.abs(_tet_volumes(V, T))
+        faces = V[T[:, _TET_FACES]]  # (p, 4, 3, 3): face i opposite vertex i
+        area = 0.5 * np.linalg.norm(np.cross(faces[:, :, 1] - faces[:, :, 0],
+                                             faces[:, :, 2] - faces[:, :, 0]), axis=-1)
+        height = 3 * volume[:, None] / np.maximum(area, 1e-300)
+        return np.maximum(-self.barycentric * height, 0.0).max(axis=1)
+
 
 @dataclass(eq=False)
 class Model:
@@ -324,7 +351,8 @@ def check_tet_mesh(mesh: TetMesh, source: str = "tet mesh") -> TetMesh:
     if len(bad):
         i = bad[0]
         raise WigglyInputError(
-            f"{source}: {len(bad)} of {len(T)} tetrahedra are degenerate (volume at most "
+            f"{source}: {len(bad)} of {counted(len(T), 'tetrahedron', 'tetrahedra')} "
+            f"{'is' if len(bad) == 1 else 'are'} degenerate (volume at most "
             f"{limit:.3g} m^3 = 1e-12 * bounding-box diagonal^3); the first is tet {i} with "
             f"vertices {T[i].tolist()} and volume {vol[i]:.3g} m^3. Every tet needs four vertices "
             "that are not coplanar: remove flat tets or re-mesh."
@@ -333,153 +361,73 @@ def check_tet_mesh(mesh: TetMesh, source: str = "tet mesh") -> TetMesh:
     return TetMesh(V, T, dict(mesh.groups))
 
 
-def check_surface(surface: Surface, source: str = "surface") -> Surface:
-    """Check that a surface bounds a solid that can be filled with tetrahedra.
+def inspect_surface(surface: Surface, source: str = "surface") -> SurfaceReport:
+    """What is unusual about a surface: open, non-manifold and misoriented edges, crossing
+    triangle pairs (see :class:`wiggly.mesh_checks.SurfaceReport`).
 
-    Vertices closer than ``1e-6`` times the bounding-box diagonal are welded
-    first (by position), so UV seams and STL's unshared vertices are fine, and
-    triangles that lose a corner to welding (zero area) are left out. Then the
-    surface must be closed (every edge shared by exactly two triangles),
-    consistently oriented, enclose a positive volume, and not intersect itself.
-
-    Self-intersections are found with libigl's exact predicates
-    (``igl.predicates.find_self_intersections``, MPL-2.0) when the optional
-    package ``libigl`` is installed; otherwise with VTK's
-    ``vtkCollisionDetectionFilter`` (VTK ships with pyvista, a dependency), which
-    ignores pairs of triangles that share a vertex and so cannot see a fold
-    between neighbouring triangles.
-
-    Parameters
-    ----------
-    surface : Surface
-        The surface to check.
-    source : str
-        Name used in error messages (usually the file path).
-
-    Returns
-    -------
-    Surface
-        ``surface`` itself, or, if every triangle faced inwards (negative
-        enclosed volume), a copy with all triangles flipped. Nothing else
-        changes.
+    Vertices closer than ``1e-6`` times the bounding-box diagonal are welded first, so UV
+    seams and STL's unshared vertices are fine.  Self-intersections are found with libigl's
+    exact predicates when the optional package ``libigl`` is installed, else with VTK.
 
     Raises
     ------
     WigglyInputError
-        With the count of open, non-manifold or inconsistently oriented edges
-        and an example edge, or the count of intersecting triangle pairs and an
-        example pair.
+        Only for what no tetrahedralizer can fill: no triangles, NaN or infinite coordinates,
+        indices out of range, all triangles of zero area, no enclosed volume.
     """
-    _, _, flipped = _inspect_surface(surface, source)
-    if not flipped:
-        return surface
-    return Surface(
-        surface.vertices,
-        surface.faces[:, ::-1],
-        surface.uvs,
-        surface.normals,
-        dict(surface.groups),
-    )
+    return checked_surface(surface, source).report
 
 
-def _inspect_surface(surface: Surface, source: str) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Run :func:`check_surface`; return the welded vertices and faces and whether to flip."""
+def check_surface(surface: Surface, source: str = "surface") -> Surface:
+    """Check that a surface is closed, manifold, consistently oriented and free of
+    self-intersections (the strict check of ``tetrahedralize(repair=False)``).
+
+    Returns
+    -------
+    Surface
+        ``surface`` itself, or, if every triangle faced inwards (negative enclosed volume),
+        a copy with all triangles flipped.  Nothing else changes.
+
+    Raises
+    ------
+    SurfaceDefectError
+        Listing every kind of defect with its count and an example (e.g. "4 open edges (used
+        by only one triangle: the surface has holes; e.g. the edge between vertices 3 and
+        7)"), and what :func:`inspect_surface` refuses.
+    """
+    checked = checked_surface(surface, source)
+    _refuse_defects(checked.report, source)
     V, F = surface.vertices, surface.faces
+    volume = float(np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]]))) / 6
+    if volume >= 0:
+        return surface
+    return Surface(V, F[:, ::-1], surface.uvs, surface.normals, dict(surface.groups))
+
+
+class SurfaceDefectError(WigglyInputError):
+    """A surface refused by the strict check (``repair=False``).  ``defects`` says what is
+    wrong (without advice), so that callers can give advice in their own terms."""
+
+    def __init__(self, message: str, source: str, defects: str):
+        super().__init__(message)
+        self.source, self.defects = source, defects
+
+
+def _refuse_defects(report: SurfaceReport, source: str) -> None:
+    if report.clean:
+        return
+    defects = "; ".join(report.defects(detailed=True))
+    raise SurfaceDefectError(
+        f"{source}: the surface is not a clean closed surface: {defects}. Fix the model in a "
+        "modelling tool, or tetrahedralize with repair=True (the default) to let fTetWild fill "
+        "the solid its triangles enclose.", source, defects)
+
+
+def checked_surface(surface: Surface, source: str = "surface") -> CheckedSurface:
+    """The surface welded, oriented and inspected for meshing (:func:`inspect_surface`),
+    to pass to :func:`build_model` after looking at its report."""
     _check_surface_arrays(surface, source)
-    hint = " Fix the model in a modelling tool, or pass repair=True to let fTetWild fill it anyway."
-    rep = _weld(V, WELD_TOLERANCE * _diagonal(V[np.unique(F)]))
-    W = rep[F]
-    # triangles with two corners welded together have no area: leave them out
-    kept = np.flatnonzero((W[:, 0] != W[:, 1]) & (W[:, 1] != W[:, 2]) & (W[:, 2] != W[:, 0]))
-    W = W[kept]
-    if len(W) == 0:
-        raise WigglyInputError(f"{source}: all triangles have zero area.")
-    n = len(V)
-    half = W[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    undirected = np.sort(half, axis=1)
-    edges, counts = np.unique(undirected[:, 0] * n + undirected[:, 1], return_counts=True)
-    for bad, what, right in [
-        (counts == 1, "open edges (used by only one triangle)", "the surface must be closed"),
-        (
-            counts > 2,
-            "non-manifold edges (used by more than two triangles)",
-            "each edge must join exactly two triangles",
-        ),
-    ]:
-        if bad.any():
-            a, b = divmod(int(edges[np.flatnonzero(bad)[0]]), n)
-            raise WigglyInputError(
-                f"{source}: {int(bad.sum())} {what}, e.g. the edge between vertices {a} and {b}; "
-                f"{right} (watertight).{hint}"
-            )
-    _, first, directed_counts = np.unique(
-        half[:, 0] * n + half[:, 1], return_index=True, return_counts=True
-    )
-    if (directed_counts > 1).any():
-        a, b = half[first[np.flatnonzero(directed_counts > 1)[0]]]
-        raise WigglyInputError(
-            f"{source}: {int((directed_counts > 1).sum())} edges join two triangles with opposite "
-            f"orientations, e.g. the edge between vertices {a} and {b}; all triangles must be "
-            f"ordered counter-clockwise seen from outside (recompute normals outside).{hint}"
-        )
-    volume = float(np.einsum("ij,ij->i", V[W[:, 0]], np.cross(V[W[:, 1]], V[W[:, 2]])).sum()) / 6
-    diag = _diagonal(V[np.unique(W)])
-    if abs(volume) <= DEGENERATE_VOLUME * diag**3:
-        raise WigglyInputError(
-            f"{source}: the surface encloses no volume ({volume:.3g} m^3); it must bound a solid."
-        )
-    pairs = _self_intersections(V, W)
-    if len(pairs):
-        i, j = kept[pairs[0]]
-        raise WigglyInputError(
-            f"{source}: the surface intersects itself: {len(pairs)} pairs of triangles cross, "
-            f"e.g. faces {i} and {j}; overlapping parts must be merged (boolean union).{hint}"
-        )
-    return V, W, volume < 0
-
-
-def _self_intersections(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Pairs of intersecting triangles ``(q, 2)`` of a welded surface, ``i < j``."""
-    try:
-        import igl.predicates
-    except ImportError:
-        return _self_intersections_vtk(V, F)
-    found, pairs, _ = igl.predicates.find_self_intersections(
-        np.ascontiguousarray(V), np.ascontiguousarray(F)
-    )
-    return (
-        np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
-        if found
-        else (np.empty((0, 2), dtype=np.int64))
-    )
-
-
-def _self_intersections_vtk(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Self-intersections with VTK's collision filter, ignoring triangles that share a vertex."""
-    import pyvista as pv
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-    from vtkmodules.vtkCommonMath import vtkMatrix4x4
-    from vtkmodules.vtkFiltersModeling import vtkCollisionDetectionFilter
-
-    poly = pv.PolyData.from_regular_faces(V, F)
-    collide = vtkCollisionDetectionFilter()
-    identity = vtkMatrix4x4()
-    for port in (0, 1):
-        collide.SetInputData(port, poly)
-        collide.SetMatrix(port, identity)
-    collide.SetCollisionModeToAllContacts()
-    collide.SetBoxTolerance(0.0)
-    collide.SetCellTolerance(0.0)
-    collide.GenerateScalarsOff()
-    collide.Update()
-    contacts = [collide.GetOutput(port).GetFieldData().GetArray("ContactCells") for port in (0, 1)]
-    if contacts[0] is None or contacts[1] is None:
-        return np.empty((0, 2), dtype=np.int64)
-    pairs = np.stack([vtk_to_numpy(c) for c in contacts], axis=1).astype(np.int64)
-    pairs = pairs[pairs[:, 0] < pairs[:, 1]]
-    shares_vertex = (F[pairs[:, 0], :, None] == F[pairs[:, 1], None, :]).any(axis=(1, 2))
-    pairs = pairs[~shares_vertex]
-    return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    return mesh_checks.inspect_surface(surface.vertices, surface.faces, source)
 
 
 # --------------------------------------------------------------------------- loading
@@ -824,7 +772,7 @@ def _per_vertex(corner_values: np.ndarray, F: np.ndarray, n: int) -> np.ndarray 
 
 
 _CWD_LOCK = threading.Lock()
-_TET_CACHE_VERSION = b"wiggly-tets-1"
+_TET_CACHE_VERSION = b"wiggly-tets-2"
 
 
 def _tet_cache(V: np.ndarray, F: np.ndarray, edge_length: float, envelope: float,
@@ -859,52 +807,85 @@ def _scratch_cwd() -> Iterator[None]:
                 signal.signal(signal.SIGINT, handler)
 
 
+class MeshRepairWarning(UserWarning):
+    """A surface was accepted although it is open, non-manifold, misoriented or
+    self-intersecting (fTetWild filled what it encloses), or parts of it lie outside the
+    tet mesh.  One warning per model says what was unusual and what was done."""
+
+
+class TetBudgetError(WigglyInputError):
+    """The requested tet size would make more than ``wiggly.limits.MAX_TETS`` tets.
+
+    ``estimate`` is the estimated count, ``max_resolution`` the largest resolution within the
+    limit and ``min_edge_length`` the smallest edge length (m) within it, so that callers can
+    say what to change in their own terms."""
+
+    def __init__(self, message: str, estimate: float, max_resolution: int,
+                 min_edge_length: float):
+        super().__init__(message)
+        self.estimate, self.max_resolution = estimate, max_resolution
+        self.min_edge_length = min_edge_length
+
+
+#: A surface vertex farther than this many tet edge lengths outside the tet mesh is reported.
+FAR_OUTSIDE = 1.0
+
+
 def tetrahedralize(
     surface: Surface,
     *,
     edge_length: float | None = None,
     resolution: int | None = None,
-    repair: bool = False,
+    repair: bool | None = True,
     progress: bool = False,
     source: str = "surface",
     cache_dir: str | os.PathLike[str] | bool | None = None,
 ) -> TetMesh:
-    """Fill a closed surface with linear tetrahedra using fTetWild (pytetwild).
+    """Fill a surface with linear tetrahedra using fTetWild (pytetwild).
 
-    Results are cached on disk (``cache_dir``; None: :func:`wiggly.files.default_cache_dir`,
-    False: off), keyed by the surface and the options: fTetWild is randomized, so the cache
-    makes repeated runs reproducible.
+    The surface is inspected first (:func:`inspect_surface`).  By default (``repair=True``)
+    an open, non-manifold, misoriented or self-intersecting surface is accepted: its
+    triangles are oriented consistently and fTetWild fills the solid they enclose (it decides
+    inside and outside by generalized winding numbers, so it copes with self-intersections,
+    overlapping parts and holes); one :class:`MeshRepairWarning` says what was unusual.
+    ``repair=False`` refuses such a surface (:class:`SurfaceDefectError`).  What cannot be
+    filled is always refused: no triangles, NaN coordinates, no enclosed volume.
 
-    fTetWild (Hu et al. 2020) meshes the volume inside an envelope around the
-    input: the boundary of the tet mesh stays within ``0.1 * edge_length``
-    (clamped to 0.1 %-1 % of the bounding-box diagonal) of the surface, so the
-    tet mesh approximates the surface and :func:`embed` maps the surface into
-    it. The envelope follows the edge length so that thin parts do not force
-    tets much smaller than requested. fTetWild is not deterministic: tet counts
-    vary by a few percent between runs.
+    The tet count is estimated before any meshing (``wiggly.mesh_checks.estimate_tets``);
+    above ``wiggly.limits.MAX_TETS`` the call fails (:class:`TetBudgetError`).  A surface much
+    finer than the tets is first simplified to an envelope of about three triangles per
+    squared edge length (``wiggly.mesh_checks.simplified_envelope``): the surface itself is
+    embedded in the tets later (:func:`embed`), and fTetWild's time grows with its input.
+
+    fTetWild (Hu et al. 2020) meshes the volume inside an envelope around its input: the
+    boundary of the tet mesh stays within ``0.1 * edge_length`` (clamped to 0.1 %-1 % of the
+    bounding-box diagonal) of it.  **fTetWild is not reproducible**: it shuffles the input
+    triangles with a hardware-seeded random generator (``std::random_device``), which
+    pytetwild does not let us seed, and one thread does not help; tet counts vary by a few
+    percent between runs.  Results are therefore cached on disk (``cache_dir``; None:
+    :func:`wiggly.files.default_cache_dir`, False: off), keyed by the surface and the options,
+    so that repeated runs on one machine (or with a copied cache) get the same tet mesh.
 
     Parameters
     ----------
     surface : Surface
-        A closed triangle surface.
+        A triangle surface.
     edge_length : float, optional
         Target tet edge length in metres.
     resolution : int, optional
         Target number of tet edges along the bounding-box diagonal, i.e.
-        ``edge_length = diagonal / resolution``. Give at most one of
-        ``edge_length`` and ``resolution``; the default is ``resolution = 25``,
-        about 18k tets for a sphere and 5k for the bundled critter (slender
-        shapes fill less of their bounding box). The count grows roughly like
+        ``edge_length = diagonal / resolution``, at most ``wiggly.limits.MAX_RESOLUTION``.
+        Give at most one of ``edge_length`` and ``resolution``; the default is
+        ``resolution = 25``, about 18k tets for a sphere and 5k for the bundled critter
+        (slender shapes fill less of their bounding box).  The count grows like
         ``resolution**3``.
     repair : bool
-        Skip :func:`check_surface` and let fTetWild fill whatever the
-        triangles enclose (it decides inside and outside by winding numbers, so
-        it copes with self-intersections, overlapping parts and small holes),
-        for surfaces that fail the check.
+        Accept (True, the default; None means the same) or refuse (False) surfaces that are
+        not clean closed surfaces.
     progress : bool
-        Print fTetWild's log.
+        Print the stages (checking, tetrahedralizing) with the elapsed time on stderr.
     source : str
-        Name used in error messages (usually the file path).
+        Name used in messages (usually the file path).
 
     Returns
     -------
@@ -913,60 +894,137 @@ def tetrahedralize(
 
     Notes
     -----
-    Measured on the 2-core development machine while other jobs were running
-    (wall time, CPU time in brackets): an icosphere of radius 1 with 1280
-    faces gives 17.7k tets at the default resolution in 2-3 s (1.5-1.8 s),
-    6.1k tets at ``resolution=20`` in 1.9 s (0.7 s) and 21k tets at
-    ``resolution=28`` in 3.6-4.7 s (1.9 s); the bundled critter (6k faces)
-    gives 4.6k-4.9k tets in 6-7 s (4 s). Cost grows with the number of tets
-    and with the number of small features of the surface.
+    Measured on the 2-core development machine while other jobs were running: an icosphere
+    of radius 1 with 1280 faces gives 17.7k tets at the default resolution in 2-3 s; the
+    bundled critter about 5k tets in 6-7 s; public meshes of 1k-100k triangles 2-6 s at the
+    default resolution once simplified (the 52k-triangle armadillo did not finish in 300 s
+    unsimplified).
     """
+    mesh, report, _ = _tetrahedralize(surface, edge_length=edge_length, resolution=resolution,
+                                      repair=repair, progress=progress, source=source,
+                                      cache_dir=cache_dir)
+    if not report.clean:
+        warnings.warn(repair_note(source, report), MeshRepairWarning, stacklevel=2)
+    return mesh
+
+
+def repair_note(source: str, report: SurfaceReport, far_outside: int = 0,
+                farthest: float = 0.0) -> str:
+    """The one-line warning of an accepted surface: what was unusual and what was done."""
+    parts = []
+    if not report.clean:
+        parts.append(f"the surface has {_join(report.defects())}; fTetWild filled the solid "
+                     "its triangles enclose (by winding numbers), and the animation is "
+                     "delivered on your surface as it is")
+    if far_outside:
+        parts.append(f"{counted(far_outside, 'vertex')} of the surface "
+                     f"{'lies' if far_outside == 1 else 'lie'} outside the filled solid, up to "
+                     f"{farthest:.2g} tet edge lengths away (parts thinner than the "
+                     f"tets), and {'follows' if far_outside == 1 else 'follow'} the nearest "
+                     "tets; a higher resolution resolves them")
+    return f"{source}: " + "; ".join(parts) + "."
+
+
+def _join(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def edge_length_for(diag: float, edge_length: float | None, resolution: int | None,
+                    source: str = "tetrahedralize") -> float:
+    """The target tet edge length from the options of :func:`tetrahedralize` (checked)."""
     if edge_length is not None and resolution is not None:
         raise WigglyInputError(
-            f"tetrahedralize: got edge_length={edge_length} and resolution={resolution}; give "
+            f"{source}: got edge_length={edge_length} and resolution={resolution}; give "
             "only one (resolution means edge_length = bounding-box diagonal / resolution)."
         )
     if edge_length is not None and not (np.isfinite(edge_length) and edge_length > 0):
         raise WigglyInputError(
-            f"tetrahedralize: edge_length must be a positive length in metres, got {edge_length}."
+            f"{source}: edge_length must be a positive length in metres, got {edge_length}."
         )
-    if resolution is not None and not (int(resolution) == resolution and resolution >= 1):
+    if resolution is not None and not (isinstance(resolution, int | np.integer | float)
+                                       and int(resolution) == resolution
+                                       and 1 <= resolution <= MAX_RESOLUTION):
         raise WigglyInputError(
-            f"tetrahedralize: resolution must be a positive integer, got {resolution}."
+            f"{source}: resolution must be an integer in [1, {MAX_RESOLUTION}] "
+            f"(wiggly.limits.MAX_RESOLUTION), got {resolution}."
         )
-    if repair:
+    return float(edge_length) if edge_length is not None else \
+        diag / int(resolution or DEFAULT_RESOLUTION)
+
+
+def check_tet_budget(report: SurfaceReport, edge_length: float, source: str,
+                     asked: str) -> float:
+    """The estimated tet count at ``edge_length``; :class:`TetBudgetError` above MAX_TETS.
+    ``asked`` names the option in the message ("resolution=300")."""
+    estimate = mesh_checks.estimate_tets(report.volume, report.area, edge_length)
+    if estimate > MAX_TETS:
+        best = mesh_checks.max_resolution(report.volume, report.area, report.diagonal, MAX_TETS)
+        shortest = report.diagonal / max(best, 1)
+        raise TetBudgetError(
+            f"{source}: {asked} would make about {estimate:.2g} tetrahedra "
+            f"({report.volume:.3g} m^3 at edge length {edge_length:.3g} m), more than wiggly's "
+            f"limit of {MAX_TETS} (wiggly.limits.MAX_TETS); use resolution <= {best} "
+            f"(edge_length >= {shortest:.3g} m).", estimate, best, shortest)
+    return estimate
+
+
+def _tetrahedralize(
+    surface: Surface,
+    *,
+    edge_length: float | None,
+    resolution: int | None,
+    repair: bool | None,
+    progress: bool,
+    source: str,
+    cache_dir: str | os.PathLike[str] | bool | None,
+    checked: CheckedSurface | None = None,
+    simplify: bool = True,
+) -> tuple[TetMesh, SurfaceReport, dict]:
+    """:func:`tetrahedralize`, also returning the surface report and what was done
+    (``simplify=False``: fTetWild gets the surface as it is)."""
+    if checked is None:
         _check_surface_arrays(surface, source)
-        V, F = surface.vertices, surface.faces
-    else:
-        V, F, flipped = _inspect_surface(surface, source)
-        if flipped:
-            F = F[:, ::-1]
+        edge_length_for(1.0, edge_length, resolution, source)  # options first: fail fast
+        with activity(f"checking {source} ({counted(surface.n_faces, 'triangle')})",
+                      progress):
+            checked = checked_surface(surface, source)
+    report = checked.report
+    if repair is False:
+        _refuse_defects(report, source)
+    h = edge_length_for(report.diagonal, edge_length, resolution, source)
+    asked = f"edge_length={edge_length}" if edge_length is not None else \
+        f"resolution={resolution or DEFAULT_RESOLUTION}"
+    estimate = check_tet_budget(report, h, source, asked)
+    V, F = checked.vertices, checked.faces
+    simple = mesh_checks.simplified_envelope(V, F, h, report.area) if simplify else None
+    if simple is not None:
+        V, F = simple
     used = np.unique(F)
     compact = np.zeros(len(V), dtype=np.int64)
     compact[used] = np.arange(len(used))
     V, F = V[used], compact[F]
-    diag = _diagonal(V)
-    if edge_length is None:
-        edge_length = diag / (resolution or DEFAULT_RESOLUTION)
+    info = {"edge_length": h, "estimate": estimate, "input_faces": len(F),
+            "simplified": simple is not None}
     import pytetwild
 
-    envelope = float(np.clip(ENVELOPE_PER_EDGE * edge_length / diag, 1e-3, 1e-2))
-    cached = _tet_cache(V, F, edge_length, envelope, cache_dir)
+    envelope = float(np.clip(ENVELOPE_PER_EDGE * h / report.diagonal, 1e-3, 1e-2))
+    cached = _tet_cache(V, F, h, envelope, cache_dir)
+    tv = tt = None
     if cached is not None and cached.exists():
         try:
             with np.load(cached) as data:
                 tv, tt = data["vertices"], data["tets"]
         except (OSError, ValueError, KeyError):
             cached.unlink(missing_ok=True)
-            tv = tt = None
-    else:
-        tv = tt = None
     if tv is None:
-        with activity(f"tetrahedralizing {source} (fTetWild)", progress), _scratch_cwd():
+        what = (f"{counted(len(F), 'triangle')} simplified from {report.n_faces}"
+                if simple is not None else counted(len(F), "triangle"))
+        with activity(f"tetrahedralizing {source} (fTetWild: {what}, about "
+                      f"{_round(estimate)} tets)", progress), _scratch_cwd():
             tv, tt = pytetwild.tetrahedralize(
                 np.ascontiguousarray(V),
                 np.ascontiguousarray(F, dtype=np.int32),
-                edge_length_abs=float(edge_length),
+                edge_length_abs=float(h),
                 epsilon=envelope,
                 quiet=True,
                 loglevel=6,
@@ -981,13 +1039,18 @@ def tetrahedralize(
     if len(tt) == 0:
         raise WigglyInputError(
             f"{source}: fTetWild produced no tetrahedra; the surface does not enclose a volume "
-            f"that is thick compared to the edge length {edge_length:.3g} m."
+            f"that is thick compared to the edge length {h:.3g} m."
         )
     used = np.unique(tt)
     compact = np.zeros(len(tv), dtype=np.int64)
     compact[used] = np.arange(len(used))
     mesh = TetMesh(np.asarray(tv, dtype=np.float64)[used], compact[tt])
-    return check_tet_mesh(mesh, f"{source} (tetrahedralized)")
+    return check_tet_mesh(mesh, f"{source} (tetrahedralized)"), report, info
+
+
+def _round(x: float) -> str:
+    """A count to two significant digits ("4700")."""
+    return f"{float(f'{x:.2g}'):.0f}"
 
 
 def coarse_mesh(
@@ -1008,11 +1071,17 @@ def coarse_mesh(
     V, T = mesh.vertices, mesh.tets
     edges = V[T[:, [0, 0, 0, 1, 1, 2]]] - V[T[:, [1, 2, 3, 2, 3, 3]]]
     edge = float(np.mean(np.linalg.norm(edges, axis=-1))) * (len(T) / n_tets) ** (1 / 3)
-    surface = Surface(V, mesh.boundary_faces())
+    B = mesh.boundary_faces()
+    area = 0.5 * float(np.linalg.norm(np.cross(V[B[:, 1]] - V[B[:, 0]],
+                                               V[B[:, 2]] - V[B[:, 0]]), axis=1).sum())
+    report = SurfaceReport(n_faces=len(B), volume=float(mesh.volumes().sum()), area=area,
+                           diagonal=diagonal(V[np.unique(T)]))
+    checked = CheckedSurface(V, B, report)  # a tet mesh's boundary: closed, oriented outwards
     for _ in range(3):
-        coarse = tetrahedralize(
-            surface, edge_length=edge, repair=True, source="coarse mesh", cache_dir=cache_dir
-        )
+        coarse, _, _ = _tetrahedralize(
+            Surface(V, B), edge_length=edge, resolution=None, repair=True, progress=False,
+            source="coarse mesh", cache_dir=cache_dir, checked=checked,
+            simplify=False)  # its boundary must follow the fine mesh (the warp's lift)
         if embed(V, coarse).barycentric.min() > -0.5:
             return coarse
         edge /= 1.5
@@ -1080,20 +1149,13 @@ def load_model(
     *,
     edge_length: float | None = None,
     resolution: int | None = None,
-    repair: bool = False,
+    repair: bool | None = True,
     progress: bool = False,
     cache_dir: str | os.PathLike[str] | bool | None = None,
 ) -> Model:
     """Load a model, tetrahedralize it if it is a surface and embed the surface.
 
-    For a surface file: :func:`load_mesh`, :func:`tetrahedralize` (with the
-    given options) and :func:`embed` of the surface vertices. For a tet mesh
-    file: the surface has all the tet mesh vertices (same indices, so groups
-    and keyframes address the same vertices; interior vertices are simply not
-    used by any face) and the mesh's boundary faces; the embedding puts every
-    vertex at a corner of one of its tets (barycentrics ``(1, 0, 0, 0)`` up to
-    order), so ``embedding.matrix(n)`` is the identity (vertices used by no
-    tet, if any, are placed by :func:`embed`).
+    :func:`load_mesh`, then :func:`build_model`.
 
     Parameters
     ----------
@@ -1106,19 +1168,46 @@ def load_model(
     -------
     Model
     """
-    loaded = load_mesh(path)
-    source = str(path)
+    return build_model(load_mesh(path), str(path), edge_length=edge_length,
+                       resolution=resolution, repair=repair, progress=progress,
+                       cache_dir=cache_dir)
+
+
+def build_model(
+    loaded: TetMesh | Surface,
+    source: str,
+    *,
+    edge_length: float | None = None,
+    resolution: int | None = None,
+    repair: bool | None = True,
+    progress: bool = False,
+    cache_dir: str | os.PathLike[str] | bool | None = None,
+    checked: CheckedSurface | None = None,
+) -> Model:
+    """The model of a loaded surface or tet mesh (:func:`load_mesh`).
+
+    For a surface: :func:`tetrahedralize` (with the given options; ``checked`` is the
+    surface's :func:`wiggly.mesh_checks.inspect_surface` if already done) and :func:`embed` of
+    the surface vertices.  One :class:`MeshRepairWarning` says what was unusual: the
+    surface's defects, and surface vertices farther than ``FAR_OUTSIDE`` tet edge lengths
+    outside the tets (parts thinner than the tets).  For a tet mesh: the surface has all the
+    tet mesh vertices (same indices, so groups and keyframes address the same vertices;
+    interior vertices are simply not used by any face) and the mesh's boundary faces; the
+    embedding puts every vertex at a corner of one of its tets (barycentrics ``(1, 0, 0, 0)``
+    up to order), so ``embedding.matrix(n)`` is the identity (vertices used by no tet, if
+    any, are placed by :func:`embed`).
+    """
     if isinstance(loaded, Surface):
-        tets = tetrahedralize(
-            loaded,
-            edge_length=edge_length,
-            resolution=resolution,
-            repair=repair,
-            progress=progress,
-            source=source,
-            cache_dir=cache_dir,
-        )
-        return Model(loaded, tets, embed(loaded.vertices, tets), source)
+        tets, report, info = _tetrahedralize(
+            loaded, edge_length=edge_length, resolution=resolution, repair=repair,
+            progress=progress, source=source, cache_dir=cache_dir, checked=checked)
+        embedding = embed(loaded.vertices, tets)
+        outside = embedding.outside_distance(tets)[np.unique(loaded.faces)] / info["edge_length"]
+        far = outside > FAR_OUTSIDE
+        if not report.clean or far.any():
+            warnings.warn(repair_note(source, report, int(far.sum()), float(outside.max())),
+                          MeshRepairWarning, stacklevel=2)
+        return Model(loaded, tets, embedding, source)
     tets = loaded
     n, m = tets.n_vertices, tets.n_tets
     tet_of = np.full(n, -1, dtype=np.int64)
@@ -1172,7 +1261,8 @@ def _check_finite(V: np.ndarray, source: str) -> None:
     if len(bad):
         i = bad[0]
         raise WigglyInputError(
-            f"{source}: {len(bad)} vertices have NaN or infinite coordinates, e.g. vertex {i} at "
+            f"{source}: {counted(len(bad), 'vertex')} {'has' if len(bad) == 1 else 'have'} "
+            f"NaN or infinite coordinates, e.g. vertex {i} at "
             f"{V[i].tolist()}; all coordinates must be finite numbers (metres)."
         )
 
@@ -1183,8 +1273,9 @@ def _check_indices(cells: np.ndarray, n: int, source: str, what: str) -> None:
     if len(bad):
         i = bad[0]
         raise WigglyInputError(
-            f"{source}: {len(bad)} {what}s use vertex indices outside 0..{n - 1}, e.g. {what} {i} "
-            f"with indices {cells[i].tolist()}; the mesh has {n} vertices."
+            f"{source}: {counted(len(bad), what)} {'uses' if len(bad) == 1 else 'use'} vertex "
+            f"indices outside 0..{n - 1}, e.g. {what} {i} with indices {cells[i].tolist()}; the "
+            f"mesh has {counted(n, 'vertex')}."
         )
 
 
@@ -1202,11 +1293,6 @@ def _tet_volumes(V: np.ndarray, T: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0
 
 
-def _diagonal(V: np.ndarray) -> float:
-    """Length of the bounding-box diagonal of ``V``."""
-    return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) if len(V) else 0.0
-
-
 def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``np.unique(rows, axis=0)`` with inverse and counts, fast for small non-negative ints."""
     top = int(rows.max()) + 1 if rows.size else 1
@@ -1219,19 +1305,6 @@ def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         )
         return rows[first], inverse, counts
     return np.unique(rows, axis=0, return_inverse=True, return_counts=True)
-
-
-def _weld(V: np.ndarray, tol: float) -> np.ndarray:
-    """For each vertex, the smallest index of the vertices within ``tol`` of it (transitively)."""
-    n = len(V)
-    pairs = cKDTree(V).query_pairs(tol, output_type="ndarray") if tol > 0 else np.empty((0, 2))
-    if len(pairs) == 0:
-        return np.arange(n)
-    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    n_labels, labels = connected_components(graph, directed=False)
-    representative = np.full(n_labels, n)
-    np.minimum.at(representative, labels, np.arange(n))
-    return representative[labels]
 
 
 def _count_components(T: np.ndarray, n: int) -> int:

@@ -37,7 +37,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, default_cache_dir
 from wiggly.linalg import blas_single_thread, factorize_spd
 
@@ -450,7 +450,8 @@ def _compute_modes(
     if np.any(dM <= 0):
         unused = np.unique(free_dofs[dM <= 0] // 3)
         raise WigglyInputError(
-            f"{unused.size} free vertices have no mass (not used by any tet), "
+            f"{counted(unused.size, 'free vertex')} {'has' if unused.size == 1 else 'have'} "
+            "no mass (not used by any tet), "
             f"e.g. vertex {unused[0]}; remove them or fix them"
         )
     # fixed vertices outside the mesh (no mass) hold nothing: leave them out of the analysis
@@ -505,7 +506,8 @@ def _compute_modes(
         n_zero = int(np.sum(lam < zero_tol))
         if n_zero:
             raise WigglyInputError(
-                f"the body has {n_zero} more zero-energy modes than its {n_rigid} rigid "
+                f"the body has {n_zero} more zero-energy {'mode' if n_zero == 1 else 'modes'} "
+                f"than its {n_rigid} rigid "
                 "motions: it has disconnected parts (or parts joined only at a vertex or an "
                 "edge, or parts free to move despite the fixed vertices)"
             )

@@ -12,7 +12,8 @@ from tqdm import tqdm
 
 @contextmanager
 def _ticking(desc: str) -> Iterator[None]:
-    bar = tqdm(total=None, desc=desc, file=sys.stderr, bar_format="{desc}: {elapsed} elapsed",
+    bar = tqdm(total=None, desc=f"[wiggly] {desc}", file=sys.stderr,
+               bar_format="{desc}: {elapsed} elapsed",
                leave=True)
     stop = threading.Event()
 

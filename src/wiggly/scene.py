@@ -31,8 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file
+from wiggly.limits import MAX_DURATION, MAX_FPS, MAX_FRAMES, MAX_MODES, MAX_RESOLUTION
 from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION, resolve_builtin
 
 __all__ = [
@@ -69,10 +70,13 @@ GEOMETRY_EXTENSIONS = (".glb", ".usd", ".usda", ".usdc", ".obj", ".npz")
 PREVIEW_EXTENSIONS = (".mp4", ".gif", ".png")
 OUTPUT_EXTENSIONS = GEOMETRY_EXTENSIONS + PREVIEW_EXTENSIONS
 CAMERAS = ("three_quarter", "front", "side", "back", "top")
+GLTF_TARGETS = ("frames", "modes")
 #: Highlight colors of keyframed groups without a ``color`` (matplotlib's tab10).
 PALETTE = ("#ff7f0e", "#1f77b4", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
            "#17becf", "#bcbd22", "#7f7f7f")
 GROUP_NAME = r"^[A-Za-z0-9_-]+$"
+#: Rigid modes of a free body (3 translations, 3 rotations, SYSTEM.md §3).
+RIGID_MODES = 6
 #: Target positions drawn per keyframe in previews (a subset of large groups).
 MAX_TARGETS = 60
 
@@ -102,7 +106,7 @@ class MeshSpec:
     path: str
     resolution: int | None = None
     edge_length: float | None = None
-    repair: bool = False
+    repair: bool | None = None  # None: true (accept imperfect surfaces, with a warning)
 
 
 @dataclass(frozen=True)
@@ -287,12 +291,15 @@ class KeyframeSpec:
 
 @dataclass(frozen=True)
 class OutputSpec:
-    """``[output]``: files to write (by extension), overwrite, preview size and camera."""
+    """``[output]``: files to write (by extension), overwrite, preview size and camera, and
+    how glTF/USD files carry time (``frame_start``, ``gltf_targets``; None: the defaults)."""
 
     paths: tuple[str, ...] = ()
     overwrite: bool = False
     size: tuple[int, int] = (960, 540)
     camera: str | tuple[float, float] = "three_quarter"
+    frame_start: int | None = None
+    gltf_targets: str | None = None
 
     def __post_init__(self) -> None:
         _set(self, "paths", tuple(self.paths))
@@ -814,6 +821,9 @@ def _check_time(d: dict, path: str, p: _Problems) -> None:
     start = d.get("start", 0.0)
     if "end" in d and d["end"] <= start:
         raise p.bad(f"{path}.end = {_show(d['end'])} must be after {path}.start = {_show(start)}")
+    if "end" in d and d["end"] - start > MAX_DURATION:
+        raise p.bad(f"{path}.end = {_show(d['end'])} makes a shot of {d['end'] - start:g} s; "
+                    f"shots may last at most {MAX_DURATION:g} s (wiggly.limits.MAX_DURATION)")
 
 
 _POSITIVE = {"gt": 0.0}
@@ -884,11 +894,12 @@ _SCENE = _Table(
      "mesh": _Table(
          {"path": _String(doc='mesh file, relative to the scene file, or "builtin:critter", '
                               '"builtin:plant", "builtin:bar"'),
-          "resolution": _Number(integer=True, ge=1,
+          "resolution": _Number(integer=True, ge=1, le=MAX_RESOLUTION,
                                 doc="tet edges along the bounding-box diagonal (default "
                                     f"{DEFAULT_RESOLUTION})"),
           "edge_length": _Number(unit="m", **_POSITIVE, doc="target tet edge length (m)"),
-          "repair": _Bool(doc="let fTetWild fill open or self-intersecting surfaces")},
+          "repair": _Bool(doc="accept open, non-manifold or self-intersecting surfaces and "
+                              "let fTetWild fill them (default true; false refuses them)")},
          required=("path",), exclusive=(("resolution", "edge_length"),),
          make=lambda d: MeshSpec(**d), doc="the model"),
      "material": _Table(
@@ -902,7 +913,8 @@ _SCENE = _Table(
          make=lambda d: DampingSpec(**d), doc="Rayleigh damping D = alpha M + beta K"),
      "simulation": _Table(
          {"gravity": _Vector(3, "gx, gy, gz", "m/s^2", doc="gravity (m/s^2)"),
-          "modes": _Number(integer=True, ge=1, doc="number of eigenmodes (rigid ones included)"),
+          "modes": _Number(integer=True, ge=1, le=MAX_MODES,
+                           doc="number of eigenmodes (rigid ones included)"),
           "warp": _Bool(doc="rotation-strain warping (false: linear)"),
           "lumped_mass": _Bool(doc="lumped instead of consistent mass matrix"),
           "fixed": _Array(_String(what="a group name"), unique=True,
@@ -913,8 +925,8 @@ _SCENE = _Table(
      "time": _Table(
          {"start": _Number(unit="s"),
           "end": _Number(unit="s"),
-          "duration": _Number(unit="s", **_POSITIVE),
-          "fps": _Number(gt=0.0, le=1000.0, doc="frames per second of the outputs")},
+          "duration": _Number(unit="s", gt=0.0, le=MAX_DURATION),
+          "fps": _Number(gt=0.0, le=MAX_FPS, doc="frames per second of the outputs")},
          exclusive=(("end", "duration"),), check=_check_time, make=lambda d: TimeSpec(**d),
          doc="time range (default: start 0, end at the last keyframe, at least 1 s)"),
      "groups": _Map(_GROUP, GROUP_NAME,
@@ -934,7 +946,15 @@ _SCENE = _Table(
                              list: _Vector(2, "azimuth, elevation", "degrees")},
                             what=" or ".join(json.dumps(c) for c in CAMERAS)
                             + " or [azimuth, elevation] in degrees",
-                            doc="preview camera")},
+                            doc="preview camera"),
+          "frame_start": _Number(integer=True, ge=-1_000_000, le=1_000_000,
+                                 doc="glTF/USD frame of the first output frame: frame k lands "
+                                     "on frame_start + k at the output fps (default: the "
+                                     "shot's own time, t * fps)"),
+          "gltf_targets": _String(enum=GLTF_TARGETS,
+                                  doc='glTF morph targets: "frames" (one per frame, default) '
+                                      'or "modes" (one per mode, weights q(t); linear shots '
+                                      "only: exact and compact)")},
          make=lambda d: OutputSpec(**d)),
      },
     required=("mesh",), make=lambda d: Scene(**d), what="a TOML document")
@@ -1016,6 +1036,19 @@ def _cross_check(scene: Scene, p: _Problems) -> None:
             scene.mesh.path.removeprefix("builtin:") not in BUILTIN_MODELS:
         p.add(f"mesh.path = {_show(scene.mesh.path)} is not a bundled model; use one of "
               + ", ".join(f'"builtin:{m}"' for m in BUILTIN_MODELS))
+    if t1 - t0 > MAX_DURATION and scene.time.end is None and scene.time.duration is None:
+        p.add(f"the shot runs from {t0:g} s to the last keyframe at {t1:g} s, longer than "
+              f"{MAX_DURATION:g} s (wiggly.limits.MAX_DURATION); check the keyframe times")
+    frames = math.floor((t1 - t0) * scene.time.fps + 1e-9) + 1
+    if frames > MAX_FRAMES and t1 - t0 <= MAX_DURATION:
+        p.add(f"time.fps = {_show(scene.time.fps)} makes {frames} frames of a {t1 - t0:g} s "
+              f"shot, more than {MAX_FRAMES} (wiggly.limits.MAX_FRAMES); use fps <= "
+              f"{math.floor((MAX_FRAMES - 1) / (t1 - t0)):g}")
+    if not scene.simulation.fixed and scene.simulation.modes < RIGID_MODES:
+        p.add(f"simulation.modes = {scene.simulation.modes} is fewer than the {RIGID_MODES} "
+              "rigid modes of a free body (simulation.fixed holds no group), which the basis "
+              f"must contain; use at least {RIGID_MODES + 1} ({RIGID_MODES} rigid and the "
+              "elastic ones; the default is 40), or hold a group fixed")
 
 
 def _check_files(scene: Scene, p: _Problems) -> None:
@@ -1202,7 +1235,7 @@ def _select(name: str, group: GroupSpec, X: np.ndarray, mesh_groups: dict[str, n
         bad = np.flatnonzero(idx >= n)
         if bad.size:
             p.add(f"{path}.indices[{bad[0]}] = {idx[bad[0]]} is out of range: the {what} has "
-                  f"{n} vertices (indices 0..{n - 1})")
+                  f"{counted(n, 'vertex')} (indices 0..{n - 1})")
             return None
     else:
         if sel.name not in mesh_groups:
@@ -1247,8 +1280,9 @@ def _resolve(scene: Scene, surface_X, surface_groups, tet_X, tet_groups,
         if isinstance(kf.position, Absolute) and kf.group in out:
             k, rows = len(out[kf.group]), len(kf.position.positions)
             if rows != k:
-                p.add(f"keyframes[{j}].position.absolute has {rows} row{'s' * (rows != 1)} but "
-                      f"group {kf.group!r} has {k} vertices; give one [x, y, z] per vertex")
+                p.add(f"keyframes[{j}].position.absolute has {counted(rows, 'row')} but "
+                      f"group {kf.group!r} has {counted(k, 'vertex')}; give one [x, y, z] per "
+                      "vertex")
     return out
 
 
@@ -1262,24 +1296,89 @@ def _say(message: str, progress: bool) -> None:
 
 
 def _load_model(scene: Scene, progress: bool):
-    """Read the mesh, check the surface groups (before any computation), tetrahedralize."""
-    from wiggly.mesh import Surface, load_mesh, load_model
+    """Read the mesh; check the groups, the surface and the size of its tet mesh before any
+    computation; then tetrahedralize and embed."""
+    from wiggly import mesh as meshing
+    from wiggly.progress import activity
 
     f = scene.mesh_file()
-    loaded = load_mesh(f)
-    if isinstance(loaded, Surface):  # check what we can before tetrahedralizing
-        p = _Problems(scene.where())
+    where = scene.where()
+    loaded = meshing.load_mesh(f)
+    checked = None
+    if isinstance(loaded, meshing.Surface):  # check what we can before tetrahedralizing
+        p = _Problems(where)
         _resolve(scene, loaded.vertices, loaded.groups, None, None, p)
         p.raise_if_any()
-        how = (f"edge length {scene.mesh.edge_length} m" if scene.mesh.edge_length is not None
-               else f"resolution {scene.mesh.resolution or 'default'}")
-        _say(f"tetrahedralizing {f.name} ({how}) ...", progress)
+        with activity(f"checking {f.name} ({counted(loaded.n_faces, 'triangle')})", progress):
+            checked = meshing.checked_surface(loaded, str(f))
+        _check_surface_for_scene(scene, checked.report, f.name)
     t = _time.perf_counter()
-    model = load_model(f, resolution=scene.mesh.resolution, edge_length=scene.mesh.edge_length,
-                       repair=scene.mesh.repair)
-    _say(f"{model.tets.n_tets} tets, {model.tets.n_vertices} vertices "
+    model = meshing.build_model(loaded, str(f), resolution=scene.mesh.resolution,
+                                edge_length=scene.mesh.edge_length, repair=scene.mesh.repair,
+                                progress=progress, checked=checked)
+    _say(f"{counted(model.tets.n_tets, 'tet')}, {counted(model.tets.n_vertices, 'vertex')} "
          f"({_time.perf_counter() - t:.1f} s)", progress)
     return model
+
+
+def _check_surface_for_scene(scene: Scene, report, name: str) -> None:
+    """``mesh.repair = false`` against a surface with defects, and the tet count that
+    ``mesh.resolution`` / ``mesh.edge_length`` would make, in the scene's terms."""
+    from wiggly.limits import MAX_TETS
+    from wiggly.mesh import TetBudgetError, check_tet_budget, edge_length_for
+
+    where, m = scene.where(), scene.mesh
+    if m.repair is False and not report.clean:
+        raise _error(where, [
+            f"mesh.repair = false refuses {name}: {'; '.join(report.defects(detailed=True))}. "
+            "Remove repair = false (or set it to true) to let fTetWild fill the solid its "
+            "triangles enclose, or fix the model in a modelling tool"])
+    if m.edge_length is not None:
+        key, value = "mesh.edge_length", _show(m.edge_length)
+    else:
+        key = "mesh.resolution"
+        value = _show(m.resolution) if m.resolution is not None else \
+            f"{DEFAULT_RESOLUTION} (the default)"
+    h = edge_length_for(report.diagonal, m.edge_length, m.resolution, where)
+    try:
+        check_tet_budget(report, h, where, key)
+    except TetBudgetError as err:
+        raise _error(where, [
+            f"{key} = {value} would make about {err.estimate:.2g} tetrahedra of {name}, more "
+            f"than wiggly's limit of {MAX_TETS} (wiggly.limits.MAX_TETS); use resolution <= "
+            f"{err.max_resolution} (or edge_length >= {err.min_edge_length:.3g} m)"]) from None
+
+
+def _check_modes_for_scene(scene: Scene, model, fixed_vertices) -> None:
+    """``simulation.modes`` against the tet mesh: at most its free degrees of freedom, at
+    least its rigid modes (before the modes are computed)."""
+    n = model.tets.n_vertices
+    fixed = np.zeros((0,), np.int64) if fixed_vertices is None else fixed_vertices
+    free = 3 * (n - len(fixed))
+    modes, name = scene.simulation.modes, scene.mesh_file().name
+    if modes > free:
+        held = f", {len(fixed)} of them fixed" if len(fixed) else ""
+        raise _error(scene.where(), [
+            f"simulation.modes = {modes} is more than the {free} degrees of freedom of {name}'s "
+            f"tet mesh ({counted(n, 'vertex')}{held}, 3 each); use at most {free}, or a higher "
+            "mesh.resolution"])
+    rigid = _rigid_mode_count(model.tets.vertices[fixed])
+    if modes < rigid:
+        raise _error(scene.where(), [
+            f"simulation.modes = {modes} is fewer than the {rigid} rigid modes that the fixed "
+            f"groups leave free (they are {'collinear' if len(fixed) > 1 else 'one point'}), "
+            f"which the basis must contain; use at least {rigid + 1}"])
+
+
+def _rigid_mode_count(points: np.ndarray) -> int:
+    """Rigid motions left by holding ``points`` at rest: 6 if none, 3 (rotations) about one
+    point, 1 about a line, 0 otherwise (SYSTEM.md §3)."""
+    if len(points) == 0:
+        return RIGID_MODES
+    spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    size = max(float(np.ptp(points, axis=0).max()), 1e-300)
+    rank = int(np.sum(spread > 1e-9 * size))
+    return {0: 3, 1: 1}.get(rank, 0)
 
 
 def build(scene: Scene, progress: bool = False):
@@ -1301,6 +1400,7 @@ def _build(scene: Scene, progress: bool):
     fixed = [groups[g] if scene.groups[g].on == "tets" else fixed_from_surface(model, groups[g])
              for g in scene.simulation.fixed]
     fixed_vertices = np.unique(np.concatenate(fixed)) if fixed else None
+    _check_modes_for_scene(scene, model, fixed_vertices)
     m, s = scene.material, scene.simulation
     body = prepare(model, material=Material(m.young, m.poisson, m.density),
                    damping=Damping(scene.damping.alpha, scene.damping.beta), gravity=s.gravity,
@@ -1344,29 +1444,40 @@ def _output_paths(scene: Scene, outputs) -> list[Path]:
     return [Path(o).expanduser() for o in outputs]
 
 
-def check_outputs(paths: list[Path], overwrite: bool, where: str = "outputs") -> None:
-    """Every output has a known extension, and none exists unless ``overwrite``."""
+def check_outputs(paths: list[Path], overwrite: bool, where: str = "outputs",
+                  labels: list[str] | None = None) -> None:
+    """Every output has a known extension, none exists unless ``overwrite``, and each can be
+    written: its folder exists or can be created (no path component is a file) and accepts
+    new files.  ``labels`` name the outputs in messages (``output.paths[0] = "a.glb"``);
+    default: the paths.  Raises one :class:`WigglyInputError` listing every problem."""
+    from wiggly.files import check_writable
+
     problems = []
     seen = set()
-    for path in paths:
+    labels = labels or [str(p) for p in paths]
+    for path, label in zip(paths, labels, strict=True):
         ext = path.suffix.lower()
         if ext not in OUTPUT_EXTENSIONS:
-            problems.append(f"{path}: unsupported output extension {path.suffix or '(none)'!r}; "
-                            f"use one of {', '.join(OUTPUT_EXTENSIONS)}")
+            problems.append(f"{label}: unsupported output extension "
+                            f"{path.suffix or '(none)'!r}; use one of "
+                            f"{', '.join(OUTPUT_EXTENSIONS)}")
             continue
         if path.resolve() in seen:
-            problems.append(f"{path} is given twice")
+            problems.append(f"{label}: {path} is given twice")
         seen.add(path.resolve())
-        if path.is_dir():
-            problems.append(f"{path} is a directory; give a file name")
+        why = check_writable(path)
+        if why is not None:
+            problems.append(f"{label}: {why}")
+        elif path.is_dir():
+            problems.append(f"{label}: {path} is a directory; give a file name")
         elif not overwrite:
             existing = path if path.exists() else None
             if ext == ".obj" and existing is None:
                 first = path.with_name(f"{path.stem}_0000.obj")
                 existing = first if first.exists() else None
             if existing is not None:
-                problems.append(f"{existing} exists; pass --overwrite (or overwrite = true in "
-                                "[output]) to replace it")
+                problems.append(f"{label}: {existing} exists; pass --overwrite (or overwrite = "
+                                "true in [output]) to replace it")
     if problems:
         raise _error(where, problems)
 
@@ -1415,7 +1526,10 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
 
     overwrite = scene.output.overwrite if overwrite is None else overwrite
     paths = _output_paths(scene, outputs)
-    check_outputs(paths, overwrite, scene.where())
+    labels = ([f"output.paths[{i}] = {_show(p)}" for i, p in enumerate(scene.output.paths)]
+              if outputs is None else [f"-o {o}" for o in outputs])
+    check_outputs(paths, overwrite, scene.where(), labels)
+    _check_gltf_targets(scene, paths)
     timings: dict[str, float] = {}
     t = _time.perf_counter()
     body, keyframes, groups = _build(scene, progress)
@@ -1434,36 +1548,59 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
     return anim
 
 
+def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
+    if scene.output.gltf_targets == "modes" and scene.simulation.warp and \
+            any(p.suffix.lower() == ".glb" for p in paths):
+        raise _error(scene.where(), [
+            'output.gltf_targets = "modes" needs a linear shot: a warped motion is no linear '
+            "combination of modes; set simulation.warp = false (or pass --linear), or use "
+            '"frames"'])
+
+
 def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
                   progress: bool = False, highlights=(), timings: dict | None = None
                   ) -> list[Path]:
-    """Sample ``anim`` at the scene's fps and write ``paths`` (geometry first)."""
-    from wiggly.export import SurfaceAnimation, write_animation
+    """Sample ``anim`` at the scene's fps and write ``paths`` (geometry first), all or
+    nothing: every output goes to a temporary file first and all are moved into place once
+    all are written (:class:`wiggly.files.OutputSet`); on a failure none is replaced."""
+    from wiggly.export import SurfaceAnimation, stage_animation
+    from wiggly.files import OutputSet
 
     timings = {} if timings is None else timings
     if not paths:
         return []
+    _check_gltf_targets(scene, paths)
     t = _time.perf_counter()
     times = anim.frame_times(scene.time.fps)
-    _say(f"sampling {len(times)} frames at {scene.time.fps:g} fps", progress)
+    _say(f"sampling {counted(len(times), 'frame')} at {scene.time.fps:g} fps", progress)
     positions = anim.positions(times, dtype=np.float32)
     surf = anim.body.surface
     data = SurfaceAnimation(times, positions, surf.faces, surf.uvs, surf.normals,
-                            scene.mesh_file().stem)
+                            scene.mesh_file().stem, rest=surf.vertices)
+    targets = scene.output.gltf_targets or "frames"
+    if targets == "modes" and any(p.suffix.lower() == ".glb" for p in paths):
+        basis = anim.body.surface_basis  # (3p, r): positions = rest + basis q(t)
+        data.mode_shapes = basis.T.reshape(anim.body.r, -1, 3)
+        data.modal = anim.modal(times)[0]
     timings["sample"] = _time.perf_counter() - t
     written = []
-    for path in sorted(paths, key=lambda q: q.suffix.lower() in PREVIEW_EXTENSIONS):
-        t = _time.perf_counter()
-        ext = path.suffix.lower()
-        _say(f"writing {path}", progress)
-        if ext in GEOMETRY_EXTENSIONS:
-            write_animation(path, data, overwrite=overwrite, progress=progress)
-        else:
-            render_preview(path, times, positions, surf.faces, highlights=highlights,
-                           output=scene.output, title=scene.name, overwrite=overwrite,
-                           progress=progress)
-        timings[f"write {path.name}"] = _time.perf_counter() - t
-        written.append(path)
+    with OutputSet() as outputs:
+        for path in sorted(paths, key=lambda q: q.suffix.lower() in PREVIEW_EXTENSIONS):
+            t = _time.perf_counter()
+            ext = path.suffix.lower()
+            _say(f"writing {path}", progress)
+            if ext in GEOMETRY_EXTENSIONS:
+                stage_animation(outputs, path, data, overwrite=overwrite, progress=progress,
+                                frame_start=scene.output.frame_start, gltf_targets=targets)
+            else:
+                if path.exists() and not overwrite:
+                    raise WigglyInputError(f"{path} exists; pass --overwrite (or overwrite = "
+                                           "true in [output]) to replace it")
+                render_preview(outputs.stage(path), times, positions, surf.faces,
+                               highlights=highlights, output=scene.output, title=scene.name,
+                               overwrite=True, progress=progress)
+            timings[f"write {path.name}"] = _time.perf_counter() - t
+            written.append(path)
     return written
 
 
@@ -1488,9 +1625,14 @@ def render_preview(path: Path, times, positions, faces, *, highlights=(),
 
 
 def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None = None,
-                   resolution: int | None = None, modes: int | None = None) -> Scene:
+                   resolution: int | None = None, modes: int | None = None,
+                   frame_start: int | None = None, gltf_targets: str | None = None) -> Scene:
     """A copy of ``scene`` with some settings replaced (command-line options, tests)."""
     s = scene
+    if frame_start is not None:
+        s = replace(s, output=replace(s.output, frame_start=int(frame_start)))
+    if gltf_targets is not None:
+        s = replace(s, output=replace(s.output, gltf_targets=gltf_targets))
     if fps is not None:
         s = replace(s, time=replace(s.time, fps=float(fps)))
     if warp is not None:

@@ -16,7 +16,14 @@ EPILOG = """\
 examples:
   wiggly animate examples/jump.toml
   wiggly animate shot.toml -o out/shot.glb -o out/shot.mp4 --overwrite
-  wiggly animate shot.toml --linear --fps 24 --quiet"""
+  wiggly animate shot.toml --linear --fps 24 --quiet
+  wiggly animate shot.toml -o shot.glb -o shot.usdc --fps 24 --frame-start 1   # for Blender
+  wiggly animate shot.toml --linear -o shot.glb --gltf-targets modes   # compact, exact glTF
+
+Blender: its glTF importer puts a key at t seconds on frame t * (scene fps), and its USD
+importer takes the frame range from the file but ignores its frame rate. Export at the
+Blender scene's rate (--fps 24 for a new scene) with --frame-start 1 to land on frames
+1, 2, ...; see the README."""
 
 
 def add_args(parser: argparse.ArgumentParser) -> None:
@@ -30,7 +37,15 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="linear solve without rotation-strain warping (faster, but large "
                              "rotations distort)")
     parser.add_argument("--fps", type=_positive, metavar="N",
-                        help="frame rate of the outputs (overrides [time] fps)")
+                        help="frame rate of the outputs (overrides [time] fps); match the "
+                             "target scene's (Blender's USD importer ignores the file's rate)")
+    parser.add_argument("--frame-start", type=int, metavar="N",
+                        help="glTF/USD: put the first output frame on frame N (frame k on "
+                             "N + k at the output fps); overrides [output] frame_start")
+    parser.add_argument("--gltf-targets", choices=("frames", "modes"),
+                        help="glTF morph targets: one per frame, or one per mode with q(t) "
+                             "as weights (linear shots; exact and compact); overrides "
+                             "[output] gltf_targets")
     parser.add_argument("-q", "--quiet", action="store_true",
                         help="no progress bars or stage messages")
 
@@ -40,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
     from wiggly.scene import run as run_scene
 
     scene = load_scene(args.scene)
-    scene = with_overrides(scene, fps=args.fps, warp=False if args.linear else None)
+    scene = with_overrides(scene, fps=args.fps, warp=False if args.linear else None,
+                           frame_start=args.frame_start, gltf_targets=args.gltf_targets)
     anim = run_scene(scene, outputs=args.output, overwrite=args.overwrite,
                      progress=not args.quiet)
     print(summary(scene, anim))

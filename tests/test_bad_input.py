@@ -1,0 +1,217 @@
+"""What a new user gets wrong, through ``wiggly animate``: every mistake exits with code 1 and
+one line naming the file, the key and the value, without a traceback, without touching any
+file of the user, and, where the input alone decides, before any expensive work (fTetWild,
+the eigenmodes, the solve are replaced by tripwires)."""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import importlib
+import os
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+import tomli_w
+import trimesh
+
+import wiggly.body
+import wiggly.export
+from wiggly.cli import main
+from wiggly.primitives import box_mesh
+
+BASE = {
+    "mesh": {"path": "ball.obj"},
+    "time": {"end": 1.0, "fps": 10},
+    "groups": {"bottom": {"box": {"min": [-1.0, -1.0, -1.0], "max": [1.0, -0.4, 1.0]}},
+               "top": {"box": {"min": [-1.0, 0.4, -1.0], "max": [1.0, 1.0, 1.0]}}},
+    "keyframes": [{"time": 0.0, "group": "bottom", "position": "rest"},
+                  {"time": 1.0, "group": "top", "position": {"rotation": [0.0, 45.0, 0.0]}}],
+    "output": {"paths": ["out/shot.glb"]},
+}
+
+
+#: Groups that select vertices of any small mesh.
+EVERYWHERE = {"bottom": {"box": {"min": [-9.0, -9.0, -9.0], "max": [9.0, 9.0, 9.0]}},
+              "top": {"sphere": {"center": [0.0, 0.0, 0.0], "radius": 9.0}}}
+
+
+@pytest.fixture
+def user(tmp_path, monkeypatch):
+    """A user's folder with a mesh (an icosphere), a notes file and a scene writer."""
+    sphere = trimesh.creation.icosphere(2, radius=0.5)
+    sphere.export(tmp_path / "ball.obj")
+    (tmp_path / "notes.txt").write_text("my notes\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("WIGGLY_CACHE_DIR", str(tmp_path.parent / f"{tmp_path.name}-cache"))
+
+    def scene(change=None, name: str = "shot.toml") -> Path:
+        data = copy.deepcopy(BASE)
+        for key, value in (change or {}).items():
+            table, _, leaf = key.rpartition(".")
+            node = data
+            for part in filter(None, table.split(".")):
+                node = node.setdefault(part, {})
+            if value is None:
+                node.pop(leaf, None)
+            else:
+                node[leaf] = value
+        path = tmp_path / name
+        path.write_text(tomli_w.dumps(data))
+        return path
+
+    return tmp_path, scene
+
+
+@pytest.fixture
+def tripwires(monkeypatch):
+    """Make fTetWild, the eigenmodes and the solve fail loudly if they are reached."""
+    import pytetwild
+
+    def wire(what):
+        def tripped(*args, **kwargs):
+            raise AssertionError(f"expensive work started: {what}")
+        return tripped
+
+    monkeypatch.setattr(pytetwild, "tetrahedralize", wire("fTetWild"))
+    monkeypatch.setattr(wiggly.body, "compute_modes", wire("eigenmodes"))
+    # (the package's ``wiggly.solve`` is the function; the module is in sys.modules)
+    monkeypatch.setattr(importlib.import_module("wiggly.solve"), "solve", wire("solve"))
+
+
+def snapshot(folder: Path) -> dict[str, str]:
+    """Every file under ``folder`` with a hash of its contents."""
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def refused(capsys, folder: Path, scene: Path, *options) -> str:
+    """Run ``wiggly animate``; check code 1, one line, no traceback, no file touched."""
+    before = snapshot(folder)
+    code = main(["animate", str(scene), "-q", *map(str, options)])
+    _, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert code == 1, err
+    assert "Traceback" not in err and len(lines) == 1, err
+    assert lines[0].startswith("wiggly: error: ")
+    assert snapshot(folder) == before  # nothing written, replaced or left behind
+    return lines[0]
+
+
+def test_resolution_typo_is_refused_by_the_bound(user, tripwires, capsys):
+    folder, scene = user
+    line = refused(capsys, folder, scene({"mesh.resolution": 100000}))
+    assert "shot.toml: mesh.resolution = 100000 must be an integer in [1, 200]" in line
+
+
+def test_resolution_too_fine_for_the_tet_budget(user, tripwires, capsys):
+    folder, scene = user
+    line = refused(capsys, folder, scene({"mesh.resolution": 190}))
+    assert "shot.toml: mesh.resolution = 190 would make about" in line
+    assert "tetrahedra of ball.obj, more than wiggly's limit of 400000" in line
+    assert "use resolution <= " in line
+    line = refused(capsys, folder, scene({"mesh.edge_length": 0.001}))
+    assert "shot.toml: mesh.edge_length = 0.001 would make about" in line
+
+
+@pytest.mark.parametrize("modes, expected", [
+    (100000, "shot.toml: simulation.modes = 100000 must be an integer in [1, 500]"),
+    (3, "shot.toml: simulation.modes = 3 is fewer than the 6 rigid modes of a free body"),
+])
+def test_mode_counts_name_file_key_and_value(user, tripwires, capsys, modes, expected):
+    folder, scene = user
+    assert expected in refused(capsys, folder, scene({"simulation.modes": modes}))
+
+
+def test_more_modes_than_degrees_of_freedom(user, tripwires, capsys):
+    folder, scene = user
+    V, T = box_mesh((2, 1, 1), (1.0, 0.5, 0.5))  # 12 vertices: 36 degrees of freedom
+    meshio.write(folder / "block.vtu", meshio.Mesh(V - [0.5, 0.25, 0.25], [("tetra", T)]))
+    line = refused(capsys, folder, scene({"mesh.path": "block.vtu", "simulation.modes": 40,
+                                          "groups": EVERYWHERE}))
+    assert "shot.toml: simulation.modes = 40 is more than the 36 degrees of freedom of " \
+           "block.vtu's tet mesh (12 vertices, 3 each); use at most 36" in line
+
+
+def test_unwritable_folder_is_found_before_the_solve(user, tripwires, capsys):
+    folder, scene = user
+    if os.geteuid() == 0:  # root may write anywhere a permission allows: use a read-only fs
+        target = "/proc/wiggly-test-out/shot.glb"
+    else:
+        (folder / "locked").mkdir()
+        (folder / "locked").chmod(0o500)
+        target = "locked/shot.glb"
+    line = refused(capsys, folder, scene({"output.paths": [target]}))
+    assert f'shot.toml: output.paths[0] = "{target}": cannot create files in ' in line
+    assert ".shot." not in line  # no hidden temporary file named
+
+
+def test_a_file_in_the_output_path_is_found_before_the_solve(user, tripwires, capsys):
+    folder, scene = user
+    line = refused(capsys, folder, scene({"output.paths": ["notes.txt/out/shot.glb"]}))
+    assert 'output.paths[0] = "notes.txt/out/shot.glb": ' in line
+    assert "notes.txt is a file, so" in line
+
+
+def test_failed_output_replaces_no_file(user, capsys, monkeypatch):
+    """overwrite = true, and the second output fails to write: the first, existing output
+    keeps its old contents (outputs are moved into place only when all are written)."""
+    folder, scene = user
+    (folder / "out").mkdir()
+    (folder / "out" / "shot.glb").write_bytes(b"the user's old export")
+
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(wiggly.export, "_write_npz", disk_full)
+    path = scene({"output.paths": ["out/shot.glb", "out/shot.npz"], "output.overwrite": True,
+                  "simulation.modes": 8, "simulation.warp": False, "mesh.resolution": 6})
+    line = refused(capsys, folder, path)
+    assert "No space left on device" in line
+    assert (folder / "out" / "shot.glb").read_bytes() == b"the user's old export"
+
+
+def test_repair_false_speaks_the_scene_file(user, tripwires, capsys):
+    folder, scene = user
+    box = trimesh.creation.box()
+    keep = ~np.isclose(box.vertices[box.faces][:, :, 1], 0.5).all(axis=1)  # open at the top
+    trimesh.Trimesh(box.vertices, box.faces[keep], process=False).export(folder / "box.obj")
+    line = refused(capsys, folder, scene({"mesh.path": "box.obj", "mesh.repair": False}))
+    assert "shot.toml: mesh.repair = false refuses box.obj: 4 open edges" in line
+    assert "repair=True" not in line and "Remove repair = false" in line
+
+
+@pytest.mark.parametrize("content, expected", [
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n", "encloses no volume"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "contains no triangles"),
+    ("v 0 0 0\nv 1 0 nan\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+     "1 vertex has NaN or infinite coordinates"),
+])
+def test_what_cannot_be_filled(user, tripwires, capsys, content, expected):
+    folder, scene = user
+    (folder / "bad.obj").write_text(content)
+    line = refused(capsys, folder, scene({"mesh.path": "bad.obj", "groups": EVERYWHERE}))
+    assert "bad.obj" in line and expected in line
+
+
+def test_compact_gltf_needs_a_linear_shot(user, tripwires, capsys):
+    folder, scene = user
+    line = refused(capsys, folder, scene({"output.gltf_targets": "modes"}))
+    assert 'shot.toml: output.gltf_targets = "modes" needs a linear shot' in line
+
+
+def test_an_imperfect_surface_is_accepted_with_one_warning(user, capsys):
+    folder, scene = user
+    box = trimesh.creation.box()
+    keep = ~np.isclose(box.vertices[box.faces][:, :, 1], 0.5).all(axis=1)
+    trimesh.Trimesh(box.vertices, box.faces[keep], process=False).export(folder / "box.obj")
+    path = scene({"mesh.path": "box.obj", "mesh.resolution": 8, "simulation.modes": 8,
+                  "simulation.warp": False})
+    code = main(["animate", str(path), "-q"])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    warnings = [line for line in err.splitlines() if line.startswith("wiggly: warning:")]
+    assert len(warnings) == 1 and "box.obj: the surface has 4 open edges;" in warnings[0]
+    assert (folder / "out" / "shot.glb").is_file()
