@@ -145,7 +145,7 @@ def test_newton_matrix_is_the_hessian(free_bar, which):
     nodes = problem.nodes_for(kfs)
     z = problem.solve_linear(kfs, nodes)  # far from the warped solution: large residuals
     obj = WarpedObjective(problem, free_bar.fine_level, kfs, nodes)
-    gauss_newton, newton = (band_to_dense(m) for m in obj.newton_matrices(obj.evaluate(z)))
+    gauss_newton, newton = (band_to_dense(m) for m in obj.newton_matrices(obj.evaluate(z))[:2])
     r = free_bar.r
 
     def hessian_column(i, h):
@@ -273,9 +273,10 @@ def test_warm_start_after_an_edit_reaches_the_cold_solution(free_bar):
     cold = SpacetimeProblem(free_bar, 0.0, 1.5).solve(keys, warped=True, options=tight)
     assert second.info["warm_start"] and second.info["converged"]
     assert second.info["iterations"] < cold.info["iterations"]
-    np.testing.assert_allclose(
-        second.values, cold.values, rtol=0, atol=1e-7 * np.abs(cold.values).max()
-    )
+    # both are within their distance bounds (m, largest vertex move at a node) of the minimiser
+    dq = second.values - cold.values
+    moved = np.linalg.norm((free_bar.modes.vectors @ dq.T).reshape(-1, 3, len(dq)), axis=1)
+    assert moved.max() <= second.info["distance_bound"] + cold.info["distance_bound"]
 
 
 def test_keyframe_changed_in_place_between_solves_is_seen(free_bar):

@@ -24,6 +24,8 @@ from numpy.typing import ArrayLike
 
 from wiggly.errors import WigglyInputError, counted
 from wiggly.fem import Material, gravity_term, mass_matrix, stiffness_matrix
+from wiggly.linalg import SPDSolver, factorize_spd
+from wiggly.memo import Memo, value_key
 from wiggly.mesh import Model, Surface, TetMesh, coarse_mesh, embed, load_model
 from wiggly.modes import Modes, compute_modes
 from wiggly.warp import Warp, WarpLevel, coarse_level, fine_level
@@ -51,6 +53,24 @@ class Damping:
                     f"damping {name} = {v!r} is invalid: it must be a finite number >= 0 "
                     f"({'1/s' if name == 'alpha' else 's'})"
                 )
+
+
+class GroupSelection:
+    """A vertex group on a warp level: the scalar selection ``S`` (s, n_L) of its vertices from
+    the level's vertex values (barycentric rows for surface vertices, composed with a coarse
+    level's lift P), its Gram ``C = S^T S`` (n_L, n_L) and, on demand, a factorization of
+    ``C + mu I`` (mu = 1e-8 mean diag C; C is singular off the group) for fits of targets."""
+
+    def __init__(self, S: sp.csr_matrix) -> None:
+        self.S = sp.csr_matrix(S)
+        self.St = sp.csr_matrix(self.S.T)
+        self.C = sp.csr_matrix(self.St @ self.S)
+
+    @cached_property
+    def fit_solver(self) -> SPDSolver:
+        C = self.C
+        mu = 1e-8 * max(float(C.diagonal().mean()), np.finfo(float).tiny)
+        return factorize_spd(sp.csr_matrix(C + mu * sp.identity(C.shape[0], format="csr")))
 
 
 @dataclass(eq=False)
@@ -82,6 +102,8 @@ class Body:
     lumped: bool = False
     cache_dir: str | os.PathLike[str] | Literal[False] | None = field(default=None, repr=False)
     _cache: dict = field(default_factory=dict, repr=False)
+    # vertex groups seen on the warp levels, kept by value (vertex indices) for every solve
+    _groups: Memo = field(default_factory=lambda: Memo(limit=256), repr=False)
 
     # --- per-mode coefficients of the decoupled energy (SYSTEM.md §4) -------------------
     @property
@@ -196,6 +218,22 @@ class Body:
                 shape=(len(vertices), n),
             )
         return sp.csr_matrix(self.surface_embedding[vertices])
+
+    def group(
+        self, level: WarpLevel, vertices: np.ndarray, on: Where = "surface"
+    ) -> GroupSelection:
+        """A vertex group on a warp level (:class:`GroupSelection`), kept per level and group:
+        every problem and solve on this body shares it."""
+        vertices = np.asarray(vertices, np.int64)
+        name = "fine" if level.exact else "coarse"
+
+        def compute() -> GroupSelection:
+            S = self.scalar_selection(vertices, on)
+            if not level.exact:
+                S = sp.csr_matrix(S @ level.transfer.lift)
+            return GroupSelection(S)
+
+        return self._groups.get((name, on, value_key(vertices)), compute)
 
     def vertex_masses(self, on: Where = "tets") -> np.ndarray:
         """Lumped vertex masses (kg) of the tet mesh, or barycentrically spread to the surface."""

@@ -31,6 +31,7 @@ import numpy as np
 
 from wiggly.keyframes import Keyframe
 from wiggly.progress import iterations
+from wiggly.solve.blocks import NewtonBlocks
 from wiggly.solve.optimizer import SolveOptions, minimize, warn_unconverged
 from wiggly.solve.warped import WarpedObjective, WarpedPoint
 
@@ -49,6 +50,7 @@ class WarmStart:
     keyframes: tuple[Keyframe, ...]
     point: WarpedPoint  # the fine objective at z
     contraction: float | None  # measured on the fine level (approximate Newton matrices)
+    blocks: NewtonBlocks  # the derivatives behind the last Newton matrices
 
     def fits(self, nodes: np.ndarray) -> bool:
         """Whether a problem with these node times can start here."""
@@ -87,14 +89,20 @@ def solve_warped(
     body = problem.body
     coarse = body.coarse_level if options.two_level else body.fine_level
     two = not coarse.exact
-    fine = WarpedObjective(problem, body.fine_level, kfs, nodes, model=coarse if two else None)
+    blocks = warm.blocks if warm is not None and warm.blocks.level is coarse else None
+    blocks = blocks or NewtonBlocks(coarse)
+    fine = WarpedObjective(
+        problem, body.fine_level, kfs, nodes, model=coarse if two else None, blocks=blocks
+    )
     report: dict = {}
     with iterations("warped solve (Newton)", options.max_iterations, progress) as bar:
-        start = fine.evaluate(z0, prior=warm.point if warm is not None else None)
         continuation = warm is not None and same_keyframes(warm.keyframes, kfs)
         if two and not continuation:
-            start, report["coarse"] = _coarse_level(problem, coarse, kfs, nodes, fine, start,
-                                                    warm, options, bar)
+            start, report["coarse"] = _coarse_level(
+                problem, coarse, kfs, nodes, fine, z0, warm, options, bar, blocks
+            )
+        else:
+            start = fine.evaluate(z0, prior=warm.point if warm is not None else None)
         point, fine_report = minimize(
             fine, start, options, contraction=warm.contraction if warm else None, bar=bar
         )
@@ -104,29 +112,35 @@ def solve_warped(
     theta = fine_report["contraction"]
     if theta is None and warm is not None:
         theta = warm.contraction
-    return point.z, report, WarmStart(nodes.copy(), point.z, tuple(kfs), point, theta)
+    return point.z, report, WarmStart(nodes.copy(), point.z, tuple(kfs), point, theta, fine.blocks)
 
 
-def _coarse_level(problem, coarse, kfs, nodes, fine, start, warm, options, bar):
-    """The coarse first level from ``start`` (the fine point at z0); returns the fine point
-    where the fine level starts and the coarse level's report."""
-    plain = WarpedObjective(problem, coarse, kfs, nodes)
-    at_z0 = plain.evaluate(start.z)
+def _coarse_level(problem, coarse, kfs, nodes, fine, z0, warm, options, bar, blocks):
+    """The coarse first level from z0; returns the fine point where the fine level starts
+    and the coarse level's report."""
+    plain = WarpedObjective(problem, coarse, kfs, nodes, blocks=blocks)
+    at_z0 = plain.evaluate(z0)
+    start = None
     if warm is not None:  # full approximation scheme from the last fine point
+        start = fine.evaluate(z0, prior=warm.point)  # cheap: W at z0 is kept
         tau = start.g - at_z0.g
-        correction = (tau, start.F - at_z0.F - float(tau @ start.z))
-        corrected = WarpedObjective(problem, coarse, kfs, nodes, correction=correction)
+        correction = (tau, start.F - at_z0.F - float(tau @ z0))
+        corrected = WarpedObjective(
+            problem, coarse, kfs, nodes, correction=correction, blocks=blocks
+        )
         point, report = minimize(
-            corrected, corrected.evaluate(start.z, prior=at_z0), options,
-            tolerance=options.coarse_tolerance, bar=bar,
+            corrected, corrected.evaluate(z0, prior=at_z0), options,
+            tolerance=options.coarse_tolerance, certify=False, bar=bar,
         )
         report["corrected"] = True
         candidate = fine.evaluate(point.z)
         if report["converged"] and candidate.F < start.F:
             return candidate, report
-    point, report = minimize(plain, at_z0, options, tolerance=options.coarse_tolerance, bar=bar)
+    point, report = minimize(
+        plain, at_z0, options, tolerance=options.coarse_tolerance, certify=False, bar=bar
+    )
     candidate = fine.evaluate(point.z)
-    if warm is not None and candidate.F >= start.F:
+    if start is not None and candidate.F >= start.F:
         report["kept_start"] = True
         return start, report
     return candidate, report

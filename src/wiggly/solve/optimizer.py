@@ -95,7 +95,9 @@ class Objective(Protocol):
 
     def evaluate(self, z: np.ndarray) -> Point: ...
 
-    def newton_matrices(self, point: Point) -> tuple[np.ndarray, np.ndarray]: ...
+    def newton_matrices(
+        self, point: Point, fresh: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, bool]: ...
 
     def use_exact(self) -> bool: ...
 
@@ -174,13 +176,15 @@ def minimize(
     *,
     tolerance: float | None = None,
     contraction: float | None = None,
+    certify: bool = True,
     bar=None,
 ) -> tuple[Point, dict]:
     """Minimise ``objective`` from ``point`` (evaluated); see the module docstring.
 
     ``contraction`` is a contraction factor known from an earlier solve of the same problem
     (a warm start), which lets an approximate matrix certify a start that already meets the
-    tolerance.  Returns the final point and a report.
+    tolerance.  ``certify=False`` stops on the decrement alone (a coarse level, whose
+    solution only starts the fine one).  Returns the final point and a report.
     """
     tol = options.tolerance if tolerance is None else tolerance
     F_start = point.F
@@ -192,8 +196,11 @@ def minimize(
     converged, stop, it = False, "max_iterations", 0
     decrement, dz_newton = np.inf, None
     t_solve = 0.0
+    fresh = False  # ask for a matrix from derivatives computed at the point itself
     while True:
-        B_gn, B = objective.newton_matrices(point)
+        B_gn, B, computed = objective.newton_matrices(point, fresh)
+        fresh = False
+        hessian = objective.exact and computed
         t0 = time.perf_counter()
         chol = _factor(B)
         dz_newton = chol.solve(-point.g) if chol is not None else None
@@ -205,10 +212,17 @@ def minimize(
             theta = float(np.sqrt(decrement / last_full))
         floor = ROUNDING * point.magnitude
         small = decrement <= tol * max(point.F, 0.0) + floor
-        trusted = objective.exact or (theta is not None and theta <= options.contraction)
-        if small and (trusted or decrement <= floor):
+        # an exact model certifies with its Hessian at the point; an approximate one with
+        # the contraction measured over the iterations
+        trusted = hessian if objective.exact else (
+            theta is not None and theta <= options.contraction
+        )
+        if small and (trusted or not certify or decrement <= floor):
             converged, stop = True, "decrement" if decrement > floor else "round-off"
             break
+        if not computed and ((small and certify) or chol is None):  # reused: check afresh
+            fresh = True
+            continue
         if not objective.exact:  # an approximate matrix must keep earning its keep
             slow = slow + 1 if chol is None or (theta or 0.0) > options.contraction else 0
             if slow >= SLOW_STEPS and objective.use_exact():
@@ -228,7 +242,7 @@ def minimize(
         if radius is None:
             dz0 = dz_newton if dz_newton is not None else precondition.solve(-point.g)
             radius = _norm(B_gn, dz0)
-        newton = False
+        newton, refresh, rho = False, False, -np.inf
         while True:
             if dz_newton is not None and _norm(B_gn, dz_newton) <= radius * (1 + 1e-12):
                 dz, newton = dz_newton, True
@@ -238,7 +252,10 @@ def minimize(
             predicted = -(float(point.g @ dz) + 0.5 * float(dz @ band_matvec(B, dz)))
             t_solve += time.perf_counter() - t0
             if not predicted > floor:  # no decrease left above F's rounding level
-                radius = 0.0
+                if computed:
+                    radius = 0.0
+                else:
+                    refresh, rho = True, -np.inf
                 break
             new = objective.evaluate(point.z + dz)
             t0 = time.perf_counter()
@@ -246,6 +263,9 @@ def minimize(
             if DEBUG:
                 print(f"  it={it} radius={radius:.3g} size={size:.3g} rho={rho:.3g} "
                       f"newton={newton} step={objective.step_size(dz):.3g} F={new.F:.6g}")
+            if rho < 0.25 and not computed:  # a poor model from reused derivatives: renew
+                refresh = True
+                break
             if rho < 0.25:
                 radius = 0.25 * size
             elif rho > 0.75 and size >= 0.99 * radius:
@@ -258,8 +278,13 @@ def minimize(
         if radius == 0.0:
             stop = "no progress"
             break
+        if refresh and rho <= ACCEPT:  # retry from the same point with fresh derivatives
+            fresh = True
+            it -= 1
+            continue
         newton_steps += newton
         last_full = decrement if newton else None
+        fresh = refresh  # a poor step on reused derivatives: renew them at the new point
         point = new
         history.append(point.F)
         if bar is not None:

@@ -24,20 +24,20 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
-from wiggly.body import Body
+from wiggly.body import Body, GroupSelection
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread
+from wiggly.memo import Memo, value_key
 from wiggly.solve.animation import Animation
 from wiggly.solve.banded import BandedCholesky, add_block, add_blocks
 from wiggly.solve.levels import WarmStart, solve_warped
-from wiggly.solve.memo import Memo, value_key
 from wiggly.solve.nodes import node_index, node_times
 from wiggly.solve.optimizer import SolveOptions
 from wiggly.splines import WigglyBasis, energy_form, equilibrium, wiggly_basis
 from wiggly.warp import WarpLevel
 
-__all__ = ["Energy", "GroupSelection", "SpacetimeProblem"]
+__all__ = ["Energy", "SpacetimeProblem", "TargetFit"]
 
 
 @dataclass(frozen=True)
@@ -56,14 +56,28 @@ class Energy:
 
 
 @dataclass(frozen=True)
-class GroupSelection:
-    """A vertex group on a warp level: the scalar selection ``S`` (s, n_L) of its vertices
-    from the level's vertex values (barycentric rows for surface vertices, composed with the
-    coarse level's lift P) and its Gram ``C = S^T S`` (n_L, n_L)."""
+class TargetFit:
+    """The least-squares fit of a group's targets d (s, 3) by level vertex values, which
+    turns the residual ``1/2 |S x - d|^2`` into vertex-sized terms (exactly, for every x):
 
-    S: sp.csr_matrix
-    St: sp.csr_matrix
+        1/2 |S x - d|^2 = F* + (x - X*) . G* + 1/2 (x - X*)^T C (x - X*),
+
+    with ``X* = (C + mu I)^-1 S^T d`` (mu = 1e-8 mean diag C: C is singular off the group),
+    ``G* = C X* - S^T d`` (~ mu X*) and ``F* = 1/2 |S X* - d|^2``; its gradient is
+    ``S^T (S x - d) = C (x - X*) + G*``.  The first and last terms are nonnegative and the
+    middle one tiny, so nothing cancels (unlike ``x^T C x - 2 x^T S^T d + |d|^2``), and a
+    group of many surface vertices costs products of the level's size only."""
+
     C: sp.csr_matrix
+    X: np.ndarray
+    G: np.ndarray
+    F: float
+
+    def value_and_cotangent(self, x: np.ndarray) -> tuple[float, np.ndarray]:
+        """``1/2 |S x - d|^2`` and ``S^T (S x - d)`` for level vertex values x (n_L, 3)."""
+        e = x - self.X
+        Ce = self.C @ e
+        return self.F + float(np.vdot(e, self.G)) + 0.5 * float(np.vdot(e, Ce)), Ce + self.G
 
 
 class SpacetimeProblem:
@@ -143,17 +157,27 @@ class SpacetimeProblem:
 
     # --------------------------------------------------------------------- groups
     def selection(self, level: WarpLevel, vertices: np.ndarray, on: str) -> GroupSelection:
-        """A vertex group's selection and Gram on ``level`` (kept per level and group)."""
+        """A vertex group's selection and Gram on ``level`` (kept by the body)."""
+        return self.body.group(level, vertices, on)
+
+    def fit(self, level: WarpLevel, vertices: np.ndarray, on: str, target: np.ndarray) -> TargetFit:
+        """The :class:`TargetFit` of per-vertex targets (s, 3) of a group on ``level``, kept
+        per level, group and target."""
         name = "fine" if level.exact else "coarse"
 
-        def compute() -> GroupSelection:
-            S = self.body.scalar_selection(vertices, on)
-            if not level.exact:
-                S = sp.csr_matrix(S @ level.transfer.lift)
-            St = sp.csr_matrix(S.T)
-            return GroupSelection(S, St, sp.csr_matrix(St @ S))
+        def compute() -> TargetFit:
+            sel = self.selection(level, vertices, on)
+            d = np.ascontiguousarray(np.broadcast_to(target, (len(vertices), 3)), dtype=float)
+            Std = sel.St @ d
+            X = sel.fit_solver(Std)
+            R = sel.S @ X - d
+            G = sel.C @ X - Std
+            for a in (X, G):
+                a.flags.writeable = False
+            return TargetFit(sel.C, X, G, 0.5 * float(np.vdot(R, R)))
 
-        return self.memo.get(("selection", name, on, value_key(vertices)), compute)
+        key = ("fit", name, on, value_key(vertices), value_key(np.asarray(target, dtype=float)))
+        return self.memo.get(key, compute)
 
     def modal_gram(self, vertices: np.ndarray, on: str) -> np.ndarray:
         """``Phi^T A_k^T A_k Phi`` (r, r) of a group: ``sum_c Phi_c^T C Phi_c`` over the

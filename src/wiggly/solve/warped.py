@@ -32,11 +32,12 @@ import scipy.sparse as sp
 
 from wiggly.keyframes import Keyframe
 from wiggly.solve.banded import add_blocks, band_matvec
+from wiggly.solve.blocks import NewtonBlocks
 from wiggly.solve.nodes import node_index
 from wiggly.warp import WarpLevel
 
 if TYPE_CHECKING:
-    from wiggly.solve.problem import GroupSelection, SpacetimeProblem
+    from wiggly.solve.problem import SpacetimeProblem, TargetFit
 
 __all__ = ["WarpedObjective", "WarpedPoint"]
 
@@ -52,8 +53,7 @@ class _Term:
     w: float
     vertices: np.ndarray
     on: str
-    selection: GroupSelection  # on the objective's level
-    target: np.ndarray  # (s, 3): offsets from rest (positions) or velocities
+    fit: TargetFit  # of the targets (offsets from rest, or velocities) on the level
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,7 +80,9 @@ class WarpedObjective:
 
     ``model`` is the level whose derivatives build the Newton matrix (default: ``level``
     itself, i.e. the exact Hessian); ``correction`` = (tau, c) adds ``tau^T z + c`` (the full
-    approximation scheme's correction of a coarse level, :mod:`wiggly.solve.levels`).
+    approximation scheme's correction of a coarse level, :mod:`wiggly.solve.levels`);
+    ``blocks`` is the :class:`~wiggly.solve.blocks.NewtonBlocks` store of the model's level
+    to draw derivatives from (shared by the levels of a solve and kept by its warm start).
     """
 
     def __init__(
@@ -92,9 +94,13 @@ class WarpedObjective:
         *,
         model: WarpLevel | None = None,
         correction: tuple[np.ndarray, float] | None = None,
+        blocks: NewtonBlocks | None = None,
     ) -> None:
         body = problem.body
         self.problem, self.level, self.model = problem, level, model or level
+        if blocks is not None and blocks.level is not self.model:
+            raise ValueError("the Newton blocks belong to another warp level")
+        self.blocks = blocks if blocks is not None else NewtonBlocks(self.model)
         self.name = "fine" if level.exact else "coarse"
         self.r = body.r
         self.nodes = nodes
@@ -108,13 +114,12 @@ class WarpedObjective:
         for kf in keyframes:
             c_A, c_B = kf.weights(body, problem.duration)
             k = node_index(nodes, kf.time)
-            sel = problem.selection(level, kf.vertices, kf.on)
             if kf.position is not None and c_A > 0:
-                w = float(np.sqrt(c_A))
-                self.positions.append(_Term(k, w, kf.vertices, kf.on, sel, problem.offsets(kf)))
+                fit = problem.fit(level, kf.vertices, kf.on, problem.offsets(kf))
+                self.positions.append(_Term(k, float(np.sqrt(c_A)), kf.vertices, kf.on, fit))
             if kf.velocity is not None and c_B > 0:
-                w = float(np.sqrt(c_B))
-                self.velocities.append(_Term(k, w, kf.vertices, kf.on, sel, kf.velocity))
+                fit = problem.fit(level, kf.vertices, kf.on, kf.velocity)
+                self.velocities.append(_Term(k, float(np.sqrt(c_B)), kf.vertices, kf.on, fit))
         terms = self.positions + self.velocities
         self.active = sorted({t.node for t in terms})
         self.vel = sorted({t.node for t in self.velocities})
@@ -136,6 +141,7 @@ class WarpedObjective:
         if self.exact:
             return False
         self.model = self.level
+        self.blocks = NewtonBlocks(self.model)
         self._grams = self._node_grams(self.model)
         return True
 
@@ -187,13 +193,13 @@ class WarpedObjective:
         YA, YB = np.zeros_like(U), np.zeros_like(V)
         F_res = 0.0
         for t in self.positions:
-            res = t.w * (t.selection.S @ WU[self.slot[t.node]] - t.target)
-            F_res += 0.5 * float(np.vdot(res, res))
-            YA[self.slot[t.node]] += t.w * (t.selection.St @ res)
+            value, cotangent = t.fit.value_and_cotangent(WU[self.slot[t.node]])
+            F_res += t.w**2 * value
+            YA[self.slot[t.node]] += t.w**2 * cotangent
         for t in self.velocities:
-            res = t.w * (t.selection.S @ Vel[self.vslot[t.node]] - t.target)
-            F_res += 0.5 * float(np.vdot(res, res))
-            YB[self.vslot[t.node]] += t.w * (t.selection.St @ res)
+            value, cotangent = t.fit.value_and_cotangent(Vel[self.vslot[t.node]])
+            F_res += t.w**2 * value
+            YB[self.vslot[t.node]] += t.w**2 * cotangent
         F = quad + lin + self.c_E + F_res
         magnitude = abs(quad) + abs(lin) + abs(self.c_E) + F_res
         g = Hz + self.f_E
@@ -248,54 +254,55 @@ class WarpedObjective:
         return out
 
     # ------------------------------------------------------------ Newton matrix
-    def newton_matrices(self, point: WarpedPoint) -> tuple[np.ndarray, np.ndarray]:
+    def newton_matrices(
+        self, point: WarpedPoint, fresh: bool = False
+    ) -> tuple[np.ndarray, np.ndarray, bool]:
         """Band storage of the Gauss-Newton matrix (H plus each active node's J^T (C kron I)
         J) and of the Newton matrix (plus the curvature blocks), from the derivatives of
-        :attr:`model` (module docstring).  The first is positive definite wherever H is; the
-        second is the Hessian (for an exact model) and may be indefinite far from a
-        minimiser."""
+        :attr:`model` (module docstring), and whether every node's derivatives were computed
+        at this point (``fresh`` forces that; with an exact model the Newton matrix is then
+        the Hessian).  The first is positive definite wherever H is; the second may be
+        indefinite far from a minimiser."""
         t0 = time.perf_counter()
         model, r = self.model, self.r
         q, v = self._states(point.z)
         gn = np.array(self.ab_E, order="F")
         if not self.active:
-            return gn, gn.copy(order="F")
+            return gn, gn.copy(order="F"), True
         f = len(self.active)
         Qa = q[self.active]
-        J = model.modal.jacobians(Qa)  # (f, n_M, 3, r)
         same = model is self.level
         YA = point.YA if same else model.transfer.lift_adjoint(point.YA)
         Qv = np.zeros_like(Qa)
         Yv = np.zeros_like(YA)
-        iv = [self.slot[k] for k in self.vel]
+        velocity = [k in self.vslot for k in self.active]
         if self.vel:
+            iv = [self.slot[k] for k in self.vel]
             Qv[iv] = v[self.vel]
             Yv[iv] = point.YB if same else model.transfer.lift_adjoint(point.YB)
-            JV = model.modal.second_derivatives(q[self.vel], v[self.vel])
-        curvatures = model.modal.curvatures(
-            Qa, YA, Qv if self.vel else None, Yv if self.vel else None
-        )
+        times = [float(self.nodes[k]) for k in self.active]
+        derivs, all_fresh = self.blocks.derivatives(times, Qa, Qv, velocity, YA, Yv, fresh)
         blocks = np.zeros((f, 2 * r, 2 * r))
         curv = np.zeros((f, 2 * r, 2 * r))
         for a, k in enumerate(self.active):
+            d = derivs[a]
             C_pos, C_vel = self._grams[k]
             if C_pos is not None:
-                blocks[a, :r, :r] += _gram(C_pos, J[a])
+                blocks[a, :r, :r] += _gram(C_pos, d.J)
             if C_vel is not None:
-                X = np.concatenate([JV[self.vslot[k]], J[a]], axis=2)  # [D^2W[., v], DW]
+                X = np.concatenate([d.JV, d.J], axis=2)  # [D^2W[., v], DW]
                 blocks[a] += _gram(C_vel, X)
-            qq, qv = curvatures[a]
-            curv[a, :r, :r] = qq
-            if qv is not None:
-                curv[a, :r, r:] = qv
-                curv[a, r:, :r] = qv.T
+            curv[a, :r, :r] = d.qq
+            if d.qv is not None:
+                curv[a, :r, r:] = d.qv
+                curv[a, r:, :r] = d.qv.T
         idx = 2 * r * np.array(self.active)[:, None] + np.arange(2 * r)
         add_blocks(gn, idx, 0.5 * (blocks + blocks.transpose(0, 2, 1)))
         full = np.array(gn, order="F")
         add_blocks(full, idx, 0.5 * (curv + curv.transpose(0, 2, 1)))
         self.counts["newton"] += f
         self.timing["newton"] += time.perf_counter() - t0
-        return gn, full
+        return gn, full, all_fresh
 
     def step_size(self, dz: np.ndarray) -> float:
         """The largest vertex displacement (m, tet mesh) of a change ``dz`` of the node

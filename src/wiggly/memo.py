@@ -3,10 +3,11 @@
 The spacetime solve recomputes little between edits: the energy of a node set, the
 selection matrices and Grams of a vertex group, the least-squares fit of a group's targets.
 Each such value lives in a :class:`Memo` owned by one object (a
-:class:`~wiggly.solve.problem.SpacetimeProblem`), under a key built from *values*: plain
-numbers and strings, and :func:`value_key` snapshots of arrays (their bytes, shape and
-dtype), compared by equality.  An array edited in place therefore gets a new key; nothing is
-keyed by ``id()`` or a memory address.
+:class:`~wiggly.solve.problem.SpacetimeProblem`, or a :class:`~wiggly.body.Body` for its
+vertex groups), under a key built from *values*: plain numbers and strings, and
+:func:`value_key` snapshots of arrays (their bytes, shape and dtype), compared by equality.
+An array edited in place therefore gets a new key; nothing is keyed by ``id()`` or a memory
+address.
 """
 
 from __future__ import annotations
