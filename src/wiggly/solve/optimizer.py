@@ -1,31 +1,44 @@
-"""Newton's method with Levenberg-Marquardt damping for E + E_WC (Theorem 2).
+"""A trust-region Newton method for E + E_WC (Theorem 2), with an honest stopping rule.
 
-Each iteration evaluates the objective F and its exact gradient g at z, asks the objective
-for a Newton matrix B (the spacetime energy's band plus, at each constrained node, the
-Gauss-Newton blocks J^T J *and* the curvature of the residuals, sum c r^T D^2 W; see
-:mod:`wiggly.solve.warped`), and solves (B + mu D) dz = -g.  A step is accepted when F drops
-by a fair share of what the quadratic model predicts; mu follows Nielsen's rule and is zero
-near the solution, where the iteration is Newton's.
+Each iteration evaluates the objective F and its exact gradient g at z and asks the
+objective for two band matrices (:mod:`wiggly.solve.warped`): the Gauss-Newton matrix
+(the energy's band plus J^T J at each constrained node: positive definite) and the Newton
+matrix B (plus the curvature of the residuals, sum c r^T D^2 W, which Gauss-Newton drops;
+at a solution with stiff keyframes c r balances the energy's gradient, so this term is as
+large as the rest).  The step is
+
+* Newton's, ``dz = -B^-1 g``, where B is positive definite and the step fits in the trust
+  region;
+* else the Steihaug-Toint conjugate-gradient step on B, preconditioned by the Gauss-Newton
+  matrix, whose norm measures the region: it follows negative curvature to the boundary,
+  so saddle regions (large turns, velocity keyframes) are left quickly.
+
+A step is accepted when F drops by more than 1e-4 of the model's prediction; the radius
+shrinks by 4 on a poor prediction and doubles on a good one at the boundary.  Newton
+matrices built from reused derivatives (:mod:`wiggly.solve.blocks`) are renewed when a step
+fails or the matrix is indefinite.
 
 Stopping rule.  With the Newton decrement ``dec = -1/2 g^T dz`` (dz = -B^-1 g, B positive
-definite), the solve has converged when
+definite) and the distance bound ``d`` (the largest vertex move of dz at any node, m), the
+solve has converged when
 
-    dec <= tolerance * F + floor,    floor = 100 eps * (the sum of the magnitudes of F's terms)
+    dec <= tolerance * F + floor   and   d <= distance_tolerance * size,
 
-(the floor is the rounding level of F: at a body at rest F itself rounds to ~0) and the
-matrix is trustworthy:
+``floor = 100 eps *`` (the sum of the magnitudes of F's terms) being F's rounding level (at a
+body at rest F itself rounds to ~0), and the matrix certifies it:
 
-* *exact* (B is the Hessian of F at z): then ``|z - z*|_B ~ sqrt(2 dec)`` to second order,
-  and the Newton step dz is z* - z up to O(|dz|^2);
+* *exact* (B is the Hessian of F at z, from derivatives computed there): near a minimiser
+  the Newton step is z* - z up to O(|dz|^2), so the motion's node states are within ``d`` of
+  the minimiser's (to second order);
 * *approximate* (B from a coarse mesh, :mod:`wiggly.solve.levels`): the iteration converges
   linearly, z_{k+1} - z* = (I - B^-1 H)(z_k - z*), with a contraction factor theta measured
   from successive decrements (theta^2 ~ dec_{k+1}/dec_k); convergence is declared only while
-  theta <= ``contraction``, and then ``|z - z*| <= |dz| / (1 - theta)``.  If theta stays
-  larger, the objective switches to its exact matrix.
+  theta <= ``contraction``, and ``d`` is widened to ``|dz| / (1 - theta)``.  When theta stays
+  larger, the matrix is indefinite, or the level takes more than ten iterations, the
+  objective switches to its exact matrix.
 
 ``converged`` is true only when this rule holds; otherwise a :class:`WarpedSolveWarning`
-gives the decrement reached.  ``distance_bound`` reports ``|dz| / (1 - theta)`` in metres:
-the largest vertex displacement of the final Newton step at any node (tet mesh).
+gives the decrement reached.  The report's ``distance_bound`` is ``d``.
 """
 
 from __future__ import annotations
@@ -52,6 +65,8 @@ class SolveOptions:
 
     tolerance : the Newton decrement must fall below ``tolerance * F`` (plus F's rounding
         level).
+    distance_tolerance : and the distance bound (the final Newton step's largest vertex
+        move, widened by the measured contraction) below this fraction of the body's size.
     max_iterations : Newton iterations allowed per level.
     contraction : largest measured contraction factor per iteration with which an
         approximate (coarse-mesh) Newton matrix may certify convergence; above it the solve
@@ -64,7 +79,8 @@ class SolveOptions:
     """
 
     tolerance: float = 1e-8
-    max_iterations: int = 100
+    distance_tolerance: float = 1e-3
+    max_iterations: int = 200
     contraction: float = 0.5
     coarse_tolerance: float = 1e-6
     two_level: bool = True
@@ -90,6 +106,7 @@ class Objective(Protocol):
     """What :func:`minimize` needs of an objective (see :mod:`wiggly.solve.warped`)."""
 
     exact: bool
+    size: float  # the body's size (m): the scale of distance_tolerance
     timing: dict
     counts: dict
 
@@ -111,8 +128,10 @@ CG_ITERATIONS = 200
 ACCEPT = 1e-4
 DEBUG = False
 # Approximate matrices: switch to the exact one after this many iterations in a row where
-# the approximate matrix is indefinite or contracts by more than ``contraction``.
+# the approximate matrix is indefinite or contracts by more than ``contraction``, or after
+# APPROXIMATE_ITERATIONS iterations in all (the coarse start should be close).
 SLOW_STEPS = 2
+APPROXIMATE_ITERATIONS = 10
 # The rounding level of F, relative to the sum of its terms' magnitudes.
 ROUNDING = 100 * np.finfo(float).eps
 
@@ -160,6 +179,16 @@ def _to_boundary(M: np.ndarray, p: np.ndarray, d: np.ndarray, radius: float) -> 
     Md = band_matvec(M, d)
     a, b, c = float(d @ Md), float(p @ Md), float(p @ band_matvec(M, p)) - radius**2
     return (-b + np.sqrt(max(b * b - a * c, 0.0))) / a
+
+
+def _distance(objective: Objective, dz: np.ndarray | None, theta: float | None) -> float:
+    """The distance bound (m): the Newton step's largest vertex move, divided by ``1 -
+    theta`` for an iteration contracting by ``theta`` (None: Newton's, quadratic)."""
+    if dz is None:
+        return np.inf
+    if theta is not None and theta >= 1.0:
+        return np.inf
+    return objective.step_size(dz) / (1.0 - (theta or 0.0))
 
 
 def _factor(ab: np.ndarray) -> BandedCholesky | None:
@@ -211,13 +240,15 @@ def minimize(
         if chol is not None and last_full is not None and last_full > 0:
             theta = float(np.sqrt(decrement / last_full))
         floor = ROUNDING * point.magnitude
+        distance = _distance(objective, dz_newton, theta if not hessian else None)
         small = decrement <= tol * max(point.F, 0.0) + floor
+        close = distance <= options.distance_tolerance * objective.size
         # an exact model certifies with its Hessian at the point; an approximate one with
         # the contraction measured over the iterations
         trusted = hessian if objective.exact else (
             theta is not None and theta <= options.contraction
         )
-        if small and (trusted or not certify or decrement <= floor):
+        if small and ((trusted and close) or not certify or decrement <= floor):
             converged, stop = True, "decrement" if decrement > floor else "round-off"
             break
         if not computed and ((small and certify) or chol is None):  # reused: check afresh
@@ -225,7 +256,7 @@ def minimize(
             continue
         if not objective.exact:  # an approximate matrix must keep earning its keep
             slow = slow + 1 if chol is None or (theta or 0.0) > options.contraction else 0
-            if slow >= SLOW_STEPS and objective.use_exact():
+            if (slow >= SLOW_STEPS or it >= APPROXIMATE_ITERATIONS) and objective.use_exact():
                 exact_from, theta, last_full, slow = it, None, None, 0
                 continue  # recompute the matrix at the same point
         if it >= options.max_iterations:
@@ -290,9 +321,7 @@ def minimize(
         if bar is not None:
             bar.update(1)
             bar.set_postfix_str(f"objective {point.F:.6g}")
-    distance = None
-    if dz_newton is not None:
-        distance = objective.step_size(dz_newton) / (1.0 - min(theta or 0.0, 0.99))
+    distance = _distance(objective, dz_newton, theta if not hessian else None)
     objective.timing["solve"] = objective.timing.get("solve", 0.0) + t_solve
     report = {
         "iterations": it,
@@ -303,7 +332,7 @@ def minimize(
         "objective_history": history,
         "newton_decrement": decrement,
         "contraction": theta,
-        "distance_bound": distance,
+        "distance_bound": None if not np.isfinite(distance) else distance,
         "exact_newton_from": exact_from,
         "newton_steps": newton_steps,
         "evaluations": dict(objective.counts),

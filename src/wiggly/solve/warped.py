@@ -304,6 +304,12 @@ class WarpedObjective:
         self.timing["newton"] += time.perf_counter() - t0
         return gn, full, all_fresh
 
+    @property
+    def size(self) -> float:
+        """The body's size (m): the diagonal of its rest bounding box."""
+        X = self.problem.body.rest_positions("tets")
+        return float(np.linalg.norm(X.max(axis=0) - X.min(axis=0)))
+
     def step_size(self, dz: np.ndarray) -> float:
         """The largest vertex displacement (m, tet mesh) of a change ``dz`` of the node
         values, over all nodes."""
