@@ -25,17 +25,16 @@ solve has converged when
     dec <= tolerance * F + floor   and   d <= distance_tolerance * size,
 
 ``floor = 100 eps *`` (the sum of the magnitudes of F's terms) being F's rounding level (at a
-body at rest F itself rounds to ~0), and the matrix certifies it:
-
-* *exact* (B is the Hessian of F at z, from derivatives computed there): near a minimiser
-  the Newton step is z* - z up to O(|dz|^2), so the motion's node states are within ``d`` of
-  the minimiser's (to second order);
-* *approximate* (B from a coarse mesh, :mod:`wiggly.solve.levels`): the iteration converges
-  linearly, z_{k+1} - z* = (I - B^-1 H)(z_k - z*), with a contraction factor theta measured
-  from successive decrements (theta^2 ~ dec_{k+1}/dec_k); convergence is declared only while
-  theta <= ``contraction``, and ``d`` is widened to ``|dz| / (1 - theta)``.  When theta stays
-  larger, the matrix is indefinite, or the level takes more than ten iterations, the
-  objective switches to its exact matrix.
+body at rest F itself rounds to ~0; a decrement below it ends the solve as well), and the
+last step was a full step (Newton's, or the approximate matrix's) and the iteration
+contracts: with theta measured from successive decrements (theta^2 ~ dec_{k+1}/dec_k),
+theta <= ``contraction``.  For a contraction, ``|z - z*| <= |dz| / (1 - theta)``, so ``d``
+is the largest vertex move of dz divided by ``1 - theta``: the motion's node states are
+within ``d`` of the minimiser's.  With an *exact* matrix (B the Hessian of F at z, from
+derivatives computed there) theta falls quadratically; with an *approximate* one (from a
+coarse mesh, :mod:`wiggly.solve.levels`) the iteration is linear, z_{k+1} - z* = (I - B^-1
+H)(z_k - z*), and when theta stays above ``contraction``, the matrix is indefinite, or the
+level takes more than ten iterations, the objective switches to its exact matrix.
 
 ``converged`` is true only when this rule holds; otherwise a :class:`WarpedSolveWarning`
 gives the decrement reached.  The report's ``distance_bound`` is ``d``.
@@ -182,13 +181,11 @@ def _to_boundary(M: np.ndarray, p: np.ndarray, d: np.ndarray, radius: float) -> 
 
 
 def _distance(objective: Objective, dz: np.ndarray | None, theta: float | None) -> float:
-    """The distance bound (m): the Newton step's largest vertex move, divided by ``1 -
-    theta`` for an iteration contracting by ``theta`` (None: Newton's, quadratic)."""
-    if dz is None:
+    """The distance bound (m): the Newton step's largest vertex move divided by ``1 -
+    theta``, theta the iteration's measured contraction (inf when unknown or >= 1)."""
+    if dz is None or theta is None or theta >= 1.0:
         return np.inf
-    if theta is not None and theta >= 1.0:
-        return np.inf
-    return objective.step_size(dz) / (1.0 - (theta or 0.0))
+    return objective.step_size(dz) / (1.0 - theta)
 
 
 def _factor(ab: np.ndarray) -> BandedCholesky | None:
@@ -240,13 +237,15 @@ def minimize(
         if chol is not None and last_full is not None and last_full > 0:
             theta = float(np.sqrt(decrement / last_full))
         floor = ROUNDING * point.magnitude
-        distance = _distance(objective, dz_newton, theta if not hessian else None)
+        distance = _distance(objective, dz_newton, theta)
         small = decrement <= tol * max(point.F, 0.0) + floor
         close = distance <= options.distance_tolerance * objective.size
-        # an exact model certifies with its Hessian at the point; an approximate one with
-        # the contraction measured over the iterations
-        trusted = hessian if objective.exact else (
-            theta is not None and theta <= options.contraction
+        # the last step was a full step of this iteration and it contracted by theta; an
+        # exact model must also have its derivatives computed at this point
+        trusted = (
+            theta is not None
+            and theta <= options.contraction
+            and (hessian or not objective.exact)
         )
         if small and ((trusted and close) or not certify or decrement <= floor):
             converged, stop = True, "decrement" if decrement > floor else "round-off"
@@ -321,7 +320,7 @@ def minimize(
         if bar is not None:
             bar.update(1)
             bar.set_postfix_str(f"objective {point.F:.6g}")
-    distance = _distance(objective, dz_newton, theta if not hessian else None)
+    distance = _distance(objective, dz_newton, theta)
     objective.timing["solve"] = objective.timing.get("solve", 0.0) + t_solve
     report = {
         "iterations": it,
