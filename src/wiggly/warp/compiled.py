@@ -369,6 +369,80 @@ def hessian(lin, Z, H, J, N, P):
 
 
 @jit
+def _cross3(a0, a1, a2, b0, b1, b2):
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@jit
+def second_tangent(lin, gb, T, J, Q):
+    """``T`` (flat 9x9): column k is ``D^2H(A)[E_k, B]`` (flat 3x3) for the direction
+    ``gb`` = B (analytic; scratch ``J`` (9), ``Q`` (36)).
+
+    ``D^2H[a, b] = [beta]x F + [alpha_a]x [alpha_b]x F + [alpha_a]x R dS_b + [alpha_b]x R dS_a``
+    with ``alpha = J(w) dw``, ``beta = DJ(w)[dw_b] dw_a`` the second derivative of the rotation
+    map, ``F = R (I + S)``."""
+    w0, w1, w2, b, c = lin[0], lin[1], lin[2], lin[3], lin[4]
+    R = lin[5:14]
+    F = lin[14:23]
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    bt, ct = rotation_bc_derivatives(t2)
+    _jacobian_matrix(w0, w1, w2, b, c, J)
+    d0 = 0.5 * (gb[7] - gb[5])  # dw_b
+    d1 = 0.5 * (gb[2] - gb[6])
+    d2 = 0.5 * (gb[3] - gb[1])
+    wd = w0 * d0 + w1 * d1 + w2 * d2
+    a0 = J[0] * d0 + J[1] * d1 + J[2] * d2  # alpha_b
+    a1 = J[3] * d0 + J[4] * d1 + J[5] * d2
+    a2 = J[6] * d0 + J[7] * d1 + J[8] * d2
+    for m in range(3):  # Q[0:9] = [alpha_b]x F ; Q[9:18] = R dS_b ; column m
+        x0, x1, x2 = _cross3(a0, a1, a2, F[m], F[3 + m], F[6 + m])
+        Q[m], Q[3 + m], Q[6 + m] = x0, x1, x2
+        for p in range(3):
+            acc = 0.0
+            for q in range(3):
+                acc += R[3 * p + q] * 0.5 * (gb[3 * q + m] + gb[3 * m + q])
+            Q[9 + 3 * p + m] = acc
+    for k in range(9):
+        ck, sk = _COMPONENT[k], _SIGN[k]
+        i, j = k // 3, k % 3
+        for x in range(9):
+            T[9 * x + k] = 0.0
+        if ck >= 0:
+            x0 = sk if ck == 0 else 0.0  # dw_k = sk e_ck
+            x1 = sk if ck == 1 else 0.0
+            x2 = sk if ck == 2 else 0.0
+            e0 = sk * J[ck]  # alpha_k = J dw_k
+            e1 = sk * J[3 + ck]
+            e2 = sk * J[6 + ck]
+            wx0, wx1, wx2 = _cross3(w0, w1, w2, x0, x1, x2)
+            wwx0, wwx1, wwx2 = _cross3(w0, w1, w2, wx0, wx1, wx2)
+            dx0, dx1, dx2 = _cross3(d0, d1, d2, x0, x1, x2)
+            dwx0, dwx1, dwx2 = _cross3(d0, d1, d2, wx0, wx1, wx2)
+            wdx0, wdx1, wdx2 = _cross3(w0, w1, w2, dx0, dx1, dx2)
+            g0 = 2.0 * bt * wd * wx0 + b * dx0 + 2.0 * ct * wd * wwx0 + c * (dwx0 + wdx0)
+            g1 = 2.0 * bt * wd * wx1 + b * dx1 + 2.0 * ct * wd * wwx1 + c * (dwx1 + wdx1)
+            g2 = 2.0 * bt * wd * wx2 + b * dx2 + 2.0 * ct * wd * wwx2 + c * (dwx2 + wdx2)
+            for m in range(3):
+                # [beta]x F + [alpha_k]x ([alpha_b]x F + R dS_b), column m
+                y0, y1, y2 = _cross3(g0, g1, g2, F[m], F[3 + m], F[6 + m])
+                z0, z1, z2 = _cross3(
+                    e0, e1, e2, Q[m] + Q[9 + m], Q[3 + m] + Q[12 + m], Q[6 + m] + Q[15 + m]
+                )
+                T[9 * m + k] += y0 + z0
+                T[9 * (3 + m) + k] += y1 + z1
+                T[9 * (6 + m) + k] += y2 + z2
+        # [alpha_b]x R dS_k, dS_k = (E_ij + E_ji) / 2: columns j and i
+        for m in range(3):
+            r0 = 0.5 * ((R[i] if m == j else 0.0) + (R[j] if m == i else 0.0))
+            r1 = 0.5 * ((R[3 + i] if m == j else 0.0) + (R[3 + j] if m == i else 0.0))
+            r2 = 0.5 * ((R[6 + i] if m == j else 0.0) + (R[6 + j] if m == i else 0.0))
+            y0, y1, y2 = _cross3(a0, a1, a2, r0, r1, r2)
+            T[9 * m + k] += y0
+            T[9 * (3 + m) + k] += y1
+            T[9 * (6 + m) + k] += y2
+
+
+@jit
 def _frames(c, chunks, f):
     """Frames ``[s0, s1)`` of chunk ``c`` of ``chunks``."""
     return c * f // chunks, (c + 1) * f // chunks
@@ -492,39 +566,28 @@ def jacobians_rhs(U, GB, tets, grads, vol, out):
 
 
 @pjit
-def second_derivatives_rhs(U, V, GB, step, tets, grads, vol, out):
+def second_derivatives_rhs(U, V, GB, tets, grads, vol, out):
     """``out[s, d] += G^T Vol D^2H(G U[s])[GB[d], G V[s]]``: derivative of the tangent map
     in the linearization point, for velocity keyframes ``B DW(u) u'`` (SYSTEM.md §6).
 
-    Per tet the 9x9 matrix ``dA -> d/dA' (dH(A'; G V[s]))[dA]`` is taken by central
-    differences of the analytic tangent with step ``step`` (error ~ step^2), then applied to
-    the r field gradients.  Shapes as in :func:`jacobians_rhs`; ``V`` (f, n, 3).
+    Per tet the 9x9 matrix ``dA -> D^2H(A)[dA, G V[s]]`` (analytic, :func:`second_tangent`)
+    is applied to the r field gradients.  Shapes as in :func:`jacobians_rhs`; ``V`` (f, n, 3).
     """
     f, r, m = U.shape[0], GB.shape[0], tets.shape[0]
-    T2 = np.empty((f, m, 9, 9))
+    T2 = np.empty((f, m, 81))
     for item in prange(f * m):
         s = item // m
         t = item - s * m
         A = np.empty(9)
-        Ah = np.empty(9)
         gv = np.empty(9)
         S = np.empty(9)
         lin = np.empty(_LIN)
-        plus = np.empty(9)
-        minus = np.empty(9)
+        J = np.empty(9)
+        Q = np.empty(36)
         gradient(U[s], tets, grads, t, A)
         gradient(V[s], tets, grads, t, gv)
-        for e in range(9):
-            for x in range(9):
-                Ah[x] = A[x]
-            Ah[e] += step
-            linearize(Ah, S, lin)
-            tangent(lin, gv, S, plus)
-            Ah[e] -= 2.0 * step
-            linearize(Ah, S, lin)
-            tangent(lin, gv, S, minus)
-            for x in range(9):
-                T2[s, t, x, e] = (plus[x] - minus[x]) / (2.0 * step)
+        linearize(A, S, lin)
+        second_tangent(lin, gv, T2[s, t], J, Q)
     for item in prange(f * r):
         s = item // r
         d = item - s * r
@@ -532,10 +595,11 @@ def second_derivatives_rhs(U, V, GB, step, tets, grads, vol, out):
         o = out[s, d]
         for t in range(m):
             g = GB[d, t]
+            T = T2[s, t]
             for x in range(9):
                 acc = 0.0
                 for e in range(9):
-                    acc += T2[s, t, x, e] * g[e]
+                    acc += T[9 * x + e] * g[e]
                 dH[x] = acc
             scatter(dH, vol[t], tets, grads, t, o)
 
@@ -645,6 +709,6 @@ def compile_all() -> None:
     vjp_rhs(U, U.transpose(1, 0, 2).copy(), np.arange(2), tets, grads, vol, out, 1)
     GB = field_gradients(U, tets, grads)
     jacobians_rhs(U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
-    second_derivatives_rhs(U, U, GB, 1e-6, tets, grads, vol, np.zeros((2, 2, 4, 3)))
+    second_derivatives_rhs(U, U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
     C = np.zeros((2, 1, 9))
     curvature_products(U[0], U[0], U[1], U[1], GB, 1e-5, tets, grads, vol, C, C.copy(), True)

@@ -68,8 +68,8 @@ class NumbaKernels:
     def second_derivatives(
         self, U: np.ndarray, V: np.ndarray, GB: np.ndarray, step: float
     ) -> np.ndarray:
-        out = np.zeros((len(U), GB.shape[0], self.n, 3))
-        compiled.second_derivatives_rhs(U, V, GB, step, self.tets, self.grads, self.vol, out)
+        out = np.zeros((len(U), GB.shape[0], self.n, 3))  # analytic: ``step`` is not used
+        compiled.second_derivatives_rhs(U, V, GB, self.tets, self.grads, self.vol, out)
         return out
 
     def curvature(

@@ -25,8 +25,8 @@ from wiggly.warp.map import Warp
 
 __all__ = ["ModalWarp"]
 
-# Central-difference steps (relative to the largest displacement gradient, at least 1):
-# second derivatives of the per-tet map from its analytic first derivative (error ~ step^2 ~
+# Central-difference steps (relative to the largest displacement gradient, at least 1): the
+# numpy kernels' second derivatives from the analytic first derivative (error ~ step^2 ~
 # 4e-11, round-off ~ eps / step ~ 2e-11), and the third derivative from the analytic
 # Hessian (compiled kernels; ~1e-10 each way).
 HESSIAN_STEP = 6e-6
@@ -80,9 +80,10 @@ class ModalWarp:
         return self.warp.solve_fields(rhs, self.basis)
 
     def second_derivatives(self, Q: np.ndarray, Qv: np.ndarray) -> np.ndarray:
-        """``D^2W(Phi q_s)[Phi, Phi q'_s]`` at f states: (f, n, 3, r) (central differences of
-        the analytic tangent, error ~1e-10 relative).  The gauge's mean term of ``DW(u)[v]``
-        is the mean of v, independent of u, so it does not enter."""
+        """``D^2W(Phi q_s)[Phi, Phi q'_s]`` at f states: (f, n, 3, r) (analytic in the compiled
+        kernels, central differences of the analytic tangent in numpy: error ~1e-10).  The
+        gauge's mean term of ``DW(u)[v]`` is the mean of v, independent of u: it does not
+        enter."""
         U, V = self.displacements(Q), self.displacements(Qv)
         step = self._step(U, HESSIAN_STEP)
         rhs = self.warp.kernels.second_derivatives(U, V, self._gradients, step)
