@@ -37,7 +37,6 @@ import trimesh
 sys.path.insert(0, os.path.dirname(__file__))
 from common import table
 from public_meshes import public_meshes
-
 from wiggly.body import Damping, fixed_from_surface, prepare
 from wiggly.keyframes import Keyframe
 from wiggly.mesh import load_model
@@ -207,7 +206,7 @@ def main(argv: list[str] | None = None) -> None:
                     prepared[key] = prepare(model, n_modes=30, damping=DAMPING[scene.damping],
                                             fixed_vertices=fixed, cache_dir=cache)
                 body = prepared[key]
-                keys = [kf for kf in scenes_for(body, False) if kf.name == scene.name][0].keys
+                keys = next(kf for kf in scenes_for(body, False) if kf.name == scene.name).keys
                 size = float(np.linalg.norm(np.ptp(body.rest_positions(), axis=0)))
                 t0 = time.perf_counter()
                 anim = SpacetimeProblem(body, 0.0, scene.end).solve(

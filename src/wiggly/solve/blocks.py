@@ -28,7 +28,7 @@ from wiggly.warp import WarpLevel
 __all__ = ["NewtonBlocks", "NodeDerivatives"]
 
 REUSE_STATE = 0.02
-REUSE_COTANGENT = 0.1
+REUSE_COTANGENT = 0.25
 
 
 @dataclass

@@ -81,7 +81,7 @@ class SolveOptions:
     distance_tolerance: float = 1e-3
     max_iterations: int = 200
     contraction: float = 0.5
-    coarse_tolerance: float = 1e-6
+    coarse_tolerance: float = 1e-5
     two_level: bool = True
     warn: bool = True
 

@@ -1,0 +1,166 @@
+"""From a scene to a body and keyframes: the one path every entry point takes (the CLI,
+the editor session and its refinement process)."""
+
+from __future__ import annotations
+
+import sys
+import time as _time
+from typing import Any
+
+import numpy as np
+
+from wiggly import mesh as meshing
+from wiggly.body import Damping, fixed_from_surface, prepare
+from wiggly.errors import counted
+from wiggly.fem import Material
+from wiggly.keyframes import Keyframe
+from wiggly.limits import MAX_TETS
+from wiggly.mesh import DEFAULT_RESOLUTION, TetBudgetError, check_tet_budget, edge_length_for
+from wiggly.progress import activity
+from wiggly.scene.groups import _resolve, resolve_groups
+from wiggly.scene.spec import RIGID_MODES, Absolute, Offset, Rest, Scene
+from wiggly.scene.validation import _error, _Problems, _show
+
+# ----------------------------------------------------------------------------------------------
+# building and running
+
+
+def _say(message: str, progress: bool) -> None:
+    if progress:
+        print(f"[wiggly] {message}", file=sys.stderr, flush=True)
+
+
+def _load_model(scene: Scene, progress: bool):
+    """Read the mesh; check the groups, the surface and the size of its tet mesh before any
+    computation; then tetrahedralize and embed."""
+
+    f = scene.mesh_file()
+    where = scene.where()
+    loaded = meshing.load_mesh(f)
+    checked = None
+    if isinstance(loaded, meshing.Surface):  # check what we can before tetrahedralizing
+        p = _Problems(where)
+        _resolve(scene, loaded.vertices, loaded.groups, None, None, p)
+        p.raise_if_any()
+        with activity(f"checking {f.name} ({counted(loaded.n_faces, 'triangle')})", progress):
+            checked = meshing.checked_surface(loaded, str(f))
+        _check_surface_for_scene(scene, checked.report, f.name)
+    t = _time.perf_counter()
+    model = meshing.build_model(loaded, str(f), resolution=scene.mesh.resolution,
+                                edge_length=scene.mesh.edge_length, repair=scene.mesh.repair,
+                                progress=progress, checked=checked)
+    _say(f"{counted(model.tets.n_tets, 'tet')}, {counted(model.tets.n_vertices, 'vertex')} "
+         f"({_time.perf_counter() - t:.1f} s)", progress)
+    return model
+
+
+def _check_surface_for_scene(scene: Scene, report, name: str) -> None:
+    """``mesh.repair = false`` against a surface with defects, and the tet count that
+    ``mesh.resolution`` / ``mesh.edge_length`` would make, in the scene's terms."""
+
+    where, m = scene.where(), scene.mesh
+    if m.repair is False and not report.clean:
+        raise _error(where, [
+            f"mesh.repair = false refuses {name}: {'; '.join(report.defects(detailed=True))}. "
+            "Remove repair = false (or set it to true) to let fTetWild fill the solid its "
+            "triangles enclose, or fix the model in a modelling tool"])
+    if m.edge_length is not None:
+        key, value = "mesh.edge_length", _show(m.edge_length)
+    else:
+        key = "mesh.resolution"
+        value = _show(m.resolution) if m.resolution is not None else \
+            f"{DEFAULT_RESOLUTION} (the default)"
+    h = edge_length_for(report.diagonal, m.edge_length, m.resolution, where)
+    try:
+        check_tet_budget(report, h, where, key)
+    except TetBudgetError as err:
+        raise _error(where, [
+            f"{key} = {value} would make about {err.estimate:.2g} tetrahedra of {name}, more "
+            f"than wiggly's limit of {MAX_TETS} (wiggly.limits.MAX_TETS); use resolution <= "
+            f"{err.max_resolution} (or edge_length >= {err.min_edge_length:.3g} m)"]) from None
+
+
+def _check_modes_for_scene(scene: Scene, model, fixed_vertices) -> None:
+    """``simulation.modes`` against the tet mesh: at most its free degrees of freedom, at
+    least its rigid modes (before the modes are computed)."""
+    n = model.tets.n_vertices
+    fixed = np.zeros((0,), np.int64) if fixed_vertices is None else fixed_vertices
+    free = 3 * (n - len(fixed))
+    modes, name = scene.simulation.modes, scene.mesh_file().name
+    if modes > free:
+        held = f", {len(fixed)} of them fixed" if len(fixed) else ""
+        raise _error(scene.where(), [
+            f"simulation.modes = {modes} is more than the {free} degrees of freedom of {name}'s "
+            f"tet mesh ({counted(n, 'vertex')}{held}, 3 each); use at most {free}, or a higher "
+            "mesh.resolution"])
+    rigid = _rigid_mode_count(model.tets.vertices[fixed])
+    if modes < rigid:
+        raise _error(scene.where(), [
+            f"simulation.modes = {modes} is fewer than the {rigid} rigid modes that the fixed "
+            f"groups leave free (they are {'collinear' if len(fixed) > 1 else 'one point'}), "
+            f"which the basis must contain; use at least {rigid + 1}"])
+
+
+def _rigid_mode_count(points: np.ndarray) -> int:
+    """Rigid motions left by holding ``points`` at rest: 6 if none, 3 (rotations) about one
+    point, 1 about a line, 0 otherwise (SYSTEM.md §3)."""
+    if len(points) == 0:
+        return RIGID_MODES
+    spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    size = max(float(np.ptp(points, axis=0).max()), 1e-300)
+    rank = int(np.sum(spread > 1e-9 * size))
+    return {0: 3, 1: 1}.get(rank, 0)
+
+
+def build(scene: Scene, progress: bool = False):
+    """Body and keyframes of a scene: ``(wiggly.Body, list[wiggly.Keyframe])``.
+
+    Reads and tetrahedralizes the mesh, resolves the groups, assembles the FEM and computes
+    the modes (cached on disk).  ``progress`` prints stages and progress bars on stderr.
+    """
+    body, keyframes, _ = _build(scene, progress)
+    return body, keyframes
+
+
+def _build(scene: Scene, progress: bool):
+
+    model = _load_model(scene, progress)
+    groups = resolve_groups(scene, model)
+    fixed = [groups[g] if scene.groups[g].on == "tets" else fixed_from_surface(model, groups[g])
+             for g in scene.simulation.fixed]
+    fixed_vertices = np.unique(np.concatenate(fixed)) if fixed else None
+    _check_modes_for_scene(scene, model, fixed_vertices)
+    m, s = scene.material, scene.simulation
+    body = prepare(model, material=Material(m.young, m.poisson, m.density),
+                   damping=Damping(scene.damping.alpha, scene.damping.beta), gravity=s.gravity,
+                   fixed_vertices=fixed_vertices, n_modes=s.modes, lumped=s.lumped_mass,
+                   progress=progress)
+    return body, keyframes_of(scene, body, groups), groups
+
+
+def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray]) -> list:
+    """The scene's keyframes as :class:`wiggly.Keyframe` objects for ``body``."""
+
+    out = []
+    for kf in scene.keyframes:
+        v, on = groups[kf.group], scene.groups[kf.group].on
+        kw: dict[str, Any] = {"on": on, "name": kf.label}
+        for name in ("stiffness", "c_A", "c_B"):
+            if getattr(kf, name) is not None:
+                kw[name] = getattr(kf, name)
+        vel = None if kf.velocity is None else np.asarray(kf.velocity)
+        pos = kf.position
+        if pos is None:
+            k = Keyframe(kf.time, v, velocity=vel, **kw)
+        elif isinstance(pos, Rest):
+            k = Keyframe.rest(body, kf.time, v, velocity=vel, **kw)
+        elif isinstance(pos, Offset):
+            k = Keyframe.offset(body, kf.time, v, pos.offset, velocity=vel, **kw)
+        elif isinstance(pos, Absolute):
+            k = Keyframe(kf.time, v, position=np.asarray(pos.positions), velocity=vel, **kw)
+        else:
+            k = Keyframe.rigid(body, kf.time, v, rotation=pos.matrix(),
+                               translation=pos.translation, center=pos.center, velocity=vel,
+                               **kw)
+        out.append(k)
+    return out

@@ -1,0 +1,99 @@
+"""Named vertex groups of a scene, resolved against the mesh (box, sphere, nearest points,
+indices, groups stored in the mesh file)."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from wiggly.errors import counted
+from wiggly.scene.schema import _suggest
+from wiggly.scene.spec import (
+    _SELECTOR_KEYS,
+    Absolute,
+    Box,
+    GroupSpec,
+    Indices,
+    Nearest,
+    Scene,
+    Sphere,
+)
+from wiggly.scene.validation import _Problems, _show
+
+# ----------------------------------------------------------------------------------------------
+# groups (checked against the mesh)
+
+
+def _select(name: str, group: GroupSpec, X: np.ndarray, mesh_groups: dict[str, np.ndarray],
+            what: str, p: _Problems) -> np.ndarray | None:
+    """Vertex indices of one group among the rest positions ``X``; None (and a problem)."""
+    sel = group.selector
+    path = f"groups.{name}"
+    n = len(X)
+    if isinstance(sel, Box):
+        lo, hi = np.asarray(sel.min), np.asarray(sel.max)
+        idx = np.flatnonzero(np.all((X >= lo) & (X <= hi), axis=1))
+    elif isinstance(sel, Sphere):
+        idx = np.flatnonzero(np.linalg.norm(X - np.asarray(sel.center), axis=1) <= sel.radius)
+    elif isinstance(sel, Nearest):
+        if sel.count > n:
+            p.add(f"{path}.nearest.count = {sel.count} exceeds the number of vertices of the "
+                  f"{what} ({n})")
+            return None
+
+        _, nn = cKDTree(X).query(np.asarray(sel.points), k=sel.count)
+        idx = np.unique(np.asarray(nn).ravel())
+    elif isinstance(sel, Indices):
+        idx = np.asarray(sel.indices, dtype=np.int64)
+        bad = np.flatnonzero(idx >= n)
+        if bad.size:
+            p.add(f"{path}.indices[{bad[0]}] = {idx[bad[0]]} is out of range: the {what} has "
+                  f"{counted(n, 'vertex')} (indices 0..{n - 1})")
+            return None
+    else:
+        if sel.name not in mesh_groups:
+            have = (f"its groups are: {', '.join(mesh_groups)}" if mesh_groups else
+                    "it has no vertex groups")
+            p.add(f"{path}.from_mesh = {_show(sel.name)}: the {what} has no vertex group of "
+                  f"that name{_suggest(sel.name, mesh_groups)}; {have}")
+            return None
+        idx = np.asarray(mesh_groups[sel.name], dtype=np.int64)
+    if idx.size == 0:
+        lo, hi = X.min(axis=0), X.max(axis=0)
+        p.add(f"{path} ({_SELECTOR_KEYS[type(sel)]}) selects no vertex of the {what}; its "
+              f"bounding box is {_show(lo.round(4).tolist())} .. {_show(hi.round(4).tolist())}")
+        return None
+    return idx
+
+
+def resolve_groups(scene: Scene, model) -> dict[str, np.ndarray]:
+    """Vertex indices of every group: of the user's surface, or of the tet mesh for
+    ``on = "tets"`` (``model`` a :class:`wiggly.Model`).  Raises a
+    :class:`WigglyInputError` listing every group that is invalid for this mesh."""
+    p = _Problems(scene.where())
+    out = _resolve(scene, model.surface.vertices, model.surface.groups, model.tets.vertices,
+                   model.tets.groups, p)
+    p.raise_if_any()
+    return out
+
+
+def _resolve(scene: Scene, surface_X, surface_groups, tet_X, tet_groups,
+             p: _Problems) -> dict[str, np.ndarray]:
+    out = {}
+    for name, g in scene.groups.items():
+        if g.on == "tets":
+            if tet_X is None:
+                continue
+            idx = _select(name, g, tet_X, tet_groups, "tet mesh", p)
+        else:
+            idx = _select(name, g, surface_X, surface_groups, "surface", p)
+        if idx is not None:
+            out[name] = idx
+    for j, kf in enumerate(scene.keyframes):
+        if isinstance(kf.position, Absolute) and kf.group in out:
+            k, rows = len(out[kf.group]), len(kf.position.positions)
+            if rows != k:
+                p.add(f"keyframes[{j}].position.absolute has {counted(rows, 'row')} but "
+                      f"group {kf.group!r} has {counted(k, 'vertex')}; give one [x, y, z] per "
+                      "vertex")
+    return out

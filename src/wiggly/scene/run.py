@@ -1,0 +1,228 @@
+"""Running a scene: outputs checked before the solve, the solve, and every output written
+all or nothing."""
+
+from __future__ import annotations
+
+import time as _time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from wiggly import render
+from wiggly.errors import WigglyInputError, counted
+from wiggly.export import SurfaceAnimation, stage_animation
+from wiggly.files import OutputSet, check_writable
+from wiggly.render import Highlight
+from wiggly.scene.build import _build, _say
+from wiggly.scene.spec import (
+    GEOMETRY_EXTENSIONS,
+    MAX_TARGETS,
+    OUTPUT_EXTENSIONS,
+    PALETTE,
+    PREVIEW_EXTENSIONS,
+    OutputSpec,
+    Scene,
+)
+from wiggly.scene.validation import _error, _show
+from wiggly.solve import solve
+
+
+def _output_paths(scene: Scene, outputs) -> list[Path]:
+    if outputs is None:
+        return [scene.resolve(p) for p in scene.output.paths]
+    return [Path(o).expanduser() for o in outputs]
+
+
+def check_outputs(paths: list[Path], overwrite: bool, where: str = "outputs",
+                  labels: list[str] | None = None) -> None:
+    """Every output has a known extension, none exists unless ``overwrite``, and each can be
+    written: its folder exists or can be created (no path component is a file) and accepts
+    new files.  ``labels`` name the outputs in messages (``output.paths[0] = "a.glb"``);
+    default: the paths.  Raises one :class:`WigglyInputError` listing every problem."""
+
+    problems = []
+    seen = set()
+    labels = labels or [str(p) for p in paths]
+    for path, label in zip(paths, labels, strict=True):
+        ext = path.suffix.lower()
+        if ext not in OUTPUT_EXTENSIONS:
+            problems.append(f"{label}: unsupported output extension "
+                            f"{path.suffix or '(none)'!r}; use one of "
+                            f"{', '.join(OUTPUT_EXTENSIONS)}")
+            continue
+        if path.resolve() in seen:
+            problems.append(f"{label}: {path} is given twice")
+        seen.add(path.resolve())
+        why = check_writable(path)
+        if why is not None:
+            problems.append(f"{label}: {why}")
+        elif path.is_dir():
+            problems.append(f"{label}: {path} is a directory; give a file name")
+        elif not overwrite:
+            existing = path if path.exists() else None
+            if ext == ".obj" and existing is None:
+                first = path.with_name(f"{path.stem}_0000.obj")
+                existing = first if first.exists() else None
+            if existing is not None:
+                problems.append(f"{label}: {existing} exists; pass --overwrite (or overwrite = "
+                                "true in [output]) to replace it")
+    if problems:
+        raise _error(where, problems)
+
+
+def _hex_rgb(color: str) -> tuple[float, float, float]:
+    return tuple(int(color[i:i + 2], 16) / 255 for i in (1, 3, 5))
+
+
+def keyframe_highlights(scene: Scene, body, keyframes, groups: dict[str, np.ndarray]) -> list:
+    """:class:`wiggly.render.Highlight` of every position keyframe (targets drawn at key
+    times), colored by group."""
+
+
+    colors = {name: g.color or PALETTE[i % len(PALETTE)]
+              for i, (name, g) in enumerate(scene.groups.items())}
+    out = []
+    for spec, kf in zip(scene.keyframes, keyframes, strict=True):
+        verts = groups[spec.group]
+        if scene.groups[spec.group].on == "tets":  # nearest surface vertices
+            _, verts = cKDTree(body.surface.vertices).query(body.tets.vertices[verts])
+            verts = np.unique(verts)
+        targets = None
+        if kf.position is not None:  # a few target spheres suffice to show the pose
+            pick = np.unique(np.linspace(0, len(kf.position) - 1, MAX_TARGETS).round())
+            targets = kf.position[pick.astype(np.int64)]
+        out.append(Highlight(np.asarray(verts, np.int64), kf.time, _hex_rgb(colors[spec.group]),
+                             spec.label, targets))
+    return out
+
+
+def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
+        progress: bool = False):
+    """Animate the scene and write every output; return the :class:`wiggly.Animation`.
+
+    ``outputs`` replaces the scene's ``[output] paths`` (relative to the current directory,
+    not the scene's); ``overwrite`` replaces ``[output] overwrite``.  Geometry (.glb .usd*
+    .obj .npz) goes through :func:`wiggly.export.write_animation`, previews (.mp4 .gif) through
+    :func:`wiggly.render.render_video` with the keyframed groups highlighted, .png through
+    :func:`wiggly.render.render_contact_sheet`.  Outputs are checked before anything is
+    computed and written atomically.  ``anim.info["scene"]`` has the written paths and the
+    time spent per stage.
+    """
+
+    overwrite = scene.output.overwrite if overwrite is None else overwrite
+    paths = _output_paths(scene, outputs)
+    labels = ([f"output.paths[{i}] = {_show(p)}" for i, p in enumerate(scene.output.paths)]
+              if outputs is None else [f"-o {o}" for o in outputs])
+    check_outputs(paths, overwrite, scene.where(), labels)
+    _check_gltf_targets(scene, paths)
+    timings: dict[str, float] = {}
+    t = _time.perf_counter()
+    body, keyframes, groups = _build(scene, progress)
+    timings["prepare"] = _time.perf_counter() - t
+    start, end = scene.time_range()
+    _say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
+         f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s", progress)
+    t = _time.perf_counter()
+    anim = solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
+                 preroll=scene.simulation.preroll, progress=progress)
+    timings["solve"] = _time.perf_counter() - t
+    written = write_outputs(scene, anim, paths, overwrite=overwrite, progress=progress,
+                            highlights=keyframe_highlights(scene, body, anim.keyframes, groups),
+                            timings=timings)
+    anim.info["scene"] = {"outputs": written, "seconds": timings, "groups": groups}
+    return anim
+
+
+def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
+    if scene.output.gltf_targets == "modes" and scene.simulation.warp and \
+            any(p.suffix.lower() == ".glb" for p in paths):
+        raise _error(scene.where(), [
+            'output.gltf_targets = "modes" needs a linear shot: a warped motion is no linear '
+            "combination of modes; set simulation.warp = false (or pass --linear), or use "
+            '"frames"'])
+
+
+def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
+                  progress: bool = False, highlights=(), timings: dict | None = None
+                  ) -> list[Path]:
+    """Sample ``anim`` at the scene's fps and write ``paths`` (geometry first), all or
+    nothing: every output goes to a temporary file first and all are moved into place once
+    all are written (:class:`wiggly.files.OutputSet`); on a failure none is replaced."""
+
+    timings = {} if timings is None else timings
+    if not paths:
+        return []
+    _check_gltf_targets(scene, paths)
+    t = _time.perf_counter()
+    times = anim.frame_times(scene.time.fps)
+    _say(f"sampling {counted(len(times), 'frame')} at {scene.time.fps:g} fps", progress)
+    positions = anim.positions(times, dtype=np.float32)
+    surf = anim.body.surface
+    data = SurfaceAnimation(times, positions, surf.faces, surf.uvs, surf.normals,
+                            scene.mesh_file().stem, rest=surf.vertices)
+    targets = scene.output.gltf_targets or "frames"
+    if targets == "modes" and any(p.suffix.lower() == ".glb" for p in paths):
+        basis = anim.body.surface_basis  # (3p, r): positions = rest + basis q(t)
+        data.mode_shapes = basis.T.reshape(anim.body.r, -1, 3)
+        data.modal = anim.modal(times)[0]
+    timings["sample"] = _time.perf_counter() - t
+    written = []
+    with OutputSet() as outputs:
+        for path in sorted(paths, key=lambda q: q.suffix.lower() in PREVIEW_EXTENSIONS):
+            t = _time.perf_counter()
+            ext = path.suffix.lower()
+            _say(f"writing {path}", progress)
+            if ext in GEOMETRY_EXTENSIONS:
+                stage_animation(outputs, path, data, overwrite=overwrite, progress=progress,
+                                frame_start=scene.output.frame_start, gltf_targets=targets)
+            else:
+                if path.exists() and not overwrite:
+                    raise WigglyInputError(f"{path} exists; pass --overwrite (or overwrite = "
+                                           "true in [output]) to replace it")
+                render_preview(outputs.stage(path), times, positions, surf.faces,
+                               highlights=highlights, output=scene.output, title=scene.name,
+                               overwrite=True, progress=progress)
+            timings[f"write {path.name}"] = _time.perf_counter() - t
+            written.append(path)
+    return written
+
+
+def render_preview(path: Path, times, positions, faces, *, highlights=(),
+                   output: OutputSpec | None = None, title: str | None = None,
+                   overwrite: bool = False, progress: bool = False,
+                   fps: float | None = None) -> Path:
+    """An .mp4/.gif video (at ``fps``, default: the frames' rate) or a .png contact sheet of
+    an animated surface."""
+
+    output = output or OutputSpec()
+    camera = output.camera if isinstance(output.camera, str) else tuple(output.camera)
+    if path.suffix.lower() == ".png":
+        tile = (max(16, output.size[0] // 2), max(16, output.size[1] // 2))
+        return render.render_contact_sheet(path, times, positions, faces, n_frames=8, columns=4,
+                                           highlights=highlights, tile_size=tile, camera=camera,
+                                           title=title, progress=progress, overwrite=overwrite)
+    return render.render_video(path, times, positions, faces, highlights=highlights,
+                               fps=fps, size=output.size, camera=camera, title=title,
+                               progress=progress, overwrite=overwrite)
+
+
+def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None = None,
+                   resolution: int | None = None, modes: int | None = None,
+                   frame_start: int | None = None, gltf_targets: str | None = None) -> Scene:
+    """A copy of ``scene`` with some settings replaced (command-line options, tests)."""
+    s = scene
+    if frame_start is not None:
+        s = replace(s, output=replace(s.output, frame_start=int(frame_start)))
+    if gltf_targets is not None:
+        s = replace(s, output=replace(s.output, gltf_targets=gltf_targets))
+    if fps is not None:
+        s = replace(s, time=replace(s.time, fps=float(fps)))
+    if warp is not None:
+        s = replace(s, simulation=replace(s.simulation, warp=warp))
+    if modes is not None:
+        s = replace(s, simulation=replace(s.simulation, modes=int(modes)))
+    if resolution is not None:
+        s = replace(s, mesh=replace(s.mesh, resolution=int(resolution), edge_length=None))
+    return s

@@ -1,0 +1,306 @@
+"""The scene format's description, reading a scene file and checking it completely
+(structure, then the references between keys) before anything is computed."""
+
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import os
+import tomllib
+from pathlib import Path
+
+from wiggly.errors import WigglyInputError
+from wiggly.limits import MAX_DURATION, MAX_FPS, MAX_FRAMES, MAX_MODES, MAX_RESOLUTION
+from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION
+from wiggly.scene.spec import (
+    CAMERAS,
+    FORMAT,
+    GLTF_TARGETS,
+    GROUP_NAME,
+    OUTPUT_EXTENSIONS,
+    RIGID_MODES,
+    Box,
+    DampingSpec,
+    FromMesh,
+    GroupSpec,
+    Indices,
+    KeyframeSpec,
+    MaterialSpec,
+    MeshSpec,
+    Nearest,
+    OutputSpec,
+    Rest,
+    Scene,
+    SimulationSpec,
+    Sphere,
+    TimeSpec,
+)
+from wiggly.scene.validation import (
+    _Array,
+    _Bad,
+    _Bool,
+    _ByType,
+    _Const,
+    _Map,
+    _Number,
+    _PositionTable,
+    _Problems,
+    _show,
+    _String,
+    _Table,
+    _Vector,
+)
+
+# --- the scene format ---------------------------------------------------------------------------
+
+
+def _check_box(d: dict, path: str, p: _Problems) -> None:
+    lo, hi = d["min"], d["max"]
+    bad = [a for a, x, y in zip("xyz", lo, hi, strict=True) if x > y]
+    if bad:
+        raise p.bad(f"{path}.min = {_show(list(lo))} exceeds {path}.max = {_show(list(hi))} "
+                    f"in {', '.join(bad)}; min must be <= max in every coordinate")
+
+
+def _check_time(d: dict, path: str, p: _Problems) -> None:
+    start = d.get("start", 0.0)
+    if "end" in d and d["end"] <= start:
+        raise p.bad(f"{path}.end = {_show(d['end'])} must be after {path}.start = {_show(start)}")
+    if "end" in d and d["end"] - start > MAX_DURATION:
+        raise p.bad(f"{path}.end = {_show(d['end'])} makes a shot of {d['end'] - start:g} s; "
+                    f"shots may last at most {MAX_DURATION:g} s (wiggly.limits.MAX_DURATION)")
+
+
+_POSITIVE = {"gt": 0.0}
+_SELECTOR_SPECS = {
+    "box": _Table({"min": _Vector(3, unit="m"), "max": _Vector(3, unit="m")},
+                  required=("min", "max"), check=_check_box,
+                  make=lambda d: Box(d["min"], d["max"]),
+                  doc="vertices with min <= x <= max in every coordinate"),
+    "sphere": _Table({"center": _Vector(3, unit="m"), "radius": _Number(unit="m", **_POSITIVE)},
+                     required=("center", "radius"),
+                     make=lambda d: Sphere(d["center"], d["radius"]),
+                     doc="vertices with |x - center| <= radius"),
+    "nearest": _Table({"points": _Array(_Vector(3, unit="m"), min_items=1,
+                                        what="an array of [x, y, z] points"),
+                       "count": _Number(integer=True, ge=1, doc="vertices per point (default 1)")},
+                      required=("points",), make=lambda d: Nearest(d["points"],
+                                                                   d.get("count", 1)),
+                      doc="the count nearest vertices to each point"),
+    "indices": _Array(_Number(integer=True, ge=0), min_items=1, unique=True,
+                      what="an array of distinct vertex indices (integers >= 0)",
+                      doc="explicit vertex indices (0-based); absolute targets follow this order"),
+    "from_mesh": _String(doc="name of a vertex group stored in the mesh file"),
+}
+
+
+def _make_group(d: dict) -> GroupSpec:
+    kind = next(k for k in _SELECTOR_SPECS if k in d)
+    sel = d[kind]
+    selector = Indices(sel) if kind == "indices" else FromMesh(sel) if kind == "from_mesh" \
+        else sel
+    return GroupSpec(selector, d.get("on", "surface"), d.get("color"))
+
+
+_GROUP = _Table(
+    {**_SELECTOR_SPECS,
+     "on": _String(enum=("surface", "tets"),
+                   doc='"surface" (default): vertices of the user\'s surface; "tets": '
+                       "vertices of the tet mesh"),
+     "color": _String(pattern=r"^#[0-9a-fA-F]{6}$", what='a color "#rrggbb"',
+                      doc="color in previews and the editor")},
+    one_of=tuple(_SELECTOR_SPECS), make=_make_group,
+    doc="a named vertex group: exactly one selector")
+
+_KEYFRAME = _Table(
+    {"time": _Number(unit="s", doc="key time (s), within the shot's time range"),
+     "group": _String(doc="name of a group"),
+     "position": _ByType({str: _Const("rest", Rest(), _PositionTable.what),
+                          dict: _PositionTable()},
+                         what='"rest" or a table with offset, absolute, or '
+                              "rotation/translation (and optional center)",
+                         doc="position target"),
+     "velocity": _Vector(3, "vx, vy, vz", "m/s", doc="target velocity (m/s) of every vertex"),
+     "stiffness": _Number(ge=0.0, doc="dimensionless weight (default 1e6)"),
+     "c_A": _Number(ge=0.0, doc="explicit position weight of eq. (4)"),
+     "c_B": _Number(ge=0.0, doc="explicit velocity weight of eq. (4)"),
+     "name": _String(min_length=0, what="a string", doc="label")},
+    required=("time", "group"), any_of=("position", "velocity"),
+    make=lambda d: KeyframeSpec(**d), what="a table ([[keyframes]])",
+    doc="constraints on one group at one time")
+
+_OUTPUT_PATTERN = r"\.(" + "|".join(
+    "".join(f"[{c.lower()}{c.upper()}]" if c.isalpha() else c for c in e[1:])
+    for e in OUTPUT_EXTENSIONS) + r")$"
+
+_SCENE = _Table(
+    {"format": _Number(integer=True, ge=1, le=FORMAT, doc="scene format version",
+                       what=f"{FORMAT} (the newest format this version of wiggly reads)"),
+     "mesh": _Table(
+         {"path": _String(doc='mesh file, relative to the scene file, or "builtin:critter", '
+                              '"builtin:plant", "builtin:bar"'),
+          "resolution": _Number(integer=True, ge=1, le=MAX_RESOLUTION,
+                                doc="tet edges along the bounding-box diagonal (default "
+                                    f"{DEFAULT_RESOLUTION})"),
+          "edge_length": _Number(unit="m", **_POSITIVE, doc="target tet edge length (m)"),
+          "repair": _Bool(doc="accept open, non-manifold or self-intersecting surfaces and "
+                              "let fTetWild fill them (default true; false refuses them)")},
+         required=("path",), exclusive=(("resolution", "edge_length"),),
+         make=lambda d: MeshSpec(**d), doc="the model"),
+     "material": _Table(
+         {"young": _Number(unit="Pa", **_POSITIVE, doc="Young's modulus E (Pa)"),
+          "poisson": _Number(ge=0.0, lt=0.5, doc="Poisson ratio"),
+          "density": _Number(unit="kg/m^3", **_POSITIVE, doc="density (kg/m^3)")},
+         make=lambda d: MaterialSpec(**d)),
+     "damping": _Table(
+         {"alpha": _Number(ge=0.0, unit="1/s", doc="mass-proportional damping (1/s)"),
+          "beta": _Number(ge=0.0, unit="s", doc="stiffness-proportional damping (s)")},
+         make=lambda d: DampingSpec(**d), doc="Rayleigh damping D = alpha M + beta K"),
+     "simulation": _Table(
+         {"gravity": _Vector(3, "gx, gy, gz", "m/s^2", doc="gravity (m/s^2)"),
+          "modes": _Number(integer=True, ge=1, le=MAX_MODES,
+                           doc="number of eigenmodes (rigid ones included)"),
+          "warp": _Bool(doc="rotation-strain warping (false: linear)"),
+          "lumped_mass": _Bool(doc="lumped instead of consistent mass matrix"),
+          "fixed": _Array(_String(what="a group name"), unique=True,
+                          what="an array of group names", doc="groups held at rest"),
+          "preroll": _Number(ge=0.0, unit="s",
+                             doc="seconds of rest before the start (default: the duration)")},
+         make=lambda d: SimulationSpec(**d)),
+     "time": _Table(
+         {"start": _Number(unit="s"),
+          "end": _Number(unit="s"),
+          "duration": _Number(unit="s", gt=0.0, le=MAX_DURATION),
+          "fps": _Number(gt=0.0, le=MAX_FPS, doc="frames per second of the outputs")},
+         exclusive=(("end", "duration"),), check=_check_time, make=lambda d: TimeSpec(**d),
+         doc="time range (default: start 0, end at the last keyframe, at least 1 s)"),
+     "groups": _Map(_GROUP, GROUP_NAME,
+                    "group names may contain only letters, digits, '_' and '-'",
+                    doc="named vertex groups"),
+     "keyframes": _Array(_KEYFRAME, as_list=True, what="an array of tables ([[keyframes]])"),
+     "output": _Table(
+         {"paths": _Array(_String(pattern=_OUTPUT_PATTERN,
+                                  what="a file name ending in "
+                                       + ", ".join(OUTPUT_EXTENSIONS)),
+                          unique=True, doc="output files, by extension"),
+          "overwrite": _Bool(doc="replace existing outputs"),
+          "size": _Vector(2, item=_Number(integer=True, ge=16, le=8192),
+                          what="[width, height] in pixels (integers from 16 to 8192)",
+                          doc="video size in pixels (default [960, 540])"),
+          "camera": _ByType({str: _String(enum=CAMERAS),
+                             list: _Vector(2, "azimuth, elevation", "degrees")},
+                            what=" or ".join(json.dumps(c) for c in CAMERAS)
+                            + " or [azimuth, elevation] in degrees",
+                            doc="preview camera"),
+          "frame_start": _Number(integer=True, ge=-1_000_000, le=1_000_000,
+                                 doc="glTF/USD frame of the first output frame: frame k lands "
+                                     "on frame_start + k at the output fps (default: the "
+                                     "shot's own time, t * fps)"),
+          "gltf_targets": _String(enum=GLTF_TARGETS,
+                                  doc='glTF morph targets: "frames" (one per frame, default) '
+                                      'or "modes" (one per mode, weights q(t); linear shots '
+                                      "only: exact and compact)")},
+         make=lambda d: OutputSpec(**d)),
+     },
+    required=("mesh",), make=lambda d: Scene(**d), what="a TOML document")
+
+def scene_schema() -> dict:
+    """The JSON Schema (draft 2020-12) of scene files, generated from the validator's specs.
+
+    It checks the structure (keys, types, ranges); references between keys (a keyframe's
+    group exists, its time lies in the shot) and checks against the mesh are the validator's.
+    """
+    s = _SCENE.schema()
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema",
+            "title": "wiggly scene",
+            "description": "A wiggly scene file (TOML), format 1: see docs/scene-format.md.",
+            **s}
+
+
+# ----------------------------------------------------------------------------------------------
+# reading and checking
+
+
+def load_scene(path: str | os.PathLike[str]) -> Scene:
+    """Read and check a scene file; every problem raises one :class:`WigglyInputError` that
+    lists all problems found (file, key path, value, what is allowed)."""
+    path = Path(path)
+    if not path.is_file():
+        raise WigglyInputError(f"{path}: no such scene file" if not path.exists()
+                               else f"{path}: is not a file")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as err:
+        raise WigglyInputError(f"{path}: not a text file (UTF-8): {err}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise WigglyInputError(f"{path}: not valid TOML: {err}") from None
+    return scene_from_dict(data, where=str(path), source=path.resolve())
+
+
+def scene_from_dict(data: dict, where: str = "scene", source: Path | None = None) -> Scene:
+    """Check a parsed scene (the TOML as dicts and lists) and build the :class:`Scene`;
+    ``source`` is the file it came from (relative paths resolve against its directory and the
+    mesh file must exist)."""
+    p = _Problems(where)
+    try:
+        scene = _SCENE.parse(data, "", p)
+    except _Bad:
+        p.raise_if_any()
+        raise
+    scene.source = source
+    _cross_check(scene, p)
+    if source is not None:
+        _check_files(scene, p)
+    p.raise_if_any()
+    return scene
+
+
+def _suggest(name: str, names) -> str:
+    close = difflib.get_close_matches(name, list(names), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _cross_check(scene: Scene, p: _Problems) -> None:
+    """Checks between keys: group names, key times in the shot's time range."""
+    names = list(scene.groups)
+    listing = ", ".join(names) if names else "none are defined ([groups.<name>])"
+    for j, kf in enumerate(scene.keyframes):
+        if kf.group not in scene.groups:
+            p.add(f"keyframes[{j}].group = {_show(kf.group)} is not a group"
+                  f"{_suggest(kf.group, names)}; groups are: {listing}")
+    for j, g in enumerate(scene.simulation.fixed):
+        if g not in scene.groups:
+            p.add(f"simulation.fixed[{j}] = {_show(g)} is not a group{_suggest(g, names)}; "
+                  f"groups are: {listing}")
+    t0, t1 = scene.time_range()
+    for j, kf in enumerate(scene.keyframes):
+        if not t0 - 1e-9 <= kf.time <= t1 + 1e-9:
+            p.add(f"keyframes[{j}].time = {_show(kf.time)} is outside the shot's time range "
+                  f"[{t0}, {t1}] s")
+    if scene.mesh.path.startswith("builtin:") and \
+            scene.mesh.path.removeprefix("builtin:") not in BUILTIN_MODELS:
+        p.add(f"mesh.path = {_show(scene.mesh.path)} is not a bundled model; use one of "
+              + ", ".join(f'"builtin:{m}"' for m in BUILTIN_MODELS))
+    if t1 - t0 > MAX_DURATION and scene.time.end is None and scene.time.duration is None:
+        p.add(f"the shot runs from {t0:g} s to the last keyframe at {t1:g} s, longer than "
+              f"{MAX_DURATION:g} s (wiggly.limits.MAX_DURATION); check the keyframe times")
+    frames = math.floor((t1 - t0) * scene.time.fps + 1e-9) + 1
+    if frames > MAX_FRAMES and t1 - t0 <= MAX_DURATION:
+        p.add(f"time.fps = {_show(scene.time.fps)} makes {frames} frames of a {t1 - t0:g} s "
+              f"shot, more than {MAX_FRAMES} (wiggly.limits.MAX_FRAMES); use fps <= "
+              f"{math.floor((MAX_FRAMES - 1) / (t1 - t0)):g}")
+    if not scene.simulation.fixed and scene.simulation.modes < RIGID_MODES:
+        p.add(f"simulation.modes = {scene.simulation.modes} is fewer than the {RIGID_MODES} "
+              "rigid modes of a free body (simulation.fixed holds no group), which the basis "
+              f"must contain; use at least {RIGID_MODES + 1} ({RIGID_MODES} rigid and the "
+              "elastic ones; the default is 40), or hold a group fixed")
+
+
+def _check_files(scene: Scene, p: _Problems) -> None:
+    if scene.mesh.path.startswith("builtin:"):
+        return
+    f = scene.mesh_file()
+    if not f.is_file():
+        p.add(f"mesh.path = {_show(scene.mesh.path)}: "
+              f"{'is a directory' if f.is_dir() else 'no such file'} ({f})")

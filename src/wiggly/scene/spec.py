@@ -1,0 +1,322 @@
+"""The scene as dataclasses: one shot, its field names the TOML keys of
+``docs/scene-format.md``."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from wiggly.errors import WigglyInputError
+from wiggly.mesh import resolve_builtin
+
+#: Scene format version written by :func:`save_scene` and the newest one read.
+FORMAT = 1
+GEOMETRY_EXTENSIONS = (".glb", ".usd", ".usda", ".usdc", ".obj", ".npz")
+PREVIEW_EXTENSIONS = (".mp4", ".gif", ".png")
+OUTPUT_EXTENSIONS = GEOMETRY_EXTENSIONS + PREVIEW_EXTENSIONS
+CAMERAS = ("three_quarter", "front", "side", "back", "top")
+GLTF_TARGETS = ("frames", "modes")
+#: Highlight colors of keyframed groups without a ``color`` (matplotlib's tab10).
+PALETTE = ("#ff7f0e", "#1f77b4", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+           "#17becf", "#bcbd22", "#7f7f7f")
+GROUP_NAME = r"^[A-Za-z0-9_-]+$"
+#: Rigid modes of a free body (3 translations, 3 rotations, SYSTEM.md §3).
+RIGID_MODES = 6
+#: Target positions drawn per keyframe in previews (a subset of large groups).
+MAX_TARGETS = 60
+
+Vec3 = tuple[float, float, float]
+
+
+# ----------------------------------------------------------------------------------------------
+# the scene as dataclasses (field names are the TOML keys)
+
+
+def _floats(v, n: int | None = None) -> tuple:
+    """A tuple of floats (vectors are tuples so that scenes compare with ==)."""
+    out = tuple(float(x) for x in v)
+    if n is not None and len(out) != n:
+        raise WigglyInputError(f"expected {n} numbers, got {len(out)}: {list(v)!r}")
+    return out
+
+
+def _set(obj, name: str, value) -> None:
+    object.__setattr__(obj, name, value)
+
+
+@dataclass(frozen=True)
+class MeshSpec:
+    """``[mesh]``: the model file and how to tetrahedralize it."""
+
+    path: str
+    resolution: int | None = None
+    edge_length: float | None = None
+    repair: bool | None = None  # None: true (accept imperfect surfaces, with a warning)
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    """``[material]``: Young's modulus (Pa), Poisson ratio, density (kg/m^3)."""
+
+    young: float = 2e5
+    poisson: float = 0.45
+    density: float = 1000.0
+
+
+@dataclass(frozen=True)
+class DampingSpec:
+    """``[damping]``: Rayleigh damping D = alpha M + beta K."""
+
+    alpha: float = 0.5
+    beta: float = 0.002
+
+
+@dataclass(frozen=True)
+class SimulationSpec:
+    """``[simulation]``: gravity, number of modes, warping, fixed groups, pre-roll."""
+
+    gravity: Vec3 = (0.0, -9.81, 0.0)
+    modes: int = 40
+    warp: bool = True
+    lumped_mass: bool = False
+    fixed: tuple[str, ...] = ()
+    preroll: float | None = None
+
+    def __post_init__(self) -> None:
+        _set(self, "gravity", _floats(self.gravity, 3))
+        _set(self, "fixed", tuple(self.fixed))
+
+
+@dataclass(frozen=True)
+class TimeSpec:
+    """``[time]``: the shot's range (``end`` or ``duration``) and the output frame rate."""
+
+    start: float = 0.0
+    end: float | None = None
+    duration: float | None = None
+    fps: float = 30.0
+
+
+@dataclass(frozen=True)
+class Box:
+    """Vertices with ``min <= x <= max`` (component-wise, inclusive)."""
+
+    min: Vec3
+    max: Vec3
+
+    def __post_init__(self) -> None:
+        _set(self, "min", _floats(self.min, 3))
+        _set(self, "max", _floats(self.max, 3))
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """Vertices with ``|x - center| <= radius``."""
+
+    center: Vec3
+    radius: float
+
+    def __post_init__(self) -> None:
+        _set(self, "center", _floats(self.center, 3))
+
+
+@dataclass(frozen=True)
+class Nearest:
+    """The ``count`` vertices nearest to each of ``points`` (their union)."""
+
+    points: tuple[Vec3, ...]
+    count: int = 1
+
+    def __post_init__(self) -> None:
+        _set(self, "points", tuple(_floats(p, 3) for p in self.points))
+
+
+@dataclass(frozen=True)
+class Indices:
+    """Explicit vertex indices, in this order (absolute targets follow it)."""
+
+    indices: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        _set(self, "indices", tuple(int(i) for i in self.indices))
+
+
+@dataclass(frozen=True)
+class FromMesh:
+    """A named vertex group stored in the mesh file."""
+
+    name: str
+
+
+Selector = Box | Sphere | Nearest | Indices | FromMesh
+_SELECTOR_KEYS = {Box: "box", Sphere: "sphere", Nearest: "nearest", Indices: "indices",
+                  FromMesh: "from_mesh"}
+
+
+@dataclass(frozen=True)
+class GroupSpec:
+    """``[groups.<name>]``: one selector; ``on`` = "surface" (default) or "tets"."""
+
+    selector: Selector
+    on: str = "surface"
+    color: str | None = None
+
+
+@dataclass(frozen=True)
+class Rest:
+    """``position = "rest"``."""
+
+
+@dataclass(frozen=True)
+class Offset:
+    """``position = { offset = [dx, dy, dz] }``: rest + offset."""
+
+    offset: Vec3
+
+    def __post_init__(self) -> None:
+        _set(self, "offset", _floats(self.offset, 3))
+
+
+@dataclass(frozen=True)
+class Absolute:
+    """``position = { absolute = [[x, y, z], ...] }``: one row per group vertex."""
+
+    positions: tuple[Vec3, ...]
+
+    def __post_init__(self) -> None:
+        _set(self, "positions", tuple(_floats(p, 3) for p in self.positions))
+
+
+@dataclass(frozen=True)
+class Rigid:
+    """Rest vertices rotated (Euler XYZ, degrees) about ``center`` (default: centroid), then
+    translated."""
+
+    rotation: Vec3 = (0.0, 0.0, 0.0)
+    translation: Vec3 = (0.0, 0.0, 0.0)
+    center: Vec3 | None = None
+
+    def __post_init__(self) -> None:
+        _set(self, "rotation", _floats(self.rotation, 3))
+        _set(self, "translation", _floats(self.translation, 3))
+        if self.center is not None:
+            _set(self, "center", _floats(self.center, 3))
+
+    def matrix(self) -> np.ndarray:
+        """The rotation matrix: X, then Y, then Z about the fixed axes (degrees)."""
+
+        return Rotation.from_euler("xyz", self.rotation, degrees=True).as_matrix()
+
+
+Position = Rest | Offset | Absolute | Rigid
+
+
+@dataclass(frozen=True)
+class KeyframeSpec:
+    """One ``[[keyframes]]`` entry."""
+
+    time: float
+    group: str
+    position: Position | None = None
+    velocity: Vec3 | None = None
+    stiffness: float | None = None
+    c_A: float | None = None
+    c_B: float | None = None
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if self.velocity is not None:
+            _set(self, "velocity", _floats(self.velocity, 3))
+
+    @property
+    def label(self) -> str:
+        return self.name or self.group
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    """``[output]``: files to write (by extension), overwrite, preview size and camera, and
+    how glTF/USD files carry time (``frame_start``, ``gltf_targets``; None: the defaults)."""
+
+    paths: tuple[str, ...] = ()
+    overwrite: bool = False
+    size: tuple[int, int] = (960, 540)
+    camera: str | tuple[float, float] = "three_quarter"
+    frame_start: int | None = None
+    gltf_targets: str | None = None
+
+    def __post_init__(self) -> None:
+        _set(self, "paths", tuple(self.paths))
+        _set(self, "size", tuple(int(s) for s in self.size))
+        if not isinstance(self.camera, str):
+            _set(self, "camera", _floats(self.camera, 2))
+
+
+@dataclass
+class Scene:
+    """A whole scene file.  ``source`` (the file it was read from; relative paths resolve
+    against its directory) does not take part in comparisons."""
+
+    mesh: MeshSpec
+    material: MaterialSpec = field(default_factory=MaterialSpec)
+    damping: DampingSpec = field(default_factory=DampingSpec)
+    simulation: SimulationSpec = field(default_factory=SimulationSpec)
+    time: TimeSpec = field(default_factory=TimeSpec)
+    groups: dict[str, GroupSpec] = field(default_factory=dict)
+    keyframes: list[KeyframeSpec] = field(default_factory=list)
+    output: OutputSpec = field(default_factory=OutputSpec)
+    format: int = FORMAT
+    source: Path | None = field(default=None, compare=False)
+
+    @property
+    def base_dir(self) -> Path:
+        """Directory that relative paths are relative to (the scene file's, else the cwd)."""
+        return self.source.parent if self.source is not None else Path.cwd()
+
+    @property
+    def name(self) -> str:
+        """The scene file's stem (else the mesh's)."""
+        if self.source is not None:
+            return self.source.stem
+        return Path(self.mesh.path.removeprefix("builtin:")).stem
+
+    def where(self) -> str:
+        """How messages name this scene: its file (relative to the cwd if inside), or "scene"."""
+        if self.source is None:
+            return "scene"
+        try:
+            return str(self.source.relative_to(Path.cwd()))
+        except ValueError:
+            return str(self.source)
+
+    def mesh_file(self) -> Path:
+        """The mesh file (``builtin:<name>`` resolved to the bundled model)."""
+        p = self.mesh.path
+        if p.startswith("builtin:"):
+            return builtin_model(p.removeprefix("builtin:"))
+        return self.resolve(p)
+
+    def resolve(self, path: str | os.PathLike[str]) -> Path:
+        """``path`` relative to the scene file's directory (``~`` expanded)."""
+        p = Path(path).expanduser()
+        return p if p.is_absolute() else self.base_dir / p
+
+    def time_range(self) -> tuple[float, float]:
+        """(start, end) in seconds: ``end``, ``start + duration``, or the last keyframe time
+        (at least ``start + 1``)."""
+        t = self.time
+        if t.end is not None:
+            return t.start, t.end
+        if t.duration is not None:
+            return t.start, t.start + t.duration
+        last = max((k.time for k in self.keyframes), default=t.start)
+        return t.start, max(last, t.start + 1.0)
+
+
+def builtin_model(name: str) -> Path:
+    """Path of a bundled model (``critter``, ``plant``, ``bar``)."""
+    return resolve_builtin(f"builtin:{name}")

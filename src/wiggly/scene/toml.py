@@ -1,0 +1,175 @@
+"""Writing scenes back: a dict of every key that has a value, and TOML text (an exact round
+trip with :func:`wiggly.scene.load_scene`)."""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from wiggly.errors import WigglyInputError
+from wiggly.files import atomic_file
+from wiggly.scene.schema import scene_from_dict
+from wiggly.scene.spec import (
+    _SELECTOR_KEYS,
+    FORMAT,
+    Absolute,
+    Box,
+    GroupSpec,
+    Indices,
+    KeyframeSpec,
+    Nearest,
+    Offset,
+    Rest,
+    Rigid,
+    Scene,
+    Sphere,
+)
+
+# ----------------------------------------------------------------------------------------------
+# writing
+
+
+def scene_to_dict(scene: Scene) -> dict:
+    """The scene as TOML-ready dicts and lists (``None`` values left out)."""
+    d: dict[str, Any] = {"format": scene.format}
+    d["mesh"] = _fields(scene.mesh)
+    d["material"] = _fields(scene.material)
+    d["damping"] = _fields(scene.damping)
+    sim = _fields(scene.simulation)
+    sim["gravity"], sim["fixed"] = list(sim["gravity"]), list(sim["fixed"])
+    d["simulation"] = sim
+    d["time"] = _fields(scene.time)
+    d["groups"] = {name: _group_to_dict(g) for name, g in scene.groups.items()}
+    d["keyframes"] = [_keyframe_to_dict(k) for k in scene.keyframes]
+    out = _fields(scene.output)
+    out["paths"], out["size"] = list(out["paths"]), list(out["size"])
+    if not isinstance(out["camera"], str):
+        out["camera"] = list(out["camera"])
+    d["output"] = out
+    return d
+
+
+def _fields(obj) -> dict:
+    return {f.name: getattr(obj, f.name) for f in fields(obj) if getattr(obj, f.name) is not None}
+
+
+def _group_to_dict(g: GroupSpec) -> dict:
+    sel = g.selector
+    key = _SELECTOR_KEYS[type(sel)]
+    if isinstance(sel, Box):
+        value: Any = {"min": list(sel.min), "max": list(sel.max)}
+    elif isinstance(sel, Sphere):
+        value = {"center": list(sel.center), "radius": sel.radius}
+    elif isinstance(sel, Nearest):
+        value = {"points": [list(x) for x in sel.points], "count": sel.count}
+    elif isinstance(sel, Indices):
+        value = list(sel.indices)
+    else:
+        value = sel.name
+    d = {key: value}
+    if g.on != "surface":
+        d["on"] = g.on
+    if g.color is not None:
+        d["color"] = g.color
+    return d
+
+
+def _keyframe_to_dict(k: KeyframeSpec) -> dict:
+    d: dict[str, Any] = {"time": k.time, "group": k.group}
+    pos = k.position
+    if isinstance(pos, Rest):
+        d["position"] = "rest"
+    elif isinstance(pos, Offset):
+        d["position"] = {"offset": list(pos.offset)}
+    elif isinstance(pos, Absolute):
+        d["position"] = {"absolute": [list(x) for x in pos.positions]}
+    elif isinstance(pos, Rigid):
+        r: dict[str, Any] = {"rotation": list(pos.rotation)}
+        if any(pos.translation):
+            r["translation"] = list(pos.translation)
+        if pos.center is not None:
+            r["center"] = list(pos.center)
+        d["position"] = r
+    for name in ("velocity", "stiffness", "c_A", "c_B"):
+        v = getattr(k, name)
+        if v is not None:
+            d[name] = list(v) if name == "velocity" else v
+    if k.name:
+        d["name"] = k.name
+    return d
+
+
+def _toml_value(v: Any) -> str:
+
+    if isinstance(v, bool | str | int):
+        return tomli_w.dumps({"v": v})[4:-1]
+    if isinstance(v, float):
+        return repr(v)
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _toml_lines(table: dict, header: str) -> list[str]:
+    """``header`` and ``key = value`` lines; long inline tables become sub-tables and long
+    arrays are wrapped one item per line."""
+    lines, subtables = [header] if header else [], []
+    for k, v in table.items():
+        text = f"{k} = {_toml_value(v)}"
+        if len(text) <= 100:
+            lines.append(text)
+        elif isinstance(v, dict):
+            subtables.append((k, v))
+        elif isinstance(v, list):
+            lines.append(f"{k} = [")
+            lines += [f"    {_toml_value(x)}," for x in v]
+            lines.append("]")
+        else:
+            lines.append(text)
+    for k, v in subtables:
+        name = header.strip("[]")
+        lines += ["", *_toml_lines(v, f"[{name}.{k}]")]
+    return lines
+
+
+def scene_to_toml(scene: Scene) -> str:
+    """The scene as TOML text (comments of the original file are not kept)."""
+    d = scene_to_dict(scene)
+    lines = [f"# wiggly scene (format {FORMAT}); see docs/scene-format.md",
+             f"format = {d['format']}"]
+    for section in ("mesh", "material", "damping", "simulation", "time"):
+        lines += ["", *_toml_lines(d[section], f"[{section}]")]
+    for name, g in d["groups"].items():
+        lines += ["", *_toml_lines(g, f"[groups.{name}]")]
+    for k in d["keyframes"]:
+        body = _toml_lines(k, "[keyframes]")
+        lines += ["", "[" + body[0] + "]", *body[1:]]
+    lines += ["", *_toml_lines(d["output"], "[output]")]
+    return "\n".join(lines) + "\n"
+
+
+def save_scene(scene: Scene, path: str | os.PathLike[str], overwrite: bool = False) -> Path:
+    """Check ``scene`` and write it as TOML, atomically; ``load_scene`` gives it back exactly.
+
+    Paths are written as they are in the scene (relative paths are relative to the directory
+    of the file written).  An existing file is an error unless ``overwrite``.
+    """
+    path = Path(path)
+    text = scene_to_toml(scene)
+    again = scene_from_dict(tomllib.loads(text), where=str(path))  # validates, too
+    if again != scene:  # pragma: no cover - a bug in the writer
+        raise AssertionError(f"scene does not survive the TOML round trip: {scene} != {again}")
+    if path.exists() and not overwrite:
+        raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
+    if path.is_dir():
+        raise WigglyInputError(f"{path} is a directory")
+    with atomic_file(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return path
