@@ -13,7 +13,7 @@ Everything is inspectable: ``body.M``, ``body.K``, ``body.modes.eigenvalues``,
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Literal
@@ -73,9 +73,14 @@ class GroupSelection:
         return factorize_spd(sp.csr_matrix(C + mu * sp.identity(C.shape[0], format="csr")))
 
 
-@dataclass(eq=False)
+@dataclass(frozen=True, eq=False)
 class Body:
     """A body ready for animation (mesh + FEM + modes).  Build it with :func:`prepare`.
+
+    A body is immutable.  What it derives (the warp and its levels, the embedded basis, the
+    vertex groups, gravity's modal terms) is computed on first use and kept by the body;
+    :meth:`with_dynamics` gives the same body with other damping or gravity, sharing all of it
+    that does not depend on them.
 
     Attributes
     ----------
@@ -101,9 +106,31 @@ class Body:
     modes: Modes
     lumped: bool = False
     cache_dir: str | os.PathLike[str] | Literal[False] | None = field(default=None, repr=False)
-    _cache: dict = field(default_factory=dict, repr=False)
     # vertex groups seen on the warp levels, kept by value (vertex indices) for every solve
     _groups: Memo = field(default_factory=lambda: Memo(limit=256), repr=False)
+
+    # derived data that does not depend on damping or gravity (shared by with_dynamics)
+    _STATIC = ("mass", "surface_basis", "warp", "fine_level", "coarse_level", "surface_embedding")
+
+    def with_dynamics(
+        self,
+        *,
+        damping: Damping | None = None,
+        gravity: tuple[float, float, float] | np.ndarray | None = None,
+    ) -> Body:
+        """This body with other damping and/or gravity: the same mesh, M, K and modes, and
+        the same warp, coarse level and vertex groups (nothing is recomputed); the per-mode
+        damping ``delta`` and the modal gravity follow the new values.  Returns ``self`` when
+        nothing changes."""
+        damping = self.damping if damping is None else damping
+        g = self.gravity if gravity is None else _checked_gravity(gravity)
+        if damping == self.damping and np.array_equal(g, self.gravity):
+            return self
+        new = replace(self, damping=damping, gravity=g)
+        for name in self._STATIC:
+            if name in self.__dict__:  # cached_property values of this body: its own data
+                new.__dict__[name] = self.__dict__[name]
+        return new
 
     # --- per-mode coefficients of the decoupled energy (SYSTEM.md §4) -------------------
     @property
@@ -319,9 +346,7 @@ def prepare(
         )
     material = material or Material()
     damping = damping or Damping()
-    gravity = np.asarray(gravity, dtype=float).reshape(-1)
-    if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
-        raise WigglyInputError(f"gravity must be 3 finite numbers (m/s^2); got {gravity.tolist()}")
+    gravity = _checked_gravity(gravity)
     V, T = model.tets.vertices, model.tets.tets
     fixed = _check_fixed(fixed_vertices, len(V))
     if progress:
@@ -331,9 +356,17 @@ def prepare(
     modes = compute_modes(
         K, M, n_modes, vertices=V, fixed_vertices=fixed, cache_dir=cache_dir, progress=progress
     )
-    if model.embedding is None:
-        model.embedding = embed(model.surface.vertices, model.tets)
+    if model.embedding is None:  # a new model: the caller's is not changed
+        model = replace(model, embedding=embed(model.surface.vertices, model.tets))
     return Body(model, material, damping, gravity, fixed, M, K, modes, lumped, cache_dir)
+
+
+def _checked_gravity(gravity) -> np.ndarray:
+    g = np.asarray(gravity, dtype=float).reshape(-1)
+    if g.shape != (3,) or not np.all(np.isfinite(g)):
+        raise WigglyInputError(f"gravity must be 3 finite numbers (m/s^2); got {g.tolist()}")
+    g.flags.writeable = False
+    return g
 
 
 def _say(message: str) -> None:

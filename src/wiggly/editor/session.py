@@ -35,7 +35,7 @@ import warnings
 from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import CancelledError, Future, ThreadPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -204,19 +204,11 @@ def _modes_key(scene: Scene) -> tuple:
 
 
 def with_dynamics(body, damping, gravity):
-    """``body`` with other damping/gravity (same M, K, modes: nothing is recomputed; the warp
-    factorization and surface basis are shared)."""
+    """``body`` with the scene's damping and gravity (:meth:`wiggly.body.Body.with_dynamics`:
+    nothing is recomputed)."""
     from wiggly.body import Damping
 
-    damping = Damping(damping.alpha, damping.beta)
-    gravity = np.asarray(gravity, float)
-    if body.damping == damping and np.array_equal(body.gravity, gravity):
-        return body
-    new = replace(body, damping=damping, gravity=gravity, _cache=dict(body._cache))
-    for name in ("warp", "surface_basis", "surface_embedding"):
-        if name in body.__dict__:
-            new.__dict__[name] = body.__dict__[name]
-    return new
+    return body.with_dynamics(damping=Damping(damping.alpha, damping.beta), gravity=gravity)
 
 
 class Physics:

@@ -1,0 +1,56 @@
+"""The prepared body: immutable, and with other dynamics without recomputation."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from wiggly.body import Damping, prepare
+from wiggly.keyframes import Keyframe
+from wiggly.solve import solve
+
+from .conftest import make_body
+
+
+@pytest.fixture(scope="module")
+def body(tmp_path_factory):
+    return make_body(tmp_path_factory, shape=(8, 2, 2), n_modes=12)
+
+
+def test_body_is_immutable(body):
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        body.damping = Damping(1.0, 0.0)
+
+
+def test_with_dynamics_shares_what_does_not_depend_on_them_and_solves_as_prepared(body):
+    """Other damping and gravity: the warp, levels, embedding and groups are the same objects
+    (nothing recomputed), delta and the modal gravity follow, and a solve equals that of a
+    body prepared with those dynamics from scratch."""
+    warp, level = body.warp, body.fine_level
+    group = body.group(level, np.arange(5), "surface")
+    damping, gravity = Damping(2.0, 0.01), (0.0, -3.0, 1.0)
+    other = body.with_dynamics(damping=damping, gravity=gravity)
+    assert other.warp is warp and other.fine_level is level
+    assert other.group(level, np.arange(5), "surface") is group
+    assert other.damping == damping and np.array_equal(other.gravity, gravity)
+    np.testing.assert_allclose(other.delta, 0.5 * (2.0 + 0.01 * body.eigenvalues))
+    fresh = prepare(body.model, material=body.material, damping=damping, gravity=gravity,
+                    n_modes=body.r, cache_dir=False)
+    np.testing.assert_allclose(other.modal_gravity, fresh.modal_gravity, rtol=1e-10,
+                               atol=1e-12 * np.abs(fresh.modal_gravity).max())
+    X = body.rest_positions()
+    tip = np.flatnonzero(X[:, 0] > 0.7)
+    keys = [Keyframe.rest(other, 0.0, np.arange(len(X)), still=True),
+            Keyframe.offset(other, 0.8, tip, (0.0, 0.2, 0.0))]
+    a = solve(other, keys, end=1.2, warp=False)
+    b = solve(fresh, keys, end=1.2, warp=False)
+    np.testing.assert_allclose(a.positions([0.5, 1.0]), b.positions([0.5, 1.0]), atol=1e-9)
+    assert body.with_dynamics(damping=body.damping) is body
+
+
+def test_prepare_leaves_the_callers_model_alone(body):
+    model = dataclasses.replace(body.model, embedding=None)
+    prepared = prepare(model, n_modes=8, cache_dir=False)
+    assert model.embedding is None and prepared.model.embedding is not None
