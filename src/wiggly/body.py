@@ -20,10 +20,10 @@ from typing import Literal
 
 import numpy as np
 import scipy.sparse as sp
-from numpy.typing import ArrayLike
 
+from wiggly.checks import vertex_set
 from wiggly.errors import WigglyInputError, counted
-from wiggly.fem import Material, gravity_term, mass_matrix, stiffness_matrix
+from wiggly.fem import DEFAULT_GRAVITY, Material, gravity_term, mass_matrix, stiffness_matrix
 from wiggly.linalg import SPDSolver, factorize_spd
 from wiggly.memo import Memo, value_key
 from wiggly.mesh import Model, Surface, TetMesh, coarse_mesh, embed, load_model
@@ -31,7 +31,8 @@ from wiggly.modes import Modes, compute_modes
 from wiggly.warp import Warp, WarpLevel, coarse_level, fine_level
 
 Where = Literal["surface", "tets"]
-DEFAULT_GRAVITY = (0.0, -9.81, 0.0)
+# Modes of a body unless asked otherwise (the rigid ones of a free body included).
+DEFAULT_MODES = 40
 # Bodies with more tets get a coarse warp (a coarse mesh of about COARSE_TETS tets) for the
 # Gauss-Newton Jacobians DW Phi and a first solve (see wiggly.warp.transfer).
 COARSE_WARP_ABOVE = 6000
@@ -273,36 +274,6 @@ class Body:
         return B @ (m / w)
 
 
-def vertex_indices(vertices: ArrayLike, n: int, on: str = "surface",
-                   what: str = "selection", allow_empty: bool = False) -> np.ndarray:
-    """Validated int64 vertex indices from an index list or an (n,) boolean mask."""
-    v = np.asarray(vertices)
-    if v.dtype == bool:
-        if v.shape != (n,):
-            raise WigglyInputError(f"{what}: vertex mask has {v.size} entries; the {on} has {n}")
-        v = np.flatnonzero(v)
-    if v.size == 0 and not allow_empty:
-        raise WigglyInputError(f"{what}: selects no vertices")
-    if v.size and not np.issubdtype(v.dtype, np.integer):
-        if not np.all(np.isfinite(v)) or np.any(v != np.round(v)):
-            raise WigglyInputError(f"{what}: vertex indices must be integers; got {v.ravel()[:5]}")
-    v = v.astype(np.int64).ravel()
-    bad = v[(v < 0) | (v >= n)]
-    if bad.size:
-        raise WigglyInputError(
-            f"{what}: vertex index {int(bad[0])} does not exist: the {on} has "
-            f"{counted(n, 'vertex')} "
-            f"(valid indices 0..{n - 1})"
-        )
-    return v
-
-
-def _check_fixed(fixed: ArrayLike | None, n: int) -> np.ndarray:
-    if fixed is None:
-        return np.zeros(0, np.int64)
-    return np.unique(vertex_indices(fixed, n, "tet mesh", "fixed vertices", allow_empty=True))
-
-
 def fixed_from_surface(model: Model, surface_vertices: np.ndarray) -> np.ndarray:
     """Tet vertices carrying the given surface vertices (the corners of their tets)."""
     idx = np.asarray(surface_vertices, np.int64)
@@ -326,7 +297,7 @@ def prepare(
     damping: Damping | None = None,
     gravity: tuple[float, float, float] | np.ndarray = DEFAULT_GRAVITY,
     fixed_vertices: np.ndarray | list[int] | None = None,
-    n_modes: int = 40,
+    n_modes: int = DEFAULT_MODES,
     lumped: bool = False,
     cache_dir: str | os.PathLike[str] | Literal[False] | None = None,
     resolution: int | None = None,
@@ -348,7 +319,7 @@ def prepare(
     damping = damping or Damping()
     gravity = _checked_gravity(gravity)
     V, T = model.tets.vertices, model.tets.tets
-    fixed = _check_fixed(fixed_vertices, len(V))
+    fixed = vertex_set(fixed_vertices, len(V), "fixed vertices")
     if progress:
         _say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")
     M = mass_matrix(V, T, material.density, lumped=lumped)

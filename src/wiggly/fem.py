@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from wiggly.checks import mesh_arrays
 from wiggly.errors import WigglyInputError
 
 __all__ = [
@@ -75,14 +76,14 @@ class Material:
     Parameters
     ----------
     young : float
-        Young's modulus E in Pa, > 0.  Default 1e5 (soft rubber / jelly).
+        Young's modulus E in Pa, > 0.  Default 2e5 (soft rubber / jelly).
     poisson : float
         Poisson's ratio nu in [0, 0.5).  0.5 (incompressible) is excluded: lambda is infinite.
     density : float
         Mass density rho in kg/m^3, > 0.
     """
 
-    young: float = 1e5
+    young: float = 2e5
     poisson: float = 0.45
     density: float = 1000.0
 
@@ -108,26 +109,7 @@ def lame_parameters(young: float, poisson: float) -> tuple[float, float]:
 
 
 def _check_mesh(V: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    V = np.asarray(V)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise WigglyInputError(f"vertices V should have shape (n, 3); shape is {V.shape}")
-    if not np.issubdtype(V.dtype, np.number) or not np.all(np.isfinite(V)):
-        raise WigglyInputError("vertices V should be finite real numbers")
-    V = V.astype(np.float64, copy=False)
-    T = np.asarray(T)
-    if T.ndim != 2 or T.shape[1] != 4:
-        raise WigglyInputError(f"tets T should have shape (m, 4); shape is {T.shape}")
-    if T.size and not np.issubdtype(T.dtype, np.integer):
-        raise WigglyInputError(f"tets T should hold integer vertex indices; dtype is {T.dtype}")
-    T = T.astype(np.int64, copy=False)
-    if T.shape[0] == 0:
-        raise WigglyInputError("tets T is empty; a body needs at least one tetrahedron")
-    if T.min() < 0 or T.max() >= V.shape[0]:
-        raise WigglyInputError(
-            f"tets T index vertices in [{T.min()}, {T.max()}]; allowed range is "
-            f"[0, {V.shape[0] - 1}] for {V.shape[0]} vertices"
-        )
-    return V, T
+    return mesh_arrays(V, T, "tet mesh")
 
 
 def tet_gradients(V: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

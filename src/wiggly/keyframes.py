@@ -25,7 +25,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike
 
-from wiggly.body import Body, Where, vertex_indices
+from wiggly.body import Body, Where
+from wiggly.checks import vertex_indices
 from wiggly.errors import WigglyInputError
 
 DEFAULT_STIFFNESS = 1e6

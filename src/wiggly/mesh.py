@@ -34,7 +34,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from wiggly import mesh_checks
+from wiggly import checks, mesh_checks
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, default_cache_dir
 from wiggly.limits import MAX_RESOLUTION, MAX_TETS
@@ -115,8 +115,8 @@ class TetMesh:
     groups: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.vertices = _as_array(self.vertices, np.float64, 3, "TetMesh.vertices")
-        self.tets = _as_array(self.tets, np.int64, 4, "TetMesh.tets")
+        self.vertices = checks.array(self.vertices, "TetMesh.vertices", 3, np.float64)
+        self.tets = checks.array(self.tets, "TetMesh.tets", 4, np.int64)
         self.groups = _as_groups(self.groups)
 
     @property
@@ -183,13 +183,13 @@ class Surface:
     groups: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.vertices = _as_array(self.vertices, np.float64, 3, "Surface.vertices")
-        self.faces = _as_array(self.faces, np.int64, 3, "Surface.faces")
+        self.vertices = checks.array(self.vertices, "Surface.vertices", 3, np.float64)
+        self.faces = checks.array(self.faces, "Surface.faces", 3, np.int64)
         n = len(self.vertices)
         if self.uvs is not None:
-            self.uvs = _as_array(self.uvs, np.float64, 2, "Surface.uvs", rows=n)
+            self.uvs = checks.array(self.uvs, "Surface.uvs", 2, np.float64, rows=n)
         if self.normals is not None:
-            self.normals = _as_array(self.normals, np.float64, 3, "Surface.normals", rows=n)
+            self.normals = checks.array(self.normals, "Surface.normals", 3, np.float64, rows=n)
         self.groups = _as_groups(self.groups)
 
     @property
@@ -339,10 +339,10 @@ def check_tet_mesh(mesh: TetMesh, source: str = "tet mesh") -> TetMesh:
     n = len(V)
     if len(T) == 0:
         raise WigglyInputError(f"{source}: the mesh has no tetrahedra; at least one is needed.")
-    _check_finite(V, source)
-    _check_indices(T, n, source, "tet")
+    checks.finite_vertices(V, source)
+    checks.indices_in_range(T, n, source, "tet")
     for name, idx in mesh.groups.items():
-        _check_indices(idx[:, None], n, source, f"group {name!r} entry")
+        checks.indices_in_range(idx[:, None], n, source, f"group {name!r} entry")
     vol = _tet_volumes(V, T)
     used = V[np.unique(T)]
     diag = float(np.linalg.norm(used.max(axis=0) - used.min(axis=0)))
@@ -600,7 +600,7 @@ def _meshio_groups(
         if np.isin(data, (0, 1)).all() and data.any():
             groups[name] = np.flatnonzero(data)
     for name, idx in groups.items():
-        _check_indices(idx[:, None], n, source, f"group {name!r} entry")
+        checks.indices_in_range(idx[:, None], n, source, f"group {name!r} entry")
     return groups
 
 
@@ -1114,7 +1114,7 @@ def embed(points: np.ndarray, mesh: TetMesh) -> Embedding:
     -------
     Embedding
     """
-    P = _as_array(points, np.float64, 3, "points")
+    P = checks.array(points, "points", 3, np.float64)
     V, T = mesh.vertices, mesh.tets
     if len(T) == 0:
         raise WigglyInputError("embed: the tet mesh has no tetrahedra.")
@@ -1230,61 +1230,17 @@ def build_model(
 # --------------------------------------------------------------------------- helpers
 
 
-def _as_array(
-    values: np.ndarray, dtype: type, width: int, name: str, rows: int | None = None
-) -> np.ndarray:
-    """``values`` as a C-contiguous ``(rows, width)`` array of ``dtype``, or a clear error."""
-    array = np.asarray(values)
-    if array.ndim != 2 or array.shape[1] != width or (rows is not None and len(array) != rows):
-        want = f"({rows if rows is not None else 'n'}, {width})"
-        raise WigglyInputError(f"{name} should have shape {want}; shape is {array.shape}.")
-    if (
-        np.issubdtype(dtype, np.integer)
-        and array.size
-        and not np.issubdtype(array.dtype, np.integer)
-    ):
-        if not np.array_equal(array, np.round(array)):
-            raise WigglyInputError(
-                f"{name} should hold integer indices; got {array.dtype} values with fractions."
-            )
-    return np.ascontiguousarray(array, dtype=dtype)
-
-
 def _as_groups(groups: dict) -> dict[str, np.ndarray]:
     """Groups as a dict of str to flat int64 index arrays."""
     return {str(k): np.asarray(v, dtype=np.int64).ravel() for k, v in groups.items()}
-
-
-def _check_finite(V: np.ndarray, source: str) -> None:
-    """Raise if any vertex coordinate is NaN or infinite."""
-    bad = np.flatnonzero(~np.isfinite(V).all(axis=1))
-    if len(bad):
-        i = bad[0]
-        raise WigglyInputError(
-            f"{source}: {counted(len(bad), 'vertex')} {'has' if len(bad) == 1 else 'have'} "
-            f"NaN or infinite coordinates, e.g. vertex {i} at "
-            f"{V[i].tolist()}; all coordinates must be finite numbers (metres)."
-        )
-
-
-def _check_indices(cells: np.ndarray, n: int, source: str, what: str) -> None:
-    """Raise if any index in ``cells`` is outside ``0 .. n - 1``."""
-    bad = np.flatnonzero(((cells < 0) | (cells >= n)).any(axis=1))
-    if len(bad):
-        i = bad[0]
-        raise WigglyInputError(
-            f"{source}: {counted(len(bad), what)} {'uses' if len(bad) == 1 else 'use'} vertex "
-            f"indices outside 0..{n - 1}, e.g. {what} {i} with indices {cells[i].tolist()}; the "
-            f"mesh has {counted(n, 'vertex')}."
-        )
 
 
 def _check_surface_arrays(surface: Surface, source: str) -> None:
     """Raise for an empty surface, non-finite coordinates or out-of-range face indices."""
     if surface.n_faces == 0:
         raise WigglyInputError(f"{source}: the surface has no triangles.")
-    _check_finite(surface.vertices, source)
-    _check_indices(surface.faces, surface.n_vertices, source, "face")
+    checks.finite_vertices(surface.vertices, source)
+    checks.indices_in_range(surface.faces, surface.n_vertices, source, "face")
 
 
 def _tet_volumes(V: np.ndarray, T: np.ndarray) -> np.ndarray:

@@ -37,6 +37,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
+from wiggly.checks import vertex_set
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, default_cache_dir
 from wiggly.linalg import blas_single_thread, factorize_spd
@@ -168,29 +169,6 @@ def _as_csr(A: sp.spmatrix | np.ndarray, name: str, size: int) -> sp.csr_matrix:
     if asym > 1e-10 * max(abs(A).max(), np.finfo(float).tiny):
         raise WigglyInputError(f"{name} should be symmetric; max |{name} - {name}^T| = {asym:.3g}")
     return A
-
-
-def _check_fixed(fixed_vertices: np.ndarray | list[int] | None, n: int) -> np.ndarray:
-    if fixed_vertices is None:
-        return np.zeros(0, dtype=np.int64)
-    fixed = np.asarray(fixed_vertices)
-    if fixed.dtype == bool:
-        if fixed.shape != (n,):
-            raise WigglyInputError(
-                f"fixed_vertices as a boolean mask should have shape ({n},); shape is {fixed.shape}"
-            )
-        return np.flatnonzero(fixed).astype(np.int64)
-    fixed = fixed.ravel()
-    if fixed.size and not np.issubdtype(fixed.dtype, np.integer):
-        raise WigglyInputError(
-            f"fixed_vertices should be vertex indices or a boolean mask; dtype is {fixed.dtype}"
-        )
-    fixed = np.unique(fixed.astype(np.int64))
-    if fixed.size and (fixed[0] < 0 or fixed[-1] >= n):
-        raise WigglyInputError(
-            f"fixed_vertices should be in [0, {n - 1}]; got values in [{fixed[0]}, {fixed[-1]}]"
-        )
-    return fixed
 
 
 def _hash_update_csr(h: hashlib._Hash, A: sp.csr_matrix) -> None:
@@ -398,7 +376,7 @@ def compute_modes(
     n = V.shape[0]
     K = _as_csr(K, "K", 3 * n)
     M = _as_csr(M, "M", 3 * n)
-    fixed = _check_fixed(fixed_vertices, n)
+    fixed = vertex_set(fixed_vertices, n, "fixed_vertices")
     if isinstance(r, bool) or not isinstance(r, int | np.integer):
         raise WigglyInputError(f"r (number of modes) should be an integer; got {r!r}")
     r = int(r)

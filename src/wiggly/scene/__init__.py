@@ -21,6 +21,7 @@ Checks that need the mesh (a group selects vertices, absolute targets have one r
 vertex) run right after the mesh is read and before it is tetrahedralized.
 """
 
+from wiggly.export import GLTF_TARGETS
 from wiggly.mesh import BUILTIN_MODELS
 from wiggly.scene.build import build, keyframes_of
 from wiggly.scene.groups import resolve_groups
@@ -37,7 +38,6 @@ from wiggly.scene.spec import (
     CAMERAS,
     FORMAT,
     GEOMETRY_EXTENSIONS,
-    GLTF_TARGETS,
     OUTPUT_EXTENSIONS,
     PALETTE,
     PREVIEW_EXTENSIONS,

@@ -11,12 +11,12 @@ import tomllib
 from pathlib import Path
 
 from wiggly.errors import WigglyInputError
+from wiggly.export import GLTF_TARGETS
 from wiggly.limits import MAX_DURATION, MAX_FPS, MAX_FRAMES, MAX_MODES, MAX_RESOLUTION
 from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION
 from wiggly.scene.spec import (
     CAMERAS,
     FORMAT,
-    GLTF_TARGETS,
     GROUP_NAME,
     OUTPUT_EXTENSIONS,
     RIGID_MODES,

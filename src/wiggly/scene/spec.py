@@ -10,16 +10,20 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from wiggly.body import DEFAULT_MODES, Damping
 from wiggly.errors import WigglyInputError
+from wiggly.export import SUPPORTED
+from wiggly.fem import DEFAULT_GRAVITY, Material
 from wiggly.mesh import resolve_builtin
+from wiggly.render import VIDEO_FORMATS
+from wiggly.solve.animation import DEFAULT_FPS
 
 #: Scene format version written by :func:`save_scene` and the newest one read.
 FORMAT = 1
-GEOMETRY_EXTENSIONS = (".glb", ".usd", ".usda", ".usdc", ".obj", ".npz")
-PREVIEW_EXTENSIONS = (".mp4", ".gif", ".png")
+GEOMETRY_EXTENSIONS = tuple(SUPPORTED)  # wiggly.export writes these
+PREVIEW_EXTENSIONS = (*VIDEO_FORMATS, ".png")  # videos and contact sheets
 OUTPUT_EXTENSIONS = GEOMETRY_EXTENSIONS + PREVIEW_EXTENSIONS
 CAMERAS = ("three_quarter", "front", "side", "back", "top")
-GLTF_TARGETS = ("frames", "modes")
 #: Highlight colors of keyframed groups without a ``color`` (matplotlib's tab10).
 PALETTE = ("#ff7f0e", "#1f77b4", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
            "#17becf", "#bcbd22", "#7f7f7f")
@@ -62,25 +66,25 @@ class MeshSpec:
 class MaterialSpec:
     """``[material]``: Young's modulus (Pa), Poisson ratio, density (kg/m^3)."""
 
-    young: float = 2e5
-    poisson: float = 0.45
-    density: float = 1000.0
+    young: float = Material.young
+    poisson: float = Material.poisson
+    density: float = Material.density
 
 
 @dataclass(frozen=True)
 class DampingSpec:
     """``[damping]``: Rayleigh damping D = alpha M + beta K."""
 
-    alpha: float = 0.5
-    beta: float = 0.002
+    alpha: float = Damping.alpha
+    beta: float = Damping.beta
 
 
 @dataclass(frozen=True)
 class SimulationSpec:
     """``[simulation]``: gravity, number of modes, warping, fixed groups, pre-roll."""
 
-    gravity: Vec3 = (0.0, -9.81, 0.0)
-    modes: int = 40
+    gravity: Vec3 = DEFAULT_GRAVITY
+    modes: int = DEFAULT_MODES
     warp: bool = True
     lumped_mass: bool = False
     fixed: tuple[str, ...] = ()
@@ -98,7 +102,7 @@ class TimeSpec:
     start: float = 0.0
     end: float | None = None
     duration: float | None = None
-    fps: float = 30.0
+    fps: float = DEFAULT_FPS
 
 
 @dataclass(frozen=True)

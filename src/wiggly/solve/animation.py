@@ -22,7 +22,10 @@ from wiggly.splines import WigglyBasis, energy_form, evaluate
 if TYPE_CHECKING:
     from wiggly.solve.levels import WarmStart
 
-__all__ = ["Animation"]
+__all__ = ["DEFAULT_FPS", "Animation"]
+
+# Frames per second of sampled motions unless asked otherwise.
+DEFAULT_FPS = 30.0
 
 
 @dataclass(eq=False)
@@ -64,7 +67,7 @@ class Animation:
     def duration(self) -> float:
         return self.end - self.start
 
-    def frame_times(self, fps: float = 30.0) -> np.ndarray:
+    def frame_times(self, fps: float = DEFAULT_FPS) -> np.ndarray:
         """Frame times start, start + 1/fps, ... up to and including the end (if on the grid)."""
         n = int(np.floor(self.duration * fps + 1e-9)) + 1
         return self.start + np.arange(n) / fps

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from wiggly.checks import vertex_set
 from wiggly.errors import WigglyInputError
 from wiggly.fem import tet_gradients
 from wiggly.linalg import available_backends, factorize_spd
@@ -32,30 +33,6 @@ from wiggly.warp.gauge import Gauge
 from wiggly.warp.kernels import kernels_for
 
 __all__ = ["Warp"]
-
-
-def _fixed_mask(fixed_vertices: np.ndarray | None, n: int) -> np.ndarray:
-    fixed = np.zeros(n, dtype=bool)
-    if fixed_vertices is None:
-        return fixed
-    fv = np.asarray(fixed_vertices)
-    if fv.dtype == bool:
-        if fv.shape != (n,):
-            raise WigglyInputError(
-                f"fixed_vertices mask should have shape ({n},); shape is {fv.shape}"
-            )
-        return fv.copy()
-    if not (np.issubdtype(fv.dtype, np.integer) or fv.size == 0):
-        raise WigglyInputError(
-            f"fixed_vertices should be integer indices or a bool mask; dtype is {fv.dtype}"
-        )
-    fv = fv.astype(np.int64).ravel()
-    if fv.size and (fv.min() < 0 or fv.max() >= n):
-        raise WigglyInputError(
-            f"fixed_vertices should be indices in [0, {n}); range is [{fv.min()}, {fv.max()}]"
-        )
-    fixed[fv] = True
-    return fixed
 
 
 class Warp:
@@ -104,7 +81,8 @@ class Warp:
             if not np.all(np.isfinite(m)):
                 raise WigglyInputError("masses should be finite")
         self.masses = m
-        self.fixed = _fixed_mask(fixed_vertices, n)
+        self.fixed = np.zeros(n, dtype=bool)
+        self.fixed[vertex_set(fixed_vertices, n, "fixed_vertices")] = True
         self.gauge = Gauge(self.laplacian, m, self.fixed)
         free = self.gauge.free
         # many right-hand sides per solve (3 per frame): cholespy's multi-RHS solve is ~3x
