@@ -454,7 +454,8 @@ def _compute_modes(
     if r < n_rigid:
         raise WigglyInputError(
             f"r = {r} is smaller than the number of rigid modes of this body ({n_rigid}); "
-            "the basis must contain all rigid modes (SYSTEM.md §3)"
+            "the basis must contain all rigid modes, or the body could not move freely: use "
+            f"r >= {n_rigid + 1}"
         )
     progress.say(f"{n_rigid} rigid modes; {r - n_rigid} elastic modes to compute ({nf} dofs)")
 

@@ -24,8 +24,6 @@ __all__ = ["main"]
 
 COMMANDS = {"animate": animate, "edit": edit, "modes": modes, "render": render, "demo": demo,
             "schema": schema}
-ISSUES = "https://github.com/wiggly/wiggly/issues"
-
 DESCRIPTION = """\
 Animate elastic 3D objects from sparse keyframes (sparse spacetime constraints,
 Schulz et al. 2014). A scene file (TOML) names the model, its material and the
@@ -93,8 +91,9 @@ def main(argv: list[str] | None = None) -> int:
             return 130
         except Exception:
             traceback.print_exc()
-            print(f"wiggly: internal error (this is a bug); please report it at {ISSUES} with "
-                  "the traceback above and your scene file", file=sys.stderr)
+            print("wiggly: internal error (this is a bug in wiggly, not in your input); please "
+                  "report it to wiggly's maintainers with the traceback above and your scene "
+                  "file", file=sys.stderr)
         return 1
 
 
