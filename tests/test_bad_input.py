@@ -77,8 +77,8 @@ def tripwires(monkeypatch):
 
     monkeypatch.setattr(pytetwild, "tetrahedralize", wire("fTetWild"))
     monkeypatch.setattr(wiggly.body, "compute_modes", wire("eigenmodes"))
-    # (the package's ``wiggly.solve`` is the function; the module is in sys.modules)
-    monkeypatch.setattr(importlib.import_module("wiggly.solve"), "solve", wire("solve"))
+    # the solve where the scene runner calls it
+    monkeypatch.setattr(importlib.import_module("wiggly.scene.run"), "solve", wire("solve"))
 
 
 def snapshot(folder: Path) -> dict[str, str]:

@@ -24,7 +24,7 @@ from wiggly.mesh import (
     load_model,
     tetrahedralize,
 )
-from wiggly.mesh_checks import _self_intersections_vtk
+from wiggly.mesh.defects import _self_intersections_vtk
 
 # --------------------------------------------------------------------------- fixtures
 
@@ -466,7 +466,7 @@ def test_tetrahedralize_rejects_bad_options():
 
 # --------------------------------------------------------------------------- demo models
 
-DATA = Path(wiggly.mesh.__file__).parent / "data"
+DATA = Path(wiggly.__file__).parent / "data"
 
 
 @pytest.mark.parametrize(
@@ -567,7 +567,7 @@ def test_counts_in_messages_agree_in_number():
 
 
 def test_orientation_is_made_consistent_and_outward():
-    from wiggly.mesh_checks import inspect_surface
+    from wiggly.mesh.defects import inspect_surface
 
     V, F = icosphere(2)
     flip = np.random.default_rng(5).random(len(F)) < 0.3
@@ -622,7 +622,7 @@ def test_what_cannot_be_filled_is_refused(case):
 
 def test_tet_count_estimate_bounds_fTetWild_and_inverts():
     from wiggly.limits import MAX_TETS
-    from wiggly.mesh_checks import estimate_tets, max_resolution
+    from wiggly.mesh.defects import estimate_tets, max_resolution
 
     V, F = icosphere(3)
     report = wiggly.mesh.inspect_surface(Surface(V, F))

@@ -562,7 +562,7 @@ def test_keyframe_targets(bar):
 
 
 def test_build_fixes_groups_and_checks_before_tetrahedralizing(tmp_path, monkeypatch):
-    from wiggly import mesh as mesh_module
+    import pytetwild
     from wiggly.scene import build
 
     scene = load_scene(write(tmp_path, BASE))
@@ -572,7 +572,7 @@ def test_build_fixes_groups_and_checks_before_tetrahedralizing(tmp_path, monkeyp
     assert [k.time for k in keys] == [0.0, 0.4, 0.6, 0.8]
 
     calls = []
-    monkeypatch.setattr(mesh_module, "tetrahedralize", lambda *a, **k: calls.append(1))
+    monkeypatch.setattr(pytetwild, "tetrahedralize", lambda *a, **k: calls.append(1))
     bad = mutate("groups.three.indices", [5, 3, 99999])
     with pytest.raises(WigglyInputError, match=r"groups.three.indices\[2\] = 99999"):
         build(load_scene(write(tmp_path, bad)))

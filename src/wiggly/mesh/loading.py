@@ -1,0 +1,361 @@
+"""Reading models: surfaces (OBJ, PLY, STL, OFF, glTF: trimesh) and tet meshes (MSH, VTU,
+MESH, ...: meshio), with their vertex groups; the bundled models."""
+
+from __future__ import annotations
+
+import warnings
+from importlib import resources
+from pathlib import Path
+
+import meshio
+import numpy as np
+
+from wiggly import checks
+from wiggly.errors import WigglyInputError
+from wiggly.mesh.data import (
+    _CELL_DIMENSION,
+    _VOLUME_CELLS,
+    SURFACE_EXTENSIONS,
+    VOLUME_EXTENSIONS,
+    Surface,
+    TetMesh,
+    _check_surface_arrays,
+)
+from wiggly.mesh.validate import check_tet_mesh
+
+# --------------------------------------------------------------------------- loading
+
+
+BUILTIN_MODELS = ("critter", "plant", "bar")
+
+
+def resolve_builtin(path: str | Path) -> Path:
+    """``builtin:<name>`` names a bundled model (critter, plant, bar); other paths pass."""
+    text = str(path)
+    if not text.startswith("builtin:"):
+        return Path(path)
+    name = text.removeprefix("builtin:")
+    if name not in BUILTIN_MODELS:
+        raise WigglyInputError(f"{text} is not a bundled model; use one of "
+                               + ", ".join(f"builtin:{m}" for m in BUILTIN_MODELS))
+    return Path(str(resources.files("wiggly") / "data" / f"{name}.obj"))
+
+
+def load_mesh(path: str | Path) -> TetMesh | Surface:
+    """Read a tetrahedral mesh or a triangle surface from a file.
+
+    Surface formats (``.obj .ply .stl .off .glb .gltf``) are read with
+    trimesh (``process=False``), which keeps the file's vertices, their order
+    and the faces, with these exceptions:
+
+    - STL stores every triangle with its own three corners, so the surface has
+      ``3 * n_faces`` vertices in face order (welded by position in
+      :func:`check_surface` and :func:`tetrahedralize`).
+    - OBJ is read with ``maintain_order=True``: the vertices are the file's
+      ``v`` lines (if the file has texture coordinates, ``v`` lines after the
+      last one used by a face are dropped), faces in file order, polygons
+      split into triangles. Texture coordinates and normals are attached per
+      vertex only when every corner of a vertex has the same ``vt`` (``vn``);
+      at a UV seam (one ``v`` with several ``vt``) ``uvs`` is ``None`` and a
+      warning says so. OBJ groups (``g``, ``o``) and materials are not read.
+    - PLY and OFF: exactly the file's vertices and faces.
+    - glTF stores one UV per vertex, so its vertices are already split at seams.
+      A scene with several meshes is concatenated in node order with each
+      node's scene transform applied; every node's vertices form a group named
+      after the node.
+
+    Other formats (``.msh .vtu .vtk .mesh .xdmf ...``, see
+    :data:`VOLUME_EXTENSIONS`) are read with meshio. A file with ``tetra``
+    cells gives a :class:`TetMesh` (checked by :func:`check_tet_mesh`, so
+    positively oriented); one with only triangles (or quads, split in two)
+    gives a :class:`Surface`. Named vertex sets become ``groups``: meshio point
+    sets; cell sets and gmsh physical groups (the vertices of their cells);
+    point data arrays holding only 0 and 1 (the vertices marked 1).
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+
+    Returns
+    -------
+    TetMesh or Surface
+
+    Raises
+    ------
+    WigglyInputError
+        Missing file, unknown extension, unreadable file, no tetrahedra and no
+        triangles, other volume cells (hexahedra, quadratic tets), NaN or
+        infinite coordinates, indices out of range, degenerate tets.
+    """
+    path = resolve_builtin(path)
+    source = str(path)
+    ext = _extension(path)
+    if not path.is_file():
+        where = "is a directory, not a file" if path.is_dir() else "does not exist"
+        raise WigglyInputError(f"{source}: {where}; give the path of a mesh file.")
+    if ext in SURFACE_EXTENSIONS:
+        surface = _load_trimesh(path, ext)
+        _check_surface_arrays(surface, source)
+        return surface
+    if ext not in VOLUME_EXTENSIONS:
+        raise WigglyInputError(
+            f"{source}: unknown mesh file extension {ext or '(none)'!r}. Supported surfaces: "
+            f"{' '.join(SURFACE_EXTENSIONS)}; tetrahedral meshes: {' '.join(VOLUME_EXTENSIONS)}."
+        )
+    try:
+        raw = meshio.read(path)
+    except Exception as exc:  # meshio raises many types for malformed files
+        raise WigglyInputError(f"{source}: could not read the file with meshio: {exc}") from exc
+    return _from_meshio(raw, source)
+
+
+def _extension(path: Path) -> str:
+    """The longest known extension of ``path`` (``.vol.gz`` before ``.gz``), lower case."""
+    name = path.name.lower()
+    known = [e for e in (*SURFACE_EXTENSIONS, *VOLUME_EXTENSIONS) if name.endswith(e)]
+    return max(known, key=len) if known else path.suffix.lower()
+
+
+def _from_meshio(raw: meshio.Mesh, source: str) -> TetMesh | Surface:
+    """Convert a meshio mesh to a TetMesh (if it has tets) or a Surface."""
+    V = np.asarray(raw.points, dtype=np.float64)
+    if V.ndim != 2 or V.shape[1] not in (2, 3):
+        raise WigglyInputError(f"{source}: points have shape {V.shape}; expected (n, 3).")
+    if V.shape[1] == 2:
+        raise WigglyInputError(
+            f"{source}: the mesh is 2D (points have 2 coordinates); wiggly needs a 3D mesh."
+        )
+    blocks = [(c.type, np.asarray(c.data, dtype=np.int64)) for c in raw.cells]
+    types = sorted({t for t, _ in blocks})
+    other = sorted(set(types) & _VOLUME_CELLS)
+    if other:
+        raise WigglyInputError(
+            f"{source}: contains {', '.join(other)} cells, which wiggly cannot simulate; it needs "
+            "linear tetrahedra ('tetra'). Re-mesh or export with first-order tetrahedra."
+        )
+
+    def cells(kind: str) -> np.ndarray:
+        width = 4 if kind == "tetra" else 3
+        parts = [d for t, d in blocks if t == kind]
+        if kind == "triangle":
+            parts += [q[:, [0, 1, 2, 0, 2, 3]].reshape(-1, 3) for t, q in blocks if t == "quad"]
+        return np.concatenate(parts) if parts else np.empty((0, width), dtype=np.int64)
+
+    groups = _meshio_groups(raw, blocks, len(V), source)
+    T = cells("tetra")
+    if len(T):
+        return check_tet_mesh(TetMesh(V, T, groups), source)
+    F = cells("triangle")
+    if len(F) == 0:
+        raise WigglyInputError(
+            f"{source}: has no tetrahedra and no triangles (cell types: "
+            f"{', '.join(types) or 'none'}); give a tetrahedral mesh or a closed triangle surface."
+        )
+    surface = Surface(V, F, groups=groups)
+    _check_surface_arrays(surface, source)
+    return surface
+
+
+def _meshio_groups(
+    raw: meshio.Mesh, blocks: list[tuple[str, np.ndarray]], n: int, source: str
+) -> dict[str, np.ndarray]:
+    """Named vertex sets of a meshio mesh (see :func:`load_mesh`)."""
+    groups: dict[str, np.ndarray] = {}
+    for name, idx in (raw.point_sets or {}).items():
+        groups[name] = np.unique(np.asarray(idx, dtype=np.int64))
+    for name, per_block in (raw.cell_sets or {}).items():
+        verts = [
+            d[np.asarray(s, dtype=np.int64)].ravel()
+            for (_, d), s in zip(blocks, per_block, strict=False)
+            if s is not None and len(s)
+        ]
+        if verts:
+            groups[name] = np.unique(np.concatenate(verts))
+    physical = raw.cell_data.get("gmsh:physical")
+    if physical is not None:
+        for name, value in (raw.field_data or {}).items():
+            value = np.asarray(value).ravel()
+            if len(value) < 2:
+                continue
+            tag, dim = int(value[0]), int(value[1])
+            verts = [
+                d[np.asarray(p) == tag].ravel()
+                for (t, d), p in zip(blocks, physical, strict=False)
+                if _CELL_DIMENSION.get(t) == dim
+            ]
+            if verts and sum(len(v) for v in verts):
+                groups[name] = np.unique(np.concatenate(verts))
+    for name, data in (raw.point_data or {}).items():
+        data = np.asarray(data)
+        if name.startswith(("gmsh:", "medit:")) or data.shape != (n,) or name in groups:
+            continue
+        if np.isin(data, (0, 1)).all() and data.any():
+            groups[name] = np.flatnonzero(data)
+    for name, idx in groups.items():
+        checks.indices_in_range(idx[:, None], n, source, f"group {name!r} entry")
+    return groups
+
+
+def _load_trimesh(path: Path, ext: str) -> Surface:
+    """Read a surface file with trimesh, keeping the file's vertices (see :func:`load_mesh`)."""
+    import trimesh
+
+    source = str(path)
+    try:
+        if ext == ".obj":
+            return _obj_surface(path)
+        loaded = trimesh.load(path, process=False)
+    except WigglyInputError:
+        raise
+    except Exception as exc:  # trimesh raises many types for malformed files
+        raise WigglyInputError(f"{source}: could not read the file with trimesh: {exc}") from exc
+    if isinstance(loaded, trimesh.Scene):
+        meshes = _scene_meshes(loaded)
+    else:
+        meshes = [("", loaded, _file_normals(loaded))]
+    meshes = [m for m in meshes if isinstance(m[1], trimesh.Trimesh) and len(m[1].faces)]
+    if not meshes:
+        raise WigglyInputError(_NO_TRIANGLES.format(source=source))
+    return _concatenate(meshes)
+
+
+_NO_TRIANGLES = (
+    "{source}: contains no triangles (only points or lines); give a closed triangle surface."
+)
+
+
+def _scene_meshes(scene) -> list[tuple[str, object, np.ndarray | None]]:
+    """``(node name, mesh, file normals)`` of a trimesh scene in node order, transforms applied."""
+    out = []
+    for node in scene.graph.nodes_geometry:
+        transform, geometry = scene.graph[node]
+        mesh = scene.geometry.get(geometry)
+        if mesh is None or not hasattr(mesh, "faces"):
+            continue
+        normals = _file_normals(mesh)
+        moved = mesh.copy()
+        moved.apply_transform(transform)  # also reverses the faces if the transform mirrors
+        if normals is not None:
+            normals = normals @ np.linalg.inv(transform[:3, :3])  # inverse transpose, row vectors
+            normals /= np.linalg.norm(normals, axis=1, keepdims=True).clip(1e-300)
+        out.append((str(node), moved, normals))
+    return out
+
+
+def _file_normals(mesh) -> np.ndarray | None:
+    """Vertex normals a trimesh mesh was loaded with (not ones trimesh would compute)."""
+    cache = getattr(getattr(mesh, "_cache", None), "cache", {})
+    normals = cache.get("vertex_normals")
+    if normals is None or np.shape(normals) != np.shape(mesh.vertices):
+        return None
+    return np.asarray(normals, dtype=np.float64)
+
+
+def _file_uvs(mesh) -> np.ndarray | None:
+    """Per-vertex texture coordinates of a trimesh mesh, if any."""
+    uv = getattr(getattr(mesh, "visual", None), "uv", None)
+    if uv is None or len(uv) != len(mesh.vertices):
+        return None
+    return np.asarray(uv, dtype=np.float64)[:, :2]
+
+
+def _concatenate(meshes: list[tuple[str, object, np.ndarray | None]]) -> Surface:
+    """One Surface from several trimesh meshes; with several, each node becomes a vertex group."""
+    counts = np.array([len(m.vertices) for _, m, _ in meshes])
+    offsets = np.concatenate([[0], np.cumsum(counts)])
+    V = np.concatenate([np.asarray(m.vertices, dtype=np.float64) for _, m, _ in meshes])
+    F = np.concatenate(
+        [
+            np.asarray(m.faces, dtype=np.int64) + o
+            for (_, m, _), o in zip(meshes, offsets[:-1], strict=True)
+        ]
+    )
+    uvs = [_file_uvs(m) for _, m, _ in meshes]
+    normals = [n for _, _, n in meshes]
+    groups = {}
+    if len(meshes) > 1:
+        groups = {
+            name: np.arange(offsets[i], offsets[i + 1]) for i, (name, _, _) in enumerate(meshes)
+        }
+    return Surface(
+        V,
+        F,
+        uvs=None if any(u is None for u in uvs) else np.concatenate(uvs),
+        normals=None if any(n is None for n in normals) else np.concatenate(normals),
+        groups=groups,
+    )
+
+
+def _obj_surface(path: Path) -> Surface:
+    """An OBJ surface with the file's ``v`` order and unambiguous per-vertex UVs and normals.
+
+    trimesh's ordered read keeps the ``v`` lines but then guesses one UV per
+    vertex; a second read that splits vertices at seams gives every face corner
+    its true ``vt`` and ``vn``, which are kept per vertex only where they agree.
+    """
+    ordered = _obj_chunks(path, maintain_order=True)
+    if not ordered:
+        raise WigglyInputError(_NO_TRIANGLES.format(source=path))
+    # with maintain_order every chunk holds a prefix of the file's v lines
+    V = np.asarray(max((c["vertices"] for c in ordered), key=len), dtype=np.float64)
+    F = np.concatenate([np.asarray(c["faces"], dtype=np.int64) for c in ordered])
+    uvs = normals = None
+    if any(_chunk_uv(c) is not None or "vertex_normals" in c for c in ordered):
+        split = _obj_chunks(path, maintain_order=False)
+        corners = np.concatenate([np.asarray(c["vertices"])[c["faces"]] for c in split])
+        if corners.shape == (len(F), 3, 3) and np.allclose(corners, V[F], rtol=0, atol=0):
+            uv = [_chunk_uv(c) for c in split]
+            if all(u is not None for u in uv):
+                uvs = _per_vertex(
+                    np.concatenate([u[c["faces"]] for u, c in zip(uv, split, strict=True)]),
+                    F,
+                    len(V),
+                )
+                if uvs is None:
+                    warnings.warn(
+                        f"{path}: some vertices have several texture coordinates (UV seams); "
+                        "per-vertex UVs cannot represent that, so the surface has no UVs. The "
+                        "vertex order is the file's, so the animation still applies to it.",
+                        stacklevel=4,
+                    )
+            if all("vertex_normals" in c for c in split):
+                corner_normals = [np.asarray(c["vertex_normals"])[c["faces"]] for c in split]
+                normals = _per_vertex(np.concatenate(corner_normals), F, len(V))
+    return Surface(V, F, uvs=uvs, normals=normals)
+
+
+def _obj_chunks(path: Path, maintain_order: bool) -> list[dict]:
+    """trimesh's OBJ reader output: one dict per material chunk, in file order."""
+    from trimesh.exchange.obj import load_obj
+
+    with open(path, "rb") as file:
+        kwargs = load_obj(
+            file, maintain_order=maintain_order, group_material=False, skip_materials=True
+        )
+    # trimesh builds the chunks from the end of the file backwards
+    return list(kwargs.get("geometry", {}).values())[::-1]
+
+
+def _chunk_uv(chunk: dict) -> np.ndarray | None:
+    """Per-vertex texture coordinates of one OBJ chunk, if any."""
+    uv = getattr(chunk.get("visual"), "uv", None)
+    if uv is None or len(uv) != len(chunk["vertices"]):
+        return None
+    return np.asarray(uv, dtype=np.float64)[:, :2]
+
+
+def _per_vertex(corner_values: np.ndarray, F: np.ndarray, n: int) -> np.ndarray | None:
+    """Scatter per-corner values ``(k, 3, d)`` to vertices, or None if a vertex's corners differ."""
+    d = corner_values.shape[-1]
+    flat = corner_values.reshape(-1, d)
+    idx = F.ravel()
+    low = np.full((n, d), np.inf)
+    high = np.full((n, d), -np.inf)
+    np.minimum.at(low, idx, flat)
+    np.maximum.at(high, idx, flat)
+    if (high - low > 1e-12 * (1 + np.abs(flat).max())).any():
+        return None
+    values = np.zeros((n, d))
+    values[idx] = flat
+    return values

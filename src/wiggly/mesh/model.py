@@ -1,0 +1,99 @@
+"""Embedding the user's surface in the tet mesh, and loading a model from a file."""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from wiggly.mesh.data import Embedding, Model, Surface, TetMesh, embed
+from wiggly.mesh.defects import (
+    CheckedSurface,
+)
+from wiggly.mesh.filling import FAR_OUTSIDE, MeshRepairWarning, _tetrahedralize, repair_note
+from wiggly.mesh.loading import load_mesh
+
+
+def load_model(
+    path: str | Path,
+    *,
+    edge_length: float | None = None,
+    resolution: int | None = None,
+    repair: bool | None = True,
+    progress: bool = False,
+    cache_dir: str | os.PathLike[str] | bool | None = None,
+) -> Model:
+    """Load a model, tetrahedralize it if it is a surface and embed the surface.
+
+    :func:`load_mesh`, then :func:`build_model`.
+
+    Parameters
+    ----------
+    path : str or Path
+        Surface or tet mesh file (see :func:`load_mesh`).
+    edge_length, resolution, repair, progress
+        Passed to :func:`tetrahedralize` for a surface; ignored for a tet mesh.
+
+    Returns
+    -------
+    Model
+    """
+    return build_model(load_mesh(path), str(path), edge_length=edge_length,
+                       resolution=resolution, repair=repair, progress=progress,
+                       cache_dir=cache_dir)
+
+
+def build_model(
+    loaded: TetMesh | Surface,
+    source: str,
+    *,
+    edge_length: float | None = None,
+    resolution: int | None = None,
+    repair: bool | None = True,
+    progress: bool = False,
+    cache_dir: str | os.PathLike[str] | bool | None = None,
+    checked: CheckedSurface | None = None,
+) -> Model:
+    """The model of a loaded surface or tet mesh (:func:`load_mesh`).
+
+    For a surface: :func:`tetrahedralize` (with the given options; ``checked`` is the
+    surface's :func:`wiggly.mesh.defects.inspect_surface` if already done) and :func:`embed` of
+    the surface vertices.  One :class:`MeshRepairWarning` says what was unusual: the
+    surface's defects, and surface vertices farther than ``FAR_OUTSIDE`` tet edge lengths
+    outside the tets (parts thinner than the tets).  For a tet mesh: the surface has all the
+    tet mesh vertices (same indices, so groups and keyframes address the same vertices;
+    interior vertices are simply not used by any face) and the mesh's boundary faces; the
+    embedding puts every vertex at a corner of one of its tets (barycentrics ``(1, 0, 0, 0)``
+    up to order), so ``embedding.matrix(n)`` is the identity (vertices used by no tet, if
+    any, are placed by :func:`embed`).
+    """
+    if isinstance(loaded, Surface):
+        tets, report, info = _tetrahedralize(
+            loaded, edge_length=edge_length, resolution=resolution, repair=repair,
+            progress=progress, source=source, cache_dir=cache_dir, checked=checked)
+        embedding = embed(loaded.vertices, tets)
+        outside = embedding.outside_distance(tets)[np.unique(loaded.faces)] / info["edge_length"]
+        far = outside > FAR_OUTSIDE
+        if not report.clean or far.any():
+            warnings.warn(repair_note(source, report, int(far.sum()), float(outside.max())),
+                          MeshRepairWarning, stacklevel=2)
+        return Model(loaded, tets, embedding, source)
+    tets = loaded
+    n, m = tets.n_vertices, tets.n_tets
+    tet_of = np.full(n, -1, dtype=np.int64)
+    corner = np.zeros(n, dtype=np.int64)
+    tet_of[tets.tets.ravel()] = np.repeat(np.arange(m), 4)
+    corner[tets.tets.ravel()] = np.tile(np.arange(4), m)
+    bary = np.zeros((n, 4))
+    bary[np.arange(n), corner] = 1.0
+    embedding = Embedding(tet_of, bary, tets.tets[tet_of.clip(0)])
+    loose = np.flatnonzero(tet_of < 0)
+    if len(loose):
+        extra = embed(tets.vertices[loose], tets)
+        embedding.tet_index[loose] = extra.tet_index
+        embedding.barycentric[loose] = extra.barycentric
+        embedding.vertex_indices[loose] = extra.vertex_indices
+    surface = Surface(tets.vertices, tets.boundary_faces(), groups=dict(tets.groups))
+    return Model(surface, tets, embedding, source)
