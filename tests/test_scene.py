@@ -563,6 +563,7 @@ def test_keyframe_targets(bar):
 
 def test_build_fixes_groups_and_checks_before_tetrahedralizing(tmp_path, monkeypatch):
     import pytetwild
+
     from wiggly.scene import build
 
     scene = load_scene(write(tmp_path, BASE))
