@@ -280,7 +280,7 @@ def test_failed_render_leaves_no_file(offscreen, ball, tmp_path, monkeypatch, na
     (dict(size=(8, 8)), "between 16 and 8192"),
 ])
 def test_bad_input_is_reported(change, message, monkeypatch):
-    monkeypatch.setattr(render, "check_offscreen", lambda: "not needed")
+    monkeypatch.setattr(render.preview, "check_offscreen", lambda: "not needed")
     args = dict(times=[0.0, 0.5, 1.0], positions=np.zeros((3, 4, 3)), faces=np.array([[0, 1, 2]]))
     args.update(change)
     kwargs = {k: v for k, v in args.items() if k not in ("times", "positions", "faces")}

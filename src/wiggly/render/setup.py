@@ -1,0 +1,254 @@
+"""Rendering setup: constants, the headless (offscreen) backend and its probe, and the
+inputs of every renderer checked."""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import re
+import subprocess
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from wiggly.errors import WigglyInputError
+
+if TYPE_CHECKING:
+    pass
+
+
+
+VIDEO_FORMATS = (".mp4", ".gif")
+
+"""Frame rate of a video when ``times`` are not uniformly spaced and no ``fps`` is given."""
+GIF_MAX_FPS = 20.0
+GIF_MAX_SIDE = 480
+"""GIF frames are rendered at ``size`` and downscaled so that the longer side is at most this."""
+MP4_CRF = 18
+"""x264 constant rate factor (visually lossless for previews); smaller is better and bigger."""
+SHEET_GAP = 6
+"""Pixels between and around the tiles of a contact sheet."""
+SHEET_HEADER = 40
+"""Height in pixels of a contact sheet's title band (only when a title is given)."""
+HIGHLIGHT_WINDOW = 0.25
+
+CAMERA_PRESETS = {
+    "three_quarter": (35.0, 22.0),
+    "front": (0.0, 8.0),
+    "side": (90.0, 8.0),
+    "back": (180.0, 8.0),
+    "top": (0.0, 89.0),
+}
+"""Named views: (azimuth, elevation) in degrees.  Azimuth turns from the front (the direction
+``right x up`` where ``right`` is the x axis made orthogonal to ``up``) towards the right."""
+
+BASE_COLOR = (0.64, 0.70, 0.78)
+BACKGROUND_TOP = (0.47, 0.51, 0.57)
+BACKGROUND_BOTTOM = (0.83, 0.84, 0.86)
+GROUND_COLORS = ((0.88, 0.88, 0.89), (0.83, 0.83, 0.84))
+TEXT_COLOR = (0.08, 0.09, 0.11)
+SHADOW_STRENGTH = 0.45
+
+
+class RenderingError(RuntimeError):
+    """Offscreen OpenGL rendering does not work on this machine; the message says how to fix it."""
+
+
+@dataclass
+class Highlight:
+    """A keyframed vertex group, highlighted around its key time.
+
+    Attributes
+    ----------
+    vertices : (g,) int
+        Surface vertex indices of the group.
+    time : float
+        Key time in seconds.
+    color : (3,) float in [0, 1]
+        Highlight color; blended into the vertex colors with weight
+        ``smoothstep(1 - |t - time| / window)`` (1 at the key time, 0 beyond ``window``).
+    label : str
+        Shown in the lower left corner while highlighted.
+    targets : (k, 3) float or None
+        Target positions, drawn as small spheres while highlighted.
+    window : float
+        Half-width of the highlight in seconds.
+    """
+
+    vertices: np.ndarray
+    time: float
+    color: tuple[float, float, float] = (1.0, 0.35, 0.1)
+    label: str = ""
+    targets: np.ndarray | None = None
+    window: float = HIGHLIGHT_WINDOW
+
+    def weight(self, t: float) -> float:
+        """Blend weight of the highlight color at time ``t``: smoothstep, 1 at the key time."""
+        s = min(max(1.0 - abs(t - self.time) / self.window, 0.0), 1.0)
+        return s * s * (3.0 - 2.0 * s)
+
+
+# ----------------------------------------------------------------------------------------------
+# headless setup
+
+
+def _configure_headless() -> None:
+    """Point VTK at EGL on a Linux machine without a display (see the module docstring)."""
+    if (sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
+            and not os.environ.get("WAYLAND_DISPLAY")):
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+
+
+_PROBE = """
+from vtkmodules.vtkCommonCore import vtkUnsignedCharArray
+from vtkmodules.vtkRenderingCore import vtkRenderer, vtkRenderWindow
+import vtkmodules.vtkRenderingOpenGL2  # registers the OpenGL render windows
+window = vtkRenderWindow()
+window.SetOffScreenRendering(1)
+window.SetSize(8, 8)
+renderer = vtkRenderer()
+renderer.SetBackground(1.0, 0.5, 0.0)
+window.AddRenderer(renderer)
+window.Render()
+pixel = vtkUnsignedCharArray()
+window.GetPixelData(0, 0, 0, 0, 0, pixel, 0)
+gl = [s for s in window.ReportCapabilities().splitlines() if "renderer string" in s]
+print(window.GetClassName(), tuple(int(c) for c in pixel.GetTuple3(0)), *gl[:1])
+"""
+
+_FIXES = (
+    "Fix: install Mesa's EGL libraries (Debian/Ubuntu: apt-get install libegl1 libgl1-mesa-dri), "
+    "or OSMesa (apt-get install libosmesa6, then set "
+    "VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow), or run under a virtual X server "
+    "(apt-get install xvfb libgl1 libglx-mesa0 libxcursor1; xvfb-run or pyvista.start_xvfb())."
+)
+
+
+@functools.cache
+def check_offscreen(timeout: float = 60.0) -> str:
+    """Render one pixel offscreen in a subprocess; return a description of the OpenGL backend.
+
+    A subprocess, because VTK crashes the process (segmentation fault) when no OpenGL backend
+    works.  Cached: runs once per process.
+
+    Raises
+    ------
+    RenderingError
+        Rendering fails or gives a wrong pixel; the message lists the fixes.
+    """
+    _configure_headless()
+    try:
+        out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True,
+                             timeout=timeout, env=os.environ.copy())
+    except subprocess.TimeoutExpired as e:
+        raise RenderingError(
+            f"offscreen OpenGL probe did not finish in {timeout} s. {_FIXES}") from e
+    if out.returncode != 0 or "(255, 128, 0)" not in out.stdout:
+        # VTK log lines: "<color codes>date (time) [thread] file:line  WARN| message<reset>"
+        log = [re.sub(r"\x1b\[[0-9;]*m", "", line).split("| ", 1)[-1].strip()
+               for line in out.stderr.splitlines() if line.strip()][-3:]
+        status = (f"crashed with signal {-out.returncode}" if out.returncode < 0 else
+                  f"exit code {out.returncode}, output {out.stdout.strip()!r}")
+        raise RenderingError(
+            f"offscreen OpenGL rendering does not work here (probe {status}; VTK says: "
+            f"{' / '.join(log) or 'nothing'}). {_FIXES}")
+    return out.stdout.strip()
+
+
+# ----------------------------------------------------------------------------------------------
+# input checks
+
+
+def _check_animation(times, positions, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    times = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    positions = np.asarray(positions)
+    if positions.dtype not in (np.float32, np.float64):  # float32 stays: half the memory
+        positions = positions.astype(np.float64)
+    if positions.ndim == 2:
+        positions = positions[None]
+    if positions.ndim != 3 or positions.shape[2] != 3 or positions.shape[1] == 0:
+        raise WigglyInputError(
+            f"positions should have shape (F, n, 3) (or (n, 3) for one frame); shape is "
+            f"{positions.shape}")
+    if times.ndim != 1 or len(times) != positions.shape[0]:
+        raise WigglyInputError(
+            f"times should have shape (F,) with F = {positions.shape[0]} frames of positions; "
+            f"shape is {times.shape}")
+    if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+        raise WigglyInputError("times should be finite and strictly increasing")
+    if not np.all(np.isfinite(positions)):
+        bad = np.flatnonzero(~np.isfinite(positions).all(axis=(1, 2)))
+        raise WigglyInputError(f"positions contain NaN or inf (frames {bad[:5].tolist()})")
+    faces = np.asarray(faces)
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise WigglyInputError(
+            f"faces should have shape (m, 3) (triangles); shape is {faces.shape}")
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise WigglyInputError(f"faces should be integer vertex indices; dtype is {faces.dtype}")
+    n = positions.shape[1]
+    if faces.min() < 0 or faces.max() >= n:
+        raise WigglyInputError(
+            f"faces index vertices {faces.min()}..{faces.max()}, but positions have {n} vertices")
+    return times, positions, faces.astype(np.int64)
+
+
+def _check_highlights(highlights: Sequence[Highlight], n: int) -> list[Highlight]:
+    out = []
+    for i, h in enumerate(highlights):
+        if not isinstance(h, Highlight):
+            raise WigglyInputError(
+                f"highlights[{i}] should be a Highlight; it is {type(h).__name__}")
+        v = np.asarray(h.vertices)
+        if v.ndim != 1 or len(v) == 0 or not np.issubdtype(v.dtype, np.integer):
+            raise WigglyInputError(
+                f"highlight {i} ({h.label!r}): vertices should be a non-empty 1-d integer array; "
+                f"got shape {v.shape}, dtype {v.dtype}")
+        if v.min() < 0 or v.max() >= n:
+            raise WigglyInputError(
+                f"highlight {i} ({h.label!r}): vertex indices {v.min()}..{v.max()} out of range "
+                f"for {n} surface vertices")
+        color = np.asarray(h.color, dtype=np.float64)
+        if color.shape != (3,) or not np.all((color >= 0) & (color <= 1)):
+            raise WigglyInputError(
+                f"highlight {i} ({h.label!r}): color should be 3 floats in [0, 1]; got {h.color}")
+        if not math.isfinite(h.time):
+            raise WigglyInputError(f"highlight {i} ({h.label!r}): time should be finite")
+        if not h.window > 0:
+            raise WigglyInputError(f"highlight {i} ({h.label!r}): window should be > 0 s")
+        targets = None
+        if h.targets is not None:
+            targets = np.asarray(h.targets, dtype=np.float64)
+            if targets.ndim != 2 or targets.shape[1] != 3 or not np.all(np.isfinite(targets)):
+                raise WigglyInputError(
+                    f"highlight {i} ({h.label!r}): targets should be finite with shape (k, 3); "
+                    f"shape is {targets.shape}")
+        out.append(Highlight(v.astype(np.int64), float(h.time), tuple(color.tolist()), h.label,
+                             targets, float(h.window)))
+    return out
+
+
+def _check_size(size, what: str = "size") -> tuple[int, int]:
+    try:
+        w, h = (int(s) for s in size)
+    except (TypeError, ValueError) as e:
+        raise WigglyInputError(f"{what} should be (width, height) in pixels; got {size!r}") from e
+    if w < 16 or h < 16 or w > 8192 or h > 8192:
+        raise WigglyInputError(f"{what} should be between 16 and 8192 pixels per side; got {size}")
+    return w, h
+
+
+def _check_output(path, suffixes: Sequence[str], overwrite: bool) -> Path:
+    path = Path(path)
+    if path.suffix.lower() not in suffixes:
+        raise WigglyInputError(
+            f"{path}: unsupported extension {path.suffix!r}; use one of {', '.join(suffixes)}")
+    if path.exists() and not overwrite:
+        raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
+    if path.is_dir():
+        raise WigglyInputError(f"{path} is a directory")
+    return path
