@@ -20,10 +20,14 @@ from wiggly.errors import WigglyInputError
 from wiggly.export import (
     SUPPORTED,
     SurfaceAnimation,
+    formats,
     read_animation,
     vertex_normals,
     write_animation,
 )
+from wiggly.export import obj as obj_format
+from wiggly.export.animation import FrameNormals, checked_animation
+from wiggly.export.obj import frame_names
 
 GLTF_VALIDATOR = "gltf-validator@2.0.0-dev.3.10"
 EXTENSIONS = sorted(SUPPORTED)
@@ -266,8 +270,8 @@ def test_glb_normals_follow_a_rigid_motion(tmp_path):
 def test_rest_normals_are_transported_by_the_smallest_rotation():
     """Frame normals keep the angle between the rest normal and the recomputed normal, are
     the rest normals at frame 0, and become the recomputed normals when they coincide."""
-    anim = export._checked(sphere_animation(F=5, normals=True), "test")
-    frame_normals = export._FrameNormals(anim)
+    anim = checked_animation(sphere_animation(F=5, normals=True), "test")
+    frame_normals = FrameNormals(anim)
     c0 = vertex_normals(anim.positions[0], anim.faces)
     np.testing.assert_allclose(frame_normals(anim.positions[0]), anim.normals, atol=1e-12)
     for P in anim.positions[1:]:
@@ -275,10 +279,10 @@ def test_rest_normals_are_transported_by_the_smallest_rotation():
         np.testing.assert_allclose(np.linalg.norm(nk, axis=1), 1, atol=1e-12)
         np.testing.assert_allclose(np.einsum("ij,ij->i", nk, ck),
                                    np.einsum("ij,ij->i", anim.normals, c0), atol=1e-9)
-    same = export._checked(SurfaceAnimation(anim.times, anim.positions, anim.faces,
+    same = checked_animation(SurfaceAnimation(anim.times, anim.positions, anim.faces,
                                             normals=c0), "test")
     for P in anim.positions:
-        np.testing.assert_allclose(export._FrameNormals(same)(P),
+        np.testing.assert_allclose(FrameNormals(same)(P),
                                    vertex_normals(P, anim.faces), atol=1e-9)
 
 
@@ -399,7 +403,7 @@ def test_obj_float32_positions_are_exact(tmp_path):
 
 
 def test_obj_frame_numbers_widen_past_9999(tmp_path):
-    names = export._obj_frame_names(tmp_path / "f.obj", 10001)
+    names = frame_names(tmp_path / "f.obj", 10001)
     assert names[0].name == "f_00000.obj" and names[-1].name == "f_10000.obj"
 
 
@@ -444,7 +448,7 @@ def fail_after(original, partial: bool):
 @pytest.mark.parametrize("partial", [True, False], ids=["partial", "complete"])
 def test_failed_write_leaves_nothing(tmp_path, monkeypatch, ext, partial):
     name = {".glb": "_write_glb", ".npz": "_write_npz"}.get(ext, "_write_usd")
-    monkeypatch.setattr(export, name, fail_after(getattr(export, name), partial))
+    monkeypatch.setattr(formats, name, fail_after(getattr(formats, name), partial))
     with pytest.raises(OSError, match="disk full"):
         write_animation(tmp_path / f"a{ext}", sphere_animation(F=3))
     assert listing(tmp_path) == []
@@ -455,7 +459,7 @@ def test_failed_overwrite_keeps_the_old_file(tmp_path, monkeypatch, ext):
     path = write_animation(tmp_path / f"a{ext}", sphere_animation(F=2))
     before = path.read_bytes()
     name = {".glb": "_write_glb", ".npz": "_write_npz"}.get(ext, "_write_usd")
-    monkeypatch.setattr(export, name, fail_after(getattr(export, name), partial=True))
+    monkeypatch.setattr(formats, name, fail_after(getattr(formats, name), partial=True))
     with pytest.raises(OSError):
         write_animation(path, sphere_animation(F=3), overwrite=True)
     assert path.read_bytes() == before and listing(tmp_path) == [path.name]
@@ -470,7 +474,7 @@ def test_failed_obj_sequence_leaves_nothing(tmp_path, monkeypatch):
         written.append(path)
         path.write_bytes(data)
 
-    monkeypatch.setattr(export, "_write_frame_file", write_frame)
+    monkeypatch.setattr(obj_format, "_write_frame_file", write_frame)
     with pytest.raises(OSError, match="disk full"):
         write_animation(tmp_path / "frame.obj", sphere_animation(F=6))
     assert len(written) == 3 and listing(tmp_path) == []

@@ -1,0 +1,134 @@
+"""Writing and reading animations by file extension, all or nothing."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from wiggly.errors import WigglyInputError
+from wiggly.export.animation import (
+    GLTF_TARGETS,
+    SUPPORTED,
+    SurfaceAnimation,
+    _frame_codes,
+    _gltf_times,
+    checked_animation,
+)
+from wiggly.export.gltf import _read_glb, _write_glb
+from wiggly.export.npz import _read_npz, _write_npz
+from wiggly.export.obj import _read_obj_sequence, _stage_obj_sequence
+from wiggly.export.usd import _read_usd, _write_usd
+from wiggly.files import OutputSet
+
+
+def write_animation(
+    path, anim: SurfaceAnimation, *, overwrite: bool = False, progress: bool = False,
+    frame_start: int | None = None, gltf_targets: str = "frames",
+) -> Path:
+    """Write ``anim`` to ``path`` in the format of its extension (:data:`SUPPORTED`).
+
+    Parameters
+    ----------
+    path : str or Path
+        Output file; for ``.obj`` the sequence's base name (``out/frame.obj`` writes
+        ``out/frame_0000.obj``, ...).
+    anim : SurfaceAnimation
+        The animation; its arrays are validated first.
+    overwrite : bool
+        Replace existing output (for OBJ: any existing frame of the sequence).
+    progress : bool
+        Show a tqdm progress bar over frames on stderr (OBJ and USD).
+    frame_start : int, optional
+        glTF and USD: put frame k on frame ``frame_start + k`` at the frames' rate (glTF time
+        ``(frame_start + k) / fps``, USD time code ``frame_start + k``), so that keys land on
+        whole frames from ``frame_start`` on (Blender's scenes start at frame 1).  Needs
+        uniform frame times; glTF needs ``frame_start >= 0``.  None: the frames' own times
+        (module docstring).  The exact times are kept in the file either way.
+    gltf_targets : {"frames", "modes"}
+        glTF morph targets: one per frame, or one per mode with the modal coordinates as
+        weights (exact for a linear motion; needs ``anim.rest``, ``mode_shapes``, ``modal``).
+
+    Returns
+    -------
+    Path
+        ``path`` (for OBJ the base name, as given).
+
+    Raises
+    ------
+    WigglyInputError
+        Unknown extension, existing output without ``overwrite``, or invalid arrays.
+    """
+    path = Path(path)
+    with OutputSet() as outputs:
+        stage_animation(outputs, path, anim, overwrite=overwrite, progress=progress,
+                        frame_start=frame_start, gltf_targets=gltf_targets)
+    return path
+
+
+def stage_animation(
+    outputs: OutputSet, path, anim: SurfaceAnimation, *, overwrite: bool = False,
+    progress: bool = False, frame_start: int | None = None, gltf_targets: str = "frames",
+) -> None:
+    """:func:`write_animation` into temporary files of ``outputs``
+    (:class:`wiggly.files.OutputSet`), which moves them into place with the other outputs."""
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext not in SUPPORTED:
+        raise WigglyInputError(
+            f"cannot write {path}: unknown extension {path.suffix!r}; "
+            f"supported: {', '.join(SUPPORTED)}"
+        )
+    anim = checked_animation(anim, f"cannot write {path}")
+    if gltf_targets not in GLTF_TARGETS:
+        raise WigglyInputError(f"cannot write {path}: gltf_targets = {gltf_targets!r}; use one "
+                               f"of {', '.join(map(repr, GLTF_TARGETS))}")
+    if gltf_targets == "modes" and ext == ".glb" and anim.mode_shapes is None:
+        raise WigglyInputError(f"cannot write {path} with one morph target per mode: the "
+                               "animation has no mode shapes (a warped motion is not a linear "
+                               "combination of modes); use gltf_targets='frames'")
+    if frame_start is not None:
+        _frame_codes(anim.times, frame_start, f"cannot write {path}", gltf=ext == ".glb")
+    if ext == ".glb" and np.any(np.diff(_gltf_times(anim.times, frame_start)) <= 0):
+        raise WigglyInputError(
+            f"cannot write {path}: frame times are too close to be distinct in float32, which "
+            "glTF uses; use a larger frame interval (or export .usd / .npz)"
+        )
+    if path.is_dir():
+        raise WigglyInputError(f"cannot write {path}: it is a directory; give a file name")
+    if ext == ".obj":
+        _stage_obj_sequence(outputs, path, anim, overwrite=overwrite, progress=progress)
+        return
+    if path.exists() and not overwrite:
+        raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
+    tmp = outputs.stage(path)
+    if ext == ".glb":
+        _write_glb(tmp, anim, progress=progress, frame_start=frame_start, targets=gltf_targets)
+    elif ext == ".npz":
+        _write_npz(tmp, anim, progress=progress)
+    else:
+        _write_usd(tmp, anim, progress=progress, frame_start=frame_start)
+
+
+def read_animation(path) -> SurfaceAnimation:
+    """Read an animation written by :func:`write_animation` (any format of :data:`SUPPORTED`).
+
+    For ``.obj`` give the sequence's base name (``out/frame.obj`` reads ``out/frame_0000.obj``,
+    ...); a single OBJ file without sequence frames is read as one frame.  glTF node
+    transforms are ignored; a glTF file without morph targets is one frame.
+    """
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext not in SUPPORTED:
+        raise WigglyInputError(
+            f"cannot read {path}: unknown extension {path.suffix!r}; "
+            f"supported: {', '.join(SUPPORTED)}"
+        )
+    if ext == ".obj":
+        anim = _read_obj_sequence(path)
+    else:
+        if not path.is_file():
+            raise WigglyInputError(f"cannot read {path}: no such file")
+        reader = {".glb": _read_glb, ".npz": _read_npz}.get(ext, _read_usd)
+        anim = reader(path)
+    return checked_animation(anim, f"{path}")
