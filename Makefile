@@ -17,7 +17,7 @@ venv: $(STAMP)
 ## Compile the warp's numba kernels into their on-disk cache (~20 s once; 1 s when cached).
 kernels: $(STAMP)
 	@$(BIN)/python -c "import time; t = time.perf_counter(); \
-	  from wiggly.warp.compiled import compile_all; compile_all(); \
+	  from wiggly.warp.kernels import compile_all; compile_all(); \
 	  print(f'[wiggly] warp kernels ready ({time.perf_counter() - t:.1f} s)')"
 
 ## Animate the bundled critter and say where the results are.

@@ -25,10 +25,10 @@ from __future__ import annotations
 import numpy as np
 
 from wiggly.errors import WigglyInputError
-from wiggly.warp import compiled
+from wiggly.warp import compiled, compiled_second
 from wiggly.warp.kernels_numpy import NumpyKernels
 
-__all__ = ["NumbaKernels", "NumpyKernels", "kernels_for"]
+__all__ = ["NumbaKernels", "NumpyKernels", "compile_all", "kernels_for"]
 
 
 class NumbaKernels:
@@ -69,7 +69,7 @@ class NumbaKernels:
         self, U: np.ndarray, V: np.ndarray, GB: np.ndarray, step: float
     ) -> np.ndarray:
         out = np.zeros((len(U), GB.shape[0], self.n, 3))  # analytic: ``step`` is not used
-        compiled.second_derivatives_rhs(U, V, GB, self.tets, self.grads, self.vol, out)
+        compiled_second.second_derivatives_rhs(U, V, GB, self.tets, self.grads, self.vol, out)
         return out
 
     def curvature(
@@ -83,14 +83,14 @@ class NumbaKernels:
         step3: float,
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """``qq = GB^T C_qq`` and ``qv = GB^T C_qv`` (r, r) from the per-tet products of
-        :func:`wiggly.warp.compiled.curvature_products` (analytic Hessians; ``step`` is not
+        :func:`wiggly.warp.compiled_second.curvature_products` (analytic Hessians; ``step`` is not
         used): one BLAS product each."""
         r = GB.shape[0]
         velocity = zv is not None
         Cqq = np.empty((r, self.m, 9))
         Cqv = np.empty((r, self.m, 9)) if velocity else Cqq[:0]
         zero = np.zeros((self.n, 3))
-        compiled.curvature_products(
+        compiled_second.curvature_products(
             np.ascontiguousarray(u), np.ascontiguousarray(z),
             np.ascontiguousarray(zv) if velocity else zero,
             np.ascontiguousarray(v) if velocity else zero,
@@ -113,3 +113,28 @@ def kernels_for(
     if choice == "numba" or (choice is None and compiled.AVAILABLE):
         return NumbaKernels(tets, grads, vol, n)
     return NumpyKernels(tets, grads, vol, n)
+
+
+def compile_all() -> None:
+    """Compile every kernel (or load it from numba's on-disk cache: ~0.5 s when cached, ~30 s
+    the first time after installation) by running it on one tetrahedron."""
+    if not compiled.AVAILABLE:
+        return
+    tets = np.array([[0, 1, 2, 3]], dtype=np.int64)
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    grads = np.zeros((1, 4, 3))
+    grads[0, 1:] = np.linalg.inv((V[1:] - V[0]).T)
+    grads[0, 0] = -grads[0, 1:].sum(axis=0)
+    vol = np.array([1.0 / 6.0])
+    U = np.full((2, 4, 3), 0.1)
+    out = np.zeros_like(U)
+    compiled.target_rhs(U, tets, grads, vol, out, 1)
+    compiled.jvp_rhs(U, U, tets, grads, vol, out, 1)
+    compiled.vjp_rhs(U, U.transpose(1, 0, 2).copy(), np.arange(2), tets, grads, vol, out, 1)
+    GB = compiled.field_gradients(U, tets, grads)
+    compiled.jacobians_rhs(U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
+    compiled_second.second_derivatives_rhs(U, U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
+    C = np.zeros((2, 1, 9))
+    compiled_second.curvature_products(
+        U[0], U[0], U[1], U[1], GB, 1e-5, tets, grads, vol, C, C.copy(), True
+    )

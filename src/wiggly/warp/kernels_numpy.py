@@ -161,7 +161,7 @@ class NumpyKernels:
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Modal curvature matrices (r, r): ``qq = sum_t GB_t^T vol_t (Hess(Z_t) +
         D Hess(Zv_t)[(G v)_t]) GB_t`` and ``qv = sum_t GB_t^T vol_t Hess(Zv_t) GB_t`` (None
-        without a velocity); see :func:`wiggly.warp.compiled.curvature_products`."""
+        without a velocity); see :func:`wiggly.warp.compiled_second.curvature_products`."""
         A = self._grad(u[None])
         Y1 = self._grad(z[None]) * self.vol
         GBm = GB.transpose(1, 2, 0)  # (m, 9, r)
