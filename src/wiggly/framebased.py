@@ -10,7 +10,8 @@ keyframes applied at their grid points (times must lie on the grid) and velociti
 central (one-sided at the ends: second order) differences.  Solved directly as one sparse
 least-squares problem.  Used by the tests (convergence toward the wiggly solution as dt -> 0)
 and by the benchmarks (what the wiggly solver replaces).  No pre-roll: give keyframes that
-determine the start.
+determine the start.  With ``loop=True`` the grid is periodic (frame n is frame 0, the
+differences wrap around): the reference of looped shots.
 """
 
 from __future__ import annotations
@@ -25,9 +26,11 @@ from wiggly.keyframes import Keyframe
 
 
 def solve_framebased(
-    body: Body, keyframes: list[Keyframe], fps: float, start: float, end: float
+    body: Body, keyframes: list[Keyframe], fps: float, start: float, end: float,
+    loop: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Frame-based minimiser of E + E_C; returns (times (N+1,), q (N+1, r))."""
+    """Frame-based minimiser of E + E_C; returns (times (N+1,), q (N+1, r)) (for a loop the
+    last frame repeats the first)."""
     n = round((end - start) * fps)
     if n < 2 or abs(n / fps - (end - start)) > 1e-9 * max(1.0, end - start):
         raise WigglyInputError(
@@ -37,16 +40,22 @@ def solve_framebased(
     times = start + np.arange(n + 1) * dt
     r = body.r
     lam, delta, g = body.eigenvalues, body.delta, body.modal_gravity
-    N = (n + 1) * r  # unknown q_i(t_j) at index j * r + i
+    frames = n if loop else n + 1  # unknown q_i(t_j) at index j * r + i
+    N = frames * r
 
-    # energy rows: sqrt(dt) * (residual at interior frame j, mode i)
-    j = np.repeat(np.arange(1, n), r)
-    i = np.tile(np.arange(r), n - 1)
+    def at(f: int) -> int:  # the unknown frame of grid frame f
+        return f % n if loop else f
+
+    # energy rows: sqrt(dt) * (residual at interior frame j, mode i); every frame of a loop
+    inner = np.arange(n) if loop else np.arange(1, n)
+    j = np.repeat(inner, r)
+    i = np.tile(np.arange(r), len(inner))
     c_m = 1 / dt**2 - delta[i] / dt
     c_0 = -2 / dt**2 + lam[i]
     c_p = 1 / dt**2 + delta[i] / dt
     rows = np.repeat(np.arange(len(j)), 3)
-    cols = np.stack([(j - 1) * r + i, j * r + i, (j + 1) * r + i], axis=1).ravel()
+    jm, jp = (j - 1) % frames, (j + 1) % frames
+    cols = np.stack([jm * r + i, j * r + i, jp * r + i], axis=1).ravel()
     vals = np.sqrt(dt) * np.stack([c_m, c_0, c_p], axis=1).ravel()
     blocks = [sp.csr_matrix((vals, (rows, cols)), shape=(len(j), N))]
     rhs = [-np.sqrt(dt) * g[i]]
@@ -58,18 +67,20 @@ def solve_framebased(
     for kf in keyframes:  # normal equations per keyframe, through the r x r Gram A^T A
         kf = kf.checked(body, start, end)
         k = round((kf.time - start) * fps)
-        if abs(times[k] - kf.time) > 1e-9:
+        if abs(times[k] - kf.time) > 1e-9 * max(1.0, abs(kf.time)):
             raise WigglyInputError(f"keyframe time {kf.time} is not on the {fps} fps grid")
         c_A, c_B = kf.weights(body, T)
         A = body.basis_rows(kf.vertices, kf.on)
         AtA = A.T @ A
         rest = body.rest_positions(kf.on)[kf.vertices].ravel()
         if kf.position is not None and c_A > 0:
-            sl = slice(k * r, (k + 1) * r)
+            sl = slice(at(k) * r, (at(k) + 1) * r)
             H[sl, sl] = H[sl, sl] + c_A * AtA
             b[sl] += c_A * (A.T @ (kf.position.ravel() - rest))
         if kf.velocity is not None and c_B > 0:
-            if 0 < k < n:
+            if loop:
+                stencil = {at(k - 1): -0.5 / dt, at(k + 1): 0.5 / dt}
+            elif 0 < k < n:
                 stencil = {k - 1: -0.5 / dt, k + 1: 0.5 / dt}
             elif k == 0:
                 stencil = {0: -1.5 / dt, 1: 2.0 / dt, 2: -0.5 / dt}
@@ -82,5 +93,5 @@ def solve_framebased(
                 for f2, w2 in stencil.items():
                     s2 = slice(f2 * r, (f2 + 1) * r)
                     H[s1, s2] = H[s1, s2] + c_B * w1 * w2 * AtA
-    q = spla.spsolve(H.tocsc(), b)
-    return times, q.reshape(n + 1, r)
+    q = spla.spsolve(H.tocsc(), b).reshape(frames, r)
+    return times, np.vstack([q, q[:1]]) if loop else q

@@ -60,6 +60,10 @@ class SurfaceAnimation:
         (the modes on the surface): the compact glTF layout (``gltf_targets="modes"``).
     modal : (F, r) float array or None
         The modal coordinates q(t) of every frame, with ``mode_shapes``.
+    loop : bool
+        A cycle whose last frame is its first: glTF keeps that frame (a time-based player
+        then wraps between identical poses), USD and OBJ sequences leave it out (a frame-based
+        player steps from the last frame to the first).
     """
 
     times: np.ndarray
@@ -71,6 +75,7 @@ class SurfaceAnimation:
     rest: np.ndarray | None = None
     mode_shapes: np.ndarray | None = None
     modal: np.ndarray | None = None
+    loop: bool = False
 
     @property
     def n_frames(self) -> int:
@@ -190,7 +195,18 @@ def checked_animation(anim: SurfaceAnimation, where: str) -> SurfaceAnimation:
             if err > 1e-5 * scale:
                 fail(f"positions[{k}] differ from rest + modal[{k}] . mode_shapes by {err:.3g}; "
                      "the compact layout is for linear motions only")
-    return SurfaceAnimation(times, positions, faces, uvs, normals, name, rest, shapes, modal)
+    return SurfaceAnimation(times, positions, faces, uvs, normals, name, rest, shapes, modal,
+                            bool(anim.loop))
+
+
+def without_seam(anim: SurfaceAnimation) -> SurfaceAnimation:
+    """A looped animation without its last frame (which repeats the first): for frame-based
+    formats, whose players step from the last frame to the first."""
+    if not anim.loop or anim.n_frames < 3:
+        return anim
+    modal = None if anim.modal is None else anim.modal[:-1]
+    return SurfaceAnimation(anim.times[:-1], anim.positions[:-1], anim.faces, anim.uvs,
+                            anim.normals, anim.name, anim.rest, anim.mode_shapes, modal, True)
 
 
 def _incidence(faces: np.ndarray, n: int) -> sp.csr_matrix:

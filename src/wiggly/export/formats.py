@@ -14,6 +14,7 @@ from wiggly.export.animation import (
     _frame_codes,
     _gltf_times,
     checked_animation,
+    without_seam,
 )
 from wiggly.export.gltf import _read_glb, _write_glb
 from wiggly.export.npz import _read_npz, _write_npz
@@ -97,7 +98,8 @@ def stage_animation(
     if path.is_dir():
         raise WigglyInputError(f"cannot write {path}: it is a directory; give a file name")
     if ext == ".obj":
-        _stage_obj_sequence(outputs, path, anim, overwrite=overwrite, progress=progress)
+        _stage_obj_sequence(outputs, path, without_seam(anim), overwrite=overwrite,
+                            progress=progress)
         return
     if path.exists() and not overwrite:
         raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
@@ -107,7 +109,7 @@ def stage_animation(
     elif ext == ".npz":
         _write_npz(tmp, anim, progress=progress)
     else:
-        _write_usd(tmp, anim, progress=progress, frame_start=frame_start)
+        _write_usd(tmp, without_seam(anim), progress=progress, frame_start=frame_start)
 
 
 def read_animation(path) -> SurfaceAnimation:

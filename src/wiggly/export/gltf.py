@@ -100,7 +100,7 @@ def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False,
     flat = weights.astype(np.float32).ravel()
     weight_accessor = add_accessor(add_view(flat), flat, _GL_FLOAT, "SCALAR")
     extras = {"format_version": FORMAT_VERSION, "times": anim.times.tolist(),
-              "targets": targets}
+              "targets": targets, "loop": bool(anim.loop)}
     if frame_start is not None:
         extras["frame_start"] = int(frame_start)
 
@@ -244,4 +244,5 @@ def _read_glb(path: Path) -> SurfaceAnimation:
     else:
         positions = base + np.einsum("ft,tnc->fnc", W.astype(np.float32), deltas)
     return SurfaceAnimation(times, positions.astype(np.float32), faces, uvs, normals,
-                            gltf.meshes[0].name or path.stem)
+                            gltf.meshes[0].name or path.stem,
+                            loop=bool((extras or {}).get("loop", False)))

@@ -20,6 +20,7 @@ def _write_npz(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
         "positions": anim.positions.astype(np.float32),
         "faces": anim.faces,
         "name": np.array(anim.name),
+        "loop": np.array(bool(anim.loop)),
     }
     if anim.uvs is not None:
         arrays["uvs"] = anim.uvs.astype(np.float32)
@@ -47,4 +48,5 @@ def _read_npz(path: Path) -> SurfaceAnimation:
             f"newer wiggly (this one reads up to {FORMAT_VERSION}); upgrade wiggly"
         )
     return SurfaceAnimation(d["times"], d["positions"], d["faces"], d.get("uvs"),
-                            d.get("normals"), str(d.get("name", "wiggly")))
+                            d.get("normals"), str(d.get("name", "wiggly")),
+                            loop=bool(d.get("loop", False)))

@@ -67,7 +67,8 @@ def _write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False,
             normals.Set(Vt.Vec3fArray.FromNumpy(nk), t)
     stage.GetRootLayer().customLayerData = {"wiggly": {
         "format_version": FORMAT_VERSION, "start_time": float(anim.times[0]),
-        "frame_start": int(codes[0]), "frames_per_second": float(fps)}}
+        "frame_start": int(codes[0]), "frames_per_second": float(fps),
+        "loop": bool(anim.loop)}}
     if not stage.GetRootLayer().Export(str(path)):
         raise OSError(f"USD could not write {path}")
 
@@ -118,4 +119,5 @@ def _read_usd(path: Path) -> SurfaceAnimation:
         normals = np.asarray(attr.Get(codes[0]), np.float64)
     root = stage.GetDefaultPrim() or meshes[0]
     name = root.GetDisplayName() or root.GetName()
-    return SurfaceAnimation(times, positions, faces, uvs, normals, name)
+    return SurfaceAnimation(times, positions, faces, uvs, normals, name,
+                            loop=bool(ours.get("loop", False)))

@@ -126,7 +126,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
          f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s", progress)
     t = _time.perf_counter()
     anim = solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
-                 preroll=scene.simulation.preroll, progress=progress)
+                 preroll=scene.simulation.preroll, loop=scene.time.loop, progress=progress)
     timings["solve"] = _time.perf_counter() - t
     written = write_outputs(scene, anim, paths, overwrite=overwrite, progress=progress,
                             highlights=keyframe_highlights(scene, body, anim.keyframes, groups),
@@ -161,7 +161,7 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
     positions = anim.positions(times, dtype=np.float32)
     surf = anim.body.surface
     data = SurfaceAnimation(times, positions, surf.faces, surf.uvs, surf.normals,
-                            scene.mesh_file().stem, rest=surf.vertices)
+                            scene.mesh_file().stem, rest=surf.vertices, loop=anim.loop)
     targets = scene.output.gltf_targets or "frames"
     if targets == "modes" and any(p.suffix.lower() == ".glb" for p in paths):
         basis = anim.body.surface_basis  # (3p, r): positions = rest + basis q(t)

@@ -172,7 +172,9 @@ _SCENE = _Table(
          {"start": _Number(unit="s"),
           "end": _Number(unit="s"),
           "duration": _Number(unit="s", gt=0.0, le=MAX_DURATION),
-          "fps": _Number(gt=0.0, le=MAX_FPS, doc="frames per second of the outputs")},
+          "fps": _Number(gt=0.0, le=MAX_FPS, doc="frames per second of the outputs"),
+          "loop": _Bool(doc="a periodic shot: the end is the start (positions and velocities), "
+                            "and it plays as a cycle with no seam")},
          exclusive=(("end", "duration"),), check=_check_time, make=lambda d: TimeSpec(**d),
          doc="time range (default: start 0, end at the last keyframe, at least 1 s)"),
      "groups": _Map(_GROUP, GROUP_NAME,
@@ -286,6 +288,15 @@ def _cross_check(scene: Scene, p: _Problems) -> None:
         p.add(f"the shot runs from {t0:g} s to the last keyframe at {t1:g} s, longer than "
               f"{MAX_DURATION:g} s (wiggly.limits.MAX_DURATION); check the keyframe times")
     frames = math.floor((t1 - t0) * scene.time.fps + 1e-9) + 1
+    cycle = (t1 - t0) * scene.time.fps
+    if scene.time.loop and abs(cycle - round(cycle)) > 1e-6 * max(1.0, cycle):
+        p.add(f"time.loop = true needs a whole number of frames per cycle: {t1 - t0:g} s at "
+              f"{scene.time.fps:g} fps is {cycle:.4g} frames; use a duration of "
+              f"{max(1, round(cycle)) / scene.time.fps:.6g} s or fps = "
+              f"{max(1, round(cycle)) / (t1 - t0):.6g}")
+    if scene.time.loop and scene.simulation.preroll not in (None, 0.0):
+        p.add(f"simulation.preroll = {_show(scene.simulation.preroll)} does not apply to a "
+              "looped shot (time.loop = true): a loop has no before; leave it out")
     if frames > MAX_FRAMES and t1 - t0 <= MAX_DURATION:
         p.add(f"time.fps = {_show(scene.time.fps)} makes {frames} frames of a {t1 - t0:g} s "
               f"shot, more than {MAX_FRAMES} (wiggly.limits.MAX_FRAMES); use fps <= "

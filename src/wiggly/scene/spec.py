@@ -103,6 +103,7 @@ class TimeSpec:
     end: float | None = None
     duration: float | None = None
     fps: float = DEFAULT_FPS
+    loop: bool = False
 
 
 @dataclass(frozen=True)

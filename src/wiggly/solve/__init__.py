@@ -48,6 +48,7 @@ def solve(
     end: float | None = None,
     warp: bool = True,
     preroll: float | None = None,
+    loop: bool = False,
     options: SolveOptions | None = None,
     progress: bool = False,
 ) -> Animation:
@@ -56,14 +57,16 @@ def solve(
     ``warp=True`` (default) solves E + E_WC on the rotation-strain-warped motion (Theorem 2)
     and plays back W(u(t)); ``warp=False`` is the linear solve of Theorem 1.  The time range
     is [start, end] (``end = start + duration``; default: the last keyframe time, at least
-    start + 1 s).
+    start + 1 s).  ``loop=True`` makes the motion periodic: its end is its start
+    (positions and velocities), and the wiggly splines wrap around from the last node to the
+    first.
     """
     if end is None:
         if duration is None:
             last = max((kf.time for kf in keyframes), default=start)
             duration = max(float(last) - start, 1.0)
         end = start + float(duration)
-    problem = SpacetimeProblem(body, start, end, preroll)
+    problem = SpacetimeProblem(body, start, end, preroll, loop=loop)
     anim = problem.solve(keyframes, warped=warp, options=options, progress=progress)
     if progress:
         extra = ""

@@ -54,6 +54,9 @@ class Animation:
     #: what a later warped solve of an edited problem can start from (None for linear
     #: motions): pass it as ``warm_start=`` to :meth:`SpacetimeProblem.solve`
     warm_start: WarmStart | None = field(default=None, repr=False)
+    #: a periodic motion: its end is its start (positions and velocities), and it plays as
+    #: a cycle with no seam
+    loop: bool = False
 
     @property
     def start(self) -> float:

@@ -52,9 +52,13 @@ class WarmStart:
     contraction: float | None  # measured on the fine level (approximate Newton matrices)
     blocks: NewtonBlocks  # the derivatives behind the last Newton matrices
 
-    def fits(self, nodes: np.ndarray) -> bool:
-        """Whether a problem with these node times can start here."""
-        return self.nodes.shape == nodes.shape and bool(np.allclose(self.nodes, nodes))
+    def fits(self, nodes: np.ndarray, size: int) -> bool:
+        """Whether a problem with these node times and ``size`` unknowns can start here."""
+        return (
+            self.nodes.shape == nodes.shape
+            and bool(np.allclose(self.nodes, nodes))
+            and self.z.size == size
+        )
 
 
 def same_keyframes(a: tuple[Keyframe, ...] | list[Keyframe], b: list[Keyframe]) -> bool:

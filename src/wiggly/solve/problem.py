@@ -32,7 +32,7 @@ from wiggly.memo import Memo, value_key
 from wiggly.solve.animation import Animation
 from wiggly.solve.banded import BandedCholesky, add_block, add_blocks
 from wiggly.solve.levels import WarmStart, solve_warped
-from wiggly.solve.nodes import node_index, node_times
+from wiggly.solve.nodes import NodeLayout, node_index, node_times
 from wiggly.solve.optimizer import SolveOptions
 from wiggly.splines import WigglyBasis, energy_form, equilibrium, wiggly_basis
 from wiggly.warp import WarpLevel
@@ -89,17 +89,30 @@ class SpacetimeProblem:
     problem serves every edit of a shot.
     """
 
-    def __init__(self, body: Body, start: float, end: float, preroll: float | None = None) -> None:
+    def __init__(
+        self,
+        body: Body,
+        start: float,
+        end: float,
+        preroll: float | None = None,
+        loop: bool = False,
+    ) -> None:
         if not (np.isfinite(start) and np.isfinite(end)) or end <= start:
             raise WigglyInputError(
                 f"the animation's time range [{start}, {end}] s is empty: end must be after start"
             )
-        preroll = end - start if preroll is None else float(preroll)
+        if loop and preroll not in (None, 0, 0.0):
+            raise WigglyInputError(
+                f"preroll = {preroll!r} s does not apply to a looped shot: a loop has no "
+                "before; leave preroll out (or 0)"
+            )
+        preroll = (0.0 if loop else end - start) if preroll is None else float(preroll)
         if not np.isfinite(preroll) or preroll < 0:
             raise WigglyInputError(f"preroll = {preroll!r} s must be a number >= 0")
         self.body = body
         self.start, self.end = float(start), float(end)
         self.preroll = preroll
+        self.loop = bool(loop)
         self.memo = Memo(limit=512)
 
     @property
@@ -119,6 +132,10 @@ class SpacetimeProblem:
         """Node times: start, end and every keyframe time (:func:`node_times`)."""
         return node_times(self.start, self.end, [kf.time for kf in keyframes])
 
+    def layout(self, nodes: np.ndarray) -> NodeLayout:
+        """Where each node's unknowns sit in z (:class:`NodeLayout`; periodic for a loop)."""
+        return NodeLayout(nodes, self.body.r, self.loop)
+
     # --------------------------------------------------------------------- energy
     def energy(self, nodes: np.ndarray) -> Energy:
         """E (+ pre-roll) over ``nodes``, kept per node set."""
@@ -131,13 +148,12 @@ class SpacetimeProblem:
         h = np.repeat(np.diff(nodes), r)
         basis = wiggly_basis(np.tile(body.eigenvalues, m), np.tile(body.delta, m), h)
         form = energy_form(basis, np.tile(body.modal_gravity, m))
-        # global indices of (q_k,i, v_k,i, q_k+1,i, v_k+1,i)
+        # global indices of (q_k,i, v_k,i, q_k+1,i, v_k+1,i); a loop's last node is its first
+        layout = self.layout(nodes)
         k, i = np.repeat(np.arange(m), r), np.tile(np.arange(r), m)
-        idx = np.stack(
-            [2 * r * k + i, 2 * r * k + r + i, 2 * r * (k + 1) + i, 2 * r * (k + 1) + r + i],
-            axis=1,
-        )
-        N, bw = 2 * r * len(nodes), 4 * r - 1
+        b0, b1 = 2 * r * layout.block[k], 2 * r * layout.block[k + 1]
+        idx = np.stack([b0 + i, b0 + r + i, b1 + i, b1 + r + i], axis=1)
+        N, bw = layout.size, layout.bandwidth
         ab = np.zeros((bw + 1, N), order="F")
         f = np.zeros(N)
         add_blocks(ab, idx, form.Q)
@@ -212,16 +228,16 @@ class SpacetimeProblem:
         c_B |B_k Phi q'_k - b_k|^2`` added at the keyframes' nodes."""
         energy = self.energy(nodes)
         ab, f = np.array(energy.ab, order="F"), energy.f.copy()
-        r = self.body.r
+        layout = self.layout(nodes)
         for kf in kfs:
             k = node_index(nodes, kf.time)
             c_A, c_B = kf.weights(self.body, self.duration)
             if kf.position is not None and c_A > 0:
-                blk = 2 * r * k + np.arange(r)
+                blk = layout.indices(k)
                 add_block(ab, blk, c_A * self.modal_gram(kf.vertices, kf.on))
                 f[blk] -= c_A * self.projected(kf.vertices, kf.on, self.offsets(kf))
             if kf.velocity is not None and c_B > 0:
-                blk = 2 * r * k + r + np.arange(r)
+                blk = layout.indices(k, velocity=True)
                 add_block(ab, blk, c_B * self.modal_gram(kf.vertices, kf.on))
                 f[blk] -= c_B * self.projected(kf.vertices, kf.on, kf.velocity)
         return ab, f
@@ -232,6 +248,12 @@ class SpacetimeProblem:
         try:
             return BandedCholesky(ab).solve(-f)
         except np.linalg.LinAlgError as err:
+            if self.loop:
+                raise WigglyInputError(
+                    "the keyframes leave the looped motion undetermined: a loop has no rest "
+                    "before it, so keyframes must hold the body's position (e.g. a group at "
+                    "rest, or a driven group)"
+                ) from err
             raise WigglyInputError(
                 "the keyframes leave the motion undetermined and preroll is 0; give keyframes "
                 "that fix the start (positions and velocities of the whole body) or a "
@@ -262,11 +284,11 @@ class SpacetimeProblem:
             kfs = self.checked(keyframes)
             nodes = self.nodes_for(kfs)
             energy = self.energy(nodes)
-            r = self.body.r
-            info: dict = {"unknowns": 2 * r * len(nodes), "warped": warped}
+            size = self.layout(nodes).size
+            info: dict = {"unknowns": size, "warped": warped, "loop": self.loop}
             warm = None
             if warped:
-                if warm_start is not None and warm_start.fits(nodes):
+                if warm_start is not None and warm_start.fits(nodes, size):
                     z, warm = warm_start.z.copy(), warm_start
                 else:
                     z = self.solve_linear([unwarped(kf, self.body) for kf in kfs], nodes)
@@ -276,11 +298,11 @@ class SpacetimeProblem:
                 info.update(report)
             else:
                 z, new_warm = self.solve_linear(kfs, nodes), None
-        Z = z.reshape(len(nodes), 2, r)
+        values, velocities = self.layout(nodes).states(z)
         info["solve_seconds"] = time.perf_counter() - t0
         return Animation(
-            self.body, nodes, Z[:, 0].copy(), Z[:, 1].copy(), kfs, energy.basis,
-            warped=warped, info=info, warm_start=new_warm,
+            self.body, nodes, values.copy(), velocities.copy(), kfs, energy.basis,
+            warped=warped, info=info, warm_start=new_warm, loop=self.loop,
         )
 
 

@@ -65,7 +65,7 @@ class WarpedPoint:
     g: np.ndarray
     magnitude: float  # sum of the magnitudes of F's terms (its rounding level / eps)
     level: str
-    layout: tuple  # (active nodes, velocity nodes)
+    signature: tuple  # (active nodes, velocity nodes)
     U: np.ndarray  # Phi q at the active nodes (f, n_L, 3)
     WU: np.ndarray  # W(U)
     V: np.ndarray  # Phi q' at the velocity nodes (k, n_L, 3)
@@ -104,6 +104,7 @@ class WarpedObjective:
         self.name = "fine" if level.exact else "coarse"
         self.r = body.r
         self.nodes = nodes
+        self.layout = problem.layout(nodes)
         energy = problem.energy(nodes)
         self.ab_E, self.f_E, self.c_E = energy.ab, energy.f, energy.c
         if correction is not None:
@@ -113,7 +114,7 @@ class WarpedObjective:
         self.velocities: list[_Term] = []
         for kf in keyframes:
             c_A, c_B = kf.weights(body, problem.duration)
-            k = node_index(nodes, kf.time)
+            k = self.layout.canonical(node_index(nodes, kf.time))
             if kf.position is not None and c_A > 0:
                 fit = problem.fit(level, kf.vertices, kf.on, problem.offsets(kf))
                 self.positions.append(_Term(k, float(np.sqrt(c_A)), kf.vertices, kf.on, fit))
@@ -125,7 +126,7 @@ class WarpedObjective:
         self.vel = sorted({t.node for t in self.velocities})
         self.slot = {k: a for a, k in enumerate(self.active)}
         self.vslot = {k: a for a, k in enumerate(self.vel)}
-        self.layout = (tuple(self.active), tuple(self.vel))
+        self.signature = (tuple(self.active), tuple(self.vel))
         self.timing = {"W": 0.0, "vjp": 0.0, "newton": 0.0}
         self.counts = {"W": 0, "vjp": 0, "newton": 0}
         self._grams = self._node_grams(self.model)
@@ -158,12 +159,11 @@ class WarpedObjective:
 
     # -------------------------------------------------------------- evaluation
     def _states(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        Z = z.reshape(-1, 2, self.r)
-        return Z[:, 0], Z[:, 1]
+        return self.layout.states(z)
 
     def evaluate(self, z: np.ndarray, prior: WarpedPoint | None = None) -> WarpedPoint:
         """F and its gradient at z.  With a ``prior`` point at the same z, level and node
-        layout (an earlier solve's last point: a warm start), its W values are reused and only
+        nodes (an earlier solve's last point: a warm start), its W values are reused and only
         the cotangents that changed are pulled back (the vjp is linear in them)."""
         z = np.asarray(z, dtype=np.float64)
         q, v = self._states(z)
@@ -172,7 +172,7 @@ class WarpedObjective:
         reuse = (
             prior is not None
             and prior.level == self.name
-            and prior.layout == self.layout
+            and prior.signature == self.signature
             and np.array_equal(prior.z, z)
         )
         if reuse:
@@ -204,18 +204,16 @@ class WarpedObjective:
         magnitude = abs(quad) + abs(lin) + abs(self.c_E) + F_res
         g = Hz + self.f_E
         pulled = self._pull_back(U, V, YA, YB, prior if reuse else None)
-        G = g.reshape(-1, 2, self.r)
         f, nv = len(self.active), len(self.vel)
-        G[self.active, 0] += pulled[:f]
+        self.layout.add_to(g, self.active, pulled[:f], None)
         if nv:
             iv = [self.slot[k] for k in self.vel]
             h = self._vjp_steps(U[iv], V)
-            G[self.vel, 1] += pulled[f : f + nv]
             dq = pulled[f + nv : f + 2 * nv] - pulled[f + 2 * nv :]
-            G[self.vel, 0] += dq / (2 * h[:, None])
+            self.layout.add_to(g, self.vel, dq / (2 * h[:, None]), pulled[f : f + nv])
         self.timing["vjp"] += time.perf_counter() - t1
         return WarpedPoint(
-            z.copy(), float(F), g, magnitude, self.name, self.layout,
+            z.copy(), float(F), g, magnitude, self.name, self.signature,
             U, WU, V, Vel, YA, YB, pulled,
         )
 
@@ -296,7 +294,7 @@ class WarpedObjective:
             if d.qv is not None:
                 curv[a, :r, r:] = d.qv
                 curv[a, r:, :r] = d.qv.T
-        idx = 2 * r * np.array(self.active)[:, None] + np.arange(2 * r)
+        idx = 2 * r * self.layout.block[self.active][:, None] + np.arange(2 * r)
         add_blocks(gn, idx, 0.5 * (blocks + blocks.transpose(0, 2, 1)))
         full = np.array(gn, order="F")
         add_blocks(full, idx, 0.5 * (curv + curv.transpose(0, 2, 1)))

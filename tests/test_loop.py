@@ -1,0 +1,157 @@
+"""Looped (periodic) shots: the wiggly splines wrap around from the last node to the first."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wiggly.errors import WigglyInputError
+from wiggly.framebased import solve_framebased
+from wiggly.keyframes import Keyframe
+from wiggly.solve import SpacetimeProblem, solve
+from wiggly.splines import evaluate
+
+from .conftest import make_body
+
+END = 1.2
+
+
+@pytest.fixture(scope="module")
+def bar(tmp_path_factory):
+    return make_body(tmp_path_factory, shape=(10, 2, 2), n_modes=10)
+
+
+def keys_of(body, velocity=False):
+    X = body.rest_positions()
+    tip = np.flatnonzero(X[:, 0] > 0.8)
+    return [
+        Keyframe.rest(body, 0.0, np.arange(len(X))),
+        Keyframe.offset(body, 0.4, tip, (0, 0.1, 0),
+                        velocity=(0.0, 0.0, 0.4) if velocity else None),
+        Keyframe.offset(body, 0.9, tip, (0, -0.05, 0.03)),
+    ]
+
+
+def one_sided(anim, t, n, side):
+    return anim.modal(np.array([t]), n, side=side)[n, 0]
+
+
+@pytest.mark.parametrize("warp", [False, True], ids=["linear", "warped"])
+def test_the_seam_is_continuous_in_position_and_velocity(bar, warp):
+    anim = solve(bar, keys_of(bar), end=END, warp=warp, loop=True)
+    assert anim.loop and (not warp or anim.info["converged"])
+    P = anim.positions([0.0, END])
+    V = anim.velocities_at([0.0, END])
+    assert np.abs(P[1] - P[0]).max() <= 1e-9 * np.abs(P).max()
+    assert np.abs(V[1] - V[0]).max() <= 1e-9 * np.abs(V).max()
+    assert np.abs(V).max() > 0.1  # a moving loop, not a trivial one
+
+
+def test_theorem_1_orders_hold_at_every_node_and_across_the_seam(bar):
+    """C^2 at nodes without a velocity keyframe (the seam included: its second derivative
+    from the left at the end equals the one from the right at the start), only C^1 at a node
+    with one; on each interval the ODE of Theorem 1 holds."""
+    anim = solve(bar, keys_of(bar, velocity=True), end=END, warp=False, loop=True)
+    scale = np.abs(anim.modal(np.linspace(0, END, 50), 2)[2]).max()
+    seam = one_sided(anim, END, 2, "left") - one_sided(anim, 0.0, 2, "right")
+    assert np.abs(seam).max() <= 1e-9 * scale
+    assert np.abs(one_sided(anim, 0.9, 2, "left") - one_sided(anim, 0.9, 2, "right")).max() \
+        <= 1e-9 * scale
+    jump = one_sided(anim, 0.4, 2, "left") - one_sided(anim, 0.4, 2, "right")
+    assert np.abs(jump).max() > 1e-3 * scale  # the velocity keyframe's node: only C^1
+    for t in (0.4, 0.9):
+        d1 = one_sided(anim, t, 1, "left") - one_sided(anim, t, 1, "right")
+        assert np.abs(d1).max() <= 1e-9 * np.abs(anim.modal(np.array([t]), 1)[1]).max()
+    # inside intervals: q'''' + 2 (lam - 2 delta^2) q'' + lam (lam q + g) = 0, per mode
+    lam, delta, g = bar.eigenvalues, bar.delta, bar.modal_gravity
+    k = 1
+    h = anim.nodes[k + 1] - anim.nodes[k]
+    data = np.stack([anim.values[k], anim.velocities[k], anim.values[k + 1],
+                     anim.velocities[k + 1]], axis=-1)
+    basis = anim.basis.take(k * bar.r + np.arange(bar.r))
+    d = evaluate(basis, data, g, np.full(bar.r, 0.37), 4)
+    residual = d[4] + 2 * (lam - 2 * delta**2) * d[2] + lam * (lam * d[0] + g)
+    assert np.abs(residual).max() <= 1e-6 * (np.abs(d[4]).max() + np.abs(lam**2 * d[0]).max())
+    assert h > 0
+
+
+def test_a_periodic_frame_based_reference_converges_to_the_loop(bar):
+    """A periodic grid with central differences (wrapping around) approaches the looped
+    wiggly solution at second order as its step shrinks."""
+    keys = keys_of(bar)
+    anim = solve(bar, keys, end=END, warp=False, loop=True)
+    errors = []
+    for fps in (50, 100, 200, 400):
+        t, q = solve_framebased(bar, keys, fps, 0.0, END, loop=True)
+        errors.append(np.abs(anim.modal(t)[0] - q).max())
+    rates = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(np.abs(rates[1:] - 2.0) < 0.15), rates
+
+
+def test_a_loop_needs_keyframes_that_hold_the_body(bar):
+    X = bar.rest_positions()
+    tip = np.flatnonzero(X[:, 0] > 0.8)
+    with pytest.raises(WigglyInputError, match="looped motion undetermined"):
+        solve(bar, [Keyframe(0.5, tip, velocity=(0, 1.0, 0))], end=END, warp=False, loop=True)
+    with pytest.raises(WigglyInputError, match="does not apply to a looped shot"):
+        SpacetimeProblem(bar, 0.0, END, preroll=1.0, loop=True)
+
+
+def test_a_looped_warm_start_is_not_taken_by_an_unlooped_problem(bar):
+    keys = keys_of(bar)
+    looped = SpacetimeProblem(bar, 0.0, END, loop=True).solve(keys, warped=True)
+    plain = SpacetimeProblem(bar, 0.0, END).solve(keys, warped=True,
+                                                  warm_start=looped.warm_start)
+    assert not plain.info["warm_start"] and plain.info["converged"]
+
+
+def test_a_looped_scene_exports_cycles_without_a_seam(tmp_path):
+    """A scene with ``[time] loop = true``: glTF keeps the seam frame (equal to the first, so
+    a time-based player wraps between identical poses), USD leaves it out (a frame-based
+    player steps from the last frame to the first); both say they loop."""
+    from wiggly.export import read_animation
+    from wiggly.scene import load_scene, run
+
+    scene = tmp_path / "loop.toml"
+    scene.write_text("""
+format = 1
+[mesh]
+path = "builtin:bar"
+resolution = 6
+[simulation]
+modes = 10
+warp = false
+[time]
+end = 1.0
+fps = 10
+loop = true
+[groups.left]
+box = { min = [-1, -1, -1], max = [0.05, 1, 1] }
+[groups.tip]
+box = { min = [0.85, -1, -1], max = [2, 1, 1] }
+[[keyframes]]
+time = 0.0
+group = "left"
+position = "rest"
+[[keyframes]]
+time = 0.5
+group = "tip"
+position = { offset = [0.0, 0.1, 0.0] }
+[output]
+paths = ["out/loop.glb", "out/loop.usda"]
+""")
+    run(load_scene(scene))
+    glb, usd = read_animation(tmp_path / "out/loop.glb"), read_animation(tmp_path / "out/loop.usda")
+    assert glb.loop and usd.loop
+    assert glb.n_frames == 11 and usd.n_frames == 10
+    assert np.abs(glb.positions[-1] - glb.positions[0]).max() <= 1e-6
+    np.testing.assert_allclose(usd.positions, glb.positions[:-1], atol=1e-6)
+    assert np.abs(glb.positions[5] - glb.positions[0]).max() > 0.05
+
+
+def test_a_looped_scene_needs_whole_frames_per_cycle(tmp_path):
+    from wiggly.scene import scene_from_dict
+
+    with pytest.raises(WigglyInputError, match=r"time.loop = true needs a whole number"):
+        scene_from_dict({"mesh": {"path": "builtin:bar"},
+                         "time": {"end": 1.05, "fps": 10, "loop": True}}, "s.toml")
