@@ -411,7 +411,7 @@ def test_npz_layout(tmp_path):
     anim = sphere_animation(F=3, normals=True)
     with np.load(write_animation(tmp_path / "a.npz", anim)) as data:
         assert set(data.files) == {"format_version", "times", "positions", "faces", "uvs",
-                                   "normals", "name"}
+                                   "normals", "name", "loop"}
         assert int(data["format_version"]) == export.FORMAT_VERSION
         assert data["positions"].dtype == np.float32
         np.testing.assert_array_equal(data["positions"], anim.positions.astype(np.float32))
