@@ -19,7 +19,10 @@ changed keyframes only) and the measured contraction.  The coarse level then get
 approximation scheme's correction (Brandt 1977): the linear term ``tau^T z``, ``tau = grad F(z0)
 - grad F~(z0)``, that makes its gradient equal the fine one at z0, so the coarse mesh's error
 reaches the new start only through its change over the edit.  The corrected start is kept
-only if the fine objective drops there; otherwise the plain coarse solve follows.
+only if the fine objective drops there; otherwise the plain coarse solve follows.  A small
+edit skips the coarse level: when the first fine Newton step from z0 moves no vertex by more
+than ``NEAR`` of the body's size, the fine level starts at z0 (its coarse-model iteration
+then does what the coarse level would, without the transfer).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import numpy as np
 
 from wiggly.keyframes import Keyframe
 from wiggly.progress import iterations
+from wiggly.solve.banded import BandedCholesky
 from wiggly.solve.blocks import NewtonBlocks
 from wiggly.solve.optimizer import SolveOptions, minimize, warn_unconverged
 from wiggly.solve.warped import WarpedObjective, WarpedPoint
@@ -39,6 +43,11 @@ if TYPE_CHECKING:
     from wiggly.solve.problem import SpacetimeProblem
 
 __all__ = ["WarmStart", "solve_warped"]
+
+# A warm start whose first fine Newton step moves no vertex by more than this share of the
+# body's size goes to the fine level directly: there, one iteration with the coarse-model
+# matrix gains as much as the whole coarse level (and its transfer) does.
+NEAR = 0.1
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,13 +109,16 @@ def solve_warped(
     )
     report: dict = {}
     with iterations("warped solve (Newton)", options.max_iterations, progress) as bar:
+        start = None
+        if warm is not None:  # cheap: W at z0 is kept
+            start = fine.evaluate(z0, prior=warm.point)
         continuation = warm is not None and same_keyframes(warm.keyframes, kfs)
-        if two and not continuation:
+        if two and not continuation and not (start is not None and _near(fine, start)):
             start, report["coarse"] = _coarse_level(
-                problem, coarse, kfs, nodes, fine, z0, warm, options, bar, blocks
+                problem, coarse, kfs, nodes, fine, z0, start, options, bar, blocks
             )
-        else:
-            start = fine.evaluate(z0, prior=warm.point if warm is not None else None)
+        elif start is None:
+            start = fine.evaluate(z0)
         point, fine_report = minimize(
             fine, start, options, contraction=warm.contraction if warm else None, bar=bar
         )
@@ -119,14 +131,25 @@ def solve_warped(
     return point.z, report, WarmStart(nodes.copy(), point.z, tuple(kfs), point, theta, fine.blocks)
 
 
-def _coarse_level(problem, coarse, kfs, nodes, fine, z0, warm, options, bar, blocks):
-    """The coarse first level from z0; returns the fine point where the fine level starts
-    and the coarse level's report."""
+def _near(fine: WarpedObjective, start: WarpedPoint) -> bool:
+    """Whether a warm start is near enough for the fine level alone: the Newton step of the
+    fine objective's (coarse-model) matrix at the start exists and moves no vertex by more
+    than ``NEAR`` of the body's size."""
+    _, B, _ = fine.newton_matrices(start)
+    try:
+        dz = BandedCholesky(B).solve(-start.g, refine=False)
+    except np.linalg.LinAlgError:
+        return False
+    return fine.step_size(dz) <= NEAR * fine.size
+
+
+def _coarse_level(problem, coarse, kfs, nodes, fine, z0, start, options, bar, blocks):
+    """The coarse first level from z0 (``start``: the fine objective at a warm start's z0,
+    or None); returns the fine point where the fine level starts and the coarse level's
+    report."""
     plain = WarpedObjective(problem, coarse, kfs, nodes, blocks=blocks)
     at_z0 = plain.evaluate(z0)
-    start = None
-    if warm is not None:  # full approximation scheme from the last fine point
-        start = fine.evaluate(z0, prior=warm.point)  # cheap: W at z0 is kept
+    if start is not None:  # full approximation scheme from the last fine point
         tau = start.g - at_z0.g
         correction = (tau, start.F - at_z0.F - float(tau @ z0))
         corrected = WarpedObjective(

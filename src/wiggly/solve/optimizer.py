@@ -240,6 +240,10 @@ def minimize(
         distance = _distance(objective, dz_newton, theta)
         small = decrement <= tol * max(point.F, 0.0) + floor
         close = distance <= options.distance_tolerance * objective.size
+        if DEBUG:
+            print(f"  check exact={objective.exact} computed={computed} "
+                  f"dec/F={decrement / max(point.F, 1e-300):.3g} "
+                  f"dist/size={distance / objective.size:.3g} theta={theta}")
         # the last step was a full step of this iteration and it contracted by theta; an
         # exact model must also have its derivatives computed at this point
         trusted = (
