@@ -17,8 +17,9 @@ import numpy as np
 import pytest
 
 from wiggly.editor import EditorServer, Sandbox, Session
-from wiggly.editor.session import EventBus, Mailbox, autosave_path
-from wiggly.editor.state import EditError, EditLog, EditorState, apply_edit, rebased, rigid_fit
+from wiggly.editor.bus import EventBus, Mailbox
+from wiggly.editor.session import autosave_path
+from wiggly.editor.state import EditError, EditorState, apply_edit, rebased, rigid_fit
 from wiggly.primitives import box_mesh
 from wiggly.scene import load_scene, save_scene, scene_from_dict
 
@@ -174,20 +175,6 @@ def test_bad_edits_are_refused(state, op, status):
         apply_edit(state, op, n_vertices=100)
     assert err.value.status == status
     assert str(err.value)
-
-
-def test_edit_log_undo_redo_dirty():
-    a, b, c = (EditorState.of(scene_from_dict({"mesh": {"path": p}})) for p in "abc")
-    log = EditLog([a], limit=3)
-    log.saved = a
-    assert not log.dirty and not log.can_undo
-    log.push(b)
-    assert log.dirty and log.undo() and log.current is a and log.can_redo
-    log.push(c)  # drops the redo branch
-    assert not log.can_redo and log.undo() and log.current is a
-    for s in (b, c, b, c):
-        log.push(s)
-    assert len(log.states) == 3 and log.current is c
 
 
 def test_rigid_fit_recovers_a_rigid_motion():
@@ -471,7 +458,7 @@ def test_autosave_recovery_after_a_crash(project):
     s2 = Session(Sandbox([project]))
     opened = s2.open("shot.toml")
     assert any("recovered" in n for n in opened["notices"])
-    assert s2.scene == edited and s2.log.dirty
+    assert s2.scene == edited and s2.dirty
     s2.save()
     assert not auto.exists() and load_scene(project / "shot.toml") == edited
     s2.close()

@@ -36,6 +36,18 @@ import numpy as np
 CHUNK_SECONDS = 0.6
 MAX_ITERATIONS = 50
 PUSH_SECONDS = 1.5
+PLAYBACK_BYTES = 256 * 2**20  # playback frames of one solve (float32) kept in memory
+
+
+def playback_fps(fps: float, start: float, end: float, n_vertices: int) -> float:
+    """The frame rate of the editor's playback: the scene's, unless its frames of
+    ``n_vertices`` would take more than :data:`PLAYBACK_BYTES` (a long shot of a fine
+    surface); then the highest rate that fits (the page plays any rate)."""
+    frames = np.floor((end - start) * fps + 1e-9) + 1
+    if frames * n_vertices * 12 <= PLAYBACK_BYTES or end <= start:
+        return float(fps)
+    most = max(PLAYBACK_BYTES // (12 * max(n_vertices, 1)), 2)
+    return float((most - 1) / (end - start))
 
 
 def write_message(stream: BinaryIO, obj: Any) -> None:
@@ -161,7 +173,8 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
     t0 = time.perf_counter()
     init = previous.get(pkey)
     total, per_iter, last_push = 0, None, time.perf_counter()
-    fps = float(scene.time.fps)
+    fps = playback_fps(scene.time.fps, problem.start, problem.end,
+                       problem.body.surface.n_vertices)
     while True:
         inbox.poll()
         if inbox.newest > seq:
