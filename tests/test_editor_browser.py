@@ -98,9 +98,12 @@ def _image(page, shown: str | None = None) -> np.ndarray:
                       dtype=float)
 
 
-def _box_select(page, indices) -> None:
-    """Box-select the given vertices with the Box tool (a real mouse drag)."""
+def _box_select(page, indices, xray: bool = True) -> None:
+    """Box-select the given vertices with the Box tool (a real mouse drag); ``xray``: through
+    the body (Alt+Z), else only the visible ones."""
     box = page.evaluate("(idx) => window.wiggly.screenBox(idx)", [int(i) for i in indices])
+    if page.evaluate("window.wiggly.S.view.xray") != xray:
+        page.keyboard.press("Alt+z")
     page.keyboard.press("x")
     pad = 6
     page.mouse.move(box["x0"] - pad, box["y0"] - pad)
@@ -190,8 +193,9 @@ def test_edit_pose_play_save_reproduces(browser_page, shared_tets, tmp_path):
         page.keyboard.press("Home")
         page.keyboard.press("k")
         page.wait_for_function("window.wiggly.S.desc.scene.keyframes.length === 1")
-        tl = page.locator("#timeline").bounding_box()
-        page.mouse.click(tl["x"] + 14 + 0.5 * (tl["width"] - 28), tl["y"] + tl["height"] / 2)
+        ruler = page.evaluate("window.wiggly.timePoint(1.0)")  # the dope sheet's time ruler
+        page.mouse.click(ruler["x"], ruler["y"])
+        page.wait_for_function("Math.abs(window.wiggly.S.t - 1.0) < 1e-6")
         page.keyboard.press("k")
         page.wait_for_function("window.wiggly.S.desc.scene.keyframes.length === 2")
         keys = server.session.scene.keyframes
