@@ -21,7 +21,7 @@ from wiggly.editor.bus import EventBus, Mailbox
 from wiggly.editor.session import autosave_path
 from wiggly.editor.state import EditError, EditorState, apply_edit, rebased, rigid_fit
 from wiggly.primitives import box_mesh
-from wiggly.scene import load_scene, save_scene, scene_from_dict
+from wiggly.scene import load_scene, save_scene
 
 SCENE = """\
 format = 1

@@ -86,15 +86,6 @@ class EditorState:
         n = len(scene.keyframes)
         return cls(scene, tuple(range(n)), n)
 
-    def keyframe_index(self, kid: Any) -> int:
-        if isinstance(kid, bool) or not isinstance(kid, int):
-            raise EditError(f"keyframe id must be an integer; got {_show(kid)}")
-        try:
-            return self.keyframe_ids.index(kid)
-        except ValueError:
-            raise EditError(f"there is no keyframe with id {kid} (it may have been deleted); "
-                            f"ids are {list(self.keyframe_ids)}", 404) from None
-
 
 # ----------------------------------------------------------------------------------------------
 # checks of JSON payloads
@@ -232,6 +223,30 @@ def _keyframe_dict(op: dict, base: dict | None = None) -> dict:
     return d
 
 
+@dataclass
+class _Draft:
+    """An edit in progress: the scene's dict form and its keyframe ids (same order).  Edits
+    change a draft; the scene is rebuilt and checked once, after all of them (a batch)."""
+
+    d: dict
+    ids: list[int]
+    next_id: int
+
+    def key_index(self, kid: Any) -> int:
+        if isinstance(kid, bool) or not isinstance(kid, int):
+            raise EditError(f"keyframe id must be an integer; got {_show(kid)}")
+        try:
+            return self.ids.index(kid)
+        except ValueError:
+            raise EditError(f"there is no keyframe with id {kid} (it may have been deleted); "
+                            f"ids are {_show(self.ids)}", 404) from None
+
+    def group(self, name: str) -> dict:
+        if name not in self.d["groups"]:
+            raise EditError(f"there is no group {name!r}", 404)
+        return self.d["groups"][name]
+
+
 def apply_edit(state: EditorState, op: Any, n_vertices: int | None = None,
                diagonal: float | None = None) -> EditorState:
     """The state after the edit ``op`` (a JSON object, see the module doc).
@@ -239,34 +254,41 @@ def apply_edit(state: EditorState, op: Any, n_vertices: int | None = None,
     ``n_vertices`` (of the surface) bounds group indices, ``diagonal`` (of its bounding box)
     the tet edge length.  Raises :class:`EditError`.
     """
-    if not isinstance(op, dict):
-        raise EditError(f"an edit must be a JSON object with an 'op' field; got {_show(op)}")
-    kind = op.get("op")
-    if kind == "batch":
+    draft = _Draft(scene_to_dict(state.scene), list(state.keyframe_ids), state.next_id)
+    if isinstance(op, dict) and op.get("op") == "batch":
         ops = _need(op, "ops")
         if not isinstance(ops, list) or not ops or len(ops) > limits.MAX_KEYFRAMES:
             raise EditError(f"batch: ops must be a list of 1 to {limits.MAX_KEYFRAMES} edits")
-        new = state
         for i, sub in enumerate(ops):
-            if isinstance(sub, dict) and sub.get("op") == "batch":
-                raise EditError("batch: edits in a batch cannot be batches")
             try:
-                new = apply_edit(new, sub, n_vertices, diagonal)
+                if isinstance(sub, dict) and sub.get("op") == "batch":
+                    raise EditError("edits in a batch cannot be batches")
+                _apply(draft, sub, n_vertices)
             except EditError as err:
                 raise EditError(f"batch edit {i + 1} of {len(ops)}: {err}", err.status) from None
-        return new
-    handler = _EDITS.get(kind) if isinstance(kind, str) else None
-    if handler is None:
-        raise EditError(f"unknown edit op {_show(kind)}; known: {', '.join(_EDITS)}, batch")
-    new = handler(state, op, n_vertices)
-    if diagonal is not None and op.get("section") == "mesh":
+    else:
+        _apply(draft, op, n_vertices)
+    new = rebuild_state(state, draft.d, tuple(draft.ids), draft.next_id)
+    if diagonal is not None:
         check_limits(new.scene, diagonal)
     return new
 
 
-def _set_group(state, op, n):
+def _apply(draft: _Draft, op: Any, n_vertices: int | None) -> None:
+    if not isinstance(op, dict):
+        raise EditError(f"an edit must be a JSON object with an 'op' field; got {_show(op)}")
+    kind = op.get("op")
+    handler = _EDITS.get(kind) if isinstance(kind, str) else None
+    if handler is None:
+        raise EditError(f"unknown edit op {_show(kind)}; known: {', '.join(_EDITS)}, batch")
+    handler(draft, op, n_vertices)
+    if len(draft.ids) > limits.MAX_KEYFRAMES:
+        raise EditError(f"{len(draft.ids)} keyframes: at most {limits.MAX_KEYFRAMES}")
+
+
+def _set_group(draft, op, n):
     name = _group_name(_need(op, "name"))
-    d = scene_to_dict(state.scene)
+    d = draft.d
     old = d["groups"].get(name, {})
     g: dict[str, Any] = {"indices": _indices(_need(op, "indices"), n)}
     on = op.get("on", old.get("on", "surface"))
@@ -277,14 +299,12 @@ def _set_group(state, op, n):
     color = op.get("color") or old.get("color") or PALETTE[len(d["groups"]) % len(PALETTE)]
     g["color"] = _color(color)
     d["groups"][name] = g
-    return rebuild_state(state, d)
 
 
-def _rename_group(state, op, n):
+def _rename_group(draft, op, n):
     name, new = _group_name(_need(op, "name")), _group_name(_need(op, "new_name"))
-    d = scene_to_dict(state.scene)
-    if name not in d["groups"]:
-        raise EditError(f"there is no group {name!r}", 404)
+    d = draft.d
+    draft.group(name)
     if new != name and new in d["groups"]:
         raise EditError(f"a group named {new!r} exists already")
     d["groups"] = {(new if k == name else k): v for k, v in d["groups"].items()}
@@ -292,69 +312,55 @@ def _rename_group(state, op, n):
         if k["group"] == name:
             k["group"] = new
     d["simulation"]["fixed"] = [new if g == name else g for g in d["simulation"]["fixed"]]
-    return rebuild_state(state, d)
 
 
-def _recolor_group(state, op, n):
+def _recolor_group(draft, op, n):
+    draft.group(_group_name(_need(op, "name")))["color"] = _color(_need(op, "color"))
+
+
+def _delete_group(draft, op, n):
     name = _group_name(_need(op, "name"))
-    d = scene_to_dict(state.scene)
-    if name not in d["groups"]:
-        raise EditError(f"there is no group {name!r}", 404)
-    d["groups"][name]["color"] = _color(_need(op, "color"))
-    return rebuild_state(state, d)
-
-
-def _delete_group(state, op, n):
-    name = _group_name(_need(op, "name"))
-    d = scene_to_dict(state.scene)
-    if name not in d["groups"]:
-        raise EditError(f"there is no group {name!r}", 404)
+    d = draft.d
+    draft.group(name)
     del d["groups"][name]
     keep = [i for i, k in enumerate(d["keyframes"]) if k["group"] != name]
     d["keyframes"] = [d["keyframes"][i] for i in keep]
+    draft.ids = [draft.ids[i] for i in keep]
     d["simulation"]["fixed"] = [g for g in d["simulation"]["fixed"] if g != name]
-    return rebuild_state(state, d, tuple(state.keyframe_ids[i] for i in keep))
 
 
-def _set_fixed(state, op, n):
+def _set_fixed(draft, op, n):
     name = _group_name(_need(op, "name"))
     fixed = _need(op, "fixed")
     if not isinstance(fixed, bool):
         raise EditError(f"fixed must be true or false; got {_show(fixed)}")
-    d = scene_to_dict(state.scene)
-    if name not in d["groups"]:
-        raise EditError(f"there is no group {name!r}", 404)
-    names = [g for g in d["simulation"]["fixed"] if g != name]
-    d["simulation"]["fixed"] = [*names, name] if fixed else names
-    return rebuild_state(state, d)
+    draft.group(name)
+    names = [g for g in draft.d["simulation"]["fixed"] if g != name]
+    draft.d["simulation"]["fixed"] = [*names, name] if fixed else names
 
 
-def _add_keyframe(state, op, n):
+def _add_keyframe(draft, op, n):
     _need(op, "time"), _need(op, "group")
     k = _keyframe_dict(op)
     if "position" not in k and "velocity" not in k:
         k["position"] = "rest"
-    d = scene_to_dict(state.scene)
-    d["keyframes"].append(k)
-    return rebuild_state(state, d, (*state.keyframe_ids, state.next_id), state.next_id + 1)
+    draft.d["keyframes"].append(k)
+    draft.ids.append(draft.next_id)
+    draft.next_id += 1
 
 
-def _update_keyframe(state, op, n):
-    i = state.keyframe_index(_need(op, "id"))
-    d = scene_to_dict(state.scene)
-    d["keyframes"][i] = _keyframe_dict(op, d["keyframes"][i])
-    return rebuild_state(state, d)
+def _update_keyframe(draft, op, n):
+    i = draft.key_index(_need(op, "id"))
+    draft.d["keyframes"][i] = _keyframe_dict(op, draft.d["keyframes"][i])
 
 
-def _delete_keyframe(state, op, n):
-    i = state.keyframe_index(_need(op, "id"))
-    d = scene_to_dict(state.scene)
-    del d["keyframes"][i]
-    ids = state.keyframe_ids[:i] + state.keyframe_ids[i + 1:]
-    return rebuild_state(state, d, ids)
+def _delete_keyframe(draft, op, n):
+    i = draft.key_index(_need(op, "id"))
+    del draft.d["keyframes"][i]
+    del draft.ids[i]
 
 
-def _set(state, op, n):
+def _set(draft, op, n):
     section = _need(op, "section")
     if section not in SETTABLE:
         raise EditError(f"section {_show(section)} cannot be set; use one of "
@@ -362,8 +368,7 @@ def _set(state, op, n):
     values = _need(op, "values")
     if not isinstance(values, dict):
         raise EditError(f"values must be a table of {section} keys; got {_show(values)}")
-    d = scene_to_dict(state.scene)
-    table = d.setdefault(section, {})
+    table = draft.d.setdefault(section, {})
     for key, v in values.items():
         if key not in SETTABLE[section]:
             raise EditError(f"{section}.{key} cannot be set here; keys: "
@@ -380,7 +385,6 @@ def _set(state, op, n):
         table.pop("edge_length", None)
     if section == "mesh" and values.get("edge_length") is not None:
         table.pop("resolution", None)
-    return rebuild_state(state, d)
 
 
 _EDITS = {

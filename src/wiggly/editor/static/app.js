@@ -178,7 +178,7 @@ for (const el of document.querySelectorAll('[data-set]')) {
     if (el.type !== 'checkbox' && Number.isNaN(v)) { toast(`${section}.${key}: not a number`, true); return; }
     if (key === 'modes') v = Math.round(v);
     if (index !== undefined) { const vec = [...(scene()[section][key])]; vec[+index] = v; v = vec; }
-    edit({ op: 'set', section, values: { [key]: v } });
+    edit({ op: 'set', section, values: { [key]: v } }).then((r) => { if (!r) renderPanels(); });  // refused: the scene's value again
   };
 }
 // view options (this tab only)
