@@ -164,3 +164,25 @@ def drag_gizmo(page, axis: str, pixels: float, steps: int = 10) -> None:
 def select_key(page, key_id: int) -> None:
     page.click(f"#keys li[data-key='{key_id}']")
     page.wait_for_function(f"window.wiggly.S.selectedKey === {key_id}")
+
+
+def grab_ring(page, axis: str) -> dict:
+    """Press the mouse on the rotate gizmo's ring about ``axis`` (found by hovering along
+    it); returns the point."""
+    for _attempt in range(3):
+        next_frame(page, 2)
+        ring = page.evaluate(f"window.wiggly.gizmoRing('{axis}')")
+        for p in ring["points"]:
+            page.mouse.move(p["x"], p["y"])
+            if page.evaluate(f"window.wiggly.gizmoHandle('{axis}').axis") == axis:
+                page.mouse.down()
+                page.wait_for_function("window.wiggly.S.dragging")
+                return p
+        page.mouse.move(5, 5)
+    raise AssertionError(f"cannot find the gizmo's {axis} ring")
+
+
+def click_time(page, t: float, group: str | None = None, **kw) -> None:
+    """Click the dope sheet at time ``t``: on the ruler, or on ``group``'s row."""
+    p = page.evaluate("([t, g]) => window.wiggly.timePoint(t, g ?? undefined)", [t, group])
+    page.mouse.click(p["x"], p["y"], **kw)

@@ -365,13 +365,14 @@ def test_8_release_latency_counts_frames_that_come_before_the_answer(chromium, t
             select_key(page, 0)
             page.keyboard.press("w")
             x, y, h = grab_gizmo(page, "Y")
+            version = session.version
             move_along(page, x, y, h, 40)
             page.mouse.up()
-            version = session.version
-            page.wait_for_function(f"window.wiggly.latencies.some((l) => l.first && "
-                                   f"l.version === {version})", timeout=30_000)
-            first = page.evaluate(f"window.wiggly.latencies.find((l) => l.first && "
-                                  f"l.version === {version})")
+            page.wait_for_function("window.wiggly.latencies.some((l) => l.first)",
+                                   timeout=30_000)
+            first = page.evaluate("window.wiggly.latencies.find((l) => l.first)")
+            version += 1  # the drag's edit
+            assert first["version"] == version == session.version
             assert first["applied"] <= first["ms"]
             assert first["posted"] is None or first["posted"] >= first["applied"]
             next_frame(page, 2)

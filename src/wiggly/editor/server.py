@@ -43,6 +43,7 @@ import mimetypes
 import os
 import queue
 import re
+import socket
 import threading
 import traceback
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -406,6 +407,8 @@ class EditorServer(ThreadingHTTPServer):
         self.max_json, self.max_upload, self.max_streams = max_json, max_upload, max_streams
         self.verbose = verbose
         self.stopping = threading.Event()
+        self._open: set[socket.socket] = set()  # connections being served
+        self._open_lock = threading.Lock()
         super().__init__((host, port), _Handler)
         self.host = host
         try:
@@ -434,9 +437,18 @@ class EditorServer(ThreadingHTTPServer):
         return self
 
     def stop(self) -> None:
+        """Stop serving: the listening socket and every open connection (a browser's
+        keep-alive connection must not be answered by a stopped session) are closed."""
         self.stopping.set()
         self.shutdown()
         self.server_close()
+        with self._open_lock:
+            open_connections = list(self._open)
+        for conn in open_connections:
+            try:
+                conn.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
         self.session.close()
         if self._thread is not None:
             self._thread.join(timeout=5)
@@ -447,12 +459,16 @@ class EditorServer(ThreadingHTTPServer):
         if not self._slots.acquire(blocking=False):
             self.shutdown_request(request)
             return
+        with self._open_lock:
+            self._open.add(request)
         super().process_request(request, client_address)
 
     def process_request_thread(self, request, client_address) -> None:
         try:
             super().process_request_thread(request, client_address)
         finally:
+            with self._open_lock:
+                self._open.discard(request)
             self._slots.release()
 
     def handle_error(self, request, client_address) -> None:  # never let a request kill us

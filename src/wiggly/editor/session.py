@@ -322,11 +322,15 @@ class Session:
     def _changed(self, autosave: bool = True) -> None:
         """After a state change: autosave, tell the browsers, solve."""
         state = self.state
-        if autosave and self.autosave and state.scene.source is not None and self.dirty:
+        if autosave and self.autosave and state.scene.source is not None:
             try:
                 target = autosave_path(Path(state.scene.source))
-                if self.sandbox.contains(target.parent):
+                if not self.sandbox.contains(target.parent):
+                    pass
+                elif self.dirty:
                     save_scene(state.scene, target, overwrite=True)
+                else:  # back to the saved scene (undo): an older autosave must not come back
+                    target.unlink(missing_ok=True)
             except (OSError, WigglyInputError) as err:
                 self.bus.publish("notice", level="warning", message=f"autosave failed: {err}")
         if self.histories.write_error:

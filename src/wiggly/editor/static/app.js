@@ -18,9 +18,9 @@ import { renderPanels, renderKeyPanel, selectGroup, selectKey, deleteGroup, open
 import { draw as drawDopesheet, pagePoint, setPreviewRange, deleteSelectedKeys, copyKeys, pasteKeys,
   duplicateKeys, keySelectedGroups } from './dopesheet.js';
 import { startPosing, stopPosing, cancelDrag, updatePoseHelpers, dragKey, dragKeyUp, gizmoHandle,
-  poseTarget, applyPivot, setCursor, restPose } from './posing.js';
+  gizmoRing, poseTarget, applyPivot, setCursor, restPose } from './posing.js';
 import { setTool, setXray, updateSelCount, screenBox } from './selection.js';
-import { updateOnion, updatePaths, updatePathMarker, faceCamera, pathOf } from './onion.js';
+import { updateOnion, updatePaths, updatePathMarker, faceCamera, pathOf, onionInfo } from './onion.js';
 import { viewFrom, frameSelected, viewKey } from './views.js';
 
 // ------------------------------------------------------------------------------------------
@@ -72,10 +72,11 @@ Object.assign(hooks, {
 
 window.wiggly = {                 // test and benchmark hooks (read-only use)
   S, latencies: [], framesApplied: 0,
-  gizmoHandle, screenBox, redraw,
+  gizmoHandle, gizmoRing, screenBox, redraw, onionInfo,
   projectGroup: (name) => screenBox(S.groupVerts[name] || []),
   rigidOfPose: () => poseTarget(),
   timePoint: (t, group) => pagePoint(t, group),
+  shownPositions: () => Array.from(geometry.getAttribute('position').array),
   pathOf,
   camera: () => ({ position: camera.position.toArray(), target: controls.target.toArray(), fov: camera.fov, aspect: camera.aspect }),
   ready: false,

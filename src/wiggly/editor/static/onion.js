@@ -136,3 +136,9 @@ export function updatePathMarker() {
 export function faceCamera(camera) { marker.quaternion.copy(camera.quaternion); }
 // The path of a group (tests): centroids per frame.
 export function pathOf(name) { const p = pathData.find((d) => d.name === name); return p ? Array.from(p.points) : null; }
+// The onion skins (tests): the frame each shows, its side, opacity and vertex 0.
+export function onionInfo() {
+  return skins.filter((s) => onion.visible && s.mesh.visible).map((s) => ({ frame: s.frame,
+    opacity: s.mesh.material.opacity, past: s.mesh.material.color.equals(PAST),
+    vertex0: Array.from(s.mesh.geometry.getAttribute('position').array.slice(0, 3)) }));
+}

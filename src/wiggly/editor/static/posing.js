@@ -93,9 +93,11 @@ export function recentered(rg, center) {
   const t = new THREE.Vector3(...rg.translation).add(d.clone().applyMatrix4(rotationOf(rg))).sub(d);
   return { rotation: [...rg.rotation], translation: t.toArray(), center: [...center] };
 }
-// Where the pivot of a group's transform is (S.view.pivot).
-export function pivotPoint(group) {
-  if (S.view.pivot === 'cursor' && S.cursor) return S.cursor.clone();
+// The centre (in rest coordinates) of a group's transform `rg` for the pivot choice
+// (S.view.pivot): the group's centroid or the centre of its bounds (so the gizmo sits on the
+// target's), or the rest point that `rg` carries to the 3D cursor (so the gizmo sits on it).
+export function pivotCenter(group, rg) {
+  if (S.view.pivot === 'cursor' && S.cursor) return S.cursor.clone().applyMatrix4(rigidMatrix(rg).invert());
   if (S.view.pivot === 'bounds') return boundsOf(S.groupVerts[group] || []).getCenter(new THREE.Vector3());
   return groupCentroid(group);
 }
@@ -146,7 +148,7 @@ export function updatePoseHelpers() {
 function placePivot(rg) {
   const k = currentKey();
   if (k && S.posing) {
-    const want = pivotPoint(k.group).toArray();
+    const want = pivotCenter(k.group, rg).toArray();
     if (want.some((x, i) => Math.abs(x - rg.center[i]) > 1e-9)) rg = recentered(rg, want);
   }
   const c = new THREE.Vector3(...rg.center), t = new THREE.Vector3(...rg.translation);
@@ -293,7 +295,7 @@ function showHud() {
     const dq = x.startQuat.clone().invert().multiply(pivot.quaternion);
     now = `${(2 * Math.acos(Math.min(1, Math.abs(dq.w))) / D2R).toFixed(2)}°`;
   } else now = `[${pivot.position.clone().sub(x.startPos).toArray().map((v) => v.toFixed(4)).join(', ')}] m`;
-  $('hud').textContent = `${x.mode === 'rotate' ? 'rotate' : 'move'} · axis ${axis}${snapping() ? ' · snap' : ''}` +
+  $('hud').textContent = `${x.mode === 'rotate' ? 'rotate' : 'move'} · axis ${axis}${snapping() ? ' · snapping' : ''}` +
     (x.typed !== '' ? ` · typed ${x.typed}${unit} (Enter applies)` : ` · ${now}`) + '\nX/Y/Z axis · type a value · Ctrl snap · Esc cancel';
   redraw();
 }
@@ -419,5 +421,20 @@ export function gizmoHandle(axis) {
   const dx = r.left + (q.x + 1) / 2 * r.width - ox, dy = r.top + (1 - q.y) / 2 * r.height - oy;
   const n = Math.hypot(dx, dy) || 1;
   return { x: ox, y: oy, dx: dx / n, dy: dy / n, axis: gizmo.axis };
+}
+// Screen points on the rotate gizmo's ring about an axis (tests).
+export function gizmoRing(axis) {
+  const r = canvas.getBoundingClientRect();
+  const p = pivot.position.clone();
+  const factor = p.distanceTo(camera.position) * Math.min(1.9 * Math.tan(Math.PI * camera.fov / 360) / camera.zoom, 7);
+  const R = 0.5 * factor * gizmo.size / 4;   // the rings have radius 0.5 in gizmo units
+  const [u, v] = { X: ['Y', 'Z'], Y: ['Z', 'X'], Z: ['X', 'Y'] }[axis].map((a) => AXES[a].clone().applyQuaternion(pivot.quaternion));
+  const out = [];
+  for (let k = 0; k < 24; k++) {
+    const th = (k + 0.5) / 24 * 2 * Math.PI;
+    const q = p.clone().addScaledVector(u, R * Math.cos(th)).addScaledVector(v, R * Math.sin(th)).project(camera);
+    out.push({ x: r.left + (q.x + 1) / 2 * r.width, y: r.top + (1 - q.y) / 2 * r.height });
+  }
+  return { points: out, axis: gizmo.axis };
 }
 export function restPose(k) { edit({ op: 'update_keyframe', id: k.id, position: 'rest' }); }

@@ -58,10 +58,21 @@ function visibleAmong(indices, sp, x0, y0, x1, y1) {
   camera.updateMatrixWorld();
   indices.forEach((i, j) => {
     const depth = -v.set(pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]).applyMatrix4(camera.matrixWorldInverse).z;
-    const px = Math.round(sp[3 * i] * ratio), py = Math.round(sp[3 * i + 1] * ratio);
-    let deepest = -Infinity;
-    for (let dy = -1; dy <= 1; dy++) for (let dx = -1; dx <= 1; dx++) deepest = Math.max(deepest, at(px + dx, py + dy));
-    out[j] = depth <= deepest + tol ? 1 : 0;
+    // the surface drawn at the vertex's pixel is the vertex's own (visible), or nearer
+    // (hidden).  On a silhouette the pixel may show the background: then the nearest surface
+    // around it decides.  A surface seen at a grazing angle changes depth fast across the
+    // pixel: allow that change.
+    const px = Math.floor(sp[3 * i] * ratio), py = Math.floor(sp[3 * i + 1] * ratio);
+    let here = at(px, py);
+    if (!Number.isFinite(here)) {
+      for (let dy = -1; dy <= 1; dy++) for (let dx = -1; dx <= 1; dx++) here = Math.min(here, at(px + dx, py + dy));
+    }
+    let slope = 0;
+    for (const [dx, dy] of [[1, 0], [-1, 0], [0, 1], [0, -1]]) {
+      const d = at(px + dx, py + dy);
+      if (Number.isFinite(d) && Number.isFinite(here)) slope = Math.max(slope, Math.abs(d - here));
+    }
+    out[j] = depth <= here + tol + slope ? 1 : 0;
   });
   return out;
 }
