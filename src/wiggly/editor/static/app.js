@@ -12,10 +12,10 @@
 import * as THREE from 'three';
 import { $, S, api, hooks, act, edit, toast, setStatus, fmt, scene, range, fps, currentKey,
   camera, controls, renderer, scene3, geometry, canvas, redraw, SOFTWARE_GL } from './core.js';
-import { refreshState, offerFrames, setTime, togglePlay, setPlaying, step, updateColors } from './playback.js';
+import { refreshState, offerFrames, setTime, togglePlay, step } from './playback.js';
 import { renderPanels, renderKeyPanel, selectGroup, selectKey, deleteGroup, openDialog, promptDialog,
   newGroupFromSelection, setGroupFromSelection, showNotices } from './panels.js';
-import { draw as drawDopesheet, pagePoint, setPreviewRange, deleteSelectedKeys, copyKeys, pasteKeys,
+import { draw as drawDopesheet, drawTimeCursor, pagePoint, setPreviewRange, deleteSelectedKeys, copyKeys, pasteKeys,
   duplicateKeys, keySelectedGroups } from './dopesheet.js';
 import { startPosing, stopPosing, cancelDrag, updatePoseHelpers, dragKey, dragKeyUp, gizmoHandle,
   gizmoRing, poseTarget, applyPivot, setCursor, restPose } from './posing.js';
@@ -34,7 +34,7 @@ function makeGround() {
   const y = bb.min.y;
   ground = new THREE.Group();
   const plane = new THREE.Mesh(new THREE.PlaneGeometry(size * 8, size * 8),
-    new THREE.MeshStandardMaterial({ color: 0x3b414b, roughness: 1 }));
+    new THREE.MeshBasicMaterial({ color: 0x30353d }));   // unlit: it fills the view
   plane.rotation.x = -Math.PI / 2;
   plane.position.y = y - 1e-4 * size;
   const grid = new THREE.GridHelper(size * 8, 32, 0x59616e, 0x474e59);
@@ -66,7 +66,7 @@ Object.assign(hooks, {
   renderPanels, renderKeyPanel, selectKey, selectGroup, openDialog, showNotices, refreshState,
   updatePoseHelpers, startPosing, stopPosing, cancelDrag,
   drawDopesheet, updatePaths,
-  timeChanged() { drawDopesheet(); updateOnion(); updatePathMarker(); },
+  timeChanged() { drawTimeCursor(); updateOnion(); updatePathMarker(); },
   framesChanged() { updatePaths(); updateOnion(); },
 });
 
@@ -81,6 +81,7 @@ window.wiggly = {                 // test and benchmark hooks (read-only use)
   camera: () => ({ position: camera.position.toArray(), target: controls.target.toArray(), fov: camera.fov, aspect: camera.aspect }),
   ready: false,
   softwareGL: SOFTWARE_GL,
+  renderScale: 1,
 };
 
 // ------------------------------------------------------------------------------------------
@@ -288,6 +289,31 @@ function resize() {
   camera.updateProjectionMatrix();
   redraw();
 }
+
+// While playing, the view is drawn at a lower resolution when frames take longer than a 30th
+// of a second (software GL spends its time per pixel: onion skins on a 20k-tet body), down to
+// half; paused, at full resolution again.
+const FULL_RATIO = renderer.getPixelRatio(), MIN_SCALE = 0.5;
+const quality = { scale: 1, intervals: [] };
+function setScale(scale) {
+  quality.scale = scale;
+  renderer.setPixelRatio(FULL_RATIO * scale);
+  resize();
+  window.wiggly.renderScale = scale;
+}
+function adaptScale(dt) {
+  if (!S.playing) {
+    quality.intervals = [];
+    if (quality.scale !== 1) setScale(1);
+    return;
+  }
+  quality.intervals.push(dt);
+  if (quality.intervals.length < 6) return;
+  const mean = quality.intervals.reduce((a, b) => a + b, 0) / quality.intervals.length;
+  quality.intervals = [];
+  if (mean > 1 / 33 && quality.scale > MIN_SCALE) setScale(Math.max(MIN_SCALE, quality.scale * 0.8));
+  else if (mean < 1 / 50 && quality.scale < 1) setScale(Math.min(1, quality.scale / 0.8));
+}
 window.addEventListener('resize', () => { resize(); drawDopesheet(); });
 new ResizeObserver(() => { resize(); drawDopesheet(); }).observe($('view'));
 
@@ -295,6 +321,7 @@ function tick(now) {
   const dt = (now - S.lastTick) / 1000;
   S.lastTick = now;
   step(dt);
+  adaptScale(dt);
   if (S.needsRender || S.playing) {
     S.needsRender = false;
     if (S.view.paths) faceCamera(camera);
@@ -309,4 +336,3 @@ function tick(now) {
 resize();
 connect();
 requestAnimationFrame((now) => { S.lastTick = now; tick(now); });
-export { setPlaying, updateColors, drawDopesheet };

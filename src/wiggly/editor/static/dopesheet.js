@@ -34,12 +34,15 @@ export function layout() {
   scrollRow = Math.max(0, Math.min(scrollRow, groupsShown().length - MAX_ROWS));
 }
 
+// Everything but the time cursor is drawn into `sheet` (when the scene, the selection or a
+// drag changes); playback only copies it and draws the cursor.
+const sheet = document.createElement('canvas');
 export function draw() {
   layout();
   const w = ds.clientWidth, h = ds.clientHeight;
   const dpr = devicePixelRatio;
-  if (ds.width !== Math.round(w * dpr) || ds.height !== Math.round(h * dpr)) { ds.width = Math.round(w * dpr); ds.height = Math.round(h * dpr); }
-  const g = ds.getContext('2d');
+  if (sheet.width !== Math.round(w * dpr) || sheet.height !== Math.round(h * dpr)) { sheet.width = Math.round(w * dpr); sheet.height = Math.round(h * dpr); }
+  const g = sheet.getContext('2d');
   g.setTransform(dpr, 0, 0, dpr, 0, 0);
   g.clearRect(0, 0, w, h);
   g.fillStyle = '#1a1d22'; g.fillRect(LABEL_W, 0, w - LABEL_W, h);
@@ -96,10 +99,19 @@ export function draw() {
     g.strokeRect(Math.min(drag.x0, drag.x1), Math.min(drag.y0, drag.y1), Math.abs(drag.x1 - drag.x0), Math.abs(drag.y1 - drag.y0));
     g.setLineDash([]);
   }
-  // current time
+  drawTimeCursor();
+}
+export function drawTimeCursor() {
+  const dpr = devicePixelRatio;
+  if (ds.width !== sheet.width || ds.height !== sheet.height) { ds.width = sheet.width; ds.height = sheet.height; }
+  const g = ds.getContext('2d');
+  g.setTransform(1, 0, 0, 1, 0, 0);
+  g.drawImage(sheet, 0, 0);
+  if (!scene()) return;
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
   const x = tlX(S.t);
   g.strokeStyle = '#4da3ff'; g.lineWidth = 2;
-  g.beginPath(); g.moveTo(x, 0); g.lineTo(x, h); g.stroke();
+  g.beginPath(); g.moveTo(x, 0); g.lineTo(x, ds.clientHeight); g.stroke();
   g.lineWidth = 1;
 }
 function niceStep(x) { const p = 10 ** Math.floor(Math.log10(x)); const m = x / p; return (m < 1.5 ? 1 : m < 3.5 ? 2 : m < 7.5 ? 5 : 10) * p; }

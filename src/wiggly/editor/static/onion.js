@@ -1,21 +1,25 @@
-// Onion skins (O): translucent ghosts of the body at earlier frames (warm) and later frames
-// (cool), every `onionStep` frames, `onionCount` on each side, fading with distance; they follow
-// playback.  Motion paths (P): the path of each selected group's centroid over the shot, a dot
-// per frame, a larger dot per keyframe of the group, the current frame ringed.
+// Onion skins (O): ghosts of the body at earlier frames (warm) and later frames (cool), every
+// `onionStep` frames, `onionCount` on each side, fading with distance; they follow playback and
+// show where the body is not (the body hides them).  Motion paths (P): the path of each
+// selected group's centroid over the shot, a dot per frame, a larger dot per keyframe of the
+// group, the current frame ringed.
 import * as THREE from 'three';
 import { S, geometry, scene3, scene, groupColor } from './core.js';
 import { frameIndex, framePositions } from './playback.js';
 
 const PAST = new THREE.Color(1.0, 0.45, 0.25), FUTURE = new THREE.Color(0.3, 0.75, 1.0);
 const MAX_SKINS = 8;   // per side
-const skins = [];      // {mesh, offset}
+const skins = [];      // {mesh, frame, framesId}
 const onion = new THREE.Group();
 onion.visible = false;
 scene3.add(onion);
 
 function skin() {
   const g = new THREE.BufferGeometry();
-  const m = new THREE.MeshLambertMaterial({ transparent: true, depthWrite: false, side: THREE.DoubleSide });
+  // unlit and front faces only: ghosts are read by their outline; pushed back a little so
+  // that where a ghost and the body coincide, the body shows
+  const m = new THREE.MeshBasicMaterial({ side: THREE.FrontSide, transparent: true, depthWrite: false,
+    polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 4 });
   const mesh = new THREE.Mesh(g, m);
   mesh.frustumCulled = false;
   mesh.renderOrder = 1;
@@ -27,15 +31,12 @@ function skin() {
 function ensureSkins() {
   const want = 2 * Math.min(S.view.onionCount, MAX_SKINS);
   const index = geometry.getIndex();
-  while (skins.length < want) skins.push({ mesh: skin(), offset: 0 });
+  while (skins.length < want) skins.push({ mesh: skin() });
   skins.forEach((s, j) => {
     const g = s.mesh.geometry;
     if (g.getIndex() !== index) g.setIndex(index);
     const pos = g.getAttribute('position');
-    if (!pos || pos.count !== S.n) {
-      g.setAttribute('position', new THREE.BufferAttribute(new Float32Array(S.n * 3), 3));
-      g.setAttribute('normal', new THREE.BufferAttribute(new Float32Array(S.n * 3), 3));
-    }
+    if (!pos || pos.count !== S.n) g.setAttribute('position', new THREE.BufferAttribute(new Float32Array(S.n * 3), 3));
     s.mesh.visible = j < want;
   });
 }
@@ -48,7 +49,6 @@ export function updateOnion() {
   ensureSkins();
   const i = frameIndex(), n = Math.min(S.view.onionCount, MAX_SKINS), step = Math.max(1, S.view.onionStep);
   const F = S.frames.meta.n_frames;
-  const normals = geometry.getAttribute('normal');
   for (let j = 0; j < 2 * n; j++) {
     const side = j < n ? -1 : 1, d = (j % n) + 1;
     const f = i + side * d * step;
@@ -62,9 +62,6 @@ export function updateOnion() {
       pos.needsUpdate = true;
       s.frame = f; s.framesId = S.frames.meta.id;
     }
-    // the current frame's normals: close enough for shading a ghost, and free
-    const nrm = g.getAttribute('normal');
-    if (normals && nrm.array.length === normals.array.length) { nrm.array.set(normals.array); nrm.needsUpdate = true; }
     const m = s.mesh.material;
     m.color.copy(side < 0 ? PAST : FUTURE);
     m.opacity = 0.42 * (1 - (d - 1) / (n + 0.5));

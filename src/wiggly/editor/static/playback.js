@@ -25,6 +25,7 @@ async function loadMesh() {
   geometry.computeBoundingSphere();
   geometry.computeBoundingBox();
   S.selection = new Uint8Array(n);
+  colorsKey = null;
   S.frames = null;
   S.shown = { seq: -1, rank: -1, id: -1 };
   hooks.meshLoaded();
@@ -175,16 +176,18 @@ export function showFrame() {
   else pos.array.set(S.rest);
   pos.needsUpdate = true;
   geometry.computeVertexNormals();
-  updateColors();
+  updateColors(false);
   redraw();
   $('time-readout').textContent = `${S.t.toFixed(3)} s  ·  frame ${Math.max(i, 0)}${S.frames ? ' / ' + (S.frames.meta.n_frames - 1) : ''}  ·  ${S.frames ? S.frames.meta.stage : 'rest'}`;
   hooks.timeChanged();
 }
-export function updateColors() {
+// The body's colours: grey, groups tinted (more when selected or near one of their keys),
+// selected vertices yellow.  Playback recolours only when a group's tint changed.
+let colorsKey = null;
+export function updateColors(force = true) {
   const col = geometry.getAttribute('color');
   if (!col || !scene()) return;
   const c = col.array;
-  for (let i = 0; i < S.n; i++) { c[3 * i] = BASE.r; c[3 * i + 1] = BASE.g; c[3 * i + 2] = BASE.b; }
   const tint = new THREE.Color();
   const weights = {};
   for (const name of Object.keys(scene().groups)) weights[name] = name === S.selectedGroup || S.groups.has(name) ? 0.45 : 0.18;
@@ -192,6 +195,10 @@ export function updateColors() {
     const w = Math.max(0, 1 - Math.abs(S.t - k.time) / KEY_WINDOW);
     weights[k.group] = Math.max(weights[k.group] || 0, 0.18 + 0.82 * w);
   }
+  const key = JSON.stringify(weights);
+  if (!force && key === colorsKey) return;
+  colorsKey = key;
+  for (let i = 0; i < S.n; i++) { c[3 * i] = BASE.r; c[3 * i + 1] = BASE.g; c[3 * i + 2] = BASE.b; }
   for (const [name, w] of Object.entries(weights)) {
     const idx = S.groupVerts[name];
     if (!idx) continue;
