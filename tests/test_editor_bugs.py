@@ -373,8 +373,10 @@ def test_8_release_latency_counts_frames_that_come_before_the_answer(chromium, t
             first = page.evaluate("window.wiggly.latencies.find((l) => l.first)")
             version += 1  # the drag's edit
             assert first["version"] == version == session.version
-            assert first["applied"] <= first["ms"]
-            assert first["posted"] is None or first["posted"] >= first["applied"]
+            # the page asked for the frames before the edit's answer came back (the server held
+            # the answer until then), and the release was measured all the same
+            assert first["requested"] <= first["applied"] <= first["ms"]
+            assert first["posted"] is None or first["posted"] > first["requested"]
             next_frame(page, 2)
             assert fetched[version].is_set()
             assert not errors, errors
