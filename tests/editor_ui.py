@@ -26,6 +26,7 @@ young = 1e6
 [simulation]
 modes = 12
 fixed = ["left"]
+warp = {warp}
 [time]
 end = 1.0
 fps = 20
@@ -42,12 +43,14 @@ position = {{ offset = [0.0, 0.05, 0.0] }}
 {extra}"""
 
 
-def bar_project(folder: Path, extra: str = "", name: str = "shot.toml") -> Path:
+def bar_project(folder: Path, extra: str = "", name: str = "shot.toml",
+                warp: bool = True) -> Path:
     """A 1 m x 0.1 m x 0.1 m tet bar (8 x 2 x 2 cells, 81 vertices) and a scene on it: left end
-    fixed, right end lifted 5 cm at 0.5 s; ``extra`` is appended to the scene."""
+    fixed, right end lifted 5 cm at 0.5 s; ``extra`` is appended to the scene; ``warp=False``:
+    linear solves only (no refinement process: quicker)."""
     V, T = box_mesh((8, 2, 2), (1.0, 0.1, 0.1))
     meshio.write(folder / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
-    (folder / name).write_text(BAR_SCENE.format(extra=extra))
+    (folder / name).write_text(BAR_SCENE.format(extra=extra, warp=str(warp).lower()))
     return folder / name
 
 

@@ -43,9 +43,9 @@ position = "rest"
 
 @pytest.fixture
 def editor(chromium, tmp_path):
-    """The bar with keyframes right@0.5 (id 0), mid@0.5 (id 1), mid@0.2 (id 2), open in a
-    page showing its final frames; yields (server, page)."""
-    server = serve(bar_project(tmp_path, MORE_KEYS))
+    """The bar with keyframes right@0.5 (id 0), mid@0.5 (id 1), mid@0.2 (id 2), linear, open
+    in a page showing its final frames; yields (server, page)."""
+    server = serve(bar_project(tmp_path, MORE_KEYS, warp=False))
     try:
         with editor_page(chromium, server.url) as (page, errors):
             wait_final(page)
@@ -169,19 +169,26 @@ def test_keying_several_groups_at_once(editor):
     page.click("#groups li[data-group=mid] .name")
     page.keyboard.up("Shift")
     page.wait_for_function("window.wiggly.S.groups.size === 2")
+    frames, meta = latest_final(server.url)  # what the page shows when K is pressed
     version = server.session.version
     page.keyboard.press("k")
     page.wait_for_function(f"window.wiggly.S.desc.version > {version}")
     added = {g: (t, pos) for i, (g, t, pos) in _keys(server).items() if i >= 3}
     assert set(added) == {"right", "mid"} and all(t == 0.8 for t, _ in added.values())
-    # at the current pose: each target is the rigid fit of the group in the frames at 0.8 s
-    frames, meta = latest_final(server.url)
+    # at the current pose: each target is the least-squares rigid fit (Kabsch) of the group's
+    # rest vertices to its vertices in the frames at 0.8 s
+    from scipy.spatial.transform import Rotation
+
     rest = server.session.surface.vertices
     k = round((0.8 - meta["start"]) * meta["fps"])
     for g, (_, pos) in added.items():
         idx = server.session.groups()[g]
-        moved = (rest[idx] - rest[idx].mean(0)) + rest[idx].mean(0) + pos.translation
-        assert np.abs(moved.mean(0) - frames[k][idx].mean(0)).max() < 1e-3
+        c = np.asarray(pos.center)
+        target = (rest[idx] - c) @ pos.matrix().T + c + pos.translation
+        shown = frames[k][idx].astype(float)
+        best, _ = Rotation.align_vectors(shown - shown.mean(0), rest[idx] - rest[idx].mean(0))
+        fit = (rest[idx] - rest[idx].mean(0)) @ best.as_matrix().T + shown.mean(0)
+        assert np.abs(target - fit).max() < 1e-5
     assert page.evaluate("window.wiggly.S.desc.undo_label") == "key 2 groups"
     _undo(page, server, server.session.version)
     assert len(_keys(server)) == 3
@@ -510,7 +517,7 @@ def test_preview_range_and_playback_speed(editor):
 
 
 def test_undo_is_per_tab_and_survives_a_restart(chromium, tmp_path):
-    path = bar_project(tmp_path, MORE_KEYS)
+    path = bar_project(tmp_path, MORE_KEYS, warp=False)
     server = serve(path)
     port = server.port
     young = "[data-set='material.young']"

@@ -92,7 +92,7 @@ class Playback:
         self._frame_id = 0
         self.fast_box = Mailbox()
         self._stop = threading.Event()
-        self.refiner = Refiner(self._on_refined)
+        self._refiner: Refiner | None = None  # started by the first warped scene
         self._thread = threading.Thread(target=self._worker, args=(self.fast_box,),
                                         name="wiggly-fast", daemon=True)
         self._thread.start()
@@ -100,7 +100,18 @@ class Playback:
     def close(self) -> None:
         self._stop.set()
         self.fast_box.close()
-        self.refiner.close()
+        if self._refiner is not None:
+            self._refiner.close()
+
+    @property
+    def refiner(self) -> Refiner:
+        if self._refiner is None:
+            self._refiner = Refiner(self._on_refined)
+        return self._refiner
+
+    def _supersede(self, seq: int) -> None:
+        if self._refiner is not None:  # a running warped refinement stops
+            self._refiner.supersede(seq)
 
     def _next_seq(self) -> int:
         with self._lock:
@@ -111,7 +122,7 @@ class Playback:
         """Solve ``state`` (newest wins); its ``seq``."""
         seq = self._next_seq()
         self.physics.want(state.scene)
-        self.refiner.supersede(seq)  # a running warped refinement stops
+        self._supersede(seq)
         self.fast_box.put(Request(seq, version, state, kind))
         return seq
 
@@ -125,7 +136,7 @@ class Playback:
             return self.request(state, version, "final")
         seq = self._next_seq()
         self.physics.want(state.scene)
-        self.refiner.supersede(seq)
+        self._supersede(seq)
         self._publish(replace(best, seq=seq, info=dict(best.info)))
         info = best.info
         message = done_message(info) if best.stage == "warped" else "linear solve"
@@ -194,7 +205,7 @@ class Playback:
         elif kind == "died" and not self._stop.is_set():
             self.bus.publish("notice", level="error", message=payload[0]["message"] +
                              "; restarting it")
-            self.refiner = Refiner(self._on_refined)
+            self._refiner = Refiner(self._on_refined)
 
     def _worker(self, box: Mailbox) -> None:
         problems: OrderedDict[tuple, Any] = OrderedDict()

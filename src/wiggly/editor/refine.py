@@ -278,6 +278,8 @@ class Refiner:
                 traceback.print_exc()
 
     def close(self) -> None:
+        """Stop the child: it ends when its stdin closes (between chunks of iterations); one
+        still busy (or importing its libraries) is terminated after a moment."""
         self._stop.set()
         with self._lock:
             try:
@@ -285,7 +287,7 @@ class Refiner:
             except OSError:
                 pass
         try:
-            self._proc.wait(timeout=2)
+            self._proc.wait(timeout=0.3)
         except subprocess.TimeoutExpired:
             self._proc.terminate()
             try:
@@ -293,4 +295,3 @@ class Refiner:
             except subprocess.TimeoutExpired:
                 self._proc.kill()
         self._thread.join(timeout=2)
-
