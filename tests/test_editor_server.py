@@ -533,3 +533,86 @@ def test_cli_edit(project, capsys):
         srv.stop()
     with pytest.raises(Exception, match="no such file"):
         edit.start(parser.parse_args([str(project / "missing.toml"), "--port", "0"]))
+
+
+# ----------------------------------------------------------------------------------------------
+# drag previews, undo per tab
+
+
+def test_drag_previews_keep_the_final_frames(server):
+    """Previews (gizmo drags) neither evict the final frames nor are replayed to new tabs;
+    cancelling a drag announces the scene's frames again."""
+    session = server.session
+    final = wait_final(session)
+    for k in range(12):
+        seq = session.preview({"op": "update_keyframe", "id": 0,
+                               "position": {"offset": [0, 0.01 * k, 0]}})["seq"]
+        deadline = time.time() + 10  # let each preview be solved (else newer ones replace it)
+        while session.latest_frames().seq < seq:
+            assert time.time() < deadline
+            time.sleep(0.01)
+        assert session.latest_frames().kind == "drag"
+    assert session.frames(final.id) is final and session.latest_frames(final=True) is final
+    replayed = session.bus.subscribe()
+    events = [replayed.get_nowait() for _ in range(replayed.qsize())]
+    frames = [e for e in events if e["type"] == "frames"]
+    assert frames and frames[-1]["request"] == "final" and frames[-1]["id"] == final.id
+    seq = session.cancel_preview()["seq"]
+    restored = session.latest_frames()
+    assert restored.seq == seq and restored.kind == "final"
+    assert np.array_equal(restored.positions, final.positions)
+
+
+def test_undo_belongs_to_the_tab_that_edited(project):
+    session = Session(Sandbox([project]))
+    try:
+        session.open("shot.toml")
+        session.edit({"op": "set", "section": "material", "values": {"young": 3e6}}, tab="a")
+        session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.7}}, tab="b")
+        session.edit({"op": "update_keyframe", "id": 0, "time": 0.25}, tab="a")
+        assert session.undo("a")["changed"]  # a's last edit only
+        assert session.scene.keyframes[0].time == 0.5 and session.scene.damping.alpha == 0.7
+        assert session.undo("a")["changed"]
+        assert session.scene.material.young == 1e6 and session.scene.damping.alpha == 0.7
+        assert not session.undo("a")["changed"]
+        assert session.describe("b")["can_undo"] and not session.describe("b")["can_redo"]
+        assert session.describe("a")["redo_label"] == "set material"
+        # another tab changed what a redo would overwrite: refused, and the step dropped
+        session.edit({"op": "set", "section": "material", "values": {"density": 900}}, tab="b")
+        with pytest.raises(EditError) as err:
+            session.redo("a")
+        assert err.value.status == 409 and "changed since" in str(err.value)
+        assert session.scene.material.density == 900 and session.scene.material.young == 1e6
+        assert session.redo("a")["changed"]  # the keyframe step, untouched by b
+        assert session.scene.keyframes[0].time == 0.25
+    finally:
+        session.close()
+
+
+def test_undo_histories_survive_a_restart(project):
+    s1 = Session(Sandbox([project]))
+    s1.open("shot.toml")
+    s1.edit({"op": "add_keyframe", "time": 0.2, "group": "right"}, tab="a")
+    s1.edit({"op": "delete_keyframe", "id": 0}, tab="b")
+    ids, scene = s1.state.keyframe_ids, s1.scene
+    s1.close()  # the process dies
+    s2 = Session(Sandbox([project]))
+    try:
+        s2.open("shot.toml")
+        assert s2.scene == scene and s2.state.keyframe_ids == ids == (1,)
+        assert s2.undo("b")["changed"]  # the deleted keyframe comes back under its id
+        assert s2.state.keyframe_ids == (0, 1) and s2.scene.keyframes[0].time == 0.5
+        assert s2.undo("a")["changed"] and s2.state.keyframe_ids == (0,)
+        s2.save()
+    finally:
+        s2.close()
+    # the scene file changed behind the editor's back: the journal no longer applies
+    text = (project / "shot.toml").read_text().replace("young = 1000000.0", "young = 2e6")
+    (project / "shot.toml").write_text(text)
+    s3 = Session(Sandbox([project]))
+    try:
+        opened = s3.open("shot.toml")
+        assert any("does not match" in n for n in opened["notices"]), opened["notices"]
+        assert not s3.describe("a")["can_redo"] and not s3.describe("b")["can_redo"]
+    finally:
+        s3.close()

@@ -119,6 +119,7 @@ class Session:
         self._groups_cache: tuple[Any, dict] | None = None
         self._export_pool = ThreadPoolExecutor(1, thread_name_prefix="wiggly-export")
         self._stop = threading.Event()
+        self._told: str | None = None  # the journal's write error the browsers were told
 
     # --- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
@@ -333,8 +334,9 @@ class Session:
                     target.unlink(missing_ok=True)
             except (OSError, WigglyInputError) as err:
                 self.bus.publish("notice", level="warning", message=f"autosave failed: {err}")
-        if self.histories.write_error:
+        if self.histories.write_error and self.histories.write_error != self._told:
             self.bus.publish("notice", level="warning", message=self.histories.write_error)
+        self._told = self.histories.write_error
         self.bus.publish("state", version=self.version, dirty=self.dirty)
         self.playback.request(state, self.version, "final")
 
