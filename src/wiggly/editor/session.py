@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from wiggly import limits
+from wiggly.editor.autosave import Autosaver, autosave_path
 from wiggly.editor.bus import EventBus
 from wiggly.editor.history import DEFAULT_TAB, Histories, Record, history_path
 from wiggly.editor.physics import Physics
@@ -63,11 +64,6 @@ __all__ = ["Session", "autosave_path"]
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".msh", ".vtu", ".vtk",
                  ".mesh")
 SCENE_SUFFIX = ".toml"
-
-
-def autosave_path(scene_path: Path) -> Path:
-    """Where edits of ``scene_path`` are autosaved: a hidden file beside it."""
-    return scene_path.with_name(f".{scene_path.stem}.autosave.toml")
 
 
 def new_scene(mesh_file: Path, builtin: str | None = None) -> Scene:
@@ -120,10 +116,13 @@ class Session:
         self._export_pool = ThreadPoolExecutor(1, thread_name_prefix="wiggly-export")
         self._stop = threading.Event()
         self._told: str | None = None  # the journal's write error the browsers were told
+        self.autosaver = Autosaver(
+            lambda message: self.bus.publish("notice", level="warning", message=message))
 
     # --- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
         self._stop.set()
+        self.autosaver.close()
         self.playback.close()
         self.physics.close()
         self._export_pool.shutdown(wait=False, cancel_futures=True)
@@ -238,7 +237,8 @@ class Session:
             self._saved = out
             for src in {old_source, target}:
                 if src is not None:
-                    autosave_path(Path(src)).unlink(missing_ok=True)
+                    self.autosaver.put(autosave_path(Path(src)), None)
+            self.autosaver.flush()
             self.bus.publish("state", version=self.version, dirty=False)
             return {"path": self.sandbox.relative(target)}
 
@@ -321,24 +321,18 @@ class Session:
         return op
 
     def _changed(self, autosave: bool = True) -> None:
-        """After a state change: autosave, tell the browsers, solve."""
+        """After a state change: solve, tell the browsers, autosave (in the background)."""
         state = self.state
+        self.bus.publish("state", version=self.version, dirty=self.dirty)
+        self.playback.request(state, self.version, "final")
         if autosave and self.autosave and state.scene.source is not None:
-            try:
-                target = autosave_path(Path(state.scene.source))
-                if not self.sandbox.contains(target.parent):
-                    pass
-                elif self.dirty:
-                    save_scene(state.scene, target, overwrite=True)
-                else:  # back to the saved scene (undo): an older autosave must not come back
-                    target.unlink(missing_ok=True)
-            except (OSError, WigglyInputError) as err:
-                self.bus.publish("notice", level="warning", message=f"autosave failed: {err}")
+            target = autosave_path(Path(state.scene.source))
+            if self.sandbox.contains(target.parent):
+                # back to the saved scene (undo): an older autosave must not come back
+                self.autosaver.put(target, state.scene if self.dirty else None)
         if self.histories.write_error and self.histories.write_error != self._told:
             self.bus.publish("notice", level="warning", message=self.histories.write_error)
         self._told = self.histories.write_error
-        self.bus.publish("state", version=self.version, dirty=self.dirty)
-        self.playback.request(state, self.version, "final")
 
     # --- queries --------------------------------------------------------------------------
     def groups(self) -> dict[str, np.ndarray]:
