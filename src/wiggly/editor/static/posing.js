@@ -315,7 +315,11 @@ async function sendPreview(op) {
   if (S.previewPending && S.dragging) { const next = S.previewPending; S.previewPending = null; sendPreview(next); }
   else S.previewPending = null;
 }
-function pointerOf(e) { return gizmo._getPointer(e); }
+// A pointer event as TransformControls takes it: normalized device coordinates.
+function pointerOf(e) {
+  const r = canvas.getBoundingClientRect();
+  return { x: (e.clientX - r.left) / r.width * 2 - 1, y: -(e.clientY - r.top) / r.height * 2 + 1, button: e.button };
+}
 // Constrain the running drag to one axis, from where it started (Blender's X, Y, Z).
 function switchAxis(letter) {
   const x = S.xform;
