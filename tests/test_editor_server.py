@@ -616,3 +616,17 @@ def test_undo_histories_survive_a_restart(project):
         assert not s3.describe("a")["can_redo"] and not s3.describe("b")["can_redo"]
     finally:
         s3.close()
+
+
+def test_an_undo_that_would_make_the_scene_invalid_is_refused(project):
+    session = Session(Sandbox([project]))
+    try:
+        session.open("shot.toml")
+        session.edit({"op": "set_group", "name": "mid", "indices": [40, 41]}, tab="a")
+        session.edit({"op": "add_keyframe", "time": 0.3, "group": "mid"}, tab="b")
+        with pytest.raises(EditError) as err:  # the group b's keyframe needs
+            session.undo("a")
+        assert err.value.status == 409 and "would be invalid" in str(err.value)
+        assert "mid" in session.scene.groups and not session.describe("a")["can_undo"]
+    finally:
+        session.close()

@@ -113,7 +113,12 @@ class Record:
         keys = sorted((n, v) for (k, n), v in now.items() if k == "key")
         d["keyframes"] = [v for _, v in keys]
         ids = tuple(n for n, _ in keys)
-        return rebuild_state(state, d, ids, max([state.next_id, *(i + 1 for i in ids)]))
+        try:
+            return rebuild_state(state, d, ids, max([state.next_id, *(i + 1 for i in ids)]))
+        except EditError as err:  # e.g. a keyframe whose group another tab deleted since
+            raise EditError(f"cannot {'undo' if undo else 'redo'} {self.label!r}: the scene "
+                            f"would be invalid ({str(err).splitlines()[0]}); that step is "
+                            "dropped", 409) from None
 
 
 @dataclass
