@@ -1,5 +1,6 @@
 // The dope sheet: one row per group with its keyframes as diamonds, a time ruler on top.
-//   ruler: click or drag to scrub; Ctrl+drag sets the preview range (Alt+P clears it)
+//   ruler: click or drag to scrub (on the frame grid); Ctrl+drag sets the preview range (Alt+P
+//          clears it)
 //   keys: click selects (Shift adds or removes), drag moves the selected keys in time (on the
 //         frame grid), drag on empty space box-selects, a click there sets the time
 //   labels: click selects a group (Shift adds: K keys every selected group at once)
@@ -148,7 +149,7 @@ ds.addEventListener('pointerdown', (e) => {
   }
   if (y < RULER) {
     if (e.ctrlKey) { drag = { range: true, t0: snapTime(tlT(x)), t1: snapTime(tlT(x)) }; draw(); return; }
-    drag = { scrub: true }; setPlaying(false); setTime(tlT(x)); return;
+    drag = { scrub: true }; setPlaying(false); setTime(snapTime(tlT(x))); return;
   }
   const k = keyAt(x, y);
   if (k) {
@@ -168,7 +169,7 @@ ds.addEventListener('pointerdown', (e) => {
 ds.addEventListener('pointermove', (e) => {
   if (!drag) return;
   const x = e.offsetX, y = e.offsetY;
-  if (drag.scrub) { setTime(tlT(x)); return; }
+  if (drag.scrub) { setTime(snapTime(tlT(x))); return; }
   if (drag.range) { drag.t1 = snapTime(tlT(x)); draw(); return; }
   if (drag.move) {
     if (Math.abs(x - drag.x0) > 3) drag.moved = true;
@@ -205,7 +206,7 @@ ds.addEventListener('pointerup', async (e) => {
   if (d.box) {
     if (d.x1 === undefined || (Math.abs(d.x1 - d.x0) < 3 && Math.abs(d.y1 - d.y0) < 3)) {
       if (!d.add) { S.keys.clear(); hooks.selectKey(null); }
-      setPlaying(false); setTime(tlT(e.offsetX));
+      setPlaying(false); setTime(snapTime(tlT(e.offsetX)));
       return;
     }
     const [x0, x1] = [Math.min(d.x0, d.x1), Math.max(d.x0, d.x1)], [y0, y1] = [Math.min(d.y0, d.y1), Math.max(d.y0, d.y1)];
