@@ -99,6 +99,12 @@ def test_dope_sheet_selects_and_moves_several_keys(editor):
     p = page.evaluate("window.wiggly.timePoint(0.2, 'mid')")
     _shift_click(page, p["x"], p["y"])
     page.wait_for_function("window.wiggly.S.keys.size === 2")
+    q = page.evaluate("window.wiggly.timePoint(0.5, 'mid')")  # Shift+click adds, and removes
+    _shift_click(page, q["x"], q["y"])
+    page.wait_for_function("window.wiggly.S.keys.size === 3")
+    _shift_click(page, q["x"], q["y"])
+    page.wait_for_function("window.wiggly.S.keys.size === 2 && !window.wiggly.S.keys.has(1)")
+    assert page.evaluate("[...window.wiggly.S.keys].sort()") == [0, 2]
     # drag one of them 0.2 s later: both move, in one step
     start = page.evaluate("window.wiggly.timePoint(0.5, 'right')")
     end = page.evaluate("window.wiggly.timePoint(0.7, 'right')")

@@ -16,7 +16,7 @@ import { refreshState, offerFrames, setTime, togglePlay, step } from './playback
 import { renderPanels, renderKeyPanel, selectGroup, selectKey, deleteGroup, openDialog, promptDialog,
   newGroupFromSelection, setGroupFromSelection, showNotices } from './panels.js';
 import { draw as drawDopesheet, drawTimeCursor, pagePoint, setPreviewRange, deleteSelectedKeys, copyKeys, pasteKeys,
-  duplicateKeys, keySelectedGroups } from './dopesheet.js';
+  duplicateKeys, keySelectedGroups, toggleKey } from './dopesheet.js';
 import { startPosing, stopPosing, cancelDrag, updatePoseHelpers, dragKey, dragKeyUp, gizmoHandle,
   gizmoRing, poseTarget, applyPivot, setCursor, restPose } from './posing.js';
 import { setTool, setXray, updateSelCount, screenBox } from './selection.js';
@@ -65,7 +65,7 @@ Object.assign(hooks, {
   meshLoaded() { frameCamera(); makeGround(); setCursor(null); },
   renderPanels, renderKeyPanel, selectKey, selectGroup, openDialog, showNotices, refreshState,
   updatePoseHelpers, startPosing, stopPosing, cancelDrag,
-  drawDopesheet, updatePaths,
+  drawDopesheet, updatePaths, toggleKey,
   timeChanged() { drawTimeCursor(); updateOnion(); updatePathMarker(); },
   framesChanged() { updatePaths(); updateOnion(); },
 });

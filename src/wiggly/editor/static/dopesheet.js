@@ -154,8 +154,7 @@ ds.addEventListener('pointerdown', (e) => {
   const k = keyAt(x, y);
   if (k) {
     if (add) {
-      if (S.keys.has(k.id)) { S.keys.delete(k.id); hooks.selectKey(S.selectedKey === k.id ? [...S.keys].pop() ?? null : S.selectedKey, false); }
-      else { S.keys.add(k.id); hooks.selectKey(k.id, false, { keep: true }); }
+      toggleKey(k.id);
       drag = null; draw(); return;
     }
     if (!S.keys.has(k.id)) hooks.selectKey(k.id, false);
@@ -241,6 +240,15 @@ export function setPreviewRange(r) {
 
 // ------------------------------------------------------------------------------------------
 // keyframe operations on the selection
+
+// Shift+click on a key: add it to the selection (it becomes the active one), or take it out.
+export function toggleKey(id) {
+  if (!S.keys.has(id)) { S.keys.add(id); hooks.selectKey(id, false, { keep: true }); return; }
+  S.keys.delete(id);
+  const active = S.selectedKey === id ? ([...S.keys].pop() ?? null) : S.selectedKey;
+  if (active === null) hooks.selectKey(null);
+  else hooks.selectKey(active, false, { keep: true });
+}
 
 function selectedKeys() { return scene().keyframes.filter((k) => S.keys.has(k.id) || k.id === S.selectedKey); }
 export function deleteSelectedKeys() {

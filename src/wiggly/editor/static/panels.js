@@ -147,7 +147,7 @@ export function renderPanels() {
     label.className = 'name';
     label.textContent = `${k.time.toFixed(3)} s  ${k.name || k.group}  · ${keyKind(k).split(':')[0]}${k.velocity ? ' · v' : ''}`;
     li.onclick = (e) => {
-      if (e.shiftKey || e.ctrlKey) { if (S.keys.has(k.id)) S.keys.delete(k.id); else S.keys.add(k.id); selectKey(k.id, false, { keep: true }); }
+      if (e.shiftKey || e.ctrlKey) hooks.toggleKey(k.id);
       else selectKey(k.id, true);
     };
     li.append(sw, label);
