@@ -282,6 +282,16 @@ def test_gizmo_axis_keys_and_typed_values(editor):
     pos = _keys(server)[0][2]
     assert np.allclose(pos.rotation, [90, 0, 0], atol=1e-4), pos
     assert np.allclose(pos.translation, [0, 0.05, 0.08], atol=1e-6)
+    # velocity: V, grab the arrow's tip along X, type 1.5 (m/s) and Enter
+    page.keyboard.press("v")
+    page.wait_for_function("window.wiggly.S.posing.mode === 'velocity'")
+    grab_gizmo(page, "X")
+    page.keyboard.type("1.5")
+    version = server.session.version
+    page.keyboard.press("Enter")
+    page.wait_for_function(f"window.wiggly.S.desc.version > {version}")
+    page.mouse.up()
+    assert np.allclose(server.session.scene.keyframes[0].velocity, [1.5, 0, 0], atol=1e-4)
 
 
 def test_gizmo_snapping(editor):

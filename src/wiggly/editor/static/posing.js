@@ -248,6 +248,7 @@ function beginDrag() {
   S.dragging = true;
   S.release = null;  // a new drag: stop measuring the previous release
   S.xform = { mode: S.posing && S.posing.mode === 'rotate' ? 'rotate' : 'translate', axis: gizmo.axis, typed: '', cancelled: false,
+    velocity: !!S.posing && S.posing.mode === 'velocity',
     startPos: pivot.position.clone(), startQuat: pivot.quaternion.clone(),
     down: downPointer, invert: !!(downPointer && downPointer.ctrlKey) };
   applySnap();
@@ -262,6 +263,7 @@ function constrain() {
   const x = S.xform;
   if (!x) return;
   const axis = (x.axis || '').replace(/[^XYZ]/g, '');
+  const unit = x.velocity ? VEL_SCALE : 1;   // velocity: values in m/s, the arrow v * VEL_SCALE
   if (x.typed !== '' && axis) {
     const v = parseFloat(x.typed);
     const value = Number.isFinite(v) ? v : 0;
@@ -271,10 +273,10 @@ function constrain() {
       pivot.quaternion.copy(x.startQuat).multiply(new THREE.Quaternion().setFromAxisAngle(dir, value * D2R));
     } else {
       pivot.quaternion.copy(x.startQuat);
-      pivot.position.copy(x.startPos).addScaledVector(dir, value);
+      pivot.position.copy(x.startPos).addScaledVector(dir, value * unit);
     }
   } else if (snapping() && x.mode === 'translate') {
-    const step = S.view.snapMove;
+    const step = S.view.snapMove * unit;
     const d = pivot.position.clone().sub(x.startPos);
     for (const a of 'XYZ') {
       const c = a.toLowerCase();
@@ -289,13 +291,16 @@ function showHud() {
   const x = S.xform;
   if (!x) { $('hud').textContent = ''; return; }
   const axis = (x.axis || '').replace(/[^XYZ]/g, '') || 'free';
-  const unit = x.mode === 'rotate' ? '°' : ' m';
+  const unit = x.mode === 'rotate' ? '°' : x.velocity ? ' m/s' : ' m';
   let now = '';
   if (x.mode === 'rotate') {
     const dq = x.startQuat.clone().invert().multiply(pivot.quaternion);
     now = `${(2 * Math.acos(Math.min(1, Math.abs(dq.w))) / D2R).toFixed(2)}°`;
-  } else now = `[${pivot.position.clone().sub(x.startPos).toArray().map((v) => v.toFixed(4)).join(', ')}] m`;
-  $('hud').textContent = `${x.mode === 'rotate' ? 'rotate' : 'move'} · axis ${axis}${snapping() ? ' · snapping' : ''}` +
+  } else {
+    const d = pivot.position.clone().sub(x.startPos).divideScalar(x.velocity ? VEL_SCALE : 1);
+    now = `[${d.toArray().map((v) => v.toFixed(4)).join(', ')}]${unit}`;
+  }
+  $('hud').textContent = `${x.mode === 'rotate' ? 'rotate' : x.velocity ? 'velocity' : 'move'} · axis ${axis}${snapping() ? ' · snapping' : ''}` +
     (x.typed !== '' ? ` · typed ${x.typed}${unit} (Enter applies)` : ` · ${now}`) + '\nX/Y/Z axis · type a value · Ctrl snap · Esc cancel';
   redraw();
 }
