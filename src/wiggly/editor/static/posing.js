@@ -410,7 +410,10 @@ export function dragKey(e) {
   const key = e.key;
   if (key === 'Escape') { cancelDrag(); return true; }
   if (key === 'Enter') { finishDrag(); return true; }
-  if (key === 'Control') { S.xform.invert = !S.xform.invert; applySnap(); constrain(); dragPose(); return true; }
+  if (key === 'Control') {   // held: snapping inverted until it is released (not per repeat)
+    if (!e.repeat) { S.xform.invert = !S.xform.invert; applySnap(); constrain(); dragPose(); }
+    return true;
+  }
   if (/^[xyzXYZ]$/.test(key)) { switchAxis(key.toUpperCase()); return true; }
   if (/^[0-9.]$/.test(key) || key === '-' || key === 'Backspace') { typeKey(key); return true; }
   return true;  // nothing else while dragging
