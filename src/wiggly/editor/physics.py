@@ -43,6 +43,10 @@ from wiggly.scene import Scene, resolve_groups
 __all__ = ["Physics", "Superseded", "model_key", "modes_key", "with_dynamics"]
 
 HEARTBEAT = 0.5  # s between progress events while the child works
+# The child yields the processor to the server (and the page) when both want it: a busy machine
+# must not delay the server's answers (it costs the preparation little: the server is idle).
+CHILD_NICENESS = 5
+_NICE = "import os\ntry:\n    os.nice({})\nexcept OSError:\n    pass\n"
 
 
 class Superseded(Exception):
@@ -169,7 +173,8 @@ class Preparer:
             if self._closed or (self._proc is not None and self._proc.poll() is None):
                 return
             self._proc = subprocess.Popen(
-                [sys.executable, "-c", "from wiggly.editor.physics import _child; _child()"],
+                [sys.executable, "-c", _NICE.format(CHILD_NICENESS) +
+                 "from wiggly.editor.physics import _child; _child()"],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, close_fds=True)
             self._known = []
 
