@@ -1,6 +1,9 @@
-"""Shared fixtures: small bodies built from structured box meshes (no tetrahedralizer needed)."""
+"""Shared fixtures: small bodies built from structured box meshes (no tetrahedralizer needed),
+and headless Chromium for the editor's browser tests (one browser per test process)."""
 
 from __future__ import annotations
+
+import os
 
 import meshio
 import numpy as np
@@ -48,3 +51,26 @@ def cantilever(tmp_path_factory) -> Body:
     """The same bar fixed at x = 0."""
     V, _ = box_mesh((10, 2, 2), (1.0, 0.1, 0.1))
     return make_body(tmp_path_factory, fixed=np.flatnonzero(V[:, 0] < 1e-9))
+
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
+                  "--disable-background-networking", "--disable-component-update",
+                  "--disable-sync", "--no-first-run"]
+
+
+@pytest.fixture(scope="session")
+def chromium():
+    """Debian's headless Chromium through Playwright (a fresh profile; no browser download)."""
+    if not os.path.exists(CHROMIUM):
+        pytest.skip(f"{CHROMIUM} is missing (apt-get install chromium)")
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        pytest.skip("playwright is missing (pip install playwright)")
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_FLAGS)
+        try:
+            yield browser
+        finally:
+            browser.close()

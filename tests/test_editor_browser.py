@@ -4,8 +4,8 @@ A user opens the bundled bar, box-selects two groups (one fixed), keyframes the 
 poses the second keyframe by dragging the gizmo, plays and saves.  The saved scene, run through
 the library path (:func:`wiggly.scene.run`), must give the motion the editor showed.
 
-fTetWild is randomized (two tetrahedralizations of one surface differ), so the test shares one
-tet mesh between the editor and the library run by memoizing :func:`wiggly.mesh.load_model`;
+fTetWild is randomized (two tetrahedralizations of one surface differ): the editor's physics
+process and the library run share one tet mesh through the on-disk tetrahedralization cache;
 everything after it (scene file, groups, keyframes, modes, solve, sampling) is compared.
 
 Needs ``apt-get install chromium`` and ``pip install playwright`` (no ``playwright install``).
@@ -15,71 +15,17 @@ from __future__ import annotations
 
 import io
 import json
-import os
-import shutil
-import tempfile
 import time
-import urllib.request
 
 import numpy as np
 import pytest
 
+from tests.editor_ui import box_select as _box_select
+from tests.editor_ui import drag_gizmo as _drag_gizmo
+from tests.editor_ui import editor_page, get
+from tests.editor_ui import wait_final as _wait_final
+
 pytestmark = pytest.mark.browser
-
-CHROMIUM = "/usr/bin/chromium"
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync",
-         "--no-first-run"]
-
-
-def _playwright():
-    if not os.path.exists(CHROMIUM):
-        pytest.skip(f"{CHROMIUM} is missing (apt-get install chromium)")
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        pytest.skip("playwright is missing (pip install playwright)")
-    return sync_playwright
-
-
-@pytest.fixture
-def shared_tets(monkeypatch):
-    """One tet mesh per (file, options) in this test: the editor and the library share it."""
-    import wiggly.mesh
-
-    original, cache = wiggly.mesh.load_model, {}
-
-    def load_model(path, **kw):
-        key = (str(path), tuple(sorted(kw.items())))
-        if key not in cache:
-            cache[key] = original(path, **kw)
-        return cache[key]
-
-    monkeypatch.setattr(wiggly.mesh, "load_model", load_model)
-    return cache
-
-
-@pytest.fixture
-def browser_page():
-    sync_playwright = _playwright()
-    profile = tempfile.mkdtemp(prefix="wiggly-chromium-")
-    with sync_playwright() as p:
-        context = p.chromium.launch_persistent_context(
-            profile, executable_path=CHROMIUM, headless=True, args=FLAGS,
-            viewport={"width": 1280, "height": 800})
-        page = context.new_page()
-        errors: list[str] = []
-        page.on("pageerror", lambda e: errors.append(f"{e}: {e.stack}"))
-        try:
-            yield page, errors
-        finally:
-            context.close()
-            shutil.rmtree(profile, ignore_errors=True)
-
-
-def _get(url: str) -> tuple[bytes, dict]:
-    with urllib.request.urlopen(url, timeout=30) as r:
-        return r.read(), dict(r.headers)
 
 
 def _image(page, shown: str | None = None) -> np.ndarray:
@@ -98,64 +44,19 @@ def _image(page, shown: str | None = None) -> np.ndarray:
                       dtype=float)
 
 
-def _box_select(page, indices) -> None:
-    """Box-select the given vertices with the Box tool (a real mouse drag)."""
-    box = page.evaluate("(idx) => window.wiggly.screenBox(idx)", [int(i) for i in indices])
-    page.keyboard.press("x")
-    pad = 6
-    page.mouse.move(box["x0"] - pad, box["y0"] - pad)
-    page.mouse.down()
-    page.mouse.move((box["x0"] + box["x1"]) / 2, (box["y0"] + box["y1"]) / 2, steps=3)
-    page.mouse.move(box["x1"] + pad, box["y1"] + pad, steps=3)
-    page.mouse.up()
-    page.keyboard.press("q")
-
-
-def _drag_gizmo(page, axis: str, pixels: float, steps: int = 10) -> None:
-    """Grab the gizmo's ``axis`` arrow (found by hovering along it) and drag it ``pixels``
-    along the arrow's screen direction, with real mouse events."""
-    found = False
-    for _attempt in range(3):  # the gizmo picks against matrices updated when it renders
-        page.evaluate("() => new Promise(r => requestAnimationFrame(() => "
-                      "requestAnimationFrame(r)))")
-        h = page.evaluate(f"window.wiggly.gizmoHandle('{axis}')")
-        for d in range(12, 200, 4):
-            x, y = h["x"] + d * h["dx"], h["y"] + d * h["dy"]
-            page.mouse.move(x, y)
-            if page.evaluate(f"window.wiggly.gizmoHandle('{axis}').axis") == axis:
-                found = True
-                break
-        if found:
-            break
-        page.mouse.move(5, 5)
-    if not found:
-        raise AssertionError(f"cannot find the gizmo's {axis} handle")
-    page.mouse.down()
-    for k in range(1, steps + 1):
-        page.mouse.move(x + k * pixels / steps * h["dx"], y + k * pixels / steps * h["dy"])
-        page.wait_for_timeout(30)
-    page.mouse.up()
-
-
-def _wait_final(page, timeout: float = 60_000) -> dict:
-    """Wait until the browser shows final frames of the current scene version."""
-    page.wait_for_function(
-        """() => { const S = window.wiggly.S; return S.frames && S.desc &&
-                   S.frames.meta.final && S.frames.meta.version === S.desc.version; }""",
-        timeout=timeout)
-    return page.evaluate("window.wiggly.S.frames.meta")
-
-
-def test_edit_pose_play_save_reproduces(browser_page, shared_tets, tmp_path):
+def test_edit_pose_play_save_reproduces(chromium, tmp_path):
     from wiggly.editor import serve
     from wiggly.scene import load_scene, run
 
-    page, errors = browser_page
     server = serve("builtin:bar", roots=[tmp_path])
+    context = chromium.new_context(viewport={"width": 1280, "height": 800})
+    page = context.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(f"{e}: {e.stack}"))
     try:
         page.goto(server.url)
         page.wait_for_function("window.wiggly && window.wiggly.ready && window.wiggly.S.n > 0",
-                               timeout=30_000)
+                               timeout=60_000)
         _wait_final(page)
         rest = np.asarray(server.session.surface.vertices)
         x = rest[:, 0]
@@ -190,8 +91,9 @@ def test_edit_pose_play_save_reproduces(browser_page, shared_tets, tmp_path):
         page.keyboard.press("Home")
         page.keyboard.press("k")
         page.wait_for_function("window.wiggly.S.desc.scene.keyframes.length === 1")
-        tl = page.locator("#timeline").bounding_box()
-        page.mouse.click(tl["x"] + 14 + 0.5 * (tl["width"] - 28), tl["y"] + tl["height"] / 2)
+        ruler = page.evaluate("window.wiggly.timePoint(1.0)")  # the dope sheet's time ruler
+        page.mouse.click(ruler["x"], ruler["y"])
+        page.wait_for_function("Math.abs(window.wiggly.S.t - 1.0) < 1e-6")
         page.keyboard.press("k")
         page.wait_for_function("window.wiggly.S.desc.scene.keyframes.length === 2")
         keys = server.session.scene.keyframes
@@ -240,7 +142,7 @@ def test_edit_pose_play_save_reproduces(browser_page, shared_tets, tmp_path):
         page.wait_for_function("!window.wiggly.S.desc.dirty")
         scene = load_scene(saved)
         assert scene == server.session.scene
-        data, headers = _get(server.url + "api/frames/latest?final=1")
+        data, headers = get(server.url + "api/frames/latest?final=1")
         shown = json.loads(headers["X-Wiggly-Frames"])
         assert shown["id"] == page.evaluate("window.wiggly.S.frames.meta.id")
         F, n = shown["n_frames"], shown["n_vertices"]
@@ -263,35 +165,35 @@ def test_edit_pose_play_save_reproduces(browser_page, shared_tets, tmp_path):
               "toast:", page.locator("#toast").text_content(), "errors:", errors)
         raise
     finally:
+        context.close()
         server.stop()
 
 
-def test_open_dialog_uploads_and_opens_a_mesh(browser_page, tmp_path):
+def test_open_dialog_uploads_and_opens_a_mesh(chromium, tmp_path):
     import meshio
 
     from wiggly.editor import serve
     from wiggly.primitives import box_mesh
 
-    page, errors = browser_page
     V, T = box_mesh((4, 2, 2), (0.4, 0.1, 0.1))
-    meshio.write(tmp_path / "brick.vtu", meshio.Mesh(V, [("tetra", T)]))
     upload = tmp_path / "src"
     upload.mkdir()
-    (tmp_path / "brick.vtu").rename(upload / "brick.vtu")
+    meshio.write(upload / "brick.vtu", meshio.Mesh(V, [("tetra", T)]))
     root = tmp_path / "root"
     root.mkdir()
     server = serve(None, roots=[root])
     try:
-        page.goto(server.url)
-        page.wait_for_selector("#modal:not([hidden])")  # nothing open yet: the Open dialog
-        page.set_input_files("#modal-body input[type=file]", str(upload / "brick.vtu"))
-        page.wait_for_function(
-            "document.querySelector('#modal-body input[type=text]').value !== ''")
-        assert page.input_value("#modal-body input[type=text]") == "uploads/brick.vtu"
-        page.click("#modal-ok")
-        page.wait_for_function(f"window.wiggly.S.n === {len(V)}", timeout=30_000)
-        assert server.session.scene.mesh.path == "brick.vtu"
-        assert (root / "uploads" / "brick.vtu").read_bytes() == (upload / "brick.vtu").read_bytes()
-        assert not errors, errors
+        with editor_page(chromium, server.url, mesh=False) as (page, errors):
+            page.wait_for_selector("#modal:not([hidden])")  # nothing open yet: the Open dialog
+            page.set_input_files("#modal-body input[type=file]", str(upload / "brick.vtu"))
+            page.wait_for_function(
+                "document.querySelector('#modal-body input[type=text]').value !== ''")
+            assert page.input_value("#modal-body input[type=text]") == "uploads/brick.vtu"
+            page.click("#modal-ok")
+            page.wait_for_function(f"window.wiggly.S.n === {len(V)}", timeout=30_000)
+            assert server.session.scene.mesh.path == "brick.vtu"
+            assert (root / "uploads" / "brick.vtu").read_bytes() == \
+                (upload / "brick.vtu").read_bytes()
+            assert not errors, errors
     finally:
         server.stop()

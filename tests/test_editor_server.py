@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 from wiggly.editor import EditorServer, Sandbox, Session
-from wiggly.editor.session import EventBus, Mailbox, autosave_path
-from wiggly.editor.state import EditError, EditLog, EditorState, apply_edit, rebased, rigid_fit
+from wiggly.editor.bus import EventBus, Mailbox
+from wiggly.editor.session import autosave_path
+from wiggly.editor.state import EditError, EditorState, apply_edit, rebased, rigid_fit
 from wiggly.primitives import box_mesh
-from wiggly.scene import load_scene, save_scene, scene_from_dict
+from wiggly.scene import load_scene, save_scene
 
 SCENE = """\
 format = 1
@@ -174,20 +175,6 @@ def test_bad_edits_are_refused(state, op, status):
         apply_edit(state, op, n_vertices=100)
     assert err.value.status == status
     assert str(err.value)
-
-
-def test_edit_log_undo_redo_dirty():
-    a, b, c = (EditorState.of(scene_from_dict({"mesh": {"path": p}})) for p in "abc")
-    log = EditLog([a], limit=3)
-    log.saved = a
-    assert not log.dirty and not log.can_undo
-    log.push(b)
-    assert log.dirty and log.undo() and log.current is a and log.can_redo
-    log.push(c)  # drops the redo branch
-    assert not log.can_redo and log.undo() and log.current is a
-    for s in (b, c, b, c):
-        log.push(s)
-    assert len(log.states) == 3 and log.current is c
 
 
 def test_rigid_fit_recovers_a_rigid_motion():
@@ -471,7 +458,7 @@ def test_autosave_recovery_after_a_crash(project):
     s2 = Session(Sandbox([project]))
     opened = s2.open("shot.toml")
     assert any("recovered" in n for n in opened["notices"])
-    assert s2.scene == edited and s2.log.dirty
+    assert s2.scene == edited and s2.dirty
     s2.save()
     assert not auto.exists() and load_scene(project / "shot.toml") == edited
     s2.close()
@@ -546,3 +533,100 @@ def test_cli_edit(project, capsys):
         srv.stop()
     with pytest.raises(Exception, match="no such file"):
         edit.start(parser.parse_args([str(project / "missing.toml"), "--port", "0"]))
+
+
+# ----------------------------------------------------------------------------------------------
+# drag previews, undo per tab
+
+
+def test_drag_previews_keep_the_final_frames(server):
+    """Previews (gizmo drags) neither evict the final frames nor are replayed to new tabs;
+    cancelling a drag announces the scene's frames again."""
+    session = server.session
+    final = wait_final(session)
+    for k in range(12):
+        seq = session.preview({"op": "update_keyframe", "id": 0,
+                               "position": {"offset": [0, 0.01 * k, 0]}})["seq"]
+        deadline = time.time() + 10  # let each preview be solved (else newer ones replace it)
+        while session.latest_frames().seq < seq:
+            assert time.time() < deadline
+            time.sleep(0.01)
+        assert session.latest_frames().kind == "drag"
+    assert session.frames(final.id) is final and session.latest_frames(final=True) is final
+    replayed = session.bus.subscribe()
+    events = [replayed.get_nowait() for _ in range(replayed.qsize())]
+    frames = [e for e in events if e["type"] == "frames"]
+    assert frames and frames[-1]["request"] == "final" and frames[-1]["id"] == final.id
+    seq = session.cancel_preview()["seq"]
+    restored = session.latest_frames()
+    assert restored.seq == seq and restored.kind == "final"
+    assert np.array_equal(restored.positions, final.positions)
+
+
+def test_undo_belongs_to_the_tab_that_edited(project):
+    session = Session(Sandbox([project]))
+    try:
+        session.open("shot.toml")
+        session.edit({"op": "set", "section": "material", "values": {"young": 3e6}}, tab="a")
+        session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.7}}, tab="b")
+        session.edit({"op": "update_keyframe", "id": 0, "time": 0.25}, tab="a")
+        assert session.undo("a")["changed"]  # a's last edit only
+        assert session.scene.keyframes[0].time == 0.5 and session.scene.damping.alpha == 0.7
+        assert session.undo("a")["changed"]
+        assert session.scene.material.young == 1e6 and session.scene.damping.alpha == 0.7
+        assert not session.undo("a")["changed"]
+        assert session.describe("b")["can_undo"] and not session.describe("b")["can_redo"]
+        assert session.describe("a")["redo_label"] == "set material"
+        # another tab changed what a redo would overwrite: refused, and the step dropped
+        session.edit({"op": "set", "section": "material", "values": {"density": 900}}, tab="b")
+        with pytest.raises(EditError) as err:
+            session.redo("a")
+        assert err.value.status == 409 and "changed since" in str(err.value)
+        assert session.scene.material.density == 900 and session.scene.material.young == 1e6
+        assert session.redo("a")["changed"]  # the keyframe step, untouched by b
+        assert session.scene.keyframes[0].time == 0.25
+    finally:
+        session.close()
+
+
+def test_undo_histories_survive_a_restart(project):
+    s1 = Session(Sandbox([project]))
+    s1.open("shot.toml")
+    s1.edit({"op": "add_keyframe", "time": 0.2, "group": "right"}, tab="a")
+    s1.edit({"op": "delete_keyframe", "id": 0}, tab="b")
+    ids, scene = s1.state.keyframe_ids, s1.scene
+    s1.close()  # the process dies
+    s2 = Session(Sandbox([project]))
+    try:
+        s2.open("shot.toml")
+        assert s2.scene == scene and s2.state.keyframe_ids == ids == (1,)
+        assert s2.undo("b")["changed"]  # the deleted keyframe comes back under its id
+        assert s2.state.keyframe_ids == (0, 1) and s2.scene.keyframes[0].time == 0.5
+        assert s2.undo("a")["changed"] and s2.state.keyframe_ids == (0,)
+        s2.save()
+    finally:
+        s2.close()
+    # the scene file changed behind the editor's back: the journal no longer applies
+    text = (project / "shot.toml").read_text().replace("young = 1000000.0", "young = 2e6")
+    (project / "shot.toml").write_text(text)
+    s3 = Session(Sandbox([project]))
+    try:
+        opened = s3.open("shot.toml")
+        assert any("does not match" in n for n in opened["notices"]), opened["notices"]
+        assert not s3.describe("a")["can_redo"] and not s3.describe("b")["can_redo"]
+    finally:
+        s3.close()
+
+
+def test_an_undo_that_would_make_the_scene_invalid_is_refused(project):
+    session = Session(Sandbox([project]))
+    try:
+        session.open("shot.toml")
+        session.edit({"op": "set_group", "name": "mid", "indices": [40, 41]}, tab="a")
+        session.edit({"op": "add_keyframe", "time": 0.3, "group": "mid"}, tab="b")
+        with pytest.raises(EditError) as err:  # the group b's keyframe needs
+            session.undo("a")
+        assert err.value.status == 409 and "would be invalid" in str(err.value)
+        assert "mid" in session.scene.groups and not session.describe("a")["can_undo"]
+    finally:
+        session.close()

@@ -19,7 +19,8 @@ Saves the same scene format as `wiggly animate` reads; exports glb/USD/MP4.
 
 The editor reads and writes files only inside the directory of the file it was started on
 (or the current directory), plus any --root; edits are autosaved beside the scene
-(.NAME.autosave.toml) and recovered when the editor is started again."""
+(.NAME.autosave.toml) with every browser tab's undo history (.NAME.history.jsonl), and both
+are recovered when the editor is started again."""
 EPILOG = """\
 examples:
   wiggly edit shot.toml

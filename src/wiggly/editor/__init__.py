@@ -1,9 +1,13 @@
 """``wiggly edit``: a local web editor for scenes (groups, keyframes, material, playback).
 
 A small standard-library HTTP server (:mod:`wiggly.editor.server`) holds the scene as the
-source of truth (:mod:`wiggly.editor.session`, edits in :mod:`wiggly.editor.state`) and serves
-a single-page three.js app (``static/``) that draws the body, poses keyframes with gizmos and
-plays the solved motion.  Files are confined to the directories the editor was started on
+source of truth (:mod:`wiggly.editor.session`, edits in :mod:`wiggly.editor.state`, undo per
+browser tab in :mod:`wiggly.editor.history`, autosave in :mod:`wiggly.editor.autosave`) and
+serves a single-page three.js app (``static/``) that draws the body, poses keyframes with
+gizmos and plays the solved motion.  Tetrahedralization and modes run in a child process
+(:mod:`wiggly.editor.physics`); playback frames come from a linear solve at once and the warped
+refinement in another child process (:mod:`wiggly.editor.playback`,
+:mod:`wiggly.editor.refine`).  Files are confined to the directories the editor was started on
 (:mod:`wiggly.editor.sandbox`).
 
     from wiggly.editor import serve

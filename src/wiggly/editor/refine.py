@@ -38,6 +38,18 @@ from wiggly.solve import SolveOptions
 CHUNK_SECONDS = 0.6
 MAX_ITERATIONS = 50
 PUSH_SECONDS = 1.5
+PLAYBACK_BYTES = 256 * 2**20  # playback frames of one solve (float32) kept in memory
+
+
+def playback_fps(fps: float, start: float, end: float, n_vertices: int) -> float:
+    """The frame rate of the editor's playback: the scene's, unless its frames of
+    ``n_vertices`` would take more than :data:`PLAYBACK_BYTES` (a long shot of a fine
+    surface); then the highest rate that fits (the page plays any rate)."""
+    frames = np.floor((end - start) * fps + 1e-9) + 1
+    if frames * n_vertices * 12 <= PLAYBACK_BYTES or end <= start:
+        return float(fps)
+    most = max(PLAYBACK_BYTES // (12 * max(n_vertices, 1)), 2)
+    return float((most - 1) / (end - start))
 
 
 def write_message(stream: BinaryIO, obj: Any) -> None:
@@ -163,7 +175,8 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
     t0 = time.perf_counter()
     init = previous.get(pkey)
     total, per_iter, last_push = 0, None, time.perf_counter()
-    fps = float(scene.time.fps)
+    fps = playback_fps(scene.time.fps, problem.start, problem.end,
+                       problem.body.surface.n_vertices)
     while True:
         inbox.poll()
         if inbox.newest > seq:
@@ -270,6 +283,8 @@ class Refiner:
                 traceback.print_exc()
 
     def close(self) -> None:
+        """Stop the child: it ends when its stdin closes (between chunks of iterations); one
+        still busy (or importing its libraries) is terminated after a moment."""
         self._stop.set()
         with self._lock:
             try:
@@ -277,7 +292,7 @@ class Refiner:
             except OSError:
                 pass
         try:
-            self._proc.wait(timeout=2)
+            self._proc.wait(timeout=0.3)
         except subprocess.TimeoutExpired:
             self._proc.terminate()
             try:
@@ -285,4 +300,3 @@ class Refiner:
             except subprocess.TimeoutExpired:
                 self._proc.kill()
         self._thread.join(timeout=2)
-

@@ -6,7 +6,8 @@ the state in one :class:`~wiggly.editor.session.Session`.
 Endpoints (JSON bodies are objects; errors answer ``{"error": message}``)::
 
     GET  /                     the app (static/index.html and its files)
-    GET  /api/state            scene, resolved groups, version, undo/redo, dirty, notices
+    GET  /api/state            scene, resolved groups, version, the tab's undo/redo, dirty,
+                               notices, the process's instance id, the size limits
     GET  /api/mesh             rest surface, binary (uint32 n, m; float32 n*3; uint32 m*3)
     GET  /api/frames/<id>      playback frames, binary float32 (F, n, 3)
     GET  /api/frames/latest    the newest frames (?final=1: newest final ones); meta in the
@@ -15,18 +16,23 @@ Endpoints (JSON bodies are objects; errors answer ``{"error": message}``)::
     GET  /api/files            scene and mesh files inside the sandbox
     POST /api/edit             an edit {"op": ...} (see wiggly.editor.state), logged
     POST /api/preview          the same, solved (linear) but not logged: gizmo drags
-    POST /api/undo, /api/redo
+    POST /api/preview/cancel   a drag was abandoned: show the scene's frames again
+    POST /api/undo, /api/redo  the tab's last edit (its own history, kept across restarts)
     POST /api/open             {"path": "scene.toml" | "mesh.obj" | "builtin:critter"}
     POST /api/save             {"path": optional}
     POST /api/export           {"paths": ["out/shot.glb", ...], "overwrite": false}
     PUT  /api/upload?name=F    a mesh file as the raw body, stored in <first root>/uploads/
 
+Edits, undo and redo belong to the tab named by the ``X-Wiggly-Tab`` header (each browser tab
+has its own undo history; requests without it share the tab "api").
+
 Safety: binds to 127.0.0.1 unless told otherwise; answers only requests whose ``Host`` is the
 address it listens on (or localhost) when bound to a loopback address (DNS rebinding); refuses
 cross-origin requests (``Origin`` must match) and JSON posted as anything but
 ``application/json`` (so another web page cannot forge requests); bodies larger than the
-limits are refused with 413 before they are read; paths go through the sandbox; any error in a
-handler answers 4xx/5xx and leaves the session as it was.
+limits are refused with 413 before they are read, JSON nested deeper than
+:data:`MAX_JSON_DEPTH` with 400; paths go through the sandbox; any error in a handler answers
+4xx/5xx and leaves the session as it was.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ import mimetypes
 import os
 import queue
 import re
+import socket
 import threading
 import traceback
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -45,13 +52,15 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
+from wiggly.editor.history import Histories
 from wiggly.editor.session import MESH_SUFFIXES, SCENE_SUFFIX, Session, dumps
 from wiggly.editor.state import EditError
 from wiggly.errors import WigglyInputError
 
-__all__ = ["MAX_JSON_BYTES", "MAX_UPLOAD_BYTES", "EditorServer"]
+__all__ = ["MAX_JSON_BYTES", "MAX_JSON_DEPTH", "MAX_UPLOAD_BYTES", "EditorServer"]
 
 MAX_JSON_BYTES = 8 * 2**20
+MAX_JSON_DEPTH = 32  # nesting of arrays and objects (a scene needs 5)
 MAX_UPLOAD_BYTES = 64 * 2**20
 MAX_CONNECTIONS = 128
 HEARTBEAT_SECONDS = 10.0
@@ -141,10 +150,22 @@ class _Handler(BaseHTTPRequestHandler):
         if not data:
             return {}
         try:
-            return json.loads(data)
+            body = json.loads(data)
+            deep = not _shallow(body)
         except (ValueError, UnicodeDecodeError) as err:
             self._error(400, f"invalid JSON: {err}")
             return _NOTHING
+        except RecursionError:  # nested beyond what the parser follows
+            deep = True
+        if deep:
+            self._error(400, f"JSON nested deeper than {MAX_JSON_DEPTH} levels is not accepted")
+            return _NOTHING
+        return body
+
+    @property
+    def tab(self) -> str:
+        """The browser tab of the request (its undo history)."""
+        return Histories.tab_id(self.headers.get("X-Wiggly-Tab"))
 
     def _dispatch(self, table: dict) -> None:
         try:
@@ -188,6 +209,9 @@ class _Handler(BaseHTTPRequestHandler):
     # --- static files ---------------------------------------------------------------------
     def _static(self, path: str) -> None:
         rel = "index.html" if path in ("", "/") else path.lstrip("/")
+        if "\x00" in rel or len(rel) > 1024:
+            self._error(404, f"no such file {path[:80]!r}")
+            return
         f = Path(os.path.realpath(STATIC / rel))
         if not f.is_relative_to(Path(os.path.realpath(STATIC))) or not f.is_file():
             self._error(404, f"no such file {path}")
@@ -202,7 +226,7 @@ class _Handler(BaseHTTPRequestHandler):
         self._send(204, b"", "image/x-icon")
 
     def get_state(self) -> None:
-        self._json(self.server.session.describe())
+        self._json(self.server.session.describe(self.tab))
 
     def get_mesh(self) -> None:
         self._send(200, self.server.session.mesh_bytes(), "application/octet-stream")
@@ -264,16 +288,22 @@ class _Handler(BaseHTTPRequestHandler):
         self._json(fn(body))
 
     def post_edit(self) -> None:
-        self._post(self.server.session.edit)
+        tab = self.tab
+        self._post(lambda op: self.server.session.edit(op, tab))
 
     def post_preview(self) -> None:
         self._post(self.server.session.preview)
 
+    def post_cancel_preview(self) -> None:
+        self._post(lambda _: self.server.session.cancel_preview())
+
     def post_undo(self) -> None:
-        self._post(lambda _: self.server.session.undo())
+        tab = self.tab
+        self._post(lambda _: self.server.session.undo(tab))
 
     def post_redo(self) -> None:
-        self._post(lambda _: self.server.session.redo())
+        tab = self.tab
+        self._post(lambda _: self.server.session.redo(tab))
 
     def post_open(self) -> None:
         self._post(lambda b: self.server.session.open(_field(b, "path", str)))
@@ -317,6 +347,20 @@ class _Handler(BaseHTTPRequestHandler):
 _NOTHING = object()
 
 
+def _shallow(obj: Any) -> bool:
+    """Whether ``obj`` (parsed JSON) nests at most :data:`MAX_JSON_DEPTH` levels."""
+    stack = [(obj, 1)]
+    while stack:
+        o, depth = stack.pop()
+        children = o.values() if isinstance(o, dict) else o if isinstance(o, list) else None
+        if children is None:
+            continue
+        if depth > MAX_JSON_DEPTH:
+            return False
+        stack.extend((c, depth + 1) for c in children)
+    return True
+
+
 def _field(body: Any, key: str, kind: type, default: Any = None, required: bool = True) -> Any:
     if not isinstance(body, dict):
         raise EditError(f"the request body must be a JSON object; got {type(body).__name__}")
@@ -336,6 +380,7 @@ _GET = {r"/favicon.ico": _Handler.get_favicon, r"/api/state": _Handler.get_state
         r"/api/frames/(\d{1,12})": _Handler.get_frames, r"/api/files": _Handler.get_files,
         r"/api/events": _Handler.get_events}
 _POST = {r"/api/edit": _Handler.post_edit, r"/api/preview": _Handler.post_preview,
+         r"/api/preview/cancel": _Handler.post_cancel_preview,
          r"/api/undo": _Handler.post_undo, r"/api/redo": _Handler.post_redo,
          r"/api/open": _Handler.post_open, r"/api/save": _Handler.post_save,
          r"/api/export": _Handler.post_export}
@@ -362,6 +407,8 @@ class EditorServer(ThreadingHTTPServer):
         self.max_json, self.max_upload, self.max_streams = max_json, max_upload, max_streams
         self.verbose = verbose
         self.stopping = threading.Event()
+        self._open: set[socket.socket] = set()  # connections being served
+        self._open_lock = threading.Lock()
         super().__init__((host, port), _Handler)
         self.host = host
         try:
@@ -390,9 +437,18 @@ class EditorServer(ThreadingHTTPServer):
         return self
 
     def stop(self) -> None:
+        """Stop serving: the listening socket and every open connection (a browser's
+        keep-alive connection must not be answered by a stopped session) are closed."""
         self.stopping.set()
         self.shutdown()
         self.server_close()
+        with self._open_lock:
+            open_connections = list(self._open)
+        for conn in open_connections:
+            try:
+                conn.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
         self.session.close()
         if self._thread is not None:
             self._thread.join(timeout=5)
@@ -403,12 +459,16 @@ class EditorServer(ThreadingHTTPServer):
         if not self._slots.acquire(blocking=False):
             self.shutdown_request(request)
             return
+        with self._open_lock:
+            self._open.add(request)
         super().process_request(request, client_address)
 
     def process_request_thread(self, request, client_address) -> None:
         try:
             super().process_request_thread(request, client_address)
         finally:
+            with self._open_lock:
+                self._open.discard(request)
             self._slots.release()
 
     def handle_error(self, request, client_address) -> None:  # never let a request kill us

@@ -1,10 +1,11 @@
 """The editor's state and its edits, as small pure functions on :class:`wiggly.scene.Scene`.
 
-The server holds one :class:`EditorState` (a scene plus stable keyframe ids) and an
-:class:`EditLog` of them (undo/redo).  Every edit the browser sends is a JSON object
-``{"op": <name>, ...}``; :func:`apply_edit` checks it and returns a *new* state, going through
-the scene's own dict form (:func:`wiggly.scene.scene_to_dict` / :func:`scene_from_dict`), so an
-edit can never produce a scene that the CLI would not read back.  An invalid edit raises
+The server holds one :class:`EditorState` (a scene plus stable keyframe ids) and the undo
+histories of the tabs (:mod:`wiggly.editor.history`).  Every edit the browser sends is a JSON
+object ``{"op": <name>, ...}``; :func:`apply_edit` checks it and returns a *new* state, going
+through the scene's own dict form (:func:`wiggly.scene.scene_to_dict` /
+:func:`scene_from_dict`), so an edit can never produce a scene that the CLI would not read
+back.  An invalid edit raises
 :class:`EditError` (an HTTP 400 for the server) and leaves the state untouched.
 
 Operations (fields in brackets are optional):
@@ -20,7 +21,14 @@ Operations (fields in brackets are optional):
 ``delete_keyframe`` ``id``
 ``set``             ``section`` (material, damping, simulation, time, mesh, output) and
                     ``values``: a table of that section's keys (``null`` removes a key)
+``batch``           ``ops``: a list of the edits above, applied in order as one step (one
+                    undo): pasting keyframes, keying several groups at once
 ==================  ==========================================================================
+
+Sizes are bounded as for scene files (:mod:`wiggly.limits`): a shot of at most
+``MAX_DURATION`` seconds and ``MAX_FRAMES`` frames, at most ``MAX_MODES`` modes, a tet
+resolution of at most ``MAX_RESOLUTION`` edges along the diagonal (an edge length as short),
+``MAX_KEYFRAMES`` keyframes and names of at most ``MAX_NAME_LENGTH`` characters.
 
 Positions are those of the scene format: ``"rest"``, ``{"offset": [...]}``,
 ``{"absolute": [[...], ...]}`` or ``{"rotation": [...], "translation": [...],
@@ -32,17 +40,18 @@ from __future__ import annotations
 import math
 import os
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from wiggly import limits
 from wiggly.errors import WigglyInputError
 from wiggly.scene import PALETTE, Scene, scene_from_dict, scene_to_dict
 
-__all__ = ["EditError", "EditLog", "EditorState", "apply_edit", "rebased", "rigid_fit",
-           "state_to_json"]
+__all__ = ["EditError", "EditorState", "apply_edit", "check_limits", "rebased", "rebuild_state",
+           "rigid_fit", "state_to_json"]
 
 #: Sections that ``set`` may change, and their keys.
 SETTABLE = {
@@ -54,7 +63,6 @@ SETTABLE = {
     "output": ("paths", "overwrite", "size", "camera"),
 }
 KEYFRAME_FIELDS = ("time", "group", "position", "velocity", "stiffness", "c_A", "c_B", "name")
-MAX_LOG = 500
 
 
 class EditError(WigglyInputError):
@@ -77,62 +85,6 @@ class EditorState:
     def of(cls, scene: Scene) -> EditorState:
         n = len(scene.keyframes)
         return cls(scene, tuple(range(n)), n)
-
-    def keyframe_index(self, kid: Any) -> int:
-        if isinstance(kid, bool) or not isinstance(kid, int):
-            raise EditError(f"keyframe id must be an integer; got {_show(kid)}")
-        try:
-            return self.keyframe_ids.index(kid)
-        except ValueError:
-            raise EditError(f"there is no keyframe with id {kid} (it may have been deleted); "
-                            f"ids are {list(self.keyframe_ids)}", 404) from None
-
-
-@dataclass
-class EditLog:
-    """Undo/redo over whole states: ``states[index]`` is current; a new edit drops the redo
-    branch.  At most :data:`MAX_LOG` states are kept (the oldest are forgotten)."""
-
-    states: list[EditorState]
-    index: int = 0
-    limit: int = MAX_LOG
-    saved: EditorState | None = field(default=None)
-
-    @property
-    def current(self) -> EditorState:
-        return self.states[self.index]
-
-    def push(self, state: EditorState) -> None:
-        del self.states[self.index + 1:]
-        self.states.append(state)
-        if len(self.states) > self.limit:
-            del self.states[: len(self.states) - self.limit]
-        self.index = len(self.states) - 1
-
-    def undo(self) -> bool:
-        if self.index == 0:
-            return False
-        self.index -= 1
-        return True
-
-    def redo(self) -> bool:
-        if self.index + 1 >= len(self.states):
-            return False
-        self.index += 1
-        return True
-
-    @property
-    def can_undo(self) -> bool:
-        return self.index > 0
-
-    @property
-    def can_redo(self) -> bool:
-        return self.index + 1 < len(self.states)
-
-    @property
-    def dirty(self) -> bool:
-        """Whether the current scene differs from the last saved (or loaded) one."""
-        return self.saved is None or self.saved.scene != self.current.scene
 
 
 # ----------------------------------------------------------------------------------------------
@@ -164,8 +116,9 @@ def _number(v: Any, what: str) -> float:
 
 def _group_name(v: Any) -> str:
     name = _string(v, "group name")
-    if not re.fullmatch(r"[A-Za-z0-9_-]{1,64}", name):
-        raise EditError(f"group name {_show(name)} is invalid: use 1 to 64 letters, digits, "
+    n = limits.MAX_NAME_LENGTH
+    if not re.fullmatch(rf"[A-Za-z0-9_-]{{1,{n}}}", name):
+        raise EditError(f"group name {_show(name)} is invalid: use 1 to {n} letters, digits, "
                         "'_' or '-'")
     return name
 
@@ -194,16 +147,60 @@ def _indices(v: Any, n_vertices: int | None) -> list[int]:
 # edits
 
 
-def _rebuild(state: EditorState, d: dict, ids: tuple[int, ...] | None = None,
-             next_id: int | None = None) -> EditorState:
-    """A new state from the scene's dict form, validated like a scene file."""
+def check_limits(scene: Scene, diagonal: float | None = None) -> None:
+    """Refuse sizes beyond those of :mod:`wiggly.limits` (the scene files' bounds) with a
+    message naming the value; ``diagonal`` (of the mesh, m) bounds the tet edge length."""
+    problems = []
+    start, end = scene.time_range()
+    t = scene.time
+    if end - start > limits.MAX_DURATION:
+        problems.append(f"the shot from {start:g} s to {end:g} s lasts {end - start:g} s; the "
+                        f"longest shot is {limits.MAX_DURATION:g} s")
+    elif t.fps > limits.MAX_FPS:
+        problems.append(f"time.fps = {t.fps:g}: at most {limits.MAX_FPS:g} frames per second")
+    elif math.floor((end - start) * t.fps) + 1 > limits.MAX_FRAMES:
+        problems.append(f"{end - start:g} s at {t.fps:g} fps is "
+                        f"{math.floor((end - start) * t.fps) + 1} frames; at most "
+                        f"{limits.MAX_FRAMES} (shorten the shot or lower the fps)")
+    if scene.simulation.modes > limits.MAX_MODES:
+        problems.append(f"simulation.modes = {scene.simulation.modes}: at most "
+                        f"{limits.MAX_MODES} modes")
+    res = scene.mesh.resolution
+    if res is not None and res > limits.MAX_RESOLUTION:
+        problems.append(f"mesh.resolution = {res}: at most {limits.MAX_RESOLUTION} tet edges "
+                        "along the diagonal")
+    edge = scene.mesh.edge_length
+    if edge is not None and diagonal is not None and diagonal / edge > limits.MAX_RESOLUTION:
+        problems.append(f"mesh.edge_length = {edge:g} m is {diagonal / edge:.0f} edges along "
+                        f"the mesh's {diagonal:.3g} m diagonal; at most "
+                        f"{limits.MAX_RESOLUTION} (edge_length >= "
+                        f"{diagonal / limits.MAX_RESOLUTION:.3g} m)")
+    if len(scene.keyframes) > limits.MAX_KEYFRAMES:
+        problems.append(f"{len(scene.keyframes)} keyframes: at most {limits.MAX_KEYFRAMES}")
+    names = [("keyframe name", k.name) for k in scene.keyframes] + \
+        [("group name", g) for g in scene.groups]
+    for what, name in names:
+        if len(name) > limits.MAX_NAME_LENGTH:
+            problems.append(f"a {what} of {len(name)} characters ({_show(name, 40)}): at most "
+                            f"{limits.MAX_NAME_LENGTH}")
+            break
+    if problems:
+        raise EditError("; ".join(problems))
+
+
+def rebuild_state(state: EditorState, d: dict, ids: tuple[int, ...] | None = None,
+                  next_id: int | None = None) -> EditorState:
+    """A new state from the scene's dict form, validated like a scene file and bounded as
+    one (:func:`check_limits`)."""
     try:
         scene = scene_from_dict(d, where="edit")
     except WigglyInputError as err:
         raise EditError(str(err)) from None
+    check_limits(scene)
     scene.source = state.scene.source
     return EditorState(scene, state.keyframe_ids if ids is None else ids,
                        state.next_id if next_id is None else next_id)
+
 
 
 def _keyframe_dict(op: dict, base: dict | None = None) -> dict:
@@ -226,23 +223,72 @@ def _keyframe_dict(op: dict, base: dict | None = None) -> dict:
     return d
 
 
-def apply_edit(state: EditorState, op: Any, n_vertices: int | None = None) -> EditorState:
+@dataclass
+class _Draft:
+    """An edit in progress: the scene's dict form and its keyframe ids (same order).  Edits
+    change a draft; the scene is rebuilt and checked once, after all of them (a batch)."""
+
+    d: dict
+    ids: list[int]
+    next_id: int
+
+    def key_index(self, kid: Any) -> int:
+        if isinstance(kid, bool) or not isinstance(kid, int):
+            raise EditError(f"keyframe id must be an integer; got {_show(kid)}")
+        try:
+            return self.ids.index(kid)
+        except ValueError:
+            raise EditError(f"there is no keyframe with id {kid} (it may have been deleted); "
+                            f"ids are {_show(self.ids)}", 404) from None
+
+    def group(self, name: str) -> dict:
+        if name not in self.d["groups"]:
+            raise EditError(f"there is no group {name!r}", 404)
+        return self.d["groups"][name]
+
+
+def apply_edit(state: EditorState, op: Any, n_vertices: int | None = None,
+               diagonal: float | None = None) -> EditorState:
     """The state after the edit ``op`` (a JSON object, see the module doc).
 
-    ``n_vertices`` (of the surface) bounds group indices.  Raises :class:`EditError`.
+    ``n_vertices`` (of the surface) bounds group indices, ``diagonal`` (of its bounding box)
+    the tet edge length.  Raises :class:`EditError`.
     """
+    draft = _Draft(scene_to_dict(state.scene), list(state.keyframe_ids), state.next_id)
+    if isinstance(op, dict) and op.get("op") == "batch":
+        ops = _need(op, "ops")
+        if not isinstance(ops, list) or not ops or len(ops) > limits.MAX_KEYFRAMES:
+            raise EditError(f"batch: ops must be a list of 1 to {limits.MAX_KEYFRAMES} edits")
+        for i, sub in enumerate(ops):
+            try:
+                if isinstance(sub, dict) and sub.get("op") == "batch":
+                    raise EditError("edits in a batch cannot be batches")
+                _apply(draft, sub, n_vertices)
+            except EditError as err:
+                raise EditError(f"batch edit {i + 1} of {len(ops)}: {err}", err.status) from None
+    else:
+        _apply(draft, op, n_vertices)
+    new = rebuild_state(state, draft.d, tuple(draft.ids), draft.next_id)
+    if diagonal is not None:
+        check_limits(new.scene, diagonal)
+    return new
+
+
+def _apply(draft: _Draft, op: Any, n_vertices: int | None) -> None:
     if not isinstance(op, dict):
         raise EditError(f"an edit must be a JSON object with an 'op' field; got {_show(op)}")
     kind = op.get("op")
     handler = _EDITS.get(kind) if isinstance(kind, str) else None
     if handler is None:
-        raise EditError(f"unknown edit op {_show(kind)}; known: {', '.join(_EDITS)}")
-    return handler(state, op, n_vertices)
+        raise EditError(f"unknown edit op {_show(kind)}; known: {', '.join(_EDITS)}, batch")
+    handler(draft, op, n_vertices)
+    if len(draft.ids) > limits.MAX_KEYFRAMES:
+        raise EditError(f"{len(draft.ids)} keyframes: at most {limits.MAX_KEYFRAMES}")
 
 
-def _set_group(state, op, n):
+def _set_group(draft, op, n):
     name = _group_name(_need(op, "name"))
-    d = scene_to_dict(state.scene)
+    d = draft.d
     old = d["groups"].get(name, {})
     g: dict[str, Any] = {"indices": _indices(_need(op, "indices"), n)}
     on = op.get("on", old.get("on", "surface"))
@@ -253,14 +299,12 @@ def _set_group(state, op, n):
     color = op.get("color") or old.get("color") or PALETTE[len(d["groups"]) % len(PALETTE)]
     g["color"] = _color(color)
     d["groups"][name] = g
-    return _rebuild(state, d)
 
 
-def _rename_group(state, op, n):
+def _rename_group(draft, op, n):
     name, new = _group_name(_need(op, "name")), _group_name(_need(op, "new_name"))
-    d = scene_to_dict(state.scene)
-    if name not in d["groups"]:
-        raise EditError(f"there is no group {name!r}", 404)
+    d = draft.d
+    draft.group(name)
     if new != name and new in d["groups"]:
         raise EditError(f"a group named {new!r} exists already")
     d["groups"] = {(new if k == name else k): v for k, v in d["groups"].items()}
@@ -268,69 +312,55 @@ def _rename_group(state, op, n):
         if k["group"] == name:
             k["group"] = new
     d["simulation"]["fixed"] = [new if g == name else g for g in d["simulation"]["fixed"]]
-    return _rebuild(state, d)
 
 
-def _recolor_group(state, op, n):
+def _recolor_group(draft, op, n):
+    draft.group(_group_name(_need(op, "name")))["color"] = _color(_need(op, "color"))
+
+
+def _delete_group(draft, op, n):
     name = _group_name(_need(op, "name"))
-    d = scene_to_dict(state.scene)
-    if name not in d["groups"]:
-        raise EditError(f"there is no group {name!r}", 404)
-    d["groups"][name]["color"] = _color(_need(op, "color"))
-    return _rebuild(state, d)
-
-
-def _delete_group(state, op, n):
-    name = _group_name(_need(op, "name"))
-    d = scene_to_dict(state.scene)
-    if name not in d["groups"]:
-        raise EditError(f"there is no group {name!r}", 404)
+    d = draft.d
+    draft.group(name)
     del d["groups"][name]
     keep = [i for i, k in enumerate(d["keyframes"]) if k["group"] != name]
     d["keyframes"] = [d["keyframes"][i] for i in keep]
+    draft.ids = [draft.ids[i] for i in keep]
     d["simulation"]["fixed"] = [g for g in d["simulation"]["fixed"] if g != name]
-    return _rebuild(state, d, tuple(state.keyframe_ids[i] for i in keep))
 
 
-def _set_fixed(state, op, n):
+def _set_fixed(draft, op, n):
     name = _group_name(_need(op, "name"))
     fixed = _need(op, "fixed")
     if not isinstance(fixed, bool):
         raise EditError(f"fixed must be true or false; got {_show(fixed)}")
-    d = scene_to_dict(state.scene)
-    if name not in d["groups"]:
-        raise EditError(f"there is no group {name!r}", 404)
-    names = [g for g in d["simulation"]["fixed"] if g != name]
-    d["simulation"]["fixed"] = [*names, name] if fixed else names
-    return _rebuild(state, d)
+    draft.group(name)
+    names = [g for g in draft.d["simulation"]["fixed"] if g != name]
+    draft.d["simulation"]["fixed"] = [*names, name] if fixed else names
 
 
-def _add_keyframe(state, op, n):
+def _add_keyframe(draft, op, n):
     _need(op, "time"), _need(op, "group")
     k = _keyframe_dict(op)
     if "position" not in k and "velocity" not in k:
         k["position"] = "rest"
-    d = scene_to_dict(state.scene)
-    d["keyframes"].append(k)
-    return _rebuild(state, d, (*state.keyframe_ids, state.next_id), state.next_id + 1)
+    draft.d["keyframes"].append(k)
+    draft.ids.append(draft.next_id)
+    draft.next_id += 1
 
 
-def _update_keyframe(state, op, n):
-    i = state.keyframe_index(_need(op, "id"))
-    d = scene_to_dict(state.scene)
-    d["keyframes"][i] = _keyframe_dict(op, d["keyframes"][i])
-    return _rebuild(state, d)
+def _update_keyframe(draft, op, n):
+    i = draft.key_index(_need(op, "id"))
+    draft.d["keyframes"][i] = _keyframe_dict(op, draft.d["keyframes"][i])
 
 
-def _delete_keyframe(state, op, n):
-    i = state.keyframe_index(_need(op, "id"))
-    d = scene_to_dict(state.scene)
-    del d["keyframes"][i]
-    ids = state.keyframe_ids[:i] + state.keyframe_ids[i + 1:]
-    return _rebuild(state, d, ids)
+def _delete_keyframe(draft, op, n):
+    i = draft.key_index(_need(op, "id"))
+    del draft.d["keyframes"][i]
+    del draft.ids[i]
 
 
-def _set(state, op, n):
+def _set(draft, op, n):
     section = _need(op, "section")
     if section not in SETTABLE:
         raise EditError(f"section {_show(section)} cannot be set; use one of "
@@ -338,8 +368,7 @@ def _set(state, op, n):
     values = _need(op, "values")
     if not isinstance(values, dict):
         raise EditError(f"values must be a table of {section} keys; got {_show(values)}")
-    d = scene_to_dict(state.scene)
-    table = d.setdefault(section, {})
+    table = draft.d.setdefault(section, {})
     for key, v in values.items():
         if key not in SETTABLE[section]:
             raise EditError(f"{section}.{key} cannot be set here; keys: "
@@ -356,7 +385,6 @@ def _set(state, op, n):
         table.pop("edge_length", None)
     if section == "mesh" and values.get("edge_length") is not None:
         table.pop("resolution", None)
-    return _rebuild(state, d)
 
 
 _EDITS = {

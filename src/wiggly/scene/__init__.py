@@ -30,6 +30,7 @@ from wiggly.scene.run import (
     keyframe_highlights,
     render_preview,
     run,
+    solve_scene,
     with_overrides,
     write_outputs,
 )
@@ -104,6 +105,7 @@ __all__ = [
     "scene_schema",
     "scene_to_dict",
     "scene_to_toml",
+    "solve_scene",
     "with_overrides",
     "write_outputs",
 ]

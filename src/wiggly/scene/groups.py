@@ -66,13 +66,19 @@ def _select(name: str, group: GroupSpec, X: np.ndarray, mesh_groups: dict[str, n
     return idx
 
 
-def resolve_groups(scene: Scene, model) -> dict[str, np.ndarray]:
+def resolve_groups(scene: Scene, model=None, *, surface=None) -> dict[str, np.ndarray]:
     """Vertex indices of every group: of the user's surface, or of the tet mesh for
-    ``on = "tets"`` (``model`` a :class:`wiggly.Model`).  Raises a
-    :class:`WigglyInputError` listing every group that is invalid for this mesh."""
+    ``on = "tets"`` (``model`` a :class:`wiggly.Model`).  Without a model (a mesh not yet
+    tetrahedralized), ``surface`` alone resolves the surface groups; tet groups are left
+    out.  Raises a :class:`WigglyInputError` listing every group that is invalid."""
+    if model is not None:
+        surface, tet_X, tet_groups = model.surface, model.tets.vertices, model.tets.groups
+    elif surface is not None:
+        tet_X = tet_groups = None
+    else:
+        raise TypeError("resolve_groups needs a model or a surface")
     p = _Problems(scene.where())
-    out = _resolve(scene, model.surface.vertices, model.surface.groups, model.tets.vertices,
-                   model.tets.groups, p)
+    out = _resolve(scene, surface.vertices, surface.groups, tet_X, tet_groups, p)
     p.raise_if_any()
     return out
 

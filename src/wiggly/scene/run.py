@@ -98,6 +98,14 @@ def keyframe_highlights(scene: Scene, body, keyframes, groups: dict[str, np.ndar
     return out
 
 
+def solve_scene(scene: Scene, body, keyframes, progress: bool = False):
+    """The scene's spacetime solve (its time range, warp, pre-roll and loop): the one call
+    behind ``wiggly animate`` and the editor's exports."""
+    start, end = scene.time_range()
+    return solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
+                 preroll=scene.simulation.preroll, loop=scene.time.loop, progress=progress)
+
+
 def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
         progress: bool = False):
     """Animate the scene and write every output; return the :class:`wiggly.Animation`.
@@ -125,8 +133,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
     _say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
          f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s", progress)
     t = _time.perf_counter()
-    anim = solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
-                 preroll=scene.simulation.preroll, loop=scene.time.loop, progress=progress)
+    anim = solve_scene(scene, body, keyframes, progress=progress)
     timings["solve"] = _time.perf_counter() - t
     written = write_outputs(scene, anim, paths, overwrite=overwrite, progress=progress,
                             highlights=keyframe_highlights(scene, body, anim.keyframes, groups),

@@ -1,0 +1,74 @@
+"""Autosave: every edited scene is written beside its file (``.NAME.autosave.toml``) by a
+writer thread, right after the edit but not on its way: the browser's answer and the solve
+do not wait for the TOML (about 20 ms on a scene of ten keyframes).  Writes of one file are
+coalesced (the newest state wins) and run in order with deletions (an undo back to the saved
+scene removes the autosave, which must not come back)."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+from wiggly.errors import WigglyInputError
+from wiggly.scene import Scene, save_scene
+
+__all__ = ["Autosaver", "autosave_path"]
+
+
+def autosave_path(scene_path: Path) -> Path:
+    """Where edits of ``scene_path`` are autosaved: a hidden file beside it."""
+    return scene_path.with_name(f".{scene_path.stem}.autosave.toml")
+
+
+class Autosaver:
+    """Writes (``scene``) or removes (``None``) autosave files on one background thread;
+    ``on_error(message)`` is told when a write fails."""
+
+    def __init__(self, on_error: Callable[[str], None]):
+        self._on_error = on_error
+        self._cv = threading.Condition()
+        self._pending: dict[Path, Scene | None] = {}
+        self._busy = False
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name="wiggly-autosave", daemon=True)
+        self._thread.start()
+
+    def put(self, target: Path, scene: Scene | None) -> None:
+        """Autosave ``scene`` to ``target`` (None: remove the autosave)."""
+        with self._cv:
+            self._pending[target] = scene
+            self._cv.notify_all()
+
+    def flush(self) -> None:
+        """Wait until every pending write is done."""
+        with self._cv:
+            self._cv.wait_for(lambda: not self._pending and not self._busy)
+
+    def close(self) -> None:
+        """Write what is pending, then stop."""
+        self.flush()
+        with self._cv:
+            self._closed = True
+            self._cv.notify_all()
+        self._thread.join(timeout=5)
+
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                self._cv.wait_for(lambda: self._pending or self._closed)
+                if not self._pending:
+                    return
+                target, scene = self._pending.popitem()
+                self._busy = True
+            try:
+                if scene is None:
+                    target.unlink(missing_ok=True)
+                else:
+                    save_scene(scene, target, overwrite=True)
+            except (OSError, WigglyInputError) as err:
+                self._on_error(f"autosave failed: {err}")
+            finally:
+                with self._cv:
+                    self._busy = False
+                    self._cv.notify_all()

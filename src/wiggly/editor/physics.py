@@ -1,0 +1,392 @@
+"""The editor's physics: models (tet meshes) and bodies (M, K, modes) by setting.
+
+Tetrahedralization (fTetWild) and the eigensolver run for seconds in native calls that hold
+Python's global interpreter lock, so they run in a child process (:func:`_child`): in a thread
+they would stop the server from answering, and the page from showing their progress, until
+they end.  The parent keeps one job thread (:class:`Physics`) that sends a job to the child and
+waits on its pipe, publishing the child's stage and the elapsed time twice a second.  A job
+nobody wants any more (the user changed the resolution again) is abandoned by killing the
+child, which is started again for the next job.
+
+Protocol (pickled messages, each preceded by its length as in :mod:`wiggly.editor.refine`):
+the parent sends ``("model", key, path, resolution, edge_length, repair)`` and ``("modes",
+model_key, model or None, material, n_modes, lumped, fixed_vertices)``; the child answers
+``("status", stage, message, fraction)`` while it works, then ``("model", model)``, ``("modes",
+M, K, modes)`` or ``("error", message, is_input_error)``.  The child keeps the models it loaded,
+so the parent sends a model only to a child that does not have it.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+import traceback
+from collections import OrderedDict
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+
+from wiggly.editor.bus import EventBus
+from wiggly.editor.refine import write_message
+from wiggly.errors import WigglyInputError
+from wiggly.scene import Scene, resolve_groups
+
+__all__ = ["Physics", "Superseded", "model_key", "modes_key", "with_dynamics"]
+
+HEARTBEAT = 0.5  # s between progress events while the child works
+# The child yields the processor to the server (and the page) when both want it: a busy machine
+# must not delay the server's answers (it costs the preparation little: the server is idle).
+CHILD_NICENESS = 5
+_NICE = "import os\ntry:\n    os.nice({})\nexcept OSError:\n    pass\n"
+
+
+class Superseded(Exception):
+    """The job was abandoned: a newer edit wants another model or body."""
+
+
+def model_key(scene: Scene) -> tuple:
+    """What the tet mesh depends on: the file (path and modification time) and its options."""
+    f = scene.mesh_file()
+    try:
+        mtime = f.stat().st_mtime_ns
+    except OSError:
+        mtime = 0
+    m = scene.mesh
+    return (str(f), mtime, m.resolution, m.edge_length, m.repair)
+
+
+def modes_key(scene: Scene) -> tuple:
+    """What M, K and the modes depend on."""
+    s = scene.simulation
+    fixed = tuple((g, scene.groups[g]) for g in s.fixed)
+    return (model_key(scene), scene.material, s.modes, s.lumped_mass, fixed)
+
+
+def with_dynamics(body, damping, gravity):
+    """``body`` with the scene's damping and gravity (:meth:`wiggly.Body.with_dynamics`:
+    same M, K, modes and warp; nothing is recomputed)."""
+    from wiggly.body import Damping
+
+    return body.with_dynamics(damping=Damping(damping.alpha, damping.beta),
+                              gravity=np.asarray(gravity, float))
+
+
+# ----------------------------------------------------------------------------------------------
+# the child process
+
+
+def _read_exact(fd: int, n: int) -> bytes | None:
+    chunks, got = [], 0
+    while got < n:
+        chunk = os.read(fd, min(n - got, 1 << 24))
+        if not chunk:
+            return None
+        chunks.append(chunk)
+        got += len(chunk)
+    return b"".join(chunks)
+
+
+def _read(fd: int) -> Any:
+    """The next message on a raw file descriptor (None at its end)."""
+    head = _read_exact(fd, 8)
+    if head is None:
+        return None
+    data = _read_exact(fd, int.from_bytes(head, "little"))
+    return None if data is None else pickle.loads(data)
+
+
+def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end to end)
+    """The child's loop (started by :class:`Preparer`)."""
+    inp, out = sys.stdin.fileno(), sys.stdout.buffer
+    sys.stdout = sys.stderr  # the protocol owns stdout
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C is the parent's; it closes our stdin
+    from wiggly.body import prepare
+    from wiggly.fem import Material
+    from wiggly.mesh import load_model
+
+    models: OrderedDict[tuple, Any] = OrderedDict()
+
+    def status(stage: str, message: str, fraction: float) -> None:
+        write_message(out, ("status", stage, message, fraction))
+
+    while True:
+        msg = _read(inp)
+        if msg is None:
+            return
+        try:
+            if msg[0] == "model":
+                _, key, path, resolution, edge_length, repair = msg
+                name = os.path.basename(path)
+                status("mesh", f"reading and tetrahedralizing {name}", 0.1)
+                model = load_model(path, resolution=resolution, edge_length=edge_length,
+                                   repair=repair)
+                models[key] = model
+                write_message(out, ("model", model))
+            else:
+                _, key, model, material, n_modes, lumped, fixed = msg
+                if model is None:
+                    model = models[key]
+                models[key] = model
+                status("modes", f"computing {n_modes} modes of {model.tets.n_tets} tets "
+                       f"(E = {material[0]:g} Pa)", 0.4)
+                body = prepare(model, material=Material(*material), fixed_vertices=fixed,
+                               n_modes=n_modes, lumped=lumped)
+                write_message(out, ("modes", body.M, body.K, body.modes))
+            while len(models) > 2:
+                models.popitem(last=False)
+        except WigglyInputError as err:
+            write_message(out, ("error", str(err), True))
+        except Exception as err:
+            traceback.print_exc()
+            write_message(out, ("error", f"{type(err).__name__}: {err}", False))
+
+
+class Preparer:
+    """The parent side of the child process: one job at a time (from the job thread)."""
+
+    def __init__(self):
+        self._proc: subprocess.Popen | None = None
+        self._known: list[tuple] = []  # model keys the running child holds
+        self._lock = threading.Lock()
+        self._closed = False
+        self.start()
+
+    def start(self) -> None:
+        """Start the child if it is not running (it imports the libraries right away)."""
+        with self._lock:
+            if self._closed or (self._proc is not None and self._proc.poll() is None):
+                return
+            self._proc = subprocess.Popen(
+                [sys.executable, "-c", _NICE.format(CHILD_NICENESS) +
+                 "from wiggly.editor.physics import _child; _child()"],
+                stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, close_fds=True)
+            self._known = []
+
+    @property
+    def pid(self) -> int | None:
+        return self._proc.pid if self._proc is not None else None
+
+    def knows(self, key: tuple) -> bool:
+        return key in self._known
+
+    def call(self, msg: tuple, on_status: Callable[[tuple | None], None],
+             abandon: Callable[[], bool]) -> tuple:
+        """Send a job, relay its status (None: a heartbeat) and return its answer; kill the
+        child and raise :class:`Superseded` as soon as ``abandon()`` is true."""
+        self.start()
+        proc = self._proc
+        if proc is None:
+            raise Superseded("the editor is closing")
+        try:
+            write_message(proc.stdin, msg)
+        except (BrokenPipeError, OSError, ValueError):
+            self.kill()
+            raise RuntimeError("the physics process exited") from None
+        fd = proc.stdout.fileno()
+        while True:
+            if abandon():
+                self.kill()
+                raise Superseded("superseded by a newer edit")
+            if not select.select([fd], [], [], HEARTBEAT)[0]:
+                on_status(None)
+                continue
+            reply = _read(fd)
+            if reply is None:
+                code = proc.wait()
+                self.kill()
+                raise RuntimeError(f"the physics process exited ({code})")
+            if reply[0] == "status":
+                on_status(reply[1:])
+                continue
+            if reply[0] == "error":
+                if reply[2]:
+                    raise WigglyInputError(reply[1])
+                raise RuntimeError(reply[1])
+            if reply[0] in ("model", "modes"):
+                key = msg[1]
+                self._known = [*[k for k in self._known if k != key][-1:], key]
+            return reply
+
+    def kill(self) -> None:
+        with self._lock:
+            proc, self._proc, self._known = self._proc, None, []
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if proc is not None:
+            for stream in (proc.stdin, proc.stdout):
+                try:
+                    stream.close()
+                except OSError:
+                    pass
+
+    def close(self) -> None:
+        with self._lock:
+            self._closed = True
+        self.kill()
+
+
+# ----------------------------------------------------------------------------------------------
+# the parent: futures by setting
+
+
+class Physics:
+    """Models and bodies by setting, prepared by the child process one job at a time, with
+    stage events.  Jobs for settings that nobody wants any more are abandoned."""
+
+    def __init__(self, bus: EventBus):
+        self.bus = bus
+        self.preparer = Preparer()
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="wiggly-physics")
+        self._lock = threading.RLock()
+        self._models: OrderedDict[tuple, Future] = OrderedDict()
+        self._bodies: OrderedDict[tuple, Future] = OrderedDict()
+        self._variants: OrderedDict[tuple, Any] = OrderedDict()
+        self._wanted: tuple = ()
+        self._held: dict[tuple, int] = {}
+        self._closed = False
+
+    def close(self) -> None:
+        self._closed = True
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self.preparer.close()
+
+    def want(self, scene: Scene) -> None:
+        """The newest edit's scene: jobs for other settings are abandoned (unless held)."""
+        with self._lock:
+            self._wanted = (model_key(scene), modes_key(scene))
+
+    def _unwanted(self, key: tuple) -> bool:
+        with self._lock:
+            return self._closed or (key not in self._wanted and not self._held.get(key))
+
+    def _status(self, stage: str, message: str, fraction: float, t0: float, **kw) -> None:
+        self.bus.publish("physics", stage=stage, message=message, fraction=fraction,
+                         elapsed=time.perf_counter() - t0, **kw)
+
+    def _run(self, msg: tuple, key: tuple, t0: float, first: tuple) -> tuple:
+        """A child job, its stages and heartbeats published."""
+        last = list(first)
+
+        def on_status(st: tuple | None) -> None:
+            if st is not None:
+                last[:] = st
+            self._status(*last, t0)
+
+        self._status(*last, t0)
+        return self.preparer.call(msg, on_status, lambda: self._unwanted(key))
+
+    def model_future(self, scene: Scene) -> Future:
+        key = model_key(scene)
+        with self._lock:
+            fut = self._models.get(key)
+            if fut is None or (fut.done() and fut.exception() is not None):
+                fut = self._pool.submit(self._load_model, scene, key)
+                self._models[key] = fut
+                while len(self._models) > 2:
+                    self._models.popitem(last=False)
+            return fut
+
+    def _load_model(self, scene: Scene, key: tuple):
+        t0 = time.perf_counter()
+        f = scene.mesh_file()
+        if self._unwanted(key):
+            raise Superseded("superseded by a newer edit")
+        try:
+            _, model = self._run(("model", key, str(f), scene.mesh.resolution,
+                                  scene.mesh.edge_length, scene.mesh.repair), key, t0,
+                                 ("mesh", f"reading and tetrahedralizing {f.name}", 0.05))
+        except Superseded:
+            raise
+        except Exception as err:
+            self._status("error", f"cannot load {f.name}: {err}", 0.0, t0)
+            raise
+        self._status("mesh", f"{model.tets.n_tets} tets, {model.tets.n_vertices} vertices", 0.3,
+                     t0)
+        return model
+
+    def body_future(self, scene: Scene) -> Future:
+        key = modes_key(scene)
+        with self._lock:
+            fut = self._bodies.get(key)
+            if fut is None or (fut.done() and fut.exception() is not None):
+                model_fut = self.model_future(scene)
+                fut = self._pool.submit(self._prepare, scene, key, model_fut)
+                self._bodies[key] = fut
+                while len(self._bodies) > 3:
+                    self._bodies.popitem(last=False)
+            return fut
+
+    def _prepare(self, scene: Scene, key: tuple, model_fut: Future):
+        from wiggly.body import Body, Damping, fixed_from_surface
+        from wiggly.fem import Material
+
+        t0 = time.perf_counter()
+        model = model_fut.result()
+        if self._unwanted(key):
+            raise Superseded("superseded by a newer edit")
+        s, m = scene.simulation, scene.material
+        mkey = key[0]
+        try:
+            groups = resolve_groups(scene, model)
+            fixed = [groups[g] if scene.groups[g].on == "tets"
+                     else fixed_from_surface(model, groups[g]) for g in s.fixed]
+            fixed_vertices = np.unique(np.concatenate(fixed)) if fixed else None
+            first = ("modes", f"computing {s.modes} modes of {model.tets.n_tets} tets "
+                     f"(E = {m.young:g} Pa)", 0.4)
+            sent = None if self.preparer.knows(mkey) else model
+            _, M, K, modes = self._run(("modes", mkey, sent, (m.young, m.poisson, m.density),
+                                        s.modes, s.lumped_mass, fixed_vertices), key, t0, first)
+            body = Body(model, Material(m.young, m.poisson, m.density), Damping(),
+                        np.asarray(s.gravity, float), modes.fixed_vertices, M, K, modes,
+                        s.lumped_mass)
+            _ = body.surface_basis  # playback needs it; the warp is built by exports only
+        except Superseded:
+            raise
+        except Exception as err:
+            self._status("error", f"cannot compute the modes: {err}", 0.0, t0)
+            raise
+        self._status("ready", f"{body.r} modes ready ({model.tets.n_tets} tets)", 1.0, t0,
+                     modes=body.r, tets=model.tets.n_tets,
+                     frequencies=[round(float(x), 4) for x in body.modes.frequencies_hz()[:12]])
+        return body
+
+    def body(self, scene: Scene, abandon: Callable[[], bool], hold: bool = False):
+        """The body of ``scene`` (None when ``abandon()`` turns true while waiting).
+        ``hold``: the job must not be abandoned for newer edits (an export waits on it)."""
+        key = modes_key(scene)
+        if hold:
+            with self._lock:
+                self._held[key] = self._held.get(key, 0) + 1
+        try:
+            fut = self.body_future(scene)
+            while True:
+                try:
+                    base = fut.result(timeout=0.05)
+                    break
+                except TimeoutError:
+                    if abandon():
+                        return None
+        finally:
+            if hold:
+                with self._lock:
+                    self._held[key] -= 1
+                    if not self._held[key]:
+                        del self._held[key]
+        vkey = (key, scene.damping, scene.simulation.gravity)
+        with self._lock:
+            body = self._variants.get(vkey)
+            if body is None:
+                body = with_dynamics(base, scene.damping, scene.simulation.gravity)
+                self._variants[vkey] = body
+                while len(self._variants) > 4:
+                    self._variants.popitem(last=False)
+            return body

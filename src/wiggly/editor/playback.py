@@ -1,0 +1,270 @@
+"""The editor's playback: every state the session asks for becomes frames the browser plays.
+
+* the *fast* worker thread answers every request with a linear solve (Theorem 1) and linear
+  playback (milliseconds: this is what the browser shows while a gizmo is dragged and right
+  after it is released);
+* the *warped* refinement then solves committed states with the warped solve (Theorem 2), a
+  few Gauss-Newton iterations at a time, warm-started from its previous result, publishing
+  frames as it goes.  It runs in a child process (:mod:`wiggly.editor.refine`) so that its
+  long calls holding the GIL never delay the server or the fast worker.
+
+Newest request wins: the fast worker has a one-slot :class:`~wiggly.editor.bus.Mailbox` (a
+request not yet taken is replaced by a newer one), and the refinement abandons its solve
+between chunks of iterations as soon as a newer request exists.  Every request has a sequence
+number ``seq``; the browser shows frames of the highest ``seq`` it has seen (and, within one
+``seq``, warped frames over linear ones).  Sequence numbers restart with the process, so every
+frame set also carries the process's ``instance`` id (a restarted server is a new instance).
+
+Gizmo drags ask for "drag" requests (linear only): their frames and status events are not
+replayed to tabs opened later, and the newest final frames are never evicted by them.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import traceback
+from collections import OrderedDict
+from concurrent.futures import CancelledError
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from wiggly.editor.bus import EventBus, Mailbox
+from wiggly.editor.physics import Physics, Superseded, model_key, modes_key
+from wiggly.editor.refine import Refiner, playback_fps, residual_max
+from wiggly.editor.state import EditorState
+from wiggly.errors import WigglyInputError
+from wiggly.scene import resolve_groups
+
+__all__ = ["FrameSet", "Playback", "Request"]
+
+FRAME_SETS_KEPT = 6
+
+
+@dataclass(frozen=True)
+class Request:
+    """A solve of ``state``: ``kind`` "drag" (linear only) or "final" (linear, then warped)."""
+
+    seq: int
+    version: int
+    state: EditorState
+    kind: str
+
+
+@dataclass
+class FrameSet:
+    """Playback frames of one solve: float32 positions (F, n, 3) of the surface."""
+
+    id: int
+    seq: int
+    version: int
+    stage: str  # "linear" | "warped"
+    final: bool
+    start: float
+    fps: float
+    positions: np.ndarray
+    kind: str = "final"  # the request's kind: "drag" frames are previews
+    info: dict = field(default_factory=dict)
+
+    def meta(self) -> dict:
+        F, n, _ = self.positions.shape
+        return {"id": self.id, "seq": self.seq, "version": self.version, "stage": self.stage,
+                "final": self.final, "start": self.start, "fps": self.fps, "n_frames": F,
+                "n_vertices": n, "request": self.kind, **self.info}
+
+
+def done_message(info: dict) -> str:
+    """The status of a finished warped solve."""
+    return (f"converged in {info['iterations']} iterations" if info["converged"]
+            else f"stopped after {info['iterations']} iterations (not converged)")
+
+
+class Playback:
+    """Frames of the states the session asks for (see the module doc)."""
+
+    def __init__(self, bus: EventBus, physics: Physics, instance: str):
+        self.bus, self.physics, self.instance = bus, physics, instance
+        self._lock = threading.Lock()
+        self._seq = 0
+        self._frames: OrderedDict[int, FrameSet] = OrderedDict()
+        self._frame_id = 0
+        self.fast_box = Mailbox()
+        self._stop = threading.Event()
+        self._refiner: Refiner | None = None  # started by the first warped scene
+        self._thread = threading.Thread(target=self._worker, args=(self.fast_box,),
+                                        name="wiggly-fast", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self._stop.set()
+        self.fast_box.close()
+        if self._refiner is not None:
+            self._refiner.close()
+
+    @property
+    def refiner(self) -> Refiner:
+        if self._refiner is None:
+            self._refiner = Refiner(self._on_refined)
+        return self._refiner
+
+    def _supersede(self, seq: int) -> None:
+        if self._refiner is not None:  # a running warped refinement stops
+            self._refiner.supersede(seq)
+
+    def _next_seq(self) -> int:
+        with self._lock:
+            self._seq += 1
+            return self._seq
+
+    def request(self, state: EditorState, version: int, kind: str) -> int:
+        """Solve ``state`` (newest wins); its ``seq``."""
+        seq = self._next_seq()
+        self.physics.want(state.scene)
+        self._supersede(seq)
+        self.fast_box.put(Request(seq, version, state, kind))
+        return seq
+
+    def restore(self, state: EditorState, version: int) -> int:
+        """A drag was abandoned: show ``state`` again.  Its final frames are announced again
+        under a new ``seq`` if they exist; otherwise (the drag interrupted its refinement)
+        it is solved again."""
+        with self._lock:
+            best = self._best(lambda fs: fs.version == version and fs.kind == "final")
+        if best is None or not best.final:
+            return self.request(state, version, "final")
+        seq = self._next_seq()
+        self.physics.want(state.scene)
+        self._supersede(seq)
+        self._publish(replace(best, seq=seq, info=dict(best.info)))
+        info = best.info
+        message = done_message(info) if best.stage == "warped" else "linear solve"
+        self.bus.publish("solve", seq=seq, version=version, stage="done", message=message,
+                         **info)
+        return seq
+
+    # --- frames ---------------------------------------------------------------------------
+    def frames(self, frame_id: int) -> FrameSet | None:
+        with self._lock:
+            return self._frames.get(frame_id)
+
+    def _best(self, keep) -> FrameSet | None:
+        best = None
+        for fs in self._frames.values():
+            if keep(fs) and (best is None or (fs.seq, fs.stage == "warped", fs.final) >=
+                             (best.seq, best.stage == "warped", best.final)):
+                best = fs
+        return best
+
+    def latest(self, final: bool = False, committed: bool = False) -> FrameSet | None:
+        """The frames of the newest request (``final``: the newest final ones; ``committed``:
+        the newest of a logged state, not of a drag)."""
+        with self._lock:
+            return self._best(lambda fs: (fs.final or not final) and
+                              (fs.kind == "final" or not committed))
+
+    def _publish(self, fs: FrameSet) -> None:
+        with self._lock:
+            self._frame_id += 1
+            fs.id = self._frame_id
+            self._frames[fs.id] = fs
+            newest_final = self._best(lambda f: f.final)
+            pinned = {fs.id, newest_final.id if newest_final is not None else fs.id}
+            for old in list(self._frames):
+                if len(self._frames) <= FRAME_SETS_KEPT:
+                    break
+                if old not in pinned:  # the newest final frames stay (a new tab's)
+                    del self._frames[old]
+        self.bus.publish("frames", sticky=fs.kind != "drag", instance=self.instance,
+                         **fs.meta())
+
+    # --- workers --------------------------------------------------------------------------
+    def _on_refined(self, kind: str, seq: int, version: int, payload: list) -> None:
+        """Answers of the warped refinement process (on its relay thread)."""
+        if kind == "frames":
+            final, start, fps, positions, info = payload
+            self._publish(FrameSet(0, seq, version, "warped", final, start, fps, positions,
+                                   "final", info))
+            if final:
+                self.bus.publish("solve", seq=seq, version=version, stage="done",
+                                 message=done_message(info), **info)
+            else:
+                self.bus.publish("solve", seq=seq, version=version, stage="warped",
+                                 message=f"warped solve: {info['iterations']} iterations", **info)
+        elif kind == "progress":
+            info = payload[0]
+            self.bus.publish("solve", seq=seq, version=version, stage="warped",
+                             message=f"warped solve: {info['iterations']} iterations", **info)
+        elif kind == "abandoned":
+            self.bus.publish("solve", sticky=False, seq=seq, version=version, stage="abandoned",
+                             message="superseded by a newer edit", **payload[0])
+        elif kind == "error":
+            self.bus.publish("solve", seq=seq, version=version, stage="error",
+                             message=payload[0])
+        elif kind == "died" and not self._stop.is_set():
+            self.bus.publish("notice", level="error", message=payload[0]["message"] +
+                             "; restarting it")
+            self._refiner = Refiner(self._on_refined)
+
+    def _worker(self, box: Mailbox) -> None:
+        problems: OrderedDict[tuple, Any] = OrderedDict()
+        while not self._stop.is_set():
+            req = box.take(timeout=0.5)
+            if req is None:
+                continue
+            try:
+                self._solve(req, box, problems)
+            except (CancelledError, Superseded):  # closing, or a newer edit needs other physics
+                continue
+            except WigglyInputError as err:
+                self.bus.publish("solve", seq=req.seq, version=req.version, stage="error",
+                                 message=str(err))
+            except Exception as err:  # a bug: report it, keep the worker alive
+                traceback.print_exc()
+                self.bus.publish("solve", seq=req.seq, version=req.version, stage="error",
+                                 message=f"internal error: {type(err).__name__}: {err}")
+
+    def _solve(self, req: Request, box: Mailbox, problems) -> None:
+        """Linear solve and linear playback (fast); then hand final requests of warped scenes
+        to the refinement process."""
+        from wiggly.scene import keyframes_of, scene_to_dict
+        from wiggly.solve import SpacetimeProblem
+
+        scene = req.state.scene
+        body = self.physics.body(scene, abandon=lambda: box.pending() or self._stop.is_set())
+        if body is None:
+            return
+        groups = resolve_groups(scene, body.model)
+        keys = keyframes_of(scene, body, groups)
+        start, end = scene.time_range()
+        pkey = (modes_key(scene), scene.damping, scene.simulation.gravity, start, end,
+                scene.simulation.preroll)
+        problem = problems.get(pkey)
+        if problem is None:
+            problem = problems[pkey] = SpacetimeProblem(body, start, end, scene.simulation.preroll)
+            while len(problems) > 3:
+                problems.popitem(last=False)
+        drag = req.kind == "drag"
+        t0 = time.perf_counter()
+        self.bus.publish("solve", sticky=not drag, seq=req.seq, version=req.version,
+                         stage="linear", message="linear solve")
+        anim = problem.solve(keys, warped=False)
+        if drag and box.pending():
+            return  # a newer request waits: skip this stale preview's playback frames
+        fps = playback_fps(scene.time.fps, start, end, body.surface.n_vertices)
+        times = anim.frame_times(fps)
+        positions = anim.positions(times, dtype=np.float32)
+        warp = scene.simulation.warp
+        final = not warp and not drag
+        info = {"seconds": time.perf_counter() - t0,
+                "residual_max": residual_max(anim) if final else None}
+        self._publish(FrameSet(0, req.seq, req.version, "linear", final, float(times[0]), fps,
+                               positions, req.kind, info))
+        if final:
+            self.bus.publish("solve", seq=req.seq, version=req.version, stage="done",
+                             message="linear solve", **info)
+        elif warp and not drag:
+            model = self.physics.model_future(scene).result()
+            self.refiner.solve(req.seq, req.version, scene_to_dict(scene), scene.source,
+                               model_key(scene), model)
