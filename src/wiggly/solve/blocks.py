@@ -74,19 +74,22 @@ class NewtonBlocks:
     ) -> tuple[list[NodeDerivatives], bool]:
         """The derivatives at nodes ``times`` with states Q, Qv (f, r) (velocity rows only
         where ``velocity``), cotangents Y, Yv (f, n_M, 3) on the level.  Returns them and
-        whether all were computed at exactly these states and cotangents."""
+        whether all were computed at exactly these states and cotangents.  ``fresh`` keeps
+        only nodes computed at exactly these (recomputes the others)."""
         modal = self.level.modal
         f = len(times)
         X = np.concatenate([Q, Qv], axis=1)
         floor = 0.05 * max((float(np.linalg.norm(x)) for x in X), default=0.0)
         jac, curv = [], []
         kept: list[NodeDerivatives | None] = []
+        # fresh: only derivatives computed at exactly this state and cotangent are kept
+        state, cotangent = (0.0, 0.0) if fresh else (REUSE_STATE, REUSE_COTANGENT)
         for a, t in enumerate(times):
-            old = self._nodes.get(t) if (self.reuse and not fresh) else None
+            old = self._nodes.get(t) if self.reuse else None
             yv = Yv[a] if velocity[a] else None
             if old is not None:
                 scale = max(float(np.linalg.norm(old.x)), floor)
-                if _moved(X[a], old.x, scale, REUSE_STATE) or (old.JV is None) == velocity[a]:
+                if _moved(X[a], old.x, scale, state) or (old.JV is None) == velocity[a]:
                     old = None
             if old is None:
                 jac.append(a)
@@ -94,9 +97,7 @@ class NewtonBlocks:
             else:
                 ys = max(float(np.linalg.norm(old.y)), float(np.linalg.norm(Y[a])), 1e-300)
                 yvs = 0.0 if yv is None else max(float(np.linalg.norm(yv)), 1e-300)
-                if _moved(Y[a], old.y, ys, REUSE_COTANGENT) or _moved(
-                    yv, old.yv, yvs, REUSE_COTANGENT
-                ):
+                if _moved(Y[a], old.y, ys, cotangent) or _moved(yv, old.yv, yvs, cotangent):
                     curv.append(a)
             kept.append(old)
         out: list[NodeDerivatives | None] = list(kept)
@@ -124,4 +125,10 @@ class NewtonBlocks:
             self.computed["curvatures"] += len(curv)
         for a, t in enumerate(times):
             self._nodes[t] = out[a]
-        return out, len(jac) == f and len(curv) == f
+        exact = all(
+            np.array_equal(out[a].x, X[a])
+            and np.array_equal(out[a].y, Y[a])
+            and (not velocity[a] or np.array_equal(out[a].yv, Yv[a]))
+            for a in range(f)
+        )
+        return out, exact
