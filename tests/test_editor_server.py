@@ -513,6 +513,29 @@ def test_solve_matches_library(server):
     assert np.abs(ref - fs.positions).max() < 1e-4
 
 
+def test_a_looping_scene_loops_in_the_editor(project):
+    """A scene with ``[time] loop = true``: the editor's final (warped) frames are the
+    library's solve of the scene (scene.solve_scene), and the motion ends where it began."""
+    from wiggly.scene import build, solve_scene
+
+    (project / "loop.toml").write_text(SCENE.replace("end = 1.0\n", "end = 1.0\nloop = true\n"))
+    session = Session(Sandbox([project]))
+    session.open(str(project / "loop.toml"))
+    try:
+        fs = wait_final(session, timeout=60.0)
+        scene = session.scene
+        assert scene.time.loop
+        body, keys = build(scene)
+        anim = solve_scene(scene, body, keys)
+        ref = anim.positions(anim.frame_times(scene.time.fps), dtype=np.float32)
+        assert np.abs(ref - fs.positions).max() < 1e-4
+        size = float(np.ptp(body.rest_positions(), axis=0).max())
+        assert np.abs(fs.positions[0] - fs.positions[-1]).max() < 1e-6 * size
+        assert np.abs(fs.positions[len(fs.positions) // 2] - fs.positions[0]).max() > 1e-3 * size
+    finally:
+        session.close()
+
+
 def test_cli_edit(project, capsys):
     import argparse
 

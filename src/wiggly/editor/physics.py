@@ -10,9 +10,10 @@ child, which is started again for the next job.
 
 Protocol (pickled messages, each preceded by its length as in :mod:`wiggly.editor.refine`):
 the parent sends ``("model", key, path, resolution, edge_length, repair)`` and ``("modes",
-model_key, model or None, material, n_modes, lumped, fixed_vertices)``; the child answers
-``("status", stage, message, fraction)`` while it works, then ``("model", model)``, ``("modes",
-M, K, modes)`` or ``("error", message, is_input_error)``.  The child keeps the models it loaded,
+model_key, model or None, scene_dict, source)``; the child answers ``("status", stage, message,
+fraction)`` while it works, then ``("model", model)``, ``("modes", body)`` (the scene's body
+from :func:`wiggly.scene.body_of`, without its damping and gravity) or ``("error", message,
+is_input_error)``.  The child keeps the models it loaded,
 so the parent sends a model only to a child that does not have it.
 """
 
@@ -30,6 +31,7 @@ import traceback
 from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -37,7 +39,8 @@ import numpy as np
 from wiggly.editor.bus import EventBus
 from wiggly.editor.refine import write_message
 from wiggly.errors import WigglyInputError
-from wiggly.scene import Scene, resolve_groups
+from wiggly.scene import Scene, resolve_groups, scene_to_dict
+from wiggly.scene import modes_key as scene_modes_key
 
 __all__ = ["Physics", "Superseded", "model_key", "modes_key", "with_dynamics"]
 
@@ -64,10 +67,8 @@ def model_key(scene: Scene) -> tuple:
 
 
 def modes_key(scene: Scene) -> tuple:
-    """What M, K and the modes depend on."""
-    s = scene.simulation
-    fixed = tuple((g, scene.groups[g]) for g in s.fixed)
-    return (model_key(scene), scene.material, s.modes, s.lumped_mass, fixed)
+    """What M, K and the modes depend on: the model and :func:`wiggly.scene.modes_key`."""
+    return (model_key(scene), *scene_modes_key(scene))
 
 
 def with_dynamics(body, damping, gravity):
@@ -108,9 +109,8 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
     inp, out = sys.stdin.fileno(), sys.stdout.buffer
     sys.stdout = sys.stderr  # the protocol owns stdout
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C is the parent's; it closes our stdin
-    from wiggly.body import prepare
-    from wiggly.fem import Material
     from wiggly.mesh import load_model
+    from wiggly.scene import body_of, scene_from_dict
 
     models: OrderedDict[tuple, Any] = OrderedDict()
 
@@ -131,15 +131,16 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
                 models[key] = model
                 write_message(out, ("model", model))
             else:
-                _, key, model, material, n_modes, lumped, fixed = msg
+                _, key, model, data, source = msg
                 if model is None:
                     model = models[key]
                 models[key] = model
-                status("modes", f"computing {n_modes} modes of {model.tets.n_tets} tets "
-                       f"(E = {material[0]:g} Pa)", 0.4)
-                body = prepare(model, material=Material(*material), fixed_vertices=fixed,
-                               n_modes=n_modes, lumped=lumped)
-                write_message(out, ("modes", body.M, body.K, body.modes))
+                scene = scene_from_dict(data)
+                scene.source = source
+                status("modes", f"computing {scene.simulation.modes} modes of "
+                       f"{model.tets.n_tets} tets (E = {scene.material.young:g} Pa)", 0.4)
+                body = body_of(scene, model, resolve_groups(scene, model), dynamics=False)
+                write_message(out, ("modes", body))
             while len(models) > 2:
                 models.popitem(last=False)
         except WigglyInputError as err:
@@ -326,9 +327,6 @@ class Physics:
             return fut
 
     def _prepare(self, scene: Scene, key: tuple, model_fut: Future):
-        from wiggly.body import Body, Damping, fixed_from_surface
-        from wiggly.fem import Material
-
         t0 = time.perf_counter()
         model = model_fut.result()
         if self._unwanted(key):
@@ -336,18 +334,13 @@ class Physics:
         s, m = scene.simulation, scene.material
         mkey = key[0]
         try:
-            groups = resolve_groups(scene, model)
-            fixed = [groups[g] if scene.groups[g].on == "tets"
-                     else fixed_from_surface(model, groups[g]) for g in s.fixed]
-            fixed_vertices = np.unique(np.concatenate(fixed)) if fixed else None
+            resolve_groups(scene, model)  # a group that does not fit the mesh: say so here
             first = ("modes", f"computing {s.modes} modes of {model.tets.n_tets} tets "
                      f"(E = {m.young:g} Pa)", 0.4)
             sent = None if self.preparer.knows(mkey) else model
-            _, M, K, modes = self._run(("modes", mkey, sent, (m.young, m.poisson, m.density),
-                                        s.modes, s.lumped_mass, fixed_vertices), key, t0, first)
-            body = Body(model, Material(m.young, m.poisson, m.density), Damping(),
-                        np.asarray(s.gravity, float), modes.fixed_vertices, M, K, modes,
-                        s.lumped_mass)
+            _, body = self._run(("modes", mkey, sent, scene_to_dict(scene), scene.source), key,
+                                t0, first)
+            body = replace(body, model=model)  # the model this process holds (equal values)
             _ = body.surface_basis  # playback needs it; the warp is built by exports only
         except Superseded:
             raise

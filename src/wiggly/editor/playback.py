@@ -228,8 +228,7 @@ class Playback:
     def _solve(self, req: Request, box: Mailbox, problems) -> None:
         """Linear solve and linear playback (fast); then hand final requests of warped scenes
         to the refinement process."""
-        from wiggly.scene import keyframes_of, scene_to_dict
-        from wiggly.solve import SpacetimeProblem
+        from wiggly.scene import keyframes_of, problem_of, scene_to_dict
 
         scene = req.state.scene
         body = self.physics.body(scene, abandon=lambda: box.pending() or self._stop.is_set())
@@ -239,10 +238,10 @@ class Playback:
         keys = keyframes_of(scene, body, groups)
         start, end = scene.time_range()
         pkey = (modes_key(scene), scene.damping, scene.simulation.gravity, start, end,
-                scene.simulation.preroll)
+                scene.simulation.preroll, scene.time.loop)
         problem = problems.get(pkey)
         if problem is None:
-            problem = problems[pkey] = SpacetimeProblem(body, start, end, scene.simulation.preroll)
+            problem = problems[pkey] = problem_of(scene, body)
             while len(problems) > 3:
                 problems.popitem(last=False)
         drag = req.kind == "drag"

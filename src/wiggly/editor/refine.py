@@ -110,11 +110,15 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
         os.nice(10)
     except OSError:
         pass
-    from wiggly.body import Damping, fixed_from_surface, prepare
     from wiggly.errors import WigglyInputError
-    from wiggly.fem import Material
-    from wiggly.scene import keyframes_of, resolve_groups, scene_from_dict
-    from wiggly.solve import SpacetimeProblem
+    from wiggly.scene import (
+        body_of,
+        keyframes_of,
+        modes_key,
+        problem_of,
+        resolve_groups,
+        scene_from_dict,
+    )
 
     inbox = _Inbox(inp)
     models: dict[tuple, Any] = {}
@@ -138,29 +142,21 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
             scene = scene_from_dict(data)
             scene.source = source
             model = models[model_key]
-            s, m = scene.simulation, scene.material
+            s = scene.simulation
             groups = resolve_groups(scene, model)
-            bkey = (model_key, m, s.modes, s.lumped_mass, scene.damping, s.gravity,
-                    tuple((g, scene.groups[g]) for g in s.fixed))
+            bkey = (model_key, *modes_key(scene), scene.damping, s.gravity)
             body = bodies.get(bkey)
             if body is None:
-                fv = [groups[g] if scene.groups[g].on == "tets"
-                      else fixed_from_surface(model, groups[g]) for g in s.fixed]
-                body = prepare(model, material=Material(m.young, m.poisson, m.density),
-                               damping=Damping(scene.damping.alpha, scene.damping.beta),
-                               gravity=s.gravity,
-                               fixed_vertices=np.unique(np.concatenate(fv)) if fv else None,
-                               n_modes=s.modes, lumped=s.lumped_mass)
+                body = body_of(scene, model, groups)
                 bodies.clear()
                 problems.clear()
                 previous.clear()
                 bodies[bkey] = body
             keys = keyframes_of(scene, body, groups)
-            start, end = scene.time_range()
-            pkey = (start, end, s.preroll)
+            pkey = (*scene.time_range(), s.preroll, scene.time.loop)
             problem = problems.get(pkey)
             if problem is None:
-                problem = problems[pkey] = SpacetimeProblem(body, start, end, s.preroll)
+                problem = problems[pkey] = problem_of(scene, body)
             _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox)
         except WigglyInputError as err:
             write_message(out, ("error", seq, version, str(err)))

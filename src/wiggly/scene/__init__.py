@@ -23,11 +23,12 @@ vertex) run right after the mesh is read and before it is tetrahedralized.
 
 from wiggly.export import GLTF_TARGETS
 from wiggly.mesh import BUILTIN_MODELS
-from wiggly.scene.build import build, keyframes_of
+from wiggly.scene.build import body_of, build, fixed_vertices_of, keyframes_of, modes_key
 from wiggly.scene.groups import resolve_groups
 from wiggly.scene.run import (
     check_outputs,
     keyframe_highlights,
+    problem_of,
     render_preview,
     run,
     solve_scene,
@@ -91,12 +92,16 @@ __all__ = [
     "SimulationSpec",
     "Sphere",
     "TimeSpec",
+    "body_of",
     "build",
     "builtin_model",
     "check_outputs",
+    "fixed_vertices_of",
     "keyframe_highlights",
     "keyframes_of",
     "load_scene",
+    "modes_key",
+    "problem_of",
     "render_preview",
     "resolve_groups",
     "run",

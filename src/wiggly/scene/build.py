@@ -126,16 +126,40 @@ def _build(scene: Scene, progress: bool):
 
     model = _load_model(scene, progress)
     groups = resolve_groups(scene, model)
+    body = body_of(scene, model, groups, progress=progress)
+    return body, keyframes_of(scene, body, groups), groups
+
+
+def fixed_vertices_of(scene: Scene, model, groups: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The tet-mesh vertices held by the scene's ``simulation.fixed`` groups (surface groups
+    through the tets that contain them), or None."""
     fixed = [groups[g] if scene.groups[g].on == "tets" else fixed_from_surface(model, groups[g])
              for g in scene.simulation.fixed]
-    fixed_vertices = np.unique(np.concatenate(fixed)) if fixed else None
+    return np.unique(np.concatenate(fixed)) if fixed else None
+
+
+def modes_key(scene: Scene) -> tuple:
+    """What a scene's M, K and modes depend on besides its mesh (a value key)."""
+    s = scene.simulation
+    return (scene.material, s.modes, s.lumped_mass, tuple((g, scene.groups[g]) for g in s.fixed))
+
+
+def body_of(scene: Scene, model, groups: dict[str, np.ndarray], *, progress: bool = False,
+            dynamics: bool = True):
+    """The scene's :class:`wiggly.Body` on ``model`` (material, fixed groups, modes, lumped
+    mass; with ``dynamics`` its damping and gravity, else the library's defaults, for
+    :meth:`wiggly.Body.with_dynamics` to set).  Modes come from the on-disk cache when
+    computed before."""
+    fixed_vertices = fixed_vertices_of(scene, model, groups)
     _check_modes_for_scene(scene, model, fixed_vertices)
     m, s = scene.material, scene.simulation
-    body = prepare(model, material=Material(m.young, m.poisson, m.density),
-                   damping=Damping(scene.damping.alpha, scene.damping.beta), gravity=s.gravity,
+    extra = {}
+    if dynamics:
+        extra = {"damping": Damping(scene.damping.alpha, scene.damping.beta),
+                 "gravity": s.gravity}
+    return prepare(model, material=Material(m.young, m.poisson, m.density),
                    fixed_vertices=fixed_vertices, n_modes=s.modes, lumped=s.lumped_mass,
-                   progress=progress)
-    return body, keyframes_of(scene, body, groups), groups
+                   progress=progress, **extra)
 
 
 def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray]) -> list:

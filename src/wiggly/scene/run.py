@@ -26,7 +26,7 @@ from wiggly.scene.spec import (
     Scene,
 )
 from wiggly.scene.validation import _error, _show
-from wiggly.solve import solve
+from wiggly.solve import SpacetimeProblem, solve
 
 
 def _output_paths(scene: Scene, outputs) -> list[Path]:
@@ -96,6 +96,13 @@ def keyframe_highlights(scene: Scene, body, keyframes, groups: dict[str, np.ndar
         out.append(Highlight(np.asarray(verts, np.int64), kf.time, _hex_rgb(colors[spec.group]),
                              spec.label, targets))
     return out
+
+
+def problem_of(scene: Scene, body) -> SpacetimeProblem:
+    """The scene's spacetime problem on ``body``: its time range, pre-roll and loop (the
+    editor keeps it to re-solve after each edit)."""
+    start, end = scene.time_range()
+    return SpacetimeProblem(body, start, end, scene.simulation.preroll, loop=scene.time.loop)
 
 
 def solve_scene(scene: Scene, body, keyframes, progress: bool = False):
