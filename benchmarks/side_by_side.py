@@ -5,8 +5,9 @@ A, B, ...) and each row's medians are compared in the same run.  The baseline is
 into a temporary git worktree and run with the same interpreter, its own ``src`` first on
 ``PYTHONPATH`` (its numba kernels compile on its first run).
 
-Run: ``.venv/bin/python benchmarks/side_by_side.py BASELINE bench_warped.py --rounds 3``;
-rows are matched by the first cell of the benchmark's Markdown tables.
+Run: ``.venv/bin/python benchmarks/side_by_side.py BASELINE bench_warped.py --rounds 3 --
+--quick`` (arguments after ``--`` go to the benchmark); rows are matched by the first cell of
+the benchmark's Markdown tables.
 """
 
 from __future__ import annotations
@@ -49,8 +50,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("script", help="benchmark script in benchmarks/")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--rows", nargs="*", help="rows to report (default: all in both)")
-    ap.add_argument("args", nargs=argparse.REMAINDER, help="arguments for the script")
-    args = ap.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    ours, theirs = (argv[: argv.index("--")], argv[argv.index("--") + 1 :]) if "--" in argv \
+        else (argv, [])
+    args = ap.parse_args(ours)
+    args.args = theirs  # everything after "--" goes to the benchmark script
     with tempfile.TemporaryDirectory() as tmp:
         base = Path(tmp) / "baseline"
         subprocess.run(["git", "worktree", "add", "--detach", str(base), args.baseline],
