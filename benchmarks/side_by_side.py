@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import statistics
 import subprocess
 import sys
@@ -39,8 +38,10 @@ def run(tree: Path, script: str, args: list[str]) -> dict[str, float]:
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if len(cells) < 2 or not line.startswith("|"):
             continue
-        if re.fullmatch(r"[-+.0-9e]+", cells[1]):
+        try:
             rows[cells[0]] = float(cells[1])
+        except ValueError:  # a header, a separator or a text cell
+            continue
     return rows
 
 
