@@ -40,8 +40,7 @@ FPS = 30
 LEG_SWING = 22.0  # degrees, fore and aft
 BOB = 0.03  # m, body down when the legs are spread
 ROLL, YAW, PITCH, NOD = 4.0, 5.0, 2.0, 8.0  # degrees
-HIP_Y = 0.42  # the hips' height (the legs' capsules start there)
-LEG_ROOT = 0.34  # where a leg leaves the belly: it bends from there down
+HIP_Y = 0.34  # the legs' joints: where the legs leave the belly (they bend from there down)
 
 #: name -> (parent, joint position in the bind pose (m))
 BONES = {
@@ -87,7 +86,6 @@ def skin_weights(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     for k, name in enumerate(names):
         root = np.asarray(BONES[name][1])
         if name.startswith("leg"):  # from under the belly to the foot
-            root = root + np.array([0.0, LEG_ROOT - HIP_Y, 0.0])
             end, reach = np.array([root[0] + 0.02, 0.05, 1.15 * root[2]]), 0.12
         elif name == "head":  # from the base of the neck to the back of the head
             end, reach = np.array([0.33, 0.62, 0.0]), 0.3
