@@ -26,8 +26,9 @@ positions (F, n, 3) of the surface's n vertices in wiggly's axes (y up, metres):
   points, or UsdSkel skinning baked by USD;
 * :mod:`~wiggly.drive.sequence` -- numbered OBJ files, and wiggly's ``.npz``.
 
-:meth:`Driver.check` refuses a driver of another surface (naming both vertex counts), and
-:func:`driven_keyframes` makes the keyframes.
+:meth:`Driver.check` refuses a driver of another surface (naming both vertex counts),
+:func:`driven_keyframes` makes the keyframes and :func:`following` measures how closely the
+solved motion follows them.
 """
 
 from __future__ import annotations
@@ -35,10 +36,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from wiggly.drive.driver import Driver, driven_keyframes
+from wiggly.drive.driver import Driver, driven_keyframes, following
 from wiggly.errors import WigglyInputError
 
-__all__ = ["DRIVER_EXTENSIONS", "Driver", "driven_keyframes", "read_driver"]
+__all__ = ["DRIVER_EXTENSIONS", "Driver", "driven_keyframes", "following", "read_driver"]
 
 #: Driver formats by file extension.
 DRIVER_EXTENSIONS = {

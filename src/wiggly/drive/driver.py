@@ -12,7 +12,7 @@ from wiggly.body import Body, vertex_indices
 from wiggly.errors import WigglyInputError, counted
 from wiggly.keyframes import DEFAULT_STIFFNESS, Keyframe
 
-__all__ = ["Driver", "driven_keyframes", "polygon_edges"]
+__all__ = ["Driver", "driven_keyframes", "following", "polygon_edges"]
 
 #: Driver times closer than this (seconds) are one frame.
 TIME_TOLERANCE = 1e-9
@@ -204,3 +204,22 @@ def driven_keyframes(
                             name=f"{name} frame {k}",
                             spec={"kind": "drive", "frame": int(k), "source": driver.source}))
     return out
+
+
+def following(anim) -> dict | None:
+    """How closely the driven vertices of a solved animation follow their targets at the
+    driven keys (``spec["kind"] == "drive"``): ``{"frames", "vertices", "max", "rms",
+    "worst_time"}`` (distances in metres), or None without driven keys.  One batched
+    playback at all the key times."""
+    keys = [k for k in anim.keyframes if k.spec.get("kind") == "drive" and
+            k.position is not None]
+    if not keys:
+        return None
+    times = np.array([k.time for k in keys])
+    positions = anim.positions(times, keys[0].on)
+    d = np.stack([np.linalg.norm(positions[j][k.vertices] - k.position, axis=1).max()
+                  for j, k in enumerate(keys)])
+    sq = np.concatenate([np.sum((positions[j][k.vertices] - k.position) ** 2, axis=1)
+                         for j, k in enumerate(keys)])
+    return {"frames": len(keys), "vertices": len(keys[0].vertices), "max": float(d.max()),
+            "rms": float(np.sqrt(sq.mean())), "worst_time": float(times[int(d.argmax())])}

@@ -17,6 +17,7 @@ from wiggly.keyframes import Keyframe
 from wiggly.limits import MAX_TETS
 from wiggly.mesh import DEFAULT_RESOLUTION, TetBudgetError, check_tet_budget, edge_length_for
 from wiggly.progress import activity
+from wiggly.scene.drive import check_driver_against, driven_keyframes_of
 from wiggly.scene.groups import _resolve, resolve_groups
 from wiggly.scene.spec import RIGID_MODES, Absolute, Offset, Rest, Scene
 from wiggly.scene.validation import _error, _Problems, _show
@@ -41,6 +42,7 @@ def _load_model(scene: Scene, progress: bool):
     if isinstance(loaded, meshing.Surface):  # check what we can before tetrahedralizing
         p = _Problems(where)
         _resolve(scene, loaded.vertices, loaded.groups, None, None, p)
+        check_driver_against(scene, loaded.n_vertices, loaded.faces, f.name, p, progress)
         p.raise_if_any()
         with activity(f"checking {f.name} ({counted(loaded.n_faces, 'triangle')})", progress):
             checked = meshing.checked_surface(loaded, str(f))
@@ -51,6 +53,11 @@ def _load_model(scene: Scene, progress: bool):
                                 progress=progress, checked=checked)
     _say(f"{counted(model.tets.n_tets, 'tet')}, {counted(model.tets.n_vertices, 'vertex')} "
          f"({_time.perf_counter() - t:.1f} s)", progress)
+    if checked is None:  # a tet mesh: its surface is known now
+        p = _Problems(where)
+        check_driver_against(scene, model.surface.n_vertices, model.surface.faces, f.name, p,
+                             progress)
+        p.raise_if_any()
     return model
 
 
@@ -135,11 +142,13 @@ def _build(scene: Scene, progress: bool):
                    damping=Damping(scene.damping.alpha, scene.damping.beta), gravity=s.gravity,
                    fixed_vertices=fixed_vertices, n_modes=s.modes, lumped=s.lumped_mass,
                    progress=progress)
-    return body, keyframes_of(scene, body, groups), groups
+    return body, keyframes_of(scene, body, groups, progress), groups
 
 
-def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray]) -> list:
-    """The scene's keyframes as :class:`wiggly.Keyframe` objects for ``body``."""
+def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
+                 progress: bool = False) -> list:
+    """The scene's keyframes as :class:`wiggly.Keyframe` objects for ``body``: its
+    ``[[keyframes]]``, then the driven keys of ``[drive]`` (one per driver frame)."""
 
     out = []
     for kf in scene.keyframes:
@@ -163,4 +172,4 @@ def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray]) -> list:
                                translation=pos.translation, center=pos.center, velocity=vel,
                                **kw)
         out.append(k)
-    return out
+    return out + driven_keyframes_of(scene, body, groups, progress)
