@@ -10,12 +10,16 @@ from numpy.typing import ArrayLike
 
 from wiggly.body import Body, vertex_indices
 from wiggly.errors import WigglyInputError, counted
-from wiggly.keyframes import DEFAULT_STIFFNESS, Keyframe
+from wiggly.keyframes import Keyframe
 
-__all__ = ["Driver", "driven_keyframes", "following", "polygon_edges"]
+__all__ = ["DRIVE_STIFFNESS", "Driver", "driven_keyframes", "following", "polygon_edges"]
 
 #: Driver times closer than this (seconds) are one frame.
 TIME_TOLERANCE = 1e-9
+#: Default dimensionless stiffness of driven keys (see :class:`wiggly.Keyframe`): high, so
+#: that the driven group meets the driver although following a skinned limb exactly takes
+#: large forces (the driver's shapes are stiff, :mod:`wiggly.drive.basis`).
+DRIVE_STIFFNESS = 1e12
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,7 +157,7 @@ def driven_keyframes(
     driver: Driver,
     vertices: ArrayLike,
     *,
-    stiffness: float = DEFAULT_STIFFNESS,
+    stiffness: float = DRIVE_STIFFNESS,
     offset: float = 0.0,
     driver_range: tuple[float, float] | None = None,
     start: float | None = None,
@@ -166,7 +170,8 @@ def driven_keyframes(
 
     Driver time ``t`` is shot time ``t + offset``.  Only frames with driver time in
     ``driver_range`` (inclusive) and shot time in ``[start, end]`` (when given) are keyed.
-    Every key has the dimensionless ``stiffness`` of :class:`wiggly.Keyframe` and
+    Every key has the dimensionless ``stiffness`` of :class:`wiggly.Keyframe` (default
+    :data:`DRIVE_STIFFNESS`; use :func:`wiggly.drive.enrich` for a basis that can follow) and
     ``spec = {"kind": "drive", "frame": k, "source": driver.source}``.  Add your own sparse
     keyframes to the list and solve (:func:`wiggly.solve`).  For a looping shot, key one
     period: a last frame equal to the first adds nothing.

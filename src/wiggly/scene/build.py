@@ -17,7 +17,7 @@ from wiggly.keyframes import Keyframe
 from wiggly.limits import MAX_TETS
 from wiggly.mesh import DEFAULT_RESOLUTION, TetBudgetError, check_tet_budget, edge_length_for
 from wiggly.progress import activity
-from wiggly.scene.drive import check_driver_against, driven_keyframes_of
+from wiggly.scene.drive import check_driver_against, driven_body, driven_keyframes_of
 from wiggly.scene.groups import _resolve, resolve_groups
 from wiggly.scene.spec import RIGID_MODES, Absolute, Offset, Rest, Scene
 from wiggly.scene.validation import _error, _Problems, _show
@@ -142,6 +142,7 @@ def _build(scene: Scene, progress: bool):
                    damping=Damping(scene.damping.alpha, scene.damping.beta), gravity=s.gravity,
                    fixed_vertices=fixed_vertices, n_modes=s.modes, lumped=s.lumped_mass,
                    progress=progress)
+    body = driven_body(scene, body, groups, progress)  # + the driver's shapes ([drive])
     return body, keyframes_of(scene, body, groups, progress), groups
 
 

@@ -11,16 +11,16 @@ from pathlib import Path
 
 import numpy as np
 
-from wiggly.drive import Driver, driven_keyframes, read_driver
+from wiggly.drive import DRIVE_STIFFNESS, Driver, driven_keyframes, enrich, read_driver
 from wiggly.drive.sequence import sequence_files
 from wiggly.errors import WigglyInputError, counted
-from wiggly.keyframes import DEFAULT_STIFFNESS, Keyframe
+from wiggly.keyframes import Keyframe
 from wiggly.progress import activity
 from wiggly.scene.spec import Scene
 from wiggly.scene.validation import _Problems, _show
 
-__all__ = ["check_drive", "check_drive_file", "check_driver_against", "driven_keyframes_of",
-           "driven_vertices", "scene_driver"]
+__all__ = ["check_drive", "check_drive_file", "check_driver_against", "driven_body",
+           "driven_keyframes_of", "driven_vertices", "scene_driver"]
 
 _GLTF, _USD = (".glb", ".gltf"), (".usd", ".usda", ".usdc", ".usdz")
 
@@ -158,6 +158,22 @@ def driven_vertices(scene: Scene, groups: dict[str, np.ndarray]) -> np.ndarray:
     return np.unique(np.concatenate([groups[g] for g in scene.drive.groups]))
 
 
+def driven_body(scene: Scene, body, groups: dict[str, np.ndarray], progress: bool = False):
+    """``body`` with the driver's shapes added to its modes (``drive.enrich``, the default),
+    else ``body`` itself."""
+    drive = scene.drive
+    if drive is None or not drive.enrich:
+        return body
+    driver = scene_driver(scene, progress)
+    with activity("adding the driver's shapes to the modes", progress):
+        out = enrich(body, driver, driven_vertices(scene, groups),
+                     warped=scene.simulation.warp)
+    if progress:
+        print(f"[wiggly] {body.r} modes + {counted(out.r - body.r, 'driver shape')}",
+              file=sys.stderr, flush=True)
+    return out
+
+
 def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
                         progress: bool = False) -> list[Keyframe]:
     """The keyframes of ``[drive]`` (none without it): the driven groups keyed to the driver
@@ -170,7 +186,7 @@ def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
     try:
         keys = driven_keyframes(
             body, driver, driven_vertices(scene, groups),
-            stiffness=DEFAULT_STIFFNESS if drive.stiffness is None else drive.stiffness,
+            stiffness=DRIVE_STIFFNESS if drive.stiffness is None else drive.stiffness,
             offset=drive.offset, driver_range=drive.range, start=start, end=end,
             name=f"drive {'+'.join(drive.groups)}")
     except WigglyInputError as err:

@@ -159,7 +159,10 @@ _DRIVE = _Table(
      "range": _Vector(2, "first, last", "s",
                       doc="only driver frames with first <= t <= last (driver seconds) are "
                           "keyed (default: all)"),
-     "stiffness": _Number(ge=0.0, doc="dimensionless weight of every driven key (default 1e6)"),
+     "stiffness": _Number(ge=0.0, doc="dimensionless weight of every driven key (default "
+                                       "1e12: the driven group meets the driver)"),
+     "enrich": _Bool(doc="add the driver's shapes to the modal basis (Rayleigh-Ritz), so "
+                         "that the driven group can follow it closely (default true)"),
      "animation": _ByType({str: _String(), int: _Number(integer=True, ge=0)},
                           what="an animation name or index (integer >= 0)",
                           doc="glTF: the animation to play, by name or index (default: the "

@@ -244,13 +244,15 @@ class DriveSpec:
     (:mod:`wiggly.drive`).  Driver time t plays at shot time t + ``offset``; only frames with
     driver time in ``range`` (inclusive) are keyed.  ``animation`` picks a glTF animation
     (name or index), ``object`` the glTF mesh node / USD prim to read, ``frame_rate`` times an
-    OBJ sequence without time comments (default: ``time.fps``)."""
+    OBJ sequence without time comments (default: ``time.fps``); ``enrich`` adds the driver's
+    shapes to the modal basis (:func:`wiggly.drive.enrich`)."""
 
     path: str
     group: str | tuple[str, ...]
     offset: float = 0.0
     range: tuple[float, float] | None = None
     stiffness: float | None = None
+    enrich: bool = True
     animation: str | int | None = None
     object: str | None = None
     frame_rate: float | None = None
