@@ -38,8 +38,8 @@ PERIOD = 1.0  # s per cycle
 CYCLES = 2
 FPS = 30
 LEG_SWING = 22.0  # degrees, fore and aft
-BOB = 0.03  # m, body down when the legs are spread
-ROLL, YAW, PITCH, NOD = 4.0, 5.0, 2.0, 8.0  # degrees
+BOB = 0.04  # m, body down when the legs are spread
+ROLL, YAW, PITCH, NOD = 6.0, 8.0, 4.0, 10.0  # degrees
 HIP_Y = 0.34  # the legs' joints: where the legs leave the belly (they bend from there down)
 
 #: name -> (parent, joint position in the bind pose (m))

@@ -19,7 +19,15 @@ What :func:`enrich` does:
 3. **Reduction.**  The fields' parts M-orthogonal to the modes are compressed by POD
    (eigenvectors of their M-Gram) to the directions whose RMS displacement over the frames
    exceeds ``tolerance`` metres (at most ``max_shapes``).
-4. **Rayleigh-Ritz.**  Those directions, M-orthonormalized, are rotated to diagonalize K.
+4. **The free parts' own modes.**  The lowest modes of the body with the tet vertices that
+   carry the driven vertices held (the fixed-interface modes of component mode synthesis,
+   Craig & Bampton 1968): zero on the driven group, they give the free parts (tail, ears)
+   motion of their own.  Without them the keys, which see every eigenmode of the whole body,
+   fix the free parts' motion too while the driver plays: they follow it nearly rigidly, and
+   lag and swing only once the keys stop.  Experimental (``free_modes=0`` by default): on
+   the walk example they make the free parts lag during the walk, but the warped solve takes
+   minutes instead of a minute and the tail swings up again near the shot's end.
+5. **Rayleigh-Ritz.**  Those directions, M-orthonormalized, are rotated to diagonalize K.
    Because the eigenmodes are exact (Phi^T K Q = Lambda Phi^T M Q = 0), the new basis is the
    old modes, unchanged, followed by the Ritz vectors: M-orthonormal and K-diagonal, so the
    spacetime energy still decouples per vector (SYSTEM.md §4) and Theorem 1 holds as it is.
@@ -39,11 +47,11 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
 
-from wiggly.body import Body, vertex_indices
+from wiggly.body import Body, fixed_from_surface, vertex_indices
 from wiggly.drive.driver import Driver
 from wiggly.fem import tet_gradients
 from wiggly.linalg import factorize_spd
-from wiggly.modes import Modes
+from wiggly.modes import Modes, compute_modes
 
 __all__ = ["enrich"]
 
@@ -133,12 +141,30 @@ def _unwarp(body: Body, U: np.ndarray, progress: bool) -> np.ndarray:
     return out
 
 
+def _free_modes(body: Body, vertices: np.ndarray, count: int) -> np.ndarray:
+    """The lowest ``count`` modes of the free parts with the driven ones held: eigenvectors of
+    (K, M) with the tet vertices that carry ``vertices`` fixed (3n, k), zero there; none if
+    nothing is free."""
+    support = fixed_from_surface(body.model, vertices)
+    fixed = np.union1d(support, body.fixed_vertices)
+    free_dofs = 3 * (body.tets.n_vertices - len(fixed))
+    count = min(count, free_dofs - 1)
+    if count <= 0:
+        return np.zeros((3 * body.tets.n_vertices, 0))
+    return compute_modes(body.K, body.M, count, vertices=body.tets.vertices,
+                         fixed_vertices=fixed, cache_dir=body.cache_dir).vectors
+
+
 def enrich(body: Body, driver: Driver, vertices: ArrayLike, *, warped: bool = True,
-           tolerance: float = 1e-5, max_shapes: int = 32, progress: bool = False) -> Body:
-    """``body`` with its eigenmodes followed by the driver's shapes (module docstring): a new
-    :class:`~wiggly.body.Body` whose ``modes`` are the old ones plus at most ``max_shapes``
-    Ritz vectors of the driver's displacements on ``vertices`` (surface indices), unwarped
-    for ``warped`` solves, kept while their RMS displacement exceeds ``tolerance`` metres."""
+           tolerance: float = 1e-5, max_shapes: int = 32, free_modes: int = 0,
+           progress: bool = False) -> Body:
+    """``body`` with its eigenmodes followed by the driver's shapes and the free parts' own
+    modes (module docstring): a new :class:`~wiggly.body.Body` whose ``modes`` are the old
+    ones plus Ritz vectors of (a) at most ``max_shapes`` POD directions of the driver's
+    displacements on ``vertices`` (surface indices), unwarped for ``warped`` solves, kept
+    while their RMS displacement exceeds ``tolerance`` metres, and (b) the lowest
+    ``free_modes`` modes of the rest of the body with the driven vertices held (default
+    none: experimental, see the module docstring)."""
     surface = body.surface
     driver.check(surface.n_vertices, surface.faces, body.model.source or "of the body")
     v = vertex_indices(vertices, surface.n_vertices, "surface", "driven group")
@@ -148,21 +174,30 @@ def enrich(body: Body, driver: Driver, vertices: ArrayLike, *, warped: bool = Tr
         U = _unwarp(body, U, progress)
     Phi, M, K = body.modes.vectors, body.M, body.K
     U -= Phi @ (Phi.T @ (M @ U))
-    gram = U.T @ (M @ U)
-    sigma2, Y = np.linalg.eigh(0.5 * (gram + gram.T))
-    sigma2, Y = sigma2[::-1], Y[:, ::-1]
+    sigma2, Y = _principal(U, M)
     rms = np.sqrt(np.maximum(sigma2, 0.0) / (len(D) * body.mass))  # m, per direction
     k = int(min(max_shapes, np.sum(rms > tolerance)))
-    if k == 0:
+    extra = np.hstack([U @ Y[:, :k], _free_modes(body, v, free_modes)])
+    extra -= Phi @ (Phi.T @ (M @ extra))
+    sigma2, Y = _principal(extra, M)
+    keep = sigma2 > 1e-10 * max(float(sigma2[0]), 1e-300) if len(sigma2) else sigma2 > 0
+    if not keep.any():
         return body
-    Q = U @ (Y[:, :k] / np.sqrt(sigma2[:k]))
+    Q = extra @ (Y[:, keep] / np.sqrt(sigma2[keep]))  # M-orthonormal, M-orthogonal to Phi
     Q -= Phi @ (Phi.T @ (M @ Q))  # once more, against round-off
-    C = np.linalg.cholesky(Q.T @ (M @ Q))
-    Q = np.linalg.solve(C, Q.T).T  # M-orthonormal
-    lam, Z = np.linalg.eigh(0.5 * ((Q.T @ (K @ Q)) + (Q.T @ (K @ Q)).T))
+    KQ = Q.T @ (K @ Q)
+    lam, Z = np.linalg.eigh(0.5 * (KQ + KQ.T))
     modes = body.modes
     new = Modes(np.concatenate([modes.eigenvalues, lam]), np.hstack([Phi, Q @ Z]),
                 modes.n_rigid, modes.fixed_vertices)
     return Body(model=body.model, material=body.material, damping=body.damping,
                 gravity=body.gravity, fixed_vertices=body.fixed_vertices, M=M, K=K,
                 modes=new, lumped=body.lumped, cache_dir=body.cache_dir)
+
+
+def _principal(U: np.ndarray, M: sp.spmatrix) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenvalues (descending) and eigenvectors of the M-Gram U^T M U: the POD of the
+    columns of U in the M inner product."""
+    gram = U.T @ (M @ U)
+    sigma2, Y = np.linalg.eigh(0.5 * (gram + gram.T))
+    return sigma2[::-1], Y[:, ::-1]
