@@ -10,13 +10,14 @@ Bones (glTF nodes; bind pose: no rotation, so every inverse bind matrix is a tra
 * ``body`` at the trunk's centre (the skeleton's root): bobs down twice a cycle when the
   legs are spread, sways (roll), yaws and pitches a little;
 * ``head`` at the base of the neck, child of ``body``: nods twice a cycle;
-* ``leg_fl``, ``leg_fr``, ``leg_bl``, ``leg_br`` at the hips, children of ``body``: swing
-  fore and aft by 22 degrees, diagonal pairs together (a trot).
+* ``leg_fl``, ``leg_fr``, ``leg_bl``, ``leg_br`` where the legs leave the belly, children
+  of ``body``: swing fore and aft by 22 degrees, diagonal pairs together (a trot).
 
-Skin weights vary smoothly over the surface (:func:`skin_weights`): a leg bends from the
-hip to the foot (and blends with its neighbour where they touch), the neck from its base to
-the head, as elastic limbs do, so that the body's lowest modes can follow the walk.  The tail and the ears are skinned rigidly to the body and the head: in the
-driver they follow without lag; ``walk_secondary.toml`` leaves them free.
+Skin weights vary smoothly over the surface (:func:`skin_weights`): a leg bends from where
+it leaves the belly to the foot (and blends with its neighbour where they touch), the neck
+from its base to the head, as elastic limbs do.  The tail and the ears are skinned rigidly
+to the body and the head: in the driver they follow without lag; ``walk_secondary.toml``
+leaves them free.
 
 Run from the repository root (a few seconds)::
 
@@ -78,9 +79,10 @@ def skin_weights(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """JOINTS_0 (n, 4) and WEIGHTS_0 (n, 4), smooth over the surface (module docstring).
 
     A limb's bone (a leg, the head) weighs :func:`bending` of the position along the limb
-    (under the belly to the foot, neck base to the back of the head) times a falloff with the distance from
-    the limb's axis (1 inside the limb, 0 at ``reach``), so the belly stays on ``body`` and
-    touching legs blend; ``body`` takes the rest.  The four largest weights are kept."""
+    (under the belly to the foot, neck base to the back of the head) times a falloff with
+    the distance from the limb's axis (1 inside the limb, 0 at ``reach``), so the belly
+    stays on ``body`` and touching legs blend; ``body`` takes the rest.  The four largest
+    weights are kept."""
     names = list(BONES)
     W = np.zeros((len(X), len(names)))
     for k, name in enumerate(names):

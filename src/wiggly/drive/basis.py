@@ -16,6 +16,8 @@ What :func:`enrich` does:
    (SYSTEM.md §6); the unwarped field is the volume-weighted least-squares fit of these
    gradients (the warp's own Poisson problem), so that W(unwarped field) ~ u_k.  (Nearly
    inverted tets keep their linear gradient.)
+   Only the (at most 32) frames whose fields span the others best are unwarped
+   (column-pivoted QR).
 3. **Reduction.**  The fields' parts M-orthogonal to the modes are compressed by POD
    (eigenvectors of their M-Gram) to the directions whose RMS displacement over the frames
    exceeds ``tolerance`` metres (at most ``max_shapes``).
@@ -43,6 +45,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
+import scipy.linalg as sl
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 from scipy.spatial.transform import Rotation
@@ -61,6 +64,9 @@ __all__ = ["enrich"]
 _PENALTY = 1e2
 #: Frames per batch of the unwarping (per-tet polar decompositions).
 _BATCH = 16
+#: At most this many driver frames are unwarped: those that span the others best (a walk
+#: repeats itself; 300 frames of a 20k-tet body would take half a minute).
+_FRAMES = 32
 #: Tets squeezed below this volume ratio, or turned by more than this angle (radians), keep
 #: their linear gradient when unwarping: the elastic extension may nearly invert tets that
 #: bridge two limbs moving apart, and their polar rotation is meaningless.
@@ -170,9 +176,11 @@ def enrich(body: Body, driver: Driver, vertices: ArrayLike, *, warped: bool = Tr
     v = vertex_indices(vertices, surface.n_vertices, "surface", "driven group")
     D = driver.positions[:, v] - surface.vertices[v]
     U = _extend(body, v, D)
+    Phi, M, K = body.modes.vectors, body.M, body.K
+    if U.shape[1] > _FRAMES:  # frames repeat themselves: keep those that span the others
+        U = U[:, _spanning(U - Phi @ (Phi.T @ (M @ U)), M, _FRAMES)]
     if warped:
         U = _unwarp(body, U, progress)
-    Phi, M, K = body.modes.vectors, body.M, body.K
     U -= Phi @ (Phi.T @ (M @ U))
     sigma2, Y = _principal(U, M)
     rms = np.sqrt(np.maximum(sigma2, 0.0) / (len(D) * body.mass))  # m, per direction
@@ -193,6 +201,14 @@ def enrich(body: Body, driver: Driver, vertices: ArrayLike, *, warped: bool = Tr
     return Body(model=body.model, material=body.material, damping=body.damping,
                 gravity=body.gravity, fixed_vertices=body.fixed_vertices, M=M, K=K,
                 modes=new, lumped=body.lumped, cache_dir=body.cache_dir)
+
+
+def _spanning(U: np.ndarray, M: sp.spmatrix, count: int) -> np.ndarray:
+    """Indices of ``count`` columns of U that span the others best: column-pivoted QR of U
+    with every dof weighted by the square root of M's diagonal (its mass)."""
+    w = np.sqrt(np.asarray(M.diagonal()))[:, None]
+    _, _, piv = sl.qr(w * U, mode="economic", pivoting=True)
+    return np.sort(piv[:count])
 
 
 def _principal(U: np.ndarray, M: sp.spmatrix) -> tuple[np.ndarray, np.ndarray]:
