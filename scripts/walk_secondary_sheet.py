@@ -20,34 +20,29 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from wiggly.drive import read_driver
-from wiggly.render import Highlight, render_contact_sheet
+from wiggly.render import render_contact_sheet
 from wiggly.scene import load_scene, run
 
 ROOT = Path(__file__).resolve().parents[1]
 TIMES = (1.25, 2.0, 2.13, 2.27, 2.5, 3.5)
 TILE = (300, 250)
-BLUE, ORANGE = (0.12, 0.47, 0.71), (1.0, 0.5, 0.05)
 
 
 def main(out: Path = ROOT / "docs" / "walk_secondary.png") -> Path:
     scene = load_scene(ROOT / "examples" / "walk_secondary.toml")
     anim = run(scene, outputs=[], progress=True)
-    groups = anim.info["scene"]["groups"]
     driver = read_driver(ROOT / "examples" / "critter_walk.glb")
     times = anim.frame_times(scene.time.fps)
     solved = anim.positions(times)
     k = np.minimum(np.searchsorted(driver.times, times - 1e-9), driver.n_frames - 1)
     driven_pose = driver.positions[k]  # frames are on the same 30 fps grid; last pose after
-    free = np.concatenate([groups["tail"], groups["ears"]])
-    marks = [Highlight(groups["body"], t, BLUE, "", window=0.02) for t in TIMES]
-    marks += [Highlight(free, t, ORANGE, "", window=0.02) for t in TIMES]
     faces = anim.body.surface.faces
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, positions in (("driver", driven_pose), ("wiggly", solved)):
             path = render_contact_sheet(Path(tmp) / f"{name}.png", times, positions, faces,
-                                        at=TIMES, columns=len(TIMES), highlights=marks,
-                                        tile_size=TILE, camera="side")
+                                        at=TIMES, columns=len(TIMES), tile_size=TILE,
+                                        camera="three_quarter")
             rows.append(Image.open(path).convert("RGB"))
     label = 28
     sheet = Image.new("RGB", (rows[0].width, 2 * (rows[0].height + label)), (250, 250, 250))
