@@ -153,6 +153,8 @@ def _without_none(d):
 @pytest.mark.parametrize("path", [*EXAMPLES, DEMO], ids=lambda p: p.name)
 def test_round_trip_examples(path, tmp_path):
     scene = load_scene(path)
+    if scene.drive is not None:  # the copy's relative driver path must resolve, too
+        (tmp_path / scene.drive.path).write_bytes(scene.resolve(scene.drive.path).read_bytes())
     copy_path = save_scene(scene, tmp_path / path.name)
     assert load_scene(copy_path) == scene
 

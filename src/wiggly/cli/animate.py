@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 HELP = "animate a scene file and write its outputs"
@@ -97,7 +98,8 @@ def summary(scene, anim) -> str:
                      f"{seconds.get('solve', 0):.1f} s, outputs {write:.1f} s, total "
                      f"{sum(seconds.values()):.1f} s")
     lines.append(f"shot       [{anim.start:g}, {anim.end:g}] s at {scene.time.fps:g} fps")
-    rows = anim.constraint_residuals()
+    sparse = replace(anim, keyframes=anim.keyframes[:len(scene.keyframes)])  # not [drive]'s
+    rows = sparse.constraint_residuals()
     if rows:
         lines.append("keyframes  residuals at the key times")
         lines.append(f"  {'#':>3}  {'time':>6}  {'group':<14} {'name':<16} {'pos rms':>10} "
@@ -108,6 +110,11 @@ def summary(scene, anim) -> str:
             lines.append(f"  {j:>3}  {row['time']:>6.3g}  {spec.group:<14.14} "
                          f"{spec.name:<16.16} {mm('position_rms'):>10} {mm('position_max'):>10} "
                          f"{mm('velocity_rms', 'mm/s'):>12}")
+    drive = info.get("drive")
+    if drive:
+        lines.append(f"drive      {scene.drive.path}: {drive['vertices']} vertices keyed at "
+                     f"{drive['frames']} frames, followed within {1e3 * drive['max']:.3g} mm "
+                     f"(rms {1e3 * drive['rms']:.3g} mm)")
     outputs = info.get("scene", {}).get("outputs", [])
     if outputs:
         lines.append("wrote")

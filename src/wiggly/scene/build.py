@@ -17,6 +17,7 @@ from wiggly.keyframes import Keyframe
 from wiggly.limits import MAX_TETS
 from wiggly.mesh import DEFAULT_RESOLUTION, TetBudgetError, check_tet_budget, edge_length_for
 from wiggly.progress import activity
+from wiggly.scene.drive import check_driver_against, driven_body, driven_keyframes_of
 from wiggly.scene.groups import _resolve, resolve_groups
 from wiggly.scene.spec import RIGID_MODES, Absolute, Offset, Rest, Scene
 from wiggly.scene.validation import _error, _Problems, _show
@@ -41,6 +42,7 @@ def _load_model(scene: Scene, progress: bool):
     if isinstance(loaded, meshing.Surface):  # check what we can before tetrahedralizing
         p = _Problems(where)
         _resolve(scene, loaded.vertices, loaded.groups, None, None, p)
+        check_driver_against(scene, loaded.n_vertices, loaded.faces, f.name, p, progress)
         p.raise_if_any()
         with activity(f"checking {f.name} ({counted(loaded.n_faces, 'triangle')})", progress):
             checked = meshing.checked_surface(loaded, str(f))
@@ -51,6 +53,11 @@ def _load_model(scene: Scene, progress: bool):
                                 progress=progress, checked=checked)
     _say(f"{counted(model.tets.n_tets, 'tet')}, {counted(model.tets.n_vertices, 'vertex')} "
          f"({_time.perf_counter() - t:.1f} s)", progress)
+    if checked is None:  # a tet mesh: its surface is known now
+        p = _Problems(where)
+        check_driver_against(scene, model.surface.n_vertices, model.surface.faces, f.name, p,
+                             progress)
+        p.raise_if_any()
     return model
 
 
@@ -127,7 +134,7 @@ def _build(scene: Scene, progress: bool):
     model = _load_model(scene, progress)
     groups = resolve_groups(scene, model)
     body = body_of(scene, model, groups, progress=progress)
-    return body, keyframes_of(scene, body, groups), groups
+    return body, keyframes_of(scene, body, groups, progress), groups
 
 
 def fixed_vertices_of(scene: Scene, model, groups: dict[str, np.ndarray]) -> np.ndarray | None:
@@ -139,17 +146,21 @@ def fixed_vertices_of(scene: Scene, model, groups: dict[str, np.ndarray]) -> np.
 
 
 def modes_key(scene: Scene) -> tuple:
-    """What a scene's M, K and modes depend on besides its mesh (a value key)."""
+    """What a scene's M, K and modes (with a driver's shapes) depend on besides its mesh (a
+    value key)."""
     s = scene.simulation
-    return (scene.material, s.modes, s.lumped_mass, tuple((g, scene.groups[g]) for g in s.fixed))
+    key = (scene.material, s.modes, s.lumped_mass, tuple((g, scene.groups[g]) for g in s.fixed))
+    if scene.drive is not None and scene.drive.enrich:
+        key += (scene.drive, tuple((g, scene.groups[g]) for g in scene.drive.groups), s.warp)
+    return key
 
 
 def body_of(scene: Scene, model, groups: dict[str, np.ndarray], *, progress: bool = False,
             dynamics: bool = True):
     """The scene's :class:`wiggly.Body` on ``model`` (material, fixed groups, modes, lumped
-    mass; with ``dynamics`` its damping and gravity, else the library's defaults, for
-    :meth:`wiggly.Body.with_dynamics` to set).  Modes come from the on-disk cache when
-    computed before."""
+    mass, and the driver's shapes with ``[drive]``; with ``dynamics`` its damping and
+    gravity, else the library's defaults, for :meth:`wiggly.Body.with_dynamics` to set).
+    Modes come from the on-disk cache when computed before."""
     fixed_vertices = fixed_vertices_of(scene, model, groups)
     _check_modes_for_scene(scene, model, fixed_vertices)
     m, s = scene.material, scene.simulation
@@ -157,13 +168,16 @@ def body_of(scene: Scene, model, groups: dict[str, np.ndarray], *, progress: boo
     if dynamics:
         extra = {"damping": Damping(scene.damping.alpha, scene.damping.beta),
                  "gravity": s.gravity}
-    return prepare(model, material=Material(m.young, m.poisson, m.density),
+    body = prepare(model, material=Material(m.young, m.poisson, m.density),
                    fixed_vertices=fixed_vertices, n_modes=s.modes, lumped=s.lumped_mass,
                    progress=progress, **extra)
+    return driven_body(scene, body, groups, progress)  # + the driver's shapes ([drive])
 
 
-def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray]) -> list:
-    """The scene's keyframes as :class:`wiggly.Keyframe` objects for ``body``."""
+def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
+                 progress: bool = False) -> list:
+    """The scene's keyframes as :class:`wiggly.Keyframe` objects for ``body``: its
+    ``[[keyframes]]``, then the driven keys of ``[drive]`` (one per driver frame)."""
 
     out = []
     for kf in scene.keyframes:
@@ -187,4 +201,4 @@ def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray]) -> list:
                                translation=pos.translation, center=pos.center, velocity=vel,
                                **kw)
         out.append(k)
-    return out
+    return out + driven_keyframes_of(scene, body, groups, progress)

@@ -11,6 +11,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wiggly import render
+from wiggly.drive import following
 from wiggly.errors import WigglyInputError, counted
 from wiggly.export import SurfaceAnimation, stage_animation
 from wiggly.files import OutputSet, check_writable
@@ -77,14 +78,15 @@ def _hex_rgb(color: str) -> tuple[float, float, float]:
 
 
 def keyframe_highlights(scene: Scene, body, keyframes, groups: dict[str, np.ndarray]) -> list:
-    """:class:`wiggly.render.Highlight` of every position keyframe (targets drawn at key
-    times), colored by group."""
+    """:class:`wiggly.render.Highlight` of every position keyframe of ``[[keyframes]]``
+    (targets drawn at key times), colored by group; ``keyframes`` may go on with the driven
+    keys of ``[drive]``, which are not highlighted."""
 
 
     colors = {name: g.color or PALETTE[i % len(PALETTE)]
               for i, (name, g) in enumerate(scene.groups.items())}
     out = []
-    for spec, kf in zip(scene.keyframes, keyframes, strict=True):
+    for spec, kf in zip(scene.keyframes, keyframes[:len(scene.keyframes)], strict=True):
         verts = groups[spec.group]
         if scene.groups[spec.group].on == "tets":  # nearest surface vertices
             _, verts = cKDTree(body.surface.vertices).query(body.tets.vertices[verts])
@@ -142,6 +144,10 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
     t = _time.perf_counter()
     anim = solve_scene(scene, body, keyframes, progress=progress)
     timings["solve"] = _time.perf_counter() - t
+    if scene.drive is not None:
+        anim.info["drive"] = following(anim)
+        _say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"
+             f" mm (rms {1e3 * anim.info['drive']['rms']:.3g} mm)", progress)
     written = write_outputs(scene, anim, paths, overwrite=overwrite, progress=progress,
                             highlights=keyframe_highlights(scene, body, anim.keyframes, groups),
                             timings=timings)

@@ -10,10 +10,12 @@ import os
 import tomllib
 from pathlib import Path
 
+from wiggly.drive import DRIVER_EXTENSIONS
 from wiggly.errors import WigglyInputError
 from wiggly.export import GLTF_TARGETS
 from wiggly.limits import MAX_DURATION, MAX_FPS, MAX_FRAMES, MAX_MODES, MAX_RESOLUTION
 from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION
+from wiggly.scene.drive import check_drive, check_drive_file
 from wiggly.scene.spec import (
     CAMERAS,
     FORMAT,
@@ -22,6 +24,7 @@ from wiggly.scene.spec import (
     RIGID_MODES,
     Box,
     DampingSpec,
+    DriveSpec,
     FromMesh,
     GroupSpec,
     Indices,
@@ -130,6 +133,49 @@ _KEYFRAME = _Table(
     make=lambda d: KeyframeSpec(**d), what="a table ([[keyframes]])",
     doc="constraints on one group at one time")
 
+def _check_drive_range(d: dict, path: str, p: _Problems) -> None:
+    if "range" in d and d["range"][0] > d["range"][1]:
+        raise p.bad(f"{path}.range = {_show(list(d['range']))} must be [first, last] with "
+                    "first <= last (seconds of the driver's clock)")
+
+
+def _extensions_pattern(extensions) -> str:
+    return r"\.(" + "|".join("".join(f"[{c.lower()}{c.upper()}]" if c.isalpha() else c
+                                      for c in e[1:]) for e in extensions) + r")$"
+
+
+_DRIVE = _Table(
+    {"path": _String(pattern=_extensions_pattern(DRIVER_EXTENSIONS),
+                     what="a driver file ending in " + ", ".join(DRIVER_EXTENSIONS),
+                     doc="driver animation of the surface, relative to the scene file: glTF "
+                         "(skinned or morph targets), USD (time-sampled points or UsdSkel), "
+                         "an OBJ sequence (walk_####.obj, walk_000001.obj) or a wiggly .npz"),
+     "group": _ByType({str: _String(what="a group name"),
+                       list: _Array(_String(what="a group name"), min_items=1, unique=True)},
+                      what="a group name or an array of group names",
+                      doc="the driven group (or groups: their union), keyed to the driver at "
+                          "every driver frame"),
+     "offset": _Number(unit="s", doc="driver time t plays at shot time t + offset (default 0)"),
+     "range": _Vector(2, "first, last", "s",
+                      doc="only driver frames with first <= t <= last (driver seconds) are "
+                          "keyed (default: all)"),
+     "stiffness": _Number(ge=0.0, doc="dimensionless weight of every driven key (default "
+                                       "1e12: the driven group meets the driver)"),
+     "enrich": _Bool(doc="add the driver's shapes to the modal basis (Rayleigh-Ritz), so "
+                         "that the driven group can follow it closely (default true)"),
+     "animation": _ByType({str: _String(), int: _Number(integer=True, ge=0)},
+                          what="an animation name or index (integer >= 0)",
+                          doc="glTF: the animation to play, by name or index (default: the "
+                              "first)"),
+     "object": _String(doc="glTF: the mesh node (or mesh) to read; USD: the prim at or below "
+                           "which meshes are read, by path or name (default: every mesh)"),
+     "frame_rate": _Number(gt=0.0, le=MAX_FPS, unit="frames/s",
+                           doc="OBJ sequences without wiggly's # time comments: frame N is at "
+                               "N / frame_rate s (default: time.fps)")},
+    required=("path", "group"), check=_check_drive_range, make=lambda d: DriveSpec(**d),
+    doc="secondary motion on an existing animation: a driver animation of the surface keys "
+        "the driven group at every driver frame; the rest moves freely")
+
 _OUTPUT_PATTERN = r"\.(" + "|".join(
     "".join(f"[{c.lower()}{c.upper()}]" if c.isalpha() else c for c in e[1:])
     for e in OUTPUT_EXTENSIONS) + r")$"
@@ -204,6 +250,7 @@ _SCENE = _Table(
                                       'or "modes" (one per mode, weights q(t); linear shots '
                                       "only: exact and compact)")},
          make=lambda d: OutputSpec(**d)),
+     "drive": _DRIVE,
      },
     required=("mesh",), make=lambda d: Scene(**d), what="a TOML document")
 
@@ -301,6 +348,7 @@ def _cross_check(scene: Scene, p: _Problems) -> None:
         p.add(f"time.fps = {_show(scene.time.fps)} makes {frames} frames of a {t1 - t0:g} s "
               f"shot, more than {MAX_FRAMES} (wiggly.limits.MAX_FRAMES); use fps <= "
               f"{math.floor((MAX_FRAMES - 1) / (t1 - t0)):g}")
+    check_drive(scene, p)
     if not scene.simulation.fixed and scene.simulation.modes < RIGID_MODES:
         p.add(f"simulation.modes = {scene.simulation.modes} is fewer than the {RIGID_MODES} "
               "rigid modes of a free body (simulation.fixed holds no group), which the basis "
@@ -309,6 +357,7 @@ def _cross_check(scene: Scene, p: _Problems) -> None:
 
 
 def _check_files(scene: Scene, p: _Problems) -> None:
+    check_drive_file(scene, p)
     if scene.mesh.path.startswith("builtin:"):
         return
     f = scene.mesh_file()

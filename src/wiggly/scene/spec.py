@@ -243,6 +243,38 @@ class KeyframeSpec:
 
 
 @dataclass(frozen=True)
+class DriveSpec:
+    """``[drive]``: a driver animation of the surface (``path``) that keys the vertices of
+    ``group`` (one group name or several, their union) at every driver frame
+    (:mod:`wiggly.drive`).  Driver time t plays at shot time t + ``offset``; only frames with
+    driver time in ``range`` (inclusive) are keyed.  ``animation`` picks a glTF animation
+    (name or index), ``object`` the glTF mesh node / USD prim to read, ``frame_rate`` times an
+    OBJ sequence without time comments (default: ``time.fps``); ``enrich`` adds the driver's
+    shapes to the modal basis (:func:`wiggly.drive.enrich`)."""
+
+    path: str
+    group: str | tuple[str, ...]
+    offset: float = 0.0
+    range: tuple[float, float] | None = None
+    stiffness: float | None = None
+    enrich: bool = True
+    animation: str | int | None = None
+    object: str | None = None
+    frame_rate: float | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.group, str):
+            _set(self, "group", tuple(self.group))
+        if self.range is not None:
+            _set(self, "range", _floats(self.range, 2))
+
+    @property
+    def groups(self) -> tuple[str, ...]:
+        """The driven groups' names."""
+        return (self.group,) if isinstance(self.group, str) else self.group
+
+
+@dataclass(frozen=True)
 class OutputSpec:
     """``[output]``: files to write (by extension), overwrite, preview size and camera, and
     how glTF/USD files carry time (``frame_start``, ``gltf_targets``; None: the defaults)."""
@@ -274,6 +306,7 @@ class Scene:
     groups: dict[str, GroupSpec] = field(default_factory=dict)
     keyframes: list[KeyframeSpec] = field(default_factory=list)
     output: OutputSpec = field(default_factory=OutputSpec)
+    drive: DriveSpec | None = None
     format: int = FORMAT
     source: Path | None = field(default=None, compare=False)
 

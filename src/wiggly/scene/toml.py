@@ -51,6 +51,13 @@ def scene_to_dict(scene: Scene) -> dict:
     if not isinstance(out["camera"], str):
         out["camera"] = list(out["camera"])
     d["output"] = out
+    if scene.drive is not None:
+        drive = _fields(scene.drive)
+        if not isinstance(drive["group"], str):
+            drive["group"] = list(drive["group"])
+        if "range" in drive:
+            drive["range"] = list(drive["range"])
+        d["drive"] = drive
     return d
 
 
@@ -151,6 +158,8 @@ def scene_to_toml(scene: Scene) -> str:
     for k in d["keyframes"]:
         body = _toml_lines(k, "[keyframes]")
         lines += ["", "[" + body[0] + "]", *body[1:]]
+    if "drive" in d:
+        lines += ["", *_toml_lines(d["drive"], "[drive]")]
     lines += ["", *_toml_lines(d["output"], "[output]")]
     return "\n".join(lines) + "\n"
 

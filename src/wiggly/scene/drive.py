@@ -1,0 +1,200 @@
+"""``[drive]`` in scenes: its checks (references between keys, the driver file, the driver
+against the mesh before tetrahedralizing), the driver read once per state of its file, and
+the driven keyframes (:func:`wiggly.drive.driven_keyframes`)."""
+
+from __future__ import annotations
+
+import difflib
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from wiggly.drive import DRIVE_STIFFNESS, Driver, driven_keyframes, enrich, read_driver
+from wiggly.drive.sequence import sequence_files
+from wiggly.errors import WigglyInputError, counted
+from wiggly.keyframes import Keyframe
+from wiggly.progress import activity
+from wiggly.scene.spec import Scene
+from wiggly.scene.validation import _Problems, _show
+
+__all__ = ["check_drive", "check_drive_file", "check_driver_against", "driven_body",
+           "driven_keyframes_of", "driven_vertices", "scene_driver"]
+
+_GLTF, _USD = (".glb", ".gltf"), (".usd", ".usda", ".usdc", ".usdz")
+
+
+def _suggest(name: str, names) -> str:
+    close = difflib.get_close_matches(name, list(names), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def check_drive(scene: Scene, p: _Problems) -> None:
+    """References of ``[drive]``: its groups exist and are on the surface, the shot has a
+    time range, and the options fit the driver's format."""
+    drive = scene.drive
+    if drive is None:
+        return
+    names = list(scene.groups)
+    listing = ", ".join(names) if names else "none are defined ([groups.<name>])"
+    many = not isinstance(drive.group, str)
+    for j, g in enumerate(drive.groups):
+        key = f"drive.group[{j}]" if many else "drive.group"
+        if g not in scene.groups:
+            p.add(f"{key} = {_show(g)} is not a group{_suggest(g, names)}; groups are: "
+                  f"{listing}")
+        elif scene.groups[g].on != "surface":
+            p.add(f"{key} = {_show(g)} selects tet-mesh vertices (on = \"tets\"); a driver "
+                  "animates the surface: use a group of surface vertices")
+    if scene.time.end is None and scene.time.duration is None:
+        p.add("time.end (or time.duration) is missing: a driven shot needs its time range"
+              + _span_hint(scene))
+    ext = Path(drive.path).suffix.lower()
+    for key, formats, what in (("animation", _GLTF, "glTF"), ("object", _GLTF + _USD,
+                                                               "glTF and USD"),
+                               ("frame_rate", (".obj",), "OBJ sequence")):
+        if getattr(drive, key) is not None and ext not in formats:
+            p.add(f"drive.{key} = {_show(getattr(drive, key))} applies to {what} drivers only; "
+                  f"drive.path = {_show(drive.path)} is not one")
+
+
+def _span_hint(scene: Scene) -> str:
+    """``; the driver ... runs from a to b s (e.g. end = b)``, when it can be read."""
+    try:
+        first, last = scene_driver(scene).span
+    except (WigglyInputError, OSError):
+        return ""
+    end = last + scene.drive.offset
+    return (f"; the driver {scene.drive.path} runs from {first:g} to {last:g} s (e.g. add "
+            f"end = {end:g} to [time])")
+
+
+def check_drive_file(scene: Scene, p: _Problems) -> None:
+    """The driver file exists (an OBJ sequence: some numbered file matches)."""
+    drive = scene.drive
+    if drive is None:
+        return
+    path = scene.resolve(drive.path)
+    if path.suffix.lower() == ".obj":
+        try:
+            found = sequence_files(path)
+        except WigglyInputError as err:
+            p.add(f"drive.path = {_show(drive.path)}: {err}")
+            return
+        if not found:
+            p.add(f"drive.path = {_show(drive.path)}: no OBJ sequence there (no numbered file "
+                  f"such as {path.stem.rstrip('#_')}_0001.obj in {path.parent})")
+    elif not path.is_file():
+        p.add(f"drive.path = {_show(drive.path)}: "
+              f"{'is a directory' if path.is_dir() else 'no such file'} ({path})")
+
+
+# ----------------------------------------------------------------------------------------------
+# the driver, read once per state of its file(s)
+
+_CACHE: dict[tuple, Driver] = {}
+_LOCK = threading.Lock()
+_KEEP = 2
+
+
+def _stamp(path: Path) -> tuple:
+    files = [f for _, f in sequence_files(path)] if path.suffix.lower() == ".obj" else [path]
+    out = []
+    for f in files:
+        try:
+            st = f.stat()
+        except OSError:
+            return ()
+        out.append((str(f), st.st_mtime_ns, st.st_size))
+    return tuple(out)
+
+
+def scene_driver(scene: Scene, progress: bool = False) -> Driver:
+    """The scene's driver (:func:`wiggly.drive.read_driver`), kept for the two most recent
+    (file, modification time, size, options) values so that re-solves do not read it
+    again."""
+    drive = scene.drive
+    if drive is None:
+        raise WigglyInputError(f"{scene.where()}: the scene has no [drive]")
+    path = scene.resolve(drive.path)
+    rate = drive.frame_rate if drive.frame_rate is not None else scene.time.fps
+    key = (str(path), _stamp(path), drive.animation, drive.object, rate)
+    with _LOCK:
+        if key in _CACHE:
+            return _CACHE[key]
+    try:
+        with activity(f"reading the driver {path.name}", progress):
+            driver = read_driver(path, animation=drive.animation, object=drive.object,
+                                 frame_rate=rate, progress=progress)
+    except WigglyInputError as err:
+        raise WigglyInputError(f"{scene.where()}: drive.path = {_show(drive.path)}: "
+                               f"{err}") from None
+    with _LOCK:
+        _CACHE[key] = driver
+        while len(_CACHE) > _KEEP:
+            _CACHE.pop(next(iter(_CACHE)))
+    return driver
+
+
+def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: str,
+                         p: _Problems, progress: bool = False) -> None:
+    """The driver animates the surface just read (``vertices`` vertices, triangles
+    ``faces``, file ``mesh``): checked before tetrahedralizing."""
+    if scene.drive is None:
+        return
+    try:
+        driver = scene_driver(scene, progress)
+    except WigglyInputError as err:
+        p.add(str(err).removeprefix(f"{scene.where()}: "))
+        return
+    why = driver.mismatch(vertices, faces, mesh)
+    if why is not None:
+        p.add(f"drive.path = {_show(scene.drive.path)}: {why}")
+
+
+def driven_vertices(scene: Scene, groups: dict[str, np.ndarray]) -> np.ndarray:
+    """Surface vertices of the driven groups (their union, ascending)."""
+    return np.unique(np.concatenate([groups[g] for g in scene.drive.groups]))
+
+
+def driven_body(scene: Scene, body, groups: dict[str, np.ndarray], progress: bool = False):
+    """``body`` with the driver's shapes added to its modes (``drive.enrich``, the default),
+    else ``body`` itself."""
+    drive = scene.drive
+    if drive is None or not drive.enrich:
+        return body
+    driver = scene_driver(scene, progress)
+    with activity("adding the driver's shapes to the modes", progress):
+        out = enrich(body, driver, driven_vertices(scene, groups),
+                     warped=scene.simulation.warp)
+    if progress:
+        print(f"[wiggly] {body.r} modes + {counted(out.r - body.r, 'driver shape')}",
+              file=sys.stderr, flush=True)
+    return out
+
+
+def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
+                        progress: bool = False) -> list[Keyframe]:
+    """The keyframes of ``[drive]`` (none without it): the driven groups keyed to the driver
+    at every driver frame in the shot."""
+    drive = scene.drive
+    if drive is None:
+        return []
+    driver = scene_driver(scene, progress)
+    start, end = scene.time_range()
+    try:
+        keys = driven_keyframes(
+            body, driver, driven_vertices(scene, groups),
+            stiffness=DRIVE_STIFFNESS if drive.stiffness is None else drive.stiffness,
+            offset=drive.offset, driver_range=drive.range, start=start, end=end,
+            name=f"drive {'+'.join(drive.groups)}")
+    except WigglyInputError as err:
+        raise WigglyInputError(f"{scene.where()}: drive.path = {_show(drive.path)}: "
+                               f"{err}") from None
+    if progress:
+        print(f"[wiggly] driving {counted(len(keys[0].vertices), 'vertex')} "
+              f"({'+'.join(drive.groups)}) at {counted(len(keys), 'frame')} of "
+              f"{Path(drive.path).name} ({driver.kind})", file=sys.stderr, flush=True)
+    return keys
+

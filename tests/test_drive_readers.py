@@ -1,0 +1,311 @@
+"""Driver readers (wiggly.drive): every format read back against the mesh sequence that was
+written, a skinned glTF against a linear blend computed by hand, and the topology check."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from wiggly.drive import Driver, read_driver
+from wiggly.drive.gltf import sample, slerp
+from wiggly.errors import WigglyInputError
+from wiggly.export import SurfaceAnimation, write_animation
+
+# A cube of 8 vertices and 6 quads (12 triangles), animated: turned about y, moved and
+# squashed, frame k at time k / 24.
+CUBE = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]) * 0.2
+QUADS = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4],
+                  [1, 5, 7, 3]])
+TRIS = np.concatenate([QUADS[:, [0, 1, 2]], QUADS[:, [0, 2, 3]]])
+FRAMES = 5
+
+
+def sequence() -> tuple[np.ndarray, np.ndarray]:
+    """Times (F,) and positions (F, 8, 3) of the animated cube."""
+    times = np.arange(FRAMES) / 24.0
+    P = []
+    for k in range(FRAMES):
+        R = Rotation.from_euler("y", 20.0 * k, degrees=True)
+        squash = np.array([1.0 + 0.05 * k, 1.0 - 0.05 * k, 1.0])
+        P.append(R.apply(CUBE * squash) + np.array([0.1 * k, 0.02 * k * k, -0.03 * k]))
+    return times, np.array(P)
+
+
+# ----------------------------------------------------------------------------------------------
+# mesh sequences: npz, OBJ, USD
+
+
+def test_npz_driver_reads_back_the_sequence(tmp_path):
+    times, P = sequence()
+    path = write_animation(tmp_path / "walk.npz", SurfaceAnimation(times, P, TRIS))
+    d = read_driver(path)
+    np.testing.assert_allclose(d.times, times)
+    np.testing.assert_allclose(d.positions, P, atol=1e-7)  # stored as float32
+    assert d.n_frames == FRAMES and d.n_vertices == 8 and d.kind == "wiggly npz"
+    d.check(8, TRIS, "cube")  # its own triangles: no complaint
+
+
+def write_obj(path: Path, X: np.ndarray, polygons, time: float | None = None) -> None:
+    lines = [f"# time {time!r}"] if time is not None else ["# Blender-style frame"]
+    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in X]
+    lines += ["f " + " ".join(str(i + 1) for i in p) for p in polygons]
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.mark.parametrize("style", ["blender", "houdini", "wiggly"])
+def test_obj_sequence_driver_reads_back_the_sequence(tmp_path, style):
+    """Blender's walk_000001.obj ... (frames numbered from 1, no times: frame N at N / fps),
+    a Houdini pattern walk.####.obj, and wiggly's own walk.obj -> walk_0000.obj (times)."""
+    times, P = sequence()
+    if style == "wiggly":
+        write_animation(tmp_path / "walk.obj", SurfaceAnimation(times, P, TRIS))
+        d = read_driver(tmp_path / "walk.obj")
+        np.testing.assert_allclose(d.times, times)
+    else:
+        for k in range(FRAMES):
+            name = f"walk_{k + 1:06d}.obj" if style == "blender" else f"walk.{k + 1:04d}.obj"
+            write_obj(tmp_path / name, P[k], QUADS)
+        (tmp_path / "walk_notes.obj").write_text("not a frame\n")  # no number: not in it
+        given = "walk_000001.obj" if style == "blender" else "walk.####.obj"
+        with pytest.raises(WigglyInputError, match="frame rate"):
+            read_driver(tmp_path / given)
+        d = read_driver(tmp_path / given, frame_rate=24)
+        np.testing.assert_allclose(d.times, (np.arange(FRAMES) + 1) / 24)  # frame N at N/24
+        assert len(d.edges) == 12  # a cube's edges: the quads', not the diagonals (18)
+    np.testing.assert_allclose(d.positions, P, atol=1e-7)
+    d.check(8, TRIS, "cube")
+
+
+def test_usd_points_driver_converts_axes_units_and_transforms(tmp_path):
+    """A Z-up stage in centimetres with time-sampled points and an animated parent
+    transform: world space, then y up ((x, y, z) -> (x, z, -y)) and metres."""
+    from pxr import Gf, Usd, UsdGeom, Vt
+
+    _, P = sequence()
+    stage = Usd.Stage.CreateNew(str(tmp_path / "walk.usda"))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)
+    stage.SetTimeCodesPerSecond(24)
+    xform = UsdGeom.Xform.Define(stage, "/rig")
+    op = xform.AddTranslateOp()
+    mesh = UsdGeom.Mesh.Define(stage, "/rig/cube")
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray([4] * len(QUADS)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(QUADS.ravel().tolist()))
+    shift = np.array([[3.0 * k, -2.0 * k, 1.0] for k in range(FRAMES)])  # cm, per frame
+    cm = 100.0 * P  # the sequence in cm, in the stage's z-up axes: (x, -z, y)
+    zup = np.stack([cm[..., 0], -cm[..., 2], cm[..., 1]], -1)
+    for k in range(FRAMES):
+        code = Usd.TimeCode(k + 1)  # Blender writes frames 1, 2, ...
+        mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(zup[k].astype(np.float32)), code)
+        op.Set(Gf.Vec3d(*shift[k]), code)
+    stage.GetRootLayer().Save()
+    d = read_driver(tmp_path / "walk.usda")
+    np.testing.assert_allclose(d.times, (np.arange(FRAMES) + 1) / 24)
+    world = (zup + shift[:, None, :]) / 100.0  # metres, z up
+    expected = np.stack([world[..., 0], world[..., 2], -world[..., 1]], -1)
+    np.testing.assert_allclose(d.positions, expected, atol=1e-6)
+    np.testing.assert_allclose(d.positions - shift_yup(shift), P, atol=1e-6)
+    assert d.kind == "USD points" and len(d.edges) == 12
+    d.check(8, TRIS, "cube")
+
+
+def shift_yup(shift_cm: np.ndarray) -> np.ndarray:
+    s = shift_cm / 100.0
+    return np.stack([s[:, 0], s[:, 2], -s[:, 1]], -1)[:, None, :]
+
+
+# ----------------------------------------------------------------------------------------------
+# glTF: a minimal writer (JSON + one buffer), independent of the reader
+
+
+def write_glb(path: Path, doc: dict, arrays: list[tuple[np.ndarray, str, bool]]) -> Path:
+    """A .glb of ``doc`` whose accessor i holds arrays[i] = (data, type, normalized)."""
+    types = {np.dtype(np.float32): 5126, np.dtype(np.uint8): 5121, np.dtype(np.uint16): 5123,
+             np.dtype(np.uint32): 5125}
+    blob, views, accessors = bytearray(), [], []
+    for data, kind, normalized in arrays:
+        raw = np.ascontiguousarray(data).tobytes()
+        views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(raw)})
+        blob += raw + b"\0" * (-len(raw) % 4)
+        acc = {"bufferView": len(views) - 1, "componentType": types[data.dtype],
+               "count": len(data), "type": kind}
+        if normalized:
+            acc["normalized"] = True
+        accessors.append(acc)
+    doc = {"asset": {"version": "2.0"}, **doc, "accessors": accessors, "bufferViews": views,
+           "buffers": [{"byteLength": len(blob)}]}
+    text = json.dumps(doc).encode()
+    text += b" " * (-len(text) % 4)
+    out = struct.pack("<III", 0x46546C67, 2, 12 + 8 + len(text) + 8 + len(blob))
+    out += struct.pack("<II", len(text), 0x4E4F534A) + text
+    out += struct.pack("<II", len(blob), 0x004E4942) + bytes(blob)
+    path.write_bytes(out)
+    return path
+
+
+def test_gltf_morph_targets_under_a_moving_parent(tmp_path):
+    """Base + w1 D1 + w2 D2 with LINEAR weights (not one-hot), the mesh node under a parent
+    whose translation is animated: both evaluated at every key time."""
+    D1 = np.zeros_like(CUBE)
+    D1[:, 1] = CUBE[:, 0]  # shear
+    D2 = 0.1 * CUBE  # grow
+    keys = np.array([0.0, 0.5, 1.0], np.float32)
+    W = np.array([[0.0, 0.0], [1.0, 0.5], [0.2, 1.0]], np.float32)
+    T = np.array([[0, 0, 0], [0.5, 0, 0], [1.0, 0.2, 0]], np.float32)
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}],
+           "nodes": [{"children": [1], "translation": [0, 0, 0]},
+                     {"mesh": 0, "scale": [2.0, 2.0, 2.0]}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1,
+                                       "targets": [{"POSITION": 2}, {"POSITION": 3}]}]}],
+           "animations": [{"name": "wobble",
+                           "samplers": [{"input": 4, "output": 5}, {"input": 4, "output": 6}],
+                           "channels": [{"sampler": 0, "target": {"node": 1, "path": "weights"}},
+                                        {"sampler": 1,
+                                         "target": {"node": 0, "path": "translation"}}]}]}
+    path = write_glb(tmp_path / "wobble.glb", doc, [
+        (CUBE.astype(np.float32), "VEC3", False), (TRIS.astype(np.uint16).ravel(), "SCALAR", False),
+        (D1.astype(np.float32), "VEC3", False), (D2.astype(np.float32), "VEC3", False),
+        (keys, "SCALAR", False), (W.ravel(), "SCALAR", False), (T, "VEC3", False)])
+    d = read_driver(path, animation="wobble")
+    assert d.kind == "glTF morph targets"
+    np.testing.assert_allclose(d.times, keys)
+    for k in range(3):
+        expected = 2.0 * (CUBE + W[k, 0] * D1 + W[k, 1] * D2) + T[k]
+        np.testing.assert_allclose(d.positions[k], expected, atol=1e-6)
+    with pytest.raises(WigglyInputError, match=r"no animation named 'walk'.*'wobble'"):
+        read_driver(path, animation="walk")
+
+
+def test_gltf_skin_matches_a_hand_computed_blend(tmp_path):
+    """Linear blend skinning of a two-joint chain: root joint rotating about z (LINEAR: slerp
+    of coaxial rotations interpolates the angle linearly) and translating along a CUBICSPLINE,
+    child joint rotating about x (STEP), inverse bind matrices, normalized UNSIGNED_BYTE
+    weights, and a transform on the mesh node that the specification says to ignore.  The
+    expected positions are products of explicit 4x4 matrices."""
+    X = np.array([[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 2.0, 0.5], [1.5, 1.5, 0.0]],
+                 np.float32)
+    faces = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]], np.uint16)
+    joints = np.array([[0, 1, 0, 0]] * 4, np.uint8)
+    wb = np.array([[255, 0, 0, 0], [0, 255, 0, 0], [64, 191, 0, 0], [128, 127, 0, 0]],
+                  np.uint8)  # normalized: w = byte / 255
+    ibm = np.stack([np.linalg.inv(trans(1, 0, 0)), np.linalg.inv(trans(1, 1, 0))])
+    root_keys = np.array([0.0, 0.5, 1.0], np.float32)
+    root_angles = np.radians([0.0, 40.0, 100.0])
+    root_rot = Rotation.from_euler("z", root_angles[:, None]).as_quat().astype(np.float32)
+    child_keys = np.array([0.0, 0.4, 1.0], np.float32)
+    child_angles = np.radians([0.0, 30.0, -20.0])
+    child_rot = Rotation.from_euler("x", child_angles[:, None]).as_quat().astype(np.float32)
+    # CUBICSPLINE translation of the root: (in-tangent, value, out-tangent) per key
+    values = np.array([[1, 0, 0], [1, 0.2, 0], [1.5, 0.5, 0]], np.float64)
+    tangents_in = np.array([[0, 0, 0], [0.4, 0.0, 0], [0, 1, 0]], np.float64)
+    tangents_out = np.array([[0, 1.0, 0], [0.2, 0.6, 0], [0, 0, 0]], np.float64)
+    cubic = np.stack([tangents_in, values, tangents_out], 1).astype(np.float32)
+    doc = {"scene": 0, "scenes": [{"nodes": [0, 1]}],
+           "nodes": [{"mesh": 0, "skin": 0, "translation": [10.0, 0, 0]},  # ignored
+                     {"name": "root", "translation": [1.0, 0, 0], "children": [2]},
+                     {"name": "child", "translation": [0, 1.0, 0]}],
+           "skins": [{"joints": [1, 2], "inverseBindMatrices": 4}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "JOINTS_0": 2,
+                                                      "WEIGHTS_0": 3}, "indices": 1}]}],
+           "animations": [{"samplers": [
+               {"input": 5, "output": 6, "interpolation": "LINEAR"},
+               {"input": 7, "output": 8, "interpolation": "STEP"},
+               {"input": 5, "output": 9, "interpolation": "CUBICSPLINE"}],
+               "channels": [{"sampler": 0, "target": {"node": 1, "path": "rotation"}},
+                            {"sampler": 1, "target": {"node": 2, "path": "rotation"}},
+                            {"sampler": 2, "target": {"node": 1, "path": "translation"}}]}]}
+    path = write_glb(tmp_path / "chain.glb", doc, [
+        (X, "VEC3", False), (faces.ravel(), "SCALAR", False), (joints, "VEC4", False),
+        (wb, "VEC4", True), (ibm.transpose(0, 2, 1).reshape(-1, 16).astype(np.float32), "MAT4",
+                             False),
+        (root_keys, "SCALAR", False), (root_rot, "VEC4", False), (child_keys, "SCALAR", False),
+        (child_rot, "VEC4", False), (cubic.reshape(-1, 3), "VEC3", False)])
+    d = read_driver(path)
+    assert d.kind == "glTF skin"
+    np.testing.assert_allclose(d.times, [0.0, 0.4, 0.5, 1.0], atol=1e-7)
+    w = wb / 255.0
+    for t, x in zip(d.times, d.positions, strict=True):
+        # root: angle linear in t between keys; translation: the cubic Hermite segment
+        k = 0 if t < 0.5 else 1
+        s = (t - root_keys[k]) / 0.5
+        alpha = root_angles[k] + s * (root_angles[k + 1] - root_angles[k])
+        h00, h10 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s
+        h01, h11 = -2 * s**3 + 3 * s**2, s**3 - s**2
+        p = (h00 * values[k] + h10 * 0.5 * tangents_out[k] + h01 * values[k + 1]
+             + h11 * 0.5 * tangents_in[k + 1])
+        beta = child_angles[np.searchsorted(child_keys, t + 1e-6) - 1]  # STEP: last key <= t
+        G_root = trans(*p) @ rot("z", alpha)
+        G_child = G_root @ trans(0, 1, 0) @ rot("x", beta)
+        J = [G_root @ ibm[0], G_child @ ibm[1]]
+        Xh = np.c_[X, np.ones(4)]
+        expected = np.array([(w[i, 0] * J[0] + w[i, 1] * J[1]) @ Xh[i] for i in range(4)])
+        np.testing.assert_allclose(x, expected[:, :3], atol=2e-6, err_msg=f"t = {t}")
+
+
+def trans(x, y, z) -> np.ndarray:
+    M = np.eye(4)
+    M[:3, 3] = (x, y, z)
+    return M
+
+
+def rot(axis: str, angle: float) -> np.ndarray:
+    M = np.eye(4)
+    M[:3, :3] = Rotation.from_euler(axis, angle).as_matrix()
+    return M
+
+
+def test_sampler_interpolations_hold_the_ends_and_slerp_the_short_way():
+    keys = np.array([1.0, 2.0])
+    v = np.array([[0.0], [10.0]])
+    t = np.array([0.0, 1.0, 1.25, 2.0, 3.0])
+    np.testing.assert_allclose(sample(keys, v, "LINEAR", t)[:, 0], [0, 0, 2.5, 10, 10])
+    np.testing.assert_allclose(sample(keys, v, "STEP", t)[:, 0], [0, 0, 0, 10, 10])
+    a = Rotation.from_euler("z", 170, degrees=True).as_quat()
+    b = -Rotation.from_euler("z", -170, degrees=True).as_quat()  # 20 degrees away, sign flipped
+    mid = Rotation.from_quat(slerp(a, b, np.array(0.5)))
+    assert abs(abs(mid.as_euler("xyz", degrees=True)[2]) - 180.0) < 1e-9
+
+
+# ----------------------------------------------------------------------------------------------
+# topology
+
+
+def test_topology_mismatch_names_both_counts_and_the_file():
+    times, P = sequence()
+    d = Driver(times, np.concatenate([P, P[:, :1]], axis=1), TRIS, np.zeros((0, 2)),
+               "walk.usdc", "USD points")
+    with pytest.raises(WigglyInputError) as err:
+        d.check(8, TRIS, "cube.obj")
+    message = str(err.value)
+    assert "walk.usdc" in message and "9 vertices" in message and "cube.obj" in message
+    assert "8 vertices" in message
+
+
+def test_same_count_in_another_order_is_refused():
+    from wiggly.drive.driver import polygon_edges
+
+    times, P = sequence()
+    perm = np.array([0, 7, 2, 5, 4, 3, 6, 1])  # the vertices shuffled: the edges no longer fit
+    inverse = np.argsort(perm)
+    d = Driver(times, P[:, perm], inverse[TRIS], polygon_edges(inverse[QUADS]), "walk.glb",
+               "glTF skin")
+    assert d.mismatch(8, TRIS, "cube.obj") is not None
+    assert "another order" in d.mismatch(8, TRIS, "cube.obj")
+    d.check(8, inverse[TRIS], "shuffled.obj")  # the same shuffle on both sides is fine
+
+
+def test_unreadable_drivers_say_what_is_wrong(tmp_path):
+    (tmp_path / "broken.glb").write_bytes(b"glTF\x02\x00\x00\x00")
+    with pytest.raises(WigglyInputError, match=r"broken\.glb"):
+        read_driver(tmp_path / "broken.glb")
+    with pytest.raises(WigglyInputError, match="no such file"):
+        read_driver(tmp_path / "missing.usdc")
+    with pytest.raises(WigglyInputError, match=r"unknown extension '\.fbx'"):
+        read_driver(tmp_path / "walk.fbx")
+    with pytest.raises(WigglyInputError, match="no numbered files"):
+        read_driver(tmp_path / "walk_####.obj", frame_rate=24)

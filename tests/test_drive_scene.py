@@ -1,0 +1,170 @@
+"""Driving a solve: [drive] in scene files end to end (a small tet-mesh bar, so no
+tetrahedralizer runs), its checks and messages, and the enriched basis."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tomli_w
+from scipy.spatial.transform import Rotation
+
+import wiggly
+from wiggly.cli import main
+from wiggly.drive import driven_keyframes, enrich, following, read_driver
+from wiggly.export import SurfaceAnimation, read_animation, write_animation
+from wiggly.mesh import TetMesh
+from wiggly.primitives import box_mesh
+from wiggly.scene import load_scene, run, save_scene
+
+SHAPE, SIZE = (8, 2, 2), (0.8, 0.1, 0.1)
+PIVOT = np.array([0.15, 0.05, 0.05])
+
+
+def bar_motion(X: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The driver: the whole bar turning about a vertical axis through PIVOT (20 degrees at
+    1 Hz) and bobbing (2 cm at 2 Hz), rigidly; (F, n, 3)."""
+    out = []
+    for tk in t:
+        R = Rotation.from_euler("y", 20.0 * np.sin(2 * np.pi * tk), degrees=True)
+        out.append(R.apply(X - PIVOT) + PIVOT + [0.0, 0.02 * np.sin(4 * np.pi * tk), 0.0])
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def shot(tmp_path_factory):
+    """A folder with bar.vtu, its driver walk.npz (all 81 vertices, 21 frames at 20 fps) and
+    a scene driving the left 40 % of the bar; the right end is free."""
+    import meshio
+
+    folder = tmp_path_factory.mktemp("drive")
+    V, T = box_mesh(SHAPE, SIZE)
+    meshio.write(folder / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+    times = np.arange(21) / 20.0
+    faces = TetMesh(V, T).boundary_faces()
+    write_animation(folder / "walk.npz", SurfaceAnimation(times, bar_motion(V, times), faces))
+    data = {
+        "mesh": {"path": "bar.vtu"},
+        "material": {"young": 5e4, "poisson": 0.3, "density": 1000.0},
+        "simulation": {"modes": 12},
+        "time": {"end": 1.0, "fps": 20},
+        "groups": {"driven": {"box": {"min": [-1, -1, -1], "max": [0.3, 1, 1]}},
+                   "tip": {"box": {"min": [0.7, -1, -1], "max": [1, 1, 1]}}},
+        "drive": {"path": "walk.npz", "group": "driven"},
+        "output": {"paths": ["out/bar.npz"]},
+    }
+    return folder, data
+
+
+def write(folder, data, name="shot.toml"):
+    path = folder / name
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+def test_drive_scene_end_to_end(shot, capsys):
+    """The driven group follows the driver to well under a millimetre at every driver frame;
+    the free end, keyed nowhere, does not simply follow the driver's rigid motion; the
+    output is the solved motion."""
+    folder, data = shot
+    path = write(folder, data)
+    assert main(["animate", str(path), "--overwrite", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "drive      walk.npz:" in out and "keyed at 21 frames" in out
+    scene = load_scene(path)
+    anim = run(scene, outputs=[])
+    report = following(anim)
+    assert report["frames"] == 21 and report["max"] < 1e-4, report
+    assert anim.info["drive"] == report
+    X = anim.body.rest_positions()
+    tip = np.flatnonzero(X[:, 0] > 0.7)
+    times = np.arange(21) / 20.0
+    lag = np.linalg.norm(anim.positions(times)[:, tip] - bar_motion(X, times)[:, tip], axis=2)
+    print(f"following {report['max']:.3g} m, free tip off the rigid driver by {lag.max():.3g} m")
+    assert lag.max() > 20 * report["max"]  # free: it moves on its own
+    written = read_animation(folder / "out" / "bar.npz")
+    np.testing.assert_allclose(written.positions, anim.positions(written.times), atol=1e-6)
+
+
+def test_driven_keyframes_api_and_range(shot):
+    """driven_keyframes keys only frames in the driver range and the shot, shifted by the
+    offset; enrich keeps the old modes and adds M-orthonormal, K-diagonal vectors."""
+    folder, _ = shot
+    body = wiggly.prepare(str(folder / "bar.vtu"), n_modes=10, cache_dir=False)
+    driver = read_driver(folder / "walk.npz")
+    left = body.rest_positions()[:, 0] <= 0.3
+    keys = driven_keyframes(body, driver, left, offset=0.5, driver_range=(0.2, 0.6), start=0.0,
+                            end=1.0)
+    np.testing.assert_allclose([k.time for k in keys], np.arange(4, 11) / 20 + 0.5, atol=1e-12)
+    assert all(k.spec["kind"] == "drive" for k in keys)
+    rich = enrich(body, driver, left)
+    assert rich.r > body.r
+    Phi, M, K = rich.modes.vectors, rich.M, rich.K
+    np.testing.assert_allclose(Phi[:, :body.r], body.modes.vectors)
+    np.testing.assert_allclose(Phi.T @ (M @ Phi), np.eye(rich.r), atol=1e-8)
+    KK = Phi.T @ (K @ Phi)
+    np.testing.assert_allclose(KK, np.diag(rich.eigenvalues), atol=1e-6 * np.abs(KK).max())
+
+
+def test_drive_round_trips_through_toml(shot, tmp_path):
+    folder, data = shot
+    data = {**data, "drive": {"path": str(folder / "walk.npz"), "group": ["driven", "tip"],
+                              "offset": -0.25, "range": [0.25, 1.0], "stiffness": 1e9,
+                              "enrich": False}}
+    data["mesh"] = {"path": str(folder / "bar.vtu")}
+    scene = load_scene(write(tmp_path, data))
+    assert scene.drive.groups == ("driven", "tip") and scene.drive.range == (0.25, 1.0)
+    again = load_scene(save_scene(scene, tmp_path / "again.toml"))
+    assert again == scene
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"group": "drivn"}, 'drive.group = "drivn" is not a group (did you mean \'driven\'?)'),
+    ({"offest": 1.0}, "unknown key 'offest' in [drive]; did you mean 'offset'?"),
+    ({"range": [1.0, 0.5]}, "drive.range = [1.0, 0.5] must be [first, last] with first <= last"),
+    ({"path": "walk.fbx"}, 'drive.path = "walk.fbx" must be a driver file ending in .glb'),
+    ({"path": "run.npz"}, 'drive.path = "run.npz": no such file'),
+    ({"animation": "walk"}, 'drive.animation = "walk" applies to glTF drivers only'),
+    ({"frame_rate": 0}, "drive.frame_rate = 0 must be a number in (0, "),
+])
+def test_drive_mistakes_name_file_key_and_value(shot, capsys, change, message):
+    folder, data = shot
+    data = {**data, "drive": {**data["drive"], **change}}
+    path = write(folder, data, "bad.toml")
+    assert main(["animate", str(path), "--overwrite"]) == 1
+    err = capsys.readouterr().err
+    assert "bad.toml: " in err and message in err, err
+    assert "Traceback" not in err
+
+
+def test_drive_needs_a_time_range_and_says_the_drivers(shot, capsys):
+    folder, data = shot
+    data = {**data, "time": {"fps": 20}}
+    path = write(folder, data, "norange.toml")
+    assert main(["animate", str(path)]) == 1
+    err = capsys.readouterr().err
+    assert ("time.end (or time.duration) is missing: a driven shot needs its time range; the "
+            "driver walk.npz runs from 0 to 1 s (e.g. add end = 1 to [time])") in err
+
+
+def test_group_on_tets_is_refused(shot, capsys):
+    folder, data = shot
+    data = {**data, "groups": {**data["groups"], "inner": {"indices": [0, 1], "on": "tets"}},
+            "drive": {"path": "walk.npz", "group": ["driven", "inner"]}}
+    assert main(["animate", str(write(folder, data, "tets.toml"))]) == 1
+    assert 'drive.group[1] = "inner" selects tet-mesh vertices' in capsys.readouterr().err
+
+
+def test_topology_mismatch_stops_before_anything_is_computed(shot, capsys):
+    """A driver of another surface: one message naming the driver, both vertex counts and the
+    mesh; no output is written."""
+    folder, data = shot
+    V, T = box_mesh((4, 2, 2), SIZE)
+    write_animation(folder / "small.npz", SurfaceAnimation(
+        np.arange(3) / 20.0, np.repeat(V[None], 3, axis=0), TetMesh(V, T).boundary_faces()))
+    data = {**data, "drive": {"path": "small.npz", "group": "driven"},
+            "output": {"paths": ["out/never.npz"]}}
+    assert main(["animate", str(write(folder, data, "other.toml"))]) == 1
+    err = capsys.readouterr().err
+    assert "drive.path = \"small.npz\"" in err and "animates 45 vertices" in err
+    assert "the surface bar.vtu has 81 vertices" in err
+    assert not (folder / "out" / "never.npz").exists()
