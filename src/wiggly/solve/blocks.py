@@ -38,9 +38,9 @@ class NodeDerivatives:
     x: np.ndarray  # (2 r,) state (q, q')
     J: np.ndarray  # (n_M, 3, r)
     JV: np.ndarray | None  # (n_M, 3, r), velocity nodes
-    y: np.ndarray  # (n_M, 3) position cotangent
+    y: np.ndarray | None  # (n_M, 3) position cotangent (None: no curvature yet)
     yv: np.ndarray | None  # (n_M, 3) velocity cotangent
-    qq: np.ndarray  # (r, r) curvature blocks
+    qq: np.ndarray | None  # (r, r) curvature blocks
     qv: np.ndarray | None
 
 
@@ -71,11 +71,14 @@ class NewtonBlocks:
         Y: np.ndarray,
         Yv: np.ndarray,
         fresh: bool = False,
+        curvature: bool = True,
     ) -> tuple[list[NodeDerivatives], bool]:
         """The derivatives at nodes ``times`` with states Q, Qv (f, r) (velocity rows only
         where ``velocity``), cotangents Y, Yv (f, n_M, 3) on the level.  Returns them and
         whether all were computed at exactly these states and cotangents.  ``fresh`` keeps
-        only nodes computed at exactly these (recomputes the others)."""
+        only nodes computed at exactly these (recomputes the others).  ``curvature=False``
+        computes the Jacobians only (Gauss-Newton matrices; the curvature blocks stay as they
+        are, possibly None)."""
         modal = self.level.modal
         f = len(times)
         X = np.concatenate([Q, Qv], axis=1)
@@ -93,6 +96,11 @@ class NewtonBlocks:
                     old = None
             if old is None:
                 jac.append(a)
+                if curvature:
+                    curv.append(a)
+            elif not curvature:
+                pass
+            elif old.qq is None:
                 curv.append(a)
             else:
                 ys = max(float(np.linalg.norm(old.y)), float(np.linalg.norm(Y[a])), 1e-300)
@@ -107,7 +115,7 @@ class NewtonBlocks:
             JV = modal.second_derivatives(Q[vj], Qv[vj]) if vj else None
             for i, a in enumerate(jac):
                 jv = JV[vj.index(a)] if velocity[a] else None
-                out[a] = NodeDerivatives(X[a].copy(), J[i], jv, Y[a], None, None, None)
+                out[a] = NodeDerivatives(X[a].copy(), J[i], jv, None, None, None, None)
             self.computed["jacobians"] += len(jac)
         if curv:
             vc = [velocity[a] for a in curv]
@@ -127,8 +135,14 @@ class NewtonBlocks:
             self._nodes[t] = out[a]
         exact = all(
             np.array_equal(out[a].x, X[a])
-            and np.array_equal(out[a].y, Y[a])
-            and (not velocity[a] or np.array_equal(out[a].yv, Yv[a]))
+            and (
+                not curvature
+                or (
+                    out[a].y is not None
+                    and np.array_equal(out[a].y, Y[a])
+                    and (not velocity[a] or np.array_equal(out[a].yv, Yv[a]))
+                )
+            )
             for a in range(f)
         )
         return out, exact

@@ -3,9 +3,11 @@
 Bodies above ``COARSE_WARP_ABOVE`` tets have a coarse level: the warp of a coarse mesh of
 the same solid (:mod:`wiggly.warp.transfer`).  The warped solve then runs
 
-1. on the coarse level: Newton's method on F~ (the objective with W~ in place of W), with
-   its exact Hessian; each iteration costs a few milliseconds, and its solution lies within
-   the coarse mesh's error of the fine one;
+1. on the coarse level: F~ (the objective with W~ in place of W) by Gauss-Newton steps
+   from the linear start (positive definite matrices, so full steps far from the solution),
+   with the curvature added when they contract slowly (a warm start, near its solution,
+   takes Newton steps at once); each iteration costs a few milliseconds, and its
+   solution lies within the coarse mesh's error of the fine one;
 2. on the fine level from there: the exact fine objective, with Newton matrices from the
    coarse level (approximate: linear convergence, certified by the measured contraction;
    exact fine matrices when it is slow).  This changes the path, never the solution.
@@ -147,12 +149,12 @@ def _coarse_level(problem, coarse, kfs, nodes, fine, z0, start, options, bar, bl
     """The coarse first level from z0 (``start``: the fine objective at a warm start's z0,
     or None); returns the fine point where the fine level starts and the coarse level's
     report."""
-    plain = WarpedObjective(problem, coarse, kfs, nodes, blocks=blocks)
+    plain = WarpedObjective(problem, coarse, kfs, nodes, blocks=blocks, curvature=False)
     at_z0 = plain.evaluate(z0)
     if start is not None:  # full approximation scheme from the last fine point
         tau = start.g - at_z0.g
         correction = (tau, start.F - at_z0.F - float(tau @ z0))
-        corrected = WarpedObjective(
+        corrected = WarpedObjective(  # near its solution: Newton's matrices at once
             problem, coarse, kfs, nodes, correction=correction, blocks=blocks
         )
         point, report = minimize(

@@ -37,7 +37,9 @@ H)(z_k - z*), and when theta stays above ``contraction``, the matrix is indefini
 level takes more than ten iterations, the objective switches to its exact matrix.
 
 ``converged`` is true only when this rule holds; otherwise a :class:`WarpedSolveWarning`
-gives the decrement reached.  The report's ``distance_bound`` is ``d``.
+gives the decrement reached.  The report's ``distance_bound`` is ``d``; when the decrement
+is below F's rounding level (stop ``round-off``), F cannot resolve smaller moves, and ``d``
+is widened to the move along the Newton direction whose decrement equals that level.
 """
 
 from __future__ import annotations
@@ -325,6 +327,10 @@ def minimize(
             bar.update(1)
             bar.set_postfix_str(f"objective {point.F:.6g}")
     distance = _distance(objective, dz_newton, theta)
+    if stop == "round-off" and decrement > 0:
+        # below F's rounding level the gradient is rounding noise: widen the bound to the move
+        # along the Newton direction whose decrement is the rounding level
+        distance *= float(np.sqrt(max(ROUNDING * point.magnitude / decrement, 1.0)))
     objective.timing["solve"] = objective.timing.get("solve", 0.0) + t_solve
     report = {
         "iterations": it,

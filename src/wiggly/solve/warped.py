@@ -83,6 +83,9 @@ class WarpedObjective:
     approximation scheme's correction of a coarse level, :mod:`wiggly.solve.levels`);
     ``blocks`` is the :class:`~wiggly.solve.blocks.NewtonBlocks` store of the model's level
     to draw derivatives from (shared by the levels of a solve and kept by its warm start).
+    ``curvature=False`` starts with Gauss-Newton matrices (the Newton matrix without the
+    curvature blocks: positive definite, so every step is a full one; an approximate model
+    that :meth:`use_exact` completes when it converges slowly).
     """
 
     def __init__(
@@ -95,9 +98,11 @@ class WarpedObjective:
         model: WarpLevel | None = None,
         correction: tuple[np.ndarray, float] | None = None,
         blocks: NewtonBlocks | None = None,
+        curvature: bool = True,
     ) -> None:
         body = problem.body
         self.problem, self.level, self.model = problem, level, model or level
+        self.curvature = curvature
         if blocks is not None and blocks.level is not self.model:
             raise ValueError("the Newton blocks belong to another warp level")
         self.blocks = blocks if blocks is not None else NewtonBlocks(self.model)
@@ -134,16 +139,18 @@ class WarpedObjective:
     @property
     def exact(self) -> bool:
         """Whether the Newton matrix is this objective's exact Hessian."""
-        return self.model is self.level
+        return self.model is self.level and self.curvature
 
     def use_exact(self) -> bool:
-        """Build Newton matrices from this level's own derivatives from now on; False if
-        they already are."""
+        """Build Newton matrices from this level's own derivatives, with the curvature, from
+        now on; False if they already are."""
         if self.exact:
             return False
-        self.model = self.level
-        self.blocks = NewtonBlocks(self.model)
-        self._grams = self._node_grams(self.model)
+        self.curvature = True
+        if self.model is not self.level:
+            self.model = self.level
+            self.blocks = NewtonBlocks(self.model)
+            self._grams = self._node_grams(self.model)
         return True
 
     def _node_grams(self, model: WarpLevel) -> dict[int, tuple]:
@@ -279,7 +286,9 @@ class WarpedObjective:
             Qv[iv] = v[self.vel]
             Yv[iv] = point.YB if same else model.transfer.lift_adjoint(point.YB)
         times = [float(self.nodes[k]) for k in self.active]
-        derivs, all_fresh = self.blocks.derivatives(times, Qa, Qv, velocity, YA, Yv, fresh)
+        derivs, all_fresh = self.blocks.derivatives(
+            times, Qa, Qv, velocity, YA, Yv, fresh, curvature=self.curvature
+        )
         blocks = np.zeros((f, 2 * r, 2 * r))
         curv = np.zeros((f, 2 * r, 2 * r))
         for a, k in enumerate(self.active):
@@ -290,6 +299,8 @@ class WarpedObjective:
             if C_vel is not None:
                 X = np.concatenate([d.JV, d.J], axis=2)  # [D^2W[., v], DW]
                 blocks[a] += _gram(C_vel, X)
+            if not self.curvature:
+                continue
             curv[a, :r, :r] = d.qq
             if d.qv is not None:
                 curv[a, :r, r:] = d.qv
@@ -297,7 +308,8 @@ class WarpedObjective:
         idx = 2 * r * self.layout.block[self.active][:, None] + np.arange(2 * r)
         add_blocks(gn, idx, 0.5 * (blocks + blocks.transpose(0, 2, 1)))
         full = np.array(gn, order="F")
-        add_blocks(full, idx, 0.5 * (curv + curv.transpose(0, 2, 1)))
+        if self.curvature:
+            add_blocks(full, idx, 0.5 * (curv + curv.transpose(0, 2, 1)))
         self.counts["newton"] += f
         self.timing["newton"] += time.perf_counter() - t0
         return gn, full, all_fresh

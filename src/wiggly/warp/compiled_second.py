@@ -27,7 +27,13 @@ from wiggly.warp.compiled import (
     scatter,
 )
 
-__all__ = ["curvature_products", "hessian", "second_derivatives_rhs", "second_tangent"]
+__all__ = [
+    "curvature_products",
+    "hessian",
+    "second_derivatives_rhs",
+    "second_tangent",
+    "split_fields",
+]
 
 _BT = tuple(k * _B[k] for k in range(1, 14))
 _CT = tuple(k * _C[k] for k in range(1, 13))
@@ -257,35 +263,74 @@ def second_derivatives_rhs(U, V, GB, tets, grads, vol, out):
             scatter(dH, vol[t], tets, grads, t, o)
 
 
+# An orthonormal basis of 3x3 matrices (flat): three skew ones (the rotation vector's
+# directions, (E_21 - E_12)/sqrt2, ...) then six symmetric ones.  Row a has entries
+# _SPLIT_COEF[a] at flat indices _SPLIT_INDEX[a].  Z : H(A) is linear in the symmetric part S
+# of A (H = R(w)(I + S) - I), so every Hessian of it (and their derivatives) has a zero
+# symmetric-symmetric block in this basis.
+_H = 1.0 / math.sqrt(2.0)
+_SPLIT_INDEX = ((7, 5), (2, 6), (3, 1), (0, 0), (4, 4), (8, 8), (1, 3), (2, 6), (5, 7))
+_SPLIT_COEF = ((_H, -_H), (_H, -_H), (_H, -_H), (1.0, 0.0), (1.0, 0.0), (1.0, 0.0),
+               (_H, _H), (_H, _H), (_H, _H))
+
+
+def split_fields(GB: np.ndarray) -> np.ndarray:
+    """Field gradients (r, m, 9) in the skew/symmetric basis (rotation parts first)."""
+    out = np.empty_like(GB)
+    for a, (idx, coef) in enumerate(zip(_SPLIT_INDEX, _SPLIT_COEF, strict=True)):
+        out[..., a] = coef[0] * GB[..., idx[0]] + coef[1] * GB[..., idx[1]]
+    return out
+
+
 @jit
-def _apply_to_fields(H, GB, t, C):
-    """``C[d, t] = H GB[d, t]`` for every field d (H flat 9x9)."""
-    r = GB.shape[0]
-    for d in range(r):
-        g = GB[d, t]
-        c = C[d, t]
-        for x in range(9):
+def _split_rows(H, Hs):
+    """``Hs`` (3 x 9) = the rotation rows of ``B H B^T`` (B the basis above, H flat 9x9)."""
+    for a in range(3):
+        ia, ca = _SPLIT_INDEX[a], _SPLIT_COEF[a]
+        for b in range(9):
+            ib, cb = _SPLIT_INDEX[b], _SPLIT_COEF[b]
             acc = 0.0
-            for e in range(9):
-                acc += H[9 * x + e] * g[e]
+            for x in range(2):
+                for y in range(2):
+                    acc += ca[x] * cb[y] * H[9 * ia[x] + ib[y]]
+            Hs[9 * a + b] = acc
+
+
+@jit
+def _apply_to_fields(H, Hs, F, t, C):
+    """``C[d, t] = Y_d`` (3) with ``Y_d = Hww w_d / 2 + Hws s_d`` for every field d, where
+    ``F[d, t] = (w_d, s_d)`` is the field's gradient in the split basis and Hww, Hws the
+    rotation rows of H there: then ``GB^T H GB = W^T Y + Y^T W`` per tet (the symmetric-
+    symmetric block is zero), a third of the work of applying the full 9x9 matrix."""
+    _split_rows(H, Hs)
+    r = F.shape[0]
+    for d in range(r):
+        g = F[d, t]
+        c = C[d, t]
+        for x in range(3):
+            acc = 0.5 * (Hs[9 * x] * g[0] + Hs[9 * x + 1] * g[1] + Hs[9 * x + 2] * g[2])
+            for e in range(3, 9):
+                acc += Hs[9 * x + e] * g[e]
             c[x] = acc
 
 
 @pjit
-def curvature_products(u, z, zv, v, GB, step3, tets, grads, vol, Cqq, Cqv, velocity):
+def curvature_products(u, z, zv, v, F, step3, tets, grads, vol, Cqq, Cqv, velocity):
     """Per tet the Hessians of ``y . W`` in the gradient, applied to r field gradients.
 
     ``u`` (n, 3) the point, ``z`` and ``zv`` (n, 3) the Poisson adjoints of the cotangents
     ``y`` and ``y_v`` (so that ``y . W(u) = sum_t vol_t (G z)_t : H(A_t) + linear``), ``v``
-    (n, 3) a velocity, ``GB`` (r, m, 9) the fields' gradients.  Writes (r, m, 9) arrays
+    (n, 3) a velocity, ``F`` (r, m, 9) the fields' gradients in the split basis
+    (:func:`split_fields`).  Writes (r, m, 3) arrays (:func:`_apply_to_fields`) of
 
-        Cqq[d, t] = vol_t (Hess(Z_t) + D Hess(Zv_t)[(G v)_t]) GB[d, t]
-        Cqv[d, t] = vol_t Hess(Zv_t) GB[d, t]          (only with ``velocity``)
+        Hqq_t = vol_t (Hess(Z_t) + D Hess(Zv_t)[(G v)_t])
+        Hqv_t = vol_t Hess(Zv_t)          (only with ``velocity``)
 
     with ``Z_t = (G z)_t`` and ``Hess(Y)`` the analytic 9x9 Hessian of ``A -> Y : H(A)`` at
     ``A_t = (G u)_t`` (:func:`hessian`); its derivative along ``(G v)_t`` is a central
-    difference with step ``step3`` (error ~ step3^2).  ``GB^T C`` then gives the modal
-    curvature matrices (:meth:`wiggly.warp.kernels.NumbaKernels.curvature`).
+    difference with step ``step3`` (error ~ step3^2).  ``W^T C + C^T W`` (W the rotation
+    columns of F) then gives the modal curvature matrices
+    (:meth:`wiggly.warp.kernels.NumbaKernels.curvature`).
     """
     m = tets.shape[0]
     n_chunks = max(1, min(m, 64))
@@ -301,6 +346,7 @@ def curvature_products(u, z, zv, v, GB, step3, tets, grads, vol, Cqq, Cqv, veloc
         J = np.empty(9)
         N = np.empty(9)
         P = np.empty(36)
+        Hs = np.empty(27)
         H1 = np.empty(81)
         H2 = np.empty(81)
         Tp = np.empty(81)
@@ -333,5 +379,5 @@ def curvature_products(u, z, zv, v, GB, step3, tets, grads, vol, Cqq, Cqv, veloc
                     hessian(lin, Y2, Tm, J, N, P)
                     for x in range(81):
                         H1[x] += (Tp[x] - Tm[x]) / (2.0 * h)
-                _apply_to_fields(H2, GB, t, Cqv)
-            _apply_to_fields(H1, GB, t, Cqq)
+                _apply_to_fields(H2, Hs, F, t, Cqv)
+            _apply_to_fields(H1, Hs, F, t, Cqq)

@@ -16,7 +16,9 @@ fields from :meth:`field_gradients`):
     ``out[s] += G^T dA_s`` with ``dA_s`` the cotangent of ``Vol G Z[:, index[s]]``;
 ``jacobians(U, GB)`` / ``second_derivatives(U, V, GB, step)``
     ``G^T Vol dH(G U[s]; GB[d])`` and ``G^T Vol D^2H(G U[s])[GB[d], G V[s]]``, (f, r, n, 3);
-``curvature(u, z, zv, v, GB, step, step3)``
+``curvature_fields(GB)``
+    the fields in the form :meth:`curvature` takes them (computed once per modal basis);
+``curvature(u, z, zv, v, fields, step, step3)``
     the modal curvature matrices (r, r) of one point (see :meth:`NumbaKernels.curvature`).
 """
 
@@ -72,33 +74,45 @@ class NumbaKernels:
         compiled_second.second_derivatives_rhs(U, V, GB, self.tets, self.grads, self.vol, out)
         return out
 
+    def curvature_fields(self, GB: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What :meth:`curvature` takes for the fields GB: their gradients in the skew /
+        symmetric basis (:func:`wiggly.warp.compiled_second.split_fields`), and the rotation
+        part alone as (r, 3 m) rows."""
+        F = compiled_second.split_fields(np.ascontiguousarray(GB))
+        return F, np.ascontiguousarray(F[:, :, :3]).reshape(len(F), -1)
+
     def curvature(
         self,
         u: np.ndarray,
         z: np.ndarray,
         zv: np.ndarray | None,
         v: np.ndarray | None,
-        GB: np.ndarray,
+        fields: tuple[np.ndarray, np.ndarray],
         step: float,
         step3: float,
     ) -> tuple[np.ndarray, np.ndarray | None]:
-        """``qq = GB^T C_qq`` and ``qv = GB^T C_qv`` (r, r) from the per-tet products of
-        :func:`wiggly.warp.compiled_second.curvature_products` (analytic Hessians; ``step`` is not
-        used): one BLAS product each."""
-        r = GB.shape[0]
+        """``qq = sum_t GB_t^T Hqq_t GB_t`` and ``qv = sum_t GB_t^T Hqv_t GB_t`` (r, r) from
+        the per-tet products of :func:`wiggly.warp.compiled_second.curvature_products`
+        (analytic Hessians; ``step`` is not used): ``W^T C + C^T W`` with W the fields'
+        rotation parts, one BLAS product each."""
+        F, W = fields
+        r = F.shape[0]
         velocity = zv is not None
-        Cqq = np.empty((r, self.m, 9))
-        Cqv = np.empty((r, self.m, 9)) if velocity else Cqq[:0]
+        Cqq = np.empty((r, self.m, 3))
+        Cqv = np.empty((r, self.m, 3)) if velocity else Cqq[:0]
         zero = np.zeros((self.n, 3))
         compiled_second.curvature_products(
             np.ascontiguousarray(u), np.ascontiguousarray(z),
             np.ascontiguousarray(zv) if velocity else zero,
             np.ascontiguousarray(v) if velocity else zero,
-            GB, step3, self.tets, self.grads, self.vol, Cqq, Cqv, velocity,
+            F, step3, self.tets, self.grads, self.vol, Cqq, Cqv, velocity,
         )
-        flat = GB.reshape(r, -1)
-        qq = flat @ Cqq.reshape(r, -1).T
-        return qq, (flat @ Cqv.reshape(r, -1).T if velocity else None)
+        half = W @ Cqq.reshape(r, -1).T
+        qq = half + half.T
+        if not velocity:
+            return qq, None
+        half = W @ Cqv.reshape(r, -1).T
+        return qq, half + half.T
 
 
 def kernels_for(

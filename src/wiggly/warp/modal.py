@@ -56,6 +56,7 @@ class ModalWarp:
         self.matrix = self.basis.reshape(3 * n, self.r)  # (3 n, r) view
         frames = np.ascontiguousarray(self.basis.transpose(2, 0, 1))
         self._gradients = warp.kernels.field_gradients(frames)  # (r, m, 9)
+        self._curvature_fields = warp.kernels.curvature_fields(self._gradients)
 
     @property
     def n_vertices(self) -> int:
@@ -124,7 +125,7 @@ class ModalWarp:
                     U[s], np.ascontiguousarray(Z[:, s]),
                     np.ascontiguousarray(Zv[:, s]) if moving else None,
                     V[s] if moving else None,
-                    self._gradients, step, step3,
+                    self._curvature_fields, step, step3,
                 )
             )
         return out
