@@ -10,11 +10,11 @@
 * :mod:`~wiggly.batch.shots` -- the shots, their folder names and content keys;
 * :mod:`~wiggly.batch.worker` -- what runs in a worker: a body prepared, a shot solved on it;
 * :mod:`~wiggly.batch.backends` -- local worker processes, or a Ray cluster;
-* :mod:`~wiggly.batch.run` -- :func:`run`: the driver;
+* :mod:`~wiggly.batch.driver` -- :func:`run`: the driver;
 * :mod:`~wiggly.batch.summary` -- the summary and the contact sheets.
 """
 
-from wiggly.batch.run import run
+from wiggly.batch.driver import run
 from wiggly.batch.sweep import Sweep, load_sweep, sweep_schema
 
 __all__ = ["Sweep", "load_sweep", "run", "sweep_schema"]

@@ -117,7 +117,7 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
 def _out_dir(records, args):
     if args.out:
         return args.out
-    from wiggly.batch.run import DEFAULT_DIR
+    from wiggly.batch.driver import DEFAULT_DIR
     from wiggly.batch.shots import collect
 
     _, sweeps = collect(args.inputs[:1], [])
