@@ -41,9 +41,35 @@ def run_shot_from_file(job: worker.ShotJob, body_file: str) -> dict:
     return worker.run_shot(job, worker.load_pickled(body_file))
 
 
+#: Environment of worker processes: one thread each (the pool has a process per core;
+#: threads of BLAS, OpenMP and numba fighting over the cores make solves several times slower).
+ONE_THREAD = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                     "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
+                                     "NUMBA_NUM_THREADS")}
+
+
+def _context():
+    """The ``forkserver`` context, its server started with :data:`ONE_THREAD` in its
+    environment (workers are forked from it, so libraries load single-threaded)."""
+    from multiprocessing import forkserver
+
+    saved = {k: os.environ.get(k) for k in ONE_THREAD}
+    os.environ.update(ONE_THREAD)
+    try:
+        forkserver.ensure_running()
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return multiprocessing.get_context("forkserver")
+
+
 class LocalPool:
-    """Worker processes on this machine (``spawn``ed: no state inherited from the caller), one
-    per core; prepared bodies are pickled under ``<cache>/batch/bodies/``."""
+    """Worker processes on this machine, one per core, forked from a server process (no state
+    inherited from the caller; one thread each); prepared bodies are pickled under
+    ``<cache>/batch/bodies/``."""
 
     kind = "local"
 
@@ -54,9 +80,9 @@ class LocalPool:
         self.bodies = default_cache_dir() / "batch" / "bodies"
 
     def _start(self) -> None:
-        self._pool = cf.ProcessPoolExecutor(
-            self.slots, mp_context=multiprocessing.get_context("spawn"),
-            initializer=worker.init_process, initargs=self._args)
+        self._pool = cf.ProcessPoolExecutor(self.slots, mp_context=_context(),
+                                            initializer=worker.init_process,
+                                            initargs=self._args)
 
     def describe(self) -> str:
         return f"{self.slots} local worker process{'es' if self.slots != 1 else ''}"

@@ -352,7 +352,9 @@ class _Driver:
             self._record(shot, record)
             return
         try:
+            t = time.perf_counter()
             self._commit(shot, staging, record, result.get("files"))
+            record["commit_seconds"] = time.perf_counter() - t  # the summary's, not result.json's
         except OSError as err:
             shutil.rmtree(staging, ignore_errors=True)
             record.update(status="failed", error=f"could not write its folder: {err}")
@@ -369,6 +371,7 @@ class _Driver:
         record["thumbnail"] = f"{shot.name}/{THUMBNAIL}" if (staging / THUMBNAIL).is_file() \
             else None
         record["thumbnail_request"] = self.request["thumbnail_time"]
+        record["output_bytes"] = sum(p.stat().st_size for p in staging.iterdir())
         (staging / RESULT).write_text(json.dumps(summary_files.jsonable(record), indent=1),
                                       encoding="utf-8")
         final = self.out / shot.name

@@ -74,14 +74,19 @@ class ShotJob:
 
 
 def init_process(render_checked: bool = False) -> None:
-    """Set up a worker process: one thread for BLAS and numba (the pool has a process per
-    core); skip the offscreen-rendering probe when the driver has run it."""
-    try:
-        from threadpoolctl import threadpool_limits
+    """Set up a worker process: one thread for BLAS, OpenMP and numba (there is a process per
+    core), also for libraries loaded before (Ray's workers); skip the offscreen-rendering
+    probe when the driver has run it."""
+    # load the BLAS and OpenMP libraries of a solve now, to limit them all
+    import scipy.linalg
+    import scipy.sparse.linalg
+    from threadpoolctl import threadpool_limits
 
-        threadpool_limits(1)
-    except ImportError:  # pragma: no cover - a dependency
-        pass
+    import wiggly.solve
+
+    del scipy, wiggly
+
+    threadpool_limits(1)
     try:
         import numba
 
