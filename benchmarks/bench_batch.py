@@ -72,10 +72,14 @@ def one_at_a_time(sweep: Path, out: Path) -> float:
     from wiggly.scene import run
 
     shots, _ = collect([sweep])
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     for s in shots:
         run(s.scene, outputs=[out / f"{s.name}.npz"], overwrite=True)
+    BASELINE_CPU.append((time.process_time() - cpu) / len(shots))
     return time.perf_counter() - t
+
+
+BASELINE_CPU: list[float] = []
 
 
 def batch(sweep: Path, out: Path, **kw) -> tuple[float, list[dict]]:
@@ -157,11 +161,14 @@ def main(argv: list[str]) -> None:
     rows = []
     for name, _ in variants:
         wall = statistics.median(runs[name])
-        rows.append([name, wall, 3600 * shots / wall, base / wall])
+        cpu = statistics.median(BASELINE_CPU) if name not in last else \
+            median(last[name], "cpu_seconds")
+        rows.append([name, wall, 3600 * shots / wall, base / wall, cpu])
     rows.append([f"batch, {cores} worker processes, with thumbnails (1 run)", sheet_wall,
-                 3600 * shots / sheet_wall, base / sheet_wall])
+                 3600 * shots / sheet_wall, base / sheet_wall, median(sheet, "cpu_seconds")])
     print(table(f"{shots} shots of the demo body on {cores} cores (median of {repeats} runs)",
-                ["how", "wall (s)", "shots/hour", "vs one at a time"], rows))
+                ["how", "wall (s)", "shots/hour", "vs one at a time", "CPU s per shot"],
+                rows))
 
     pool = last[f"batch, {cores} worker processes"]
     cold_pool = last[f"batch, {cores} worker processes, cold solves"]
@@ -182,6 +189,9 @@ def main(argv: list[str]) -> None:
          "per shot, with the contact sheet"],
         ["driver: commit the folder, summary row", median(pool, "commit_seconds"),
          "per shot, in the driver"],
+        ["a whole shot in its worker, wall / CPU (warm, .npz, no thumbnail)",
+         f"{median(pool, 'shot_seconds'):.3g} / {median(pool, 'cpu_seconds'):.3g}",
+         "per shot"],
     ]
     if ray_init is not None:
         split.append(["start the local Ray cluster", ray_init, "once per batch"])

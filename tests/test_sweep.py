@@ -272,3 +272,21 @@ def test_all_problems_at_once_and_base_errors(tmp_path):
     text = str(err.value)
     assert 'sweep.toml: base = "shot.toml": the base scene is not valid' in text
     assert "shot.toml: unknown key 'yuong' in [material]; did you mean 'young'?" in text
+
+
+def test_documented_sweep(tmp_path):
+    """The sweep of docs/sweep-format.md is valid against examples/jump.toml."""
+    import re
+    import shutil
+
+    text = (ROOT / "docs" / "sweep-format.md").read_text()
+    block = re.findall(r"```toml\n(.*?)```", text, re.S)[0]
+    (tmp_path / "sweeps").mkdir()
+    shutil.copy(ROOT / "examples" / "jump.toml", tmp_path / "jump.toml")
+    (tmp_path / "sweeps" / "doc.toml").write_text(block)
+    sweep = load_sweep(tmp_path / "sweeps" / "doc.toml")
+    assert len(sweep) == 4 * 3 * 2 * 2 and sweep.name == "jump"
+    shots, _ = collect([sweep])
+    assert all(s.scene is not None for s in shots), [s.error for s in shots if s.error]
+    assert all(s.outputs == ("jump.glb", "jump.gif") for s in shots)
+    assert {s.scene.simulation.modes for s in shots} <= set(range(20, 41))

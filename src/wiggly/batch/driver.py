@@ -71,20 +71,24 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
         raise WigglyInputError("no inputs: give scene files or a sweep file")
     if workers is not None and (not isinstance(workers, int) or workers < 1):
         raise WigglyInputError(f"workers = {workers!r} must be an integer >= 1")
+    if workers is not None and ray not in (None, False):
+        raise WigglyInputError("workers counts local processes; a Ray cluster uses its CPUs: "
+                               "give workers or ray, not both")
     shots, sweeps = collect(inputs, write)
-    if out_dir is None:
-        single = len(inputs) == 1 and len(sweeps) == 1 and sweeps[0].out_dir is not None
-        out_dir = sweeps[0].out_dir if single else Path(DEFAULT_DIR)
-    out = Path(out_dir).expanduser()
-    keyed(shots, Digests(), {})
+    out = Path(out_dir).expanduser() if out_dir is not None else default_out_dir(inputs, sweeps)
+    keyed(shots, Digests())
     request = {"contact_sheet": contact_sheet, "thumbnail_time": thumbnail_time}
     with _batch_folder(out) as token:
         records, todo, replace = _scan(out, shots, overwrite, request)
         render_checked = False
         if contact_sheet and todo:
-            from wiggly.render import check_offscreen
+            from wiggly.render import RenderingError, check_offscreen
 
-            check_offscreen()  # raises RenderingError with the fixes before any work
+            try:
+                check_offscreen()  # before any work
+            except RenderingError as err:
+                raise WigglyInputError(f"thumbnails for the contact sheets: {err} Or run "
+                                       "without them: --no-sheet (contact_sheet=False)") from None
             render_checked = True
         backend = None
         if todo:
@@ -97,7 +101,7 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
         finally:
             if backend is not None:
                 backend.close(cancel=driver.interrupted)
-            meta = {"backend": backend.describe() if backend else "none (every shot was done)",
+            meta = {"backend": backend.describe() if backend else "none (nothing to run)",
                     "wall_seconds": time.perf_counter() - t_start, "bodies": driver.bodies,
                     "inputs": [str(i) if not isinstance(i, Scene | Sweep) else i.where()
                                for i in inputs]}
@@ -106,6 +110,13 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
             if contact_sheet:
                 summary_files.write_contact_sheets(out, ordered, progress)
     return ordered
+
+
+def default_out_dir(inputs: list, sweeps: list[Sweep]) -> Path:
+    """A single sweep's ``[output] dir``, else ``./wiggly-batch``."""
+    if len(inputs) == 1 and len(sweeps) == 1 and sweeps[0].out_dir is not None:
+        return sweeps[0].out_dir
+    return Path(DEFAULT_DIR)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -21,6 +21,8 @@ from wiggly.scene.spec import OUTPUT_EXTENSIONS
 
 #: Version of the batch's folders and keys (a new one re-runs every shot).
 BATCH_FORMAT = 1
+#: Files of a batch's folder besides the shots' folders.
+TOP_LEVEL = ("summary.csv", "summary.json", "contact-sheet.html", "contact-sheet.png")
 #: Parameters listed for every shot in the summary (besides a sweep's own).
 STANDARD_PARAMS = ("mesh.path", "mesh.resolution", "material.young", "material.poisson",
                    "material.density", "damping.alpha", "damping.beta", "simulation.gravity",
@@ -172,7 +174,7 @@ def _unique_names(shots: list[Shot]) -> None:
                     else s.scene.source.parent.name
                 if parent and not s.params:
                     s.name = _clean(f"{parent}-{name}")
-    taken: set[str] = set()
+    taken = set(TOP_LEVEL)
     for s in shots:
         base, k = s.name, 2
         while s.name in taken:
@@ -229,10 +231,9 @@ def _hash(data: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def keyed(shots: list[Shot], digest: Digests, settings: dict) -> None:
-    """Fill each valid shot's ``key`` (its scene and mesh content, outputs and the batch
-    ``settings`` that change its files) and ``body_key``.  A mesh file that cannot be read
-    fails its shots."""
+def keyed(shots: list[Shot], digest: Digests) -> None:
+    """Fill each valid shot's ``key`` (its scene and mesh content, and its outputs) and
+    ``body_key``.  A mesh file that cannot be read fails its shots."""
     from wiggly import __version__
 
     layout = [f.name for f in fields(Body)]  # a changed Body cannot reuse prepared ones
@@ -248,7 +249,7 @@ def keyed(shots: list[Shot], digest: Digests, settings: dict) -> None:
             s.scene = None
             continue
         s.key = _hash({"batch": BATCH_FORMAT, "wiggly": __version__, "scene": content,
-                       "outputs": list(s.outputs), **settings})
+                       "outputs": list(s.outputs)})
         s.body_key = _hash({"batch": BATCH_FORMAT, "wiggly": __version__, "body": body,
                             "layout": layout})
 

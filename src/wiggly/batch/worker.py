@@ -218,7 +218,7 @@ def with_dynamics(body, damping, gravity):
 def run_shot(job: ShotJob, load: Callable[[], Any]) -> dict:
     """Solve one shot on the body that ``load`` returns (once per worker) and write its files;
     return its record (a failure's message instead when anything goes wrong)."""
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     record: dict[str, Any] = {"worker": _worker()}
     direct = _sees(job.marker, job.token)
     folder = Path(job.staging) if direct else Path(tempfile.mkdtemp(prefix="wiggly-shot-"))
@@ -235,6 +235,7 @@ def run_shot(job: ShotJob, load: Callable[[], Any]) -> dict:
         if not direct:
             shutil.rmtree(folder, ignore_errors=True)
     record["shot_seconds"] = time.perf_counter() - t0
+    record["cpu_seconds"] = time.process_time() - cpu0  # this process's, whatever the load
     return record
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 HELP = "run many shots: scene files or a sweep, locally or on a Ray cluster"
 DESCRIPTION = """\
@@ -45,7 +46,8 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                             "(auto, host:6379, ray://host:10001)")
     parser.add_argument("-w", "--write", metavar="NAME", action="append",
                         help="file written into every shot's folder (repeatable; replaces "
-                             "the scenes' and sweeps' outputs), e.g. shot.glb, preview.gif")
+                             "the scenes' and sweeps' outputs), e.g. shot.glb, preview.gif; "
+                             "--write none: no outputs, only the summary")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace folders of shots whose scene or outputs changed")
     parser.add_argument("--no-sheet", action="store_true",
@@ -63,8 +65,6 @@ def add_args(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from wiggly.errors import WigglyInputError
-
     if args.schema:
         from wiggly.batch import sweep_schema
 
@@ -80,26 +80,20 @@ def run(args: argparse.Namespace) -> int:
         return _dry_run(args)
     from wiggly.batch import run as run_batch
 
-    try:
-        records = run_batch(args.inputs, args.out, workers=args.workers, ray=args.ray,
-                            write=args.write, overwrite=args.overwrite,
-                            contact_sheet=not args.no_sheet,
-                            thumbnail_time=args.thumbnail_time, warm_start=not args.cold,
-                            progress=not args.quiet)
-    except WigglyInputError:
-        raise
-    print(report(records, args))
+    out = _out_dir(args)
+    records = run_batch(args.inputs, out, workers=args.workers, ray=args.ray,
+                        write=args.write, overwrite=args.overwrite,
+                        contact_sheet=not args.no_sheet, thumbnail_time=args.thumbnail_time,
+                        warm_start=not args.cold, progress=not args.quiet)
+    print(report(records, out, args))
     return 0 if all(r["status"] == "done" for r in records) else 1
 
 
-def report(records: list[dict], args: argparse.Namespace) -> str:
+def report(records: list[dict], out: Path, args: argparse.Namespace) -> str:
     """What ran, what failed (with the message), where the summary is."""
-    from pathlib import Path
-
     done = [r for r in records if r["status"] == "done"]
     resumed = sum(bool(r.get("resumed")) for r in done)
     failed = [r for r in records if r["status"] != "done"]
-    out = _out_dir(records, args)
     lines = [f"{len(records)} shots: {len(done)} done"
              + (f" ({resumed} in an earlier run)" if resumed else "")
              + (f", {len(failed)} failed" if failed else "")]
@@ -107,23 +101,30 @@ def report(records: list[dict], args: argparse.Namespace) -> str:
         error = (r.get("error") or r["status"]).splitlines()
         lines.append(f"  {r['shot']}: {error[0]}")
         lines += [f"    {e}" for e in error[1:4]]
-    if out is not None:
-        lines.append(f"summary    {Path(out, 'summary.csv').resolve()}")
-        if not args.no_sheet:
-            lines.append(f"sheet      {Path(out, 'contact-sheet.html').resolve()}")
+    lines.append(f"summary    {Path(out, 'summary.csv').resolve()}")
+    if not args.no_sheet:
+        lines.append(f"sheet      {Path(out, 'contact-sheet.html').resolve()}")
     return "\n".join(lines)
 
 
-def _out_dir(records, args):
+def _out_dir(args: argparse.Namespace) -> Path:
+    """``-o``, else a single sweep's ``[output] dir``, else ``./wiggly-batch``."""
     if args.out:
-        return args.out
-    from wiggly.batch.driver import DEFAULT_DIR
-    from wiggly.batch.shots import collect
+        return Path(args.out)
+    from wiggly.batch import load_sweep
+    from wiggly.batch.driver import default_out_dir
+    from wiggly.batch.sweep import is_sweep, read_toml
+    from wiggly.errors import WigglyInputError
 
-    _, sweeps = collect(args.inputs[:1], [])
-    if len(args.inputs) == 1 and len(sweeps) == 1 and sweeps[0].out_dir is not None:
-        return sweeps[0].out_dir
-    return DEFAULT_DIR
+    sweeps = []
+    if len(args.inputs) == 1:
+        try:
+            data = read_toml(Path(args.inputs[0]))
+        except WigglyInputError:  # the batch reports it as a failed shot
+            data = {}
+        if is_sweep(data):
+            sweeps = [load_sweep(args.inputs[0])]
+    return default_out_dir(args.inputs, sweeps)
 
 
 def _dry_run(args: argparse.Namespace) -> int:
