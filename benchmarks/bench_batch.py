@@ -61,6 +61,26 @@ def worker_start() -> float:
     return time.perf_counter() - t
 
 
+def _spin(seconds: float) -> float:
+    t = time.process_time()
+    while time.process_time() - t < seconds:
+        pass
+    return seconds
+
+
+def free_cores(n: int, seconds: float = 2.0) -> float:
+    """Cores this machine gives ``n`` busy processes now: ``n`` spins of ``seconds`` CPU
+    seconds each, divided by their wall time (a shared or virtual machine gives less than
+    ``n``; the wall times above depend on it, CPU seconds do not)."""
+    from wiggly.batch.backends import _context
+
+    with ProcessPoolExecutor(n, mp_context=_context()) as pool:
+        list(pool.map(_spin, [0.1] * n))
+        t = time.perf_counter()
+        list(pool.map(_spin, [seconds] * n))
+        return n * seconds / (time.perf_counter() - t)
+
+
 def forget_prepared_bodies() -> None:
     shutil.rmtree(Path(os.environ["WIGGLY_CACHE_DIR"]) / "batch", ignore_errors=True)
 
@@ -140,7 +160,9 @@ def main(argv: list[str]) -> None:
             variants.append((f"batch on Ray, local cluster of {cores} CPUs", {"ray": True}))
         except ImportError:
             print("(Ray is not installed: pip install 'wiggly[ray]'; its row is left out)")
+    capacity = []
     for _ in range(repeats):
+        capacity.append(free_cores(cores))
         for name, kw in variants:
             out = work / "out"
             if kw is None:
@@ -169,6 +191,8 @@ def main(argv: list[str]) -> None:
     print(table(f"{shots} shots of the demo body on {cores} cores (median of {repeats} runs)",
                 ["how", "wall (s)", "shots/hour", "vs one at a time", "CPU s per shot"],
                 rows))
+    print(f"cores free for {cores} busy processes, before each round: "
+          + ", ".join(f"{c:.2f}" for c in capacity) + "\n")
 
     pool = last[f"batch, {cores} worker processes"]
     cold_pool = last[f"batch, {cores} worker processes, cold solves"]

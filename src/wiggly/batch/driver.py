@@ -26,6 +26,7 @@ from wiggly.batch.sweep import Sweep
 from wiggly.batch.worker import THUMBNAIL, ShotJob
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, check_writable
+from wiggly.progress import activity
 from wiggly.scene import Scene, scene_to_toml
 
 MARKER = ".wiggly-batch"
@@ -74,9 +75,10 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
     if workers is not None and ray not in (None, False):
         raise WigglyInputError("workers counts local processes; a Ray cluster uses its CPUs: "
                                "give workers or ray, not both")
-    shots, sweeps = collect(inputs, write)
+    shots, sweeps = collect(inputs, write, progress)
     out = Path(out_dir).expanduser() if out_dir is not None else default_out_dir(inputs, sweeps)
-    keyed(shots, Digests())
+    with activity(f"hashing {len(shots)} shots", progress and len(shots) > 5000):
+        keyed(shots, Digests())
     request = {"contact_sheet": contact_sheet, "thumbnail_time": thumbnail_time}
     with _batch_folder(out) as token:
         records, todo, replace = _scan(out, shots, overwrite, request)
@@ -279,17 +281,20 @@ class _Driver:
             if key in self.sources:
                 ready += waiting.pop(key)
         while to_prepare or ready or waiting or self.in_flight:
-            capacity = 1 if self.suspects else b.slots
-            queue_first = [x for x in list(to_prepare) + list(ready) if _name(x) in self.suspects]
-            for item in queue_first:
-                if len(self.in_flight) >= capacity:
-                    break
-                (to_prepare if item in to_prepare else ready).remove(item)
-                self._submit(item)
-            while len(self.in_flight) < capacity and to_prepare and not self.suspects:
-                self._submit(to_prepare.popleft())
-            while len(self.in_flight) < capacity and ready and not self.suspects:
-                self._submit(ready.popleft())
+            if self.suspects:  # after a worker died: the tasks it may have killed, alone
+                found = [(q, x) for q in (to_prepare, ready) for x in q
+                         if _name(x) in self.suspects][:1]
+                if not found:
+                    self.suspects.clear()
+                elif not self.in_flight:
+                    queue, item = found[0]
+                    queue.remove(item)
+                    self._submit(item)
+            else:
+                while len(self.in_flight) < b.slots and to_prepare:
+                    self._submit(to_prepare.popleft())
+                while len(self.in_flight) < b.slots and ready:
+                    self._submit(ready.popleft())
             self._status(len(to_prepare) + sum(k == "body" for k, _ in self.in_flight.values()))
             if not self.in_flight:
                 for key in list(waiting):  # bodies that failed to prepare

@@ -16,6 +16,7 @@ from wiggly.batch.sweep import RESERVED_NAMES, Sweep, is_sweep, read_toml, sweep
 from wiggly.body import Body
 from wiggly.errors import WigglyInputError
 from wiggly.limits import MAX_SHOTS
+from wiggly.progress import activity
 from wiggly.scene import Scene, SimulationSpec, scene_from_dict, scene_to_dict
 from wiggly.scene.spec import OUTPUT_EXTENSIONS
 
@@ -64,17 +65,18 @@ class Shot:
         return out
 
 
-def collect(inputs: Sequence, write: Sequence[str] | None = None) -> tuple[list[Shot], list]:
+def collect(inputs: Sequence, write: Sequence[str] | None = None,
+            progress: bool = False) -> tuple[list[Shot], list]:
     """The shots of ``inputs`` (scene files, sweep files, :class:`Scene` or :class:`Sweep`
     objects), with unique folder names, and the sweeps among them.  An unreadable or invalid
     scene file becomes a failed shot; an invalid sweep raises :class:`WigglyInputError`
-    (it describes many shots)."""
+    (it describes many shots).  ``progress``: a line while a large sweep is expanded."""
     shots: list[Shot] = []
     sweeps: list[Sweep] = []
     for item in inputs:
         if isinstance(item, Sweep):
             sweeps.append(item)
-            shots += _sweep_shots(item, write)
+            shots += _sweep_shots(item, write, progress)
         elif isinstance(item, Scene):
             shots.append(_scene_shot(item, item.name, item.where(), write))
         else:
@@ -87,7 +89,7 @@ def collect(inputs: Sequence, write: Sequence[str] | None = None) -> tuple[list[
             if is_sweep(data):
                 sweep = sweep_from_dict(data, where=str(path), source=path.resolve())
                 sweeps.append(sweep)
-                shots += _sweep_shots(sweep, write)
+                shots += _sweep_shots(sweep, write, progress)
             else:
                 try:
                     scene = scene_from_dict(data, where=str(path), source=path.resolve())
@@ -112,7 +114,7 @@ def _scene_shot(scene: Scene, name: str, origin: str, write) -> Shot:
     return shot
 
 
-def _sweep_shots(sweep: Sweep, write) -> list[Shot]:
+def _sweep_shots(sweep: Sweep, write, progress: bool = False) -> list[Shot]:
     names = tuple(write) if write is not None else sweep.outputs if sweep.outputs is not None \
         else tuple(Path(p).name for p in sweep.base.output.paths)
     problem = check_output_names(names, "--write" if write is not None else "output.paths")
@@ -120,18 +122,24 @@ def _sweep_shots(sweep: Sweep, write) -> list[Shot]:
         raise WigglyInputError(f"{sweep.where()}: {problem}")
     width = max(4, len(str(len(sweep) - 1)))
     out = []
-    for i in range(len(sweep)):
-        sample, values = sweep.values(i)
-        name = f"{sweep.name}-{i:0{width}d}"
-        origin = f"{sweep.where()} shot {i}"
-        shot = Shot(_clean(name), origin, None, params=values, outputs=names, seed=sweep.seed,
-                    sample=sample)
-        try:
-            shot.scene = sweep.scene(values, f"{origin} ({_describe(values)})")
-        except WigglyInputError as err:
-            shot.error = str(err)
-        out.append(shot)
+    with activity(f"checking the {len(sweep)} shots of {sweep.where()}",
+                  progress and len(sweep) > 1000):
+        for i in range(len(sweep)):
+            out.append(_sweep_shot(sweep, i, width, names))
     return out
+
+
+def _sweep_shot(sweep: Sweep, i: int, width: int, names: tuple[str, ...]) -> Shot:
+    """Shot ``i`` of a sweep (invalid: ``scene`` None and the validator's ``error``)."""
+    sample, values = sweep.values(i)
+    origin = f"{sweep.where()} shot {i}"
+    shot = Shot(_clean(f"{sweep.name}-{i:0{width}d}"), origin, None, params=values,
+                outputs=names, seed=sweep.seed, sample=sample)
+    try:
+        shot.scene = sweep.scene(values, f"{origin} ({_describe(values)})")
+    except WigglyInputError as err:
+        shot.error = str(err)
+    return shot
 
 
 def _describe(values: dict) -> str:
