@@ -282,11 +282,12 @@ class _Driver:
                 ready += waiting.pop(key)
         while to_prepare or ready or waiting or self.in_flight:
             if self.suspects:  # after a worker died: the tasks it may have killed, alone
-                found = [(q, x) for q in (to_prepare, ready) for x in q
-                         if _name(x) in self.suspects][:1]
-                if not found:
-                    self.suspects.clear()
-                elif not self.in_flight:
+                if not self.in_flight:
+                    found = [(q, x) for q in (to_prepare, ready) for x in q
+                             if _name(x) in self.suspects][:1]
+                    if not found:
+                        self.suspects.clear()
+                        continue
                     queue, item = found[0]
                     queue.remove(item)
                     self._submit(item)
