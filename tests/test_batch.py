@@ -307,3 +307,17 @@ def test_scene_files_of_the_same_name(tmp_path):
     shots, _ = collect([tmp_path / "a" / "shot.toml", tmp_path / "b" / "shot.toml"])
     assert [s.name for s in shots] == ["a-shot", "b-shot"]
     assert shots[0].outputs == ("bar.npz",)
+
+
+def test_an_unreadable_prepared_body_is_prepared_again(tmp_path, monkeypatch):
+    """A prepared body that does not load (another wiggly wrote it) costs a preparation,
+    not the batch."""
+    monkeypatch.setenv("WIGGLY_CACHE_DIR", str(tmp_path / "cache"))
+    sweep = write_sweep(tmp_path, {**SWEEP, "samples": 1, "grid": {"damping.alpha": [0.5]}})
+    first = run(sweep, tmp_path / "a", workers=1, contact_sheet=False)
+    (pickle,) = (tmp_path / "cache" / "batch" / "bodies").glob("*.pickle")
+    pickle.write_bytes(b"not a pickle")
+    again = run(sweep, tmp_path / "b", workers=1, contact_sheet=False)
+    assert again[0]["status"] == "done" and again[0]["body"] == first[0]["body"]
+    summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert summary["bodies"][0]["cached"] is True and pickle.read_bytes() != b"not a pickle"

@@ -37,8 +37,21 @@ def cpu_count() -> int:
 
 
 def run_shot_from_file(job: worker.ShotJob, body_file: str) -> dict:
-    """A pool task: a shot on the body pickled at ``body_file``."""
-    return worker.run_shot(job, worker.load_pickled(body_file))
+    """A pool task: a shot on the body pickled at ``body_file`` (prepared again, and pickled
+    anew, if that pickle cannot be loaded: written by another version of wiggly)."""
+    from wiggly.batch.shots import body_scene
+
+    def load():
+        try:
+            return worker.load_pickled(body_file)()
+        except Exception:
+            again = worker.BodyJob(job.body_key, body_scene(job.scene), target=body_file)
+            info = worker.prepare_body(again)
+            if info["status"] != "done":
+                raise WigglyInputError(info["error"]) from None
+            return worker.load_pickled(body_file)()
+
+    return worker.run_shot(job, load)
 
 
 #: Environment of worker processes: one thread each (the pool has a process per core;
