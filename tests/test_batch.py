@@ -7,7 +7,9 @@ import copy
 import csv
 import fcntl
 import json
+import os
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -231,71 +233,106 @@ def test_shot_files_come_back_when_the_worker_cannot_see_the_folder(tmp_path):
     assert read_animation(path).n_frames == 11
 
 
+class InProcessPool:
+    """A stand-in for the local pool that runs its tasks in this process when waited for;
+    ``hook(names in flight)`` plays a worker's death or a Ctrl-C."""
+
+    kind = "local"
+    slots = 2
+    hook = staticmethod(lambda names: None)
+    seen: ClassVar[list] = []
+
+    def __init__(self, workers, render_checked):
+        self.tasks, self.broken = {}, False
+        self.bodies = Path(os.environ["WIGGLY_CACHE_DIR"]) / "test-bodies"
+
+    def describe(self):
+        return "in-process test pool"
+
+    def cached_body(self, key):
+        return None
+
+    def body_job(self, key, scene, mesh_file):
+        return BodyJob(key, scene, target=str(self.bodies / f"{key}.pickle"))
+
+    def prepare(self, job):
+        self.tasks[h := object()] = job
+        return h
+
+    def prepared(self, job, handle, result):
+        return result, job.target
+
+    def shot(self, job, source):
+        self.tasks[h := object()] = (job, source)
+        return h
+
+    def wait(self, handles, timeout):
+        self.seen.append(len(handles))
+        names = [getattr(self.tasks[h], "key", None) or self.tasks[h][0].name for h in handles]
+        self.broken = bool(self.hook(names))
+        return list(handles)
+
+    def outcome(self, handle):
+        from wiggly.batch.backends import WorkerDied
+        from wiggly.batch.worker import load_pickled
+
+        task = self.tasks.pop(handle)
+        if self.broken:
+            raise WorkerDied("killed")
+        if isinstance(task, BodyJob):
+            return prepare_body(task)
+        job, source = task
+        return run_shot(job, load_pickled(source))
+
+    def restart(self):
+        self.seen.append("restart")
+
+    def close(self, cancel=False):
+        pass
+
+
 def test_a_dying_worker_fails_its_shot_only(tmp_path, monkeypatch):
     """A worker that dies (a crash, out of memory) breaks the local pool: the shots in flight
     run again one at a time, so only the one that dies again fails."""
     import wiggly.batch.driver as driver
-    from wiggly.batch.backends import WorkerDied
-    from wiggly.batch.worker import load_pickled
 
-    seen = []
-
-    class DyingPool:  # runs tasks in this process; "sweep-0001" kills its worker
-        kind = "local"
-        slots = 2
-
-        def __init__(self, workers, render_checked):
-            self.tasks = {}
-
-        def describe(self):
-            return "test pool"
-
-        def cached_body(self, key):
-            return None
-
-        def body_job(self, key, scene, mesh_file):
-            return BodyJob(key, scene, target=str(tmp_path / f"{key}.pickle"))
-
-        def prepare(self, job):
-            self.tasks[h := object()] = job
-            return h
-
-        def prepared(self, job, handle, result):
-            return result, job.target
-
-        def shot(self, job, source):
-            self.tasks[h := object()] = (job, source)
-            return h
-
-        def wait(self, handles, timeout):
-            seen.append(len(handles))
-            names = [getattr(self.tasks[h], "key", None) or self.tasks[h][0].name
-                     for h in handles]
-            self.broken = "sweep-0001" in names  # its death takes the whole pool down
-            return list(handles)
-
-        def outcome(self, handle):
-            task = self.tasks.pop(handle)
-            if self.broken:
-                raise WorkerDied("killed")
-            if isinstance(task, BodyJob):
-                return prepare_body(task)
-            job, source = task
-            return run_shot(job, load_pickled(source))
-
-        def restart(self):
-            seen.append("restart")
-
-        def close(self, cancel=False):
-            pass
-
-    monkeypatch.setattr(driver, "LocalPool", DyingPool)
+    seen = []  # "sweep-0001" takes the whole pool down whenever it runs
+    monkeypatch.setattr(InProcessPool, "seen", seen)
+    monkeypatch.setattr(InProcessPool, "hook", staticmethod(lambda n: "sweep-0001" in n))
+    monkeypatch.setattr(driver, "LocalPool", InProcessPool)
     records = run(write_sweep(tmp_path), tmp_path / "out", contact_sheet=False)
     assert [r["status"] for r in records] == ["done", "failed", "done", "done"]
     assert "the worker process died while running it (killed)" in records[1]["error"]
     assert seen.count("restart") == 2, seen
     first = seen.index("restart")  # after a crash with two in flight: each alone
     assert seen[first - 1] == 2 and seen[first + 1:first + 4] == [1, "restart", 1], seen
+
+
+def test_an_interrupted_batch_leaves_whole_folders(tmp_path, monkeypatch):
+    """Ctrl-C: the shots done keep their folders, the summary says which did not run, nothing
+    is half-written; the next run does the rest."""
+    import wiggly.batch.driver as driver
+
+    waits = []
+
+    def interrupt(names):
+        waits.append(names)
+        if len(waits) == 3:  # the body, two shots, then Ctrl-C
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(InProcessPool, "hook", staticmethod(interrupt))
+    monkeypatch.setattr(driver, "LocalPool", InProcessPool)
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        run(write_sweep(tmp_path), out, contact_sheet=False)
+    records = json.loads((out / "summary.json").read_text())["shots"]
+    assert [r["status"] for r in records] == ["done", "not run", "done", "not run"]
+    assert sorted(p.name for p in out.iterdir()) == \
+        [".wiggly-batch", ".wiggly-batch.lock", "summary.csv", "summary.json", "sweep-0000",
+         "sweep-0002"]
+    monkeypatch.setattr(InProcessPool, "hook", staticmethod(lambda names: None))
+    records = run(write_sweep(tmp_path), out, contact_sheet=False)
+    assert [r["resumed"] for r in records] == [True, False, True, False]
 
 
 def test_scene_files_of_the_same_name(tmp_path):
