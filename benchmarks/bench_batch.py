@@ -19,7 +19,6 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
-from multiprocessing import get_context
 from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(__file__))
@@ -54,9 +53,11 @@ def _imports() -> float:
 
 
 def worker_start() -> float:
-    """Seconds to spawn a worker process and import what a shot needs."""
+    """Seconds to start a worker process as the pool does and import what a shot needs."""
+    from wiggly.batch.backends import _context
+
     t = time.perf_counter()
-    with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
+    with ProcessPoolExecutor(1, mp_context=_context()) as pool:
         pool.submit(_imports).result()
     return time.perf_counter() - t
 
@@ -202,7 +203,7 @@ def main(argv: list[str]) -> None:
          cold["prepare_seconds"], "once per body"],
         ["prepare the body, tet mesh and modes from the disk cache",
          statistics.median(w["prepare_seconds"] for w in warm), "once per body and batch"],
-        ["start a worker process (spawn, imports)", start, "once per worker"],
+        ["start a worker process (fork from the server, imports)", start, "once per worker"],
         ["worker setup: fetch the body, factor the warp (first shot of a worker)",
          statistics.median(setups) if setups else 0.0, "once per body and worker"],
         ["solve, warm start from the worker's previous shot", median(pool, "solve_seconds"),

@@ -290,3 +290,13 @@ def test_documented_sweep(tmp_path):
     assert all(s.scene is not None for s in shots), [s.error for s in shots if s.error]
     assert all(s.outputs == ("jump.glb", "jump.gif") for s in shots)
     assert {s.scene.simulation.modes for s in shots} <= set(range(20, 41))
+
+
+def test_replaced_keys_leave_vectors_alone(tmp_path):
+    """``time.end`` drops ``time.duration`` from [time]; a vector component drops nothing."""
+    scene = {**SCENE, "time": {"duration": 1.0, "fps": 10}}
+    grid = {"time.end": [1.0], "simulation.gravity[1]": [-1.62]}
+    sweep = load_sweep(write(tmp_path, with_(grid=grid, random=None, samples=None), scene))
+    s = sweep.scene(sweep.values(0)[1], "test")
+    assert s.time.end == 1.0 and s.time.duration is None
+    assert s.simulation.gravity == (0.0, -1.62, 0.0)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import fcntl
 import json
+import math
 import os
 import shutil
 import sys
@@ -72,6 +73,10 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
         raise WigglyInputError("no inputs: give scene files or a sweep file")
     if workers is not None and (not isinstance(workers, int) or workers < 1):
         raise WigglyInputError(f"workers = {workers!r} must be an integer >= 1")
+    if thumbnail_time is not None and not (isinstance(thumbnail_time, int | float)
+                                           and math.isfinite(thumbnail_time)):
+        raise WigglyInputError(f"thumbnail_time = {thumbnail_time!r} must be a number of "
+                               "seconds")
     if workers is not None and ray not in (None, False):
         raise WigglyInputError("workers counts local processes; a Ray cluster uses its CPUs: "
                                "give workers or ray, not both")
@@ -110,7 +115,8 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
             ordered = [records[s.name] for s in shots if s.name in records]
             summary_files.write_summary(out, ordered, meta)
             if contact_sheet:
-                summary_files.write_contact_sheets(out, ordered, progress)
+                with activity("writing the contact sheets", progress and len(ordered) > 100):
+                    summary_files.write_contact_sheets(out, ordered, progress)
     return ordered
 
 

@@ -150,7 +150,8 @@ class Param:
     path: str
     steps: tuple[str | int, ...]
     spec: _Spec
-    drop: tuple[str, ...] = ()
+    drop: tuple[str, ...] = ()  # keys of the table ``steps[:drop_at]`` that this replaces
+    drop_at: int = 0
     fill: tuple | None = None
 
     @property
@@ -197,6 +198,7 @@ def resolve_param(path: str, base: dict, label: str) -> Param:
     spec: _Spec = _SCENE
     node: Any = base
     drop: tuple[str, ...] = ()
+    drop_at = 0
     fill = None
     where = ""
     parts = _split(path)
@@ -225,7 +227,9 @@ def resolve_param(path: str, base: dict, label: str) -> Param:
             if not last_key:
                 raise WigglyInputError(f"{label}: the base scene has no {where} {key!r}; "
                                        f"its {where} are: {names}")
-        drop = _replaced(spec, key, node, label, where, last_key)
+        replaced = _replaced(spec, key, node, label, where, last_key)
+        if replaced:
+            drop, drop_at = replaced, len(steps)
         where = f"{where}.{key}" if where else key
         if isinstance(node, str) and isinstance(spec, _ByType):
             node = {}  # "rest" is an offset of 0, a rigid target with no rotation
@@ -236,7 +240,7 @@ def resolve_param(path: str, base: dict, label: str) -> Param:
             node, index, spec, fill = _index(spec, node, bracket, label, where, key, parts, n)
             steps.append(index)
             where = f"{where}[{bracket}]"
-    return Param(path, tuple(steps), spec, drop, fill)
+    return Param(path, tuple(steps), spec, drop, drop_at, fill)
 
 
 def _split(path: str) -> list[str]:
@@ -315,16 +319,19 @@ def _index(spec: _Spec, node, bracket: str, label: str, where: str, key: str, pa
 def apply_param(d: dict, param: Param, value) -> None:
     """Set ``param`` to ``value`` in a scene's dict (in place)."""
     node: Any = d
-    for j, step in enumerate(param.steps[:-1]):
-        nxt = param.steps[j + 1]
+    for j, step in enumerate(param.steps):
+        if j == param.drop_at:
+            for key in param.drop:
+                node.pop(key, None)
+        if j == len(param.steps) - 1:
+            node[step] = value
+            return
         child = node[step] if not isinstance(node, dict) or step in node else None
         if isinstance(child, str) or child is None:  # "rest" or a missing table / vector
-            child = list(param.fill) if isinstance(nxt, int) and param.fill else {}
+            fill = isinstance(param.steps[j + 1], int) and param.fill
+            child = list(param.fill) if fill else {}
             node[step] = child
         node = child
-    for key in param.drop:
-        node.pop(key, None)
-    node[param.steps[-1]] = value
 
 
 # ----------------------------------------------------------------------------------------------
