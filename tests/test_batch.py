@@ -344,6 +344,12 @@ def test_scene_files_of_the_same_name(tmp_path):
     shots, _ = collect([tmp_path / "a" / "shot.toml", tmp_path / "b" / "shot.toml"])
     assert [s.name for s in shots] == ["a-shot", "b-shot"]
     assert shots[0].outputs == ("bar.npz",)
+    scene = load_scene(tmp_path / "a" / "shot.toml")  # Scene objects, and --write
+    shots, _ = collect([scene, scene], write=["x.glb", "x.gif"])
+    assert [s.name for s in shots] == ["a-shot", "a-shot-2"]
+    assert all(s.scene == scene and s.outputs == ("x.glb", "x.gif") for s in shots)
+    with pytest.raises(WigglyInputError, match=r"--write: 'out/x\.glb' has folders"):
+        collect([scene], write=["out/x.glb"])
 
 
 def test_an_unreadable_prepared_body_is_prepared_again(tmp_path, monkeypatch):

@@ -71,6 +71,10 @@ def collect(inputs: Sequence, write: Sequence[str] | None = None,
     objects), with unique folder names, and the sweeps among them.  An unreadable or invalid
     scene file becomes a failed shot; an invalid sweep raises :class:`WigglyInputError`
     (it describes many shots).  ``progress``: a line while a large sweep is expanded."""
+    if write is not None:  # the same for every shot: a mistake fails the batch, not each shot
+        problem = check_output_names(write, "--write")
+        if problem:
+            raise WigglyInputError(problem)
     shots: list[Shot] = []
     sweeps: list[Sweep] = []
     for item in inputs:
