@@ -99,7 +99,8 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
             render_checked = True
         backend = None
         if todo:
-            backend = (RayCluster(None if ray is True else str(ray), render_checked)
+            # a Ray worker may run on a machine without offscreen rendering: it checks itself
+            backend = (RayCluster(None if ray is True else str(ray), False)
                        if ray not in (None, False) else
                        LocalPool(min(workers or cpu_count(), len(todo)), render_checked))
         driver = _Driver(out, token, backend, records, replace, request, warm_start, progress)
