@@ -112,6 +112,21 @@ def test_sweep_on_worker_processes(tmp_path, monkeypatch):
     assert all(f'src="{r["thumbnail"]}"' in page for r in records)
 
 
+def test_shared_body_warm_starts_damping_and_gravity(tmp_path):
+    """One worker, one body, four problems (damping x gravity), two random pulls each: the
+    second shot of each problem starts from the first's solution, and every shot equals its
+    scene solved alone from scratch."""
+    sweep = {**SWEEP, "grid": {"damping.alpha": [0.5, 4.0], "simulation.gravity[1]": [-9.81,
+                                                                                      -2.0]}}
+    out = tmp_path / "out"
+    records = run(write_sweep(tmp_path, sweep), out, workers=1, contact_sheet=False)
+    assert [r["status"] for r in records] == ["done"] * 8, [r["error"] for r in records]
+    assert [r["warm_start"] for r in records] == [False] * 4 + [True] * 4
+    motions = {(r["parameters"]["damping.alpha"], r["parameters"]["simulation.gravity"][1],
+                r["sample"]): check_shot_against_alone(out, r) for r in records}
+    assert np.abs(motions[0.5, -9.81, 0] - motions[0.5, -2.0, 0]).max() > 10e-3
+
+
 def test_resume_and_changed_shots(tmp_path):
     out = tmp_path / "out"
     sweep = write_sweep(tmp_path)
