@@ -12,7 +12,6 @@ the scene validator's message.
 from __future__ import annotations
 
 import copy
-import itertools
 import math
 import os
 import re
@@ -553,9 +552,3 @@ def _check_distribution(param: Param, table: dict, label: str, p: _Problems):
               "0 or negative values)")
         return None
     return Distribution(kind, tuple(args))
-
-
-def grid_points(sweep: Sweep) -> list[dict]:
-    """Every combination of the grid's values, in shot order (for documentation, tests)."""
-    return [dict(zip(sweep.grid, combo, strict=True))
-            for combo in itertools.product(*sweep.grid.values())]
