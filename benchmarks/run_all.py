@@ -15,6 +15,9 @@ if __name__ == "__main__":
     args = ["--quick"] if quick else []
     bench_core.main(args)
     bench_warped.main(args)
+    import bench_batch
+
+    bench_batch.main(args)
     if os.path.exists(os.path.join(os.path.dirname(__file__), "bench_editor.py")):
         import bench_editor
 

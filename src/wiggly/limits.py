@@ -22,3 +22,5 @@ MAX_FPS = 1000.0
 # Keyframes per shot, and the length of user-supplied names (keyframes, groups).
 MAX_KEYFRAMES = 10_000
 MAX_NAME_LENGTH = 200
+# Shots of one batch (a sweep's grid points x samples, or scene files).
+MAX_SHOTS = 100_000

@@ -17,13 +17,13 @@ import sys
 import traceback
 import warnings
 
-from wiggly.cli import animate, demo, edit, modes, render, schema
+from wiggly.cli import animate, batch, demo, edit, modes, render, schema
 from wiggly.errors import WigglyInputError
 
 __all__ = ["main"]
 
-COMMANDS = {"animate": animate, "edit": edit, "modes": modes, "render": render, "demo": demo,
-            "schema": schema}
+COMMANDS = {"animate": animate, "batch": batch, "edit": edit, "modes": modes, "render": render,
+            "demo": demo, "schema": schema}
 DESCRIPTION = """\
 Animate elastic 3D objects from sparse keyframes (sparse spacetime constraints,
 Schulz et al. 2014). A scene file (TOML) names the model, its material and the
@@ -35,6 +35,7 @@ examples:
   wiggly demo                                 # the bundled demo into ./wiggly-demo/
   wiggly animate examples/jump.toml           # writes the scene's [output] paths
   wiggly animate shot.toml -o shot.glb -o shot.mp4 --overwrite
+  wiggly batch shots/*.toml -o out/                # many shots (or a sweep), all cores
   wiggly edit shot.toml                       # the browser editor
   wiggly modes builtin:plant -n 12            # eigenfrequencies of a model
   wiggly render out/shot.npz -o shot.gif      # preview an exported animation

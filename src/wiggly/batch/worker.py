@@ -1,0 +1,326 @@
+"""What runs in a worker process: preparing a body, and running a shot on a prepared body.
+
+A worker keeps the bodies it has used (with their factorizations) and the spacetime problems
+it has solved, keyed by content (:attr:`Shot.body_key`, damping, gravity, time range), so a
+worker prepares nothing twice and a shot can start from the previous solution of the same
+problem (a warm start).  Every exception of a task is caught and returned as a failure: one
+bad shot never stops the others.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import shutil
+import socket
+import tempfile
+import time
+import traceback
+import warnings
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wiggly.errors import WigglyInputError
+from wiggly.files import atomic_file
+
+#: Bodies and problems a worker keeps (least recently used leave first).
+KEEP_BODIES = 2
+KEEP_PROBLEMS = 4
+THUMBNAIL = "thumb.png"
+THUMBNAIL_SIZE = (240, 180)
+
+_BODIES: OrderedDict[str, Any] = OrderedDict()
+_PROBLEMS: OrderedDict[tuple, list] = OrderedDict()
+
+
+@dataclass(frozen=True)
+class BodyJob:
+    """Prepare the body of ``scene`` (a :func:`~wiggly.batch.shots.body_scene`).
+
+    ``target``: write the pickled body there (the cache directory; local workers) or, when
+    None, return it (Ray puts it in the object store).  ``mesh``: the mesh file's bytes for
+    a worker that may not see the file (Ray), else None."""
+
+    key: str
+    scene: Any
+    target: str | None = None
+    mesh: bytes | None = None
+
+
+@dataclass(frozen=True)
+class ShotJob:
+    """Run one shot and write its files into ``staging``.
+
+    ``marker`` and ``token``: a worker that finds ``token`` in the file ``marker`` sees the
+    batch's folder and writes into ``staging``; any other returns the files' bytes
+    (``record["files"]``) for the driver to write."""
+
+    name: str
+    scene: Any
+    body_key: str
+    outputs: tuple[str, ...]
+    staging: str
+    marker: str
+    token: str
+    thumbnail: bool = True
+    thumbnail_time: float | None = None
+    warm_start: bool = True
+
+
+def init_process(render_checked: bool = False) -> None:
+    """Set up a worker process: one thread for BLAS, OpenMP and numba (there is a process per
+    core), also for libraries loaded before (Ray's workers); skip the offscreen-rendering
+    probe when the driver has run it."""
+    # load the BLAS and OpenMP libraries of a solve now, to limit them all
+    import scipy.linalg
+    import scipy.sparse.linalg
+    from threadpoolctl import threadpool_limits
+
+    import wiggly.solve
+
+    del scipy, wiggly
+
+    threadpool_limits(1)
+    try:
+        import numba
+
+        numba.set_num_threads(1)
+    except (ImportError, ValueError):  # pragma: no cover - numba missing or threads fixed
+        pass
+    if render_checked:
+        os.environ["WIGGLY_RENDER_PROBE"] = "0"
+
+
+def _failure(err: BaseException) -> dict:
+    from wiggly.render import RenderingError
+
+    if isinstance(err, WigglyInputError | RenderingError):
+        return {"status": "failed", "error": str(err), "traceback": None}
+    return {"status": "failed", "error": f"internal error (a bug): {type(err).__name__}: {err}",
+            "traceback": traceback.format_exc()}
+
+
+# ----------------------------------------------------------------------------------------------
+# bodies
+
+
+def _build(job: BodyJob) -> tuple[Any, dict]:
+    """Build the body of ``job`` (tet mesh and modes come from the disk cache when there)."""
+    from wiggly.scene import build
+
+    scene, tmp = job.scene, None
+    mesh_file = None if scene.mesh.path.startswith("builtin:") else scene.mesh_file()
+    if job.mesh is not None and mesh_file is not None and not _same_file(mesh_file, job.mesh):
+        tmp = tempfile.mkdtemp(prefix="wiggly-mesh-")
+        (Path(tmp) / mesh_file.name).write_bytes(job.mesh)
+        scene = replace(scene, mesh=replace(scene.mesh, path=mesh_file.name),
+                        source=Path(tmp) / "scene.toml")
+    t = time.perf_counter()
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            body, _ = build(scene)
+    except WigglyInputError as err:
+        if tmp is not None:  # name the user's file, not the copy
+            raise WigglyInputError(str(err).replace(str(Path(tmp) / "scene.toml"),
+                                                    job.scene.where())
+                                   .replace(tmp, str(mesh_file.parent))) from None
+        raise
+    finally:
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    info = {"status": "done", "prepare_seconds": time.perf_counter() - t,
+            "tets": int(body.tets.n_tets), "vertices": int(body.surface.n_vertices),
+            "modes": int(body.r), "warnings": sorted({str(w.message) for w in caught}),
+            "worker": _worker()}
+    return body, info
+
+
+def _same_file(path: Path, content: bytes) -> bool:
+    try:
+        return path.stat().st_size == len(content) and path.read_bytes() == content
+    except OSError:
+        return False
+
+
+def prepare_body(job: BodyJob) -> dict:
+    """Build the body and pickle it to ``job.target`` (atomically); return what it took."""
+    try:
+        body, info = _build(job)
+        with atomic_file(job.target) as tmp, open(tmp, "wb") as f:
+            pickle.dump(body, f, protocol=pickle.HIGHEST_PROTOCOL)
+        return info
+    except Exception as err:  # reported with the shots of this body
+        return _failure(err)
+
+
+def prepare_body_object(job: BodyJob) -> tuple[dict, Any]:
+    """Build the body and return it with what it took (Ray stores it in its object store)."""
+    try:
+        body, info = _build(job)
+        return info, body
+    except Exception as err:
+        return _failure(err), None
+
+
+def load_pickled(path: str) -> Callable[[], Any]:
+    """A loader of a body pickled by :func:`prepare_body`."""
+
+    def load():
+        with open(path, "rb") as f:
+            return pickle.load(f)
+
+    return load
+
+
+def _body(key: str, load: Callable[[], Any], warped: bool) -> tuple[Any, float]:
+    """The worker's body for ``key`` with its factorizations, and the seconds spent on it."""
+    t = time.perf_counter()
+    body = _BODIES.get(key)
+    if body is None:
+        body = load()
+        _BODIES[key] = body
+        while len(_BODIES) > KEEP_BODIES:
+            old, _ = _BODIES.popitem(last=False)
+            for k in [k for k in _PROBLEMS if k[0] == old]:
+                del _PROBLEMS[k]
+    _BODIES.move_to_end(key)
+    if warped:  # the warp's factorizations, shared by every shot of this body (SYSTEM.md §6)
+        _ = body.fine_level, body.coarse_level
+    return body, time.perf_counter() - t
+
+
+# ----------------------------------------------------------------------------------------------
+# shots
+
+
+def run_shot(job: ShotJob, load: Callable[[], Any]) -> dict:
+    """Solve one shot on the body that ``load`` returns (once per worker) and write its files;
+    return its record (a failure's message instead when anything goes wrong)."""
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    record: dict[str, Any] = {"worker": _worker()}
+    direct = _sees(job.marker, job.token)
+    folder = Path(job.staging) if direct else Path(tempfile.mkdtemp(prefix="wiggly-shot-"))
+    try:
+        record.update(_solve_and_write(job, load, folder))
+        record["status"] = "done"
+        if not direct:
+            record["files"] = {p.name: p.read_bytes() for p in folder.iterdir()}
+    except Exception as err:
+        record.update(_failure(err))
+        if direct:
+            shutil.rmtree(folder, ignore_errors=True)
+    finally:
+        if not direct:
+            shutil.rmtree(folder, ignore_errors=True)
+    record["shot_seconds"] = time.perf_counter() - t0
+    record["cpu_seconds"] = time.process_time() - cpu0  # this process's, whatever the load
+    return record
+
+
+def _sees(marker: str, token: str) -> bool:
+    try:
+        return Path(marker).read_text(encoding="utf-8").strip() == token
+    except OSError:
+        return False
+
+
+def _solve_and_write(job: ShotJob, load, folder: Path) -> dict:
+    from wiggly.body import Damping
+    from wiggly.scene import (
+        keyframe_highlights,
+        keyframes_of,
+        problem_of,
+        resolve_groups,
+        write_outputs,
+    )
+
+    scene = job.scene
+    warped = scene.simulation.warp
+    base, setup = _body(job.body_key, load, warped)
+    damping = Damping(scene.damping.alpha, scene.damping.beta)
+    body = None
+    start, end = scene.time_range()
+    pkey = (job.body_key, scene.damping.alpha, scene.damping.beta, scene.simulation.gravity,
+            start, end, scene.simulation.preroll, scene.time.loop)
+    entry = _PROBLEMS.get(pkey)
+    if entry is None:  # damping and gravity change only the per-mode coefficients (§4)
+        body = base.with_dynamics(damping=damping, gravity=scene.simulation.gravity)
+        entry = [problem_of(scene, body), None]
+        _PROBLEMS[pkey] = entry
+        while len(_PROBLEMS) > KEEP_PROBLEMS:
+            _PROBLEMS.popitem(last=False)
+    _PROBLEMS.move_to_end(pkey)
+    problem = entry[0]
+    body = problem.body
+    groups = resolve_groups(scene, body.model)
+    keyframes = keyframes_of(scene, body, groups)
+    t = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        anim = problem.solve(keyframes, warped=warped,
+                             warm_start=entry[1] if job.warm_start else None)
+    solve_seconds = time.perf_counter() - t
+    if warped:
+        entry[1] = anim.warm_start
+    info = anim.info
+    rows = anim.constraint_residuals()
+    record: dict[str, Any] = {
+        "setup_seconds": setup, "solve_seconds": solve_seconds,
+        "iterations": int(info.get("iterations", 0)),
+        "converged": bool(info.get("converged", True)),
+        "distance_bound": info.get("distance_bound"),
+        "warm_start": bool(info.get("warm_start", False)),
+        "keyframe_position_rms": _worst(rows, "position_rms"),
+        "keyframe_position_max": _worst(rows, "position_max"),
+        "keyframe_velocity_rms": _worst(rows, "velocity_rms"),
+        "keyframes": rows, "warnings": sorted({str(w.message) for w in caught}),
+    }
+    t = time.perf_counter()
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = [folder / name for name in job.outputs]
+    write_outputs(scene, anim, paths, overwrite=True,
+                  highlights=keyframe_highlights(scene, body, anim.keyframes, groups))
+    record["output_seconds"] = time.perf_counter() - t
+    t = time.perf_counter()
+    if job.thumbnail:
+        record["thumbnail_time"] = _thumbnail(folder / THUMBNAIL, scene, anim, job.thumbnail_time)
+    record["thumbnail_seconds"] = time.perf_counter() - t
+    return record
+
+
+def _worst(rows: list[dict], key: str) -> float | None:
+    values = [r[key] for r in rows if key in r]
+    return max(values) if values else None
+
+
+def _thumbnail(path: Path, scene, anim, at: float | None) -> float:
+    """A still of the shot (:data:`THUMBNAIL_SIZE`): at ``at`` seconds, else the frame
+    farthest from the rest pose (its mean translation removed), where shots differ most."""
+    from PIL import Image
+
+    from wiggly.render import render_frame
+
+    times = anim.frame_times(scene.time.fps)
+    X = anim.positions(times, dtype=np.float32)
+    if at is None:
+        rest = anim.body.surface.vertices
+        d = X - rest - (X.mean(axis=1, keepdims=True) - rest.mean(axis=0))
+        at = float(times[int(np.argmax(np.sqrt((d ** 2).sum(axis=2).mean(axis=1))))])
+    at = min(max(at, float(times[0])), float(times[-1]))
+    camera = scene.output.camera if isinstance(scene.output.camera, str) else \
+        tuple(scene.output.camera)
+    image = render_frame(times, X, anim.body.surface.faces, at=at, size=THUMBNAIL_SIZE,
+                         camera=camera)
+    with atomic_file(path) as tmp:
+        Image.fromarray(image).save(tmp, format="PNG", optimize=True)
+    return at
+
+
+def _worker() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"

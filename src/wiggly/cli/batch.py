@@ -1,0 +1,153 @@
+"""``wiggly batch INPUT...``: many shots, from scene files or a sweep, locally or on Ray."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+HELP = "run many shots: scene files or a sweep, locally or on a Ray cluster"
+DESCRIPTION = """\
+Run many shots: scene files (docs/scene-format.md) or a sweep file, which names a
+base scene and grids or random draws over its parameters (docs/sweep-format.md).
+Shots run on one worker process per core, or on a Ray cluster with --ray. Each
+distinct body (mesh, material, modes, fixed groups) is prepared once and shared.
+Each shot writes its outputs into a folder of its own, with its scene.toml and
+result.json; the batch writes summary.csv, summary.json and contact sheets
+(contact-sheet.html, contact-sheet.png). A shot that fails is reported and never
+stops the others. Running the same batch again skips the shots already done.
+Exit code 0 when every shot succeeded, 1 when any failed (or the inputs are
+invalid), 2 for a usage error."""
+EPILOG = """\
+examples:
+  wiggly batch shots/*.toml -o out/shots
+  wiggly batch examples/sweeps/jump_sweep.toml           # into the sweep's [output] dir
+  wiggly batch sweep.toml -j 4 --write shot.glb --write preview.gif
+  wiggly batch sweep.toml --ray                          # a new local Ray cluster
+  wiggly batch sweep.toml --ray auto                     # the cluster this machine is in
+  wiggly batch sweep.toml --dry-run                      # list the shots, run nothing
+  wiggly batch --schema > sweep.schema.json              # JSON Schema of sweep files
+
+Ray is an optional extra: pip install "wiggly[ray]"."""
+
+
+def add_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("inputs", metavar="INPUT", nargs="*",
+                        help="scene files and sweep files (.toml)")
+    parser.add_argument("-o", "--out", metavar="DIR",
+                        help="folder of the shots and the summary (default: a sweep's "
+                             "[output] dir, else ./wiggly-batch)")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("-j", "--workers", type=_count, metavar="N",
+                       help="local worker processes (default: one per core)")
+    where.add_argument("--ray", nargs="?", const=True, metavar="ADDRESS",
+                       help="run on a Ray cluster: a new local one, or the one at ADDRESS "
+                            "(auto, host:6379, ray://host:10001)")
+    parser.add_argument("-w", "--write", metavar="NAME", action="append",
+                        help="file written into every shot's folder (repeatable; replaces "
+                             "the scenes' and sweeps' outputs), e.g. shot.glb, preview.gif; "
+                             "--write none: no outputs, only the summary")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace folders of shots whose scene or outputs changed")
+    parser.add_argument("--no-sheet", action="store_true",
+                        help="no thumbnails or contact sheets (nothing rendered)")
+    parser.add_argument("--thumbnail-time", type=float, metavar="T",
+                        help="thumbnails at T seconds (default: the frame farthest from rest)")
+    parser.add_argument("--cold", action="store_true",
+                        help="solve every shot from scratch (default: from the previous "
+                             "solution of the same problem in the worker, which is faster)")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="list the shots and their parameters; run nothing")
+    parser.add_argument("--schema", action="store_true",
+                        help="print the JSON Schema of sweep files and exit")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.schema:
+        from wiggly.batch import sweep_schema
+
+        print(json.dumps(sweep_schema(), indent=2))
+        return 0
+    if not args.inputs:
+        print("wiggly batch: error: give scene files or a sweep file (see --help)",
+              file=sys.stderr)
+        return 2
+    if args.write is not None and any(w.lower() == "none" for w in args.write):
+        args.write = []
+    if args.dry_run:
+        return _dry_run(args)
+    from wiggly.batch import run as run_batch
+
+    out = _out_dir(args)
+    records = run_batch(args.inputs, out, workers=args.workers, ray=args.ray,
+                        write=args.write, overwrite=args.overwrite,
+                        contact_sheet=not args.no_sheet, thumbnail_time=args.thumbnail_time,
+                        warm_start=not args.cold, progress=not args.quiet)
+    print(report(records, out, args))
+    return 0 if all(r["status"] == "done" for r in records) else 1
+
+
+def report(records: list[dict], out: Path, args: argparse.Namespace) -> str:
+    """What ran, what failed (with the message), where the summary is."""
+    done = [r for r in records if r["status"] == "done"]
+    resumed = sum(bool(r.get("resumed")) for r in done)
+    failed = [r for r in records if r["status"] != "done"]
+    lines = [f"{len(records)} shots: {len(done)} done"
+             + (f" ({resumed} in an earlier run)" if resumed else "")
+             + (f", {len(failed)} failed" if failed else "")]
+    for r in failed:
+        error = (r.get("error") or r["status"]).splitlines()
+        lines.append(f"  {r['shot']}: {error[0]}")
+        lines += [f"    {e}" for e in error[1:4]]
+    lines.append(f"summary    {Path(out, 'summary.csv').resolve()}")
+    if not args.no_sheet:
+        lines.append(f"sheet      {Path(out, 'contact-sheet.html').resolve()}")
+    return "\n".join(lines)
+
+
+def _out_dir(args: argparse.Namespace) -> Path:
+    """``-o``, else a single sweep's ``[output] dir``, else ``./wiggly-batch``."""
+    if args.out:
+        return Path(args.out)
+    from wiggly.batch import load_sweep
+    from wiggly.batch.driver import default_out_dir
+    from wiggly.batch.sweep import is_sweep, read_toml
+    from wiggly.errors import WigglyInputError
+
+    sweeps = []
+    if len(args.inputs) == 1:
+        try:
+            data = read_toml(Path(args.inputs[0]))
+        except WigglyInputError:  # the batch reports it as a failed shot
+            data = {}
+        if is_sweep(data):
+            sweeps = [load_sweep(args.inputs[0])]
+    return default_out_dir(args.inputs, sweeps)
+
+
+def _dry_run(args: argparse.Namespace) -> int:
+    from wiggly.batch.shots import collect
+
+    shots, _ = collect(args.inputs, args.write)
+    bad = 0
+    for s in shots:
+        if s.scene is None:
+            bad += 1
+            print(f"{s.name}: invalid: {(s.error or '').splitlines()[0]}")
+        else:
+            values = ", ".join(f"{k} = {json.dumps(v)}" for k, v in s.params.items())
+            print(f"{s.name}: {values or s.origin}")
+    print(f"{len(shots)} shots" + (f", {bad} invalid" if bad else ""))
+    return 1 if bad else 0
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text} must be at least 1")
+    return value

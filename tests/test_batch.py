@@ -1,0 +1,381 @@
+"""``wiggly batch`` on local worker processes: shots solved on a shared body agree with
+solving each scene alone, failures stay isolated, runs resume, folders are whole."""
+
+from __future__ import annotations
+
+import copy
+import csv
+import fcntl
+import json
+import os
+from pathlib import Path
+from typing import ClassVar
+
+import numpy as np
+import pytest
+import tomli_w
+from PIL import Image
+
+from wiggly import WigglyInputError
+from wiggly.batch import run
+from wiggly.batch.shots import body_scene
+from wiggly.batch.worker import BodyJob, ShotJob, prepare_body, run_shot
+from wiggly.cli import main
+from wiggly.export import read_animation
+from wiggly.scene import load_scene
+from wiggly.scene import run as run_scene
+
+# The bundled bar, fixed at x = 0, its tip pulled up at 0.5 s and released.
+SCENE = {
+    "mesh": {"path": "builtin:bar", "resolution": 6},
+    "simulation": {"modes": 8, "fixed": ["left"]},
+    "time": {"end": 1.0, "fps": 10},
+    "groups": {
+        "left": {"box": {"min": [-0.01, -1.0, -1.0], "max": [0.01, 1.0, 1.0]}},
+        "tip": {"sphere": {"center": [1.0, 0.0, 0.0], "radius": 0.06}},
+    },
+    "keyframes": [
+        {"time": 0.0, "group": "tip", "position": "rest", "velocity": [0.0, 0.0, 0.0]},
+        {"time": 0.5, "group": "tip", "position": {"offset": [0.0, 0.1, 0.0]},
+         "name": "pulled"},
+    ],
+    "output": {"paths": ["out/bar.npz"]},
+}
+# Two damping values x two random pulls: four shots of one body.
+SWEEP = {
+    "base": "shot.toml", "samples": 2, "seed": 1,
+    "grid": {"damping.alpha": [0.5, 4.0]},
+    "random": {"keyframes[pulled].position.offset[1]": {"uniform": [0.05, 0.15]}},
+    "output": {"paths": ["bar.npz"]},
+}
+
+
+def write_sweep(directory: Path, sweep: dict = SWEEP, scene: dict = SCENE) -> Path:
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "shot.toml").write_text(tomli_w.dumps(scene))
+    path = directory / "sweep.toml"
+    path.write_text(tomli_w.dumps(sweep))
+    return path
+
+
+def solved_alone(folder: Path):
+    """The shot's saved scene solved by itself (``wiggly animate``'s path, a cold solve)."""
+    return run_scene(load_scene(folder / "scene.toml"), outputs=[])
+
+
+def check_shot_against_alone(out: Path, record: dict) -> np.ndarray:
+    """The shot's written motion equals its scene solved alone (to within the warped solve's
+    tolerance); returns the motion."""
+    folder = out / record["folder"]
+    written = read_animation(folder / "bar.npz")
+    alone = solved_alone(folder)
+    expected = alone.positions(written.times)
+    assert np.abs(written.positions - expected).max() < 1e-3  # m, on a 1 m bar
+    worst = max(r["position_rms"] for r in alone.constraint_residuals())
+    assert record["keyframe_position_rms"] == pytest.approx(worst, rel=0.05, abs=1e-5)
+    return written.positions
+
+
+def test_sweep_on_worker_processes(tmp_path, monkeypatch):
+    monkeypatch.setenv("WIGGLY_CACHE_DIR", str(tmp_path / "cache"))  # nothing prepared yet
+    out = tmp_path / "out"
+    records = run(write_sweep(tmp_path), out, workers=2)
+    assert [r["shot"] for r in records] == [f"sweep-{i:04d}" for i in range(4)]
+    assert [r["status"] for r in records] == ["done"] * 4, [r["error"] for r in records]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["shots"] == json.loads(json.dumps(records))
+    # one body, prepared once, shared by shots that differ in damping and keyframe targets
+    assert len(summary["bodies"]) == 1 and summary["bodies"][0]["cached"] is False
+    assert summary["bodies"][0]["shots"] == 4 and len({r["body"] for r in records}) == 1
+    assert len({r["worker"] for r in records}) <= 2
+    for r in records:
+        assert sorted(p.name for p in (out / r["folder"]).iterdir()) == \
+            ["bar.npz", "result.json", "scene.toml", "thumb.png"]
+        assert r["iterations"] >= 1 and r["converged"] and r["solve_seconds"] > 0
+    assert not (out / ".staging").exists()
+    # each shot is its own scene solved alone; the two dampings give different motions
+    motions = {r["parameters"]["damping.alpha"]: check_shot_against_alone(out, r)
+               for r in records[:2]}
+    assert np.abs(motions[0.5] - motions[4.0]).max() > 10e-3
+    # the summary table: a row per shot with the sweep's parameters
+    rows = list(csv.DictReader((out / "summary.csv").open()))
+    assert [r["shot"] for r in rows] == [r["shot"] for r in records]
+    for row, r in zip(rows, records, strict=True):
+        key = "keyframes[pulled].position.offset[1]"
+        assert float(row[key]) == r["parameters"][key]
+        assert float(row["damping.alpha"]) == r["parameters"]["damping.alpha"]
+        assert row["outputs"] == json.dumps([f"{r['shot']}/bar.npz"])
+    # contact sheets: one tile per shot
+    with Image.open(out / "contact-sheet.png") as sheet:
+        assert sheet.size == (4 * 240 + 5 * 6, 180 + 34 + 2 * 6)
+    page = (out / "contact-sheet.html").read_text()
+    assert all(f'src="{r["thumbnail"]}"' in page for r in records)
+
+
+def test_shared_body_warm_starts_damping_and_gravity(tmp_path):
+    """One worker, one body, four problems (damping x gravity), two random pulls each: the
+    second shot of each problem starts from the first's solution, and every shot equals its
+    scene solved alone from scratch."""
+    sweep = {**SWEEP, "grid": {"damping.alpha": [0.5, 4.0], "simulation.gravity[1]": [-9.81,
+                                                                                      -2.0]}}
+    out = tmp_path / "out"
+    records = run(write_sweep(tmp_path, sweep), out, workers=1, contact_sheet=False)
+    assert [r["status"] for r in records] == ["done"] * 8, [r["error"] for r in records]
+    assert [r["warm_start"] for r in records] == [False] * 4 + [True] * 4
+    motions = {(r["parameters"]["damping.alpha"], r["parameters"]["simulation.gravity"][1],
+                r["sample"]): check_shot_against_alone(out, r) for r in records}
+    assert np.abs(motions[0.5, -9.81, 0] - motions[0.5, -2.0, 0]).max() > 10e-3
+
+
+def test_resume_and_changed_shots(tmp_path):
+    out = tmp_path / "out"
+    sweep = write_sweep(tmp_path)
+    first = run(sweep, out, workers=2, contact_sheet=False)
+    stamps = {r["shot"]: (out / r["shot"] / "result.json").stat().st_mtime_ns for r in first}
+    again = run(sweep, out, contact_sheet=False)  # nothing to do: no worker starts
+    assert all(r["resumed"] for r in again)
+    driver = ("resumed", "commit_seconds")  # the driver's own, not in the shot's folder
+    assert [{k: v for k, v in r.items() if k not in driver} for r in again] == \
+        [{k: v for k, v in r.items() if k not in driver} for r in first]
+    assert json.loads((out / "summary.json").read_text())["backend"].startswith("none")
+    # more samples: the four shots done are kept, two new ones run
+    more = write_sweep(tmp_path, {**SWEEP, "samples": 3})
+    records = run(more, out, workers=1, contact_sheet=False)
+    assert [r["resumed"] for r in records] == [True] * 4 + [False] * 2
+    assert all((out / s / "result.json").stat().st_mtime_ns == t for s, t in stamps.items())
+    # a changed parameter: refused without overwrite, nothing touched; replaced with it
+    changed = write_sweep(tmp_path, {**SWEEP, "grid": {"damping.alpha": [0.5, 2.0]}})
+    with pytest.raises(WigglyInputError, match=r"holds 2 shot folders of other shots "
+                                               r"\(sweep-0001, sweep-0003\).*--overwrite"):
+        run(changed, out, contact_sheet=False)
+    assert all((out / s / "result.json").stat().st_mtime_ns == t for s, t in stamps.items())
+    records = run(changed, out, workers=2, contact_sheet=False, overwrite=True)
+    assert [r["resumed"] for r in records] == [True, False, True, False]
+    assert [r["parameters"]["damping.alpha"] for r in records] == [0.5, 2.0] * 2
+
+
+def test_failures_are_isolated(tmp_path, capsys):
+    shots = tmp_path / "shots"
+    shots.mkdir()
+    scenes = {
+        "good": SCENE,
+        "typo": {**SCENE, "material": {"yuong": 1.0}},  # invalid: found before any work
+        "nogroup": {**SCENE, "groups": {**SCENE["groups"], "tip": {
+            "sphere": {"center": [5.0, 0.0, 0.0], "radius": 0.01}}}},  # fails in its worker
+        "toomany": {**SCENE, "simulation": {"modes": 500, "fixed": ["left"]}},  # its body fails
+        "badout": {**SCENE, "output": {"paths": ["bar.glb"], "gltf_targets": "modes"}},
+    }
+    for name, data in scenes.items():
+        (shots / f"{name}.toml").write_text(tomli_w.dumps(data))
+    (shots / "broken.toml").write_text("[mesh\n")
+    out = tmp_path / "out"
+    files = sorted(shots.glob("*.toml"))
+    code = main(["batch", *map(str, files), "-o", str(out), "-j", "2", "--no-sheet"])
+    stdout, stderr = capsys.readouterr()
+    assert code == 1
+    assert "6 shots: 1 done, 5 failed" in stdout
+    errors = {
+        "broken": "broken.toml: not valid TOML",
+        "typo": "typo.toml: unknown key 'yuong' in [material]; did you mean 'young'?",
+        "nogroup": "nogroup.toml: groups.tip (sphere) selects no vertex of the surface",
+        "toomany": "its body could not be prepared: ",
+        "badout": 'output.gltf_targets = "modes" needs a linear shot',
+    }
+    rows = {r["shot"]: r for r in csv.DictReader((out / "summary.csv").open())}
+    assert rows["good"]["status"] == "done"
+    for name, message in errors.items():
+        assert rows[name]["status"] == "failed" and message in rows[name]["error"], rows[name]
+        assert f"  {name}: " in stdout and not (out / name).exists()
+    assert "simulation.modes = 500 is more than the" in rows["toomany"]["error"]
+    assert "Traceback" not in stdout + stderr
+    # the progress bar counted them
+    assert "[wiggly] batch" in stderr and "failed 5" in stderr and "running" in stderr
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == \
+        ["good", "summary.csv", "summary.json"]
+    assert read_animation(out / "good" / "bar.npz").n_frames == 11
+
+
+def test_folder_is_checked_first(tmp_path, capsys):
+    sweep = write_sweep(tmp_path)
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep")
+    code = main(["batch", str(sweep), "-o", str(mine), "-q"])
+    assert code == 1 and "is not empty and holds no batch" in capsys.readouterr().err
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / ".wiggly-batch").write_text("x\n")
+    with open(out / ".wiggly-batch.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        with pytest.raises(WigglyInputError, match="another wiggly batch is writing into"):
+            run(sweep, out)
+    code = main(["batch", str(tmp_path / "missing.toml"), "-o", str(out), "--dry-run"])
+    assert code == 1 and "missing.toml: no such file" in capsys.readouterr().out
+
+
+def test_dry_run_and_schema(tmp_path, capsys):
+    code = main(["batch", str(write_sweep(tmp_path)), "--dry-run"])
+    out = capsys.readouterr().out
+    assert code == 0 and out.count("sweep-000") == 4 and out.endswith("4 shots\n")
+    assert "damping.alpha = 4.0" in out
+    assert main(["batch", "--schema"]) == 0
+    assert json.loads(capsys.readouterr().out)["title"] == "wiggly sweep"
+    assert main(["batch"]) == 2
+    assert main(["batch", "x.toml", "-j", "0"]) == 2
+    bad = write_sweep(tmp_path, {**SWEEP, "grid": {"damping.alfa": [1.0]}})
+    assert main(["batch", str(bad), "-q"]) == 1
+    err = capsys.readouterr().err
+    assert "sweep.toml: grid.\"damping.alfa\": unknown key 'alfa' in [damping]; did you mean " \
+           "'alpha'?" in err
+
+
+def test_shot_files_come_back_when_the_worker_cannot_see_the_folder(tmp_path):
+    """A Ray worker on another machine returns the files' bytes; nothing stays behind."""
+    scene = load_scene(write_sweep(tmp_path).parent / "shot.toml")
+    body = BodyJob("k", body_scene(scene), target=str(tmp_path / "body.pickle"))
+    assert prepare_body(body)["status"] == "done"
+    staging = tmp_path / "staging"
+    job = ShotJob("s", scene, "k", ("bar.npz",), str(staging), str(tmp_path / "no-marker"),
+                  "token", thumbnail=False)
+    from wiggly.batch.worker import load_pickled
+
+    record = run_shot(job, load_pickled(body.target))
+    assert record["status"] == "done" and set(record["files"]) == {"bar.npz"}
+    assert not staging.exists()
+    path = tmp_path / "bar.npz"
+    path.write_bytes(record["files"]["bar.npz"])
+    assert read_animation(path).n_frames == 11
+
+
+class InProcessPool:
+    """A stand-in for the local pool that runs its tasks in this process when waited for;
+    ``hook(names in flight)`` plays a worker's death or a Ctrl-C."""
+
+    kind = "local"
+    slots = 2
+    hook = staticmethod(lambda names: None)
+    seen: ClassVar[list] = []
+
+    def __init__(self, workers, render_checked):
+        self.tasks, self.broken = {}, False
+        self.bodies = Path(os.environ["WIGGLY_CACHE_DIR"]) / "test-bodies"
+
+    def describe(self):
+        return "in-process test pool"
+
+    def cached_body(self, key):
+        return None
+
+    def body_job(self, key, scene, mesh_file):
+        return BodyJob(key, scene, target=str(self.bodies / f"{key}.pickle"))
+
+    def prepare(self, job):
+        self.tasks[h := object()] = job
+        return h
+
+    def prepared(self, job, handle, result):
+        return result, job.target
+
+    def shot(self, job, source):
+        self.tasks[h := object()] = (job, source)
+        return h
+
+    def wait(self, handles, timeout):
+        self.seen.append(len(handles))
+        names = [getattr(self.tasks[h], "key", None) or self.tasks[h][0].name for h in handles]
+        self.broken = bool(self.hook(names))
+        return list(handles)
+
+    def outcome(self, handle):
+        from wiggly.batch.backends import WorkerDied
+        from wiggly.batch.worker import load_pickled
+
+        task = self.tasks.pop(handle)
+        if self.broken:
+            raise WorkerDied("killed")
+        if isinstance(task, BodyJob):
+            return prepare_body(task)
+        job, source = task
+        return run_shot(job, load_pickled(source))
+
+    def restart(self):
+        self.seen.append("restart")
+
+    def close(self, cancel=False):
+        pass
+
+
+def test_a_dying_worker_fails_its_shot_only(tmp_path, monkeypatch):
+    """A worker that dies (a crash, out of memory) breaks the local pool: the shots in flight
+    run again one at a time, so only the one that dies again fails."""
+    import wiggly.batch.driver as driver
+
+    seen = []  # "sweep-0001" takes the whole pool down whenever it runs
+    monkeypatch.setattr(InProcessPool, "seen", seen)
+    monkeypatch.setattr(InProcessPool, "hook", staticmethod(lambda n: "sweep-0001" in n))
+    monkeypatch.setattr(driver, "LocalPool", InProcessPool)
+    records = run(write_sweep(tmp_path), tmp_path / "out", contact_sheet=False)
+    assert [r["status"] for r in records] == ["done", "failed", "done", "done"]
+    assert "the worker process died while running it (killed)" in records[1]["error"]
+    assert seen.count("restart") == 2, seen
+    first = seen.index("restart")  # after a crash with two in flight: each alone
+    assert seen[first - 1] == 2 and seen[first + 1:first + 4] == [1, "restart", 1], seen
+
+
+def test_an_interrupted_batch_leaves_whole_folders(tmp_path, monkeypatch):
+    """Ctrl-C: the shots done keep their folders, the summary says which did not run, nothing
+    is half-written; the next run does the rest."""
+    import wiggly.batch.driver as driver
+
+    waits = []
+
+    def interrupt(names):
+        waits.append(names)
+        if len(waits) == 3:  # the body, two shots, then Ctrl-C
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(InProcessPool, "hook", staticmethod(interrupt))
+    monkeypatch.setattr(driver, "LocalPool", InProcessPool)
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        run(write_sweep(tmp_path), out, contact_sheet=False)
+    records = json.loads((out / "summary.json").read_text())["shots"]
+    assert [r["status"] for r in records] == ["done", "not run", "done", "not run"]
+    assert sorted(p.name for p in out.iterdir()) == \
+        [".wiggly-batch", ".wiggly-batch.lock", "summary.csv", "summary.json", "sweep-0000",
+         "sweep-0002"]
+    monkeypatch.setattr(InProcessPool, "hook", staticmethod(lambda names: None))
+    records = run(write_sweep(tmp_path), out, contact_sheet=False)
+    assert [r["resumed"] for r in records] == [True, False, True, False]
+
+
+def test_scene_files_of_the_same_name(tmp_path):
+    from wiggly.batch.shots import collect
+
+    for d in ("a", "b"):
+        (tmp_path / d).mkdir()
+        (tmp_path / d / "shot.toml").write_text(tomli_w.dumps(copy.deepcopy(SCENE)))
+    shots, _ = collect([tmp_path / "a" / "shot.toml", tmp_path / "b" / "shot.toml"])
+    assert [s.name for s in shots] == ["a-shot", "b-shot"]
+    assert shots[0].outputs == ("bar.npz",)
+    scene = load_scene(tmp_path / "a" / "shot.toml")  # Scene objects, and --write
+    shots, _ = collect([scene, scene], write=["x.glb", "x.gif"])
+    assert [s.name for s in shots] == ["a-shot", "a-shot-2"]
+    assert all(s.scene == scene and s.outputs == ("x.glb", "x.gif") for s in shots)
+    with pytest.raises(WigglyInputError, match=r"--write: 'out/x\.glb' has folders"):
+        collect([scene], write=["out/x.glb"])
+
+
+def test_an_unreadable_prepared_body_is_prepared_again(tmp_path, monkeypatch):
+    """A prepared body that does not load (another wiggly wrote it) costs a preparation,
+    not the batch."""
+    monkeypatch.setenv("WIGGLY_CACHE_DIR", str(tmp_path / "cache"))
+    sweep = write_sweep(tmp_path, {**SWEEP, "samples": 1, "grid": {"damping.alpha": [0.5]}})
+    first = run(sweep, tmp_path / "a", workers=1, contact_sheet=False)
+    (pickle,) = (tmp_path / "cache" / "batch" / "bodies").glob("*.pickle")
+    pickle.write_bytes(b"not a pickle")
+    again = run(sweep, tmp_path / "b", workers=1, contact_sheet=False)
+    assert again[0]["status"] == "done" and again[0]["body"] == first[0]["body"]
+    summary = json.loads((tmp_path / "b" / "summary.json").read_text())
+    assert summary["bodies"][0]["cached"] is True and pickle.read_bytes() != b"not a pickle"
