@@ -18,23 +18,26 @@ STAGES = [  # (x, y, title, module, paper)
     (3.6, 6.0, "fem", "wiggly.fem", "§2: M, K, gravity"),
     (6.4, 6.0, "modes", "wiggly.modes", "§3: K phi = lambda M phi"),
     (9.2, 6.0, "body", "wiggly.body", "prepared body (frozen)"),
-    (0.8, 3.6, "keyframes", "wiggly.keyframes", "§4: partial keyframes"),
+    (0.8, 3.6, "keyframes / drive", "wiggly.keyframes, .drive", "§4: partial keyframes"),
     (3.6, 3.6, "splines", "wiggly.splines", "§4-5: wiggly basis, energy"),
     (6.4, 3.6, "solve", "wiggly.solve", "Thm 1 & 2: linear, Newton"),
     (9.2, 3.6, "warp", "wiggly.warp", "§6: W, DW, D^2W, levels"),
     (0.8, 1.2, "scene", "wiggly.scene", "scene files, build, run"),
     (3.6, 1.2, "export", "wiggly.export", "glTF, USD, OBJ, npz"),
     (6.4, 1.2, "render", "wiggly.render", "previews"),
-    (9.2, 1.2, "cli / editor", "wiggly.cli, wiggly.editor", "command line, browser"),
+    (9.2, 1.2, "cli / editor / batch", "wiggly.cli, .editor, .batch",
+     "command line, browser, sweeps"),
 ]
 ARROWS = [  # (from, to, label, curvature[, label position])
     ("mesh", "fem", "TetMesh", 0.0), ("fem", "modes", "M, K", 0.0),
     ("modes", "body", "Modes", 0.0), ("body", "warp", "tets, masses", 0.0),
     ("body", "solve", "Body", 0.0), ("splines", "solve", "energy forms", 0.0),
-    ("keyframes", "solve", "Keyframes", -0.35, (3.95, 4.85)), ("warp", "solve", "WarpLevel", 0.0),
-    ("scene", "keyframes", "groups", 0.0), ("scene", "solve", "Body, Keyframes", 0.25, (2.5, 1.85)),
+    ("keyframes / drive", "solve", "Keyframes", -0.35, (3.95, 4.85)),
+    ("warp", "solve", "WarpLevel", 0.0),
+    ("scene", "keyframes / drive", "groups", 0.0),
+    ("scene", "solve", "Body, Keyframes", 0.25, (2.5, 1.85)),
     ("solve", "export", "positions", 0.0), ("solve", "render", "positions", 0.0),
-    ("solve", "cli / editor", "Animation", 0.0),
+    ("solve", "cli / editor / batch", "Animation", 0.0),
 ]
 
 
