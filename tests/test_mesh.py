@@ -672,3 +672,29 @@ def test_a_fine_surface_is_simplified_before_fTetWild(monkeypatch):
     assert mesh.volumes().sum() == pytest.approx(4 / 3 * np.pi * 0.5**3, rel=0.04)
     outside = embed(V, mesh).outside_distance(mesh)
     assert outside.max() < 0.2 * edge
+
+
+def test_processes_filling_one_surface_at_once_get_one_tet_mesh(tmp_path, monkeypatch):
+    """fTetWild is not reproducible, so the tet cache is written once: a process that meshes
+    a surface while another has just published its mesh of the same surface takes that one
+    (the first writer wins), and its own result never replaces a cache entry."""
+    import pytetwild
+
+    V, F = icosphere(2)
+    first = tetrahedralize(Surface(V, F), resolution=8, cache_dir=tmp_path)
+    entry = next(tmp_path.rglob("*.npz"))
+    published = entry.read_bytes()
+    original = pytetwild.tetrahedralize
+
+    def racing(V, F, **kwargs):  # meanwhile, the other process's mesh appears in the cache
+        tv, tt = original(V, F, **kwargs)
+        entry.write_bytes(published)
+        return tv + 1e-3, tt  # and ours differs
+
+    entry.unlink()
+    monkeypatch.setattr(pytetwild, "tetrahedralize", racing)
+    second = tetrahedralize(Surface(V, F), resolution=8, cache_dir=tmp_path)
+    assert entry.read_bytes() == published
+    np.testing.assert_array_equal(second.vertices, first.vertices)
+    np.testing.assert_array_equal(second.tets, first.tets)
+    assert not [p for p in entry.parent.iterdir() if p.name.startswith(".")]  # no leftovers

@@ -17,9 +17,13 @@ def fix_mode(path: str | os.PathLike[str]) -> None:
 
 
 @contextmanager
-def atomic_file(path: str | os.PathLike[str]) -> Iterator[Path]:
+def atomic_file(path: str | os.PathLike[str], replace: bool = True) -> Iterator[Path]:
     """Yield a temporary path next to ``path`` (same extension); move it to ``path`` when the
-    block succeeds (:func:`os.replace`, atomic on one file system), delete it when it raises."""
+    block succeeds (:func:`os.replace`, atomic on one file system), delete it when it raises.
+
+    ``replace=False`` publishes only if ``path`` does not exist yet (a hard link, atomic:
+    of processes racing to write the same cache entry, the first wins) and raises
+    :class:`FileExistsError` otherwise."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
@@ -28,7 +32,17 @@ def atomic_file(path: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         yield tmp
         fix_mode(tmp)
-        os.replace(tmp, path)
+        if replace:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)
+            except FileExistsError:
+                raise
+            except OSError:  # no hard links here: fall back to a check, then a rename
+                if path.exists():
+                    raise FileExistsError(str(path)) from None
+                os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
 

@@ -297,9 +297,15 @@ def _tetrahedralize(
                 loglevel=6,
             )
         if cached is not None and len(tt):
-            try:
-                with atomic_file(cached) as tmp, open(tmp, "wb") as f:
+            try:  # first writer wins: every process then meshes this surface the same way
+                with atomic_file(cached, replace=False) as tmp, open(tmp, "wb") as f:
                     np.savez(f, vertices=np.asarray(tv), tets=np.asarray(tt))
+            except FileExistsError:  # another process filled the same surface meanwhile
+                try:
+                    with np.load(cached) as data:
+                        tv, tt = data["vertices"], data["tets"]
+                except (OSError, ValueError, KeyError):
+                    pass  # unreadable: keep ours
             except OSError:
                 pass  # a read-only cache directory only costs time
     tt = np.asarray(tt, dtype=np.int64).reshape(-1, 4)
