@@ -7,7 +7,6 @@ import copy
 import csv
 import fcntl
 import json
-import os
 from pathlib import Path
 from typing import ClassVar
 
@@ -22,6 +21,7 @@ from wiggly.batch.shots import body_scene
 from wiggly.batch.worker import BodyJob, ShotJob, prepare_body, run_shot
 from wiggly.cli import main
 from wiggly.export import read_animation
+from wiggly.files import default_cache_dir
 from wiggly.scene import load_scene
 from wiggly.scene import run as run_scene
 
@@ -259,7 +259,7 @@ class InProcessPool:
 
     def __init__(self, workers, render_checked):
         self.tasks, self.broken = {}, False
-        self.bodies = Path(os.environ["WIGGLY_CACHE_DIR"]) / "test-bodies"
+        self.bodies = default_cache_dir() / "test-bodies"
 
     def describe(self):
         return "in-process test pool"

@@ -19,5 +19,10 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     anim, frames, body = namespace["anim"], namespace["frames"], namespace["body"]
     assert frames.shape == (len(anim.frame_times(30)), body.surface.n_vertices, 3)
     assert np.all(np.isfinite(frames))
-    for row in anim.constraint_residuals():  # every keyframe met to within a centimetre
-        assert row["position_rms"] < 0.01
+    # soft keyframes: the feet's rest keys at 0 and 1.6 s met to within 5 mm; at 0.8 s, where
+    # the planted feet and the head's 25 cm lift pull against each other, both within a tenth
+    # of the lift
+    rows = anim.constraint_residuals()
+    assert [r["time"] for r in rows] == [0.0, 0.8, 1.6, 0.8]
+    assert rows[0]["position_rms"] < 0.005 and rows[2]["position_rms"] < 0.005
+    assert rows[1]["position_rms"] < 0.025 and rows[3]["position_rms"] < 0.025
