@@ -238,14 +238,52 @@ def test_shot_files_come_back_when_the_worker_cannot_see_the_folder(tmp_path):
     staging = tmp_path / "staging"
     job = ShotJob("s", scene, "k", ("bar.npz",), str(staging), str(tmp_path / "no-marker"),
                   "token", thumbnail=False)
-    from wiggly.batch.worker import load_pickled
+    from wiggly.batch.worker import load_pickled, pickled_identity
 
-    record = run_shot(job, load_pickled(body.target))
+    record = run_shot(job, load_pickled(body.target), pickled_identity(body.target))
     assert record["status"] == "done" and set(record["files"]) == {"bar.npz"}
     assert not staging.exists()
     path = tmp_path / "bar.npz"
     path.write_bytes(record["files"]["bar.npz"])
     assert read_animation(path).n_frames == 11
+
+
+def test_a_worker_tells_two_preparations_of_one_body_apart(tmp_path):
+    """Two bodies prepared under one content key (fTetWild is not reproducible: two cache
+    directories hold two tet meshes) are two bodies to a worker: each shot runs on the body it
+    was given, never on one the worker kept from before."""
+    from wiggly.batch.worker import load_pickled, pickled_identity
+
+    scene = load_scene(write_sweep(tmp_path).parent / "shot.toml")
+    stiff = copy.deepcopy(SCENE)
+    stiff["material"] = {"young": 8e5}
+    (tmp_path / "stiff.toml").write_text(tomli_w.dumps(stiff))
+    motions = []
+    for name, source in (("soft", scene), ("stiff", load_scene(tmp_path / "stiff.toml"))):
+        body = BodyJob("one key", body_scene(source), target=str(tmp_path / f"{name}.pickle"))
+        assert prepare_body(body)["status"] == "done"
+        job = ShotJob(name, scene, "one key", ("bar.npz",), str(tmp_path / name),
+                      str(tmp_path / "no-marker"), "token", thumbnail=False)
+        record = run_shot(job, load_pickled(body.target), pickled_identity(body.target))
+        assert record["status"] == "done", record["error"]
+        (tmp_path / f"{name}.npz").write_bytes(record["files"]["bar.npz"])
+        motions.append(read_animation(tmp_path / f"{name}.npz").positions)
+    assert np.abs(motions[0] - motions[1]).max() > 0.01  # the stiff bar bends less
+
+
+def test_workers_use_the_callers_cache_directory(tmp_path, monkeypatch):
+    """Local workers are forked from a server process started once (its environment is that
+    of its start): a batch run with another $WIGGLY_CACHE_DIR still prepares its body (tet mesh
+    and modes) in that directory."""
+    for name in ("first", "second"):
+        cache = tmp_path / f"{name}-cache"
+        monkeypatch.setenv("WIGGLY_CACHE_DIR", str(cache))
+        sweep = write_sweep(tmp_path / name, {**SWEEP, "samples": 1,
+                                              "grid": {"damping.alpha": [1.0]}})
+        records = run(sweep, tmp_path / name / "out", workers=1, contact_sheet=False)
+        assert [r["status"] for r in records] == ["done"], records
+        assert len(list((cache / "tets").glob("*.npz"))) == 1, name
+        assert len(list((cache / "batch" / "bodies").glob("*.pickle"))) == 1, name
 
 
 class InProcessPool:
@@ -289,7 +327,7 @@ class InProcessPool:
 
     def outcome(self, handle):
         from wiggly.batch.backends import WorkerDied
-        from wiggly.batch.worker import load_pickled
+        from wiggly.batch.worker import load_pickled, pickled_identity
 
         task = self.tasks.pop(handle)
         if self.broken:
@@ -297,7 +335,7 @@ class InProcessPool:
         if isinstance(task, BodyJob):
             return prepare_body(task)
         job, source = task
-        return run_shot(job, load_pickled(source))
+        return run_shot(job, load_pickled(source), pickled_identity(source))
 
     def restart(self):
         self.seen.append("restart")

@@ -143,7 +143,12 @@ def test_2_keyframe_deleted_by_another_tab_during_a_drag(chromium, tmp_path):
             page.wait_for_function("!window.wiggly.S.dragging && "
                                    "window.wiggly.S.desc.scene.keyframes.length === 0")
             page.mouse.up()
+            wait_final(page)
+            # the linear frames come first, then the warped refinement: wait for the last
+            page.wait_for_function("!document.querySelector('#status-text').textContent"
+                                   ".startsWith('solving')")
             meta = wait_final(page)
+            assert "warped" in _status(page), _status(page)
             assert meta["version"] == server.session.version
             assert meta["id"] == latest_final(server.url)[1]["id"]
             assert server.session.scene.keyframes == []

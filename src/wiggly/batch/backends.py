@@ -51,7 +51,7 @@ def run_shot_from_file(job: worker.ShotJob, body_file: str) -> dict:
                 raise WigglyInputError(info["error"]) from None
             return worker.load_pickled(body_file)()
 
-    return worker.run_shot(job, load)
+    return worker.run_shot(job, load, worker.pickled_identity(body_file))
 
 
 #: Environment of worker processes: one thread each (the pool has a process per core;
@@ -88,9 +88,10 @@ class LocalPool:
 
     def __init__(self, workers: int, render_checked: bool) -> None:
         self.slots = workers
-        self._args = (render_checked,)
+        cache = default_cache_dir()
+        self._args = (render_checked, str(cache))
         self._start()
-        self.bodies = default_cache_dir() / "batch" / "bodies"
+        self.bodies = cache / "batch" / "bodies"
 
     def _start(self) -> None:
         self._pool = cf.ProcessPoolExecutor(self.slots, mp_context=_context(),
@@ -221,4 +222,4 @@ def _shot_on_ray(job: worker.ShotJob, body: list, render_checked: bool) -> dict:
     import ray
 
     worker.init_process(render_checked)
-    return worker.run_shot(job, lambda: ray.get(body[0]))
+    return worker.run_shot(job, lambda: ray.get(body[0]), f"ray:{body[0].hex()}")

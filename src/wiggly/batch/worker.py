@@ -1,9 +1,12 @@
 """What runs in a worker process: preparing a body, and running a shot on a prepared body.
 
 A worker keeps the bodies it has used (with their factorizations) and the spacetime problems
-it has solved, keyed by content (:attr:`Shot.body_key`, damping, gravity, time range), so a
-worker prepares nothing twice and a shot can start from the previous solution of the same
-problem (a warm start).  Every exception of a task is caught and returned as a failure: one
+it has solved, so a worker prepares nothing twice and a shot can start from the previous
+solution of the same problem (a warm start).  They are keyed by value: the body's content key
+(:attr:`Shot.body_key`) *and* the identity of the prepared body it was loaded from (a pickle
+file as it is now, a Ray object), since fTetWild is not reproducible and two preparations of
+one key (in two cache directories, say) are two different tet meshes; then damping, gravity
+and time range for a problem.  Every exception of a task is caught and returned as a failure: one
 bad shot never stops the others.
 """
 
@@ -72,10 +75,14 @@ class ShotJob:
     warm_start: bool = True
 
 
-def init_process(render_checked: bool = False) -> None:
+def init_process(render_checked: bool = False, cache_dir: str | None = None) -> None:
     """Set up a worker process: one thread for BLAS, OpenMP and numba (there is a process per
     core), also for libraries loaded before (Ray's workers); skip the offscreen-rendering
-    probe when the driver has run it."""
+    probe when the driver has run it; use the caller's cache directory ``cache_dir`` (local
+    workers: they are forked from a server process started earlier, whose environment may be
+    older than the caller's; the bodies they pickle there must use that directory's tets)."""
+    if cache_dir is not None:
+        os.environ["WIGGLY_CACHE_DIR"] = cache_dir
     # load the BLAS and OpenMP libraries of a solve now, to limit them all
     import scipy.linalg
     import scipy.sparse.linalg
@@ -168,6 +175,16 @@ def prepare_body_object(job: BodyJob) -> tuple[dict, Any]:
         return _failure(err), None
 
 
+def pickled_identity(path: str) -> str:
+    """A value naming the body pickled at ``path`` as it is now: the file's absolute path,
+    inode, size and modification time (a body pickled anew there is another body)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return f"{os.path.abspath(path)}:missing"
+    return f"{os.path.abspath(path)}:{st.st_ino}:{st.st_size}:{st.st_mtime_ns}"
+
+
 def load_pickled(path: str) -> Callable[[], Any]:
     """A loader of a body pickled by :func:`prepare_body`."""
 
@@ -178,8 +195,9 @@ def load_pickled(path: str) -> Callable[[], Any]:
     return load
 
 
-def _body(key: str, load: Callable[[], Any], warped: bool) -> tuple[Any, float]:
-    """The worker's body for ``key`` with its factorizations, and the seconds spent on it."""
+def _body(key: tuple[str, str], load: Callable[[], Any], warped: bool) -> tuple[Any, float]:
+    """The worker's body for ``key`` (content key, prepared body's identity) with its
+    factorizations, and the seconds spent on it."""
     t = time.perf_counter()
     body = _BODIES.get(key)
     if body is None:
@@ -199,15 +217,16 @@ def _body(key: str, load: Callable[[], Any], warped: bool) -> tuple[Any, float]:
 # shots
 
 
-def run_shot(job: ShotJob, load: Callable[[], Any]) -> dict:
-    """Solve one shot on the body that ``load`` returns (once per worker) and write its files;
-    return its record (a failure's message instead when anything goes wrong)."""
+def run_shot(job: ShotJob, load: Callable[[], Any], identity: str) -> dict:
+    """Solve one shot on the body that ``load`` returns (once per worker and ``identity``:
+    the prepared body's name, :func:`pickled_identity` or a Ray object id) and write its
+    files; return its record (a failure's message instead when anything goes wrong)."""
     t0, cpu0 = time.perf_counter(), time.process_time()
     record: dict[str, Any] = {"worker": _worker()}
     direct = _sees(job.marker, job.token)
     folder = Path(job.staging) if direct else Path(tempfile.mkdtemp(prefix="wiggly-shot-"))
     try:
-        record.update(_solve_and_write(job, load, folder))
+        record.update(_solve_and_write(job, load, identity, folder))
         record["status"] = "done"
         if not direct:
             record["files"] = {p.name: p.read_bytes() for p in folder.iterdir()}
@@ -230,7 +249,7 @@ def _sees(marker: str, token: str) -> bool:
         return False
 
 
-def _solve_and_write(job: ShotJob, load, folder: Path) -> dict:
+def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
     from wiggly.body import Damping
     from wiggly.scene import (
         keyframe_highlights,
@@ -242,11 +261,12 @@ def _solve_and_write(job: ShotJob, load, folder: Path) -> dict:
 
     scene = job.scene
     warped = scene.simulation.warp
-    base, setup = _body(job.body_key, load, warped)
+    bkey = (job.body_key, identity)
+    base, setup = _body(bkey, load, warped)
     damping = Damping(scene.damping.alpha, scene.damping.beta)
     body = None
     start, end = scene.time_range()
-    pkey = (job.body_key, scene.damping.alpha, scene.damping.beta, scene.simulation.gravity,
+    pkey = (bkey, scene.damping.alpha, scene.damping.beta, scene.simulation.gravity,
             start, end, scene.simulation.preroll, scene.time.loop)
     entry = _PROBLEMS.get(pkey)
     if entry is None:  # damping and gravity change only the per-mode coefficients (§4)

@@ -40,11 +40,17 @@ import os
 from pathlib import Path
 
 from wiggly.drive.basis import enrich
-from wiggly.drive.driver import DRIVE_STIFFNESS, Driver, driven_keyframes, following
+from wiggly.drive.driver import (
+    DRIVE_STIFFNESS,
+    Driver,
+    driven_keyframes,
+    following,
+    keyed_frames,
+)
 from wiggly.errors import WigglyInputError
 
 __all__ = ["DRIVER_EXTENSIONS", "DRIVE_STIFFNESS", "Driver", "driven_keyframes", "enrich",
-           "following", "read_driver"]
+           "following", "keyed_frames", "read_driver"]
 
 #: Driver formats by file extension.
 DRIVER_EXTENSIONS = {

@@ -153,6 +153,43 @@ def _edge_codes(edges: np.ndarray, n: int) -> np.ndarray:
     return edges[:, 0] * n + edges[:, 1]
 
 
+def keyed_frames(
+    driver: Driver,
+    *,
+    offset: float = 0.0,
+    driver_range: tuple[float, float] | None = None,
+    start: float | None = None,
+    end: float | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The driver frames that :func:`driven_keyframes` keys, and their shot times: frames
+    with driver time in ``driver_range`` (inclusive) and shot time ``t + offset`` in
+    ``[start, end]`` (when given; times within :data:`TIME_TOLERANCE` are clamped into it).
+    Raises :class:`WigglyInputError` when no frame falls in."""
+    if not np.isfinite(offset):
+        raise WigglyInputError(f"offset = {offset!r} s must be a finite number")
+    keep = np.ones(driver.n_frames, bool)
+    if driver_range is not None:
+        lo, hi = (float(x) for x in driver_range)
+        keep &= (driver.times >= lo - TIME_TOLERANCE) & (driver.times <= hi + TIME_TOLERANCE)
+    t = driver.times + float(offset)
+    if start is not None:
+        keep &= t >= start - TIME_TOLERANCE
+    if end is not None:
+        keep &= t <= end + TIME_TOLERANCE
+    if not keep.any():
+        first, last = driver.span
+        window = "" if driver_range is None else f", range {list(driver_range)} s"
+        shot = "" if start is None and end is None else f" in the shot's [{start}, {end}] s"
+        raise WigglyInputError(
+            f"no frame of the driver {driver.source} (frames from {first:g} to {last:g} s"
+            f"{window}, offset {offset:g} s) falls{shot}")
+    frames = np.flatnonzero(keep)
+    times = t[frames]
+    if start is not None and end is not None:
+        times = np.clip(times, start, end)
+    return frames, times
+
+
 def driven_keyframes(
     body: Body,
     driver: Driver,
@@ -183,29 +220,10 @@ def driven_keyframes(
     surface = body.surface
     driver.check(surface.n_vertices, surface.faces, body.model.source or "of the body")
     v = vertex_indices(vertices, surface.n_vertices, "surface", "driven group")
-    if not np.isfinite(offset):
-        raise WigglyInputError(f"offset = {offset!r} s must be a finite number")
-    keep = np.ones(driver.n_frames, bool)
-    if driver_range is not None:
-        lo, hi = (float(x) for x in driver_range)
-        keep &= (driver.times >= lo - TIME_TOLERANCE) & (driver.times <= hi + TIME_TOLERANCE)
-    t = driver.times + float(offset)
-    if start is not None:
-        keep &= t >= start - TIME_TOLERANCE
-    if end is not None:
-        keep &= t <= end + TIME_TOLERANCE
-    if not keep.any():
-        first, last = driver.span
-        window = "" if driver_range is None else f", range {list(driver_range)} s"
-        shot = "" if start is None and end is None else f" in the shot's [{start}, {end}] s"
-        raise WigglyInputError(
-            f"no frame of the driver {driver.source} (frames from {first:g} to {last:g} s"
-            f"{window}, offset {offset:g} s) falls{shot}")
+    frames, times = keyed_frames(driver, offset=offset, driver_range=driver_range, start=start,
+                                 end=end)
     out = []
-    for k in np.flatnonzero(keep):
-        time = float(t[k])
-        if start is not None and end is not None:
-            time = min(max(time, start), end)
+    for k, time in zip(frames.tolist(), times.tolist(), strict=True):
         out.append(Keyframe(time, v, position=driver.positions[k, v], stiffness=stiffness,
                             name=f"{name} frame {k}",
                             spec={"kind": "drive", "frame": int(k), "source": driver.source}))

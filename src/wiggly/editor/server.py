@@ -12,6 +12,8 @@ Endpoints (JSON bodies are objects; errors answer ``{"error": message}``)::
     GET  /api/frames/<id>      playback frames, binary float32 (F, n, 3)
     GET  /api/frames/latest    the newest frames (?final=1: newest final ones); meta in the
                                X-Wiggly-Frames header
+    GET  /api/driver           the [drive] driver's keyed frames, binary float32 (F, n, 3);
+                               their shot times and groups in the X-Wiggly-Driver header
     GET  /api/events           Server-Sent Events: state, frames, solve, physics, export, notice
     GET  /api/files            scene and mesh files inside the sandbox
     POST /api/edit             an edit {"op": ...} (see wiggly.editor.state), logged
@@ -245,6 +247,10 @@ class _Handler(BaseHTTPRequestHandler):
         self._send(200, fs.positions.astype("<f4", copy=False).tobytes(),
                    "application/octet-stream", {"X-Wiggly-Frames": json.dumps(fs.meta())})
 
+    def get_driver(self) -> None:
+        data, meta = self.server.session.driver_frames()
+        self._send(200, data, "application/octet-stream", {"X-Wiggly-Driver": json.dumps(meta)})
+
     def get_files(self) -> None:
         sb = self.server.session.sandbox
         self._json({"scenes": sb.listing((SCENE_SUFFIX,)), "meshes": sb.listing(MESH_SUFFIXES),
@@ -378,6 +384,7 @@ _GET = {r"/favicon.ico": _Handler.get_favicon, r"/api/state": _Handler.get_state
         r"/api/mesh": _Handler.get_mesh,
         r"/api/frames/latest": _Handler.get_latest_frames,
         r"/api/frames/(\d{1,12})": _Handler.get_frames, r"/api/files": _Handler.get_files,
+        r"/api/driver": _Handler.get_driver,
         r"/api/events": _Handler.get_events}
 _POST = {r"/api/edit": _Handler.post_edit, r"/api/preview": _Handler.post_preview,
          r"/api/preview/cancel": _Handler.post_cancel_preview,

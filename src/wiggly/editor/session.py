@@ -400,6 +400,37 @@ class Session:
         head = np.array([s.n_vertices, s.n_faces], "<u4").tobytes()
         return head + s.vertices.astype("<f4").tobytes() + s.faces.astype("<u4").tobytes()
 
+    def driver_frames(self) -> tuple[bytes, dict]:
+        """The scene's driver (``[drive]``) as the editor's ghost: float32 positions (F, n, 3)
+        of the driver frames that key the driven groups (:func:`wiggly.drive.keyed_frames`),
+        and their meta: shot times, the driven groups, the file and its kind.  A scene
+        without ``[drive]`` answers 404; a driver that cannot be read, or animates another
+        surface, 400 with the reader's message."""
+        from wiggly.drive import keyed_frames
+        from wiggly.scene.drive import scene_driver
+
+        with self._lock:
+            scene, surface = self.scene, self.surface
+        if scene.drive is None:
+            raise EditError("the scene has no [drive]", 404)
+        if surface is None:
+            raise EditError("the mesh is not loaded yet", 409)
+        drive = scene.drive
+        try:
+            driver = scene_driver(scene)
+            why = driver.mismatch(surface.n_vertices, surface.faces, scene.mesh.path)
+            if why is not None:
+                raise WigglyInputError(f"{scene.where()}: drive.path = {drive.path!r}: {why}")
+            frames, times = keyed_frames(driver, offset=drive.offset, driver_range=drive.range,
+                                         start=scene.time_range()[0],
+                                         end=scene.time_range()[1])
+        except WigglyInputError as err:
+            raise EditError(str(err)) from None
+        meta = {"n_frames": len(frames), "n_vertices": driver.n_vertices,
+                "times": times.tolist(), "groups": list(drive.groups),
+                "source": drive.path, "kind": driver.kind}
+        return driver.positions[frames].astype("<f4").tobytes(), meta
+
     def frames(self, frame_id: int) -> FrameSet:
         fs = self.playback.frames(frame_id)
         if fs is None:

@@ -8,6 +8,7 @@
 //   posing.js     the gizmo: axis keys, typed values, snapping, pivots, cancel
 //   selection.js  brush, box, lasso; visible vertices only unless X-ray
 //   onion.js      onion skins and motion paths
+//   driver.js     the [drive] driver: its ghost, the driven groups' colour and dope-sheet ticks
 //   views.js      front / side / top views, frame selected
 import * as THREE from 'three';
 import { $, S, api, hooks, act, edit, toast, setStatus, fmt, scene, range, fps, currentKey,
@@ -15,12 +16,13 @@ import { $, S, api, hooks, act, edit, toast, setStatus, fmt, scene, range, fps, 
 import { refreshState, offerFrames, setTime, togglePlay, step } from './playback.js';
 import { renderPanels, renderKeyPanel, selectGroup, selectKey, deleteGroup, openDialog, promptDialog,
   newGroupFromSelection, setGroupFromSelection, showNotices } from './panels.js';
-import { draw as drawDopesheet, drawTimeCursor, pagePoint, setPreviewRange, deleteSelectedKeys, copyKeys, pasteKeys,
+import { draw as drawDopesheet, drawTimeCursor, drivenTicks, pagePoint, setPreviewRange, deleteSelectedKeys, copyKeys, pasteKeys,
   duplicateKeys, keySelectedGroups, toggleKey } from './dopesheet.js';
 import { startPosing, stopPosing, cancelDrag, updatePoseHelpers, dragKey, dragKeyUp, gizmoHandle,
   gizmoRing, poseTarget, applyPivot, setCursor, restPose } from './posing.js';
 import { setTool, setXray, updateSelCount, screenBox } from './selection.js';
 import { updateOnion, updatePaths, updatePathMarker, faceCamera, pathOf, onionInfo } from './onion.js';
+import { syncDriver, updateDriverGhost, driverInfo } from './driver.js';
 import { viewFrom, frameSelected, viewKey } from './views.js';
 
 // ------------------------------------------------------------------------------------------
@@ -66,17 +68,21 @@ Object.assign(hooks, {
   renderPanels, renderKeyPanel, selectKey, selectGroup, openDialog, showNotices, refreshState,
   updatePoseHelpers, startPosing, stopPosing, cancelDrag,
   drawDopesheet, updatePaths, toggleKey,
-  timeChanged() { drawTimeCursor(); updateOnion(); updatePathMarker(); },
+  timeChanged() { drawTimeCursor(); updateOnion(); updatePathMarker(); updateDriverGhost(); },
+  syncDriver,
   framesChanged() { updatePaths(); updateOnion(); },
 });
 
 window.wiggly = {                 // test and benchmark hooks (read-only use)
   S, latencies: [], framesApplied: 0,
-  gizmoHandle, gizmoRing, screenBox, redraw, onionInfo,
+  gizmoHandle, gizmoRing, screenBox, redraw, onionInfo, driverInfo,
   projectGroup: (name) => screenBox(S.groupVerts[name] || []),
   rigidOfPose: () => poseTarget(),
   timePoint: (t, group) => pagePoint(t, group),
   shownPositions: () => Array.from(geometry.getAttribute('position').array),
+  shownColors: () => Array.from(geometry.getAttribute('color').array),
+  setTime: (t) => setTime(t),
+  drivenTicks: () => drivenTicks(),
   pathOf,
   camera: () => ({ position: camera.position.toArray(), target: controls.target.toArray(), fov: camera.fov, aspect: camera.aspect }),
   ready: false,
@@ -187,13 +193,15 @@ for (const el of document.querySelectorAll('[data-set]')) {
 const setView = (key, value) => { S.view[key] = value; syncView(); };
 function syncView() {
   $('onion').checked = S.view.onion; $('paths').checked = S.view.paths; $('snap').checked = S.view.snap;
+  $('driver').checked = S.view.driver;
   $('speed').value = String(S.view.speed); $('pivot').value = S.view.pivot;
-  updateOnion(); updatePaths(); redraw();
+  updateOnion(); updatePaths(); updateDriverGhost(); redraw();
 }
 $('onion').onchange = () => setView('onion', $('onion').checked);
 $('onion-count').onchange = () => setView('onionCount', Math.max(1, Math.min(8, parseInt($('onion-count').value, 10) || 3)));
 $('onion-step').onchange = () => setView('onionStep', Math.max(1, parseInt($('onion-step').value, 10) || 5));
 $('paths').onchange = () => setView('paths', $('paths').checked);
+$('driver').onchange = () => setView('driver', $('driver').checked);
 $('snap').onchange = () => setView('snap', $('snap').checked);
 $('snap-move').onchange = () => setView('snapMove', Math.max(1e-6, parseFloat($('snap-move').value) || 0.01));
 $('snap-turn').onchange = () => setView('snapTurn', Math.max(0.01, parseFloat($('snap-turn').value) || 15));
@@ -217,7 +225,7 @@ $('btn-help').onclick = () => toast([
   'W move / E rotate the keyframe (gizmo) · V its velocity · while dragging: X Y Z axis, type a value + Enter, Ctrl snap, Esc cancels',
   'Shift+right-click places the 3D cursor (pivot choice) · Shift+Tab snapping on/off',
   'Ctrl+C / Ctrl+V / Shift+D copy, paste, duplicate keys · Delete deletes them',
-  '1 / 3 / 7 (numpad) front, side, top (Ctrl or Shift: opposite) · F or numpad . frame selected · O onion skins · P motion paths',
+  '1 / 3 / 7 (numpad) front, side, top (Ctrl or Shift: opposite) · F or numpad . frame selected · O onion skins · P motion paths · D the driver ghost ([drive] scenes)',
   'Ctrl+Z undo · Ctrl+Shift+Z / Ctrl+Y redo (this tab\'s edits) · Ctrl+S save'].join('\n'));
 
 // ------------------------------------------------------------------------------------------
@@ -271,6 +279,7 @@ window.addEventListener('keydown', (e) => {
         case 'v': startPosing('velocity'); break;
         case 'o': setView('onion', !S.view.onion); break;
         case 'p': setView('paths', !S.view.paths); break;
+        case 'd': setView('driver', !S.view.driver); break;
         case '[': $('brush-radius').stepDown(5); break;
         case ']': $('brush-radius').stepUp(5); break;
         default: return;

@@ -64,6 +64,7 @@ export const S = {
   keys: new Set(),       // selected keyframe ids (dope sheet)
   clipboard: null,       // copied keyframes {keys: [...], t0}
   groupVerts: {},        // name -> Int32Array
+  driver: null,          // the [drive] driver's keyed frames {meta: {times, groups, ...}, data}
   posing: null,          // {id, mode, center}
   dragging: false,
   xform: null,           // the running gizmo drag: axis, typed value, start pose
@@ -74,7 +75,7 @@ export const S = {
   velBase: new THREE.Vector3(),
   view: {                // how this tab shows things (not part of the scene)
     onion: false, onionCount: 3, onionStep: 5,
-    paths: false, xray: false, snap: false, snapMove: 0.01, snapTurn: 15,
+    paths: false, driver: true, xray: false, snap: false, snapMove: 0.01, snapTurn: 15,
     pivot: 'centroid', speed: 1, range: null,
   },
   needsRender: true,

@@ -38,6 +38,8 @@ export function layout() {
 // Everything but the time cursor is drawn into `sheet` (when the scene, the selection or a
 // drag changes); playback only copies it and draws the cursor.
 const sheet = document.createElement('canvas');
+let ticks = {};  // group -> driven-frame ticks drawn (tests)
+export function drivenTicks() { return { ...ticks }; }
 export function draw() {
   layout();
   const w = ds.clientWidth, h = ds.clientHeight;
@@ -82,6 +84,21 @@ export function draw() {
     g.fillRect(tlX(r[1]), 0, w - tlX(r[1]), h);
     g.fillStyle = '#f0b43c';
     g.fillRect(tlX(r[0]) - 1, 0, 2, RULER); g.fillRect(tlX(r[1]) - 1, 0, 2, RULER);
+  }
+  // driven frames ([drive]): a tick per driver frame on the driven groups' rows
+  ticks = {};
+  if (S.driver) {
+    for (const name of S.driver.meta.groups) {
+      const i = rowOf(name);
+      if (i < 0) continue;
+      const y = rowY(i);
+      g.strokeStyle = groupColor(name); g.globalAlpha = 0.7; g.lineWidth = 1;
+      g.beginPath();
+      for (const t of S.driver.meta.times) { const x = Math.round(tlX(t)) + 0.5; g.moveTo(x, y - 4); g.lineTo(x, y + 4); }
+      ticks[name] = S.driver.meta.times.length;
+      g.stroke();
+      g.globalAlpha = 1;
+    }
   }
   // keys
   for (const k of scene().keyframes) {

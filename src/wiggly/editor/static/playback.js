@@ -70,6 +70,7 @@ export async function refreshState() {
       for (const id of [...S.keys]) if (!ids.has(id)) S.keys.delete(id);
       if (S.selectedKey !== null && !ids.has(S.selectedKey)) hooks.selectKey(null);
       hooks.renderPanels();
+      hooks.syncDriver();
       hooks.showNotices(d);
       if (d.group_error) setStatus(d.group_error, 'err');
     } while (stateAgain);
@@ -191,6 +192,9 @@ export function updateColors(force = true) {
   const tint = new THREE.Color();
   const weights = {};
   for (const name of Object.keys(scene().groups)) weights[name] = name === S.selectedGroup || S.groups.has(name) ? 0.45 : 0.18;
+  // driven groups ([drive]) are keyed at every driver frame: always in their colour
+  const drive = scene().drive;
+  for (const name of drive ? [].concat(drive.group) : []) if (name in weights) weights[name] = Math.max(weights[name], 0.6);
   for (const k of scene().keyframes) {
     const w = Math.max(0, 1 - Math.abs(S.t - k.time) / KEY_WINDOW);
     weights[k.group] = Math.max(weights[k.group] || 0, 0.18 + 0.82 * w);

@@ -1,0 +1,124 @@
+// The driver of a [drive] scene (secondary motion on an existing animation): a ghost of the
+// driver's pose at the current time (what the driven groups follow, and where the free parts
+// would be without physics), the driven groups in their colour, and the driven frames as
+// ticks on the group's row of the dope sheet.  D toggles the ghost.
+import * as THREE from 'three';
+import { S, geometry, scene3, scene, redraw, setStatus, hooks } from './core.js';
+
+const GHOST = new THREE.Color(0.93, 0.95, 1.0);
+const ghostGeom = new THREE.BufferGeometry();
+// unlit, see-through, drawn after the body without writing depth: the body shows where it
+// and the driver coincide, the ghost where the body lags or overshoots
+const ghost = new THREE.Mesh(ghostGeom, new THREE.MeshBasicMaterial({
+  color: GHOST, transparent: true, opacity: 0.22, depthWrite: false, side: THREE.DoubleSide,
+  polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 4 }));
+// its edges share the ghost's positions (an index of each edge once)
+const edgeGeom = new THREE.BufferGeometry();
+const edges = new THREE.LineSegments(edgeGeom,
+  new THREE.LineBasicMaterial({ color: GHOST, transparent: true, opacity: 0.18, depthWrite: false }));
+ghost.frustumCulled = false; edges.frustumCulled = false;
+ghost.renderOrder = 1; edges.renderOrder = 1;
+const group = new THREE.Group();
+group.add(ghost, edges);
+group.visible = false;
+scene3.add(group);
+
+let loadedKey = null, loading = null;
+
+// The drive spec this tab shows (null without [drive]); a new one reloads the driver.
+function driveKey() {
+  const sc = scene();
+  if (!sc || !sc.drive) return null;
+  return JSON.stringify([S.meshKey, sc.drive, sc.time_range]);
+}
+
+// Fetch the driver's keyed frames when the scene's [drive] changed (called on every state).
+export async function syncDriver() {
+  const key = driveKey();
+  if (key === loadedKey) return;
+  loadedKey = key;
+  S.driver = null;
+  group.visible = false;
+  if (key === null) { hooks.drawDopesheet(); redraw(); return; }
+  const mine = loading = fetch('/api/driver');
+  try {
+    const res = await mine;
+    if (loading !== mine) return;  // a newer [drive] is loading
+    if (!res.ok) {
+      let msg = `${res.status}`;
+      try { msg = (await res.json()).error || msg; } catch { /* not JSON */ }
+      setStatus(`driver: ${msg}`, 'err');
+      return;
+    }
+    const meta = JSON.parse(res.headers.get('X-Wiggly-Driver'));
+    const data = new Float32Array(await res.arrayBuffer());
+    if (loading !== mine || meta.n_vertices !== S.n) return;
+    S.driver = { meta, data };
+    const pos = new THREE.BufferAttribute(new Float32Array(S.n * 3), 3);
+    ghostGeom.setIndex(geometry.getIndex());
+    ghostGeom.setAttribute('position', pos);
+    edgeGeom.setIndex(new THREE.BufferAttribute(uniqueEdges(S.faces, S.n), 1));
+    edgeGeom.setAttribute('position', pos);
+    updateDriverGhost();
+    hooks.drawDopesheet();
+  } catch (err) {
+    if (loading === mine) setStatus(`driver: ${err.message}`, 'err');
+  }
+}
+
+// Each edge of the triangles once, as pairs of vertex indices.
+function uniqueEdges(faces, n) {
+  const seen = new Set(), out = [];
+  for (let f = 0; f < faces.length; f += 3) {
+    for (let e = 0; e < 3; e++) {
+      const a = faces[f + e], b = faces[f + (e + 1) % 3];
+      const lo = Math.min(a, b), hi = Math.max(a, b), code = lo * n + hi;
+      if (!seen.has(code)) { seen.add(code); out.push(lo, hi); }
+    }
+  }
+  return new Uint32Array(out);
+}
+
+// The driver's pose at shot time t: linear between its keyed frames, null outside them.
+export function driverPose(t = S.t) {
+  const d = S.driver;
+  if (!d) return null;
+  const times = d.meta.times, F = times.length, n3 = S.n * 3;
+  if (t < times[0] - 1e-9 || t > times[F - 1] + 1e-9) return null;
+  let i = 0;
+  while (i < F - 2 && times[i + 1] <= t) i++;
+  const a = d.data.subarray(i * n3, (i + 1) * n3);
+  if (F === 1 || t <= times[i]) return a;
+  const b = d.data.subarray((i + 1) * n3, (i + 2) * n3);
+  const w = Math.min(1, Math.max(0, (t - times[i]) / (times[i + 1] - times[i])));
+  const out = new Float32Array(n3);
+  for (let j = 0; j < n3; j++) out[j] = a[j] + (b[j] - a[j]) * w;
+  return out;
+}
+
+// Move the ghost to the current time (called at every time change).
+export function updateDriverGhost() {
+  const pose = S.view.driver ? driverPose() : null;
+  const show = pose !== null && ghostGeom.getAttribute('position') !== undefined;
+  if (show) {
+    const pos = ghostGeom.getAttribute('position');
+    pos.array.set(pose);
+    pos.needsUpdate = true;
+  }
+  if (group.visible !== show || show) redraw();
+  group.visible = show;
+}
+
+// Groups keyed by the driver (their dope-sheet rows get a tick per driven frame).
+export function drivenGroups() {
+  const sc = scene();
+  if (!sc || !sc.drive) return [];
+  return typeof sc.drive.group === 'string' ? [sc.drive.group] : sc.drive.group;
+}
+
+// Test hooks: what the ghost shows.
+export function driverInfo() {
+  const pos = ghostGeom.getAttribute('position');
+  return { loaded: !!S.driver, visible: group.visible, times: S.driver ? S.driver.meta.times : [],
+    groups: drivenGroups(), positions: group.visible && pos ? Array.from(pos.array) : null };
+}

@@ -1,0 +1,152 @@
+"""A [drive] scene in the editor (issue 13): the driver's pose as a ghost that follows the
+time cursor, the driven group in its colour with a tick per driven frame, D to hide the ghost;
+the server's driver endpoint and its errors."""
+
+from __future__ import annotations
+
+import json
+import urllib.error
+import urllib.request
+
+import meshio
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from tests.editor_ui import editor_page, wait_final
+from wiggly.editor import serve
+from wiggly.export import SurfaceAnimation, write_animation
+from wiggly.mesh import TetMesh
+from wiggly.primitives import box_mesh
+
+pytestmark = pytest.mark.browser
+
+FPS = 20
+SCENE = """\
+format = 1
+[mesh]
+path = "bar.vtu"
+[material]
+young = 5e4
+[simulation]
+modes = 12
+warp = false
+[time]
+end = 1.0
+fps = 20
+[groups.driven]
+box = { min = [-1, -1, -1], max = [0.3, 1, 1] }
+color = "#d62728"
+[groups.tip]
+box = { min = [0.7, -1, -1], max = [1, 1, 1] }
+[drive]
+path = "walk.npz"
+group = "driven"
+"""
+
+
+def driver_motion(V: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The whole bar turning about a vertical axis (25 degrees at 1 Hz), rigidly: (F, n, 3)."""
+    pivot = np.array([0.15, 0.05, 0.05])
+    return np.array([Rotation.from_euler("y", 25.0 * np.sin(2 * np.pi * tk), degrees=True)
+                     .apply(V - pivot) + pivot for tk in t])
+
+
+def drive_project(folder, driver_vertices: slice = slice(None)):
+    """An 0.8 m tet bar whose left part is driven by a rigid turn (walk.npz, 21 frames);
+    returns (scene path, driver positions)."""
+    V, T = box_mesh((8, 2, 2), (0.8, 0.1, 0.1))
+    meshio.write(folder / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+    times = np.arange(21) / FPS
+    faces = TetMesh(V, T).boundary_faces()
+    keep = np.arange(len(V))[driver_vertices]
+    P = driver_motion(V, times)[:, keep]
+    if len(keep) < len(V):  # another surface: a driver of the first vertices only
+        faces = faces[np.all(np.isin(faces, keep), axis=1)]
+    write_animation(folder / "walk.npz", SurfaceAnimation(times, P, faces))
+    (folder / "shot.toml").write_text(SCENE)
+    return folder / "shot.toml", P
+
+
+def get_driver(url: str):
+    try:
+        with urllib.request.urlopen(url + "api/driver", timeout=30) as r:
+            return r.status, r.read(), json.loads(r.headers["X-Wiggly-Driver"])
+    except urllib.error.HTTPError as err:
+        return err.code, None, json.loads(err.read())
+
+
+def test_the_driver_is_a_ghost_that_follows_the_time_cursor(chromium, tmp_path):
+    """The ghost shows the driver's pose at the current frame; the driven vertices of the
+    solved motion lie on it (the solve follows the driver), the free tip does not; D hides
+    and shows it; the driven group's row has a tick per driven frame."""
+    path, P = drive_project(tmp_path)
+    server = serve(path)
+    try:
+        status, data, meta = get_driver(server.url)
+        assert status == 200 and meta["n_frames"] == 21 and meta["groups"] == ["driven"]
+        assert np.allclose(meta["times"], np.arange(21) / FPS)
+        assert np.array_equal(np.frombuffer(data, "<f4").reshape(P.shape), P.astype("<f4"))
+        with editor_page(chromium, server.url) as (page, errors):
+            wait_final(page)
+            page.wait_for_function("window.wiggly.driverInfo().loaded")
+            page.locator("#canvas").click(position={"x": 5, "y": 5})  # focus, no selection
+            for _ in range(5):
+                page.keyboard.press("ArrowRight")  # 0.25 s: driver frame 5
+            page.wait_for_function("Math.abs(window.wiggly.S.t - 0.25) < 1e-9")
+            info = page.evaluate("window.wiggly.driverInfo()")
+            assert info["visible"] and info["groups"] == ["driven"]
+            ghost = np.asarray(info["positions"]).reshape(-1, 3)
+            assert np.array_equal(ghost, P[5].astype(np.float32))
+            shown = np.asarray(page.evaluate("window.wiggly.shownPositions()")).reshape(-1, 3)
+            driven = np.asarray(server.session.groups()["driven"])
+            tip = np.asarray(server.session.groups()["tip"])
+            assert np.abs(shown[driven] - ghost[driven]).max() < 1e-3  # m: it follows
+            assert np.abs(shown[tip] - ghost[tip]).max() > 5e-3  # the free end lags
+            # halfway between frames 5 and 6 the ghost is the linear blend of the two
+            page.evaluate("window.wiggly.setTime(0.275)")
+            info = page.evaluate("window.wiggly.driverInfo()")
+            half = (P[5].astype(np.float32) + P[6].astype(np.float32)) / 2
+            assert np.abs(np.asarray(info["positions"]).reshape(-1, 3) - half).max() < 1e-6
+            page.keyboard.press("d")
+            assert not page.evaluate("window.wiggly.driverInfo().visible")
+            assert not page.locator("#driver").is_checked()
+            page.keyboard.press("d")
+            assert page.evaluate("window.wiggly.driverInfo().visible")
+            # the driven group is drawn in its colour (#d62728), far more than the tip is
+            color = np.asarray(page.evaluate("window.wiggly.shownColors()")).reshape(-1, 3)
+            red = np.array([0xd6, 0x27, 0x28]) / 255
+            to_red = np.linalg.norm(color - red, axis=1)
+            assert to_red[driven].max() < 0.5 * to_red[tip].min(), (color[driven[0]],
+                                                                   color[tip[0]])
+            assert page.evaluate("window.wiggly.drivenTicks()") == {"driven": 21}
+            assert not errors, errors
+    finally:
+        server.stop()
+
+
+def test_driver_errors_reach_the_page(chromium, tmp_path):
+    """A scene without [drive] has no ghost (404); a driver of another surface is refused
+    with both vertex counts, in the page's status line."""
+    path, _ = drive_project(tmp_path, driver_vertices=slice(0, 40))
+    server = serve(path)
+    try:
+        status, _, body = get_driver(server.url)
+        assert status == 400
+        assert "40" in body["error"] and "81" in body["error"], body
+        with editor_page(chromium, server.url) as (page, errors):
+            page.wait_for_function("document.querySelector('#status-text').textContent"
+                                   ".startsWith('driver:')")
+            text = page.locator("#status-text").text_content()
+            assert "40" in text and "81" in text, text
+            assert not page.evaluate("window.wiggly.driverInfo().loaded")
+            assert not errors, errors
+    finally:
+        server.stop()
+    (tmp_path / "plain.toml").write_text(SCENE.split("[drive]")[0])
+    server = serve(tmp_path / "plain.toml")
+    try:
+        status, _, body = get_driver(server.url)
+        assert status == 404 and "no [drive]" in body["error"]
+    finally:
+        server.stop()
