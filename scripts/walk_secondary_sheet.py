@@ -1,11 +1,11 @@
 """Render ``docs/walk_secondary.png``: the walk driver above, wiggly's motion below.
 
-Solves ``examples/walk_secondary.toml`` (about a minute and a half on two cores, most of it
-the warped solve) and renders two contact sheets at the same times, seen from the side: the
-driver (``examples/critter_walk.glb``, whose tail and ears are skinned rigidly and which
-holds its last pose after 2 s) and the solved motion, with the driven group in blue and the
-free tail and ears in orange.  Mid-walk they look alike; once the walk stops the free parts
-swing on and settle.  Run from the repository root::
+Solves ``examples/walk_secondary.toml`` (about a minute on two cores) and renders two
+contact sheets at the same times, seen from three quarters: the driver
+(``examples/critter_walk.glb``, whose tail and ears are skinned rigidly and which holds its
+last pose after 2 s) and the solved motion, with the driven group in blue and the free tail
+and ears in orange.  Mid-walk they look alike; once the walk stops the free parts swing on
+and settle.  Run from the repository root::
 
     .venv/bin/python scripts/walk_secondary_sheet.py [out.png]
 """
@@ -20,7 +20,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from wiggly.drive import read_driver
-from wiggly.render import render_contact_sheet
+from wiggly.render import Highlight, render_contact_sheet
 from wiggly.scene import load_scene, run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,19 +37,25 @@ def main(out: Path = ROOT / "docs" / "walk_secondary.png") -> Path:
     k = np.minimum(np.searchsorted(driver.times, times - 1e-9), driver.n_frames - 1)
     driven_pose = driver.positions[k]  # frames are on the same 30 fps grid; last pose after
     faces = anim.body.surface.faces
+    groups = anim.info["scene"]["groups"]
+    free = np.concatenate([groups["tail"], groups["ears"]])
+    always = 1e3  # s: a highlight window longer than the shot colours every frame
+    colours = [Highlight(groups["body"], 0.0, (0.12, 0.47, 0.71), label=None, window=always),
+               Highlight(free, 0.0, (1.0, 0.5, 0.05), label=None, window=always)]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, positions in (("driver", driven_pose), ("wiggly", solved)):
             path = render_contact_sheet(Path(tmp) / f"{name}.png", times, positions, faces,
                                         at=TIMES, columns=len(TIMES), tile_size=TILE,
-                                        camera="three_quarter")
+                                        camera="three_quarter", highlights=colours)
             rows.append(Image.open(path).convert("RGB"))
     label = 28
     sheet = Image.new("RGB", (rows[0].width, 2 * (rows[0].height + label)), (250, 250, 250))
     draw = ImageDraw.Draw(sheet)
     font = ImageFont.load_default(size=18)
     captions = ("driver: critter_walk.glb, skinned (tail and ears rigid), stops at 2 s",
-                "wiggly: body keyed to the driver at every frame; tail and ears free")
+                "wiggly: the body (blue) keyed to the driver at every frame; the tail and the "
+                "ears (orange) free")
     for j, (row, caption) in enumerate(zip(rows, captions, strict=True)):
         y = j * (row.height + label)
         draw.text((10, y + label / 2), caption, anchor="lm", fill=(20, 22, 28), font=font)

@@ -1,6 +1,7 @@
-"""examples/walk_secondary.toml as shipped: its driver is what scripts/make_walk_driver.py
-makes, a valid, periodic skinned glTF of the critter's own surface; the driven vertices
-follow it to within 1 mm; the free tail and ears swing when the walk stops and settle."""
+"""examples/walk_secondary.toml and walk_cycle.toml as shipped: their driver is what
+scripts/make_walk_driver.py makes, a valid, periodic skinned glTF of the critter's own
+surface; the driven vertices follow it to within 1 mm; the free tail and ears swing when the
+walk stops and settle; the cycle loops without a seam while the tail and ears move."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from wiggly.scene import load_scene, run
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "walk_secondary.toml"
+CYCLE = ROOT / "examples" / "walk_cycle.toml"
 DRIVER = ROOT / "examples" / "critter_walk.glb"
 
 
@@ -72,3 +74,22 @@ def test_free_parts_swing_when_the_walk_stops_and_settle(walk):
         assert off.max() > 0.03, (name, off.max())
         late = t > 3.2
         assert off[late].max() < 0.15 * off.max(), (name, off[late].max(), off.max())
+
+
+def test_the_walk_cycle_loops_without_a_seam():
+    """walk_cycle.toml (one cycle, loop = true, warped): the driven vertices follow within
+    1 mm at every driver frame; positions and velocities at the end equal those at the start
+    (to 1e-9 relative), and the free tail and ears move along with the walk."""
+    scene = load_scene(CYCLE)
+    anim = run(scene, outputs=[])
+    assert anim.loop and anim.info["converged"]
+    report = anim.info["drive"]
+    assert report["frames"] == 31 and report["max"] < 1e-3, report
+    P, V = anim.positions([0.0, 1.0]), anim.velocities_at([0.0, 1.0])
+    assert np.abs(P[1] - P[0]).max() <= 1e-9 * np.abs(P).max()
+    assert np.abs(V[1] - V[0]).max() <= 1e-9 * np.abs(V).max()
+    groups = anim.info["scene"]["groups"]
+    Q = anim.positions(np.arange(31) / 30)
+    for name in ("tail", "ears"):
+        v = groups[name]
+        assert np.linalg.norm(Q[:, v] - Q[0, v], axis=2).max() > 0.01, name

@@ -694,3 +694,14 @@ def test_compact_glb_refuses_a_motion_that_is_not_modal(tmp_path):
     anim.positions = anim.positions + 0.01  # not rest + modal . shapes
     with pytest.raises(WigglyInputError, match="linear motions only"):
         write_animation(tmp_path / "b.glb", anim, gltf_targets="modes")
+
+
+def test_progress_names_the_users_file_not_the_temporary_one(tmp_path):
+    """Outputs are written to a hidden temporary file first; progress bars show the user's
+    name for it."""
+    from wiggly.files import atomic_file, shown_name
+
+    for name in ("walk_cycle.png", "a.b.usdc", "shot"):
+        with atomic_file(tmp_path / name) as tmp:
+            assert tmp.name != name and shown_name(tmp) == name
+    assert shown_name(tmp_path / ".hidden.glb") == ".hidden.glb"  # a user's own hidden file

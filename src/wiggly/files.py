@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -45,6 +46,14 @@ def atomic_file(path: str | os.PathLike[str], replace: bool = True) -> Iterator[
                 os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def shown_name(path: str | os.PathLike[str]) -> str:
+    """The file name to show users for ``path``: the name a temporary file of
+    :func:`atomic_file` stands for (``.shot.k3x9_a2b.png`` is ``shot.png``), else its own."""
+    name = Path(path).name
+    m = re.fullmatch(r"\.(?P<stem>.+)\.[a-z0-9_]{8}(?P<suffix>\.[^.]*)?", name)
+    return m["stem"] + (m["suffix"] or "") if m else name
 
 
 def default_cache_dir() -> Path:

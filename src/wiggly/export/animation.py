@@ -11,6 +11,7 @@ import scipy.sparse as sp
 from tqdm import tqdm
 
 from wiggly.errors import WigglyInputError
+from wiggly.files import shown_name
 
 #: Output formats by file extension.
 SUPPORTED = {
@@ -275,7 +276,7 @@ def _require(module: str, package: str, ext: str):
 
 def _progress(iterable, total: int, enabled: bool, what: str):
     return tqdm(iterable, total=total, disable=not enabled, file=sys.stderr, unit="frame",
-                desc=what)
+                desc=shown_name(what))
 
 
 # time codes of the formats

@@ -13,7 +13,7 @@ import numpy as np
 from tqdm import tqdm
 
 from wiggly.errors import WigglyInputError
-from wiggly.files import atomic_file
+from wiggly.files import atomic_file, shown_name
 from wiggly.render.preview import Preview
 from wiggly.render.setup import (
     GIF_MAX_FPS,
@@ -86,7 +86,7 @@ def video_frame_times(times, fps: float | None = None,
 
 def _scene_progress(frames, enabled: bool, what: str):
     return tqdm(frames, total=len(frames), disable=not enabled, file=sys.stderr, unit="frame",
-                desc=what)
+                desc=shown_name(what))
 
 
 def render_video(path, times, positions, faces, *, highlights: Sequence[Highlight] = (),

@@ -329,7 +329,7 @@ class Preview:
             actor = text((margin, margin), valign="bottom",
                          color=tuple(0.8 * np.asarray(hl.color)), bold=True)
             name = hl.label or f"keyframe {k + 1}"
-            actor.SetInput(f"{name}  (key t = {hl.time:.2f} s)")
+            actor.SetInput(f"{name}  (key t = {hl.time:.2f} s)" if hl.label is not None else "")
             actor.SetVisibility(False)
             self._key_labels.append(actor)
         self._label_rows = (margin, round(1.3 * font))  # first row, row height
@@ -362,8 +362,9 @@ class Preview:
             wgt = hl.weight(t)
             if wgt > 0:
                 colors[hl.vertices] = (1 - wgt) * colors[hl.vertices] + wgt * np.asarray(hl.color)
-            label.SetVisibility(wgt > 0)
-            if wgt > 0:  # stack the visible labels from the bottom
+            shown = wgt > 0 and hl.label is not None
+            label.SetVisibility(shown)
+            if shown:  # stack the visible labels from the bottom
                 first, height = self._label_rows
                 label.SetDisplayPosition(first, first + row * height)
                 row += 1

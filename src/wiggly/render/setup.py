@@ -72,8 +72,9 @@ class Highlight:
     color : (3,) float in [0, 1]
         Highlight color; blended into the vertex colors with weight
         ``smoothstep(1 - |t - time| / window)`` (1 at the key time, 0 beyond ``window``).
-    label : str
-        Shown in the lower left corner while highlighted.
+    label : str or None
+        Shown in the lower left corner while highlighted ("" names it "keyframe N"; None
+        shows no label: a colour only).
     targets : (k, 3) float or None
         Target positions, drawn as small spheres while highlighted.
     window : float
@@ -83,7 +84,7 @@ class Highlight:
     vertices: np.ndarray
     time: float
     color: tuple[float, float, float] = (1.0, 0.35, 0.1)
-    label: str = ""
+    label: str | None = ""
     targets: np.ndarray | None = None
     window: float = HIGHLIGHT_WINDOW
 
