@@ -51,7 +51,7 @@ def test_every_example_is_documented():
     readme = (EXAMPLES / "README.md").read_text()
     names = sorted(p.name for p in EXAMPLES.glob("*.toml"))
     assert names == ["hop_walk.toml", "jump.toml", "plant_swing.toml", "turn.toml",
-                     "walk_secondary.toml"]  # tested in test_drive_example.py
+                     "walk_cycle.toml", "walk_secondary.toml"]  # the walks: test_drive_example
     assert all(f"`{n}`" in readme for n in names)
     for name in names:  # outputs go under out/ next to the scene (git-ignored)
         assert all(p.startswith("out/") for p in load_scene(EXAMPLES / name).output.paths)
