@@ -698,3 +698,59 @@ def test_processes_filling_one_surface_at_once_get_one_tet_mesh(tmp_path, monkey
     np.testing.assert_array_equal(second.vertices, first.vertices)
     np.testing.assert_array_equal(second.tets, first.tets)
     assert not [p for p in entry.parent.iterdir() if p.name.startswith(".")]  # no leftovers
+
+
+# --------------------------------------------------------------------------- solid pieces
+
+
+def _box_with(offset, size):
+    """A unit box of 2x2x2 cells and a smaller box of ``size`` at ``offset`` (its lower
+    corner), welded where they share vertices."""
+    from wiggly.primitives import box_mesh
+
+    V1, T1 = box_mesh((2, 2, 2))
+    V2, T2 = box_mesh((1, 1, 1), size=(size,) * 3, origin=offset)
+    V = np.vstack([V1, V2])
+    T = np.vstack([T1, T2 + len(V1)])
+    unique, inverse = np.unique(np.round(V, 9), axis=0, return_inverse=True)
+    return TetMesh(unique, inverse.ravel()[T]), len(T1)
+
+
+@pytest.mark.parametrize(("offset", "pieces"), [
+    ((1.0, 1.0, 1.0), 2),   # touching at a vertex: hinged, two pieces
+    ((1.0, 1.0, 0.0), 2),   # sharing an edge: hinged
+    ((3.0, 0.0, 0.0), 2),   # apart
+    ((1.0, 0.0, 0.0), 1),   # sharing a face: one solid
+])
+def test_solid_pieces_hold_together_by_faces(offset, pieces):
+    from wiggly.mesh.data import solid_pieces, without_small_pieces
+
+    mesh, n_box = _box_with(offset, 0.1 if pieces == 2 else 0.5)
+    labels, volume = solid_pieces(mesh)
+    assert labels.shape == (mesh.n_tets,) and set(labels.tolist()) == set(range(pieces))
+    assert len(volume) == pieces and volume.sum() == pytest.approx(mesh.volumes().sum())
+    kept, dropped, share = without_small_pieces(mesh, 0.02)
+    if pieces == 1:
+        assert kept is mesh and dropped == 0
+    else:  # the small box (0.1 % of the volume) is left out: the unit box remains, whole
+        assert dropped == 1 and share == pytest.approx(1e-3 / 1.001)
+        assert kept.n_tets == n_box and kept.volumes().sum() == pytest.approx(1.0)
+
+
+def test_a_surface_with_a_small_loose_piece_animates_with_one_warning(tmp_path):
+    """A body with a small separate bit (a 1 % cube beside it, as fTetWild fills it) used to
+    be refused as disconnected parts; the bit is left out of the tet mesh, its surface
+    follows the nearest tets, and one warning says so."""
+    import wiggly
+
+    body = trimesh.creation.box((1.0, 0.4, 0.4))
+    bit = trimesh.creation.box((0.08, 0.08, 0.08))
+    bit.apply_translation((0.56, 0.0, 0.0))
+    both = trimesh.util.concatenate([body, bit])
+    path = tmp_path / "with_bit.obj"
+    both.export(path)
+    with pytest.warns(wiggly.mesh.MeshRepairWarning, match="1 small piece of the tet mesh"):
+        model = load_model(path, resolution=12, cache_dir=False)
+    assert model.tets.volumes().sum() == pytest.approx(0.16, rel=0.05)
+    b = wiggly.prepare(model, n_modes=10, cache_dir=False)
+    assert b.modes.n_rigid == 6

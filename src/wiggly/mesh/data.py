@@ -297,6 +297,38 @@ def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.unique(rows, axis=0, return_inverse=True, return_counts=True)
 
 
+def solid_pieces(mesh: TetMesh) -> tuple[np.ndarray, np.ndarray]:
+    """The pieces of a tet mesh that hold together as solids: tets sharing a *face* are one
+    piece (tets touching only at an edge or a vertex hinge there, a motion that costs no
+    elastic energy).  Returns each tet's piece label (m,) and each piece's volume."""
+    m = mesh.n_tets
+    faces = np.sort(mesh.tets[:, _TET_FACES].reshape(-1, 3), axis=1)
+    _, inverse, counts = _unique_rows(faces)
+    order = np.argsort(inverse, kind="stable")
+    shared = order[counts[inverse[order]] == 2]  # faces of two tets, side by side
+    pairs = shared.reshape(-1, 2) // 4
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m))
+    _, labels = connected_components(graph, directed=False)
+    return labels, np.bincount(labels, weights=np.abs(mesh.volumes()))
+
+
+def without_small_pieces(mesh: TetMesh, fraction: float) -> tuple[TetMesh, int, float]:
+    """``mesh`` without its solid pieces (:func:`solid_pieces`) of less than ``fraction`` of
+    its volume (unused vertices removed); also how many pieces went and their share of the
+    volume.  A mesh of one piece is returned as it is."""
+    labels, volume = solid_pieces(mesh)
+    small = volume < fraction * volume.sum()
+    if len(volume) == 1 or not small.any() or small.all():
+        return mesh, 0, 0.0
+    keep = ~small[labels]
+    T = mesh.tets[keep]
+    used = np.unique(T)
+    compact = np.zeros(mesh.n_vertices, dtype=np.int64)
+    compact[used] = np.arange(len(used))
+    return (TetMesh(mesh.vertices[used], compact[T]), int(small.sum()),
+            float(volume[small].sum() / volume.sum()))
+
+
 def _count_components(T: np.ndarray, n: int) -> int:
     """Number of connected components of the tets (vertex-sharing tets are connected)."""
     if len(T) == 0:

@@ -176,13 +176,19 @@ def tetrahedralize(
 
 
 def repair_note(source: str, report: SurfaceReport, far_outside: int = 0,
-                farthest: float = 0.0) -> str:
+                farthest: float = 0.0, dropped: int = 0, share: float = 0.0) -> str:
     """The one-line warning of an accepted surface: what was unusual and what was done."""
     parts = []
     if not report.clean:
         parts.append(f"the surface has {_join(report.defects())}; fTetWild filled the solid "
                      "its triangles enclose (by winding numbers), and the animation is "
                      "delivered on your surface as it is")
+    if dropped:
+        parts.append(f"{counted(dropped, 'small piece')} of the tet mesh ({100 * share:.2g} % "
+                     f"of its volume) {'holds' if dropped == 1 else 'hold'} to the body by an "
+                     "edge, a vertex or nothing and would swing freely there; "
+                     f"{'it was' if dropped == 1 else 'they were'} left out, and the surface "
+                     "around them follows the nearest tets")
     if far_outside:
         parts.append(f"{counted(far_outside, 'vertex')} of the surface "
                      f"{'lies' if far_outside == 1 else 'lie'} outside the filled solid, up to "

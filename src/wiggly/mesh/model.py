@@ -8,12 +8,17 @@ from pathlib import Path
 
 import numpy as np
 
-from wiggly.mesh.data import Embedding, Model, Surface, TetMesh, embed
+from wiggly.mesh.data import Embedding, Model, Surface, TetMesh, embed, without_small_pieces
 from wiggly.mesh.defects import (
     CheckedSurface,
 )
 from wiggly.mesh.filling import FAR_OUTSIDE, MeshRepairWarning, _tetrahedralize, repair_note
 from wiggly.mesh.loading import load_mesh
+
+#: Solid pieces of a filled surface's tet mesh with less than this share of its volume are left
+#: out (:func:`wiggly.mesh.data.without_small_pieces`); larger loose parts are refused by the
+#: eigenmode stage unless held by fixed vertices.
+SMALL_PIECE = 0.02
 
 
 def load_model(
@@ -61,7 +66,9 @@ def build_model(
     For a surface: :func:`tetrahedralize` (with the given options; ``checked`` is the
     surface's :func:`wiggly.mesh.defects.inspect_surface` if already done) and :func:`embed` of
     the surface vertices.  One :class:`MeshRepairWarning` says what was unusual: the
-    surface's defects, and surface vertices farther than ``FAR_OUTSIDE`` tet edge lengths
+    surface's defects, small solid pieces of the tet mesh left out (less than
+    ``SMALL_PIECE`` of its volume, joined to the rest by an edge, a vertex or nothing: they
+    would hinge there), and surface vertices farther than ``FAR_OUTSIDE`` tet edge lengths
     outside the tets (parts thinner than the tets).  For a tet mesh: the surface has all the
     tet mesh vertices (same indices, so groups and keyframes address the same vertices;
     interior vertices are simply not used by any face) and the mesh's boundary faces; the
@@ -73,11 +80,16 @@ def build_model(
         tets, report, info = _tetrahedralize(
             loaded, edge_length=edge_length, resolution=resolution, repair=repair,
             progress=progress, source=source, cache_dir=cache_dir, checked=checked)
+        # slivers and bits that hold to the body by an edge or a vertex only would hinge
+        # there (a motion of zero elastic energy): the surface around them follows the
+        # nearest tets of the body instead
+        tets, dropped, share = without_small_pieces(tets, SMALL_PIECE)
         embedding = embed(loaded.vertices, tets)
         outside = embedding.outside_distance(tets)[np.unique(loaded.faces)] / info["edge_length"]
         far = outside > FAR_OUTSIDE
-        if not report.clean or far.any():
-            warnings.warn(repair_note(source, report, int(far.sum()), float(outside.max())),
+        if not report.clean or far.any() or dropped:
+            warnings.warn(repair_note(source, report, int(far.sum()), float(outside.max()),
+                                      dropped, share),
                           MeshRepairWarning, stacklevel=2)
         return Model(loaded, tets, embedding, source)
     tets = loaded
