@@ -72,8 +72,9 @@ def animate(mesh: Path, work: Path) -> dict:
         row["tets"] = anim.body.tets.n_tets
         worst = max(r.get("position_max", 0.0) for r in anim.constraint_residuals())
         far = [str(w.message) for w in caught if "outside the filled solid" in str(w.message)]
-        row["result"] = (f"ok, {anim.info.get('iterations', 0)} GN it., keys met to "
-                         f"{worst / report.diagonal:.1e} of size"
+        conv = "converged" if anim.info.get("converged", True) else "NOT converged"
+        row["result"] = (f"ok, {anim.info.get('iterations', 0)} Newton it. ({conv}), keys "
+                         f"met to {worst / report.diagonal:.1e} of size (worst vertex)"
                          + ("; thin parts outside the tets" if far else ""))
         row["ok"] = out.is_file()
     except WigglyInputError as err:
