@@ -32,7 +32,7 @@ import scipy.sparse as sp
 
 from wiggly.keyframes import Keyframe
 from wiggly.solve.banded import add_blocks, band_matvec
-from wiggly.solve.blocks import NewtonBlocks
+from wiggly.solve.blocks import NewtonBlocks, NodeDerivatives
 from wiggly.solve.nodes import node_index
 from wiggly.warp import WarpLevel
 
@@ -135,6 +135,10 @@ class WarpedObjective:
         self.timing = {"W": 0.0, "vjp": 0.0, "newton": 0.0}
         self.counts = {"W": 0, "vjp": 0, "newton": 0}
         self._grams = self._node_grams(self.model)
+        # per active node: the Gauss-Newton block J^T C J and the derivatives it was built
+        # from (owned here: C is this objective's; the blocks store hands back the same
+        # NodeDerivatives object for as long as it keeps that node's Jacobians)
+        self._gn_blocks: dict[int, tuple[NodeDerivatives, np.ndarray]] = {}
 
     @property
     def exact(self) -> bool:
@@ -151,6 +155,7 @@ class WarpedObjective:
             self.model = self.level
             self.blocks = NewtonBlocks(self.model)
             self._grams = self._node_grams(self.model)
+            self._gn_blocks = {}
         return True
 
     def _node_grams(self, model: WarpLevel) -> dict[int, tuple]:
@@ -293,12 +298,17 @@ class WarpedObjective:
         curv = np.zeros((f, 2 * r, 2 * r))
         for a, k in enumerate(self.active):
             d = derivs[a]
-            C_pos, C_vel = self._grams[k]
-            if C_pos is not None:
-                blocks[a, :r, :r] += _gram(C_pos, d.J)
-            if C_vel is not None:
-                X = np.concatenate([d.JV, d.J], axis=2)  # [D^2W[., v], DW]
-                blocks[a] += _gram(C_vel, X)
+            kept = self._gn_blocks.get(k)
+            if kept is not None and kept[0] is d:  # the same Jacobians: the same block
+                blocks[a] = kept[1]
+            else:
+                C_pos, C_vel = self._grams[k]
+                if C_pos is not None:
+                    blocks[a, :r, :r] += _gram(C_pos, d.J)
+                if C_vel is not None:
+                    X = np.concatenate([d.JV, d.J], axis=2)  # [D^2W[., v], DW]
+                    blocks[a] += _gram(C_vel, X)
+                self._gn_blocks[k] = (d, blocks[a].copy())
             if not self.curvature:
                 continue
             curv[a, :r, :r] = d.qq
