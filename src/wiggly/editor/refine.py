@@ -13,7 +13,7 @@ child's stdin and stdout.  The parent sends ``("model", key, model)``,
 ``("solve", seq, version, scene_dict, source, model_key)`` and ``("newest", seq)``; the child
 answers ``("progress", seq, version, info)``, ``("frames", seq, version, final, start, fps,
 positions, info)``, ``("error", seq, version, message)`` and ``("abandoned", seq, version,
-info)``.  Between chunks of iterations the child reads what has arrived and stops as soon as a
+info)``.  After every iteration the child reads what has arrived and stops as soon as a
 newer request exists (newest request wins).
 """
 
@@ -35,8 +35,6 @@ import numpy as np
 
 from wiggly.solve import SolveOptions
 
-CHUNK_SECONDS = 0.6
-MAX_ITERATIONS = 50
 PUSH_SECONDS = 1.5
 PLAYBACK_BYTES = 256 * 2**20  # playback frames of one solve (float32) kept in memory
 
@@ -166,48 +164,53 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
                                 f"internal error: {type(err).__name__}: {err}"))
 
 
+class _Abandoned(Exception):
+    """A newer request arrived: this refinement's result would be outdated."""
+
+
 def _refine(seq, version, scene, problem, keys, previous, pkey, out,
             inbox):  # pragma: no cover - runs in the subprocess
+    """One warped solve, as ``wiggly animate`` runs it (the same options: the editor's
+    exports and the CLI agree), reading the inbox after every iteration: a newer request
+    abandons it, and a progress line goes out every ``PUSH_SECONDS``."""
     t0 = time.perf_counter()
     init = previous.get(pkey)
-    total, per_iter, last_push = 0, None, time.perf_counter()
-    fps = playback_fps(scene.time.fps, problem.start, problem.end,
-                       problem.body.surface.n_vertices)
-    while True:
+    last_push = [time.perf_counter()]
+
+    def after_iteration(count: int) -> None:
         inbox.poll()
         if inbox.newest > seq:
-            write_message(out, ("abandoned", seq, version, {"iterations": total}))
-            return
-        n_it = 2 if per_iter is None else int(np.clip(CHUNK_SECONDS / per_iter, 1, 10))
-        n_it = min(n_it, MAX_ITERATIONS - total)
-        tc = time.perf_counter()
+            raise _Abandoned(count)
+        if time.perf_counter() - last_push[0] > PUSH_SECONDS:
+            write_message(out, ("progress", seq, version,
+                                {"iterations": count, "converged": False,
+                                 "seconds": time.perf_counter() - t0}))
+            last_push[0] = time.perf_counter()
+
+    inbox.poll()
+    if inbox.newest > seq:
+        write_message(out, ("abandoned", seq, version, {"iterations": 0}))
+        return
+    try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             anim = problem.solve(
                 keys, warped=True, warm_start=init.warm_start if init is not None else None,
-                options=SolveOptions(max_iterations=n_it, warn=False),
+                options=SolveOptions(warn=False, callback=after_iteration),
             )
-        done = max(int(anim.info.get("iterations", n_it)), 1)
-        per_iter = (time.perf_counter() - tc) / done
-        total += done
-        init = previous[pkey] = anim
-        converged = bool(anim.info.get("converged"))
-        finished = converged or total >= MAX_ITERATIONS
-        info = {"iterations": total, "converged": converged,
-                "objective": float(anim.info.get("objective", np.nan)),
-                "seconds": time.perf_counter() - t0}
-        if finished or time.perf_counter() - last_push > PUSH_SECONDS:
-            if finished:
-                info["residual_max"] = residual_max(anim)
-            times = anim.frame_times(fps)
-            positions = anim.positions(times, dtype=np.float32)
-            write_message(out, ("frames", seq, version, finished, float(times[0]), fps,
-                                positions, dict(info)))
-            last_push = time.perf_counter()
-            if finished:
-                return
-        else:
-            write_message(out, ("progress", seq, version, info))
+    except _Abandoned as stop:
+        write_message(out, ("abandoned", seq, version, {"iterations": stop.args[0]}))
+        return
+    previous[pkey] = anim
+    info = {"iterations": int(anim.info.get("iterations", 0)),
+            "converged": bool(anim.info.get("converged")),
+            "objective": float(anim.info.get("objective", np.nan)),
+            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim)}
+    fps = playback_fps(scene.time.fps, problem.start, problem.end,
+                       problem.body.surface.n_vertices)
+    times = anim.frame_times(fps)
+    positions = anim.positions(times, dtype=np.float32)
+    write_message(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
 
 
 def residual_max(anim) -> float | None:

@@ -110,7 +110,8 @@ def solve_warped(
         problem, body.fine_level, kfs, nodes, model=coarse if two else None, blocks=blocks
     )
     report: dict = {}
-    with iterations("warped solve (Newton)", options.max_iterations, progress) as bar:
+    with iterations("warped solve (Newton)", options.max_iterations, progress) as tqdm_bar:
+        bar = _Iterations(tqdm_bar, options.callback)
         start = None
         if warm is not None:  # cheap: W at z0 is kept
             start = fine.evaluate(z0, prior=warm.point)
@@ -131,6 +132,23 @@ def solve_warped(
     if theta is None and warm is not None:
         theta = warm.contraction
     return point.z, report, WarmStart(nodes.copy(), point.z, tuple(kfs), point, theta, fine.blocks)
+
+
+class _Iterations:
+    """The progress bar of both levels, calling ``callback(iterations so far)`` after each
+    iteration (:attr:`SolveOptions.callback`)."""
+
+    def __init__(self, bar, callback) -> None:
+        self.bar, self.callback, self.count = bar, callback, 0
+
+    def update(self, n: int) -> None:
+        self.bar.update(n)
+        self.count += n
+        if self.callback is not None:
+            self.callback(self.count)
+
+    def set_postfix_str(self, text: str) -> None:
+        self.bar.set_postfix_str(text)
 
 
 def _near(fine: WarpedObjective, start: WarpedPoint) -> bool:

@@ -46,7 +46,8 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -77,6 +78,9 @@ class SolveOptions:
     two_level : solve on the body's coarse mesh first (bodies above ``COARSE_WARP_ABOVE``
         tets); False: the fine level only, with exact Newton matrices.
     warn : emit a :class:`WarpedSolveWarning` when the solve stops unconverged.
+    callback : called with the number of iterations so far (both levels) after each one; an
+        exception it raises ends the solve and propagates (the editor abandons an outdated
+        refinement so).
     """
 
     tolerance: float = 1e-8
@@ -86,6 +90,7 @@ class SolveOptions:
     coarse_tolerance: float = 1e-5
     two_level: bool = True
     warn: bool = True
+    callback: Callable[[int], None] | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if not (self.tolerance > 0 and np.isfinite(self.tolerance)):

@@ -10,16 +10,12 @@ const ghostGeom = new THREE.BufferGeometry();
 // unlit, see-through, drawn after the body without writing depth: the body shows where it
 // and the driver coincide, the ghost where the body lags or overshoots
 const ghost = new THREE.Mesh(ghostGeom, new THREE.MeshBasicMaterial({
-  color: GHOST, transparent: true, opacity: 0.22, depthWrite: false, side: THREE.DoubleSide,
+  color: GHOST, transparent: true, opacity: 0.3, depthWrite: false, side: THREE.FrontSide,
   polygonOffset: true, polygonOffsetFactor: 1, polygonOffsetUnits: 4 }));
-// its edges share the ghost's positions (an index of each edge once)
-const edgeGeom = new THREE.BufferGeometry();
-const edges = new THREE.LineSegments(edgeGeom,
-  new THREE.LineBasicMaterial({ color: GHOST, transparent: true, opacity: 0.18, depthWrite: false }));
-ghost.frustumCulled = false; edges.frustumCulled = false;
-ghost.renderOrder = 1; edges.renderOrder = 1;
+ghost.frustumCulled = false;
+ghost.renderOrder = 1;
 const group = new THREE.Group();
-group.add(ghost, edges);
+group.add(ghost);
 group.visible = false;
 scene3.add(group);
 
@@ -57,26 +53,11 @@ export async function syncDriver() {
     const pos = new THREE.BufferAttribute(new Float32Array(S.n * 3), 3);
     ghostGeom.setIndex(geometry.getIndex());
     ghostGeom.setAttribute('position', pos);
-    edgeGeom.setIndex(new THREE.BufferAttribute(uniqueEdges(S.faces, S.n), 1));
-    edgeGeom.setAttribute('position', pos);
     updateDriverGhost();
     hooks.drawDopesheet();
   } catch (err) {
     if (loading === mine) setStatus(`driver: ${err.message}`, 'err');
   }
-}
-
-// Each edge of the triangles once, as pairs of vertex indices.
-function uniqueEdges(faces, n) {
-  const seen = new Set(), out = [];
-  for (let f = 0; f < faces.length; f += 3) {
-    for (let e = 0; e < 3; e++) {
-      const a = faces[f + e], b = faces[f + (e + 1) % 3];
-      const lo = Math.min(a, b), hi = Math.max(a, b), code = lo * n + hi;
-      if (!seen.has(code)) { seen.add(code); out.push(lo, hi); }
-    }
-  }
-  return new Uint32Array(out);
 }
 
 // The driver's pose at shot time t: linear between its keyed frames, null outside them.
