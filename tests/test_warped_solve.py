@@ -230,6 +230,28 @@ def test_non_convergence_is_reported_honestly(free_bar):
     assert anim.info["newton_decrement"] > 1e-8 * anim.info["objective"]
 
 
+def test_the_callback_sees_every_iteration_and_can_end_the_solve(free_bar):
+    """``SolveOptions.callback`` is called with the iteration count after each iteration; an
+    exception it raises ends the solve and reaches the caller (the editor's refinement
+    abandons an outdated request so); without one, the same solve runs to convergence."""
+    keys = velocity_keys(free_bar)
+    problem = SpacetimeProblem(free_bar, 0.0, 1.5)
+    seen = []
+    anim = problem.solve(keys, warped=True, options=SolveOptions(callback=seen.append))
+    assert anim.info["converged"] and seen == list(range(1, len(seen) + 1))
+    assert len(seen) >= anim.info["iterations"] >= 2
+
+    class Stop(Exception):
+        pass
+
+    def stop_at_two(count):
+        if count == 2:
+            raise Stop
+
+    with pytest.raises(Stop):
+        problem.solve(keys, warped=True, options=SolveOptions(callback=stop_at_two))
+
+
 def test_convergence_means_the_stopping_rule_holds_and_bounds_the_distance(free_bar):
     """``converged`` is reported only when the Newton decrement meets the tolerance, and the
     reported distance bound (largest vertex move of the final Newton step, m) bounds the
