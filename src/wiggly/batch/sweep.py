@@ -72,22 +72,10 @@ class _Any(_Spec):
 class _ParamMap(_Map):
     """``[grid]`` / ``[random]``: parameter paths (quoted TOML keys) to values."""
 
-    def parse(self, value, path, p):
-        if not isinstance(value, dict):
-            raise self.fail(value, path, p)
-        out, failed = {}, False
-        for k, v in value.items():
-            if not re.search(self.key_pattern, k):
-                p.add(f'{path}."{k}": {self.key_what}')
-                failed = True
-                continue
-            try:
-                out[k] = self.item.parse(v, f'{path}."{k}"', p)
-            except _Bad:
-                failed = True
-        if failed:
-            raise _Bad(path)
-        return out
+    def key_path(self, path: str, key: str) -> str:
+        return f'{path}."{key}"'
+
+    item_path = key_path  # a parameter path is always a quoted key
 
 
 PARAM_PATTERN = r"^[A-Za-z0-9_-]+(\[[^\[\]]+\])?(\.[A-Za-z0-9_-]+(\[[^\[\]]+\])?)*$"

@@ -316,16 +316,24 @@ class _Map(_Spec):
         out, failed = {}, False
         for k, v in value.items():
             if not re.search(self.key_pattern, k):
-                p.add(f"{path}.{json.dumps(k)}: {self.key_what}")
+                p.add(f"{self.key_path(path, k)}: {self.key_what}")
                 failed = True
                 continue
             try:
-                out[k] = self.item.parse(v, f"{path}.{k}", p)
+                out[k] = self.item.parse(v, self.item_path(path, k), p)
             except _Bad:
                 failed = True
         if failed:
             raise _Bad(path)
         return out
+
+    def key_path(self, path: str, key: str) -> str:
+        """Where a key that is not allowed is reported (quoted: it may hold anything)."""
+        return f"{path}.{json.dumps(key)}"
+
+    def item_path(self, path: str, key: str) -> str:
+        """Where the problems of an item are reported."""
+        return f"{path}.{key}"
 
     def schema(self):
         return _described({"type": "object", "propertyNames": {"pattern": self.key_pattern},
