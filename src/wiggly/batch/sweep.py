@@ -444,11 +444,7 @@ def sweep_from_dict(data: dict, where: str, source: Path) -> Sweep:
     from wiggly.scene import load_scene
 
     p = _Problems(where)
-    try:
-        d = _SWEEP.parse(data, "", p)
-    except _Bad:
-        p.raise_if_any()
-        raise
+    d = p.parse(_SWEEP, data)
     base_path = (source.parent / Path(d["base"]).expanduser()).resolve()
     try:
         base = load_scene(base_path)

@@ -41,7 +41,6 @@ from wiggly.scene.spec import (
 )
 from wiggly.scene.validation import (
     _Array,
-    _Bad,
     _Bool,
     _ByType,
     _Const,
@@ -292,11 +291,7 @@ def scene_from_dict(data: dict, where: str = "scene", source: Path | None = None
     ``source`` is the file it came from (relative paths resolve against its directory and the
     mesh file must exist)."""
     p = _Problems(where)
-    try:
-        scene = _SCENE.parse(data, "", p)
-    except _Bad:
-        p.raise_if_any()
-        raise
+    scene = p.parse(_SCENE, data)
     scene.source = source
     _cross_check(scene, p)
     if source is not None:

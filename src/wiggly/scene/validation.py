@@ -40,6 +40,15 @@ class _Problems:
         if self.items:
             raise _error(self.where, self.items)
 
+    def parse(self, spec: Any, data: Any) -> Any:
+        """``spec`` applied to a whole file's ``data``, its problems collected here; raises
+        them when parsing could not go on."""
+        try:
+            return spec.parse(data, "", self)
+        except _Bad:
+            self.raise_if_any()
+            raise
+
 
 def _error(where: str, messages: list[str]) -> WigglyInputError:
     err = WigglyInputError("\n".join(f"{where}: {m}" for m in messages))
