@@ -421,9 +421,9 @@ class Session:
             why = driver.mismatch(surface.n_vertices, surface.faces, scene.mesh.path)
             if why is not None:
                 raise WigglyInputError(f"{scene.where()}: drive.path = {drive.path!r}: {why}")
+            start, end = scene.time_range()
             frames, times = keyed_frames(driver, offset=drive.offset, driver_range=drive.range,
-                                         start=scene.time_range()[0],
-                                         end=scene.time_range()[1])
+                                         start=start, end=end)
         except WigglyInputError as err:
             raise EditError(str(err)) from None
         meta = {"n_frames": len(frames), "n_vertices": driver.n_vertices,

@@ -98,11 +98,9 @@ class NewtonBlocks:
                 jac.append(a)
                 if curvature:
                     curv.append(a)
-            elif not curvature:
-                pass
-            elif old.qq is None:
+            elif curvature and old.qq is None:
                 curv.append(a)
-            else:
+            elif curvature:
                 ys = max(float(np.linalg.norm(old.y)), float(np.linalg.norm(Y[a])), 1e-300)
                 yvs = 0.0 if yv is None else max(float(np.linalg.norm(yv)), 1e-300)
                 if _moved(Y[a], old.y, ys, cotangent) or _moved(yv, old.yv, yvs, cotangent):
