@@ -12,16 +12,10 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from wiggly.errors import WigglyInputError
-
-if TYPE_CHECKING:
-    pass
-
-
 
 VIDEO_FORMATS = (".mp4", ".gif")
 
