@@ -69,7 +69,11 @@ class SolveOptions:
         level).
     distance_tolerance : and the distance bound (the final Newton step's largest vertex
         move, widened by the measured contraction) below this fraction of the body's size.
-    max_iterations : Newton iterations allowed per level.
+    max_iterations : Newton iterations allowed per level: a budget, not a convergence test
+        (a solve that spends it is reported unconverged).  Most scenes need 5-60; paths
+        through long regions of negative curvature (a hop or a large turn of a soft, long-
+        necked body) crawl with trust-region steps and took up to about 200 in the
+        convergence suite.
     contraction : largest measured contraction factor per iteration with which an
         approximate (coarse-mesh) Newton matrix may certify convergence; above it the solve
         switches to the exact matrix.
@@ -85,7 +89,7 @@ class SolveOptions:
 
     tolerance: float = 1e-8
     distance_tolerance: float = 1e-3
-    max_iterations: int = 200
+    max_iterations: int = 500
     contraction: float = 0.5
     coarse_tolerance: float = 1e-5
     two_level: bool = True
@@ -276,10 +280,12 @@ def minimize(
         # definite and the step fits, else Steihaug-Toint conjugate gradients on B
         # preconditioned by the Gauss-Newton matrix (which follows negative curvature)
         t0 = time.perf_counter()
-        precondition = _factor(B_gn)
-        if precondition is None:  # only when H itself is singular (no pre-roll)
-            stop = "singular"
-            break
+        precondition = None  # the Gauss-Newton matrix's factor, made when first needed
+        if dz_newton is None:
+            precondition = _factor(B_gn)
+            if precondition is None:  # only when H itself is singular (no pre-roll)
+                stop = "singular"
+                break
         if radius is None:
             dz0 = dz_newton if dz_newton is not None else precondition.solve(-point.g)
             radius = _norm(B_gn, dz0)
@@ -288,6 +294,7 @@ def minimize(
             if dz_newton is not None and _norm(B_gn, dz_newton) <= radius * (1 + 1e-12):
                 dz, newton = dz_newton, True
             else:
+                precondition = precondition or _factor(B_gn) or chol
                 dz, newton = steihaug(B, B_gn, precondition, point.g, radius), False
             size = _norm(B_gn, dz)
             predicted = -(float(point.g @ dz) + 0.5 * float(dz @ band_matvec(B, dz)))
