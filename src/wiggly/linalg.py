@@ -29,6 +29,9 @@ from wiggly.errors import WigglyInputError
 __all__ = ["BACKENDS", "SPDSolver", "available_backends", "factorize_spd"]
 
 BACKENDS = ("cholmod", "cholespy", "splu")
+# cholespy solves many right-hand sides in blocks of this many columns: a solve with 37,800
+# columns on a 431-vertex mesh takes half the time so (the blocks stay in cache)
+CHOLESPY_COLUMNS = 64
 
 
 def available_backends() -> list[str]:
@@ -122,7 +125,15 @@ def _factor_cholespy(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
     def solve(b: np.ndarray, out: np.ndarray | None) -> np.ndarray:
         rhs = np.ascontiguousarray(b)  # (n,) or (n, k), C order, float64
         x = np.empty_like(rhs) if out is None else out
-        solver.solve(rhs, x)
+        if rhs.ndim == 1 or rhs.shape[1] <= 2 * CHOLESPY_COLUMNS:
+            solver.solve(rhs, x)
+            return x
+        # many columns: in blocks, whose right-hand sides stay in cache with the factor
+        for a in range(0, rhs.shape[1], CHOLESPY_COLUMNS):
+            piece = np.ascontiguousarray(rhs[:, a : a + CHOLESPY_COLUMNS])
+            solved = np.empty_like(piece)
+            solver.solve(piece, solved)
+            x[:, a : a + CHOLESPY_COLUMNS] = solved
         return x
 
     return solve

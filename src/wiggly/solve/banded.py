@@ -53,7 +53,11 @@ def add_blocks(ab: np.ndarray, idx: np.ndarray, blocks: np.ndarray) -> None:
     rows = np.broadcast_to(idx[:, :, None], blocks.shape)
     cols = np.broadcast_to(idx[:, None, :], blocks.shape)
     upper = rows <= cols
-    np.add.at(ab, (bw + rows[upper] - cols[upper], cols[upper]), blocks[upper])
+    where = (bw + rows[upper] - cols[upper], cols[upper])
+    if len(np.unique(idx)) == idx.size:  # disjoint blocks: each entry is hit once
+        ab[where] += blocks[upper]
+    else:
+        np.add.at(ab, where, blocks[upper])
 
 
 def add_block(ab: np.ndarray, idx: np.ndarray, block: np.ndarray) -> None:

@@ -146,11 +146,14 @@ class WarpedObjective:
         return self.model is self.level and self.curvature
 
     def use_exact(self) -> bool:
-        """Build Newton matrices from this level's own derivatives, with the curvature, from
-        now on; False if they already are."""
+        """Improve the Newton matrix by one stage from now on: add the curvature to
+        Gauss-Newton matrices; then build them from this level's own derivatives.  False if
+        they already are the exact Hessian."""
         if self.exact:
             return False
-        self.curvature = True
+        if not self.curvature:
+            self.curvature = True
+            return True
         if self.model is not self.level:
             self.model = self.level
             self.blocks = NewtonBlocks(self.model)
