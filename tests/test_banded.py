@@ -56,6 +56,11 @@ def test_band_helpers_match_dense_algebra():
     for i, b in zip(idx, blocks, strict=True):
         H[np.ix_(i, i)] += b
     np.testing.assert_allclose(band_to_dense(ab), H, rtol=1e-15)
+    idx = np.array([[20, 21, 22], [30, 31, 32]])  # disjoint blocks (the direct assignment)
+    add_blocks(ab, idx, blocks[:2])
+    for i, b in zip(idx, blocks[:2], strict=True):
+        H[np.ix_(i, i)] += b
+    np.testing.assert_allclose(band_to_dense(ab), H, rtol=1e-15)
     np.testing.assert_allclose(BandedCholesky(ab).solve(x), np.linalg.solve(H, x), rtol=1e-10)
 
 

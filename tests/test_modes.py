@@ -348,6 +348,10 @@ def test_factorize_spd_backends_agree(small_body, backend):
     assert solver(B, out=out[1:-1]) is not None
     np.testing.assert_array_equal(out[1:-1], X)
     assert np.isnan(out[[0, -1]]).all()
+    many = rng.standard_normal((A.shape[0], 300))  # cholespy: solved in column blocks
+    np.testing.assert_allclose(
+        solver(many), spla.spsolve(A.tocsc(), many), rtol=1e-9, atol=1e-12 * abs(many).max()
+    )
 
 
 def test_factorize_spd_errors():
