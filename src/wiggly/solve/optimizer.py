@@ -73,7 +73,7 @@ class SolveOptions:
     max_iterations : Newton iterations allowed per level: a budget, not a convergence test
         (a solve that spends it is reported unconverged).  Most scenes need 5-60; paths
         through long regions of negative curvature (a hop or a large turn of a soft, long-
-        necked body) crawl with trust-region steps and took up to about 280 in the
+        necked body) crawl with trust-region steps and took up to about 420 in the
         convergence suite.
     contraction : largest measured contraction factor per iteration with which an
         approximate (coarse-mesh) Newton matrix may certify convergence; above it the solve
@@ -90,7 +90,7 @@ class SolveOptions:
 
     tolerance: float = 1e-8
     distance_tolerance: float = 1e-3
-    max_iterations: int = 500
+    max_iterations: int = 1000
     contraction: float = 0.5
     coarse_tolerance: float = 1e-5
     two_level: bool = True
