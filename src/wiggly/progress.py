@@ -36,7 +36,8 @@ def activity(desc: str, enabled: bool = True):
     return _ticking(desc) if enabled else nullcontext()
 
 
-def iterations(desc: str, total: int, enabled: bool = True) -> tqdm:
-    """A bar over solver iterations (``bar.update(1)``, ``bar.set_postfix_str(...)``)."""
-    return tqdm(total=total, desc=desc, file=sys.stderr, disable=not enabled, leave=False,
+def iterations(desc: str, enabled: bool = True) -> tqdm:
+    """A counter of solver iterations (``bar.update(1)``, ``bar.set_postfix_str(...)``),
+    with no total: the iteration budget is no estimate of the iterations a solve takes."""
+    return tqdm(total=None, desc=desc, file=sys.stderr, disable=not enabled, leave=False,
                 unit="it")

@@ -110,7 +110,7 @@ def solve_warped(
         problem, body.fine_level, kfs, nodes, model=coarse if two else None, blocks=blocks
     )
     report: dict = {}
-    with iterations("warped solve (Newton)", options.max_iterations, progress) as tqdm_bar:
+    with iterations("warped solve (Newton)", progress) as tqdm_bar:
         bar = _Iterations(tqdm_bar, options.callback)
         start = None
         if warm is not None:  # cheap: W at z0 is kept
