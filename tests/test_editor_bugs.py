@@ -54,6 +54,10 @@ def test_1_server_answers_and_shows_progress_while_tetrahedralizing(chromium, tm
             page.wait_for_selector("#modal:not([hidden])")  # nothing open: the Open dialog
             page.fill("#modal-body input[type=text]", "ball.obj")
             page.click("#modal-ok")
+            deadline = time.time() + 10  # the page's Open request is on its way to the server
+            while json.loads(get(server.url + "api/state")[0])["version"] < 1:
+                assert time.time() < deadline, "the Open request did not reach the server"
+                time.sleep(0.02)
             running_for, done, during, shown = 0.0, False, 0, []
             deadline = time.time() + 120
             while not done and time.time() < deadline:
