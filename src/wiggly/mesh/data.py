@@ -297,6 +297,15 @@ def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.unique(rows, axis=0, return_inverse=True, return_counts=True)
 
 
+def used_only(V: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices that ``cells`` (faces or tets, vertex indices) use, and the cells
+    renumbered to them (in the vertices' order)."""
+    used = np.unique(cells)
+    compact = np.zeros(len(V), dtype=np.int64)
+    compact[used] = np.arange(len(used))
+    return V[used], compact[cells]
+
+
 def solid_pieces(mesh: TetMesh) -> tuple[np.ndarray, np.ndarray]:
     """The pieces of a tet mesh that hold together as solids: tets sharing a *face* are one
     piece (tets touching only at an edge or a vertex hinge there, a motion that costs no
@@ -320,13 +329,8 @@ def without_small_pieces(mesh: TetMesh, fraction: float) -> tuple[TetMesh, int, 
     small = volume < fraction * volume.sum()
     if len(volume) == 1 or not small.any() or small.all():
         return mesh, 0, 0.0
-    keep = ~small[labels]
-    T = mesh.tets[keep]
-    used = np.unique(T)
-    compact = np.zeros(mesh.n_vertices, dtype=np.int64)
-    compact[used] = np.arange(len(used))
-    return (TetMesh(mesh.vertices[used], compact[T]), int(small.sum()),
-            float(volume[small].sum() / volume.sum()))
+    V, T = used_only(mesh.vertices, mesh.tets[~small[labels]])
+    return TetMesh(V, T), int(small.sum()), float(volume[small].sum() / volume.sum())
 
 
 def _count_components(T: np.ndarray, n: int) -> int:

@@ -29,6 +29,7 @@ from scipy.sparse.csgraph import breadth_first_order, connected_components
 from scipy.spatial import cKDTree
 
 from wiggly.errors import WigglyInputError, counted
+from wiggly.mesh.data import used_only
 
 __all__ = [
     "ENVELOPE_FACES_PER_AREA",
@@ -345,10 +346,7 @@ def simplified_envelope(V: np.ndarray, F: np.ndarray, edge_length: float,
         return None
     import pyvista as pv
 
-    used = np.unique(F)
-    compact = np.zeros(len(V), dtype=np.int64)
-    compact[used] = np.arange(len(used))
-    poly = pv.PolyData.from_regular_faces(V[used], compact[F])
+    poly = pv.PolyData.from_regular_faces(*used_only(V, F))
     simple = poly.decimate(1.0 - target / len(F))
     if simple.n_cells < 4 or not simple.is_all_triangles:
         return None

@@ -26,6 +26,7 @@ from wiggly.mesh.data import (
     TetMesh,
     _check_surface_arrays,
     embed,
+    used_only,
 )
 from wiggly.mesh.defects import (
     CheckedSurface,
@@ -272,10 +273,7 @@ def _tetrahedralize(
     simple = mesh_checks.simplified_envelope(V, F, h, report.area) if simplify else None
     if simple is not None:
         V, F = simple
-    used = np.unique(F)
-    compact = np.zeros(len(V), dtype=np.int64)
-    compact[used] = np.arange(len(used))
-    V, F = V[used], compact[F]
+    V, F = used_only(V, F)
     info = {"edge_length": h, "estimate": estimate, "input_faces": len(F),
             "simplified": simple is not None}
     import pytetwild
@@ -320,10 +318,7 @@ def _tetrahedralize(
             f"{source}: fTetWild produced no tetrahedra; the surface does not enclose a volume "
             f"that is thick compared to the edge length {h:.3g} m."
         )
-    used = np.unique(tt)
-    compact = np.zeros(len(tv), dtype=np.int64)
-    compact[used] = np.arange(len(used))
-    mesh = TetMesh(np.asarray(tv, dtype=np.float64)[used], compact[tt])
+    mesh = TetMesh(*used_only(np.asarray(tv, dtype=np.float64), tt))
     return check_tet_mesh(mesh, f"{source} (tetrahedralized)"), report, info
 
 
