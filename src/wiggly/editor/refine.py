@@ -175,23 +175,21 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
     abandons it, and a progress line goes out every ``PUSH_SECONDS``."""
     t0 = time.perf_counter()
     init = previous.get(pkey)
-    last_push = [time.perf_counter()]
+    last_push = time.perf_counter()
 
     def after_iteration(count: int) -> None:
+        nonlocal last_push
         inbox.poll()
         if inbox.newest > seq:
             raise _Abandoned(count)
-        if time.perf_counter() - last_push[0] > PUSH_SECONDS:
+        if time.perf_counter() - last_push > PUSH_SECONDS:
             write_message(out, ("progress", seq, version,
                                 {"iterations": count, "converged": False,
                                  "seconds": time.perf_counter() - t0}))
-            last_push[0] = time.perf_counter()
+            last_push = time.perf_counter()
 
-    inbox.poll()
-    if inbox.newest > seq:
-        write_message(out, ("abandoned", seq, version, {"iterations": 0}))
-        return
     try:
+        after_iteration(0)  # a newer request may have arrived already
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             anim = problem.solve(
