@@ -90,16 +90,11 @@ export function updateDriverGhost() {
   group.visible = show;
 }
 
-// Groups keyed by the driver (their dope-sheet rows get a tick per driven frame).
-export function drivenGroups() {
-  const sc = scene();
-  if (!sc || !sc.drive) return [];
-  return typeof sc.drive.group === 'string' ? [sc.drive.group] : sc.drive.group;
-}
-
-// Test hooks: what the ghost shows.
+// Test hooks: what the ghost shows (the driven groups as the server names them, as the dope
+// sheet draws them).
 export function driverInfo() {
   const pos = ghostGeom.getAttribute('position');
   return { loaded: !!S.driver, visible: group.visible, times: S.driver ? S.driver.meta.times : [],
-    groups: drivenGroups(), positions: group.visible && pos ? Array.from(pos.array) : null };
+    groups: S.driver ? S.driver.meta.groups : [],
+    positions: group.visible && pos ? Array.from(pos.array) : null };
 }
