@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
+import wiggly.warp.modal as modal_module
 from wiggly.errors import WigglyInputError
 from wiggly.primitives import box_mesh
 from wiggly.warp import ModalWarp, Warp, compiled, kernels_numpy, rotation_coefficients
@@ -469,3 +470,23 @@ def test_compiled_rotation_coefficients_match_high_precision():
         for got, want in zip((a, b, c), exact, strict=True):
             # a few ulps of the largest series term (1.7 for a at th = pi): absolute error
             assert abs(got - float(want)) <= 4e-16
+
+
+def test_jacobians_of_many_frames_are_made_chunk_by_chunk(warp, mesh, monkeypatch):
+    """Frames are solved a few at a time (``CHUNK_BYTES``): with chunks of one or two frames
+    the Jacobians and second derivatives are the per-frame tangents."""
+    V = mesh[0]
+    basis = np.stack([random_displacement(V, 1.0, seed=30 + k) for k in range(4)], axis=-1)
+    modal = ModalWarp(warp, basis)
+    rng = np.random.default_rng(8)
+    Q, Qv = 0.3 * rng.standard_normal((5, 4)), rng.standard_normal((5, 4))
+    whole_J, whole_JV = modal.jacobians(Q), modal.second_derivatives(Q, Qv)
+    for per_frame in (1, 2):
+        monkeypatch.setattr(modal_module, "CHUNK_BYTES", per_frame * 24 * len(V) * 4)
+        J, JV = modal.jacobians(Q), modal.second_derivatives(Q, Qv)
+        np.testing.assert_allclose(J, whole_J, rtol=0, atol=1e-13 * np.abs(J).max())
+        np.testing.assert_allclose(JV, whole_JV, rtol=0, atol=1e-13 * np.abs(JV).max())
+    for s in range(5):
+        u = modal.displacements(Q[s : s + 1])[0]
+        for k in range(4):
+            assert rel(J[s, :, :, k], warp.jvp(u, basis[:, :, k])) < 1e-12

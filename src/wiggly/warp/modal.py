@@ -18,6 +18,8 @@ differentiated twice: ``y . W(u) = sum_t vol_t Z_t : H(A_t) + linear(u)`` with `
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from wiggly.errors import WigglyInputError
@@ -31,6 +33,10 @@ __all__ = ["ModalWarp"]
 # Hessian (compiled kernels; ~1e-10 each way).
 HESSIAN_STEP = 6e-6
 THIRD_STEP = 1e-5
+# Jacobians of many frames are made a few frames at a time: each chunk's right-hand sides
+# (r fields x n vertices x 3 per frame) stay near this many bytes, so the per-tet pass, the
+# transposes and the solve work in cache instead of streaming arrays of 100+ MB.
+CHUNK_BYTES = 4 << 20
 
 
 class ModalWarp:
@@ -74,11 +80,24 @@ class ModalWarp:
         A = self.warp.gradient @ np.ascontiguousarray(U.transpose(1, 0, 2)).reshape(n, -1)
         return relative * max(1.0, float(np.abs(A).max(initial=0.0)))
 
+    def _by_chunks(self, f: int, solve_chunk: Callable[[int, int], np.ndarray]) -> np.ndarray:
+        """(f, n, 3, r) fields made by ``solve_chunk(a, b)`` for frames a:b (CHUNK_BYTES)."""
+        out = np.empty((f, self.n_vertices, 3, self.r))
+        per = max(1, CHUNK_BYTES // (24 * self.n_vertices * self.r))
+        for a in range(0, f, per):
+            out[a : a + per] = solve_chunk(a, min(f, a + per))
+        return out
+
     def jacobians(self, Q: np.ndarray) -> np.ndarray:
-        """``DW(Phi q_s) Phi`` at f states Q (f, r): (f, n, 3, r), one multi-RHS solve."""
+        """``DW(Phi q_s) Phi`` at f states Q (f, r): (f, n, 3, r), a multi-RHS solve per
+        chunk of frames."""
         U = self.displacements(Q)
-        rhs = self.warp.kernels.jacobians(U, self._gradients)
-        return self.warp.solve_fields(rhs, self.basis)
+        return self._by_chunks(
+            len(U),
+            lambda a, b: self.warp.solve_fields(
+                self.warp.kernels.jacobians(U[a:b], self._gradients), self.basis
+            ),
+        )
 
     def second_derivatives(self, Q: np.ndarray, Qv: np.ndarray) -> np.ndarray:
         """``D^2W(Phi q_s)[Phi, Phi q'_s]`` at f states: (f, n, 3, r) (analytic in the compiled
@@ -87,8 +106,13 @@ class ModalWarp:
         enter."""
         U, V = self.displacements(Q), self.displacements(Qv)
         step = self._step(U, HESSIAN_STEP)
-        rhs = self.warp.kernels.second_derivatives(U, V, self._gradients, step)
-        return self.warp.solve_fields(rhs, None)
+        return self._by_chunks(
+            len(U),
+            lambda a, b: self.warp.solve_fields(
+                self.warp.kernels.second_derivatives(U[a:b], V[a:b], self._gradients, step),
+                None,
+            ),
+        )
 
     def curvatures(
         self,
