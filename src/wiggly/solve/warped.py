@@ -18,7 +18,11 @@ W is replaced by W~ = P W_c(R .), i.e. S_k by S_k P and the fine warp by the coa
   solution with stiff keyframes ``c r`` balances the energy's gradient, so the curvature is
   as large as H: without it Gauss-Newton converges only linearly.  The matrix is taken on
   the objective's own level (exact: Newton's method) or on a coarser one (approximate, with
-  the cotangents transferred by ``P^T``).
+  the cotangents transferred by ``P^T``).  A coarse model's Jacobians are ``P DW_c(R u) R
+  Phi + E`` with ``E = Phi - P R Phi`` the coarse mesh's interpolation error of the modes:
+  both warps have DW(0) = I, so these equal the fine Jacobians at rest and differ from them
+  by O(|u|) (without E, by the 5-8 % that a coarse mesh misses of the higher modes), which
+  halves the contraction of the fine level's iteration on driven shots.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from wiggly.keyframes import Keyframe
+from wiggly.memo import value_key
 from wiggly.solve.banded import add_blocks, band_matvec
 from wiggly.solve.blocks import NewtonBlocks, NodeDerivatives
 from wiggly.solve.nodes import node_index
@@ -115,17 +120,21 @@ class WarpedObjective:
         if correction is not None:
             self.f_E = self.f_E + correction[0]
             self.c_E = self.c_E + correction[1]
-        self.positions: list[_Term] = []
-        self.velocities: list[_Term] = []
+        wanted: list[tuple[int, int, float, Keyframe, np.ndarray]] = []  # kind 0: position
         for kf in keyframes:
             c_A, c_B = kf.weights(body, problem.duration)
             k = self.layout.canonical(node_index(nodes, kf.time))
             if kf.position is not None and c_A > 0:
-                fit = problem.fit(level, kf.vertices, kf.on, problem.offsets(kf))
-                self.positions.append(_Term(k, float(np.sqrt(c_A)), kf.vertices, kf.on, fit))
+                wanted.append((0, k, float(np.sqrt(c_A)), kf, problem.offsets(kf)))
             if kf.velocity is not None and c_B > 0:
-                fit = problem.fit(level, kf.vertices, kf.on, kf.velocity)
-                self.velocities.append(_Term(k, float(np.sqrt(c_B)), kf.vertices, kf.on, fit))
+                wanted.append((1, k, float(np.sqrt(c_B)), kf, kf.velocity))
+        fits = problem.fits(level, [(kf.vertices, kf.on, d) for _, _, _, kf, d in wanted])
+        self.positions: list[_Term] = []
+        self.velocities: list[_Term] = []
+        for (kind, k, w, kf, _), fit in zip(wanted, fits, strict=True):
+            (self.velocities if kind else self.positions).append(
+                _Term(k, w, kf.vertices, kf.on, fit)
+            )
         terms = self.positions + self.velocities
         self.active = sorted({t.node for t in terms})
         self.vel = sorted({t.node for t in self.velocities})
@@ -163,14 +172,47 @@ class WarpedObjective:
 
     def _node_grams(self, model: WarpLevel) -> dict[int, tuple]:
         """Per active node, ``sum c_A C_k`` and ``sum c_B C_k`` over its position and
-        velocity keyframes, C_k the Gram of keyframe k's selection on ``model``'s level."""
-        grams: dict[int, list] = {k: [None, None] for k in self.active}
+        velocity keyframes, C_k the Gram of keyframe k's selection on ``model``'s level, and
+        for a coarse model the same sums of the terms of its interpolation error
+        (:meth:`_error_terms`)."""
+        grams: dict[int, list] = {k: [None, None, None, None] for k in self.active}
+        coarse = model is not self.level
         for j, terms in enumerate((self.positions, self.velocities)):
             for t in terms:
                 C = t.w**2 * self.problem.selection(model, t.vertices, t.on).C
                 old = grams[t.node][j]
                 grams[t.node][j] = C if old is None else old + C
+                if coarse:
+                    K2, K3 = self._error_terms(model, t.vertices, t.on)
+                    old = grams[t.node][2 + j]
+                    new = (t.w**2 * K2, t.w**2 * K3)
+                    grams[t.node][2 + j] = (
+                        new if old is None else (old[0] + new[0], old[1] + new[1])
+                    )
         return {k: tuple(v) for k, v in grams.items()}
+
+    def _error_terms(
+        self, model: WarpLevel, vertices: np.ndarray, on: str
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A group's terms of the coarse model's interpolation error of the modes, ``E = Phi -
+        P R Phi`` (the fine minus the model Jacobian at rest, where DW = I on both meshes):
+        ``K2 = P^T C E`` (n_c, 3, r) and ``K3 = E^T C E`` (r, r), C the group's fine Gram, so
+        that ``(P J + E)^T C (P J + E) = J^T C_c J + J^T K2 + K2^T J + K3`` (module doc)."""
+        problem, r = self.problem, self.r
+
+        def compute() -> tuple[np.ndarray, np.ndarray]:
+            body = problem.body
+            Phi = body.modes.vectors.reshape(-1, 3, r)
+            P = model.transfer.lift
+            Bc = model.modal.basis
+            E = Phi - np.stack([P @ Bc[:, c] for c in range(3)], axis=1)
+            C = problem.selection(body.fine_level, vertices, on).C
+            CE = np.stack([C @ E[:, c] for c in range(3)], axis=1)
+            K2 = np.stack([P.T @ CE[:, c] for c in range(3)], axis=1)
+            K3 = E.reshape(-1, r).T @ CE.reshape(-1, r)
+            return K2, 0.5 * (K3 + K3.T)
+
+        return problem.memo.get(("model error", on, value_key(vertices)), compute)
 
     # -------------------------------------------------------------- evaluation
     def _states(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -305,12 +347,20 @@ class WarpedObjective:
             if kept is not None and kept[0] is d:  # the same Jacobians: the same block
                 blocks[a] = kept[1]
             else:
-                C_pos, C_vel = self._grams[k]
+                C_pos, C_vel, E_pos, E_vel = self._grams[k]
                 if C_pos is not None:
                     blocks[a, :r, :r] += _gram(C_pos, d.J)
+                    if E_pos is not None:
+                        JK = d.J.reshape(-1, r).T @ E_pos[0].reshape(-1, r)
+                        blocks[a, :r, :r] += JK + JK.T + E_pos[1]
                 if C_vel is not None:
                     X = np.concatenate([d.JV, d.J], axis=2)  # [D^2W[., v], DW]
                     blocks[a] += _gram(C_vel, X)
+                    if E_vel is not None:
+                        XK = X.reshape(-1, 2 * r).T @ E_vel[0].reshape(-1, r)  # (2r, r)
+                        blocks[a, :, r:] += XK
+                        blocks[a, r:, :] += XK.T
+                        blocks[a, r:, r:] += E_vel[1]
                 self._gn_blocks[k] = (d, blocks[a].copy())
             if not self.curvature:
                 continue
