@@ -403,3 +403,82 @@ def test_edited_objective_at_the_last_point_pulls_back_only_changed_cotangents(f
     assert abs(point.F - fresh.F) <= 1e-12 * fresh.F
     assert np.abs(point.g - fresh.g).max() <= 1e-9 * np.abs(fresh.g).max()
     assert np.abs(fresh.g).max() > 1e-3 * np.abs(anim.warm_start.point.g).max() + 1e-6
+
+
+def test_unwarped_targets_linearize_each_keyframes_rotation(free_bar):
+    """``unwarped`` replaces a keyframe's best-fit rotation R (about its targets' centroid) by
+    its rotation vector: rigidly turned and moved targets x = R (X - c) + c' + e become
+    X + w x (X - c) + (c' - c) + R^T e, with velocities turned back by R^T; keyframes of one
+    group are fitted together and agree with fitting each alone; groups of fewer than 3 or
+    collinear vertices keep their targets."""
+    from scipy.spatial.transform import Rotation
+
+    from wiggly.solve.problem import unwarped
+
+    X = free_bar.rest_positions()
+    group = np.flatnonzero(X[:, 0] > 0.5)
+    rng = np.random.default_rng(4)
+    A = X[group] - X[group].mean(axis=0)
+    keys, expected = [], []
+    for k in range(4):
+        w = rng.uniform(-1.5, 1.5, 3)  # up to about 150 degrees
+        R = Rotation.from_rotvec(w).as_matrix()
+        e = 0.01 * rng.standard_normal(A.shape)
+        move = rng.standard_normal(3)
+        velocity = rng.standard_normal(A.shape)
+        position = A @ R.T + X[group].mean(axis=0) + move + e
+        keys.append(Keyframe(0.2 * (k + 1), group, position, velocity))
+        # the targets' own best-fit rotation is R only for e = 0: use the exact Kabsch R
+        B = position - position.mean(axis=0)
+        U, _, Vt = np.linalg.svd(B.T @ A)
+        R_fit = U @ np.diag([1, 1, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+        w_fit = Rotation.from_matrix(R_fit).as_rotvec()
+        residual = B - A @ R_fit.T
+        expected.append((
+            X[group] + np.cross(w_fit, A) + (position.mean(axis=0) - X[group].mean(axis=0))
+            + residual @ R_fit,
+            velocity @ R_fit,
+        ))
+    line = np.flatnonzero((np.abs(X[:, 1] - X[0, 1]) < 1e-9) & (np.abs(X[:, 2] - X[0, 2]) < 1e-9))
+    assert len(line) >= 3
+    keys.append(Keyframe(0.9, line, X[line] + 0.1, None))
+    keys.append(Keyframe(1.0, group[:2], X[group[:2]] + 0.1, None))
+    keys = [kf.checked(free_bar, 0.0, 1.0) for kf in keys]
+    out = unwarped(keys, free_bar)
+    for kf, (position, velocity) in zip(out, expected, strict=False):
+        np.testing.assert_allclose(kf.position, position, atol=1e-12)
+        np.testing.assert_allclose(kf.velocity, velocity, atol=1e-12)
+    for a, kf in enumerate(keys):
+        alone = unwarped([kf], free_bar)[0]
+        np.testing.assert_allclose(alone.position, out[a].position, atol=1e-12)
+    assert out[4] is keys[4] and out[5] is keys[5]
+
+
+def test_target_fits_give_the_least_squares_residual_alone_and_in_batches(free_bar):
+    """``TargetFit.value_and_cotangent(x)`` is ``1/2 |S x - d|^2`` and ``S^T (S x - d)`` for
+    any level values x; targets of one group are fitted in one batch (also a repeated
+    target, and groups interleaved), each as it would be alone."""
+    from wiggly.solve import SpacetimeProblem
+
+    X = free_bar.rest_positions()
+    groups = [np.flatnonzero(X[:, 0] > 0.6), np.flatnonzero(X[:, 0] < 0.2)]
+    rng = np.random.default_rng(6)
+    requests = []
+    for a in range(5):
+        g = groups[a % 2]
+        requests.append((g, "surface", rng.standard_normal((len(g), 3))))
+    requests.append(requests[0])
+    requests.append((groups[1], "surface", np.array([0.0, 0.1, 0.0])))  # broadcast target
+    level = free_bar.fine_level
+    batch = SpacetimeProblem(free_bar, 0.0, 1.0).fits(level, requests)
+    for req, fit in zip(requests, batch, strict=True):
+        alone = SpacetimeProblem(free_bar, 0.0, 1.0).fits(level, [req])[0]
+        S = free_bar.scalar_selection(req[0], "surface")
+        d = np.broadcast_to(req[2], (len(req[0]), 3))
+        x = rng.standard_normal((S.shape[1], 3))
+        value, cotangent = fit.value_and_cotangent(x)
+        r = S @ x - d
+        assert abs(value - 0.5 * np.vdot(r, r)) <= 1e-12 * np.vdot(r, r)
+        np.testing.assert_allclose(cotangent, S.T @ r, atol=1e-12 * np.abs(S.T @ r).max())
+        np.testing.assert_allclose(fit.X, alone.X, atol=1e-13 * np.abs(alone.X).max())
+        assert fit.F == pytest.approx(alone.F, rel=1e-12, abs=1e-15)

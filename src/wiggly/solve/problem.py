@@ -176,24 +176,42 @@ class SpacetimeProblem:
         """A vertex group's selection and Gram on ``level`` (kept by the body)."""
         return self.body.group(level, vertices, on)
 
-    def fit(self, level: WarpLevel, vertices: np.ndarray, on: str, target: np.ndarray) -> TargetFit:
-        """The :class:`TargetFit` of per-vertex targets (s, 3) of a group on ``level``, kept
-        per level, group and target."""
+    def fits(
+        self, level: WarpLevel, requests: list[tuple[np.ndarray, str, np.ndarray]]
+    ) -> list[TargetFit]:
+        """The :class:`TargetFit` on ``level`` of each (vertices, on, targets (s, 3)) request,
+        kept per level, group and target; the missing ones of a group are fitted together
+        (one multi-right-hand-side solve: a driver keys one group at every frame)."""
         name = "fine" if level.exact else "coarse"
-
-        def compute() -> TargetFit:
+        keys = [
+            ("fit", name, on, value_key(v), value_key(np.asarray(d, dtype=float)))
+            for v, on, d in requests
+        ]
+        made: dict = {}
+        groups: dict[tuple, list[int]] = {}
+        for j, key in enumerate(keys):
+            if key not in self.memo and key not in made:
+                groups.setdefault(key[2:4], []).append(j)
+                made[key] = None
+        for members in groups.values():
+            vertices, on, _ = requests[members[0]]
             sel = self.selection(level, vertices, on)
-            d = np.ascontiguousarray(np.broadcast_to(target, (len(vertices), 3)), dtype=float)
-            Std = sel.St @ d
+            s = len(vertices)
+            D = np.stack([np.broadcast_to(requests[j][2], (s, 3)) for j in members], axis=1)
+            Std = sel.St @ D.reshape(s, -1)  # columns (member, coordinate)
             X = sel.fit_solver(Std)
-            R = sel.S @ X - d
+            R = sel.S @ X - D.reshape(s, -1)
             G = sel.C @ X - Std
-            for a in (X, G):
-                a.flags.writeable = False
-            return TargetFit(sel.C, X, G, 0.5 * float(np.vdot(R, R)))
-
-        key = ("fit", name, on, value_key(vertices), value_key(np.asarray(target, dtype=float)))
-        return self.memo.get(key, compute)
+            R = R.reshape(s, len(members), 3)
+            F = 0.5 * np.einsum("skc,skc->k", R, R)
+            n = X.shape[0]
+            for a, j in enumerate(members):
+                Xa = np.array(X.reshape(n, -1, 3)[:, a])
+                Ga = np.array(G.reshape(n, -1, 3)[:, a])
+                for arr in (Xa, Ga):
+                    arr.flags.writeable = False
+                made[keys[j]] = TargetFit(sel.C, Xa, Ga, float(F[a]))
+        return [self.memo.get(key, lambda key=key: made[key]) for key in keys]
 
     def modal_gram(self, vertices: np.ndarray, on: str) -> np.ndarray:
         """``Phi^T A_k^T A_k Phi`` (r, r) of a group: ``sum_c Phi_c^T C Phi_c`` over the
@@ -291,7 +309,7 @@ class SpacetimeProblem:
                 if warm_start is not None and warm_start.fits(nodes, size):
                     z, warm = warm_start.z.copy(), warm_start
                 else:
-                    z = self.solve_linear([unwarped(kf, self.body) for kf in kfs], nodes)
+                    z = self.solve_linear(unwarped(kfs, self.body), nodes)
                 info["warm_start"] = warm is not None
                 info["linear_seconds"] = time.perf_counter() - t0
                 z, report, new_warm = solve_warped(self, kfs, nodes, z, options, warm, progress)
@@ -306,28 +324,44 @@ class SpacetimeProblem:
         )
 
 
-def unwarped(kf: Keyframe, body: Body) -> Keyframe:
-    """A keyframe whose targets a *linear* motion can meet and whose warp is near the original.
+def unwarped(kfs: list[Keyframe], body: Body) -> list[Keyframe]:
+    """Keyframes whose targets a *linear* motion can meet and whose warp is near the originals.
 
-    The targets' best-fit rotation R about their centroid (Kabsch) is replaced by its
-    linearization with the same rotation vector w = log R (any angle below pi): x = R (X - c)
-    + c' + e becomes X + w x (X - c) + (c' - c) + R^T e; velocities are rotated back by R^T.
-    Warping maps a linearized rotation to the exact one (SYSTEM.md §6), so the linear solve
-    with these targets starts the warped solve in the basin of large-rotation keyframes.
+    Each keyframe's best-fit rotation R of its targets about their centroid (Kabsch) is
+    replaced by its linearization with the same rotation vector w = log R (any angle below
+    pi): x = R (X - c) + c' + e becomes X + w x (X - c) + (c' - c) + R^T e; velocities are
+    rotated back by R^T.  Warping maps a linearized rotation to the exact one (SYSTEM.md §6),
+    so the linear solve with these targets starts the warped solve in the basin of
+    large-rotation keyframes.  Keyframes of the same vertex group are fitted together (a
+    driver keys one group at every frame); groups of fewer than 3 or collinear vertices have
+    no unique rotation and keep their targets.
     """
-    if kf.position is None or len(kf.vertices) < 3:
-        return kf
-    X = body.rest_positions(kf.on)[kf.vertices]
-    c, c_t = X.mean(axis=0), kf.position.mean(axis=0)
-    A, B = X - c, kf.position - c_t
-    spread = np.linalg.eigvalsh(A.T @ A)  # squared singular values of A, ascending
-    if spread[1] <= 1e-18 * max(spread[2], 1e-300):  # collinear: no unique rotation
-        return kf
-    U, _, Vt = np.linalg.svd(B.T @ A)  # Kabsch: R = argmax tr(R^T B^T A), det R = 1
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    R = U @ D @ Vt
-    w = Rotation.from_matrix(R).as_rotvec()
-    e = B - A @ R.T
-    position = X + np.cross(w, A) + (c_t - c) + e @ R
-    velocity = None if kf.velocity is None else kf.velocity @ R
-    return replace(kf, position=position, velocity=velocity)
+    out = list(kfs)
+    groups: dict[tuple, list[int]] = {}
+    for j, kf in enumerate(kfs):
+        if kf.position is not None and len(kf.vertices) >= 3:
+            groups.setdefault((kf.on, kf.vertices.tobytes()), []).append(j)
+    for members in groups.values():
+        first = kfs[members[0]]
+        X = body.rest_positions(first.on)[first.vertices]
+        c = X.mean(axis=0)
+        A = X - c
+        spread = np.linalg.eigvalsh(A.T @ A)  # squared singular values of A, ascending
+        if spread[1] <= 1e-18 * max(spread[2], 1e-300):  # collinear: no unique rotation
+            continue
+        P = np.stack([kfs[j].position for j in members])  # (k, s, 3)
+        c_t = P.mean(axis=1)
+        B = P - c_t[:, None]
+        U, _, Vt = np.linalg.svd(np.einsum("ksi,sj->kij", B, A))  # Kabsch: max tr(R^T B^T A)
+        sign = np.sign(np.linalg.det(U @ Vt))
+        U[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]  # det R = 1
+        R = U @ Vt
+        w = Rotation.from_matrix(R).as_rotvec()
+        e = B - np.einsum("sj,kij->ksi", A, R)
+        linear = X + np.cross(w[:, None], A) + (c_t - c)[:, None]
+        position = linear + np.einsum("ksi,kij->ksj", e, R)
+        for a, j in enumerate(members):
+            kf = kfs[j]
+            velocity = None if kf.velocity is None else kf.velocity @ R[a]
+            out[j] = replace(kf, position=position[a], velocity=velocity)
+    return out
