@@ -10,7 +10,9 @@ the same solid (:mod:`wiggly.warp.transfer`).  The warped solve then runs
    solution lies within the coarse mesh's error of the fine one;
 2. on the fine level from there: the exact fine objective, with Newton matrices from the
    coarse level (approximate: linear convergence, certified by the measured contraction;
-   exact fine matrices when it is slow).  This changes the path, never the solution.
+   exact fine matrices when it is slow), whose Jacobians carry the coarse mesh's
+   interpolation error of the modes (:mod:`wiggly.solve.warped`).  This changes the path,
+   never the solution.
 
 Smaller bodies solve on the fine level only, with exact Newton matrices.
 

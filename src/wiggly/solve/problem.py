@@ -352,14 +352,14 @@ def unwarped(kfs: list[Keyframe], body: Body) -> list[Keyframe]:
         P = np.stack([kfs[j].position for j in members])  # (k, s, 3)
         c_t = P.mean(axis=1)
         B = P - c_t[:, None]
-        U, _, Vt = np.linalg.svd(np.einsum("ksi,sj->kij", B, A))  # Kabsch: max tr(R^T B^T A)
+        U, _, Vt = np.linalg.svd(B.transpose(0, 2, 1) @ A)  # Kabsch: max tr(R^T B^T A)
         sign = np.sign(np.linalg.det(U @ Vt))
         U[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]  # det R = 1
         R = U @ Vt
         w = Rotation.from_matrix(R).as_rotvec()
-        e = B - np.einsum("sj,kij->ksi", A, R)
+        e = B - A @ R.transpose(0, 2, 1)
         linear = X + np.cross(w[:, None], A) + (c_t - c)[:, None]
-        position = linear + np.einsum("ksi,kij->ksj", e, R)
+        position = linear + e @ R
         for a, j in enumerate(members):
             kf = kfs[j]
             velocity = None if kf.velocity is None else kf.velocity @ R[a]

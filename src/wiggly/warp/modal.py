@@ -19,6 +19,7 @@ differentiated twice: ``y . W(u) = sum_t vol_t Z_t : H(A_t) + linear(u)`` with `
 from __future__ import annotations
 
 from collections.abc import Callable
+from itertools import pairwise
 
 import numpy as np
 
@@ -36,7 +37,7 @@ THIRD_STEP = 1e-5
 # Jacobians of many frames are made a few frames at a time: each chunk's right-hand sides
 # (r fields x n vertices x 3 per frame) stay near this many bytes, so the per-tet pass, the
 # transposes and the solve work in cache instead of streaming arrays of 100+ MB.
-CHUNK_BYTES = 4 << 20
+CHUNK_BYTES = 16 << 20
 
 
 class ModalWarp:
@@ -81,11 +82,13 @@ class ModalWarp:
         return relative * max(1.0, float(np.abs(A).max(initial=0.0)))
 
     def _by_chunks(self, f: int, solve_chunk: Callable[[int, int], np.ndarray]) -> np.ndarray:
-        """(f, n, 3, r) fields made by ``solve_chunk(a, b)`` for frames a:b (CHUNK_BYTES)."""
+        """(f, n, 3, r) fields made by ``solve_chunk(a, b)`` for frames a:b, in chunks of
+        equal frame counts and at most about CHUNK_BYTES of right-hand sides."""
         out = np.empty((f, self.n_vertices, 3, self.r))
-        per = max(1, CHUNK_BYTES // (24 * self.n_vertices * self.r))
-        for a in range(0, f, per):
-            out[a : a + per] = solve_chunk(a, min(f, a + per))
+        chunks = -(-f * 24 * self.n_vertices * self.r // CHUNK_BYTES)  # ceil
+        cuts = np.linspace(0, f, max(1, min(f, chunks)) + 1).round().astype(int)
+        for a, b in pairwise(cuts):
+            out[a:b] = solve_chunk(a, b)
         return out
 
     def jacobians(self, Q: np.ndarray) -> np.ndarray:
