@@ -344,24 +344,25 @@ def unwarped(kfs: list[Keyframe], body: Body) -> list[Keyframe]:
     for members in groups.values():
         first = kfs[members[0]]
         X = body.rest_positions(first.on)[first.vertices]
-        c = X.mean(axis=0)
-        A = X - c
+        A = X - X.mean(axis=0)
         spread = np.linalg.eigvalsh(A.T @ A)  # squared singular values of A, ascending
         if spread[1] <= 1e-18 * max(spread[2], 1e-300):  # collinear: no unique rotation
             continue
-        P = np.stack([kfs[j].position for j in members])  # (k, s, 3)
-        c_t = P.mean(axis=1)
-        B = P - c_t[:, None]
-        U, _, Vt = np.linalg.svd(B.transpose(0, 2, 1) @ A)  # Kabsch: max tr(R^T B^T A)
+        # Kabsch: R = argmax tr(R^T B^T A), B = x - c' (B^T A = x^T A: A sums to zero)
+        c_t = np.array([kfs[j].position.mean(axis=0) for j in members])
+        U, _, Vt = np.linalg.svd(np.array([kfs[j].position.T @ A for j in members]))
         sign = np.sign(np.linalg.det(U @ Vt))
         U[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]  # det R = 1
         R = U @ Vt
         w = Rotation.from_matrix(R).as_rotvec()
-        e = B - A @ R.transpose(0, 2, 1)
-        linear = X + np.cross(w[:, None], A) + (c_t - c)[:, None]
-        position = linear + e @ R
+        # X + w x A + (c' - c) + (B - A R^T) R = x R + (c' - c' R) + w x A  (R^T R = I)
+        cross = np.zeros((len(members), 3, 3))  # [w]x^T: a @ cross[a] = w x a
+        cross[:, [1, 2, 0], [2, 0, 1]] = w
+        cross[:, [2, 0, 1], [1, 2, 0]] = -w
+        shift = c_t - np.einsum("ki,kij->kj", c_t, R)
         for a, j in enumerate(members):
             kf = kfs[j]
+            position = kf.position @ R[a] + A @ cross[a] + shift[a]
             velocity = None if kf.velocity is None else kf.velocity @ R[a]
-            out[j] = replace(kf, position=position[a], velocity=velocity)
+            out[j] = replace(kf, position=position, velocity=velocity)
     return out
