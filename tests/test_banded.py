@@ -56,11 +56,13 @@ def test_band_helpers_match_dense_algebra():
     for i, b in zip(idx, blocks, strict=True):
         H[np.ix_(i, i)] += b
     np.testing.assert_allclose(band_to_dense(ab), H, rtol=1e-15)
-    idx = np.array([[20, 21, 22], [30, 31, 32]])  # disjoint blocks (the direct assignment)
-    add_blocks(ab, idx, blocks[:2])
-    for i, b in zip(idx, blocks[:2], strict=True):
-        H[np.ix_(i, i)] += b
-    np.testing.assert_allclose(band_to_dense(ab), H, rtol=1e-15)
+    # disjoint blocks: of consecutive indices (added by diagonals), and in another order
+    # (the direct assignment through index masks)
+    for idx in (np.array([[20, 21, 22], [30, 31, 32]]), np.array([[24, 23, 25], [13, 15, 14]])):
+        add_blocks(ab, idx, blocks[:2])
+        for i, b in zip(idx, blocks[:2], strict=True):
+            H[np.ix_(i, i)] += b
+        np.testing.assert_allclose(band_to_dense(ab), H, rtol=1e-15)
     np.testing.assert_allclose(BandedCholesky(ab).solve(x), np.linalg.solve(H, x), rtol=1e-10)
 
 

@@ -50,11 +50,20 @@ def add_blocks(ab: np.ndarray, idx: np.ndarray, blocks: np.ndarray) -> None:
     """Add symmetric dense blocks (P, b, b) at global indices ``idx`` (P, b) to ``ab``
     (indices may repeat across blocks)."""
     bw = ab.shape[0] - 1
+    b = idx.shape[1]
+    disjoint = len(np.unique(idx)) == idx.size  # each entry is hit once
+    if disjoint and np.array_equal(idx - idx[:, :1], np.broadcast_to(np.arange(b), idx.shape)):
+        # blocks of consecutive indices (a node's unknowns): diagonal d of every block is a
+        # run of band row bw - d, added without index masks
+        for d in range(b):
+            cols = (idx[:, :1] + d + np.arange(b - d)).ravel()
+            ab[bw - d, cols] += np.diagonal(blocks, offset=d, axis1=1, axis2=2).ravel()
+        return
     rows = np.broadcast_to(idx[:, :, None], blocks.shape)
     cols = np.broadcast_to(idx[:, None, :], blocks.shape)
     upper = rows <= cols
     where = (bw + rows[upper] - cols[upper], cols[upper])
-    if len(np.unique(idx)) == idx.size:  # disjoint blocks: each entry is hit once
+    if disjoint:
         ab[where] += blocks[upper]
     else:
         np.add.at(ab, where, blocks[upper])
