@@ -148,9 +148,10 @@ def test_copy_paste_and_duplicate_keys(editor):
     page.wait_for_function("Math.abs(window.wiggly.S.t - 0.6) < 1e-9")
     version = server.session.version
     page.keyboard.press("Control+v")
-    page.wait_for_function(f"window.wiggly.S.desc.version > {version} && "  # the new pair
+    # the new pair, and the paste finished (its last step selects the last pasted key)
+    page.wait_for_function(f"window.wiggly.S.desc.version > {version} && "
                            "window.wiggly.S.keys.size === 2 && window.wiggly.S.keys.has(3) && "
-                           "window.wiggly.S.keys.has(4)")
+                           "window.wiggly.S.keys.has(4) && window.wiggly.S.selectedKey === 4")
     keys = _keys(server)
     new = {i: v for i, v in keys.items() if i >= 3}
     # same groups and targets, same spacing (0.3 s), the earliest at the current time
