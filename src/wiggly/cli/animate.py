@@ -11,7 +11,7 @@ DESCRIPTION = """\
 Solve the sparse spacetime problem of a scene file (docs/scene-format.md) and write
 every output: geometry (.glb .usd .usda .usdc .obj .npz) and previews (.mp4 .gif,
 .png contact sheet). The scene is checked completely before anything is computed.
-Prints a summary: mesh, modes, solve time, Gauss-Newton iterations, the residual of
+Prints a summary: mesh, modes, solve time, Newton iterations, the residual of
 every keyframe, and where the outputs went."""
 EPILOG = """\
 examples:

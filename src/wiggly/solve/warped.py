@@ -21,8 +21,8 @@ W is replaced by W~ = P W_c(R .), i.e. S_k by S_k P and the fine warp by the coa
   the cotangents transferred by ``P^T``).  A coarse model's Jacobians are ``P DW_c(R u) R
   Phi + E`` with ``E = Phi - P R Phi`` the coarse mesh's interpolation error of the modes:
   both warps have DW(0) = I, so these equal the fine Jacobians at rest and differ from them
-  by O(|u|) (without E, by the 5-8 % that a coarse mesh misses of the higher modes), which
-  halves the contraction of the fine level's iteration on driven shots.
+  by O(|u|) (without E, by the 5-8 % that a coarse mesh misses of the higher modes): on the
+  driven benchmark the fine level's first step contracts by 0.08 instead of 0.16.
 """
 
 from __future__ import annotations
