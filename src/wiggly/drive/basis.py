@@ -28,7 +28,7 @@ What :func:`enrich` does:
    fix the free parts' motion too while the driver plays: they follow it nearly rigidly, and
    lag and swing only once the keys stop.  Experimental (``free_modes=0`` by default): on
    the walk example they make the free parts lag during the walk, but the warped solve takes
-   minutes instead of a minute and the tail swings up again near the shot's end.
+   minutes instead of seconds and the tail swings up again near the shot's end.
 5. **Rayleigh-Ritz.**  Those directions, M-orthonormalized, are rotated to diagonalize K.
    Because the eigenmodes are exact (Phi^T K Q = Lambda Phi^T M Q = 0), the new basis is the
    old modes, unchanged, followed by the Ritz vectors: M-orthonormal and K-diagonal, so the
