@@ -340,7 +340,7 @@ def unwarped(kfs: list[Keyframe], body: Body) -> list[Keyframe]:
     groups: dict[tuple, list[int]] = {}
     for j, kf in enumerate(kfs):
         if kf.position is not None and len(kf.vertices) >= 3:
-            groups.setdefault((kf.on, kf.vertices.tobytes()), []).append(j)
+            groups.setdefault((kf.on, value_key(kf.vertices)), []).append(j)
     for members in groups.values():
         first = kfs[members[0]]
         X = body.rest_positions(first.on)[first.vertices]

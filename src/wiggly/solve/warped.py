@@ -195,18 +195,14 @@ class WarpedObjective:
         self, model: WarpLevel, vertices: np.ndarray, on: str
     ) -> tuple[np.ndarray, np.ndarray]:
         """A group's terms of the coarse model's interpolation error of the modes, ``E = Phi -
-        P R Phi`` (the fine minus the model Jacobian at rest, where DW = I on both meshes):
-        ``K2 = P^T C E`` (n_c, 3, r) and ``K3 = E^T C E`` (r, r), C the group's fine Gram, so
-        that ``(P J + E)^T C (P J + E) = J^T C_c J + J^T K2 + K2^T J + K3`` (module doc)."""
+        P R Phi`` (:attr:`WarpLevel.basis_error`): ``K2 = P^T C E`` (n_c, 3, r) and ``K3 =
+        E^T C E`` (r, r), C the group's fine Gram, so that ``(P J + E)^T C (P J + E) = J^T
+        C_c J + J^T K2 + K2^T J + K3`` (module doc)."""
         problem, r = self.problem, self.r
 
         def compute() -> tuple[np.ndarray, np.ndarray]:
-            body = problem.body
-            Phi = body.modes.vectors.reshape(-1, 3, r)
-            P = model.transfer.lift
-            Bc = model.modal.basis
-            E = Phi - np.stack([P @ Bc[:, c] for c in range(3)], axis=1)
-            C = problem.selection(body.fine_level, vertices, on).C
+            E, P = model.basis_error, model.transfer.lift
+            C = problem.selection(problem.body.fine_level, vertices, on).C
             CE = np.stack([C @ E[:, c] for c in range(3)], axis=1)
             K2 = np.stack([P.T @ CE[:, c] for c in range(3)], axis=1)
             K3 = E.reshape(-1, r).T @ CE.reshape(-1, r)

@@ -117,12 +117,15 @@ class WarpLevel:
     """The warp at one resolution, seen from the fine mesh: ``W~(u) = P W_L(R u)``.
 
     ``modal`` is the level's warp bound to the restricted modes ``R Phi``; ``transfer`` maps
-    fields between the fine mesh and the level's.  For the fine level itself the transfer is
-    the identity and ``W~ = W``.
+    fields between the fine mesh and the level's; ``basis_error`` is what the level misses of
+    the modes, ``Phi - P R Phi`` (n, 3, r): the fine minus the level's Jacobian at rest, where
+    both warps have DW = I.  For the fine level itself the transfer is the identity, ``W~ =
+    W`` and ``basis_error`` is None.
     """
 
     modal: ModalWarp
     transfer: IdentityTransfer | CoarseTransfer
+    basis_error: np.ndarray | None = None
 
     @property
     def exact(self) -> bool:
@@ -185,8 +188,10 @@ def coarse_level(
     )
     n, r = fine.n_vertices, np.shape(basis)[-1]
     Phi = np.asarray(basis, dtype=np.float64).reshape(n, 3, r).transpose(2, 0, 1)
-    basis_c = transfer.restrict(Phi).transpose(1, 2, 0)  # R Phi: (n_c, 3, r)
-    return WarpLevel(ModalWarp(warp_c, basis_c), transfer)
+    restricted = transfer.restrict(Phi)  # R Phi: (r, n_c, 3)
+    error = np.ascontiguousarray((Phi - transfer.lift_fields(restricted)).transpose(1, 2, 0))
+    error.flags.writeable = False
+    return WarpLevel(ModalWarp(warp_c, restricted.transpose(1, 2, 0)), transfer, error)
 
 
 def fine_level(fine: Warp, basis: np.ndarray) -> WarpLevel:
