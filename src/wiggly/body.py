@@ -1,8 +1,10 @@
-"""A prepared body: mesh, linear FEM, eigenmodes and per-mode coefficients (SYSTEM.md §2–4).
+"""A prepared body: mesh, linear FEM, eigenmodes and per-mode coefficients.
+
+Schulz et al. 2014, eqs. (1)-(5).
 
 A :class:`Body` is what every later stage works on.  It holds the simulation tet mesh, the
 user's surface embedded in it, the assembled M and K, the lowest r eigenmodes, and the
-decoupled per-mode data of the spacetime energy (SYSTEM.md §4):
+decoupled per-mode data of the spacetime energy (Schulz et al. 2014, eq. (4)):
 
     delta_i = (alpha + beta lambda_i) / 2,      g_i = phi_i^T g,   g = -M gravity.
 
@@ -41,7 +43,7 @@ COARSE_TETS = 2000
 
 @dataclass(frozen=True)
 class Damping:
-    """Rayleigh damping D = alpha M + beta K (alpha in s^-1, beta in s), SYSTEM.md §2."""
+    """Rayleigh damping D = alpha M + beta K (alpha in s^-1, beta in s); Schulz et al. eq. (1)."""
 
     alpha: float = 0.5
     beta: float = 0.002
@@ -133,7 +135,7 @@ class Body:
                 new.__dict__[name] = self.__dict__[name]
         return new
 
-    # --- per-mode coefficients of the decoupled energy (SYSTEM.md §4) -------------------
+    # --- per-mode coefficients of the decoupled energy (Schulz et al. 2014, eq. (4)) -------
     @property
     def r(self) -> int:
         """Number of modes."""
@@ -198,7 +200,7 @@ class Body:
 
     @cached_property
     def warp(self) -> Warp:
-        """Rotation-strain warp map W of this body (SYSTEM.md §6), factored once."""
+        """Rotation-strain warp map W of this body (Schulz et al. 2014, Thm. 2), factored once."""
         return Warp(
             self.tets.vertices,
             self.tets.tets,
@@ -208,7 +210,7 @@ class Body:
 
     @cached_property
     def fine_level(self) -> WarpLevel:
-        """The warp W bound to the modes (Jacobians, curvatures; SYSTEM.md §6)."""
+        """The warp W bound to the modes (Jacobians, curvatures; Schulz et al. 2014, Theorem 2)."""
         return fine_level(self.warp, self.modes.vectors)
 
     @cached_property

@@ -1,4 +1,6 @@
-"""Linear finite elements on P1 tetrahedra: mass, stiffness, damping, gravity (SYSTEM.md §2).
+"""Linear finite elements on P1 tetrahedra: mass, stiffness, damping, gravity.
+
+The matrices of the linear dynamics, Schulz et al. 2014, eq. (1).
 
 The displacement ``u`` from the rest shape is piecewise linear, ``u(x) = sum_a u_a phi_a(x)``,
 with dofs interleaved (dof ``3 a + c`` is component ``c`` of vertex ``a``).  The dynamics are (1)
@@ -71,7 +73,7 @@ def _check_density(density: float) -> float:
 
 @dataclass(frozen=True)
 class Material:
-    """Isotropic linear elastic material (SYSTEM.md §2).
+    """Isotropic linear elastic material (Schulz et al. 2014, eq. (1)).
 
     Parameters
     ----------
@@ -181,7 +183,7 @@ def _assemble_blocks(T: np.ndarray, n: int, blocks: np.ndarray) -> sp.csr_matrix
 def mass_matrix(
     V: np.ndarray, T: np.ndarray, density: float, lumped: bool = False
 ) -> sp.csr_matrix:
-    """Mass matrix M of P1 tets (SYSTEM.md §2).
+    """Mass matrix M of P1 tets (Schulz et al. 2014, eq. (1)).
 
     Consistent: per tet and per component, ``M_ab = rho vol / 20 (1 + delta_ab)``
     (exact integral of ``rho phi_a phi_b``).  Lumped: the diagonal of its row sums,
@@ -215,7 +217,7 @@ def mass_matrix(
 
 
 def stiffness_matrix(V: np.ndarray, T: np.ndarray, young: float, poisson: float) -> sp.csr_matrix:
-    """Stiffness matrix K of isotropic linear elasticity on P1 tets (SYSTEM.md §2).
+    """Stiffness matrix K of isotropic linear elasticity on P1 tets (Schulz et al. 2014, eq. (1)).
 
     The elastic energy ``int mu eps:eps + lambda/2 tr(eps)^2 = 1/2 u^T K u`` with
     ``eps = sym(grad u)`` gives, per tet and vertex pair (a, b), the 3x3 block
@@ -255,7 +257,7 @@ def stiffness_matrix(V: np.ndarray, T: np.ndarray, young: float, poisson: float)
 def gravity_term(
     M: sp.spmatrix, gravity: tuple[float, float, float] = DEFAULT_GRAVITY
 ) -> np.ndarray:
-    """Constant term g of dynamics (1) for uniform gravity (SYSTEM.md §2).
+    """Constant term g of dynamics (1) for uniform gravity (Schulz et al. 2014, eq. (1)).
 
     Gravity acts as the external force ``f = M G`` with ``G = tile(gravity, n)``; in (1),
     ``M u'' + D u' + K u + g = 0``, it sits on the left-hand side, so ``g = -M G``.
@@ -280,7 +282,7 @@ def gravity_term(
 
 
 def rayleigh_damping(M: sp.spmatrix, K: sp.spmatrix, alpha: float, beta: float) -> sp.csr_matrix:
-    """Rayleigh damping ``D = alpha M + beta K`` (SYSTEM.md §2).
+    """Rayleigh damping ``D = alpha M + beta K`` (Schulz et al. 2014, eq. (1)).
 
     Parameters
     ----------

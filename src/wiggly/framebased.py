@@ -1,8 +1,8 @@
 """The classic frame-based spacetime method, as an independent reference and baseline.
 
-Witkin & Kass (1988) style: the same functional E + E_C (SYSTEM.md §4) in the same modal
-coordinates, but with q_i sampled on a uniform time grid t_j = t_0 + j dt and the energy
-discretized by central differences,
+Witkin & Kass (1988) style: the same functional E + E_C (Schulz et al. 2014, eqs. (4) and (6)) in
+the same modal coordinates, but with q_i sampled on a uniform time grid t_j = t_0 + j dt and the
+energy discretized by central differences,
 
     E ~ 1/2 sum_i sum_{j interior} dt (D2 q_i + 2 delta_i D1 q_i + lambda_i q_i + g_i)_j^2,
 

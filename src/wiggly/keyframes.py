@@ -1,4 +1,4 @@
-"""Sparse spacetime constraints: partial keyframes (SYSTEM.md §4, energy E_C, eq. (4)).
+"""Sparse spacetime constraints: partial keyframes (Schulz et al. 2014, the energy E_C of eq. (6)).
 
 A keyframe constrains some vertices (of the user's surface or of the tet mesh) at one time:
 their positions (A_k u(t_k) = a_k) and/or their velocities (B_k u'(t_k) = b_k), as least

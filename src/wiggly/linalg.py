@@ -1,7 +1,7 @@
 """Sparse symmetric positive definite factorizations with a choice of backend.
 
 :func:`factorize_spd` factors a sparse SPD matrix once and returns a solver usable for many
-right-hand sides (eigenmode shift-invert, SYSTEM.md §3; warping's Poisson system, §6).
+right-hand sides (eigenmode shift-invert; warping's Poisson system).
 Backends, in order of preference when ``backend=None``:
 
 ``"cholmod"``

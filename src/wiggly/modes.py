@@ -1,4 +1,6 @@
-"""Reduction to eigenmodes: the lowest r modes of K phi = lambda M phi (SYSTEM.md §3).
+"""Reduction to eigenmodes: the lowest r modes of K phi = lambda M phi.
+
+The modal basis of Schulz et al. 2014, eq. (5).
 
 The modal basis ``Phi = [phi_1 .. phi_r]`` is M-orthonormal and K-diagonal,
 
@@ -57,7 +59,7 @@ ZERO_RELATIVE = 1e-8
 
 @dataclass
 class Modes:
-    """Eigenmodes of K phi = lambda M phi (SYSTEM.md §3).
+    """Eigenmodes of K phi = lambda M phi (Schulz et al. 2014, eq. (5)).
 
     Attributes
     ----------
@@ -88,7 +90,7 @@ class Modes:
 
 
 def rigid_motions(V: np.ndarray) -> np.ndarray:
-    """Rigid motions of the vertices, linearized (SYSTEM.md §3).
+    """Rigid motions of the vertices, linearized (Schulz et al. 2014, eq. (5)).
 
     Parameters
     ----------
@@ -336,7 +338,7 @@ def compute_modes(
     method: Literal["auto", "sparse", "dense"] = "auto",
     backend: str | None = None,
 ) -> Modes:
-    """Lowest r eigenmodes of K phi = lambda M phi, rigid modes first (SYSTEM.md §3).
+    """Lowest r eigenmodes of K phi = lambda M phi, rigid modes first (Schulz et al. 2014, eq. (5)).
 
     Parameters
     ----------

@@ -1,7 +1,7 @@
-"""Wiggly splines: the per-mode minimisers of the spacetime energy (SYSTEM.md §5, Theorem 1).
+"""Wiggly splines: the per-mode minimisers of the spacetime energy (Schulz et al. 2014, Theorem 1).
 
 For one mode with eigenvalue ``lam`` (lambda >= 0), damping ``delta`` >= 0 and modal gravity ``g``,
-the energy of a trajectory q on one interval [0, h] is (SYSTEM.md §4)
+the energy of a trajectory q on one interval [0, h] is (Schulz et al. 2014, eq. (4))
 
     E = 1/2 int_0^h (q'' + 2 delta q' + lam q + g)^2 dt,
 

@@ -208,7 +208,8 @@ def _body(key: tuple[str, str], load: Callable[[], Any], warped: bool) -> tuple[
             for k in [k for k in _PROBLEMS if k[0] == old]:
                 del _PROBLEMS[k]
     _BODIES.move_to_end(key)
-    if warped:  # the warp's factorizations, shared by every shot of this body (SYSTEM.md §6)
+    # the warp's factorizations (Schulz et al. 2014, Theorem 2), shared by every shot of this body
+    if warped:
         _ = body.fine_level, body.coarse_level
     return body, time.perf_counter() - t
 

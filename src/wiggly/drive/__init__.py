@@ -1,7 +1,7 @@
 """Secondary motion on an existing animation: a *driver* animation of the user's surface keys a
 vertex group at every driver frame, and the rest of the body moves freely.
 
-The paper's partial keyframes (SYSTEM.md §4, eq. (4)) are used densely in time: the driven
+The paper's partial keyframes (Schulz et al. 2014, eq. (6)) are used densely in time: the driven
 group gets a position keyframe at every frame of the driver, the user adds sparse keys of
 their own (e.g. "the ears are back at rest at 2 s"), and the solve (warped by default,
 Theorem 2) gives the free parts (ears, tail, belly) their lag, overshoot and settling::

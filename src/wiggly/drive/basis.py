@@ -1,5 +1,5 @@
 """A modal basis that can follow a driver: the body's eigenmodes enriched with the driver's
-shapes by Rayleigh-Ritz (SYSTEM.md §3-5).
+shapes by Rayleigh-Ritz (Schulz et al. 2014, eq. (5) and Theorem 1).
 
 Why.  Dense keys ask the driven group to take the driver's shape at every frame.  The lowest
 r eigenmodes span a skinned limb's bending only approximately (a trotting leg of the
@@ -13,9 +13,9 @@ What :func:`enrich` does:
    u_k = argmin 1/2 u^T K u + c/2 |E u - d_k|^2 (E the barycentric embedding rows, c >> K).
 2. **Unwarping** (for warped solves).  Per tet, I + grad u_k = R S (polar decomposition) is
    replaced by the linear gradient [log R]x + S - I, whose rotation-strain warp is R S again
-   (SYSTEM.md §6); the unwarped field is the volume-weighted least-squares fit of these
-   gradients (the warp's own Poisson problem), so that W(unwarped field) ~ u_k.  (Nearly
-   inverted tets keep their linear gradient.)
+   (Schulz et al. 2014, Theorem 2); the unwarped field is the volume-weighted least-squares fit
+   of these gradients (the warp's own Poisson problem), so that W(unwarped field) ~ u_k.
+   (Nearly inverted tets keep their linear gradient.)
    Only the (at most 32) frames whose fields span the others best are unwarped
    (column-pivoted QR).
 3. **Reduction.**  The fields' parts M-orthogonal to the modes are compressed by POD
@@ -32,7 +32,8 @@ What :func:`enrich` does:
 5. **Rayleigh-Ritz.**  Those directions, M-orthonormalized, are rotated to diagonalize K.
    Because the eigenmodes are exact (Phi^T K Q = Lambda Phi^T M Q = 0), the new basis is the
    old modes, unchanged, followed by the Ritz vectors: M-orthonormal and K-diagonal, so the
-   spacetime energy still decouples per vector (SYSTEM.md §4) and Theorem 1 holds as it is.
+   spacetime energy still decouples per vector (Schulz et al. 2014, eq. (4)) and Theorem 1 holds
+   as it is.
    The motion is the least-force motion in a larger subspace.
 
 The Ritz values of driver shapes are large (stiff shapes: following a skinned limb exactly

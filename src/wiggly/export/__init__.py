@@ -1,6 +1,6 @@
 """Export of an animated triangle surface: glTF binary, USD, an OBJ sequence or npz.
 
-The last stage of the pipeline (SYSTEM.md §1, step 4: "exports it to animation tools") only
+The last stage of the pipeline (exporting the motion to animation tools) only
 sees plain arrays, a :class:`SurfaceAnimation`: frame times, per-frame vertex positions of the
 user's own surface (same vertices, same order, same faces and UVs) and its triangles, plus
 optional per-vertex texture coordinates and rest normals.  :func:`write_animation` picks the

@@ -1,9 +1,10 @@
 """Stage 1, before meshing: what is unusual about a user's surface, how many tets it will
 make, and the simplified envelope that fTetWild fills (used by :mod:`wiggly.mesh`).
 
-A user's surface is delivered as it is (SYSTEM.md §1); it only has to be *filled* with tets.
-fTetWild (Hu et al. 2020) fills whatever a triangle soup encloses, by generalized winding
-numbers, so open, non-manifold or self-intersecting surfaces can be filled too.  This module:
+A user's surface is delivered as it is, embedded in the tet mesh (Schulz et al. 2014); it only has
+to be *filled* with tets. fTetWild (Hu et al. 2020) fills whatever a triangle soup encloses, by
+generalized winding numbers, so open, non-manifold or self-intersecting surfaces can be filled too.
+This module:
 
 - welds coincident vertices, orients the triangles consistently (winding numbers need it) and
   counts what is unusual: open, non-manifold and misoriented edges, crossing triangle pairs

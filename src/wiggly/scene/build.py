@@ -110,7 +110,7 @@ def _check_modes_for_scene(scene: Scene, model, fixed_vertices) -> None:
 
 def _rigid_mode_count(points: np.ndarray) -> int:
     """Rigid motions left by holding ``points`` at rest: 6 if none, 3 (rotations) about one
-    point, 1 about a line, 0 otherwise (SYSTEM.md §3)."""
+    point, 1 about a line, 0 otherwise (Schulz et al. 2014, eq. (5))."""
     if len(points) == 0:
         return RIGID_MODES
     spread = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)

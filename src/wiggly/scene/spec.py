@@ -28,7 +28,7 @@ CAMERAS = ("three_quarter", "front", "side", "back", "top")
 PALETTE = ("#ff7f0e", "#1f77b4", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
            "#17becf", "#bcbd22", "#7f7f7f")
 GROUP_NAME = r"^[A-Za-z0-9_-]+$"
-#: Rigid modes of a free body (3 translations, 3 rotations, SYSTEM.md §3).
+#: Rigid modes of a free body (3 translations, 3 rotations, Schulz et al. 2014, eq. (5)).
 RIGID_MODES = 6
 #: Target positions drawn per keyframe in previews (a subset of large groups).
 MAX_TARGETS = 60

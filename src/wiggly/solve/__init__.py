@@ -1,4 +1,4 @@
-"""The sparse spacetime solve (SYSTEM.md §4-6, Theorems 1 and 2).
+"""The sparse spacetime solve (Schulz et al. 2014, Theorems 1 and 2).
 
 Modules, in the order data flows:
 

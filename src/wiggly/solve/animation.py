@@ -3,7 +3,7 @@
 The unknowns of the spacetime solve are the node values q_i(t_k) and node velocities
 q_i'(t_k) of every mode; on each interval between nodes each mode is the wiggly spline with
 that Hermite data (:mod:`wiggly.splines`).  Linear playback is u(t) = Phi q(t); warped
-playback is W(u(t)) (and DW(u(t)) u'(t) for velocities), SYSTEM.md §6.
+playback is W(u(t)) (and DW(u(t)) u'(t) for velocities) (Schulz et al. 2014, Theorem 2).
 """
 
 from __future__ import annotations
@@ -109,9 +109,9 @@ class Animation:
     ) -> np.ndarray:
         """Displacements (or their ``derivative``-th time derivative): shape (F, n, 3).
 
-        Linear: u(t) = Phi q(t).  Warped: W(u(t)) and DW(u(t)) u'(t) (SYSTEM.md §6), computed
-        on the tet mesh in batches of frames (one multi-RHS Poisson solve per batch) and
-        carried to the surface by the barycentric embedding.
+        Linear: u(t) = Phi q(t).  Warped: W(u(t)) and DW(u(t)) u'(t) (Schulz et al. 2014,
+        Theorem 2), computed on the tet mesh in batches of frames (one multi-RHS Poisson solve per
+        batch) and carried to the surface by the barycentric embedding.
         """
         if not self.warped:
             q = self.modal(times, derivative)[derivative]

@@ -1,4 +1,4 @@
-"""The warped solve on two levels, and warm starts (SYSTEM.md §6, Theorem 2).
+"""The warped solve on two levels, and warm starts (Schulz et al. 2014, Theorem 2).
 
 Bodies above ``COARSE_WARP_ABOVE`` tets have a coarse level: the warp of a coarse mesh of
 the same solid (:mod:`wiggly.warp.transfer`).  The warped solve then runs

@@ -1,4 +1,6 @@
-"""The sparse spacetime problem of one body over one time range (SYSTEM.md §4-5, Theorem 1).
+"""The sparse spacetime problem of one body over one time range.
+
+Schulz et al. 2014, eqs. (4)-(6) and Theorem 1.
 
 By Theorem 1 the minimiser of E + E_C is, in every mode, a wiggly spline with nodes at the
 keyframe times (and at the start and end).  The unknowns are the node values q_i(t_k) and
@@ -330,9 +332,9 @@ def unwarped(kfs: list[Keyframe], body: Body) -> list[Keyframe]:
     Each keyframe's best-fit rotation R of its targets about their centroid (Kabsch) is
     replaced by its linearization with the same rotation vector w = log R (any angle below
     pi): x = R (X - c) + c' + e becomes X + w x (X - c) + (c' - c) + R^T e; velocities are
-    rotated back by R^T.  Warping maps a linearized rotation to the exact one (SYSTEM.md §6),
-    so the linear solve with these targets starts the warped solve in the basin of
-    large-rotation keyframes.  Keyframes of the same vertex group are fitted together (a
+    rotated back by R^T.  Warping maps a linearized rotation to the exact one (Schulz et al.
+    2014, Theorem 2), so the linear solve with these targets starts the warped solve in the basin
+    of large-rotation keyframes.  Keyframes of the same vertex group are fitted together (a
     driver keys one group at every frame); groups of fewer than 3 or collinear vertices have
     no unique rotation and keep their targets.
     """

@@ -1,4 +1,6 @@
-"""The warped objective E + E_WC (Theorem 2, SYSTEM.md §6): value, gradient, Newton matrix.
+"""The warped objective E + E_WC: value, gradient, Newton matrix.
+
+Schulz et al. 2014, eq. (8) and Theorem 2.
 
     F(z) = 1/2 z^T H z + f^T z + c + 1/2 sum_k |r_k(z)|^2,
     r_k = sqrt(c_A) (S_k W(Phi q_k) - d_k)   or   sqrt(c_B) (S_k DW(Phi q_k)[Phi q'_k] - b_k),

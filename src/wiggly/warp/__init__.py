@@ -1,4 +1,4 @@
-"""Rotation-strain warping (SYSTEM.md §6; Huang et al. 2011) and its derivatives.
+"""Rotation-strain warping (Schulz et al. 2014, Theorem 2; Huang et al. 2011) and its derivatives.
 
 * :class:`Warp` -- the map ``W`` of a tet mesh: ``apply``, ``jvp``, ``vjp``, with the Poisson
   matrix factored once and a :class:`~wiggly.warp.gauge.Gauge` per component;

@@ -1,4 +1,6 @@
-"""Compiled per-tet kernels of the rotation-strain warp (SYSTEM.md §6; Huang et al. 2011).
+"""Compiled per-tet kernels of the rotation-strain warp.
+
+Schulz et al. 2014, Theorem 2; Huang et al. 2011.
 
 The warp's per-tet arithmetic (gradient of ``u``, rotation vector and strain, Rodrigues, and
 the scatter ``G^T Vol`` back to the vertices) fused into one pass over the tets, compiled with

@@ -1,10 +1,10 @@
-"""Compiled second derivatives of the warp's per-tet map (SYSTEM.md §6), for the warped solve's
-Newton matrices: the analytic Hessian of ``A -> Z : H(A)`` (curvature of the keyframe residuals)
-and the analytic second derivative ``D^2H(A)[., B]`` (velocity keyframes), their passes over
-the tets, and the third-order velocity term by a central difference of the Hessian.  The
-conventions and first-order formulas are those of :mod:`wiggly.warp.compiled`; the numpy
-kernels (:mod:`wiggly.warp.kernels_numpy`) take the same quantities by central differences of
-the analytic first derivatives, an independent check.
+"""Compiled second derivatives of the warp's per-tet map (Schulz et al. 2014, Theorem 2), for the
+warped solve's Newton matrices: the analytic Hessian of ``A -> Z : H(A)`` (curvature of the keyframe
+residuals) and the analytic second derivative ``D^2H(A)[., B]`` (velocity keyframes), their passes
+over the tets, and the third-order velocity term by a central difference of the Hessian.  The
+conventions and first-order formulas are those of :mod:`wiggly.warp.compiled`; the numpy kernels
+(:mod:`wiggly.warp.kernels_numpy`) take the same quantities by central differences of the analytic
+first derivatives, an independent check.
 """
 
 from __future__ import annotations
@@ -227,7 +227,7 @@ def second_tangent(lin, gb, T, J, Q):
 @pjit
 def second_derivatives_rhs(U, V, GB, tets, grads, vol, out):
     """``out[s, d] += G^T Vol D^2H(G U[s])[GB[d], G V[s]]``: derivative of the tangent map
-    in the linearization point, for velocity keyframes ``B DW(u) u'`` (SYSTEM.md §6).
+    in the linearization point, for velocity keyframes ``B DW(u) u'`` (Schulz et al. 2014, Thm. 2).
 
     Per tet the 9x9 matrix ``dA -> D^2H(A)[dA, G V[s]]`` (analytic, :func:`second_tangent`)
     is applied to the r field gradients.  Shapes as in :func:`jacobians_rhs`; ``V`` (f, n, 3).

@@ -1,4 +1,4 @@
-"""The gauge of the warp's Poisson fit (SYSTEM.md §6).
+"""The gauge of the warp's Poisson fit (Schulz et al. 2014, Theorem 2).
 
 The volume-weighted Laplacian ``L = G^T Vol G`` determines ``W(u)`` only up to a constant per
 connected component of the mesh.  The gauge fixes it:

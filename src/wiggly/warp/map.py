@@ -1,4 +1,6 @@
-"""The rotation-strain warp map W and its derivatives (SYSTEM.md §6; Huang et al. 2011).
+"""The rotation-strain warp map W and its derivatives.
+
+Schulz et al. 2014, Theorem 2; Huang et al. 2011.
 
 Per tetrahedron the displacement gradient ``A = grad u`` splits into a rotation vector
 ``w = axial((A - A^T)/2)`` and a strain ``S = (A + A^T)/2``; the target deformation gradient
@@ -36,7 +38,7 @@ __all__ = ["Warp"]
 
 
 class Warp:
-    """Rotation-strain warp map ``W`` of a tet mesh, and its derivatives (SYSTEM.md §6).
+    """Rotation-strain warp map ``W`` of a tet mesh, and its derivatives (Schulz et al., Thm. 2).
 
     Parameters
     ----------

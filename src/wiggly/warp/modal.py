@@ -1,4 +1,6 @@
-"""A warp bound to a modal basis: the derivatives of W in modal coordinates (SYSTEM.md §6).
+"""A warp bound to a modal basis: the derivatives of W in modal coordinates.
+
+Schulz et al. 2014, Theorem 2.
 
 The warped solve (Theorem 2) needs, at a constrained node with modal state ``q`` (and
 ``q'``), ``u = Phi q``:

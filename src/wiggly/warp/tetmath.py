@@ -1,4 +1,6 @@
-"""The warp's per-tet formulas on component fields, in numpy (SYSTEM.md §6; Huang et al. 2011).
+"""The warp's per-tet formulas on component fields, in numpy.
+
+Schulz et al. 2014, Theorem 2; Huang et al. 2011.
 
 A block of per-tet 3x3 fields is an array ``B`` of shape (3, 3, c, mb): ``B[i, j]`` is entry
 (i, j) for c columns (frames or directions) and mb tets; per-tet data shared by all columns
@@ -86,7 +88,7 @@ def _rotation_minus_identity(w: Sequence[Field], a: Field, b: Field) -> Mat:
 
 
 def target_block(out: np.ndarray, A: np.ndarray) -> None:
-    """Target displacement gradient ``exp([w]x)(I + S) - I`` (SYSTEM.md §6).
+    """Target displacement gradient ``exp([w]x)(I + S) - I`` (Schulz et al. 2014, Theorem 2).
 
     Evaluated as ``(R - I) + S + (R - I) S``, accurate for tiny gradients.
     """

@@ -1,7 +1,7 @@
 """Warp levels: the warp of the body's own mesh, or of a coarser mesh of the same solid.
 
 A coarse level stands in for the fine warp where a cheaper, close approximation is enough
-(the warped solve's first level and its Newton matrices, SYSTEM.md §6):
+(the warped solve's first level and its Newton matrices; Schulz et al. 2014, Theorem 2):
 
     W~(u) = P W_c(R u),        DW~(u) Phi = P DW_c(R u) R Phi,
 
