@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.installed
 
-.PHONY: demo test venv kernels system-render-deps system-test-deps blender cholmod bench lint clean
+.PHONY: demo test venv kernels system-render-deps system-test-deps blender cholmod bench lint docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -84,6 +84,14 @@ cholmod: $(STAMP)
 ## Benchmarks of the issues' performance targets (prints tables).
 bench: $(STAMP) cholmod
 	$(BIN)/python benchmarks/run_all.py
+
+## The documentation site (Sphinx, MyST, furo: the `docs` extra) into docs/_build/html;
+## warnings are errors.
+docs: $(STAMP)
+	@$(BIN)/python -c "import sphinx, myst_parser, furo" 2>/dev/null \
+	  || $(BIN)/python -m pip install --quiet -e ".[docs]"
+	$(BIN)/python -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	@echo "[make] docs: docs/_build/html/index.html"
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks scripts

@@ -11,8 +11,8 @@ squares with weights c_A, c_B.  Position targets are given as
 
 and a full keyframe is the special case where every vertex is selected.
 
-Weights.  E_C = 1/2 sum_k c_A |A_k u - a_k|^2 + c_B |B_k u' - b_k|^2 (eq. (4)).  Unless given
-explicitly, c_A and c_B are set from a dimensionless ``stiffness`` s as
+Weights.  ``E_C = 1/2 sum_k c_A |A_k u - a_k|^2 + c_B |B_k u' - b_k|^2`` (Schulz et al. 2014,
+eq. (6)).  Unless given explicitly, c_A and c_B are set from a dimensionless ``stiffness`` s as
 c_A = s m / (k T^3) and c_B = s m / (k T), with m the body's mass, k the number of selected
 vertices and T the animation's duration: the units of the spacetime energy, so the same
 ``stiffness`` pulls equally hard whatever the size, mass or duration.

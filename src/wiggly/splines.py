@@ -22,8 +22,8 @@ sigma = sqrt(D^2 - Lam) (complex when under-damped).  The kernel is spanned by f
 each either an exponential e^{r1 s} or a divided difference (e^{r2 s} - e^{r1 s}) / (r2 - r1),
 with s = tau - anchor and the anchor (0 or 1) chosen so that every exponential decays over the
 interval; divided differences stay exact where roots coalesce (critical damping, delta = 0,
-lam = 0).  When all roots are small (|a| <= 1) a Taylor series of the fundamental solutions is
-used instead.  The regimes are
+lam = 0).  When all roots are small (``|a| <= 1``) a Taylor series of the fundamental solutions is
+used instead.  The regimes are::
 
     SERIES       |a| <= 1                       cubics-like, entire power series
     OSCILLATORY  |a| > 1, D < 1/2               roots -+D +- i Omega paired across D

@@ -20,7 +20,7 @@ Formats
     shows the rest pose).  Blender imports the base as the ``Basis`` shape key and the targets
     as shape keys (named ``frame_0000``, ...  by ``mesh.extras.targetNames``); three.js plays
     the clip with an ``AnimationMixer``.  **Compact layout** (``gltf_targets="modes"``, linear
-    motions): two targets per mode i on the surface, its shape scaled by s_i = max |q_i| and
+    motions): two targets per mode i on the surface, its shape scaled by ``s_i = max |q_i|`` and
     negated, with weights max(+-q_i(t) / s_i, 0) in [0, 1] (Blender clamps shape keys to that
     range): the positions are exactly those of the per-frame layout, at and between frames; the
     NORMAL deltas are the normals' derivatives at rest (first order).  Size about ``2 n r 24 + 2

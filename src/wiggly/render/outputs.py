@@ -248,7 +248,7 @@ def plot_diagnostics(path, times, modal, residuals: Sequence[dict], eigenvalues,
     """A PNG of the solve: modal amplitudes over time and keyframe residuals; return the path.
 
     Three panels over a shared time axis: the rigid modes' amplitudes ``q_i(t)`` (eigenvalue 0,
-    the first ``n_rigid``; default: the count of eigenvalues <= 1e-12 max |lambda|), the
+    the first ``n_rigid``; default: the count of eigenvalues <= ``1e-12 max |lambda|``), the
     elastic modes' amplitudes labeled with their frequency ``sqrt(lambda) / (2 pi)`` (the lowest
     ``max_labeled`` in color, the others thin grey), and per keyframe (``residuals``: dicts with
     ``time``, ``name`` and optional ``position_rms`` (m), ``position_max`` (m), ``velocity_rms``
