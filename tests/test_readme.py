@@ -26,3 +26,22 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     assert [r["time"] for r in rows] == [0.0, 0.8, 1.6, 0.8]
     assert rows[0]["position_rms"] < 0.005 and rows[2]["position_rms"] < 0.005
     assert rows[1]["position_rms"] < 0.025 and rows[3]["position_rms"] < 0.025
+
+
+def test_readme_is_a_short_overview_without_process_history():
+    """The README fits on a few screens; details live in docs/, and user-facing text names
+    no issue numbers or commit hashes."""
+    text = README.read_text()
+    assert len(text.splitlines()) < 200
+    assert not re.search(r"\bissues? \d+", text, re.I)
+    assert not re.search(r"\b(commit|baseline) [0-9a-f]{7,40}\b", text)
+    for link in re.findall(r"\]\((docs/[^)#]+)\)", text):
+        assert (README.parent / link).is_file(), f"README links to a missing page {link}"
+
+
+def test_docs_pages_name_no_issue_numbers_or_commits():
+    docs = README.parent / "docs"
+    for page in sorted(docs.glob("*.md")):
+        text = page.read_text()
+        assert not re.search(r"\bissues? \d+", text, re.I), f"{page.name} names an issue"
+        assert not re.search(r"\bcommit [0-9a-f]{7,40}\b", text), f"{page.name} names a commit"
