@@ -224,7 +224,7 @@ def body_scene(scene: Scene) -> Scene:
     sim = scene.simulation
     groups = set(sim.fixed)
     extra = {}
-    if scene.drive is not None and scene.drive.enrich:  # the driver's shapes join the modes
+    if scene.drive is not None and scene.drive.adds_shapes:  # the driver's shapes join the modes
         groups |= set(scene.drive.groups)
         extra = {"drive": scene.drive, "time": scene.time}
     return Scene(mesh=scene.mesh, material=scene.material,

@@ -87,9 +87,12 @@ def summary(scene, anim) -> str:
         + (f", elastic {hz.min():.3g} to {hz.max():.3g} Hz" if len(hz) else ""),
     ]
     solve = f"{'warped' if anim.warped else 'linear'}, {info['solve_seconds']:.2f} s"
-    if anim.warped:
-        solve += (f", {info['iterations']} Newton iterations"
-                  + ("" if info.get("converged") else " (not converged)"))
+    if info.get("secondary"):
+        solve += (f", secondary motion: {info['free_modes']} modes of the free parts on "
+                  f"{info['driver_frames']} driver frames")
+    if "iterations" in info:
+        solve += (f", {info['iterations']} {'Gauss-' if info.get('secondary') else ''}Newton "
+                  "iterations" + ("" if info.get("converged") else " (not converged)"))
     lines.append(f"solve      {solve}")
     seconds = info.get("scene", {}).get("seconds", {})
     if seconds:

@@ -3,7 +3,6 @@ the editor session and its refinement process)."""
 
 from __future__ import annotations
 
-import sys
 import time as _time
 from typing import Any
 
@@ -11,12 +10,12 @@ import numpy as np
 
 from wiggly import mesh as meshing
 from wiggly.body import Damping, fixed_from_surface, prepare
-from wiggly.errors import counted
+from wiggly.errors import WigglyInputError, counted
 from wiggly.fem import Material
 from wiggly.keyframes import Keyframe
 from wiggly.limits import MAX_TETS
 from wiggly.mesh import DEFAULT_RESOLUTION, TetBudgetError, check_tet_budget, edge_length_for
-from wiggly.progress import activity
+from wiggly.progress import activity, say
 from wiggly.scene.drive import check_driver_against, driven_body, driven_keyframes_of
 from wiggly.scene.groups import _resolve, resolve_groups
 from wiggly.scene.spec import RIGID_MODES, Absolute, Offset, Rest, Scene
@@ -27,8 +26,7 @@ from wiggly.scene.validation import _error, _Problems, _show
 
 
 def _say(message: str, progress: bool) -> None:
-    if progress:
-        print(f"[wiggly] {message}", file=sys.stderr, flush=True)
+    say(message, progress)
 
 
 def _load_model(scene: Scene, progress: bool):
@@ -37,7 +35,10 @@ def _load_model(scene: Scene, progress: bool):
 
     f = scene.mesh_file()
     where = scene.where()
-    loaded = meshing.load_mesh(f)
+    try:
+        loaded = meshing.load_mesh(f)
+    except WigglyInputError as err:  # a file that is there but cannot be read
+        raise WigglyInputError(f"{where}: mesh.path = {_show(scene.mesh.path)}: {err}") from None
     checked = None
     if isinstance(loaded, meshing.Surface):  # check what we can before tetrahedralizing
         p = _Problems(where)
@@ -150,7 +151,7 @@ def modes_key(scene: Scene) -> tuple:
     value key)."""
     s = scene.simulation
     key = (scene.material, s.modes, s.lumped_mass, tuple((g, scene.groups[g]) for g in s.fixed))
-    if scene.drive is not None and scene.drive.enrich:
+    if scene.drive is not None and scene.drive.adds_shapes:
         key += (scene.drive, tuple((g, scene.groups[g]) for g in scene.drive.groups), s.warp)
     return key
 

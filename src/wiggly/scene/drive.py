@@ -5,22 +5,22 @@ the driven keyframes (:func:`wiggly.drive.driven_keyframes`)."""
 from __future__ import annotations
 
 import difflib
-import sys
 import threading
 from pathlib import Path
 
 import numpy as np
 
 from wiggly.drive import DRIVE_STIFFNESS, Driver, driven_keyframes, enrich, read_driver
+from wiggly.drive.secondary import secondary_motion
 from wiggly.drive.sequence import sequence_files
 from wiggly.errors import WigglyInputError, counted
 from wiggly.keyframes import Keyframe
-from wiggly.progress import activity
+from wiggly.progress import activity, say
 from wiggly.scene.spec import Scene
 from wiggly.scene.validation import _Problems, _show
 
 __all__ = ["check_drive", "check_drive_file", "check_driver_against", "driven_body",
-           "driven_keyframes_of", "driven_vertices", "scene_driver"]
+           "driven_keyframes_of", "driven_vertices", "scene_driver", "secondary_of"]
 
 _GLTF, _USD = (".glb", ".gltf"), (".usd", ".usda", ".usdc", ".usdz")
 
@@ -162,24 +162,22 @@ def driven_body(scene: Scene, body, groups: dict[str, np.ndarray], progress: boo
     """``body`` with the driver's shapes added to its modes (``drive.enrich``, the default),
     else ``body`` itself."""
     drive = scene.drive
-    if drive is None or not drive.enrich:
+    if drive is None or not drive.adds_shapes:
         return body
     driver = scene_driver(scene, progress)
     with activity("adding the driver's shapes to the modes", progress):
         out = enrich(body, driver, driven_vertices(scene, groups),
                      warped=scene.simulation.warp)
-    if progress:
-        print(f"[wiggly] {body.r} modes + {counted(out.r - body.r, 'driver shape')}",
-              file=sys.stderr, flush=True)
+    say(f"{body.r} modes + {counted(out.r - body.r, 'driver shape')}", progress)
     return out
 
 
 def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
                         progress: bool = False) -> list[Keyframe]:
-    """The keyframes of ``[drive]`` (none without it): the driven groups keyed to the driver
-    at every driver frame in the shot."""
+    """The keyframes of ``[drive]`` with ``physics = "keys"`` (none otherwise): the driven
+    groups keyed to the driver at every driver frame in the shot."""
     drive = scene.drive
-    if drive is None:
+    if drive is None or drive.physics != "keys":
         return []
     driver = scene_driver(scene, progress)
     start, end = scene.time_range()
@@ -192,9 +190,33 @@ def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
     except WigglyInputError as err:
         raise WigglyInputError(f"{scene.where()}: drive.path = {_show(drive.path)}: "
                                f"{err}") from None
-    if progress:
-        print(f"[wiggly] driving {counted(len(keys[0].vertices), 'vertex')} "
-              f"({'+'.join(drive.groups)}) at {counted(len(keys), 'frame')} of "
-              f"{Path(drive.path).name} ({driver.kind})", file=sys.stderr, flush=True)
+    say(f"driving {counted(len(keys[0].vertices), 'vertex')} ({'+'.join(drive.groups)}) at "
+        f"{counted(len(keys), 'frame')} of {Path(drive.path).name} ({driver.kind})", progress)
     return keys
 
+
+
+def secondary_of(scene: Scene, body, groups: dict[str, np.ndarray], keyframes: list[Keyframe],
+                 progress: bool = False):
+    """The scene's secondary motion (``[drive]`` with ``physics = "secondary"``): the driver
+    owns the driven groups, physics and ``keyframes`` move the rest
+    (:func:`wiggly.drive.secondary_motion`)."""
+    drive = scene.drive
+    driver = scene_driver(scene, progress)
+    start, end = scene.time_range()
+    driven = driven_vertices(scene, groups)
+    try:
+        with activity(f"secondary motion on {Path(drive.path).name} ({drive.free_modes} "
+                      f"modes of the free parts)", progress):
+            anim = secondary_motion(
+                body, driver, driven, keyframes, start=start, end=end,
+                warped=scene.simulation.warp, loop=scene.time.loop,
+                free_mode_count=drive.free_modes, intensity=drive.intensity,
+                offset=drive.offset, driver_range=drive.range)
+    except WigglyInputError as err:
+        raise WigglyInputError(f"{scene.where()}: drive.path = {_show(drive.path)}: "
+                               f"{err}") from None
+    say(f"driving {counted(len(driven), 'vertex')} ({'+'.join(drive.groups)}) with "
+        f"{counted(anim.info['driver_frames'], 'frame')} of {Path(drive.path).name} "
+        f"({driver.kind}); {anim.info['free_modes']} modes of the free parts", progress)
+    return anim

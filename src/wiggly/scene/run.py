@@ -17,6 +17,8 @@ from wiggly.export import SurfaceAnimation, stage_animation
 from wiggly.files import OutputSet, check_writable
 from wiggly.render import Highlight
 from wiggly.scene.build import _build, _say
+from wiggly.scene.drive import secondary_of
+from wiggly.scene.groups import resolve_groups
 from wiggly.scene.spec import (
     GEOMETRY_EXTENSIONS,
     MAX_TARGETS,
@@ -107,9 +109,17 @@ def problem_of(scene: Scene, body) -> SpacetimeProblem:
     return SpacetimeProblem(body, start, end, scene.simulation.preroll, loop=scene.time.loop)
 
 
-def solve_scene(scene: Scene, body, keyframes, progress: bool = False):
+def solve_scene(scene: Scene, body, keyframes, progress: bool = False,
+                groups: dict[str, np.ndarray] | None = None):
     """The scene's spacetime solve (its time range, warp, pre-roll and loop): the one call
-    behind ``wiggly animate`` and the editor's exports."""
+    behind ``wiggly animate`` and the editor's exports.  A ``[drive]`` with ``physics =
+    "secondary"`` solves for the free parts' motion on the driver
+    (:func:`wiggly.scene.drive.secondary_of`; ``groups`` as resolved on ``body``'s mesh,
+    resolved again when not given)."""
+    if scene.drive is not None and scene.drive.physics == "secondary":
+        if groups is None:
+            groups = resolve_groups(scene, body.model)
+        return secondary_of(scene, body, groups, keyframes, progress)
     start, end = scene.time_range()
     return solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
                  preroll=scene.simulation.preroll, loop=scene.time.loop, progress=progress)
@@ -142,7 +152,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
     _say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
          f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s", progress)
     t = _time.perf_counter()
-    anim = solve_scene(scene, body, keyframes, progress=progress)
+    anim = solve_scene(scene, body, keyframes, progress=progress, groups=groups)
     timings["solve"] = _time.perf_counter() - t
     if scene.drive is not None:
         anim.info["drive"] = following(anim)

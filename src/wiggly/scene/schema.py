@@ -18,6 +18,7 @@ from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION
 from wiggly.scene.drive import check_drive, check_drive_file
 from wiggly.scene.spec import (
     CAMERAS,
+    DRIVE_PHYSICS,
     FORMAT,
     GROUP_NAME,
     OUTPUT_EXTENSIONS,
@@ -158,10 +159,23 @@ _DRIVE = _Table(
      "range": _Vector(2, "first, last", "s",
                       doc="only driver frames with first <= t <= last (driver seconds) are "
                           "keyed (default: all)"),
-     "stiffness": _Number(ge=0.0, doc="dimensionless weight of every driven key (default "
-                                       "1e12: the driven group meets the driver)"),
-     "enrich": _Bool(doc="add the driver's shapes to the modal basis (Rayleigh-Ritz), so "
-                         "that the driven group can follow it closely (default true)"),
+     "physics": _String(enum=DRIVE_PHYSICS,
+                        doc='"secondary" (default): the driver is a moving rest state, the '
+                            "driven group follows it exactly and physics moves the free parts "
+                            'during the animation; "keys": the driven group is keyed at every '
+                            "driver frame and the whole body minimises the spacetime energy"),
+     "free_modes": _Number(integer=True, ge=1, le=500,
+                           doc="secondary: modes of the free parts with the driven group held "
+                               "(default 24)"),
+     "intensity": _Number(ge=0.0, le=100.0,
+                          doc="secondary: scales the driver's inertial forces on the free "
+                              "parts without changing their timing (1 physical, 0 carried "
+                              "with the driver; default 1)"),
+     "stiffness": _Number(ge=0.0, doc='physics = "keys": dimensionless weight of every driven '
+                                       "key (default 1e12: the driven group meets the driver)"),
+     "enrich": _Bool(doc='physics = "keys": add the driver\'s shapes to the modal basis '
+                         "(Rayleigh-Ritz), so that the driven group can follow it closely "
+                         "(default true)"),
      "animation": _ByType({str: _String(), int: _Number(integer=True, ge=0)},
                           what="an animation name or index (integer >= 0)",
                           doc="glTF: the animation to play, by name or index (default: the "
@@ -172,8 +186,8 @@ _DRIVE = _Table(
                            doc="OBJ sequences without wiggly's # time comments: frame N is at "
                                "N / frame_rate s (default: time.fps)")},
     required=("path", "group"), check=_check_drive_range, make=lambda d: DriveSpec(**d),
-    doc="secondary motion on an existing animation: a driver animation of the surface keys "
-        "the driven group at every driver frame; the rest moves freely")
+    doc="secondary motion on an existing animation: a driver animation of the surface moves "
+        "the driven group; the rest moves freely, driven by physics")
 
 _OUTPUT_PATTERN = r"\.(" + "|".join(
     "".join(f"[{c.lower()}{c.upper()}]" if c.isalpha() else c for c in e[1:])

@@ -24,6 +24,8 @@ GEOMETRY_EXTENSIONS = tuple(SUPPORTED)  # wiggly.export writes these
 PREVIEW_EXTENSIONS = (*VIDEO_FORMATS, ".png")  # videos and contact sheets
 OUTPUT_EXTENSIONS = GEOMETRY_EXTENSIONS + PREVIEW_EXTENSIONS
 CAMERAS = ("three_quarter", "front", "side", "back", "top")
+#: How a ``[drive]`` moves the body (:class:`DriveSpec`).
+DRIVE_PHYSICS = ("secondary", "keys")
 #: Highlight colors of keyframed groups without a ``color`` (matplotlib's tab10).
 PALETTE = ("#ff7f0e", "#1f77b4", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
            "#17becf", "#bcbd22", "#7f7f7f")
@@ -249,8 +251,11 @@ class DriveSpec:
     (:mod:`wiggly.drive`).  Driver time t plays at shot time t + ``offset``; only frames with
     driver time in ``range`` (inclusive) are keyed.  ``animation`` picks a glTF animation
     (name or index), ``object`` the glTF mesh node / USD prim to read, ``frame_rate`` times an
-    OBJ sequence without time comments (default: ``time.fps``); ``enrich`` adds the driver's
-    shapes to the modal basis (:func:`wiggly.drive.enrich`)."""
+    OBJ sequence without time comments (default: ``time.fps``).  ``physics = "secondary"``
+    (default) makes the driver a moving rest state and moves the free parts by physics
+    (:func:`wiggly.drive.secondary_motion`, with ``free_modes`` and ``intensity``);
+    ``physics = "keys"`` keys the driven group at every frame instead, with ``stiffness``,
+    and ``enrich`` adds the driver's shapes to the modal basis (:func:`wiggly.drive.enrich`)."""
 
     path: str
     group: str | tuple[str, ...]
@@ -261,12 +266,20 @@ class DriveSpec:
     animation: str | int | None = None
     object: str | None = None
     frame_rate: float | None = None
+    physics: str = "secondary"
+    free_modes: int = 24
+    intensity: float = 1.0
 
     def __post_init__(self) -> None:
         if not isinstance(self.group, str):
             _set(self, "group", tuple(self.group))
         if self.range is not None:
             _set(self, "range", _floats(self.range, 2))
+
+    @property
+    def adds_shapes(self) -> bool:
+        """The driver's shapes join the modal basis (``physics = "keys"`` with ``enrich``)."""
+        return self.physics == "keys" and self.enrich
 
     @property
     def groups(self) -> tuple[str, ...]:

@@ -1,0 +1,524 @@
+"""Secondary motion: the driver owns the driven group, physics moves the free parts.
+
+A driver (a rig's walk, a motion-capture clip) is a *moving rest state* of the whole body
+(Complementary Dynamics, Zhang et al. 2020): the rig field ubar(t) is the driver's
+displacement of every surface vertex, extended into the tet mesh with the least elastic
+energy (and unwarped for warped playback, :mod:`wiggly.drive.unwarp`), cubic in time through
+the driver's frames.  The motion is
+
+    u(t) = ubar(t) + Psi q(t),
+
+with Psi the lowest modes of the body with the driven group held (fixed-interface modes,
+Craig & Bampton 1968): zero on the driven group, which therefore follows the driver, and
+M-orthonormal with Psi^T K Psi = diag(lambda) on the free parts.  Elasticity and stiffness
+damping act on the complementary displacement Psi q, inertia and mass damping on the whole
+motion.  The spacetime energy of Schulz et al. 2014 (eq. (3)), charged on the free parts only,
+then decouples per mode as before, with the driver's accelerations as a forcing term:
+
+    E = 1/2 sum_i int (q_i'' + 2 delta_i q_i' + lambda_i q_i + g_i + p_i(t))^2 dt,
+    p_i(t) = kappa psi_i^T M (ubar''(t) + alpha ubar'(t)),
+
+where kappa is the ``intensity`` (1: physical; 0: the free parts are carried as the driver
+carries them; 2: twice the swing, at the same timing).  Between two nodes p_i is a quadratic
+polynomial (ubar is cubic), so it has a quadratic particular solution q_p with L q_p = -(g + p)
+(L = d^2 + 2 delta d + lambda); with y = q - q_p the interval's energy is the unforced one of
+y, and the minimiser is q_p plus a wiggly spline (Theorem 1 with g = 0), C^1 at every node
+and C^2 where no velocity is prescribed.  Nodes fall at the driver's frames and the user's
+keyframe times; the unknowns are node values and velocities of every free mode.
+
+Without keyframes on the free parts, E = 0 is reached by the forced ODE's solution that
+starts at rest relative to the driver (q and q' on the first interval's particular
+solution; a looped shot is periodic instead): one banded linear solve, no Newton iterations.
+Sparse keyframes on the free parts (eq. (4)) add least-squares terms at their nodes; for warped
+playback their targets apply to W(ubar + Psi q) and are met by Gauss-Newton on the few keyed
+nodes (Theorem 2: the minimiser is still a wiggly spline in every mode).
+"""
+
+from __future__ import annotations
+
+import time as _time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import ArrayLike
+from scipy.interpolate import CubicSpline
+
+from wiggly.body import Body, Where, fixed_from_surface
+from wiggly.checks import vertex_indices
+from wiggly.drive.basis import _extend
+from wiggly.drive.driver import Driver, driven_keyframes, keyed_frames
+from wiggly.drive.unwarp import Unwarp
+from wiggly.errors import WigglyInputError
+from wiggly.keyframes import Keyframe
+from wiggly.linalg import factorize_spd
+from wiggly.modes import compute_modes
+from wiggly.solve.animation import Animation
+from wiggly.solve.nodes import node_index, node_times
+from wiggly.splines import energy_form, evaluate, wiggly_basis
+from wiggly.warp import Warp
+
+__all__ = ["DEFAULT_FREE_MODES", "FrameSpline", "HeldWarp", "SecondaryMotion", "free_modes",
+           "secondary_motion"]
+
+#: Fixed-interface modes of the free parts, unless asked otherwise.
+DEFAULT_FREE_MODES = 24
+#: Gauss-Newton on warped keyframes of the free parts: iteration budget and the relative
+#: decrease of the key objective below which the iteration has converged.
+_GN_ITERATIONS, _GN_TOLERANCE = 30, 1e-10
+#: Columns per chunk when fitting cubic splines to many fields at once (bounds memory).
+_CHUNK = 4096
+
+
+@dataclass(frozen=True)
+class FrameSpline:
+    """A C^2 cubic spline through frames ``values`` (F, N) at ``times`` (F,), held in Hermite
+    form (values and slopes at the frames); constant before the first and after the last
+    frame."""
+
+    times: np.ndarray
+    values: np.ndarray
+    slopes: np.ndarray
+
+    @classmethod
+    def fit(cls, times: np.ndarray, values: np.ndarray, *, loop: bool = False,
+            hold_start: bool = False, hold_end: bool = False) -> FrameSpline:
+        """The cubic spline through ``values``: periodic for a ``loop``; otherwise zero slope
+        at an end where the motion holds its pose beyond the frames (``hold_start``,
+        ``hold_end``), not-a-knot elsewhere."""
+        times = np.asarray(times, float)
+        values = np.ascontiguousarray(values, dtype=float)
+        if len(times) < 2:
+            return cls(times, values, np.zeros_like(values))
+        if loop:
+            bc = "periodic"
+        else:
+            bc = ((1, 0.0) if hold_start else "not-a-knot", (1, 0.0) if hold_end else
+                  "not-a-knot")
+            if len(times) < 4 and "not-a-knot" in bc:
+                bc = ((1, 0.0) if hold_start else (2, 0.0), (1, 0.0) if hold_end else (2, 0.0))
+        slopes = np.empty_like(values)
+        for c0 in range(0, values.shape[1], _CHUNK):
+            c1 = min(values.shape[1], c0 + _CHUNK)
+            end_bc = bc if isinstance(bc, str) else tuple(
+                b if isinstance(b, str) else (b[0], np.zeros(c1 - c0)) for b in bc)
+            slopes[:, c0:c1] = CubicSpline(times, values[:, c0:c1], bc_type=end_bc)(times, 1)
+        return cls(times, values, slopes)
+
+    def _segment(self, t: np.ndarray, side: str = "right"):
+        T = self.times
+        j = np.clip(np.searchsorted(T, t, side=side) - 1, 0, len(T) - 2)
+        h = T[j + 1] - T[j]
+        s = np.clip((t - T[j]) / h, 0.0, 1.0)
+        inside = (t >= T[0]) & (t <= T[-1])
+        return j, h, s, inside
+
+    def __call__(self, t: ArrayLike, derivative: int = 0) -> np.ndarray:
+        """Values (or the ``derivative``-th time derivative) at times ``t``: shape (T, N)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        if len(self.times) < 2:
+            v = self.values[0] if derivative == 0 else np.zeros(self.values.shape[1])
+            return np.tile(v, (len(t), 1))
+        j, h, s, inside = self._segment(t)
+        if derivative == 0:
+            b = [2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2]
+        elif derivative == 1:
+            b = [(6 * s**2 - 6 * s) / h, 3 * s**2 - 4 * s + 1, (-6 * s**2 + 6 * s) / h,
+                 3 * s**2 - 2 * s]
+        elif derivative == 2:
+            b = [(12 * s - 6) / h**2, (6 * s - 4) / h, (-12 * s + 6) / h**2, (6 * s - 2) / h]
+        else:
+            raise ValueError("derivative must be 0, 1 or 2")
+        b[1] = b[1] * h
+        b[3] = b[3] * h
+        if derivative > 0:
+            b = [np.where(inside, x, 0.0) for x in b]
+        out = (b[0][:, None] * self.values[j] + b[1][:, None] * self.slopes[j]
+               + b[2][:, None] * self.values[j + 1] + b[3][:, None] * self.slopes[j + 1])
+        if derivative == 0:  # held poses outside the frames
+            out[t < self.times[0]] = self.values[0]
+            out[t > self.times[-1]] = self.values[-1]
+        return out
+
+    def taylor(self, t: np.ndarray) -> np.ndarray:
+        """Taylor coefficients (T, 4, N) of the cubic right of each time t: value, first
+        derivative, second / 2 and third / 6 (zero derivatives outside the frames)."""
+        t = np.atleast_1d(np.asarray(t, float))
+        N = self.values.shape[1]
+        out = np.zeros((len(t), 4, N))
+        out[:, 0] = self(t)
+        if len(self.times) < 2:
+            return out
+        j, h, _, _ = self._segment(t, side="right")
+        inside = (t >= self.times[0]) & (t < self.times[-1])
+        y0, y1 = self.values[j], self.values[j + 1]
+        m0, m1 = self.slopes[j], self.slopes[j + 1]
+        hh = h[:, None]
+        d = (y1 - y0) / hh
+        # cubic on the segment in local time x = t - T[j]: y0 + m0 x + c2 x^2 + c3 x^3
+        c2 = (3 * d - 2 * m0 - m1) / hh
+        c3 = (m0 + m1 - 2 * d) / hh**2
+        x = (t - self.times[j])[:, None]
+        out[:, 1] = np.where(inside[:, None], m0 + 2 * c2 * x + 3 * c3 * x**2, 0.0)
+        out[:, 2] = np.where(inside[:, None], c2 + 3 * c3 * x, 0.0)
+        out[:, 3] = np.where(inside[:, None], c3, 0.0)
+        return out
+
+
+def free_modes(body: Body, driven: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest ``count`` modes of the body with the tet vertices that carry the driven
+    surface vertices (and the body's fixed vertices) held: (Psi (3n, r), lambda (r,)),
+    Psi^T M Psi = I, Psi^T K Psi = diag(lambda), Psi zero on the held vertices."""
+    held = np.union1d(fixed_from_surface(body.model, driven), body.fixed_vertices)
+    free_dofs = 3 * (body.tets.n_vertices - len(held))
+    if free_dofs <= 0:
+        raise WigglyInputError("the driven groups hold every vertex of the body: nothing is "
+                               "left free to move on its own; drive fewer vertices")
+    count = min(int(count), free_dofs - 1)
+    modes = compute_modes(body.K, body.M, count, vertices=body.tets.vertices,
+                          fixed_vertices=held, cache_dir=body.cache_dir)
+    lam = np.maximum(np.asarray(modes.eigenvalues, float), 0.0)
+    return np.asarray(modes.vectors), lam
+
+
+def _particular(lam: np.ndarray, delta: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Coefficients a (..., 3) of the quadratic q_p = a0 + a1 x + a2 x^2 with
+    q_p'' + 2 delta q_p' + lambda q_p = -(c0 + c1 x + c2 x^2) (lambda > 0)."""
+    a2 = -c[..., 2] / lam
+    a1 = (-c[..., 1] - 4 * delta * a2) / lam
+    a0 = (-c[..., 0] - 2 * a2 - 2 * delta * a1) / lam
+    return np.stack([a0, a1, a2], axis=-1)
+
+
+def _hermite_of(a: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Hermite data (q(0), q'(0), q(h), q'(h)) of quadratics a (..., 3) on intervals h."""
+    return np.stack([a[..., 0], a[..., 1], a[..., 0] + a[..., 1] * h + a[..., 2] * h**2,
+                     a[..., 1] + 2 * a[..., 2] * h], axis=-1)
+
+
+class HeldWarp:
+    """Warped playback that holds the driven group on the driver: the Poisson fit of the
+    warped gradients of u = ubar + Psi q (Schulz et al. 2014, Theorem 2) with the tet
+    vertices that carry the driven group (``held``) prescribed to the rig's own warp W(ubar)
+    there, x = W_S(u) + Lift(W(ubar)_S).  W_S is the warp with ``held`` fixed at zero and
+    Lift the harmonic extension (L_ff y_f = -L_fS d_S) of the held values; with q = 0 this is
+    exactly W(ubar), so the driven group follows the driver as closely as the rig does, and
+    the free parts' warp cannot shift it through the warp's translation gauge."""
+
+    def __init__(self, body: Body, held: np.ndarray) -> None:
+        tets = body.tets
+        self.body = body
+        self.held = np.zeros(tets.n_vertices, bool)
+        self.held[held] = True
+        self.warp = Warp(tets.vertices, tets.tets, fixed_vertices=self.held)
+        L = self.warp.laplacian
+        free = ~self.held
+        self._L_fS = L[free][:, self.held]
+        self._solve = factorize_spd(sp.csr_matrix(L[free][:, free]))
+
+    def _lift(self, D: np.ndarray) -> np.ndarray:
+        """Harmonic extension of held values D (f, n, 3) (only the held rows are read)."""
+        f = D.shape[0]
+        out = np.zeros_like(D)
+        out[:, self.held] = D[:, self.held]
+        rhs = -(self._L_fS @ D[:, self.held].transpose(1, 0, 2).reshape(int(self.held.sum()), -1))
+        out[:, ~self.held] = self._solve(rhs).reshape(-1, f, 3).transpose(1, 0, 2)
+        return out
+
+    def apply(self, U: np.ndarray, Ubar: np.ndarray) -> np.ndarray:
+        """x (f, n, 3) for linear fields U and their rig parts Ubar (f, n, 3)."""
+        return self.warp.apply(U) + self._lift(self.body.warp.apply(Ubar))
+
+    def jvp(self, U: np.ndarray, dU: np.ndarray, Ubar: np.ndarray,
+            dUbar: np.ndarray) -> np.ndarray:
+        """The time derivative of :meth:`apply` along dU, dUbar (f, n, 3)."""
+        rig = np.stack([self.body.warp.jvp(u, du) for u, du in zip(Ubar, dUbar, strict=True)])
+        own = np.stack([self.warp.jvp(u, du) for u, du in zip(U, dU, strict=True)])
+        return own + self._lift(rig)
+
+
+@dataclass(eq=False)
+class SecondaryMotion(Animation):
+    """A solved secondary motion (module doc): u(t) = ubar(t) + Psi q(t), played linear or
+    warped (W(u(t))).  ``values``/``velocities`` are the free modes' node data, ``basis``
+    their wiggly-spline kernels (g = 0) and ``particular`` (m, r, 3) each interval's
+    quadratic particular solution."""
+
+    rig: FrameSpline = field(default=None, repr=False)
+    psi: np.ndarray = field(default=None, repr=False)
+    particular: np.ndarray = field(default=None, repr=False)
+    held_warp: HeldWarp | None = field(default=None, repr=False)
+
+    def modal(self, times: ArrayLike, n_derivatives: int = 0, side: str = "right") -> np.ndarray:
+        """q(t) of the free modes and its time derivatives: shape (n_derivatives + 1, F, r)."""
+        t = np.atleast_1d(np.asarray(times, dtype=float))
+        tol = 1e-9 * max(1.0, self.duration)
+        if np.any(~np.isfinite(t)) or np.any(t < self.start - tol) or np.any(t > self.end + tol):
+            raise WigglyInputError(
+                f"times must lie in the animation's range [{self.start}, {self.end}] s; got "
+                f"[{np.nanmin(t)}, {np.nanmax(t)}]")
+        t = np.clip(t, self.start, self.end)
+        m, r = len(self.nodes) - 1, self.psi.shape[1]
+        k = np.clip(np.searchsorted(self.nodes, t, side=side) - 1, 0, m - 1)
+        h = np.diff(self.nodes)[k]
+        x = t - self.nodes[k]
+        idx = (k[:, None] * r + np.arange(r)).ravel()
+        data = np.stack([self.values[k], self.velocities[k], self.values[k + 1],
+                         self.velocities[k + 1]], axis=-1)  # (F, r, 4)
+        a = self.particular[k]  # (F, r, 3)
+        data = (data - _hermite_of(a, h[:, None])).reshape(-1, 4)
+        out = evaluate(self.basis.take(idx), data, 0.0, np.repeat(x / h, r), n_derivatives)
+        out = out.reshape(n_derivatives + 1, len(t), r)
+        xx = x[:, None]
+        poly = [a[..., 0] + a[..., 1] * xx + a[..., 2] * xx**2, a[..., 1] + 2 * a[..., 2] * xx,
+                2 * a[..., 2], np.zeros_like(a[..., 0])]
+        for d in range(n_derivatives + 1):
+            out[d] += poly[d] if d < 4 else 0.0
+        return out
+
+    def linear_field(self, times: ArrayLike, derivative: int = 0,
+                     rig_only: bool = False) -> np.ndarray:
+        """ubar(t) + Psi q(t) (or a time derivative; ubar alone with ``rig_only``) on the
+        tet mesh: shape (F, n, 3)."""
+        t = np.atleast_1d(times)
+        U = self.rig(t, derivative)
+        if not rig_only:
+            U = U + self.modal(t, derivative)[derivative] @ self.psi.T
+        return U.reshape(len(U), -1, 3)
+
+    def displacements(self, times: ArrayLike, on: Where = "surface", derivative: int = 0,
+                      dtype: type = np.float64) -> np.ndarray:
+        """Displacements (or a time derivative), (F, n, 3): ubar + Psi q, or warped
+        W(ubar + Psi q) and DW(u) u' (module doc)."""
+        times = np.atleast_1d(np.asarray(times, float))
+        body = self.body
+        if self.warped and derivative > 1:
+            raise WigglyInputError(
+                "accelerations are available for linear motion (warp=False) only; for the "
+                "warped motion sample positions densely and differentiate numerically")
+        out = np.empty((len(times), body.n_vertices(on), 3), dtype=dtype)
+        E = body.surface_embedding
+        for f0 in range(0, len(times), 64):
+            tt = times[f0:f0 + 64]
+            if not self.warped:
+                W = self.linear_field(tt, derivative)
+            elif derivative == 0:
+                W = self.held_warp.apply(self.linear_field(tt), self.linear_field(tt, 0, True))
+            else:
+                W = self.held_warp.jvp(self.linear_field(tt), self.linear_field(tt, 1),
+                                       self.linear_field(tt, 0, True),
+                                       self.linear_field(tt, 1, True))
+            if on == "surface":
+                n = W.shape[1]
+                W = (E @ W.transpose(1, 0, 2).reshape(n, -1)).reshape(E.shape[0], -1, 3)
+                W = W.transpose(1, 0, 2)
+            out[f0:f0 + len(tt)] = W
+        return out
+
+    def energy(self) -> float:
+        """E of the free parts (module doc): the integrated squared force beyond elasticity,
+        damping, gravity and the driver's inertial forcing, in the M^-1 norm."""
+        m, r = len(self.nodes) - 1, self.psi.shape[1]
+        h = np.diff(self.nodes)
+        x = np.stack([self.values[:-1], self.velocities[:-1], self.values[1:],
+                      self.velocities[1:]], axis=-1)
+        x = (x - _hermite_of(self.particular, h[:, None])).reshape(-1, 4)
+        form = energy_form(self.basis, np.zeros(m * r))
+        return float(form(x).sum())
+
+
+def _rows(body: Body, psi: np.ndarray, vertices: np.ndarray, on: Where) -> np.ndarray:
+    """Rows (3s, r) of Psi for the xyz dofs of ``vertices`` (surface: embedded)."""
+    n, r = body.tets.n_vertices, psi.shape[1]
+    P = psi.reshape(n, 3 * r)
+    if on == "surface":
+        rows = body.surface_embedding[vertices] @ P
+    else:
+        rows = P[vertices]
+    return np.asarray(rows).reshape(-1, r)
+
+
+def _field_rows(body: Body, U: np.ndarray, vertices: np.ndarray, on: Where) -> np.ndarray:
+    """A tet field U (n, 3) at ``vertices`` (s, 3)."""
+    return np.asarray(body.surface_embedding[vertices] @ U) if on == "surface" else U[vertices]
+
+
+def secondary_motion(
+    body: Body,
+    driver: Driver,
+    driven: ArrayLike,
+    keyframes: list[Keyframe] | tuple = (),
+    *,
+    start: float,
+    end: float,
+    warped: bool = True,
+    loop: bool = False,
+    free_mode_count: int = DEFAULT_FREE_MODES,
+    intensity: float = 1.0,
+    offset: float = 0.0,
+    driver_range: tuple[float, float] | None = None,
+    progress: bool = False,
+) -> SecondaryMotion:
+    """Secondary motion of the free parts on a driver (module doc).
+
+    ``driven`` are the surface vertices that the driver owns; ``keyframes`` are sparse keys
+    of the free parts (targets of vertices the driver owns are the driver's business and do
+    not enter).  Driver time ``t`` is shot time ``t + offset``; only driver times in
+    ``driver_range`` are used.  Before its first and after its last frame in the shot the
+    driver holds its pose.  ``intensity`` scales the driver's inertial forces on the free
+    parts without changing their timing.
+    """
+    t0 = _time.perf_counter()
+    if not end > start:
+        raise WigglyInputError(f"end = {end} s must be after start = {start} s")
+    if not (np.isfinite(intensity) and intensity >= 0):
+        raise WigglyInputError(f"intensity = {intensity!r} must be a number >= 0 (1 is "
+                               "physical, 0 carries the free parts with the driver)")
+    surface = body.surface
+    driver.check(surface.n_vertices, surface.faces, body.model.source or "of the body")
+    v = vertex_indices(driven, surface.n_vertices, "surface", "driven group")
+    frames, times = keyed_frames(driver, offset=offset, driver_range=driver_range,
+                                 start=start, end=end)
+    if len(frames) < 2:
+        raise WigglyInputError(
+            f"the driver {driver.source} has {len(frames)} frame in the shot [{start:g}, "
+            f"{end:g}] s: secondary motion needs an animated driver (two frames or more)")
+    duration = end - start
+    tol = 1e-9 * duration
+    D = driver.positions[frames] - surface.vertices  # (F, p, 3)
+    if loop:
+        if times[0] > start + tol:
+            raise WigglyInputError(
+                f"a looped shot needs a driver frame at its start ({start:g} s); the first "
+                f"frame of {driver.source} in the shot is at {times[0]:g} s")
+        if times[-1] < end - tol:
+            times, D = np.r_[times, end], np.concatenate([D, D[:1]])
+        else:
+            D[-1] = D[0]
+    # the rig: the driver extended into the tet mesh (unwarped for warped playback)
+    U = _extend(body, np.arange(surface.n_vertices), D)  # (3n, F)
+    if warped:
+        mass = np.asarray(body.M.sum(axis=1)).ravel()[::3]
+        U = Unwarp(body.tets.vertices, body.tets.tets, mass)(U)
+    hold_start, hold_end = bool(times[0] > start + tol), bool(times[-1] < end - tol)
+    rig = FrameSpline.fit(times, U.T, loop=loop, hold_start=hold_start, hold_end=hold_end)
+    rig_seconds = _time.perf_counter() - t0
+    # the free parts' modes and their forcing
+    psi, lam = free_modes(body, v, free_mode_count)
+    held_warp = HeldWarp(body, np.flatnonzero(~np.any(psi.reshape(-1, 3 * psi.shape[1]), 1))
+                         ) if warped else None
+    r = psi.shape[1]
+    alpha, beta = body.damping.alpha, body.damping.beta
+    delta = 0.5 * (alpha + beta * lam)
+    g = psi.T @ body.gravity_vector
+    proj = FrameSpline(times, (psi.T @ (body.M @ U)).T, (psi.T @ (body.M @ rig.slopes.T)).T)
+    own = [k for k in keyframes if k.spec.get("kind") != "drive"]
+    nodes = node_times(start, end, list(times) + [k.time for k in own])
+    m = len(nodes) - 1
+    h = np.diff(nodes)
+    s = proj.taylor(nodes[:-1])  # (m, 4, r): s, s', s''/2, s'''/6 right of each node
+    c = np.empty((m, r, 3))
+    c[..., 0] = intensity * (2 * s[:, 2] + alpha * s[:, 1]) + g
+    c[..., 1] = intensity * (6 * s[:, 3] + 2 * alpha * s[:, 2])
+    c[..., 2] = intensity * 3 * alpha * s[:, 3]
+    a = _particular(lam, delta, c)  # (m, r, 3)
+    xp = _hermite_of(a, h[:, None])  # (m, r, 4)
+    basis = wiggly_basis(np.tile(lam, m), np.tile(delta, m), np.repeat(h, r))
+    Q = energy_form(basis, np.zeros(m * r)).Q.reshape(m, r, 4, 4)
+    # unknowns: node k (node m is node 0 in a loop): values at 2 k r + i, velocities at
+    # (2 k + 1) r + i
+    blocks = m if loop else m + 1
+    N = 2 * r * blocks
+    k0 = np.arange(m)
+    k1 = (k0 + 1) % blocks
+    i = np.arange(r)
+    idx = np.stack([2 * k0[:, None] * r + i, (2 * k0[:, None] + 1) * r + i,
+                    2 * k1[:, None] * r + i, (2 * k1[:, None] + 1) * r + i], axis=-1)
+    rows = np.broadcast_to(idx[..., :, None], Q.shape).ravel()
+    cols = np.broadcast_to(idx[..., None, :], Q.shape).ravel()
+    H0 = sp.csr_matrix((Q.ravel(), (rows, cols)), shape=(N, N))
+    b0 = np.zeros(N)
+    np.add.at(b0, idx.ravel(), np.einsum("mrij,mrj->mri", Q, xp).ravel())
+    fixed = np.zeros(N, bool)
+    z = np.zeros(N)
+    if not loop:  # at rest relative to the driver: on the first particular solution
+        fixed[:2 * r] = True
+        z[:r], z[r:2 * r] = xp[0, :, 0], xp[0, :, 1]
+    # the user's keys on the free parts
+    keys = []
+    for kf in own:
+        k = node_index(nodes, kf.time) % blocks
+        A = _rows(body, psi, kf.vertices, kf.on)
+        if not np.any(A):
+            continue
+        c_A, c_B = kf.weights(body, duration)
+        keys.append((kf, k, A, c_A, c_B))
+    info: dict = {"secondary": True, "free_modes": r, "driver_frames": len(frames),
+                  "unknowns": int(N - fixed.sum()), "warped": warped, "loop": loop,
+                  "intensity": float(intensity), "rig_seconds": rig_seconds}
+    iterations, converged, previous = 0, True, None
+    n = body.tets.n_vertices
+    while True:
+        H, b = H0.tolil(copy=True) if keys else H0, b0.copy()
+        value_of_keys = 0.0
+        for kf, k, A, c_A, c_B in keys:
+            t = np.array([kf.time])
+            X = body.rest_positions(kf.on)[kf.vertices]
+            ubar = rig(t)[0].reshape(n, 3)
+            qk = z[2 * k * r:(2 * k + 1) * r]
+            if warped:  # linearize the held warp at the current state of the node
+                u = ubar + (psi @ qk).reshape(n, 3)
+                Wu = held_warp.apply(u[None], ubar[None])[0]
+                J = np.stack([_field_rows(body, held_warp.warp.jvp(u, psi[:, j].reshape(n, 3)),
+                                          kf.vertices, kf.on).ravel() for j in range(r)], 1)
+                base = _field_rows(body, Wu, kf.vertices, kf.on).ravel() - J @ qk
+            else:
+                J, base = A, _field_rows(body, ubar, kf.vertices, kf.on).ravel()
+            blk = np.arange(2 * k * r, (2 * k + 1) * r)
+            if kf.position is not None and c_A > 0:
+                target = (kf.position - X).ravel() - base
+                H[np.ix_(blk, blk)] += c_A * (J.T @ J)
+                b[blk] += c_A * (J.T @ target)
+                value_of_keys += 0.5 * c_A * float(np.sum((J @ qk - target) ** 2))
+            if kf.velocity is not None and c_B > 0:
+                vel = rig(t, 1)[0]
+                if warped:
+                    du = held_warp.jvp(u[None], vel.reshape(1, n, 3), ubar[None],
+                                       vel.reshape(1, n, 3))[0]
+                    vbase = _field_rows(body, du, kf.vertices, kf.on).ravel()
+                else:
+                    vbase = _field_rows(body, vel.reshape(n, 3), kf.vertices, kf.on).ravel()
+                vblk = blk + r
+                target = kf.velocity.ravel() - vbase
+                H[np.ix_(vblk, vblk)] += c_B * (J.T @ J)
+                b[vblk] += c_B * (J.T @ target)
+        H = sp.csr_matrix(H)
+        free = ~fixed
+        rhs = b[free] - H[free][:, fixed] @ z[fixed]
+        new = z.copy()
+        new[free] = factorize_spd(H[free][:, free])(rhs)
+        step = float(np.max(np.abs(new - z))) if keys else 0.0
+        z = new
+        if not (warped and keys):
+            break
+        iterations += 1
+        if previous is not None and abs(previous - value_of_keys) <= _GN_TOLERANCE * max(
+                previous, 1e-300) and step <= 1e-9 * max(1.0, float(np.max(np.abs(z)))):
+            break
+        if iterations >= _GN_ITERATIONS:
+            converged = False
+            break
+        previous = value_of_keys
+    if warped and keys:
+        info.update(iterations=iterations, converged=converged)
+    values = z.reshape(blocks, 2, r)[:, 0]
+    velocities = z.reshape(blocks, 2, r)[:, 1]
+    if loop:
+        values, velocities = np.vstack([values, values[:1]]), np.vstack([velocities,
+                                                                         velocities[:1]])
+    kfs = list(own) + driven_keyframes(body, driver, v, offset=offset,
+                                       driver_range=driver_range, start=start, end=end)
+    info["solve_seconds"] = _time.perf_counter() - t0
+    return SecondaryMotion(body, nodes, values.copy(), velocities.copy(), kfs, basis,
+                           warped=warped, info=info, loop=loop, rig=rig, psi=psi,
+                           particular=a, held_warp=held_warp)
