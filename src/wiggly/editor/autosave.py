@@ -2,23 +2,37 @@
 writer thread, right after the edit but not on its way: the browser's answer and the solve
 do not wait for the TOML (about 20 ms on a scene of ten keyframes).  Writes of one file are
 coalesced (the newest state wins) and run in order with deletions (an undo back to the saved
-scene removes the autosave, which must not come back)."""
+scene removes the autosave, which must not come back).  Each write is atomic (a temporary file
+flushed to the disk, then renamed): a crash leaves the previous autosave or the new one, never
+a torn file.  The autosave may lag the undo journal (:mod:`wiggly.editor.history`), which is
+written before an edit is answered; the journal's tail is replayed over it on recovery."""
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Callable
 from pathlib import Path
 
 from wiggly.errors import WigglyInputError
-from wiggly.scene import Scene, save_scene
+from wiggly.scene import Scene, scene_to_toml
 
-__all__ = ["Autosaver", "autosave_path"]
+__all__ = ["Autosaver", "autosave_path", "write_durably"]
 
 
 def autosave_path(scene_path: Path) -> Path:
     """Where edits of ``scene_path`` are autosaved: a hidden file beside it."""
     return scene_path.with_name(f".{scene_path.stem}.autosave.toml")
+
+
+def write_durably(target: Path, text: str) -> None:
+    """Replace ``target`` with ``text`` atomically, flushed to the disk before the rename."""
+    tmp = target.with_name(target.name + ".part")
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write(text)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, target)
 
 
 class Autosaver:
@@ -65,7 +79,7 @@ class Autosaver:
                 if scene is None:
                     target.unlink(missing_ok=True)
                 else:
-                    save_scene(scene, target, overwrite=True)
+                    write_durably(target, scene_to_toml(scene))
             except (OSError, WigglyInputError) as err:
                 self._on_error(f"autosave failed: {err}")
             finally:

@@ -9,16 +9,22 @@ undo each other's work).  When another tab changed an entity since, undoing woul
 discard that change: the undo is refused (HTTP 409, with what changed) and the step dropped.
 
 The histories of all tabs are journaled beside the scene (``.NAME.history.jsonl``, one JSON
-line per edit, undo or redo) with the keyframe ids and a hash of the resulting scene.  When the
-editor opens the scene again and the hash matches (the autosave or the saved file is the state
-the journal ends in), the ids and every tab's history come back; otherwise the journal is
-dropped with a notice.  The journal is rewritten compactly when it is opened.
+line per edit, undo or redo) with the keyframe ids and a hash of the resulting scene.  Each line
+is flushed to the disk (``fsync``) before the edit is answered, so the journal is the durable
+record of every acknowledged edit; the autosave (written in the background) may lag it.  When
+the editor opens the scene again, it finds the newest line whose hash is the autosave's (else
+the saved file's, else, for a scene never saved, the journal's first snapshot) and replays the
+steps after it, checking each against its hash: the scene comes back as the last acknowledged
+edit left it, with its keyframe ids and every tab's history.  A journal that no line of which
+matches the scene (changed outside the editor) is dropped with a notice.  The journal is
+rewritten compactly (one snapshot line, atomically) when it is opened.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 import re
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -26,7 +32,8 @@ from pathlib import Path
 from typing import Any
 
 from wiggly.editor.state import EditError, EditorState, rebuild_state
-from wiggly.scene import scene_to_dict
+from wiggly.errors import WigglyInputError
+from wiggly.scene import Scene, scene_from_dict, scene_to_dict
 
 __all__ = ["Histories", "Record", "history_path", "scene_hash"]
 
@@ -127,6 +134,16 @@ class _Tab:
     redo: list[Record] = field(default_factory=list)
 
 
+def _use(tabs: OrderedDict[str, _Tab], tab: str) -> _Tab:
+    """``tab``'s stacks, now the most recently used (the least recently used beyond
+    :data:`MAX_TABS` are forgotten)."""
+    t = tabs.pop(tab, None) or _Tab()
+    tabs[tab] = t
+    while len(tabs) > MAX_TABS:
+        tabs.popitem(last=False)
+    return t
+
+
 class Histories:
     """Undo/redo stacks of every tab, and their journal (``path``; None: not kept)."""
 
@@ -134,6 +151,7 @@ class Histories:
         self.path = path
         self.tabs: OrderedDict[str, _Tab] = OrderedDict()
         self.write_error: str | None = None
+        self._base: EditorState | None = None  # the snapshot a new journal starts with
 
     @staticmethod
     def tab_id(value: str | None) -> str:
@@ -144,11 +162,7 @@ class Histories:
         return value
 
     def _tab(self, tab: str) -> _Tab:
-        t = self.tabs.pop(tab, None) or _Tab()
-        self.tabs[tab] = t  # most recently used last
-        while len(self.tabs) > MAX_TABS:
-            self.tabs.popitem(last=False)
-        return t
+        return _use(self.tabs, tab)
 
     def describe(self, tab: str) -> dict:
         t = self.tabs.get(tab) or _Tab()
@@ -158,6 +172,7 @@ class Histories:
 
     # --- steps ----------------------------------------------------------------------------
     def record(self, tab: str, record: Record, state: EditorState) -> None:
+        self._begin()
         t = self._tab(tab)
         t.undo.append(record)
         del t.undo[:-MAX_RECORDS]
@@ -166,6 +181,7 @@ class Histories:
 
     def step(self, tab: str, state: EditorState, undo: bool) -> EditorState | None:
         """``state`` with the tab's last step undone (redone); None if there is none."""
+        self._begin()
         t = self._tab(tab)
         source, target = (t.undo, t.redo) if undo else (t.redo, t.undo)
         if not source:
@@ -180,10 +196,6 @@ class Histories:
         self._journal({"op": "undo" if undo else "redo", "tab": tab}, new)
         return new
 
-    def changed(self, state: EditorState) -> None:
-        """The scene changed without a step (saved under another name, rebased paths)."""
-        self._journal({"op": "state"}, state)
-
     # --- the journal ----------------------------------------------------------------------
     @staticmethod
     def _line(line: dict, state: EditorState | None) -> str:
@@ -191,80 +203,168 @@ class Histories:
             line.update(ids=list(state.keyframe_ids), next=state.next_id, hash=scene_hash(state))
         return json.dumps(line, separators=(",", ":")) + "\n"
 
+    def _begin(self) -> None:
+        """Start a new journal with the snapshot of the scene as it was opened (before the
+        first step is journaled: a scene never saved is recovered from it)."""
+        if self._base is not None:
+            base, self._base = self._base, None
+            self.compact(base)
+
     def _journal(self, line: dict, state: EditorState | None) -> None:
+        """Append ``line`` and flush it to the disk before the edit is answered."""
         if self.path is None:
             return
         try:
-            with open(self.path, "a", encoding="utf-8") as f:
-                f.write(self._line(line, state))
+            fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
+            try:
+                os.write(fd, self._line(line, state).encode())
+                os.fsync(fd)
+            finally:
+                os.close(fd)
             self.write_error = None
         except OSError as err:
             self.write_error = f"cannot keep the undo history in {self.path.name}: {err}"
 
-    def load(self, state: EditorState) -> tuple[EditorState, str | None]:
-        """Read the journal for ``state`` (just opened): the state with its journaled keyframe
-        ids and every tab's history if the journal ends in this scene, and a notice if a
-        journal was dropped.  The journal is then rewritten compactly."""
+    def load(self, scene: Scene | None, source: Path | None = None,
+             ) -> tuple[EditorState | None, str | None]:
+        """Recover from the journal for ``scene`` (just opened: the autosave, else the saved
+        file; None: neither exists): the state after the last journaled step, with its
+        keyframe ids and every tab's history, and a notice if the journal was dropped.  The
+        newest line whose hash is ``scene``'s is where the steps after it are replayed from
+        (for ``scene=None``, the journal's snapshot, made ``source``'s).  The journal is then
+        rewritten compactly.  None for the state: no scene and no journal to recover it."""
+        fresh = EditorState.of(scene) if scene is not None else None
         if self.path is None or not self.path.is_file():
-            return state, None
-        tabs: OrderedDict[str, _Tab] = OrderedDict()
-        end: dict | None = None
+            self._base = fresh
+            return fresh, None
         try:
-            with open(self.path, encoding="utf-8") as f:
-                for text in f:
-                    line = json.loads(text)
-                    op = line["op"]
-                    if op == "snapshot":
-                        tabs = OrderedDict(
-                            (tab, _Tab([Record.from_json(r) for r in v["undo"]],
-                                       [Record.from_json(r) for r in v["redo"]]))
-                            for tab, v in line["tabs"].items())
-                    elif op == "edit":
-                        t = tabs.setdefault(line["tab"], _Tab())
-                        t.undo.append(Record.from_json(line["rec"]))
-                        del t.undo[:-MAX_RECORDS]
-                        t.redo.clear()
-                    elif op in ("undo", "redo", "drop"):
-                        t = tabs.setdefault(line["tab"], _Tab())
-                        src, dst = (t.undo, t.redo) if op == "undo" or (
-                            op == "drop" and line["undo"]) else (t.redo, t.undo)
-                        if src:
-                            rec = src.pop()
-                            if op != "drop":
-                                dst.append(rec)
-                    if "hash" in line:
-                        end = line
-        except (OSError, ValueError, KeyError, TypeError, IndexError) as err:
-            self._discard()
-            return state, f"ignored an unreadable undo history {self.path.name}: {err}"
-        if end is None:
-            self._discard()
-            return state, None
-        ids = tuple(int(i) for i in end["ids"])
-        candidate = EditorState(state.scene, ids, int(end["next"])) \
-            if len(ids) == len(state.scene.keyframes) else None
-        if candidate is None or scene_hash(candidate) != end["hash"]:
-            self._discard()
-            return state, (f"the undo history {self.path.name} does not match the scene (it "
+            lines = _read_lines(self.path)
+            state, tabs = _replay(lines, scene, source)
+        except (OSError, ValueError, KeyError, TypeError, IndexError, EditError,
+                WigglyInputError) as err:
+            self._discard(fresh)
+            why = str(err).splitlines()[0] if str(err) else type(err).__name__
+            return fresh, f"ignored an unreadable undo history {self.path.name}: {why}"
+        if state is None:
+            self._discard(fresh)
+            if fresh is None or not any("hash" in line for line in lines):
+                return fresh, None
+            return fresh, (f"the undo history {self.path.name} does not match the scene (it "
                            "was changed outside the editor); undo starts afresh")
-        self.tabs = OrderedDict(list(tabs.items())[-MAX_TABS:])
-        self.compact(candidate)
-        return candidate, None
+        self.tabs = tabs
+        self.compact(state)
+        return state, None
 
     def compact(self, state: EditorState) -> None:
-        """Rewrite the journal as one snapshot line."""
+        """Rewrite the journal as one snapshot line (with the scene), atomically."""
+        self._base = None
         if self.path is None:
             return
-        line = {"op": "snapshot", "tabs": {
+        line = {"op": "snapshot", "scene": scene_to_dict(state.scene), "tabs": {
             tab: {"undo": [r.to_json() for r in t.undo], "redo": [r.to_json() for r in t.redo]}
             for tab, t in self.tabs.items()}}
         tmp = self.path.with_name(self.path.name + ".part")
         try:
-            tmp.write_text(self._line(line, state), encoding="utf-8")
+            with open(tmp, "w", encoding="utf-8") as f:
+                f.write(self._line(line, state))
+                f.flush()
+                os.fsync(f.fileno())
             tmp.replace(self.path)
+            _sync_dir(self.path.parent)
         except OSError as err:
             self.write_error = f"cannot keep the undo history in {self.path.name}: {err}"
 
-    def _discard(self) -> None:
+    def _discard(self, base: EditorState | None) -> None:
+        self._base = base
         if self.path is not None:
             self.path.unlink(missing_ok=True)
+
+
+def _sync_dir(folder: Path) -> None:
+    """Flush a directory's entries (a renamed or new file) to the disk, where that works."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def _read_lines(path: Path) -> list[dict]:
+    """The journal's lines; a last line cut short by a crash (no newline: its edit was never
+    answered) is left out."""
+    text = path.read_text(encoding="utf-8")
+    parts = text.split("\n")
+    if parts[-1]:
+        parts.pop()  # torn by a crash mid-write
+    return [json.loads(p) for p in parts if p]
+
+
+def _replay(lines: list[dict], scene: Scene | None, source: Path | None,
+            ) -> tuple[EditorState | None, OrderedDict[str, _Tab]]:
+    """Every tab's stacks after ``lines``, and the scene after them: replayed from the newest
+    line whose state ``scene`` is (None: no line is)."""
+    start, state = -1, None
+    if scene is not None:
+        hashes: dict[tuple, str] = {}
+        for i in range(len(lines) - 1, -1, -1):
+            line = lines[i]
+            if "hash" not in line or len(line["ids"]) != len(scene.keyframes):
+                continue
+            ids = tuple(int(k) for k in line["ids"])
+            if ids not in hashes:
+                hashes[ids] = scene_hash(EditorState(scene, ids, 0))
+            if hashes[ids] == line["hash"]:
+                start, state = i, EditorState(scene, ids, int(line["next"]))
+                break
+    elif lines and lines[0]["op"] == "snapshot" and "scene" in lines[0]:
+        snap = scene_from_dict(lines[0]["scene"], where="the undo history's snapshot")
+        snap.source = source
+        start, state = 0, EditorState(snap, tuple(int(k) for k in lines[0]["ids"]),
+                                      int(lines[0]["next"]))
+        if scene_hash(state) != lines[0]["hash"]:
+            raise ValueError("its snapshot does not match its hash")
+    tabs: OrderedDict[str, _Tab] = OrderedDict()
+    for i, line in enumerate(lines):
+        op = line["op"]
+        rec: Record | None = None
+        if op == "snapshot":
+            tabs = OrderedDict(
+                (tab, _Tab([Record.from_json(r) for r in v["undo"]],
+                           [Record.from_json(r) for r in v["redo"]]))
+                for tab, v in line["tabs"].items())
+        elif op == "edit":
+            t = _use(tabs, line["tab"])
+            rec = Record.from_json(line["rec"])
+            t.undo.append(rec)
+            del t.undo[:-MAX_RECORDS]
+            t.redo.clear()
+        elif op in ("undo", "redo", "drop"):
+            t = _use(tabs, line["tab"])
+            src, dst = (t.undo, t.redo) if op == "undo" or (
+                op == "drop" and line["undo"]) else (t.redo, t.undo)
+            if src:
+                rec = src.pop()
+                if op != "drop":
+                    dst.append(rec)
+        if state is None or i <= start:
+            continue
+        if "hash" not in line:  # a step dropped: the scene is unchanged
+            continue
+        if rec is None or op == "drop":
+            raise ValueError(f"line {i + 1} ({op}) cannot be replayed")
+        try:
+            new = rec.applied(state, undo=op == "undo")
+        except EditError as err:
+            raise ValueError(f"line {i + 1} ({op} {rec.label!r}) cannot be replayed: "
+                             f"{str(err).splitlines()[0]}") from None
+        new = EditorState(new.scene, tuple(int(k) for k in line["ids"]), int(line["next"]))
+        if scene_hash(new) != line["hash"]:
+            raise ValueError(f"replaying line {i + 1} ({op} {rec.label!r}) does not give "
+                             "the scene it journaled")
+        state = new
+    return state, tabs

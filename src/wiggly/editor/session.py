@@ -144,10 +144,11 @@ class Session:
 
     # --- opening and saving ---------------------------------------------------------------
     def open(self, path: str) -> dict:
-        """Open a scene file (.toml) or a mesh (new scene) inside the sandbox; a scene with an
-        autosave that differs from it is recovered from the autosave (and says so), with the
-        undo histories journaled beside it."""
-        notices, recovered = [], False
+        """Open a scene file (.toml) or a mesh (new scene) inside the sandbox.  A scene whose
+        autosave or undo journal holds edits the file lacks (the editor stopped or crashed
+        before a save) is recovered from them, and says so; the undo histories come back."""
+        notices: list[str] = []
+        file_scene: Scene | None = None
         if path.startswith("builtin:"):
             name = path.removeprefix("builtin:")
             if name not in BUILTIN_MODELS:
@@ -155,51 +156,32 @@ class Session:
                                 + ", ".join(f"builtin:{m}" for m in BUILTIN_MODELS))
             scene = new_scene(builtin_model(name), builtin=name)
             scene.source = _free_name(self.sandbox.home, name)
+            histories = self._histories(scene.source)
+            state, _ = histories.load(scene)
         else:
             real = self.sandbox.resolve(path, suffixes=(SCENE_SUFFIX, *MESH_SUFFIXES))
-            unsaved = real.suffix.lower() == SCENE_SUFFIX and not real.exists() and \
-                autosave_path(real).is_file()
-            if unsaved:  # a scene that was never saved, edited before a crash
-                scene = _load(autosave_path(real))
-                scene.source = real
-                recovered = True
-                notices.append(f"recovered the unsaved scene from {autosave_path(real).name}")
-            elif not real.is_file():
-                raise EditError(f"{path}: no such file", 404)
-            elif real.suffix.lower() == SCENE_SUFFIX:
-                scene = _load(real)
-                auto = autosave_path(real)
-                if auto.is_file():
-                    try:
-                        autosaved = _load(auto)
-                        autosaved.source = real
-                        if autosaved != scene:
-                            scene, recovered = autosaved, True
-                            notices.append(f"recovered unsaved edits from {auto.name} (the "
-                                           f"saved file is unchanged until you save)")
-                    except WigglyInputError as err:
-                        notices.append(f"ignored an unreadable autosave {auto.name}: "
-                                       f"{str(err).splitlines()[0]}")
-            else:
+            if real.suffix.lower() == SCENE_SUFFIX:
+                state, file_scene, histories = self._recover(path, real, notices)
+            elif real.is_file():
                 scene = new_scene(real)
-            if not scene.mesh.path.startswith("builtin:") and \
-                    not self.sandbox.contains(scene.mesh_file()):
-                raise EditError(f"{path}: its mesh {scene.mesh.path} is outside the directories "
-                                "this editor may use", 403)
+                histories = self._histories(scene.source)
+                state, _ = histories.load(scene)
+            else:
+                raise EditError(f"{path}: no such file", 404)
+            assert state is not None
+            if not state.scene.mesh.path.startswith("builtin:") and \
+                    not self.sandbox.contains(state.scene.mesh_file()):
+                raise EditError(f"{path}: its mesh {state.scene.mesh.path} is outside the "
+                                "directories this editor may use", 403)
+        assert state is not None
+        scene = state.scene
         surface = _surface_of(scene)
         diagonal = float(np.linalg.norm(np.ptp(surface.vertices, axis=0)))
         check_limits(scene, diagonal)
-        journal = history_path(scene.source) if self.autosave and scene.source is not None \
-            and self.sandbox.contains(scene.source.parent) else None
-        histories = Histories(journal)
-        state, notice = histories.load(EditorState.of(scene))
-        if notice:
-            notices.append(notice)
         with self._lock:
             self._state = state
             self.histories = histories
-            saved = not recovered and scene.source is not None and scene.source.is_file()
-            self._saved = scene if saved else None
+            self._saved = file_scene
             self.surface, self.diagonal = surface, diagonal
             self._opened += 1
             self._groups_cache = None
@@ -207,6 +189,45 @@ class Session:
             self.version += 1
             self._changed(autosave=False)
         return {"path": self.sandbox.relative(scene.source), "notices": notices}
+
+    def _histories(self, source: Path | None) -> Histories:
+        """The undo histories of a scene saved as ``source``, journaled beside it (not when
+        autosave is off or the folder is outside the sandbox)."""
+        keep = self.autosave and source is not None and self.sandbox.contains(source.parent)
+        return Histories(history_path(source) if keep else None)
+
+    def _recover(self, path: str, real: Path, notices: list[str],
+                 ) -> tuple[EditorState, Scene | None, Histories]:
+        """The scene file ``real`` with the edits its autosave and journal hold beyond it
+        (the journal's tail replayed over the autosave, which may lag it); the file's scene
+        (None: never saved) and the histories."""
+        file_scene = _load(real) if real.is_file() else None
+        auto = autosave_path(real)
+        auto_scene: Scene | None = None
+        if auto.is_file():
+            try:
+                auto_scene = _load(auto)
+                auto_scene.source = real
+            except EditError as err:
+                notices.append(f"ignored an unreadable autosave {auto.name}: "
+                               f"{str(err).splitlines()[0]}")
+        histories = self._histories(real)
+        state, notice = histories.load(auto_scene if auto_scene is not None else file_scene,
+                                       real)
+        if notice:
+            notices.append(notice)
+        if state is None:
+            raise EditError(f"{path}: no such file", 404)
+        if state.scene != file_scene:
+            names = [auto.name] if auto_scene is not None and auto_scene != file_scene else []
+            base = auto_scene if auto_scene is not None else file_scene
+            if histories.path is not None and state.scene != base:
+                names.append(histories.path.name)
+            notices.append(f"recovered the unsaved scene from {' and '.join(names)}"
+                           if file_scene is None else
+                           f"recovered unsaved edits from {' and '.join(names)} (the saved "
+                           "file is unchanged until you save)")
+        return state, file_scene, histories
 
     def save(self, path: str | None = None) -> dict:
         with self._lock:
@@ -383,14 +404,16 @@ class Session:
             }
 
     def recoverable(self) -> list[str]:
-        """Scenes never saved whose autosave exists (edited before a crash)."""
-        out = []
+        """Scenes never saved whose autosave or undo journal exists (edited before a
+        crash)."""
+        out: set[str] = set()
         for root in self.sandbox.roots:
-            for auto in sorted(root.glob(".*.autosave.toml")):
-                scene = auto.with_name(auto.name[1:].removesuffix(".autosave.toml") + ".toml")
-                if not scene.exists() and self.sandbox.contains(auto):
-                    out.append(self.sandbox.relative(scene))
-        return out
+            for suffix in (".autosave.toml", ".history.jsonl"):
+                for kept in root.glob(f".*{suffix}"):
+                    scene = kept.with_name(kept.name[1:].removesuffix(suffix) + SCENE_SUFFIX)
+                    if not scene.exists() and self.sandbox.contains(kept):
+                        out.add(self.sandbox.relative(scene))
+        return sorted(out)
 
     def mesh_bytes(self) -> bytes:
         """The rest surface: uint32 n, uint32 m, float32 vertices (n, 3), uint32 faces (m, 3)."""
@@ -488,7 +511,7 @@ class Session:
 def _free_name(folder: Path, stem: str) -> Path:
     """``folder/stem.toml``, or ``stem-2.toml``, ... if taken (never overwrite a scene)."""
     path, k = folder / f"{stem}{SCENE_SUFFIX}", 2
-    while path.exists() or autosave_path(path).exists():
+    while path.exists() or autosave_path(path).exists() or history_path(path).exists():
         path, k = folder / f"{stem}-{k}{SCENE_SUFFIX}", k + 1
     return path
 
