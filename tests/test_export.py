@@ -5,6 +5,7 @@ writes, overwrite protection and input validation."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 import shutil
 import subprocess
@@ -597,10 +598,18 @@ def test_reading_missing_files_says_so(tmp_path):
 
 
 @pytest.mark.parametrize("ext", [".obj", ".usda"])
-def test_progress_bar_on_stderr(tmp_path, capsys, ext):
+def test_progress_bar_on_a_terminal_one_line_in_a_log(tmp_path, capsys, caplog, monkeypatch,
+                                                      ext):
+    monkeypatch.setattr("wiggly.progress.on_terminal", lambda: True)
     write_animation(tmp_path / f"a{ext}", sphere_animation(F=4), progress=True)
     err = capsys.readouterr().err
     assert "4/4" in err
+    monkeypatch.setattr("wiggly.progress.on_terminal", lambda: False)
+    with caplog.at_level(logging.INFO, logger="wiggly"):
+        write_animation(tmp_path / f"a{ext}", sphere_animation(F=4), progress=True,
+                        overwrite=True)
+    assert capsys.readouterr().err == ""  # no bar in a log: one line on the logger
+    assert [r.getMessage().split(": ")[-1].split(" (")[0] for r in caplog.records] == ["4 frames"]
     write_animation(tmp_path / f"a{ext}", sphere_animation(F=4), overwrite=True)
     assert capsys.readouterr().err == ""
 

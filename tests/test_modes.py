@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -318,10 +319,11 @@ def test_unused_vertex_is_rejected(small_body):
     assert clamped.n_rigid == 3
 
 
-def test_progress_reports_on_stderr(small_body, capsys):
+def test_progress_reports_on_the_logger(small_body, caplog):
     V, _, K, M = small_body
-    compute_modes(K, M, 10, vertices=V, cache_dir=False, method="sparse", progress=True)
-    err = capsys.readouterr().err
+    with caplog.at_level(logging.INFO, logger="wiggly"):
+        compute_modes(K, M, 10, vertices=V, cache_dir=False, method="sparse", progress=True)
+    err = caplog.text
     assert "factoriz" in err and "eigsh done" in err and "solves" in err
 
 

@@ -30,6 +30,7 @@ from wiggly.linalg import SPDSolver, factorize_spd
 from wiggly.memo import Memo, value_key
 from wiggly.mesh import Model, Surface, TetMesh, coarse_mesh, embed, load_model
 from wiggly.modes import Modes, compute_modes
+from wiggly.progress import say
 from wiggly.warp import Warp, WarpLevel, coarse_level, fine_level
 
 Where = Literal["surface", "tets"]
@@ -343,6 +344,4 @@ def _checked_gravity(gravity) -> np.ndarray:
 
 
 def _say(message: str) -> None:
-    import sys
-
-    print(f"[wiggly] {message}", file=sys.stderr, flush=True)
+    say(message)

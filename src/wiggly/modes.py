@@ -25,8 +25,8 @@ of K, M, the vertices, r and the fixed set.
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
-import sys
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -43,6 +43,9 @@ from wiggly.checks import vertex_set
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, default_cache_dir
 from wiggly.linalg import blas_single_thread, factorize_spd
+from wiggly.progress import iterations, say
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Modes", "compute_modes", "default_cache_dir", "rigid_motions"]
 
@@ -119,7 +122,8 @@ def rigid_motions(V: np.ndarray) -> np.ndarray:
 
 
 class _Progress:
-    """Status lines on stderr, and a tqdm counter of shift-invert solves."""
+    """Status lines on the ``wiggly.modes`` logger, and a counter of shift-invert solves (a
+    bar on a terminal)."""
 
     def __init__(self, enabled: bool) -> None:
         self.enabled = enabled
@@ -128,14 +132,11 @@ class _Progress:
 
     def say(self, message: str) -> None:
         if self.enabled:
-            elapsed = time.perf_counter() - self.t0
-            print(f"[wiggly.modes {elapsed:7.2f} s] {message}", file=sys.stderr, flush=True)
+            log.info(f"modes, {time.perf_counter() - self.t0:.2f} s: {message}")
 
     def start_counter(self, desc: str) -> None:
         if self.enabled:
-            from tqdm import tqdm
-
-            self.bar = tqdm(desc=desc, unit="solve", file=sys.stderr, leave=False)
+            self.bar = iterations(desc, unit="solve")
 
     def tick(self) -> None:
         if self.bar is not None:
@@ -400,8 +401,7 @@ def compute_modes(
         path = directory / f"modes-{key[:40]}.npz"
         cached = _load_cache(path, key, r, n)
         if cached is not None:
-            if progress:
-                print(f"[wiggly.modes] loaded {r} modes from {path}", file=sys.stderr)
+            say(f"loaded {r} modes from {path}", progress, log)
             return cached
 
     with blas_single_thread():

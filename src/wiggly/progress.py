@@ -1,20 +1,50 @@
-"""Progress feedback on stderr for anything that takes more than a second."""
+"""Progress for anything that takes more than a second: a live bar on a terminal, one line per
+stage in a log.
+
+Library modules print nothing themselves: they report through the ``wiggly`` logger
+(:mod:`logging`), whose INFO lines the command line shows (``-v`` adds DEBUG, ``-q`` keeps
+warnings and errors only); a program that imports wiggly sees them only if it configures
+logging.  The bars (tqdm) of the functions below are drawn only when they are enabled (the
+``progress`` arguments of the library) *and* stderr is a terminal; otherwise each stage is one
+INFO line on the logger, so a log holds no carriage-return updates.
+"""
 
 from __future__ import annotations
 
+import logging
 import sys
 import threading
-from collections.abc import Iterator
-from contextlib import contextmanager, nullcontext
+import time
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 
 from tqdm import tqdm
+
+__all__ = ["Counter", "activity", "frames", "iterations", "log", "on_terminal", "say"]
+
+#: The library's logger; modules log on ``logging.getLogger(__name__)`` beneath it.
+log = logging.getLogger("wiggly")
+
+
+def on_terminal() -> bool:
+    """Whether stderr is an interactive terminal (where live bars belong)."""
+    stream = sys.stderr
+    try:
+        return stream is not None and stream.isatty()
+    except (AttributeError, ValueError):  # replaced or closed stream
+        return False
+
+
+def say(message: str, enabled: bool = True, logger: logging.Logger = log) -> None:
+    """One INFO line of a stage (when ``enabled``: the caller's ``progress``)."""
+    if enabled:
+        logger.info(message)
 
 
 @contextmanager
 def _ticking(desc: str) -> Iterator[None]:
     bar = tqdm(total=None, desc=f"[wiggly] {desc}", file=sys.stderr,
-               bar_format="{desc}: {elapsed} elapsed",
-               leave=True)
+               bar_format="{desc}: {elapsed} elapsed", leave=True)
     stop = threading.Event()
 
     def tick() -> None:
@@ -31,13 +61,72 @@ def _ticking(desc: str) -> Iterator[None]:
         bar.close()
 
 
-def activity(desc: str, enabled: bool = True):
-    """A live elapsed-time line while a blocking call (e.g. fTetWild) runs."""
-    return _ticking(desc) if enabled else nullcontext()
+@contextmanager
+def activity(desc: str, enabled: bool = True) -> Iterator[None]:
+    """While a blocking call (e.g. fTetWild) runs: a live elapsed-time line on a terminal, or
+    one INFO line before it starts."""
+    if not enabled:
+        yield
+    elif on_terminal():
+        with _ticking(desc):
+            yield
+    else:
+        log.info(desc)
+        yield
 
 
-def iterations(desc: str, enabled: bool = True) -> tqdm:
+class Counter:
+    """What :func:`iterations` gives off a terminal: counts like a tqdm bar and logs one line
+    with the count and the last status when it closes."""
+
+    def __init__(self, desc: str, unit: str, enabled: bool) -> None:
+        self.desc, self.unit, self.enabled = desc, unit, enabled
+        self.n, self.postfix, self.t0 = 0, "", time.perf_counter()
+
+    def update(self, n: int = 1) -> None:
+        self.n += n
+
+    def set_postfix_str(self, text: str = "", refresh: bool = True) -> None:
+        self.postfix = text
+
+    def write(self, text: str, file=None) -> None:
+        log.info(text)
+
+    def close(self) -> None:
+        if self.enabled:
+            status = f", {self.postfix}" if self.postfix else ""
+            unit = self.unit if self.n == 1 or self.unit == "it" else self.unit + "s"
+            log.info(f"{self.desc}: {self.n} {unit}{status} "
+                     f"({time.perf_counter() - self.t0:.1f} s)")
+            self.enabled = False
+
+    def __enter__(self) -> Counter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def iterations(desc: str, enabled: bool = True, unit: str = "it") -> tqdm | Counter:
     """A counter of solver iterations (``bar.update(1)``, ``bar.set_postfix_str(...)``),
     with no total: the iteration budget is no estimate of the iterations a solve takes."""
-    return tqdm(total=None, desc=desc, file=sys.stderr, disable=not enabled, leave=False,
-                unit="it")
+    if enabled and on_terminal():
+        return tqdm(total=None, desc=desc, file=sys.stderr, leave=False, unit=unit)
+    return Counter(desc, unit, enabled)
+
+
+def frames(items: Iterable, total: int | None, desc: str, enabled: bool = True,
+           unit: str = "frame") -> Iterable:
+    """``items`` with a bar on a terminal, or one INFO line when they are done."""
+    if not enabled:
+        return items
+    if on_terminal():
+        return tqdm(items, total=total, file=sys.stderr, unit=unit, desc=desc)
+    return _logged(items, desc, unit)
+
+
+def _logged(items: Iterable, desc: str, unit: str) -> Iterator:
+    t0, n = time.perf_counter(), 0
+    for n, item in enumerate(items, 1):  # noqa: B007 (n counts what was yielded)
+        yield item
+    log.info(f"{desc}: {n} {unit}{'' if n == 1 else 's'} ({time.perf_counter() - t0:.1f} s)")

@@ -10,6 +10,7 @@ Ray's; the driver only keeps as many tasks in flight as there are cores.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import json
 import logging
 import multiprocessing
 import os
@@ -19,7 +20,7 @@ from typing import Any
 
 from wiggly.batch import worker
 from wiggly.errors import WigglyInputError
-from wiggly.files import default_cache_dir
+from wiggly.files import atomic_file, default_cache_dir
 
 RAY_EXTRA = 'Ray is not installed; install it with pip install "wiggly[ray]" (or pip install ray)'
 
@@ -106,6 +107,19 @@ class LocalPool:
         path = self.bodies / f"{key}.pickle"
         return str(path) if path.is_file() else None
 
+    def keep_warnings(self, key: str, messages: list[str]) -> None:
+        """Keep what preparing the body warned about beside it, to say it again when a later
+        batch finds the body prepared."""
+        with atomic_file(self.bodies / f"{key}.warnings.json") as tmp:
+            tmp.write_text(json.dumps(list(messages)), encoding="utf-8")
+
+    def kept_warnings(self, key: str) -> list[str]:
+        try:
+            data = json.loads((self.bodies / f"{key}.warnings.json").read_text("utf-8"))
+        except (OSError, ValueError):
+            return []
+        return [str(m) for m in data] if isinstance(data, list) else []
+
     def prepare(self, job: worker.BodyJob) -> cf.Future:
         return self._pool.submit(worker.prepare_body, job)
 
@@ -158,8 +172,9 @@ class RayCluster:
                 ray.init(address=address, include_dashboard=False, log_to_driver=False,
                          logging_level=logging.WARNING)
             except (ConnectionError, ValueError, RuntimeError) as err:
-                raise WigglyInputError(f"--ray {address or ''}: cannot start or reach a Ray "
-                                       f"cluster: {err}".replace("  ", " ")) from None
+                where = f"--ray-address {address}" if address else "--ray"
+                raise WigglyInputError(f"{where}: cannot start or reach a Ray cluster: "
+                                       f"{err}") from None
             self.started = True
         self.slots = max(1, int(ray.cluster_resources().get("CPU", 1)))
         options = {"num_cpus": 1, "max_retries": 1}
@@ -173,6 +188,12 @@ class RayCluster:
 
     def cached_body(self, key: str) -> Any | None:
         return None
+
+    def keep_warnings(self, key: str, messages: list[str]) -> None:
+        """Bodies live in the object store, for one batch: nothing to keep."""
+
+    def kept_warnings(self, key: str) -> list[str]:
+        return []
 
     def body_job(self, key: str, scene, mesh_file: Path | None) -> worker.BodyJob:
         return worker.BodyJob(key, scene, mesh=None if mesh_file is None else

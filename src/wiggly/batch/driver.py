@@ -27,7 +27,7 @@ from wiggly.batch.sweep import Sweep
 from wiggly.batch.worker import THUMBNAIL, ShotJob
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, check_writable
-from wiggly.progress import activity
+from wiggly.progress import Counter, activity, log, on_terminal, say
 from wiggly.scene import Scene, scene_to_toml
 
 MARKER = ".wiggly-batch"
@@ -98,6 +98,11 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
                                        "without them: --no-sheet (contact_sheet=False)") from None
             render_checked = True
         backend = None
+        if todo and any(s.scene.simulation.warp for s in todo):
+            # compiled (or loaded) here, once, with its line; workers then load, never compile
+            from wiggly.warp.kernels import ensure_compiled
+
+            ensure_compiled(progress)
         if todo:
             # a Ray worker may run on a machine without offscreen rendering: it checks itself
             backend = (RayCluster(None if ray is True else str(ray), False)
@@ -149,17 +154,29 @@ def _batch_folder(out: Path):
     with open(out / LOCK, "w") as lock:
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            if not _still_there(out / LOCK, lock):  # its holder finished and removed it
+                raise OSError
         except OSError:
             raise WigglyInputError(f"another wiggly batch is writing into {out}; wait for it "
                                    "or give another folder (-o)") from None
-        shutil.rmtree(out / STAGING, ignore_errors=True)  # left by an interrupted batch
-        token = uuid.uuid4().hex
-        with atomic_file(out / MARKER) as tmp:
-            tmp.write_text(token + "\n", encoding="utf-8")
         try:
+            shutil.rmtree(out / STAGING, ignore_errors=True)  # left by an interrupted batch
+            token = uuid.uuid4().hex
+            with atomic_file(out / MARKER) as tmp:
+                tmp.write_text(token + "\n", encoding="utf-8")
             yield token
         finally:
             shutil.rmtree(out / STAGING, ignore_errors=True)
+            (out / LOCK).unlink(missing_ok=True)  # while still holding it
+
+
+def _still_there(path: Path, lock) -> bool:
+    """Whether ``path`` is still the file ``lock`` holds (a batch removes its lock file when
+    it ends; a lock taken on the removed file would lock nothing)."""
+    try:
+        return os.stat(path).st_ino == os.fstat(lock.fileno()).st_ino
+    except OSError:
+        return False
 
 
 def _scan(out: Path, shots: list[Shot], overwrite: bool, request: dict):
@@ -238,13 +255,19 @@ class _Driver:
         self.interrupted = False
         self.in_flight: dict[Any, tuple[str, Any]] = {}
         self.suspects: set[str] = set()  # in flight when a worker died: rerun one at a time
+        self.warned: set[str] = set()
 
     def run(self, shots: list[Shot], todo: list[Shot]) -> None:
         done = sum(r["status"] == "done" for r in self.records.values())
         failed = len(self.records) - done
-        self.bar = tqdm(total=len(shots), initial=done + failed, desc="[wiggly] batch",
-                        unit="shot", file=sys.stderr, disable=not self.progress,
-                        dynamic_ncols=True)
+        self.total = len(shots)
+        self.live = self.progress and on_terminal()
+        if self.live:
+            self.bar = tqdm(total=len(shots), initial=done + failed, desc="[wiggly] batch",
+                            unit="shot", file=sys.stderr, dynamic_ncols=True)
+        else:  # in a log: a line per shot, and the counts at the end
+            self.bar = Counter("batch", "shot", self.progress)
+            self.bar.n = done + failed
         self.counts = {"done": done, "failed": failed}
         for r in self.records.values():
             if r["status"] == "failed":
@@ -277,6 +300,8 @@ class _Driver:
             source = b.cached_body(key)
             if source is not None:
                 self.sources[key] = source
+                for w in b.kept_warnings(key):  # said again, as `wiggly animate` does
+                    self._warn(f"{body_scene(group[0].scene).where()}: {w}")
                 self.bodies.append({"body": key[:12], "shots": len(group), "cached": True,
                                     "prepare_seconds": 0.0})
             else:
@@ -359,8 +384,9 @@ class _Driver:
         shots = waiting.pop(job.key, deque())
         self.bodies.append({"body": job.key[:12], "shots": len(shots), "cached": False,
                             **{k: v for k, v in info.items() if k != "traceback"}})
+        self.backend.keep_warnings(job.key, info.get("warnings", []))
         for w in info.get("warnings", ()):
-            warnings.warn(f"{job.scene.where()}: {w}", stacklevel=2)
+            self._warn(f"{job.scene.where()}: {w}")
         if info.get("status") != "done":
             for s in shots:
                 self._record(s, _failed(s, f"its body could not be prepared: {info['error']}"))
@@ -419,11 +445,27 @@ class _Driver:
             self._say_failed(record)
         self.bar.update(1)
         self._status(0)
+        if not self.live and record["status"] == "done":
+            say(f"{record['shot']} done ({self.bar.n} of {self.total})", self.progress)
+        for w in record.get("warnings") or ():
+            self._warn(f"{record['shot']}: {w}")
+
+    def _warn(self, message: str) -> None:
+        """A warning of a body or a shot, shown as ``wiggly animate`` shows it (once per
+        message), besides the summary's record."""
+        if message in self.warned:
+            return
+        self.warned.add(message)
+        with tqdm.external_write_mode(file=sys.stderr):  # above a live bar
+            warnings.warn(message, stacklevel=3)
 
     def _say_failed(self, record: dict) -> None:
         if self.progress:
             first = (record.get("error") or "").splitlines() or [""]
-            self.bar.write(f"[wiggly] {record['shot']} failed: {first[0]}", file=sys.stderr)
+            if self.live:
+                self.bar.write(f"[wiggly] {record['shot']} failed: {first[0]}", file=sys.stderr)
+            else:
+                log.info(f"{record['shot']} failed: {first[0]}")
 
     def _status(self, preparing: int) -> None:
         running = sum(k == "shot" for k, _ in self.in_flight.values())

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from wiggly.files import atomic_file
+from wiggly.progress import say
 
 SUMMARY_FORMAT = 1
 #: Shots shown in the PNG contact sheet (the HTML one shows all).
@@ -110,9 +111,9 @@ def write_contact_sheets(out: Path, records: list[dict], progress: bool = False)
     varied = _varied(records)
     _write_html(out, records, varied)
     _write_png(out, records[:MAX_SHEET_TILES], varied)
-    if len(records) > MAX_SHEET_TILES and progress:
-        print(f"[wiggly] contact-sheet.png shows the first {MAX_SHEET_TILES} of {len(records)} "
-              "shots; contact-sheet.html shows all", flush=True)
+    if len(records) > MAX_SHEET_TILES:
+        say(f"contact-sheet.png shows the first {MAX_SHEET_TILES} of {len(records)} shots; "
+            "contact-sheet.html shows all", progress)
 
 
 _STYLE = """

@@ -8,11 +8,16 @@ Each subcommand is a module with ``add_args(parser)`` and ``run(args) -> int`` (
   message on stderr, no traceback; an unexpected exception (a bug) prints its traceback and
   asks for a report;
 * 2: a usage error (unknown option, missing argument), reported by argparse.
+
+What the library logs on the ``wiggly`` logger goes to stderr while a command runs: its stage
+lines (INFO) by default, DEBUG lines with ``-v``, only warnings and errors with ``-q``.
+Progress bars are drawn only on a terminal (:mod:`wiggly.progress`).
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import traceback
 import warnings
@@ -52,14 +57,51 @@ def build_parser() -> argparse.ArgumentParser:
         prog="wiggly", description=DESCRIPTION, epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"wiggly {__version__}")
+    _add_verbosity(parser, quiet=False)
     sub = parser.add_subparsers(title="commands", dest="command", metavar="COMMAND")
     for name, module in COMMANDS.items():
         p = sub.add_parser(name, help=module.HELP, description=module.DESCRIPTION,
                            epilog=module.EPILOG,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_args(p)
+        _add_verbosity(p)
         p.set_defaults(run=module.run)
     return parser
+
+
+def _add_verbosity(parser: argparse.ArgumentParser, quiet: bool = True) -> None:
+    """``-v`` (DEBUG lines too) before or after the command; ``-q`` (no bars, only warnings
+    and errors) after it, on every command."""
+    options = {a for action in parser._actions for a in action.option_strings}
+    if "-v" not in options:
+        parser.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                            help="also show the library's debugging lines")
+    if quiet and "-q" not in options:
+        parser.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                            help="no progress bars or stage lines: only warnings and errors")
+
+
+class _Stderr(logging.Handler):
+    """Writes the ``wiggly`` logger's records to the *current* ``sys.stderr``: stage lines as
+    ``[wiggly] ...``, warnings and errors as ``wiggly: warning: ...``."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            message = record.getMessage()
+            if record.levelno >= logging.WARNING:
+                message = f"wiggly: {record.levelname.lower()}: {message}"
+            else:
+                message = f"[wiggly] {message}"
+            print(message, file=sys.stderr, flush=True)
+        except Exception:
+            self.handleError(record)
+
+
+def _logging_level(args: argparse.Namespace) -> int:
+    verbose = getattr(args, "verbose", 0)
+    if getattr(args, "quiet", False):
+        return logging.WARNING
+    return logging.DEBUG if isinstance(verbose, int) and verbose > 0 else logging.INFO
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -78,6 +120,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from wiggly.render import RenderingError
 
+    logger = logging.getLogger("wiggly")
+    handler, level = _Stderr(), logger.level
+    logger.addHandler(handler)
+    logger.setLevel(_logging_level(args))
     with warnings.catch_warnings():
         warnings.showwarning = _show_warning
         try:
@@ -95,6 +141,9 @@ def main(argv: list[str] | None = None) -> int:
             print("wiggly: internal error (this is a bug in wiggly, not in your input); please "
                   "report it to wiggly's maintainers with the traceback above and your scene "
                   "file", file=sys.stderr)
+        finally:
+            logger.removeHandler(handler)
+            logger.setLevel(level)
         return 1
 
 

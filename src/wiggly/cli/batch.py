@@ -25,7 +25,7 @@ examples:
   wiggly batch examples/sweeps/jump_sweep.toml           # into the sweep's [output] dir
   wiggly batch sweep.toml -j 4 --write shot.glb --write preview.gif
   wiggly batch sweep.toml --ray                          # a new local Ray cluster
-  wiggly batch sweep.toml --ray auto                     # the cluster this machine is in
+  wiggly batch sweep.toml --ray-address auto             # the cluster this machine is in
   wiggly batch sweep.toml --dry-run                      # list the shots, run nothing
   wiggly batch --schema > sweep.schema.json              # JSON Schema of sweep files
 
@@ -41,9 +41,11 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("-j", "--workers", type=_count, metavar="N",
                        help="local worker processes (default: one per core)")
-    where.add_argument("--ray", nargs="?", const=True, metavar="ADDRESS",
-                       help="run on a Ray cluster: a new local one, or the one at ADDRESS "
-                            "(auto, host:6379, ray://host:10001)")
+    where.add_argument("--ray", action="store_true",
+                       help="run on a Ray cluster: RAY_ADDRESS's, else a new local one")
+    parser.add_argument("--ray-address", metavar="ADDRESS",
+                        help="run on the Ray cluster at ADDRESS (auto, host:6379, "
+                             "ray://host:10001)")
     parser.add_argument("-w", "--write", metavar="NAME", action="append",
                         help="file written into every shot's folder (repeatable; replaces "
                              "the scenes' and sweeps' outputs), e.g. shot.glb, preview.gif; "
@@ -74,6 +76,10 @@ def run(args: argparse.Namespace) -> int:
         print("wiggly batch: error: give scene files or a sweep file (see --help)",
               file=sys.stderr)
         return 2
+    if args.ray_address is not None and args.workers is not None:
+        print("wiggly batch: error: -j counts local processes; a Ray cluster uses its CPUs: "
+              "give -j or --ray-address, not both", file=sys.stderr)
+        return 2
     if args.write is not None and any(w.lower() == "none" for w in args.write):
         args.write = []
     if args.dry_run:
@@ -81,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
     from wiggly.batch import run as run_batch
 
     out = _out_dir(args)
-    records = run_batch(args.inputs, out, workers=args.workers, ray=args.ray,
+    ray = args.ray_address or args.ray or None
+    records = run_batch(args.inputs, out, workers=args.workers, ray=ray,
                         write=args.write, overwrite=args.overwrite,
                         contact_sheet=not args.no_sheet, thumbnail_time=args.thumbnail_time,
                         warm_start=not args.cold, progress=not args.quiet)

@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import itertools
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from wiggly.drive.driver import Driver, fan_triangles, polygon_edges
 from wiggly.errors import WigglyInputError
+from wiggly.progress import frames
 
 __all__ = ["read_npz", "read_obj_sequence", "sequence_files"]
 
@@ -100,8 +99,7 @@ def read_obj_sequence(path: Path, *, frame_rate: float | None = None,
             f"{path.stem.rstrip('#_')}_0001.obj) in {path.parent}")
     positions, stamps = [], []
     polys: list[np.ndarray] = []
-    bar = tqdm(files, desc=f"[wiggly] reading {path.name}", unit="file", file=sys.stderr,
-               disable=not progress, leave=False)
+    bar = frames(files, len(files), f"reading {path.name}", progress, unit="file")
     for k, (_, file) in enumerate(bar):
         data = file.read_bytes()
         P = _floats(file, _V.findall(data))

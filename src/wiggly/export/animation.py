@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import re
-import sys
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from tqdm import tqdm
 
 from wiggly.errors import WigglyInputError
 from wiggly.files import shown_name
+from wiggly.progress import frames
 
 #: Output formats by file extension.
 SUPPORTED = {
@@ -275,8 +274,7 @@ def _require(module: str, package: str, ext: str):
 
 
 def _progress(iterable, total: int, enabled: bool, what: str):
-    return tqdm(iterable, total=total, disable=not enabled, file=sys.stderr, unit="frame",
-                desc=shown_name(what))
+    return frames(iterable, total, shown_name(what), enabled)
 
 
 # time codes of the formats

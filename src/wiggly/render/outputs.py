@@ -4,16 +4,15 @@ plots."""
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from tqdm import tqdm
 
 from wiggly.errors import WigglyInputError
 from wiggly.files import atomic_file, shown_name
+from wiggly.progress import frames
 from wiggly.render.preview import Preview
 from wiggly.render.setup import (
     GIF_MAX_FPS,
@@ -84,9 +83,8 @@ def video_frame_times(times, fps: float | None = None,
     return times[0] + np.arange(count) / rate, rate
 
 
-def _scene_progress(frames, enabled: bool, what: str):
-    return tqdm(frames, total=len(frames), disable=not enabled, file=sys.stderr, unit="frame",
-                desc=shown_name(what))
+def _scene_progress(times, enabled: bool, what: str):
+    return frames(times, len(times), shown_name(what), enabled)
 
 
 def render_video(path, times, positions, faces, *, highlights: Sequence[Highlight] = (),

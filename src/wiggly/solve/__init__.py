@@ -17,10 +17,9 @@ Modules, in the order data flows:
 
 from __future__ import annotations
 
-import sys
-
 from wiggly.body import Body
 from wiggly.keyframes import Keyframe
+from wiggly.progress import say
 from wiggly.solve.animation import Animation
 from wiggly.solve.levels import WarmStart
 from wiggly.solve.optimizer import SolveOptions, WarpedSolveWarning
@@ -75,9 +74,6 @@ def solve(
                 f", {anim.info['iterations']} Newton iterations"
                 f"{'' if anim.info['converged'] else ' (not converged)'}"
             )
-        print(
-            f"[wiggly] {'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
-            f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}",
-            file=sys.stderr,
-        )
+        say(f"{'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
+            f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}")
     return anim

@@ -27,10 +27,16 @@ from __future__ import annotations
 import numpy as np
 
 from wiggly.errors import WigglyInputError
+from wiggly.progress import activity
 from wiggly.warp import compiled, compiled_second
 from wiggly.warp.kernels_numpy import NumpyKernels
 
-__all__ = ["NumbaKernels", "NumpyKernels", "compile_all", "kernels_for"]
+__all__ = ["NumbaKernels", "NumpyKernels", "cache_is_cold", "compile_all", "ensure_compiled",
+           "kernels_for"]
+
+#: What a first warped solve after an install waits for, said before it starts.
+COMPILING = "compiling the warp kernels, once, about 20 s (longer on a busy machine)"
+_ready = False
 
 
 class NumbaKernels:
@@ -125,6 +131,7 @@ def kernels_for(
     if choice == "numba" and not compiled.AVAILABLE:
         raise WigglyInputError("kernels = 'numba' but numba is not available")
     if choice == "numba" or (choice is None and compiled.AVAILABLE):
+        ensure_compiled()
         return NumbaKernels(tets, grads, vol, n)
     return NumpyKernels(tets, grads, vol, n)
 
@@ -152,3 +159,38 @@ def compile_all() -> None:
     compiled_second.curvature_products(
         U[0], U[0], U[1], U[1], GB, 1e-5, tets, grads, vol, C, C.copy(), True
     )
+
+
+def _entry_points() -> list:
+    return [compiled.target_rhs, compiled.jvp_rhs, compiled.vjp_rhs, compiled.field_gradients,
+            compiled.jacobians_rhs, compiled_second.second_derivatives_rhs,
+            compiled_second.curvature_products]
+
+
+def cache_is_cold() -> bool:
+    """Whether numba's on-disk cache lacks a kernel that :func:`compile_all` runs, so that
+    running them compiles (20-120 s) instead of loading (about 1 s)."""
+    if not compiled.AVAILABLE:
+        return False
+    for kernel in _entry_points():
+        try:  # numba keeps an index of the compiled signatures beside the source
+            if not kernel._cache._cache_file._load_index():
+                return True
+        except Exception:  # another numba's layout: assume the worst, say so
+            return True
+    return False
+
+
+def ensure_compiled(progress: bool = True) -> None:
+    """Compile or load every kernel once per process, announcing a compilation first (on the
+    ``wiggly`` logger, and as a live line on a terminal), so a first run never looks hung.
+    Batches call it before starting their workers, so that workers load, never compile."""
+    global _ready
+    if _ready or not compiled.AVAILABLE:
+        return
+    if cache_is_cold():
+        with activity(COMPILING, progress):
+            compile_all()
+    else:
+        compile_all()
+    _ready = True

@@ -1,0 +1,125 @@
+"""What ``wiggly batch`` tells the person at the console: mesh warnings as ``wiggly animate``
+shows them, mistakes in a mesh named with the scene file and its key, a Ray address that is
+never a sweep file, and a folder left with no lock file after a clean run."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomli_w
+import trimesh
+
+from wiggly.batch import run
+from wiggly.batch.driver import LOCK
+from wiggly.cli import build_parser, main
+
+# A free body made of two overlapping unit cubes (its surface has triangles that cross), its
+# far corner pulled at 0.5 s: a linear shot, so the test needs no compiled kernels.
+CUBES = {
+    "mesh": {"path": "cubes.off", "resolution": 5},
+    "simulation": {"modes": 10, "warp": False},
+    "time": {"end": 1.0, "fps": 10},
+    "groups": {
+        "base": {"box": {"min": [-0.1, -0.1, -0.1], "max": [1.1, 0.1, 1.1]}},
+        "corner": {"sphere": {"center": [1.5, 1.5, 1.5], "radius": 0.3}},
+    },
+    "keyframes": [
+        {"time": 0.0, "group": "base", "position": "rest", "velocity": [0.0, 0.0, 0.0]},
+        {"time": 0.5, "group": "corner", "position": {"offset": [0.0, 0.1, 0.0]}},
+        {"time": 1.0, "group": "base", "position": "rest"},
+    ],
+    "output": {"paths": ["cubes.npz"]},
+}
+
+
+def two_overlapping_cubes() -> tuple[np.ndarray, np.ndarray]:
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    V = np.asarray(box.vertices) + 0.5
+    F = np.asarray(box.faces)
+    return np.vstack([V, V + 0.5]), np.vstack([F, F + len(V)])
+
+
+def write_scene(folder: Path, data: dict = CUBES, name: str = "cubes.toml") -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / name
+    path.write_text(tomli_w.dumps(data))
+    return path
+
+
+@pytest.fixture
+def cache(tmp_path, monkeypatch) -> Path:
+    """An empty cache of tet meshes, modes and prepared bodies, so the body is prepared."""
+    directory = tmp_path / "cache"
+    monkeypatch.setenv("WIGGLY_CACHE_DIR", str(directory))
+    return directory
+
+
+def test_a_mesh_warning_reaches_the_console(tmp_path, cache, capsys):
+    V, F = two_overlapping_cubes()
+    trimesh.Trimesh(V, F, process=False).export(tmp_path / "cubes.off")
+    scene = write_scene(tmp_path)
+    code = main(["batch", str(scene), "-o", str(tmp_path / "out"), "-j", "1", "--no-sheet"])
+    out, err = capsys.readouterr()
+    assert code == 0, out + err
+    assert "Traceback" not in out + err
+    warning = [line for line in err.splitlines() if "pairs of triangles that cross" in line]
+    assert len(warning) == 1, err  # once, as `wiggly animate` says it
+    assert warning[0].startswith("wiggly: warning: ") and "cubes.off" in warning[0]
+    # and so does the second run, which finds the body prepared in the cache
+    code = main(["batch", str(scene), "-o", str(tmp_path / "again"), "-j", "1", "--no-sheet"])
+    out, err = capsys.readouterr()
+    assert code == 0 and err.count("pairs of triangles that cross") == 1, err
+
+
+def test_a_corrupt_mesh_names_the_scene_file_and_its_key(tmp_path, cache, capsys):
+    (tmp_path / "cubes.off").write_text("OFF\n8 12 0\n0 0 0\nnot a number\n")
+    scene = write_scene(tmp_path)
+    code = main(["batch", str(scene), "-o", str(tmp_path / "out"), "-j", "1", "--no-sheet"])
+    out, err = capsys.readouterr()
+    assert code == 1 and "Traceback" not in out + err
+    failed = [line for line in out.splitlines() if line.strip().startswith("cubes:")]
+    assert failed, out
+    assert "cubes.toml" in failed[0] and 'mesh.path = "cubes.off"' in failed[0], failed[0]
+
+
+def test_the_lock_file_is_removed_after_a_clean_run(tmp_path, cache):
+    V, F = two_overlapping_cubes()
+    trimesh.Trimesh(V, F, process=False).export(tmp_path / "cubes.off")
+    out = tmp_path / "out"
+    with pytest.warns(UserWarning, match="pairs of triangles that cross"):
+        records = run(write_scene(tmp_path), out, workers=1, contact_sheet=False)
+    assert [r["status"] for r in records] == ["done"]
+    assert not (out / LOCK).exists()
+    assert sorted(p.name for p in out.iterdir()) == [".wiggly-batch", "cubes", "summary.csv",
+                                                      "summary.json"]
+
+
+@pytest.mark.parametrize(("argv", "ray", "address"), [
+    (["--ray", "sweep.toml"], True, None),
+    (["sweep.toml", "--ray"], True, None),
+    (["--ray", "--ray-address", "10.0.0.2:6379", "sweep.toml"], True, "10.0.0.2:6379"),
+    (["--ray-address", "auto", "sweep.toml"], False, "auto"),
+    (["sweep.toml"], False, None),
+])
+def test_ray_takes_no_value_and_the_address_has_its_own_option(argv, ray, address):
+    args = build_parser().parse_args(["batch", *argv])
+    assert args.inputs == ["sweep.toml"]
+    assert args.ray is ray and args.ray_address == address
+
+
+def test_stage_lines_in_a_log_and_no_progress_bar(tmp_path, cache, capsys, caplog):
+    """Off a terminal a batch writes one line per shot and the counts, never a bar's
+    carriage-return updates."""
+    V, F = two_overlapping_cubes()
+    trimesh.Trimesh(V, F, process=False).export(tmp_path / "cubes.off")
+    scene = write_scene(tmp_path)
+    with caplog.at_level(logging.INFO, logger="wiggly"):
+        code = main(["batch", str(scene), "-o", str(tmp_path / "out"), "-j", "1", "--no-sheet"])
+    _, err = capsys.readouterr()
+    assert code == 0
+    assert "\r" not in err
+    assert "[wiggly] cubes done (1 of 1)" in err
+    assert "[wiggly] batch: 1 shot, done 1, failed 0, running 0" in err
