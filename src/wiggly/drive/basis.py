@@ -43,8 +43,6 @@ takes force), so driven keys need a high stiffness to be met
 
 from __future__ import annotations
 
-import sys
-
 import numpy as np
 import scipy.linalg as sl
 import scipy.sparse as sp
@@ -57,6 +55,7 @@ from wiggly.drive.driver import Driver
 from wiggly.fem import tet_gradients
 from wiggly.linalg import factorize_spd
 from wiggly.modes import Modes, compute_modes
+from wiggly.progress import iterations
 
 __all__ = ["enrich"]
 
@@ -115,6 +114,7 @@ def _unwarp(body: Body, U: np.ndarray, progress: bool) -> np.ndarray:
     solve = factorize_spd(sp.csr_matrix(L + sp.diags(mu * mass)))
     out = np.empty_like(U)
     eye = np.eye(3)
+    bar = iterations("unwarping driver frames", progress, unit="frame")
     for f0 in range(0, F, _BATCH):
         f1 = min(F, f0 + _BATCH)
         Uk = U[:, f0:f1].reshape(n, 3, -1)  # (n, 3 components, frames)
@@ -141,11 +141,8 @@ def _unwarp(body: Body, U: np.ndarray, progress: bool) -> np.ndarray:
         rhs = G.T @ (np.repeat(vol, 3)[:, None] * a)
         rhs += mu * mass[:, None] * Uk.reshape(n, -1)
         out[:, f0:f1] = solve(rhs).reshape(3 * n, -1)
-        if progress:
-            print(f"\r[wiggly] unwarping driver frames {f1}/{F}", end="", file=sys.stderr,
-                  flush=True)
-    if progress:
-        print(file=sys.stderr, flush=True)
+        bar.update(f1 - f0)
+    bar.close()
     return out
 
 
