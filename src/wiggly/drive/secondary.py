@@ -27,8 +27,8 @@ and C^2 where no velocity is prescribed.  Nodes fall at the driver's frames and 
 keyframe times; the unknowns are node values and velocities of every free mode.
 
 Without keyframes on the free parts, E = 0 is reached by the forced ODE's solution that
-starts at rest relative to the driver (q and q' on the first interval's particular
-solution; a looped shot is periodic instead): one banded linear solve, no Newton iterations.
+starts at rest relative to the driver (q' = 0, and q = -g / lambda: in equilibrium under
+gravity; a looped shot is periodic instead): one banded linear solve, no Newton iterations.
 Sparse keyframes on the free parts (eq. (4)) add least-squares terms at their nodes; for warped
 playback their targets apply to W(ubar + Psi q) and are met by Gauss-Newton on the few keyed
 nodes (Theorem 2: the minimiser is still a wiggly spline in every mode).
@@ -129,8 +129,9 @@ class FrameSpline:
             b = [(12 * s - 6) / h**2, (6 * s - 4) / h, (-12 * s + 6) / h**2, (6 * s - 2) / h]
         else:
             raise ValueError("derivative must be 0, 1 or 2")
-        b[1] = b[1] * h
-        b[3] = b[3] * h
+        if derivative == 0:  # slopes enter as h m in the unit-interval Hermite basis
+            b[1] = b[1] * h
+            b[3] = b[3] * h
         if derivative > 0:
             b = [np.where(inside, x, 0.0) for x in b]
         out = (b[0][:, None] * self.values[j] + b[1][:, None] * self.slopes[j]
@@ -441,9 +442,9 @@ def secondary_motion(
     np.add.at(b0, idx.ravel(), np.einsum("mrij,mrj->mri", Q, xp).ravel())
     fixed = np.zeros(N, bool)
     z = np.zeros(N)
-    if not loop:  # at rest relative to the driver: on the first particular solution
+    if not loop:  # at rest relative to the driver, sagging under gravity
         fixed[:2 * r] = True
-        z[:r], z[r:2 * r] = xp[0, :, 0], xp[0, :, 1]
+        z[:r], z[r:2 * r] = -g / lam, 0.0
     # the user's keys on the free parts
     keys = []
     for kf in own:

@@ -125,8 +125,13 @@ def read_usd(path: Path, *, object: str | None = None) -> Driver:
     if UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z:
         positions = np.stack([positions[..., 0], positions[..., 2], -positions[..., 1]], -1)
     positions *= UsdGeom.GetStageMetersPerUnit(stage)
-    if isinstance(codes[0], Usd.TimeCode):
-        times = np.zeros(1)
+    if isinstance(codes[0], Usd.TimeCode) or len(codes) < 2:
+        samples = "no time samples" if isinstance(codes[0], Usd.TimeCode) else "one time sample"
+        raise WigglyInputError(
+            f"cannot use {path} as a driver: it has no animation (its mesh points and "
+            f"skeleton have {samples}); a driver needs two frames or more. "
+            "Export it with animation on (Blender: File > Export > Universal Scene "
+            "Description, Animation)")
     else:
         tcps = stage.GetTimeCodesPerSecond()
         times = np.asarray(codes, np.float64) / tcps

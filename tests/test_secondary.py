@@ -1,0 +1,302 @@
+"""Secondary motion on a driver (wiggly.drive.secondary) against mathematics and physics:
+
+* the solved modes satisfy the forced ODE q'' + 2 delta q' + lambda q + g + p(t) = 0 with the
+  forcing computed independently from the rig (E = 0 without keys on the free parts);
+* the motion of the free end of a bar whose base follows a translation bob equals a
+  full-space implicit FEM simulation (every free tet vertex a degree of freedom, Newmark's
+  average acceleration, its own error checked by halving the step) and approaches it as the
+  number of free modes grows;
+* the driven group follows the driver; loops are seamless; intensity scales the swing;
+  sparse keys on the free parts are met; bad drivers are refused.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import wiggly
+from wiggly.body import Damping, Material, fixed_from_surface
+from wiggly.drive import read_driver
+from wiggly.drive.driver import Driver
+from wiggly.drive.secondary import FrameSpline, free_modes, secondary_motion
+from wiggly.drive.unwarp import _unwarp_numpy, unwarp_gradients
+from wiggly.errors import WigglyInputError
+from wiggly.keyframes import Keyframe
+from wiggly.linalg import factorize_spd
+from wiggly.primitives import box_mesh
+
+SHAPE, SIZE = (10, 2, 2), (0.6, 0.06, 0.06)
+T_END = 1.0
+AMP, HZ = 0.02, 3.0
+
+
+def bob(t: np.ndarray, d: int = 0) -> np.ndarray:
+    """A vertical bob that starts and ends at rest: c(t) = A sin(w t) sin^2(pi t / T) in y,
+    and its derivatives d = 0, 1, 2; shape (len(t), 3)."""
+    t = np.atleast_1d(np.asarray(t, float))
+    w, k = 2 * np.pi * HZ, 2 * np.pi / T_END
+    a = [AMP * np.sin(w * t), AMP * w * np.cos(w * t), -AMP * w * w * np.sin(w * t)]
+    s = [(1 - np.cos(k * t)) / 2, k / 2 * np.sin(k * t), k * k / 2 * np.cos(k * t)]
+    c = [a[0] * s[0], a[1] * s[0] + a[0] * s[1], a[2] * s[0] + 2 * a[1] * s[1] + a[0] * s[2]]
+    out = np.zeros((len(t), 3))
+    out[:, 1] = c[d]
+    return out
+
+
+@pytest.fixture(scope="module")
+def bar(tmp_path_factory):
+    """A soft bar (a tet mesh, so no tetrahedralizer runs), no gravity; the base (x < 0.12)
+    is driven, the rest is free."""
+    import meshio
+
+    folder = tmp_path_factory.mktemp("secondary")
+    V, T = box_mesh(SHAPE, SIZE)
+    meshio.write(folder / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+    body = wiggly.prepare(str(folder / "bar.vtu"), n_modes=12,
+                          material=Material(2e5, 0.3, 1000.0),
+                          damping=Damping(alpha=0.4, beta=0.002), gravity=(0.0, 0.0, 0.0),
+                          cache_dir=False)
+    X = body.surface.vertices
+    driven = np.flatnonzero(X[:, 0] < 0.12)
+    return body, driven
+
+
+def bob_driver(body, fps: float = 120.0) -> Driver:
+    X = body.surface.vertices
+    times = np.arange(round(T_END * fps) + 1) / fps
+    return Driver(times, X[None] + bob(times)[:, None, :], body.surface.faces,
+                  np.zeros((0, 2)), "bob.npz", "test")
+
+
+def full_space_reference(body, driven, times, dt):
+    """Free tet vertices' displacement relative to the bob, from linear FEM with the driven
+    tet vertices prescribed (u = c(t) there): M_ff x'' + D_ff x' + K_ff x = -M_f. 1 (c'' +
+    alpha c') (K and beta K annihilate translations), Newmark average acceleration."""
+    n = body.tets.n_vertices
+    held = fixed_from_surface(body.model, driven)
+    fixed = np.zeros(3 * n, bool)
+    fixed[(3 * held[:, None] + np.arange(3)).ravel()] = True
+    f = ~fixed
+    M, K = body.M.tocsr(), body.K.tocsr()
+    Mff, Kff = M[f][:, f], K[f][:, f]
+    alpha, beta = body.damping.alpha, body.damping.beta
+    C = alpha * Mff + beta * Kff
+    Mf1 = M[f] @ np.tile(np.eye(3), (n, 1))
+    A = factorize_spd((Mff + dt / 2 * C + dt * dt / 4 * Kff).tocsr())
+    x = np.zeros(int(f.sum()))
+    v, a = np.zeros_like(x), np.zeros_like(x)
+    steps = round(T_END / dt)
+    out = [x.copy()]
+    for k in range(steps):
+        t1 = (k + 1) * dt
+        rhs = -(Mf1 @ (bob(t1, 2)[0] + alpha * bob(t1, 1)[0]))
+        rhs -= C @ (v + dt / 2 * a) + Kff @ (x + dt * v + dt * dt / 4 * a)
+        a1 = A(rhs)
+        x, v, a = x + dt * v + dt * dt / 4 * (a + a1), v + dt / 2 * (a + a1), a1
+        out.append(x.copy())
+    out = np.array(out)
+    grid = np.arange(steps + 1) * dt
+    U = np.zeros((len(times), 3 * n))
+    for j in range(int(f.sum())):
+        U[:, np.flatnonzero(f)[j]] = np.interp(times, grid, out[:, j])
+    E = body.surface_embedding
+    return np.stack([E @ u.reshape(n, 3) for u in U])
+
+
+def relative_motion(anim, times):
+    """Surface positions minus the bob's, (F, p, 3)."""
+    X = anim.body.surface.vertices
+    return anim.positions(times) - (X[None] + bob(times)[:, None, :])
+
+
+def test_free_modes_are_fixed_interface_modes(bar):
+    body, driven = bar
+    psi, lam = free_modes(body, driven, 10)
+    held = fixed_from_surface(body.model, driven)
+    assert np.abs(psi.reshape(-1, 3, 10)[held]).max() == 0.0
+    np.testing.assert_allclose(psi.T @ (body.M @ psi), np.eye(10), atol=1e-9)
+    KP = psi.T @ (body.K @ psi)
+    np.testing.assert_allclose(KP, np.diag(lam), atol=1e-8 * lam.max())
+    assert np.all(np.diff(lam) >= 0) and lam[0] > 0
+
+
+def test_modes_solve_the_forced_ode(bar):
+    """Without keys on the free parts E = 0: q'' + 2 delta q' + lambda q + p(t) = 0 at every
+    time, p = Psi^T M (ubar'' + alpha ubar') from the rig spline (computed here, not by the
+    solver), and the motion starts at rest relative to the driver."""
+    body, driven = bar
+    anim = secondary_motion(body, bob_driver(body, 30.0), driven, start=0.0, end=T_END,
+                            warped=False, free_mode_count=12)
+    psi, lam = anim.psi, free_modes(body, driven, 12)[1]
+    delta = 0.5 * (body.damping.alpha + body.damping.beta * lam)
+    t = np.linspace(0.0, T_END, 397)[1:-1]
+    q, dq, ddq = anim.modal(t, 2)
+    p = (psi.T @ (body.M @ (anim.rig(t, 2) + body.damping.alpha * anim.rig(t, 1)).T)).T
+    residual = ddq + 2 * delta * dq + lam * q + p
+    assert np.abs(residual).max() < 1e-8 * np.abs(p).max()
+    assert anim.energy() < 1e-12 * np.sum(p**2)
+    q0, dq0 = anim.modal([0.0], 1)
+    assert np.abs(q0).max() < 1e-15 and np.abs(dq0).max() < 1e-15  # at rest, no gravity
+
+
+def test_rig_spline_is_c2_cubic_through_frames():
+    """FrameSpline interpolates, is C^2 at interior frames, reproduces cubics exactly
+    (not-a-knot) and holds its pose outside the frames."""
+    times = np.array([0.0, 0.3, 0.5, 0.9, 1.4, 2.0])
+    cubic = np.stack([1 + times - 2 * times**2 + 0.5 * times**3, times**3], 1)
+    s = FrameSpline.fit(times, cubic)
+    t = np.linspace(0.0, 2.0, 57)
+    np.testing.assert_allclose(s(t)[:, 1], t**3, atol=1e-12)
+    np.testing.assert_allclose(s(t, 2)[:, 0], -4 + 3 * t, atol=1e-10)
+    rng = np.random.default_rng(3)
+    s = FrameSpline.fit(times, rng.normal(size=(6, 4)))
+    for tk in times[1:-1]:
+        left, right = s([tk - 1e-9], 2), s([tk + 1e-9], 2)
+        np.testing.assert_allclose(left, right, atol=1e-5)
+    np.testing.assert_allclose(s([-1.0, 3.0]), s.values[[0, -1]])
+    assert np.all(s([-1.0, 3.0], 1) == 0)
+
+
+def test_matches_full_space_simulation_on_a_bob(bar):
+    """The bar's free part relative to the bob: wiggly's linear solve against a full-space
+    simulation whose time error is checked by halving; the rms ratio is near 1, the
+    trajectory difference small, and it shrinks as free modes are added."""
+    body, driven = bar
+    times = np.linspace(0.0, T_END, 121)
+    ref = full_space_reference(body, driven, times, 1 / 1600)
+    ref2 = full_space_reference(body, driven, times, 1 / 3200)
+    free = np.setdiff1d(np.arange(body.surface.n_vertices), driven)
+
+    def rms(R):
+        return float(np.sqrt(np.mean(np.sum(R[:, free] ** 2, -1))))
+
+    assert rms(ref - ref2) < 1e-3 * rms(ref2)  # the reference's own time error
+    assert rms(ref2) > 2e-3  # the free end swings by millimetres
+    errors = []
+    for count in (4, 24):
+        anim = secondary_motion(body, bob_driver(body), driven, start=0.0, end=T_END,
+                                warped=False, free_mode_count=count)
+        rel = relative_motion(anim, times)
+        errors.append(rms(rel - ref2) / rms(ref2))
+        assert 0.9 < rms(rel) / rms(ref2) < 1.1
+    assert errors[1] < 0.05 and errors[1] < errors[0]
+
+
+def test_driven_group_follows_and_warp_is_second_order(bar):
+    """The driven group follows the driver (linear and warped), and the warped motion differs
+    from the linear one at second order: W(u) = u + O(|u|^2), so halving the swing (the
+    intensity; the rig is a translation) quarters the difference."""
+    body, driven = bar
+    drv = bob_driver(body, 30.0)
+    times = np.linspace(0.0, T_END, 31)
+    gaps = []
+    for intensity in (1.0, 0.5):
+        lin, war = (secondary_motion(body, drv, driven, start=0.0, end=T_END, warped=w,
+                                     intensity=intensity) for w in (False, True))
+        for anim in (lin, war):
+            P = anim.positions(drv.times)
+            assert np.abs(P[:, driven] - drv.positions[:, driven]).max() < 1e-7
+        gaps.append(np.abs(relative_motion(lin, times) - relative_motion(war, times)).max())
+    assert 3.5 < gaps[0] / gaps[1] < 4.5, gaps
+
+
+def test_intensity_scales_the_swing_not_the_timing(bar):
+    body, driven = bar
+    drv = bob_driver(body, 30.0)
+    times = drv.times  # at the frames, the rig is the driver
+    one = relative_motion(secondary_motion(body, drv, driven, start=0.0, end=T_END,
+                                           warped=False), times)
+    two = relative_motion(secondary_motion(body, drv, driven, start=0.0, end=T_END,
+                                           warped=False, intensity=2.0), times)
+    zero = relative_motion(secondary_motion(body, drv, driven, start=0.0, end=T_END,
+                                            warped=False, intensity=0.0), times)
+    assert np.abs(zero).max() < 1e-9
+    np.testing.assert_allclose(two, 2 * one, atol=1e-9 * np.abs(one).max())
+
+
+def test_loop_is_seamless(bar):
+    """A periodic shot: positions and velocities at the end equal those at the start."""
+    body, driven = bar
+    X = body.surface.vertices
+    times = np.arange(31) / 30.0
+    c = np.zeros((31, 3))
+    c[:, 1] = 0.02 * np.sin(2 * np.pi * times)
+    drv = Driver(times, X[None] + c[:, None, :], body.surface.faces, np.zeros((0, 2)),
+                 "loop.npz", "test")
+    for warped in (False, True):
+        anim = secondary_motion(body, drv, driven, start=0.0, end=1.0, warped=warped,
+                                loop=True)
+        P, V = anim.positions([0.0, 1.0]), anim.velocities_at([0.0, 1.0])
+        assert np.abs(P[1] - P[0]).max() < 1e-9
+        assert np.abs(V[1] - V[0]).max() < 1e-7 * max(1.0, np.abs(V).max())
+        assert np.abs(P[0] - X).max() > 1e-4  # the free end is not at rest at the seam
+
+
+@pytest.mark.parametrize("warped", [False, True])
+def test_sparse_keys_on_the_free_parts_are_met(bar, warped):
+    """'The tip is back where the driver puts it, and still, at 0.7 s': the key's residual is
+    below a millimetre although the bob keeps the tip swinging there without it."""
+    body, driven = bar
+    drv = bob_driver(body, 30.0)
+    X = body.surface.vertices
+    tip = np.flatnonzero(X[:, 0] > 0.5)
+    t_key = 0.7
+    target = X[tip] + bob([t_key])[0]
+    key = Keyframe(t_key, tip, position=target, velocity=np.tile(bob([t_key], 1)[0],
+                                                                 (len(tip), 1)),
+                   stiffness=1e6, name="tip still")
+    free = secondary_motion(body, drv, driven, start=0.0, end=T_END, warped=warped)
+    keyed = secondary_motion(body, drv, driven, [key], start=0.0, end=T_END, warped=warped)
+    before = np.abs(free.positions([t_key])[0][tip] - target).max()
+    after = np.abs(keyed.positions([t_key])[0][tip] - target).max()
+    assert before > 2e-3 and after < 5e-4 and after < 0.05 * before
+    if warped:
+        assert keyed.info["converged"] and keyed.info["iterations"] <= 10
+
+
+def test_unwarp_kernel_matches_svd_and_inverts_the_warp():
+    """The compiled polar/log pass equals the SVD path, and its gradients warp back to F."""
+    from scipy.linalg import expm
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(7)
+    R = Rotation.from_rotvec(rng.normal(size=(200, 3)) * 0.4).as_matrix()  # < MAX_ANGLE
+    S = np.eye(3) + 0.1 * (lambda a: a + a.transpose(0, 2, 1))(rng.normal(size=(200, 3, 3)))
+    F = R @ S
+    keep = (Rotation.from_matrix(R).magnitude() < 1.9) & (np.linalg.det(S) > 0.3)  # no fallback
+    F = F[keep]
+    A = unwarp_gradients(F)
+    np.testing.assert_allclose(A, _unwarp_numpy(F), atol=1e-10)
+    w = np.stack([A[:, 2, 1] - A[:, 1, 2], A[:, 0, 2] - A[:, 2, 0], A[:, 1, 0] - A[:, 0, 1]],
+                 1) / 2
+    sym = (A + A.transpose(0, 2, 1)) / 2
+    for k in range(0, len(F), 17):
+        W = np.array([[0, -w[k, 2], w[k, 1]], [w[k, 2], 0, -w[k, 0]], [-w[k, 1], w[k, 0], 0]])
+        np.testing.assert_allclose(expm(W) @ (np.eye(3) + sym[k]), F[k], atol=1e-9)
+
+
+def test_bad_drivers_are_refused(bar, tmp_path):
+    body, driven = bar
+    X = body.surface.vertices
+    one = Driver(np.array([0.0]), X[None], body.surface.faces, np.zeros((0, 2)), "still.npz",
+                 "test")
+    with pytest.raises(WigglyInputError, match=r"still\.npz.*animated driver"):
+        secondary_motion(body, one, driven, start=0.0, end=1.0)
+    everything = np.arange(body.surface.n_vertices)
+    with pytest.raises(WigglyInputError, match="nothing is left free"):
+        secondary_motion(body, bob_driver(body, 30.0), everything, start=0.0, end=1.0)
+
+
+def test_usd_without_time_samples_is_refused(tmp_path):
+    pytest.importorskip("pxr")
+    from pxr import Usd, UsdGeom, Vt
+
+    stage = Usd.Stage.CreateNew(str(tmp_path / "still.usda"))
+    mesh = UsdGeom.Mesh.Define(stage, "/cube")
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray([3]))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray([0, 1, 2]))
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.eye(3, dtype=np.float32)))
+    stage.GetRootLayer().Save()
+    with pytest.raises(WigglyInputError, match=r"still\.usda.*no animation"):
+        read_driver(tmp_path / "still.usda")
