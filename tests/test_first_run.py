@@ -13,26 +13,11 @@ from pathlib import Path
 import pytest
 import tomli_w
 
+from tests.test_batch import SCENE  # the bundled bar, its tip pulled up: a warped shot
 from wiggly.cli import main
 from wiggly.warp import compiled, kernels
 
 needs_numba = pytest.mark.skipif(not compiled.AVAILABLE, reason="numba is not installed")
-
-SCENE = {
-    "mesh": {"path": "builtin:bar", "resolution": 6},
-    "simulation": {"modes": 8, "fixed": ["left"]},
-    "time": {"end": 1.0, "fps": 10},
-    "groups": {
-        "left": {"box": {"min": [-0.01, -1.0, -1.0], "max": [0.01, 1.0, 1.0]}},
-        "tip": {"sphere": {"center": [1.0, 0.0, 0.0], "radius": 0.06}},
-    },
-    "keyframes": [
-        {"time": 0.0, "group": "tip", "position": "rest", "velocity": [0.0, 0.0, 0.0]},
-        {"time": 0.5, "group": "tip", "position": {"offset": [0.0, 0.1, 0.0]}},
-    ],
-    "output": {"paths": ["out/bar.npz"]},
-}
-
 
 def write_scene(folder: Path) -> Path:
     path = folder / "shot.toml"
