@@ -305,6 +305,12 @@ class InProcessPool:
     def cached_body(self, key):
         return None
 
+    def keep_warnings(self, key, messages):
+        pass
+
+    def kept_warnings(self, key):
+        return []
+
     def body_job(self, key, scene, mesh_file):
         return BodyJob(key, scene, target=str(self.bodies / f"{key}.pickle"))
 
@@ -381,8 +387,7 @@ def test_an_interrupted_batch_leaves_whole_folders(tmp_path, monkeypatch):
     records = json.loads((out / "summary.json").read_text())["shots"]
     assert [r["status"] for r in records] == ["done", "not run", "done", "not run"]
     assert sorted(p.name for p in out.iterdir()) == \
-        [".wiggly-batch", ".wiggly-batch.lock", "summary.csv", "summary.json", "sweep-0000",
-         "sweep-0002"]
+        [".wiggly-batch", "summary.csv", "summary.json", "sweep-0000", "sweep-0002"]
     monkeypatch.setattr(InProcessPool, "hook", staticmethod(lambda names: None))
     records = run(write_sweep(tmp_path), out, contact_sheet=False)
     assert [r["resumed"] for r in records] == [True, False, True, False]
