@@ -277,6 +277,16 @@ class Body:
         return B @ (m / w)
 
 
+def tets_of(model: Model, vertices: np.ndarray, on: Where = "surface") -> np.ndarray:
+    """Indices of the tets that belong to a vertex group: those whose four corners all carry
+    the group (surface vertices: the corners of the tets that contain them)."""
+    held = fixed_from_surface(model, vertices) if on == "surface" else \
+        np.asarray(vertices, np.int64)
+    mask = np.zeros(model.tets.n_vertices, bool)
+    mask[held] = True
+    return np.flatnonzero(mask[model.tets.tets].all(axis=1))
+
+
 def fixed_from_surface(model: Model, surface_vertices: np.ndarray) -> np.ndarray:
     """Tet vertices carrying the given surface vertices (the corners of their tets)."""
     idx = np.asarray(surface_vertices, np.int64)
@@ -305,12 +315,15 @@ def prepare(
     cache_dir: str | os.PathLike[str] | Literal[False] | None = None,
     resolution: int | None = None,
     edge_length: float | None = None,
+    young: np.ndarray | None = None,
     progress: bool = False,
 ) -> Body:
     """Load (if a path), assemble M and K, compute ``n_modes`` eigenmodes (cached on disk).
 
     ``fixed_vertices`` are tet-mesh vertex indices (see :func:`fixed_from_surface` to fix
     by surface vertices).  ``n_modes`` counts the rigid modes of a free body (6).
+    ``young`` gives a Young's modulus per tet (Pa) in place of ``material.young``, e.g. a
+    softer tail (:func:`tets_of` selects a vertex group's tets).
     """
     if not isinstance(model, Model):
         path = Path(model)
@@ -326,7 +339,7 @@ def prepare(
     if progress:
         _say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")
     M = mass_matrix(V, T, material.density, lumped=lumped)
-    K = stiffness_matrix(V, T, material.young, material.poisson)
+    K = stiffness_matrix(V, T, material.young if young is None else young, material.poisson)
     modes = compute_modes(
         K, M, n_modes, vertices=V, fixed_vertices=fixed, cache_dir=cache_dir, progress=progress
     )

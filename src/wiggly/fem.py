@@ -216,7 +216,9 @@ def mass_matrix(
     return _assemble_blocks(T, n, blocks)
 
 
-def stiffness_matrix(V: np.ndarray, T: np.ndarray, young: float, poisson: float) -> sp.csr_matrix:
+def stiffness_matrix(
+    V: np.ndarray, T: np.ndarray, young: float | np.ndarray, poisson: float
+) -> sp.csr_matrix:
     """Stiffness matrix K of isotropic linear elasticity on P1 tets (Schulz et al. 2014, eq. (1)).
 
     The elastic energy ``int mu eps:eps + lambda/2 tr(eps)^2 = 1/2 u^T K u`` with
@@ -229,8 +231,9 @@ def stiffness_matrix(V: np.ndarray, T: np.ndarray, young: float, poisson: float)
     Parameters
     ----------
     V, T : rest positions (n, 3) and tets (m, 4), see :func:`tet_gradients`.
-    young : float
-        Young's modulus E in Pa, > 0.
+    young : float or (m,) array
+        Young's modulus E in Pa, > 0: one for the body, or one per tet (a softer tail on a
+        stiffer body).
     poisson : float
         Poisson's ratio nu in [0, 0.5).
 
@@ -239,8 +242,19 @@ def stiffness_matrix(V: np.ndarray, T: np.ndarray, young: float, poisson: float)
     K : (3n, 3n) scipy.sparse.csr_matrix, symmetric positive semi-definite; its null space
         contains the rigid motions (6 for a connected body).
     """
-    lam, mu = lame_parameters(young, poisson)
     V, T = _check_mesh(V, T)
+    if np.ndim(young) == 0:
+        lam, mu = lame_parameters(float(young), poisson)
+    else:
+        E = np.asarray(young, dtype=np.float64)
+        if E.shape != (len(T),):
+            raise WigglyInputError(f"young should be a number or one per tet ({len(T)},); "
+                                   f"shape is {E.shape}")
+        if not np.all(np.isfinite(E) & (E > 0)):
+            raise WigglyInputError("young (Young's modulus) should be finite and > 0 Pa in "
+                                   f"every tet; got {E[~(np.isfinite(E) & (E > 0))][0]!r}")
+        lam1, mu1 = lame_parameters(1.0, poisson)
+        lam, mu = (lam1 * E)[:, None, None], (mu1 * E)[:, None, None]
     grads, vol = tet_gradients(V, T)
     g = np.ascontiguousarray(np.moveaxis(grads * np.sqrt(vol)[:, None, None], 2, 0))  # (3,m,4)
     dots = mu * np.einsum("cea,ceb->eab", g, g)  # mu vol (g_a . g_b)

@@ -222,7 +222,7 @@ def body_scene(scene: Scene) -> Scene:
     Damping and gravity are applied per shot (they change only the per-mode coefficients), so
     shots that differ in them share the body."""
     sim = scene.simulation
-    groups = set(sim.fixed)
+    groups = set(sim.fixed) | {g for g, spec in scene.groups.items() if spec.young is not None}
     extra = {}
     if scene.drive is not None and scene.drive.adds_shapes:  # the driver's shapes join the modes
         groups |= set(scene.drive.groups)

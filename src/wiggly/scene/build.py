@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from wiggly import mesh as meshing
-from wiggly.body import Damping, fixed_from_surface, prepare
+from wiggly.body import Damping, fixed_from_surface, prepare, tets_of
 from wiggly.errors import WigglyInputError, counted
 from wiggly.fem import Material
 from wiggly.keyframes import Keyframe
@@ -150,10 +150,23 @@ def modes_key(scene: Scene) -> tuple:
     """What a scene's M, K and modes (with a driver's shapes) depend on besides its mesh (a
     value key)."""
     s = scene.simulation
-    key = (scene.material, s.modes, s.lumped_mass, tuple((g, scene.groups[g]) for g in s.fixed))
+    key = (scene.material, s.modes, s.lumped_mass, tuple((g, scene.groups[g]) for g in s.fixed),
+           tuple((g, spec) for g, spec in scene.groups.items() if spec.young is not None))
     if scene.drive is not None and scene.drive.adds_shapes:
         key += (scene.drive, tuple((g, scene.groups[g]) for g in scene.drive.groups), s.warp)
     return key
+
+
+def young_of(scene: Scene, model, groups: dict[str, np.ndarray]) -> np.ndarray | None:
+    """Young's modulus per tet with groups of their own (``[groups.<name>] young``; later
+    groups win where they overlap), or None when every tet has ``[material] young``."""
+    soft = [(g, spec) for g, spec in scene.groups.items() if spec.young is not None]
+    if not soft:
+        return None
+    young = np.full(model.tets.n_tets, float(scene.material.young))
+    for g, spec in soft:
+        young[tets_of(model, groups[g], spec.on)] = spec.young
+    return young
 
 
 def body_of(scene: Scene, model, groups: dict[str, np.ndarray], *, progress: bool = False,
@@ -171,7 +184,7 @@ def body_of(scene: Scene, model, groups: dict[str, np.ndarray], *, progress: boo
                  "gravity": s.gravity}
     body = prepare(model, material=Material(m.young, m.poisson, m.density),
                    fixed_vertices=fixed_vertices, n_modes=s.modes, lumped=s.lumped_mass,
-                   progress=progress, **extra)
+                   young=young_of(scene, model, groups), progress=progress, **extra)
     return driven_body(scene, body, groups, progress)  # + the driver's shapes ([drive])
 
 

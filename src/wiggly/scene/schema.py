@@ -103,7 +103,7 @@ def _make_group(d: dict) -> GroupSpec:
     sel = d[kind]
     selector = Indices(sel) if kind == "indices" else FromMesh(sel) if kind == "from_mesh" \
         else sel
-    return GroupSpec(selector, d.get("on", "surface"), d.get("color"))
+    return GroupSpec(selector, d.get("on", "surface"), d.get("color"), d.get("young"))
 
 
 _GROUP = _Table(
@@ -112,7 +112,11 @@ _GROUP = _Table(
                    doc='"surface" (default): vertices of the user\'s surface; "tets": '
                        "vertices of the tet mesh"),
      "color": _String(pattern=r"^#[0-9a-fA-F]{6}$", what='a color "#rrggbb"',
-                      doc="color in previews and the editor")},
+                      doc="color in previews and the editor"),
+     "young": _Number(unit="Pa", **_POSITIVE,
+                      doc="Young's modulus (Pa) of the group's tets (those whose corners all "
+                          "carry the group) in place of [material] young: a softer tail on a "
+                          "stiffer body; later groups win where groups overlap")},
     one_of=tuple(_SELECTOR_SPECS), make=_make_group,
     doc="a named vertex group: exactly one selector")
 

@@ -166,11 +166,13 @@ _SELECTOR_KEYS = {Box: "box", Sphere: "sphere", Nearest: "nearest", Indices: "in
 
 @dataclass(frozen=True)
 class GroupSpec:
-    """``[groups.<name>]``: one selector; ``on`` = "surface" (default) or "tets"."""
+    """``[groups.<name>]``: one selector; ``on`` = "surface" (default) or "tets"; ``young``:
+    a Young's modulus (Pa) of the group's tets in place of ``[material] young``."""
 
     selector: Selector
     on: str = "surface"
     color: str | None = None
+    young: float | None = None
 
 
 @dataclass(frozen=True)

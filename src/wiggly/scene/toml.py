@@ -83,6 +83,8 @@ def _group_to_dict(g: GroupSpec) -> dict:
         d["on"] = g.on
     if g.color is not None:
         d["color"] = g.color
+    if g.young is not None:
+        d["young"] = g.young
     return d
 
 
