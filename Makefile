@@ -4,7 +4,7 @@ VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.installed
 
-.PHONY: demo test venv kernels system-render-deps system-test-deps blender cholmod bench lint docs clean
+.PHONY: demo test venv kernels system-render-deps system-test-deps blender blender-addon cholmod bench lint docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -37,7 +37,7 @@ system-render-deps:
 
 ## Lint and run the test suite (installs what the tests need).
 test: $(STAMP) kernels system-render-deps system-test-deps blender
-	$(BIN)/ruff check src tests benchmarks scripts
+	$(BIN)/ruff check src tests benchmarks scripts blender
 	$(BIN)/python -m pytest -q -n 2 -p no:cacheprovider
 
 ## System packages the tests use when available: headless Chromium (browser editor tests)
@@ -70,6 +70,12 @@ blender:
 	  || echo "[make] could not install bpy (it needs Python 3.11); the Blender test will skip"; \
 	fi
 
+## The Blender extension (blender/wiggly_blender) as an installable zip in $(BLENDER_ADDON_DIR)/
+## (Blender 4.2+: Edit > Preferences > Get Extensions > Install from Disk); docs/blender.md.
+BLENDER_ADDON_DIR ?= dist
+blender-addon:
+	@$(PYTHON) blender/build_extension.py $(BLENDER_ADDON_DIR)
+
 ## Optional speed-up: CHOLMOD sparse Cholesky (SuiteSparse) on OpenBLAS for large bodies
 ## (on a 105k-tet box: factorization 24 s with the reference BLAS, 2.6 s with OpenBLAS).
 cholmod: $(STAMP)
@@ -94,7 +100,7 @@ docs: $(STAMP)
 	@echo "[make] docs: docs/_build/html/index.html"
 
 lint: $(STAMP)
-	$(BIN)/ruff check src tests benchmarks scripts
+	$(BIN)/ruff check src tests benchmarks scripts blender
 
 clean:
 	rm -rf $(VENV) $(BLENDER_VENV) build dist *.egg-info .pytest_cache .ruff_cache wiggly-demo

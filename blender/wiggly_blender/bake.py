@@ -1,0 +1,126 @@
+"""Baking wiggly's result back onto the object: a Mesh Cache modifier playing a PC2 point
+cache, or a shape key per frame. A bake replaces only wiggly's own previous bake (the modifier
+named "Wiggly bake", the shape keys "wiggly.NNNN" and their F-curves); the object's own
+modifiers, shape keys and animation stay as they are."""
+
+from __future__ import annotations
+
+import re
+import struct
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+from .blender_data import fcurves_of, new_fcurve, remove_fcurves
+from .shot import BAKE_NAME, DEFORMING, DRIVER_STACK, SHAPE_PREFIX, Shot, ShotError, _replace
+
+
+def read_result(path: Path, shot: Shot) -> np.ndarray:
+    """Positions (F, V, 3) of wiggly's npz result on the shot's frames, object-local."""
+    with np.load(path, allow_pickle=False) as data:
+        times, positions = data["times"], data["positions"].astype(np.float64)
+    frames = shot.frame_start + np.rint(times * shot.fps).astype(np.int64)
+    if not np.array_equal(frames, shot.frames) or positions.shape[1] != len(shot.rest):
+        raise ShotError(f"wiggly's result {path} has frames {frames[0]}-{frames[-1]} and "
+                        f"{positions.shape[1]} vertices; expected frames {shot.frame_start}-"
+                        f"{shot.frame_end} and {len(shot.rest)} (a different wiggly version?)")
+    return shot.local(positions)
+
+
+def write_pc2(path: Path, local: np.ndarray, frame_start: int) -> None:
+    """A PC2 point cache: header, then float32 x y z of every vertex of every frame."""
+    F, V, _ = local.shape
+    header = struct.pack("<12siiffi", b"POINTCACHE2\0", 1, V, float(frame_start), 1.0, F)
+    _replace(path, lambda f: (f.write(header),
+                              f.write(np.ascontiguousarray(local, "<f4").tobytes())))
+
+
+def remove_bake(obj) -> int:
+    """Remove wiggly's bake from ``obj`` (modifier, shape keys and their F-curves); the count
+    of things removed."""
+    gone = 0
+    for mod in [m for m in obj.modifiers if m.type == "MESH_CACHE" and m.name == BAKE_NAME]:
+        obj.modifiers.remove(mod)
+        gone += 1
+    keys = obj.data.shape_keys
+    if keys is not None:
+        remove_fcurves(keys, lambda path: not path.startswith(f'key_blocks["{SHAPE_PREFIX}'))
+        for block in [k for k in keys.key_blocks if k.name.startswith(SHAPE_PREFIX)]:
+            obj.shape_key_remove(block)
+            gone += 1
+    return gone
+
+
+def cache_path(obj) -> Path:
+    folder = obj.wiggly.cache_dir or "//wiggly/"
+    if folder.startswith("//") and not bpy.data.filepath:
+        raise ShotError(f"Object '{obj.name}': the cache folder {folder} is relative to the "
+                        ".blend file, which is not saved yet: save it, or pick an absolute "
+                        "Cache folder")
+    directory = Path(bpy.path.abspath(folder))
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ShotError(f"Object '{obj.name}': cannot make the cache folder {directory}: "
+                        f"{e.strerror}") from None
+    return directory / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', obj.name)}_wiggly.pc2"
+
+
+def bake_mesh_cache(obj, shot: Shot, local: np.ndarray) -> Path:
+    """Write the PC2 file and play it with a Mesh Cache modifier placed where the solve took
+    the mesh: after the driver's modifiers (a driven shot) or the modifiers that only deform,
+    before any that make new geometry (so a Subdivision Surface below it still smooths the
+    result)."""
+    path = cache_path(obj)
+    write_pc2(path, local, shot.frame_start)
+    remove_bake(obj)
+    mod = obj.modifiers.new(BAKE_NAME, "MESH_CACHE")
+    mod.cache_format = "PC2"
+    mod.filepath = bpy.path.relpath(str(path)) if bpy.data.filepath else str(path)
+    mod.time_mode, mod.play_mode, mod.deform_mode = "FRAME", "SCENE", "OVERWRITE"
+    mod.interpolation = "LINEAR"
+    mod.frame_start = float(shot.frame_start)  # cache frame k plays on scene frame start + k
+    mod.frame_scale = 1.0
+    mod.forward_axis, mod.up_axis = "POS_Y", "POS_Z"  # as written: the object's own axes
+    stack = DRIVER_STACK if shot.driver is not None else DEFORMING
+    index = next((i for i, m in enumerate(obj.modifiers)
+                  if m.type not in stack and m != mod), len(obj.modifiers) - 1)
+    obj.modifiers.move(len(obj.modifiers) - 1, index)
+    return path
+
+
+def bake_shape_keys(obj, shot: Shot, local: np.ndarray) -> int:
+    """A shape key ``wiggly.NNNN`` per frame N, its value 1 on frame N and 0 on the frames
+    next to it (the first and last hold before and after the range)."""
+    if shot.driver is not None:
+        raise ShotError(f"Object '{obj.name}': a driven bake cannot be shape keys (they sit "
+                        "under the modifiers, which would move it twice): bake as Mesh Cache")
+    remove_bake(obj)
+    if obj.data.shape_keys is None:
+        obj.shape_key_add(name="Basis", from_mix=False)
+    keys = obj.data.shape_keys
+    fs, fe = shot.frame_start, shot.frame_end
+    for i, frame in enumerate(shot.frames):
+        name = f"{SHAPE_PREFIX}{frame:04d}"
+        block = obj.shape_key_add(name=name, from_mix=False)
+        block.data.foreach_set("co", local[i].astype(np.float32).ravel())
+        block.slider_min, block.slider_max, block.value = 0.0, 1.0, 0.0
+        points = [(f, float(f == frame)) for f in (frame - 1, frame, frame + 1) if fs <= f <= fe]
+        curve = new_fcurve(keys, f'key_blocks["{name}"].value', f"{keys.name} wiggly")
+        curve.keyframe_points.add(len(points))
+        curve.keyframe_points.foreach_set("co", [c for p in points for c in p])
+        for p in curve.keyframe_points:
+            p.interpolation = "LINEAR"
+        curve.update()
+    return len(shot.frames)
+
+
+def shape_keys_at_work(obj) -> list[str]:
+    """The object's own shape keys that add to a shape-key bake: animated, or with a value."""
+    keys = obj.data.shape_keys
+    if keys is None:
+        return []
+    animated = {c.data_path for c in fcurves_of(keys)}
+    return [k.name for k in keys.key_blocks[1:] if not k.name.startswith(SHAPE_PREFIX)
+            and not k.mute and (k.value != 0 or f'key_blocks["{k.name}"].value' in animated)]

@@ -1,0 +1,367 @@
+"""Operators: bake (modal, Esc cancels), export scene, the group list, handles, remove bake.
+User mistakes are ShotErrors, reported in Blender's status bar and Info log, never a
+traceback."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import bpy
+import numpy as np
+from bpy.props import BoolProperty, StringProperty
+from bpy_extras.io_utils import ExportHelper
+
+from . import bake
+from .shot import ShotError, gather, write_shot
+from .solve import Solve
+
+_running: dict[str, object] = {}  # the one bake in progress: {"op": operator}
+
+
+def _mesh_poll(cls, context) -> bool:
+    obj = context.active_object
+    if obj is None or obj.type != "MESH":
+        cls.poll_message_set("Select a mesh object: wiggly animates the active mesh")
+        return False
+    return True
+
+
+def _prefs(context):
+    addon = context.preferences.addons.get(__package__)
+    return addon.preferences if addon is not None else None
+
+
+def _command(context) -> str:
+    prefs = _prefs(context)
+    return prefs.command if prefs is not None else "wiggly"
+
+
+def _report_warnings(op, shot) -> None:
+    for w in shot.warnings:
+        op.report({"WARNING"}, w)
+
+
+class WIGGLY_OT_bake(bpy.types.Operator):
+    """Solve the shot with wiggly (in its own process) and bake it onto the object as a Mesh
+    Cache or shape keys; Esc cancels"""
+
+    bl_idname = "wiggly.bake"
+    bl_label = "Bake Wiggly"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        if _running:
+            cls.poll_message_set("A wiggly bake is running (Esc cancels it)")
+            return False
+        if not _mesh_poll(cls, context):
+            return False
+        if not len(context.active_object.wiggly.groups):
+            cls.poll_message_set("Add a vertex group to the Wiggly group list first")
+            return False
+        return True
+
+    def _prepare(self, context) -> bool:
+        self.obj = context.active_object
+        self.times = {}
+        t = time.perf_counter()
+        try:
+            self.shot = gather(context, self.obj)
+            self.times["gather"] = time.perf_counter() - t
+            t = time.perf_counter()
+            self.solve = Solve(self.shot, _command(context))
+        except ShotError as e:
+            self.report({"ERROR"}, str(e))
+            return False
+        self.times["write"] = time.perf_counter() - t
+        _report_warnings(self, self.shot)
+        self.solve.start()
+        return True
+
+    def _finish(self, context, code: int) -> set[str]:
+        self.times["wiggly"] = time.perf_counter() - self.solve.started
+        try:
+            if code != 0:
+                raise ShotError(f"wiggly could not solve the shot of '{self.obj.name}': "
+                                f"{self.solve.failure()}")
+            t = time.perf_counter()
+            local = bake.read_result(self.solve.result, self.shot)
+            s = self.obj.wiggly
+            if s.bake_as == "SHAPE_KEYS":
+                others = bake.shape_keys_at_work(self.obj)
+                if others:
+                    self.report({"WARNING"}, f"Object '{self.obj.name}': its own shape keys "
+                                f"{', '.join(others)} add to the baked ones (mute them, or "
+                                "bake as Mesh Cache)")
+                bake.bake_shape_keys(self.obj, self.shot, local)
+                where = "shape keys"
+            else:
+                where = str(bake.bake_mesh_cache(self.obj, self.shot, local))
+            self.times["bake"] = time.perf_counter() - t
+        except ShotError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        finally:
+            self.solve.cleanup()
+        context.scene.frame_set(context.scene.frame_current)
+        sizes = ", ".join(f"{k} {v:.2f} s" for k, v in self.times.items())
+        self.report({"INFO"}, f"Baked {len(self.shot.frames)} frames ({self.shot.frame_start}-"
+                    f"{self.shot.frame_end} at {self.shot.fps:g} fps) of '{self.obj.name}' "
+                    f"into {where} ({sizes})")
+        return {"FINISHED"}
+
+    def execute(self, context):
+        """Blocking (scripts, tests, F3 without a window's event loop)."""
+        if not self._prepare(context):
+            return {"CANCELLED"}
+        return self._finish(context, self.solve.wait())
+
+    def invoke(self, context, event):
+        if not self._prepare(context):
+            return {"CANCELLED"}
+        _running["op"] = self
+        wm = context.window_manager
+        self.timer = wm.event_timer_add(0.2, window=context.window)
+        wm.modal_handler_add(self)
+        self._status(context, "starting")
+        return {"RUNNING_MODAL"}
+
+    def _status(self, context, text: str) -> None:
+        elapsed = time.perf_counter() - self.solve.started
+        if context.workspace is not None:
+            context.workspace.status_text_set(
+                f"wiggly: {self.obj.name}: {text} ({elapsed:.0f} s) | Esc: cancel")
+
+    def _end(self, context) -> None:
+        context.window_manager.event_timer_remove(self.timer)
+        if context.workspace is not None:
+            context.workspace.status_text_set(None)
+        _running.clear()
+
+    def modal(self, context, event):
+        if event.type == "ESC":
+            self.solve.cancel()
+            self.solve.cleanup()
+            self._end(context)
+            self.report({"WARNING"}, f"wiggly bake of '{self.obj.name}' cancelled; nothing "
+                        "changed")
+            return {"CANCELLED"}
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        code = self.solve.poll()
+        if code is None:
+            self._status(context, self.solve.status())
+            return {"PASS_THROUGH"}
+        self._end(context)
+        return self._finish(context, code)
+
+    def cancel(self, context):
+        """Blender ends the operator (e.g. the file is closed): stop wiggly too."""
+        self.solve.cancel()
+        self.solve.cleanup()
+        self._end(context)
+
+
+class WIGGLY_OT_export_scene(bpy.types.Operator, ExportHelper):
+    """Write the shot as a wiggly scene file (TOML) with its rest mesh (OBJ) and driver (npz),
+    to run in `wiggly animate` or `wiggly batch`"""
+
+    bl_idname = "wiggly.export_scene"
+    bl_label = "Export Wiggly Scene"
+    bl_options = {"REGISTER"}
+
+    filename_ext = ".toml"
+    filter_glob: StringProperty(default="*.toml", options={"HIDDEN"})
+    overwrite: BoolProperty(
+        name="Overwrite", default=False,
+        description="Replace existing files (the scene, <name>_rest.obj, <name>_drive.npz)")
+
+    @classmethod
+    def poll(cls, context):
+        return _mesh_poll(cls, context)
+
+    def execute(self, context):
+        obj = context.active_object
+        try:
+            shot = gather(context, obj)
+            files = write_shot(shot, Path(self.filepath), overwrite=self.overwrite)
+        except ShotError as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        _report_warnings(self, shot)
+        self.report({"INFO"}, f"Wrote {files['scene']} (run it with: wiggly animate "
+                    f"{files['scene'].name})")
+        return {"FINISHED"}
+
+
+class WIGGLY_OT_remove_bake(bpy.types.Operator):
+    """Remove wiggly's bake (the Wiggly bake modifier and the wiggly.NNNN shape keys) from the
+    active object; its own modifiers, shape keys and animation stay"""
+
+    bl_idname = "wiggly.remove_bake"
+    bl_label = "Remove Wiggly Bake"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return _mesh_poll(cls, context)
+
+    def execute(self, context):
+        gone = bake.remove_bake(context.active_object)
+        self.report({"INFO"}, f"Removed {gone} bake items" if gone else "No wiggly bake")
+        return {"FINISHED"}
+
+
+class WIGGLY_OT_group_add(bpy.types.Operator):
+    """Use the object's active vertex group in the shot"""
+
+    bl_idname = "wiggly.group_add"
+    bl_label = "Add Wiggly Group"
+    bl_options = {"REGISTER", "UNDO"}
+
+    name: StringProperty(name="Vertex group", description="The vertex group to add (default: "
+                         "the object's active vertex group)")
+
+    @classmethod
+    def poll(cls, context):
+        if not _mesh_poll(cls, context):
+            return False
+        if not context.active_object.vertex_groups:
+            cls.poll_message_set("The object has no vertex groups: make one in Object Data "
+                                 "Properties > Vertex Groups")
+            return False
+        return True
+
+    def execute(self, context):
+        obj = context.active_object
+        name = self.name or obj.vertex_groups.active.name
+        if obj.vertex_groups.get(name) is None:
+            self.report({"ERROR"}, f"Object '{obj.name}' has no vertex group '{name}'")
+            return {"CANCELLED"}
+        s = obj.wiggly
+        if any(g.name == name for g in s.groups):
+            self.report({"WARNING"}, f"Object '{obj.name}': group '{name}' is already in the "
+                        "list")
+            return {"CANCELLED"}
+        item = s.groups.add()
+        item.name = name
+        s.active_group = len(s.groups) - 1
+        return {"FINISHED"}
+
+
+class WIGGLY_OT_group_remove(bpy.types.Operator):
+    """Leave the selected group out of the shot (the vertex group itself stays)"""
+
+    bl_idname = "wiggly.group_remove"
+    bl_label = "Remove Wiggly Group"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        if not _mesh_poll(cls, context):
+            return False
+        s = context.active_object.wiggly
+        if not 0 <= s.active_group < len(s.groups):
+            cls.poll_message_set("Select a group in the list")
+            return False
+        return True
+
+    def execute(self, context):
+        s = context.active_object.wiggly
+        s.groups.remove(s.active_group)
+        s.active_group = max(0, min(s.active_group, len(s.groups) - 1))
+        return {"FINISHED"}
+
+
+def _active_item(context):
+    obj = context.active_object
+    if obj is None or obj.type != "MESH":
+        return None
+    s = obj.wiggly
+    return s.groups[s.active_group] if 0 <= s.active_group < len(s.groups) else None
+
+
+class WIGGLY_OT_add_handle(bpy.types.Operator):
+    """Make an Empty at the group's centre as its handle, keyed at rest on the first frame:
+    key its location and rotation where the group should be (Moving Hold keys: still)"""
+
+    bl_idname = "wiggly.add_handle"
+    bl_label = "Add Handle"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        if not _mesh_poll(cls, context):
+            return False
+        item = _active_item(context)
+        if item is None or item.role != "HANDLE":
+            cls.poll_message_set("Select a group whose role is Handle")
+            return False
+        return True
+
+    def execute(self, context):
+        obj, item = context.active_object, _active_item(context)
+        vg = obj.vertex_groups.get(item.name)
+        if vg is None:
+            self.report({"ERROR"}, f"Object '{obj.name}' has no vertex group '{item.name}'")
+            return {"CANCELLED"}
+        co = [obj.matrix_world @ v.co for v in obj.data.vertices
+              if any(g.group == vg.index and g.weight > 0 for g in v.groups)]
+        if not co:
+            self.report({"ERROR"}, f"Object '{obj.name}', group '{item.name}': the vertex "
+                        "group has no vertices")
+            return {"CANCELLED"}
+        handle = bpy.data.objects.new(f"{item.name} handle", None)
+        handle.empty_display_type = "ARROWS"
+        handle.empty_display_size = 0.25 * max(obj.dimensions) or 0.1
+        handle.location = np.mean(np.array([list(c) for c in co]), axis=0)
+        (obj.users_collection[0] if obj.users_collection else
+         context.scene.collection).objects.link(handle)
+        context.view_layer.update()
+        item.handle = handle  # stores its placement as the rest
+        frame = context.scene.frame_start
+        handle.keyframe_insert("location", frame=frame)
+        handle.keyframe_insert("rotation_euler", frame=frame)
+        return {"FINISHED"}
+
+
+class WIGGLY_OT_set_rest(bpy.types.Operator):
+    """Take the handle's current placement as its rest: where the group is undeformed"""
+
+    bl_idname = "wiggly.set_rest"
+    bl_label = "Set Handle Rest"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        item = _active_item(context)
+        if item is None or item.handle is None:
+            cls.poll_message_set("Select a group with a handle")
+            return False
+        return True
+
+    def execute(self, context):
+        item = _active_item(context)
+        item.rest_matrix = [v for row in item.handle.matrix_world for v in row]
+        return {"FINISHED"}
+
+
+CLASSES = (WIGGLY_OT_bake, WIGGLY_OT_export_scene, WIGGLY_OT_remove_bake, WIGGLY_OT_group_add,
+           WIGGLY_OT_group_remove, WIGGLY_OT_add_handle, WIGGLY_OT_set_rest)
+
+
+def menu_export(self, context):
+    self.layout.operator(WIGGLY_OT_export_scene.bl_idname, text="wiggly scene (.toml)")
+
+
+def register() -> None:
+    for cls in CLASSES:
+        bpy.utils.register_class(cls)
+    bpy.types.TOPBAR_MT_file_export.append(menu_export)
+
+
+def unregister() -> None:
+    bpy.types.TOPBAR_MT_file_export.remove(menu_export)
+    for cls in reversed(CLASSES):
+        bpy.utils.unregister_class(cls)

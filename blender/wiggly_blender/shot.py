@@ -1,0 +1,421 @@
+"""A wiggly shot from Blender's own objects, and its scene file (docs/scene-format.md).
+
+The active mesh at its rest pose (its own vertices, before modifiers and shape keys) is the
+body; the vertex groups listed in the Wiggly panel are its groups; keyed Empties ("handles")
+give rigid partial keyframes; the object's own evaluated animation can drive a group. Blender's
+frame f is shot time (f - frame_start) / fps. Everything is written in wiggly's axes (y up,
+metres), as Blender's OBJ and glTF exporters write them, so the scene also runs and previews in
+``wiggly animate`` / ``wiggly batch`` as is.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .blender_data import fcurves_of
+
+# Blender's z-up world to wiggly's y-up: (x, y, z) -> (x, z, -y)
+Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+BAKE_NAME = "Wiggly bake"  # the Mesh Cache modifier a bake adds (and a re-bake replaces)
+SHAPE_PREFIX = "wiggly."  # the shape keys a bake adds: wiggly.0001, wiggly.0002, ...
+DRIVE_STIFFNESS = 1e12  # wiggly's default for driven keys
+# modifiers that move vertices but keep them (the driver may come from these)
+DEFORMING = {
+    "ARMATURE", "CAST", "CURVE", "DISPLACE", "HOOK", "LAPLACIANDEFORM", "LATTICE", "MESH_DEFORM",
+    "SHRINKWRAP", "SIMPLE_DEFORM", "SMOOTH", "CORRECTIVE_SMOOTH", "LAPLACIANSMOOTH",
+    "SURFACE_DEFORM", "WARP", "WAVE", "MESH_CACHE", "NORMAL_EDIT", "WEIGHTED_NORMAL",
+    "UV_PROJECT", "UV_WARP", "VERTEX_WEIGHT_EDIT", "VERTEX_WEIGHT_MIX",
+    "VERTEX_WEIGHT_PROXIMITY", "DATA_TRANSFER", "MESH_SEQUENCE_CACHE",
+}
+# geometry nodes may deform or generate: a driver keeps them and checks the vertex count
+DRIVER_STACK = DEFORMING | {"NODES"}
+
+
+class ShotError(Exception):
+    """A user mistake: reported in Blender as an error naming the object and group."""
+
+
+@dataclass
+class Shot:
+    """Everything wiggly needs, in wiggly's axes; ``to_local`` maps them back to the object."""
+
+    name: str
+    rest: np.ndarray  # (V, 3) metres, y up
+    triangles: np.ndarray  # (T, 3)
+    groups: dict[str, np.ndarray]  # scene group name -> vertex indices
+    labels: dict[str, str]  # scene group name -> Blender vertex group name
+    keyframes: list[dict]
+    fixed: list[str]
+    driven: list[str]
+    driver: np.ndarray | None  # (F, V, 3) the object's evaluated animation, or None
+    frame_start: int
+    frame_end: int
+    fps: float
+    settings: dict
+    to_local: np.ndarray  # (4, 4): wiggly coordinates -> the object's local coordinates
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def frames(self) -> np.ndarray:
+        return np.arange(self.frame_start, self.frame_end + 1)
+
+    def local(self, positions: np.ndarray) -> np.ndarray:
+        """Positions in wiggly's axes as the object's local coordinates."""
+        return positions @ self.to_local[:3, :3].T + self.to_local[:3, 3]
+
+
+def scene_fps(scene) -> float:
+    return scene.render.fps / scene.render.fps_base
+
+
+def _matrix(m) -> np.ndarray:
+    return np.array([list(row) for row in m], dtype=np.float64)
+
+
+def scene_name(name: str, taken: set[str]) -> str:
+    """A scene group name (letters, digits, ``_``, ``-``) for a Blender vertex group name."""
+    base = re.sub(r"[^A-Za-z0-9_-]", "_", name) or "group"
+    out, k = base, 2
+    while out in taken:
+        out, k = f"{base}_{k}", k + 1
+    taken.add(out)
+    return out
+
+
+def euler_xyz(R: np.ndarray) -> list[float]:
+    """Extrinsic X-then-Y-then-Z Euler angles in degrees of R = Rz Ry Rx (the scene format's)."""
+    sy = -R[2, 0]
+    if abs(sy) < 1 - 1e-12:
+        x, y, z = math.atan2(R[2, 1], R[2, 2]), math.asin(sy), math.atan2(R[1, 0], R[0, 0])
+    else:  # gimbal lock: only x - z (or x + z) is determined; take z = 0
+        y = math.copysign(math.pi / 2, sy)
+        x, z = math.atan2(math.copysign(1, sy) * R[0, 1], R[1, 1]), 0.0
+    return [math.degrees(a) for a in (x, y, z)]
+
+
+def _rigid(m) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation (3, 3) and location (3,) of a world matrix, its scale left out."""
+    loc, rot, _ = m.decompose()
+    return _matrix(rot.to_matrix()), np.array(loc, dtype=np.float64)
+
+
+def _members(mesh, index: int) -> np.ndarray:
+    return np.array([v.index for v in mesh.vertices
+                     if any(g.group == index and g.weight > 0 for g in v.groups)], np.int64)
+
+
+def gather(context, obj) -> Shot:
+    """The shot of mesh object ``obj`` over the scene's frame range; raises ShotError."""
+    scene = context.scene
+    s = obj.wiggly
+    where = f"Object '{obj.name}'"
+    if obj.type != "MESH":
+        raise ShotError(f"{where} is a {obj.type.lower()}, not a mesh")
+    mesh = obj.data
+    V = len(mesh.vertices)
+    if V == 0 or len(mesh.polygons) == 0:
+        raise ShotError(f"{where} has no faces; wiggly animates a closed surface")
+    fs, fe, fps = scene.frame_start, scene.frame_end, scene_fps(scene)
+    if fe <= fs:
+        raise ShotError(f"the scene's frame range {fs}-{fe} is empty; wiggly needs at least "
+                        "two frames")
+    if _transform_animated(obj):
+        raise ShotError(f"{where}: its own location/rotation/scale is animated; wiggly solves "
+                        "in a still placement: animate it with handles or an armature")
+    mesh.calc_loop_triangles()
+    tris = np.empty(3 * len(mesh.loop_triangles), np.int64)
+    mesh.loop_triangles.foreach_get("vertices", tris)
+    tris = tris.reshape(-1, 3)
+    loose = V - len(np.unique(tris))
+    if loose:
+        raise ShotError(f"{where} has {loose} loose vertices (on no face); wiggly needs a "
+                        "surface: delete them (Mesh > Clean Up > Delete Loose)")
+    frame = scene.frame_current, scene.frame_subframe
+    try:
+        scene.frame_set(fs)
+        world = _matrix(obj.matrix_world)
+        unit = scene.unit_settings.scale_length or 1.0
+        to_wiggly = np.eye(4)
+        to_wiggly[:3, :3] = unit * Y_UP @ world[:3, :3]
+        to_wiggly[:3, 3] = unit * Y_UP @ world[:3, 3]
+        if abs(np.linalg.det(to_wiggly[:3, :3])) < 1e-12:
+            raise ShotError(f"{where} has a zero scale")
+        co = np.empty(3 * V)
+        mesh.vertices.foreach_get("co", co)
+        rest = co.reshape(-1, 3) @ to_wiggly[:3, :3].T + to_wiggly[:3, 3]
+        size = float(np.ptp(rest, axis=0).max())
+        groups, labels, keyframes, fixed, driven, warnings = {}, {}, [], [], [], []
+        taken: set[str] = set()
+        if not len(s.groups):
+            raise ShotError(f"{where} has no vertex groups in the Wiggly panel: add the vertex "
+                            "groups to key, fix or drive (+ under Wiggly > Groups)")
+        for item in s.groups:
+            vg = obj.vertex_groups.get(item.name)
+            at = f"{where}, group '{item.name}'"
+            if vg is None:
+                raise ShotError(f"{at}: no such vertex group (renamed or deleted?); the "
+                                f"object's vertex groups are: "
+                                f"{', '.join(g.name for g in obj.vertex_groups) or 'none'}")
+            idx = _members(mesh, vg.index)
+            if not len(idx):
+                raise ShotError(f"{at}: the vertex group has no vertices (assign some with a "
+                                "weight above 0 in Edit Mode)")
+            name = scene_name(item.name, taken)
+            groups[name], labels[name] = idx, item.name
+            if item.role == "FIXED":
+                fixed.append(name)
+            elif item.role == "DRIVEN":
+                driven.append(name)
+            else:
+                keys = _handle_keys(scene, item, at, name, rest[idx], unit, size, fs, fe, fps,
+                                    warnings)
+                keyframes += keys
+        driver = _driver(context, obj, driven, labels, to_wiggly, fs, fe) if driven else None
+    finally:
+        scene.frame_set(frame[0], subframe=frame[1])
+    settings = {k: getattr(s, k) for k in ("modes", "resolution", "warp", "loop")}
+    # Blender keeps float properties in single precision: 0.45 reads 0.44999998807907104
+    settings.update({k: _single(getattr(s, k)) for k in ("young", "poisson", "density",
+                                                          "alpha", "beta", "drive_stiffness")})
+    gravity = Y_UP @ np.array(scene.gravity, np.float64) if scene.use_gravity else np.zeros(3)
+    settings["gravity"] = [_single(g) + 0.0 for g in gravity]
+    return Shot(obj.name, rest, tris, groups, labels, keyframes, fixed, driven, driver, fs, fe,
+                fps, settings, np.linalg.inv(to_wiggly), warnings)
+
+
+def _single(value: float) -> float:
+    """A single-precision property as the decimal number the user typed (7 digits)."""
+    return float(f"{value:.7g}")
+
+
+def _transform_animated(obj) -> bool:
+    paths = ("location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle",
+             "scale", "delta_")
+    return any(c.data_path.startswith(paths) for c in fcurves_of(obj))
+
+
+def _handle_keys(scene, item, at: str, name: str, X: np.ndarray, unit: float, size: float,
+                 fs: int, fe: int, fps: float, warnings: list[str]) -> list[dict]:
+    """Rigid keyframes of one group from its handle's keyframes (Moving Hold keys: still)."""
+    handle = item.handle
+    if handle is None:
+        raise ShotError(f"{at}: the role Handle needs an Empty: Add Handle, or pick one")
+    frames: dict[float, bool] = {}
+    for curve in fcurves_of(handle):
+        for point in curve.keyframe_points:
+            f = float(point.co[0])
+            frames[f] = frames.get(f, False) or point.type == "MOVING_HOLD"
+    inside = {f: still for f, still in frames.items() if fs - 1e-6 <= f <= fe + 1e-6}
+    if len(inside) < len(frames):
+        warnings.append(f"{at}: {len(frames) - len(inside)} keyframes of handle "
+                        f"'{handle.name}' lie outside frames {fs}-{fe} and were left out")
+    if not inside:
+        raise ShotError(f"{at}: its handle '{handle.name}' has no keyframes in frames "
+                        f"{fs}-{fe}; key its location/rotation (I over the viewport), or set "
+                        "the group's role to Fixed")
+    R0, l0 = _rigid(_rest_matrix(item))
+    center = X.mean(axis=0)
+    keys = []
+    for f in sorted(inside):
+        scene.frame_set(math.floor(f), subframe=f - math.floor(f))
+        R1, l1 = _rigid(handle.matrix_world)
+        A = R1 @ R0.T  # Blender's world: x -> A x + b
+        b = l1 - A @ l0
+        Aw = Y_UP @ A @ Y_UP.T  # wiggly's (X = unit Y_UP x): X -> Aw X + unit Y_UP b
+        bw = unit * Y_UP @ b
+        key = {"time": (f - fs) / fps, "group": name}
+        moved = Aw @ center + bw - center
+        if np.abs(Aw - np.eye(3)).max() < 1e-9 and np.abs(moved).max() < 1e-9 * max(size, 1e-9):
+            key["position"] = "rest"
+        else:
+            key["position"] = {"rotation": euler_xyz(Aw), "translation": list(moved),
+                               "center": list(center)}
+        if inside[f]:
+            key["velocity"] = [0.0, 0.0, 0.0]
+        key["stiffness"] = _single(item.stiffness)
+        key["name"] = f"{item.name} @ frame {f:g}" + (" (still)" if inside[f] else "")
+        keys.append(key)
+    return keys
+
+
+def _rest_matrix(item):
+    from mathutils import Matrix
+
+    r = list(item.rest_matrix)
+    return Matrix([r[0:4], r[4:8], r[8:12], r[12:16]])
+
+
+def driver_modifiers(obj) -> tuple[list, list]:
+    """(modifiers the driver is evaluated with, modifiers turned off for it): the driver is
+    the mesh deformed by the stack up to the first modifier that makes new geometry
+    (geometry nodes are kept: the driver checks that they keep the vertices); wiggly's own
+    bake is left out. A deforming modifier after a generating one is a ShotError."""
+    keep, off, generating = [], [], None
+    for mod in obj.modifiers:
+        if mod.type == "MESH_CACHE" and mod.name == BAKE_NAME:
+            off.append(mod)
+        elif generating is not None:
+            if mod.type in DEFORMING and mod.show_viewport and mod.type not in (
+                    "NORMAL_EDIT", "WEIGHTED_NORMAL", "UV_PROJECT", "UV_WARP"):
+                raise ShotError(
+                    f"Object '{obj.name}': modifier '{mod.name}' ({mod.type.lower()}) comes "
+                    f"after '{generating.name}' ({generating.type.lower()}), which changes "
+                    "the vertices; the driver must animate the mesh's own vertices: move "
+                    f"'{generating.name}' below it, or apply it")
+            off.append(mod)
+        elif mod.type in DRIVER_STACK:
+            keep.append(mod)
+        else:
+            generating = mod
+            off.append(mod)
+    return keep, off
+
+
+def _driver(context, obj, driven: list[str], labels: dict, to_wiggly: np.ndarray, fs: int,
+            fe: int) -> np.ndarray:
+    """The object's evaluated animation at frames fs..fe, in wiggly's axes."""
+    scene = context.scene
+    _, off = driver_modifiers(obj)
+    was = [m.show_viewport for m in off]
+    keys = obj.data.shape_keys
+    ours = [k for k in keys.key_blocks if k.name.startswith(SHAPE_PREFIX)] if keys else []
+    muted = [k.mute for k in ours]
+    V = len(obj.data.vertices)
+    out = np.empty((fe - fs + 1, V, 3))
+    try:
+        for m in off:
+            m.show_viewport = False
+        for k in ours:
+            k.mute = True
+        for i, f in enumerate(range(fs, fe + 1)):
+            scene.frame_set(f)
+            evaluated = obj.evaluated_get(context.evaluated_depsgraph_get())
+            m = evaluated.to_mesh()
+            try:
+                n = len(m.vertices)
+                if n != V:
+                    names = ", ".join(f"'{g}'" for g in (labels[d] for d in driven))
+                    raise ShotError(
+                        f"Object '{obj.name}', driven group {names}: its animation has {n} "
+                        f"vertices at frame {f} but the mesh has {V}; a driver must move the "
+                        "mesh's own vertices (a modifier or geometry nodes change their "
+                        "count)")
+                co = np.empty(3 * V)
+                m.vertices.foreach_get("co", co)
+            finally:
+                evaluated.to_mesh_clear()
+            out[i] = co.reshape(-1, 3) @ to_wiggly[:3, :3].T + to_wiggly[:3, 3]
+    finally:
+        for m, w in zip(off, was, strict=True):
+            m.show_viewport = w
+        for k, w in zip(ours, muted, strict=True):
+            k.mute = w
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# the scene file
+
+
+def _value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        return repr(float(v))
+    if isinstance(v, str):
+        return json.dumps(v)
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_value(x)}" for k, x in v.items()) + " }"
+    return "[" + ", ".join(_value(x) for x in v) + "]"
+
+
+def _table(name: str, values: dict) -> str:
+    return f"[{name}]\n" + "".join(f"{k} = {_value(v)}\n" for k, v in values.items())
+
+
+def scene_toml(shot: Shot, mesh_file: str, driver_file: str | None,
+               outputs: list[str]) -> str:
+    """The scene file of ``shot`` (docs/scene-format.md), its files named relative to it."""
+    s = shot.settings
+    parts = [
+        f"# wiggly scene of Blender object {json.dumps(shot.name)}, frames {shot.frame_start}-"
+        f"{shot.frame_end} at {shot.fps:g} fps (frame f is time (f - {shot.frame_start}) / "
+        "fps); y up, metres\nformat = 1\n",
+        _table("mesh", {"path": mesh_file, "resolution": s["resolution"]}),
+        _table("material", {"young": s["young"], "poisson": s["poisson"],
+                            "density": s["density"]}),
+        _table("damping", {"alpha": s["alpha"], "beta": s["beta"]}),
+        _table("simulation", {"gravity": s["gravity"], "modes": s["modes"], "warp": s["warp"],
+                              "fixed": shot.fixed}),
+        _table("time", {"start": 0.0, "end": (shot.frame_end - shot.frame_start) / shot.fps,
+                        "fps": shot.fps, "loop": s["loop"]}),
+    ]
+    for name, idx in shot.groups.items():
+        parts.append(f"# Blender vertex group {json.dumps(shot.labels[name])}\n"
+                     + _table(f"groups.{name}", {"indices": idx.tolist()}))
+    for key in shot.keyframes:
+        parts.append("[[keyframes]]\n" + "".join(f"{k} = {_value(v)}\n" for k, v in key.items()))
+    if shot.driver is not None:
+        parts.append(_table("drive", {"path": driver_file, "group": shot.driven,
+                                      "stiffness": s["drive_stiffness"]}))
+    parts.append(_table("output", {"paths": outputs, "frame_start": shot.frame_start}))
+    return "\n".join(parts)
+
+
+def _replace(path: Path, write) -> None:
+    """Write ``path`` atomically: ``write(file)`` into a temporary file, then rename."""
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def shot_files(toml: Path) -> dict[str, Path]:
+    """The files "Export scene" writes for scene file ``toml``."""
+    stem = toml.stem
+    return {"scene": toml, "mesh": toml.with_name(f"{stem}_rest.obj"),
+            "driver": toml.with_name(f"{stem}_drive.npz"),
+            "output": toml.with_name(f"{stem}_wiggly.glb")}
+
+
+def write_shot(shot: Shot, toml: Path, overwrite: bool = False) -> dict[str, Path]:
+    """Write the scene file ``toml``, its rest mesh (OBJ) and driver (wiggly npz) beside it;
+    an existing file is an error unless ``overwrite``."""
+    files = shot_files(toml)
+    mine = [files["scene"], files["mesh"]] + ([files["driver"]] if shot.driver is not None
+                                              else [])
+    if not toml.parent.is_dir():
+        raise ShotError(f"the folder {toml.parent} does not exist")
+    existing = [str(p) for p in mine if p.exists()]
+    if existing and not overwrite:
+        raise ShotError(f"{', '.join(existing)} already exist; tick Overwrite to replace them")
+
+    def obj(f):
+        f.write(f"# rest mesh of Blender object {shot.name} (y up, metres)\n".encode())
+        np.savetxt(f, shot.rest, fmt="v %.17g %.17g %.17g")
+        np.savetxt(f, shot.triangles + 1, fmt="f %d %d %d")
+
+    _replace(files["mesh"], obj)
+    if shot.driver is not None:
+        times = (shot.frames - shot.frame_start) / shot.fps
+        _replace(files["driver"], lambda f: np.savez(
+            f, format_version=np.array(1), times=times, positions=shot.driver,
+            faces=shot.triangles, name=np.array(shot.name), loop=np.array(False)))
+    text = scene_toml(shot, files["mesh"].name,
+                      files["driver"].name if shot.driver is not None else None,
+                      [files["output"].name])
+    _replace(files["scene"], lambda f: f.write(text.encode()))
+    return files

@@ -1,0 +1,99 @@
+"""Running wiggly out of process: ``wiggly animate`` on the exported shot, in its own
+process group (Esc stops it and whatever it started), its progress read from its output.
+
+Out of process rather than in Blender's Python: Blender pins its own Python and numpy, which
+wiggly's dependencies (scipy, numba, fTetWild, ...) need not match; a separate process keeps
+Blender's interface responsive during a long solve (no GIL shared), can be stopped at once
+and cannot take Blender down with it.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+from .shot import Shot, ShotError, write_shot
+
+
+def wiggly_command(command: str) -> str:
+    """The wiggly program of the preferences as a path; ShotError when it is not there."""
+    path = os.path.expanduser(command.strip() or "wiggly")
+    found = shutil.which(path)
+    if found is None:
+        raise ShotError(f"the wiggly command '{command}' was not found: install wiggly (pip "
+                        "install wiggly) and set its path in Edit > Preferences > Add-ons > "
+                        "wiggly")
+    return found
+
+
+class Solve:
+    """One ``wiggly animate`` run on ``shot`` in a temporary folder."""
+
+    def __init__(self, shot: Shot, command: str):
+        self.shot = shot
+        self.command = wiggly_command(command)
+        self.folder = Path(tempfile.mkdtemp(prefix="wiggly-blender-"))
+        self.files = write_shot(shot, self.folder / "shot.toml")
+        self.result = self.folder / "result.npz"
+        self.log = self.folder / "wiggly.log"
+        self.process: subprocess.Popen | None = None
+        self.started = 0.0
+
+    def start(self) -> None:
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        with open(self.log, "wb") as log:
+            self.process = subprocess.Popen(
+                [self.command, "animate", str(self.files["scene"]), "-o", str(self.result),
+                 "--overwrite"], cwd=self.folder, stdout=log, stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL, env=env, start_new_session=os.name == "posix")
+        self.started = time.perf_counter()
+
+    def poll(self) -> int | None:
+        return self.process.poll()
+
+    def wait(self) -> int:
+        return self.process.wait()
+
+    def status(self) -> str:
+        """The latest progress line of wiggly (its stage, a counter or elapsed time)."""
+        try:
+            with open(self.log, "rb") as f:
+                f.seek(max(0, f.seek(0, os.SEEK_END) - 4096))
+                tail = f.read().decode("utf-8", "replace")
+        except OSError:
+            return ""
+        lines = [s.strip() for s in re.split(r"[\r\n]", tail) if s.strip()]
+        return lines[-1] if lines else "starting"
+
+    def failure(self) -> str:
+        """wiggly's own message (its last lines, without a traceback) of a failed run."""
+        text = self.log.read_text("utf-8", "replace")
+        lines = [s.strip() for s in re.split(r"[\r\n]", text) if s.strip()
+                 and not s.startswith(("Traceback", "  File", "    "))]
+        message = " ".join(lines[-3:]) or f"exit code {self.process.returncode}"
+        return message.replace(str(self.files["scene"]), f"the shot of '{self.shot.name}'")
+
+    def cancel(self) -> None:
+        """Stop wiggly (and the programs it runs) at once."""
+        if self.process is not None and self.process.poll() is None:
+            if os.name == "posix":
+                os.killpg(self.process.pid, signal.SIGTERM)
+            else:
+                self.process.terminate()
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                if os.name == "posix":
+                    os.killpg(self.process.pid, signal.SIGKILL)
+                else:
+                    self.process.kill()
+                self.process.wait()
+
+    def cleanup(self) -> None:
+        shutil.rmtree(self.folder, ignore_errors=True)

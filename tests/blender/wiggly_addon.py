@@ -1,0 +1,373 @@
+"""Run by Blender's Python (PyPI ``bpy``): the wiggly add-on on scenes built here, as an
+animator would set them up; prints what Blender then shows as JSON (tests/test_blender_addon.py,
+benchmarks/bench_blender.py).
+
+usage: python wiggly_addon.py CASE OUT.json WIGGLY_COMMAND WORKDIR [OPTIONS.json]
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import re
+import subprocess
+import sys
+import time
+from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
+
+import bpy
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "blender"))
+import wiggly_blender  # noqa: E402
+from wiggly_blender import bake, shot  # noqa: E402
+from wiggly_blender.solve import Solve  # noqa: E402
+
+case, out, command, workdir = sys.argv[1:5]
+options = json.loads(Path(sys.argv[5]).read_text()) if len(sys.argv) > 5 else {}
+workdir = Path(workdir)
+report: dict = {}
+
+
+def fresh(fps: int = 24, fps_base: float = 1.0, frames=(1, 25)) -> bpy.types.Scene:
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    if not hasattr(bpy.types.Object, "wiggly"):
+        wiggly_blender.register()
+    if "wiggly_blender" not in bpy.context.preferences.addons:
+        bpy.context.preferences.addons.new().module = "wiggly_blender"
+    prefs = bpy.context.preferences.addons["wiggly_blender"].preferences
+    prefs.command = command
+    scene = bpy.context.scene
+    scene.render.fps, scene.render.fps_base = fps, fps_base
+    scene.frame_start, scene.frame_end = frames
+    return scene
+
+
+def box_mesh(name: str, size=(1.0, 0.2, 0.2), cuts: int = 5, at=(0.3, -0.2, 0.5)):
+    """A subdivided box from x = 0 to size[0] (placed at ``at``), the active object."""
+    import bmesh  # importable once bpy is
+
+    mesh = bpy.data.meshes.new(name)
+    bm = bmesh.new()
+    bmesh.ops.create_cube(bm, size=1.0)
+    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=cuts, use_grid_fill=True)
+    for v in bm.verts:
+        v.co.x = (v.co.x + 0.5) * size[0]
+        v.co.y *= size[1]
+        v.co.z *= size[2]
+    bm.to_mesh(mesh)
+    bm.free()
+    obj = bpy.data.objects.new(name, mesh)
+    obj.location = at
+    bpy.context.scene.collection.objects.link(obj)
+    bpy.context.view_layer.objects.active = obj
+    obj.select_set(True)
+    return obj
+
+
+def vertex_group(obj, name: str, test) -> list[int]:
+    idx = [v.index for v in obj.data.vertices if test(v.co)]
+    obj.vertex_groups.new(name=name).add(idx, 1.0, "REPLACE")
+    return idx
+
+
+def use_group(obj, name: str, role: str = "HANDLE") -> None:
+    obj.vertex_groups.active_index = obj.vertex_groups[name].index
+    assert bpy.ops.wiggly.group_add() == {"FINISHED"}
+    obj.wiggly.groups[-1].role = role
+
+
+def key_handle(handle, frame: float, location=None, rotation=None, still=False) -> None:
+    if location is not None:
+        handle.location = location
+    if rotation is not None:
+        handle.rotation_euler = [math.radians(a) for a in rotation]
+    handle.keyframe_insert("location", frame=frame)
+    handle.keyframe_insert("rotation_euler", frame=frame)
+    if still:
+        for curve in bake.fcurves_of(handle):
+            for p in curve.keyframe_points:
+                if abs(p.co[0] - frame) < 1e-9:
+                    p.type = "MOVING_HOLD"
+
+
+def evaluated(obj, frames) -> list:
+    """World positions of the evaluated object at each frame."""
+    scene, out = bpy.context.scene, []
+    for f in frames:
+        scene.frame_set(f)
+        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        m = ev.to_mesh()
+        co = np.empty(3 * len(m.vertices))
+        m.vertices.foreach_get("co", co)
+        ev.to_mesh_clear()
+        world = np.array([list(r) for r in ev.matrix_world])
+        out.append((co.reshape(-1, 3) @ world[:3, :3].T + world[:3, 3]).tolist())
+    return out
+
+
+def run(op, **kwargs) -> dict:
+    """An operator's result and what it printed (Blender prints its reports headless)."""
+    text = io.StringIO()
+    with redirect_stdout(text), redirect_stderr(text):
+        try:
+            result = sorted(op(**kwargs))
+        except RuntimeError as e:  # bpy raises reports of ERROR level as RuntimeError
+            result = ["RuntimeError", str(e)]
+    return {"result": result, "printed": text.getvalue()}
+
+
+def handles_scene(bake_as: str) -> object:
+    """A bar: its left end keyed by a handle (still at rest, lifted and turned, back at rest),
+    a fixed middle ring, the rest free; the user's own shape key and modifier on it."""
+    obj = box_mesh("Bar")
+    vertex_group(obj, "left end.001", lambda c: c.x < 0.05)
+    vertex_group(obj, "middle", lambda c: 0.45 < c.x < 0.55)
+    vertex_group(obj, "unused", lambda c: c.x > 0.95)
+    obj.shape_key_add(name="Basis")
+    own = obj.shape_key_add(name="own")
+    own.data[0].co.z += 0.001
+    own.value = 0.0  # a shape key at work would add to a shape-key bake (a warning says so)
+    obj.modifiers.new("own smooth", "SMOOTH").factor = 0.0  # the user's own, kept
+    use_group(obj, "left end.001")
+    use_group(obj, "middle", "FIXED")
+    s = obj.wiggly
+    s.active_group = 0
+    assert bpy.ops.wiggly.add_handle() == {"FINISHED"}
+    handle = s.groups[0].handle
+    fs = bpy.context.scene.frame_start
+    key_handle(handle, fs, still=True)
+    rest = list(handle.location)
+    key_handle(handle, fs + 8, [rest[0] - 0.05, rest[1] + 0.02, rest[2] + 0.15], (10, -20, 30))
+    key_handle(handle, fs + 16.5, rest, (0, 0, 0), still=True)  # a subframe key
+    key_handle(handle, fs + 400, rest)  # outside the range: left out with a warning
+    s.modes, s.resolution, s.young = 16, 10, 5e4
+    s.bake_as = bake_as
+    s.cache_dir = str(workdir / "cache")
+    return obj
+
+
+def case_handles() -> None:
+    fps, base, frames = options.get("fps", 24), options.get("fps_base", 1.0), options["frames"]
+    scene = fresh(fps, base, tuple(frames))
+    obj = handles_scene(options.get("bake_as", "MESH_CACHE"))
+    handle = obj.wiggly.groups[0].handle
+    before = [(c.data_path, c.array_index, [tuple(p.co) for p in c.keyframe_points])
+              for c in bake.fcurves_of(handle)]
+    export = workdir / "shot.toml"
+    report["export"] = run(bpy.ops.wiggly.export_scene, filepath=str(export))
+    report["export_again"] = run(bpy.ops.wiggly.export_scene, filepath=str(export))
+    report["files"] = sorted(p.name for p in workdir.iterdir())
+    report["bake"] = run(bpy.ops.wiggly.bake)
+    report["bake_again"] = run(bpy.ops.wiggly.bake)  # replaces only wiggly's own bake
+    after = [(c.data_path, c.array_index, [tuple(p.co) for p in c.keyframe_points])
+             for c in bake.fcurves_of(handle)]
+    report["handle_keys_kept"] = before == after
+    report["modifiers"] = [(m.name, m.type) for m in obj.modifiers]
+    keys = obj.data.shape_keys
+    report["shape_keys"] = [k.name for k in keys.key_blocks]
+    report["shape_key_curves"] = sorted({c.data_path for c in bake.fcurves_of(keys)})
+    report["frame_range"] = [scene.frame_start, scene.frame_end]
+    report["fps"] = scene.render.fps / scene.render.fps_base
+    report["positions"] = evaluated(obj, range(scene.frame_start, scene.frame_end + 1))
+    cache = [m for m in obj.modifiers if m.name == shot.BAKE_NAME]
+    if cache:
+        cache[0].show_viewport = False  # without the bake: the object as it was
+    else:
+        for k in keys.key_blocks:
+            k.mute = k.name.startswith(shot.SHAPE_PREFIX)
+    report["unbaked"] = evaluated(obj, [scene.frame_start + 8])
+    report["rest_world"] = evaluated(obj, [scene.frame_start])[0]
+    report["remove"] = run(bpy.ops.wiggly.remove_bake)
+    report["after_remove"] = {"modifiers": [m.name for m in obj.modifiers],
+                              "shape_keys": [k.name for k in obj.data.shape_keys.key_blocks]}
+
+
+def armature_bar():
+    """A bar skinned to two bones; the second bends up and back over the frames."""
+    obj = box_mesh("Tail", size=(1.0, 0.16, 0.16), cuts=6, at=(0.0, 0.0, 0.0))
+    arm_data = bpy.data.armatures.new("Rig")
+    rig = bpy.data.objects.new("Rig", arm_data)
+    bpy.context.scene.collection.objects.link(rig)
+    bpy.context.view_layer.objects.active = rig
+    bpy.ops.object.mode_set(mode="EDIT")
+    a = arm_data.edit_bones.new("root")
+    a.head, a.tail = (0, 0, 0), (0.5, 0, 0)
+    b = arm_data.edit_bones.new("tip")
+    b.head, b.tail, b.parent = (0.5, 0, 0), (1.0, 0, 0), a
+    bpy.ops.object.mode_set(mode="OBJECT")
+    w = {}
+    for v in obj.data.vertices:
+        t = min(max((v.co.x - 0.35) / 0.3, 0.0), 1.0)
+        w.setdefault(("root", 1 - t), []).append(v.index)
+        w.setdefault(("tip", t), []).append(v.index)
+    for (bone, weight), idx in w.items():
+        group = obj.vertex_groups.get(bone) or obj.vertex_groups.new(name=bone)
+        group.add(idx, weight, "REPLACE")
+    obj.modifiers.new("Armature", "ARMATURE").object = rig
+    pose = rig.pose.bones["tip"]
+    pose.rotation_mode = "XYZ"
+    fs, fe = bpy.context.scene.frame_start, bpy.context.scene.frame_end
+    for f, angle in ((fs, 0.0), ((fs + fe) // 2, 35.0), (fe, -10.0)):
+        pose.rotation_euler = (0.0, math.radians(angle), 0.0)
+        pose.keyframe_insert("rotation_euler", frame=f)
+    vertex_group(obj, "body", lambda c: c.x < 0.7)
+    bpy.context.view_layer.objects.active = obj
+    return obj, rig
+
+
+def case_driven() -> None:
+    scene = fresh(24, 1.0, tuple(options["frames"]))
+    obj, _ = armature_bar()
+    use_group(obj, "body", "DRIVEN")
+    s = obj.wiggly
+    s.modes, s.resolution, s.young = 16, 10, 5e4
+    s.cache_dir = str(workdir / "cache")
+    report["original"] = evaluated(obj, range(scene.frame_start, scene.frame_end + 1))
+    report["export"] = run(bpy.ops.wiggly.export_scene, filepath=str(workdir / "shot.toml"))
+    report["bake"] = run(bpy.ops.wiggly.bake)
+    report["modifiers"] = [(m.name, m.type) for m in obj.modifiers]
+    report["positions"] = evaluated(obj, range(scene.frame_start, scene.frame_end + 1))
+    report["body"] = [v.index for v in obj.data.vertices if v.co.x < 0.7]
+    s.bake_as = "SHAPE_KEYS"
+    report["shape_keys"] = run(bpy.ops.wiggly.bake)
+
+
+def case_errors() -> None:
+    """Each mistake: the operator's result and printed report, and gather()'s message."""
+    out = {}
+
+    def attempt(label, op=bpy.ops.wiggly.bake, **kwargs):
+        try:
+            shot.gather(bpy.context, bpy.context.active_object)
+            message = None
+        except shot.ShotError as e:
+            message = str(e)
+        out[label] = {"message": message, **run(op, **kwargs)}
+
+    fresh(24, 1.0, (1, 13))
+    obj = handles_scene("MESH_CACHE")
+    obj.vertex_groups["left end.001"].name = "renamed"
+    attempt("no vertex group")
+    obj.vertex_groups["renamed"].name = "left end.001"
+    obj.vertex_groups["middle"].remove(list(range(len(obj.data.vertices))))
+    attempt("empty vertex group")
+    fresh(24, 1.0, (1, 13))
+    obj = handles_scene("MESH_CACHE")
+    obj.wiggly.groups[0].handle = None
+    attempt("no handle")
+    fresh(24, 1.0, (1, 13))
+    obj = handles_scene("MESH_CACHE")
+    handle = obj.wiggly.groups[0].handle
+    handle.animation_data_clear()
+    attempt("unkeyed handle")
+    fresh(24, 1.0, (1, 13))
+    obj, _ = armature_bar()
+    use_group(obj, "body", "DRIVEN")
+    sub = obj.modifiers.new("Subdivision", "SUBSURF")
+    obj.modifiers.move(len(obj.modifiers) - 1, 0)
+    attempt("unsupported modifier")
+    obj.modifiers.remove(sub)
+    tree = bpy.data.node_groups.new("more vertices", "GeometryNodeTree")
+    tree.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+    tree.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+    n_in, n_out = tree.nodes.new("NodeGroupInput"), tree.nodes.new("NodeGroupOutput")
+    subdivide = tree.nodes.new("GeometryNodeSubdivideMesh")
+    tree.links.new(n_in.outputs[0], subdivide.inputs[0])
+    tree.links.new(subdivide.outputs[0], n_out.inputs[0])
+    nodes = obj.modifiers.new("Refine", "NODES")
+    nodes.node_group = tree
+    attempt("driver vertex count")
+    obj.modifiers.remove(nodes)
+    bpy.context.preferences.addons["wiggly_blender"].preferences.command = str(
+        workdir / "no-such-wiggly")
+    attempt("no wiggly command")
+    bpy.context.preferences.addons["wiggly_blender"].preferences.command = command
+    obj.wiggly.modes = 500  # more modes than the coarse tet mesh has: wiggly refuses
+    obj.wiggly.resolution = 2
+    attempt("wiggly refuses")
+    obj.wiggly.modes = 16
+    obj.wiggly.cache_dir = "//wiggly/"  # the .blend is not saved
+    obj.wiggly.resolution = 10
+    attempt("unsaved blend")
+    obj.wiggly.cache_dir = str(workdir / "cache")
+    fresh(24, 1.0, (1, 13))
+    bpy.ops.mesh.primitive_cube_add()
+    attempt("no groups")
+    report["errors"] = out
+
+
+def case_cancel() -> None:
+    """Esc: the solve is stopped at once, wiggly's process group is gone, nothing is baked."""
+    fresh(24, 1.0, (1, 49))
+    obj = handles_scene("MESH_CACHE")
+    obj.wiggly.resolution = 40
+    job = Solve(shot.gather(bpy.context, obj), command)
+    job.start()
+    time.sleep(options.get("after", 2.0))
+    report["running_before"] = job.poll() is None
+    report["status"] = job.status()
+    t = time.perf_counter()
+    job.cancel()
+    report["cancel_seconds"] = time.perf_counter() - t
+    report["returncode"] = job.process.returncode
+    report["pid"] = job.process.pid
+    job.cleanup()
+    report["folder_left"] = job.folder.exists()
+    report["modifiers"] = [m.name for m in obj.modifiers]
+
+
+def case_critter() -> None:
+    """The critter bake of the benchmark: its surface, the demo's groups, keyed handles."""
+    spec = json.loads(Path(options["critter"]).read_text())
+    scene = fresh(options.get("fps", 24), 1.0, tuple(options["frames"]))
+    mesh = bpy.data.meshes.new("critter")
+    V = np.array(spec["vertices"])
+    mesh.from_pydata(V.tolist(), [], spec["faces"])
+    obj = bpy.data.objects.new("critter", mesh)
+    scene.collection.objects.link(obj)
+    bpy.context.view_layer.objects.active = obj
+    for name, idx in spec["groups"].items():
+        obj.vertex_groups.new(name=name).add(idx, 1.0, "REPLACE")
+    s = obj.wiggly
+    s.modes, s.resolution, s.warp = spec["modes"], spec["resolution"], True
+    s.young, s.alpha, s.beta = spec["young"], spec["alpha"], spec["beta"]
+    s.cache_dir = str(workdir / "cache")
+    for name, keys in spec["handles"].items():
+        use_group(obj, name)
+        s.active_group = len(s.groups) - 1
+        bpy.ops.wiggly.add_handle()
+        handle = s.groups[-1].handle
+        rest = np.array(handle.location)
+        for frame, offset, still in keys:
+            key_handle(handle, frame, (rest + offset).tolist(), (0, 0, 0), still)
+    export = workdir / "critter.toml"
+    report["export"] = run(bpy.ops.wiggly.export_scene, filepath=str(export), overwrite=True)
+    cli = [command, "animate", str(export), "-o", str(workdir / "cli.npz"), "--overwrite"]
+    if options.get("cli"):
+        subprocess.run(cli, check=True, capture_output=True)  # warms the caches
+    report.update(bake_seconds=[], cli_seconds=[], phases=[])
+    for _ in range(options.get("repeat", 1)):
+        t = time.perf_counter()
+        report["bake"] = run(bpy.ops.wiggly.bake)
+        report["bake_seconds"].append(time.perf_counter() - t)
+        found = re.search(r"\(gather ([\d.]+) s, write ([\d.]+) s, wiggly ([\d.]+) s, bake "
+                          r"([\d.]+) s\)", report["bake"]["printed"])
+        report["phases"].append([float(x) for x in found.groups()] if found else [])
+        if options.get("cli"):
+            t = time.perf_counter()
+            subprocess.run(cli, check=True, capture_output=True)
+            report["cli_seconds"].append(time.perf_counter() - t)
+    report["frames"] = [scene.frame_start, scene.frame_end]
+    report["vertices"] = len(obj.data.vertices)
+    report["blender"] = bpy.app.version_string
+    if options.get("positions"):
+        report["positions"] = evaluated(obj, range(scene.frame_start, scene.frame_end + 1))
+
+
+{"handles": case_handles, "driven": case_driven, "errors": case_errors, "cancel": case_cancel,
+ "critter": case_critter}[case]()
+Path(out).write_text(json.dumps(report))
