@@ -35,7 +35,7 @@ from wiggly.editor.state import EditError, EditorState, rebuild_state
 from wiggly.errors import WigglyInputError
 from wiggly.scene import Scene, scene_from_dict, scene_to_dict
 
-__all__ = ["Histories", "Record", "history_path", "scene_hash"]
+__all__ = ["Histories", "Record", "history_path", "key_phrase", "scene_hash"]
 
 SECTIONS = ("mesh", "material", "damping", "simulation", "time", "output")
 MAX_RECORDS = 500  # per tab
@@ -65,12 +65,23 @@ def entities(state: EditorState) -> dict[Entity, Any]:
     return out
 
 
-def _show(entity: Entity, value: Any) -> str:
+def key_phrase(key: Any) -> str:
+    """A keyframe as an animator names it: ``'lift' (right at 0.5 s)`` or ``right at 0.5 s``."""
+    if not isinstance(key, dict):
+        return "a keyframe"
+    where = f"{key.get('group')} at {key.get('time'):g} s" \
+        if isinstance(key.get("time"), int | float) else str(key.get("group"))
+    return f"{key['name']!r} ({where})" if key.get("name") else where
+
+
+def _changed_since(entity: Entity, value: Any) -> str:
+    """``"<what> was (were) changed since"``, for a step that cannot be undone."""
     kind, name = entity
     if kind == "key":
-        return f"keyframe {name}" + (f" ({value['group']} at {value['time']:g} s)"
-                                     if isinstance(value, dict) else "")
-    return f"group {name!r}" if kind == "group" else f"the {name} settings"
+        return f"the keyframe {key_phrase(value)} was changed since"
+    if kind == "group":
+        return f"group {name!r} was changed since"
+    return f"the {name} settings were changed since"
 
 
 @dataclass(frozen=True)
@@ -104,10 +115,10 @@ class Record:
         for kind, name, before, after in self.changes:
             expect = after if undo else before
             if now.get((kind, name)) != expect:
-                what = _show((kind, name), expect if expect is not None else before)
+                what = _changed_since((kind, name), expect if expect is not None else before)
                 raise EditError(f"cannot {'undo' if undo else 'redo'} {self.label!r}: "
-                                f"{what} was changed since (in another tab or by an edit "
-                                "there); that step is dropped", 409)
+                                f"{what} (in another tab or by an edit there); that step is "
+                                "dropped", 409)
         for kind, name, before, after in self.changes:
             value = before if undo else after
             if value is None:

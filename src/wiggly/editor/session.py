@@ -33,7 +33,7 @@ import numpy as np
 from wiggly import limits
 from wiggly.editor.autosave import Autosaver, autosave_path
 from wiggly.editor.bus import EventBus
-from wiggly.editor.history import DEFAULT_TAB, Histories, Record, history_path
+from wiggly.editor.history import DEFAULT_TAB, Histories, Record, history_path, key_phrase
 from wiggly.editor.physics import Physics
 from wiggly.editor.playback import FrameSet, Playback
 from wiggly.editor.sandbox import Sandbox
@@ -78,8 +78,8 @@ def new_scene(mesh_file: Path, builtin: str | None = None) -> Scene:
     return scene
 
 
-def _label(op: Any) -> str:
-    """How the undo button names an edit."""
+def _label(op: Any, before: EditorState, after: EditorState) -> str:
+    """How the undo button names an edit (keyframes by their name or group and time)."""
     kind = op.get("op") if isinstance(op, dict) else None
     label = op.get("label") if isinstance(op, dict) else None
     if isinstance(label, str) and 0 < len(label) <= 80:
@@ -89,8 +89,24 @@ def _label(op: Any) -> str:
     if kind == "set":
         return f"set {op.get('section')}"
     if kind in ("update_keyframe", "delete_keyframe"):
-        return f"{kind.split('_')[0]} keyframe {op.get('id')}"
+        key = _key_of(before, op.get("id"))
+        if kind == "delete_keyframe":
+            return f"delete keyframe {key_phrase(key)}"
+        if set(op) <= {"op", "id", "time"} and isinstance(op.get("time"), int | float):
+            return f"move keyframe {key_phrase(key)} to {op['time']:g} s"
+        return f"edit keyframe {key_phrase(key)}"
+    if kind == "add_keyframe":
+        added = [i for i in after.keyframe_ids if i not in set(before.keyframe_ids)]
+        return f"add keyframe {key_phrase(_key_of(after, added[-1] if added else None))}"
     return str(kind).replace("_", " ")
+
+
+def _key_of(state: EditorState, key_id: Any) -> dict | None:
+    """The keyframe ``key_id`` of ``state`` in its dict form (None: no such keyframe)."""
+    if key_id not in state.keyframe_ids:
+        return None
+    k = state.scene.keyframes[state.keyframe_ids.index(key_id)]
+    return {"name": k.name, "group": k.group, "time": k.time}
 
 
 class Session:
@@ -256,6 +272,8 @@ class Session:
                     self.histories.path = history_path(target)
                     self.histories.compact(state)
             self._saved = out
+            # what was recovered is saved now: the page stops saying so
+            self.notices = [n for n in self.notices if not n.startswith("recovered")]
             for src in {old_source, target}:
                 if src is not None:
                     self.autosaver.put(autosave_path(Path(src)), None)
@@ -271,7 +289,7 @@ class Session:
             old = self.state
             op = self._expand(op)
             new = apply_edit(old, op, self._n_vertices(), self.diagonal)
-            record = Record.between(old, new, _label(op))
+            record = Record.between(old, new, _label(op, old, new))
             if record is None:
                 return {"version": self.version, "changed": False}
             self._state = new

@@ -67,7 +67,8 @@ Object.assign(hooks, {
   meshLoaded() { frameCamera(); makeGround(); setCursor(null); },
   renderPanels, renderKeyPanel, selectKey, selectGroup, openDialog, showNotices, refreshState,
   updatePoseHelpers, startPosing, stopPosing, cancelDrag,
-  drawDopesheet, updatePaths, toggleKey,
+  drawDopesheet, toggleKey,
+  updatePaths() { updatePaths(); updateOnion(); },   // the selected groups changed, too
   timeChanged() { drawTimeCursor(); updateOnion(); updatePathMarker(); updateDriverGhost(); },
   syncDriver,
   framesChanged() { updatePaths(); updateOnion(); },

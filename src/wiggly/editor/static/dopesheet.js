@@ -213,7 +213,7 @@ ds.addEventListener('pointerup', async (e) => {
     }
     draw();
     if (ops.length) {
-      await edit({ op: 'batch', ops, label: `move ${ops.length} keyframe${ops.length > 1 ? 's' : ''}` });
+      await edit(ops.length === 1 ? ops[0] : { op: 'batch', ops, label: `move ${ops.length} keyframes` });  // one: the server names it
       const k = keyById(d.id);
       if (k) setTime(k.time);
     }
@@ -271,8 +271,8 @@ function selectedKeys() { return scene().keyframes.filter((k) => S.keys.has(k.id
 export function deleteSelectedKeys() {
   const keys = selectedKeys();
   if (!keys.length) return false;
-  edit({ op: 'batch', ops: keys.map((k) => ({ op: 'delete_keyframe', id: k.id })),
-    label: `delete ${keys.length} keyframe${keys.length > 1 ? 's' : ''}` });
+  const ops = keys.map((k) => ({ op: 'delete_keyframe', id: k.id }));
+  edit(ops.length === 1 ? ops[0] : { op: 'batch', ops, label: `delete ${keys.length} keyframes` });
   return true;
 }
 export function copyKeys() {

@@ -1,6 +1,8 @@
 // Onion skins (O): ghosts of the body at earlier frames (warm) and later frames (cool), every
 // `onionStep` frames, `onionCount` on each side, fading with distance; they follow playback and
-// show where the body is not (the body hides them).  Motion paths (P): the path of each
+// show where the body is not (the body hides them).  Like Blender's motion paths for bones,
+// they ghost only the selected groups (the faces touching their vertices) when groups are
+// selected, and the whole body when none is.  Motion paths (P): the path of each
 // selected group's centroid over the shot, a dot per frame, a larger dot per keyframe of the
 // group, the current frame ringed.
 import * as THREE from 'three';
@@ -27,10 +29,36 @@ function skin() {
   return mesh;
 }
 
-// Rebuild the skins' geometry (a new mesh, or the count changed); they share the body's faces.
+// The selected groups (the active one and the others picked with it), drawn in the paths and
+// ghosted by the onion skins.
+export function selectedGroups() {
+  const names = new Set(S.groups);
+  if (S.selectedGroup) names.add(S.selectedGroup);
+  return [...names].filter((g) => S.groupVerts[g] && S.groupVerts[g].length).sort();
+}
+
+// The faces the skins draw: the body's, or those touching a selected group's vertices.
+let ghostIndex = { key: null, index: null };
+function ghostFaces() {
+  const body = geometry.getIndex();
+  const names = selectedGroups();
+  if (!names.length || !body) return body;
+  const key = JSON.stringify([S.meshKey, names, names.map((g) => S.groupVerts[g].length)]);
+  if (ghostIndex.key === key && ghostIndex.index) return ghostIndex.index;
+  const mark = new Uint8Array(S.n);
+  for (const g of names) for (const i of S.groupVerts[g]) mark[i] = 1;
+  const faces = body.array, out = [];
+  for (let f = 0; f < faces.length; f += 3) {
+    if (mark[faces[f]] || mark[faces[f + 1]] || mark[faces[f + 2]]) out.push(faces[f], faces[f + 1], faces[f + 2]);
+  }
+  ghostIndex = { key, index: new THREE.BufferAttribute(new Uint32Array(out), 1) };
+  return ghostIndex.index;
+}
+
+// Rebuild the skins' geometry (a new mesh, the count or the selected groups changed).
 function ensureSkins() {
   const want = 2 * Math.min(S.view.onionCount, MAX_SKINS);
-  const index = geometry.getIndex();
+  const index = ghostFaces();
   while (skins.length < want) skins.push({ mesh: skin() });
   skins.forEach((s, j) => {
     const g = s.mesh.geometry;
@@ -82,11 +110,6 @@ function clearPaths() {
   for (const c of [...paths.children]) { paths.remove(c); if (c.geometry) c.geometry.dispose(); }
   pathData = [];
 }
-function pathGroups() {
-  const names = new Set(S.groups);
-  if (S.selectedGroup) names.add(S.selectedGroup);
-  return [...names].filter((g) => S.groupVerts[g] && S.groupVerts[g].length);
-}
 // Recompute the paths (new frames, another selection).
 export function updatePaths() {
   clearPaths();
@@ -94,7 +117,7 @@ export function updatePaths() {
   paths.visible = true;
   const F = S.frames.meta.n_frames, data = S.frames.data, n3 = S.n * 3;
   const size = geometry.boundingSphere ? geometry.boundingSphere.radius : 1;
-  for (const name of pathGroups()) {
+  for (const name of selectedGroups()) {
     const idx = S.groupVerts[name], pts = new Float32Array(F * 3);
     for (let f = 0; f < F; f++) {
       let x = 0, y = 0, z = 0;
@@ -133,9 +156,11 @@ export function updatePathMarker() {
 export function faceCamera(camera) { marker.quaternion.copy(camera.quaternion); }
 // The path of a group (tests): centroids per frame.
 export function pathOf(name) { const p = pathData.find((d) => d.name === name); return p ? Array.from(p.points) : null; }
-// The onion skins (tests): the frame each shows, its side, opacity and vertex 0.
+// The onion skins (tests): the frame each shows, its side, opacity, vertex 0 and the vertices
+// of the faces it draws.
 export function onionInfo() {
   return skins.filter((s) => onion.visible && s.mesh.visible).map((s) => ({ frame: s.frame,
     opacity: s.mesh.material.opacity, past: s.mesh.material.color.equals(PAST),
-    vertex0: Array.from(s.mesh.geometry.getAttribute('position').array.slice(0, 3)) }));
+    vertex0: Array.from(s.mesh.geometry.getAttribute('position').array.slice(0, 3)),
+    vertices: [...new Set(s.mesh.geometry.getIndex().array)].sort((a, b) => a - b) }));
 }

@@ -62,11 +62,12 @@ export function promptDialog(title, value, onOk) {
   modal(title, input, () => onOk(input.value.trim()));
 }
 
-// What the server said when it opened the scene (a recovered autosave, an ignored journal):
-// shown in a bar over the view until dismissed, once per opened scene.
+// What the server said when it opened the scene (recovered edits, an ignored journal): shown
+// in a bar over the view until dismissed, once per opened scene and text, and gone when the
+// server drops them (a save of recovered edits).
 let noticesShown = null;
 export function showNotices(d) {
-  const key = `${d.instance}:${d.opened}`;
+  const key = JSON.stringify([d.instance, d.opened, d.notices]);
   if (noticesShown === key) return;
   noticesShown = key;
   const bar = $('notices');
@@ -161,6 +162,7 @@ export function renderPanels() {
     else el.value = v === undefined || v === null ? '' : v;
   }
   if (sc.time.end === undefined) document.querySelector('[data-set="time.end"]').value = sc.time_range[1];
+  $('driver-toggle').hidden = !sc.drive;  // the driver ghost: [drive] scenes only
   const lim = d.limits || {};
   if (lim.MAX_MODES) document.querySelector('[data-set="simulation.modes"]').max = lim.MAX_MODES;
   if (lim.MAX_NAME_LENGTH) { $('group-name').maxLength = lim.MAX_NAME_LENGTH; $('key-name').maxLength = lim.MAX_NAME_LENGTH; }
