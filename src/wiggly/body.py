@@ -337,7 +337,7 @@ def prepare(
     V, T = model.tets.vertices, model.tets.tets
     fixed = vertex_set(fixed_vertices, len(V), "fixed vertices")
     if progress:
-        _say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")
+        say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")
     M = mass_matrix(V, T, material.density, lumped=lumped)
     K = stiffness_matrix(V, T, material.young if young is None else young, material.poisson)
     modes = compute_modes(
@@ -355,6 +355,3 @@ def _checked_gravity(gravity) -> np.ndarray:
     g.flags.writeable = False
     return g
 
-
-def _say(message: str) -> None:
-    say(message)

@@ -62,3 +62,8 @@ class Memo:
 
     def clear(self) -> None:
         self._values.clear()
+
+    def drop(self, stale: Callable[[Hashable], bool]) -> None:
+        """Forget the values whose keys ``stale(key)`` is true for."""
+        for key in [k for k in self._values if stale(k)]:
+            del self._values[key]

@@ -20,7 +20,6 @@ import tempfile
 import time
 import traceback
 import warnings
-from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -30,6 +29,7 @@ import numpy as np
 
 from wiggly.errors import WigglyInputError
 from wiggly.files import atomic_file
+from wiggly.memo import Memo
 
 #: Bodies and problems a worker keeps (least recently used leave first).
 KEEP_BODIES = 2
@@ -37,8 +37,8 @@ KEEP_PROBLEMS = 4
 THUMBNAIL = "thumb.png"
 THUMBNAIL_SIZE = (240, 180)
 
-_BODIES: OrderedDict[str, Any] = OrderedDict()
-_PROBLEMS: OrderedDict[tuple, list] = OrderedDict()
+_BODIES = Memo(KEEP_BODIES)
+_PROBLEMS = Memo(KEEP_PROBLEMS)
 
 
 @dataclass(frozen=True)
@@ -199,15 +199,8 @@ def _body(key: tuple[str, str], load: Callable[[], Any], warped: bool) -> tuple[
     """The worker's body for ``key`` (content key, prepared body's identity) with its
     factorizations, and the seconds spent on it."""
     t = time.perf_counter()
-    body = _BODIES.get(key)
-    if body is None:
-        body = load()
-        _BODIES[key] = body
-        while len(_BODIES) > KEEP_BODIES:
-            old, _ = _BODIES.popitem(last=False)
-            for k in [k for k in _PROBLEMS if k[0] == old]:
-                del _PROBLEMS[k]
-    _BODIES.move_to_end(key)
+    body = _BODIES.get(key, load)
+    _PROBLEMS.drop(lambda k: k[0] not in _BODIES)  # the problems of a body let go
     # the warp's factorizations (Schulz et al. 2014, Theorem 2), shared by every shot of this body
     if warped:
         _ = body.fine_level, body.coarse_level
@@ -265,18 +258,13 @@ def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
     bkey = (job.body_key, identity)
     base, setup = _body(bkey, load, warped)
     damping = Damping(scene.damping.alpha, scene.damping.beta)
-    body = None
     start, end = scene.time_range()
     pkey = (bkey, scene.damping.alpha, scene.damping.beta, scene.simulation.gravity,
             start, end, scene.simulation.preroll, scene.time.loop)
-    entry = _PROBLEMS.get(pkey)
-    if entry is None:  # damping and gravity change only the per-mode coefficients (§4)
-        body = base.with_dynamics(damping=damping, gravity=scene.simulation.gravity)
-        entry = [problem_of(scene, body), None]
-        _PROBLEMS[pkey] = entry
-        while len(_PROBLEMS) > KEEP_PROBLEMS:
-            _PROBLEMS.popitem(last=False)
-    _PROBLEMS.move_to_end(pkey)
+    # damping and gravity change only the per-mode coefficients (Schulz et al. 2014, eq. (4));
+    # an entry is [the problem, its last warm start]
+    entry = _PROBLEMS.get(pkey, lambda: [problem_of(scene, base.with_dynamics(
+        damping=damping, gravity=scene.simulation.gravity)), None])
     problem = entry[0]
     body = problem.body
     groups = resolve_groups(scene, body.model)

@@ -25,10 +25,6 @@ from wiggly.scene.validation import _error, _Problems, _show
 # building and running
 
 
-def _say(message: str, progress: bool) -> None:
-    say(message, progress)
-
-
 def _load_model(scene: Scene, progress: bool):
     """Read the mesh; check the groups, the surface and the size of its tet mesh before any
     computation; then tetrahedralize and embed."""
@@ -52,7 +48,7 @@ def _load_model(scene: Scene, progress: bool):
     model = meshing.build_model(loaded, str(f), resolution=scene.mesh.resolution,
                                 edge_length=scene.mesh.edge_length, repair=scene.mesh.repair,
                                 progress=progress, checked=checked)
-    _say(f"{counted(model.tets.n_tets, 'tet')}, {counted(model.tets.n_vertices, 'vertex')} "
+    say(f"{counted(model.tets.n_tets, 'tet')}, {counted(model.tets.n_vertices, 'vertex')} "
          f"({_time.perf_counter() - t:.1f} s)", progress)
     if checked is None:  # a tet mesh: its surface is known now
         p = _Problems(where)

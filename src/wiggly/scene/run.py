@@ -15,8 +15,9 @@ from wiggly.drive import following
 from wiggly.errors import WigglyInputError, counted
 from wiggly.export import SurfaceAnimation, stage_animation
 from wiggly.files import OutputSet, check_writable
+from wiggly.progress import say
 from wiggly.render import Highlight
-from wiggly.scene.build import _build, _say
+from wiggly.scene.build import _build
 from wiggly.scene.drive import secondary_of
 from wiggly.scene.groups import resolve_groups
 from wiggly.scene.spec import (
@@ -149,14 +150,14 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
     body, keyframes, groups = _build(scene, progress)
     timings["prepare"] = _time.perf_counter() - t
     start, end = scene.time_range()
-    _say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
+    say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
          f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s", progress)
     t = _time.perf_counter()
     anim = solve_scene(scene, body, keyframes, progress=progress, groups=groups)
     timings["solve"] = _time.perf_counter() - t
     if scene.drive is not None:
         anim.info["drive"] = following(anim)
-        _say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"
+        say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"
              f" mm (rms {1e3 * anim.info['drive']['rms']:.3g} mm)", progress)
     written = write_outputs(scene, anim, paths, overwrite=overwrite, progress=progress,
                             highlights=keyframe_highlights(scene, body, anim.keyframes, groups),
@@ -187,7 +188,7 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
     _check_gltf_targets(scene, paths)
     t = _time.perf_counter()
     times = anim.frame_times(scene.time.fps)
-    _say(f"sampling {counted(len(times), 'frame')} at {scene.time.fps:g} fps", progress)
+    say(f"sampling {counted(len(times), 'frame')} at {scene.time.fps:g} fps", progress)
     positions = anim.positions(times, dtype=np.float32)
     surf = anim.body.surface
     data = SurfaceAnimation(times, positions, surf.faces, surf.uvs, surf.normals,
@@ -203,7 +204,7 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
         for path in sorted(paths, key=lambda q: q.suffix.lower() in PREVIEW_EXTENSIONS):
             t = _time.perf_counter()
             ext = path.suffix.lower()
-            _say(f"writing {path}", progress)
+            say(f"writing {path}", progress)
             if ext in GEOMETRY_EXTENSIONS:
                 stage_animation(outputs, path, data, overwrite=overwrite, progress=progress,
                                 frame_start=scene.output.frame_start, gltf_targets=targets)
