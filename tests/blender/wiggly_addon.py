@@ -368,6 +368,164 @@ def case_critter() -> None:
         report["positions"] = evaluated(obj, range(scene.frame_start, scene.frame_end + 1))
 
 
+def _color(obj, rgba_of_vertex) -> None:
+    """A point color attribute for Workbench's vertex colour shading."""
+    attr = obj.data.color_attributes.new("wiggly", "FLOAT_COLOR", "POINT")
+    for v in obj.data.vertices:
+        attr.data[v.index].color = rgba_of_vertex(v)
+    obj.data.color_attributes.active_color = attr
+
+
+def _handle_proxy(handle, size: float = 0.12):
+    """Arrows of the handle's axes as a mesh (renders do not draw Empties)."""
+    verts, faces, colors = [], [], []
+    for axis, rgba in enumerate(((0.9, 0.2, 0.2, 1), (0.3, 0.8, 0.2, 1), (0.2, 0.4, 0.95, 1))):
+        lo, hi = [-0.008] * 3, [0.008] * 3
+        hi[axis] = size
+        base = len(verts)
+        verts += [(x, y, z) for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])]
+        faces += [[base + i for i in f] for f in ((0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1),
+                                                 (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3))]
+        colors += [rgba] * 8
+    mesh = bpy.data.meshes.new("handle proxy")
+    mesh.from_pydata(verts, [], faces)
+    proxy = bpy.data.objects.new("handle proxy", mesh)
+    bpy.context.scene.collection.objects.link(proxy)
+    proxy.parent = handle
+    _color(proxy, lambda v: colors[v.index])
+    return proxy
+
+
+def case_pictures() -> None:
+    """Workbench renders of the handle bake, the timeline's data, the panel's layout."""
+    scene = fresh(24, 1.0, (1, 25))
+    obj = handles_scene("MESH_CACHE")
+    blue, red, grey = (0.25, 0.45, 0.95, 1), (0.9, 0.3, 0.25, 1), (0.78, 0.78, 0.74, 1)
+    groups = {obj.vertex_groups["left end.001"].index: blue,
+              obj.vertex_groups["middle"].index: red}
+    _color(obj, lambda v: next((groups[g.group] for g in v.groups if g.group in groups), grey))
+    handle = obj.wiggly.groups[0].handle
+    _handle_proxy(handle)
+    report["bake"] = run(bpy.ops.wiggly.bake)
+    target = bpy.data.objects.new("target", None)
+    target.location = (0.8, -0.2, 0.55)
+    scene.collection.objects.link(target)
+    cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
+    cam.location = (1.9, -2.4, 1.35)
+    cam.data.lens = 40
+    scene.collection.objects.link(cam)
+    cam.constraints.new("TRACK_TO").target = target
+    scene.camera = cam
+    scene.render.engine = "BLENDER_WORKBENCH"
+    shading = scene.display.shading
+    shading.light, shading.color_type = "STUDIO", "VERTEX"
+    shading.show_shadows, shading.show_cavity = True, True
+    scene.render.resolution_x, scene.render.resolution_y = options.get("size", [480, 300])
+    scene.render.film_transparent = False
+    world = bpy.data.worlds.new("world")
+    scene.world = world
+    frames = options.get("frames", [1, 5, 9, 13, 17, 21, 25])
+    report["renders"] = []
+    for f in frames:
+        scene.frame_set(f)
+        scene.render.filepath = str(workdir / f"frame_{f:03d}.png")
+        with redirect_stdout(io.StringIO()):
+            bpy.ops.render.render(write_still=True)
+        report["renders"].append([f, scene.render.filepath])
+    # the timeline: the handle's keys and the baked motion of both ends
+    keys = {}
+    for curve in bake.fcurves_of(handle):
+        for p in curve.keyframe_points:
+            keys[float(p.co[0])] = p.type
+    report["keys"] = sorted(keys.items())
+    positions = np.array(evaluated(obj, range(1, 26)))
+    rest = positions[0]
+    x = np.array([v.co.x for v in obj.data.vertices])
+    report["left_z"] = positions[:, x < 0.05, 2].mean(axis=1).tolist()
+    report["right_z"] = positions[:, x > 0.95, 2].mean(axis=1).tolist()
+    report["rest_z"] = float(rest[:, 2].mean())
+    report["panel"] = panel_layout(obj)
+
+
+class _Recorder:
+    """A stand-in for Blender's UILayout that records what a panel's draw() lays out."""
+
+    def __init__(self, kind="column"):
+        self.kind, self.items, self.use_property_split, self.scale_y = kind, [], False, 1.0
+
+    def _child(self, kind):
+        child = _Recorder(kind)
+        self.items.append(child)
+        return child
+
+    def row(self, align=False):
+        return self._child("row")
+
+    def column(self, align=False):
+        return self._child("column")
+
+    def box(self):
+        return self._child("box")
+
+    def label(self, text="", icon="NONE"):
+        self.items.append({"label": text})
+
+    def operator(self, idname, text=None, icon="NONE"):
+        op = getattr(bpy.types, idname.replace(".", "_OT_", 1).upper(), None)
+        name = text if text is not None else getattr(op, "bl_label", idname)
+        enabled = True
+        if op is not None and hasattr(op, "poll"):
+            enabled = bool(op.poll(bpy.context))
+        self.items.append({"operator": name or "", "icon": icon, "enabled": enabled})
+
+    def prop(self, data, name, text=None, icon="NONE"):
+        rna = data.bl_rna.properties[name]
+        value = getattr(data, name)
+        if rna.type == "ENUM":
+            shown = rna.enum_items[value].name
+        elif rna.type == "POINTER":
+            shown = value.name if value is not None else ""
+        elif rna.type == "BOOLEAN":
+            shown = bool(value)
+        elif rna.type == "FLOAT":
+            shown = bpy.utils.units.to_string(
+                "METRIC", rna.unit, value, precision=4) if rna.unit != "NONE" else f"{value:g}"
+        else:
+            shown = str(value)
+        self.items.append({"prop": text if text is not None else rna.name, "value": shown,
+                           "type": rna.type, "split": self.use_property_split})
+
+    def template_list(self, listtype, list_id, data, prop, active_data, active_prop, rows=3):
+        ul = getattr(bpy.types, listtype)
+        rows_out = []
+        for i, item in enumerate(getattr(data, prop)):
+            row = _Recorder("row")
+            ul.draw_item(None, bpy.context, row, data, item, 0, active_data, active_prop, i)
+            rows_out.append({"cells": row.dump(), "active": i == getattr(active_data,
+                                                                          active_prop)})
+        self.items.append({"list": rows_out, "rows": rows})
+
+    def dump(self):
+        return {"kind": self.kind, "items": [i.dump() if isinstance(i, _Recorder) else i
+                                             for i in self.items]}
+
+
+def panel_layout(obj) -> list:
+    """The Wiggly panel and its sub-panels as their draw() lays them out for ``obj``."""
+    from types import SimpleNamespace
+
+    from wiggly_blender import panel
+
+    obj.wiggly.active_group = 0
+    out = []
+    for cls in (panel.WIGGLY_PT_main, panel.WIGGLY_PT_material, panel.WIGGLY_PT_simulation,
+                panel.WIGGLY_PT_bake):
+        layout = _Recorder()
+        cls.draw(SimpleNamespace(layout=layout), bpy.context)
+        out.append({"title": cls.bl_label, "layout": layout.dump()})
+    return out
+
+
 {"handles": case_handles, "driven": case_driven, "errors": case_errors, "cancel": case_cancel,
- "critter": case_critter}[case]()
+ "critter": case_critter, "pictures": case_pictures}[case]()
 Path(out).write_text(json.dumps(report))
