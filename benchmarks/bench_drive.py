@@ -116,7 +116,7 @@ def secondary(body, driver, driven, end, repeats) -> None:
                                                             end=end, warped=w),
                           repeats=repeats, warmup=0)
         rows.append(["warped" if warped else "linear", first, med, 3.0 if warped else 1.0,
-                     anim.info["rig_seconds"], anim.info["free_modes"],
+                     anim.info["seconds"]["rig"], anim.info["free_modes"],
                      1e3 * following(anim)["max"]])
     print(table("Secondary motion, 300 driver frames (10 s at 30 fps), 20.4k tets",
                 ["solve", "first s", "median s", "floor s", "rig (extension, unwarp) s",

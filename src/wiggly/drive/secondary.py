@@ -2,9 +2,10 @@
 
 A driver (a rig's walk, a motion-capture clip) is a *moving rest state* of the whole body
 (Complementary Dynamics, Zhang et al. 2020): the rig field ubar(t) is the driver's
-displacement of every surface vertex, extended into the tet mesh with the least elastic
-energy (and unwarped for warped playback, :mod:`wiggly.drive.unwarp`), cubic in time through
-the driver's frames.  The motion is
+displacement of every surface vertex, extended into the tet mesh harmonically (exact for
+affine motions; elastic forces act on Psi q only, so the extension enters through the mass
+matrix alone) and unwarped for warped playback (:mod:`wiggly.drive.unwarp`), cubic in time
+through the driver's frames.  The motion is
 
     u(t) = ubar(t) + Psi q(t),
 
@@ -46,7 +47,6 @@ from scipy.interpolate import CubicSpline
 
 from wiggly.body import Body, Where, fixed_from_surface
 from wiggly.checks import vertex_indices
-from wiggly.drive.basis import _extend
 from wiggly.drive.driver import Driver, driven_keyframes, keyed_frames
 from wiggly.drive.unwarp import Unwarp
 from wiggly.errors import WigglyInputError
@@ -397,15 +397,18 @@ def secondary_motion(
         else:
             D[-1] = D[0]
     # the rig: the driver extended into the tet mesh (unwarped for warped playback)
-    U = _extend(body, np.arange(surface.n_vertices), D)  # (3n, F)
+    mass = np.asarray(body.M.sum(axis=1)).ravel()[::3]
+    rigging = Unwarp(body.tets.vertices, body.tets.tets, mass)
+    U = rigging.extend(body.surface_embedding, D)  # (3n, F)
     if warped:
-        mass = np.asarray(body.M.sum(axis=1)).ravel()[::3]
-        U = Unwarp(body.tets.vertices, body.tets.tets, mass)(U)
+        U = rigging(U)
     hold_start, hold_end = bool(times[0] > start + tol), bool(times[-1] < end - tol)
     rig = FrameSpline.fit(times, U.T, loop=loop, hold_start=hold_start, hold_end=hold_end)
     rig_seconds = _time.perf_counter() - t0
     # the free parts' modes and their forcing
+    t1 = _time.perf_counter()
     psi, lam = free_modes(body, v, free_mode_count)
+    modes_seconds = _time.perf_counter() - t1
     held_warp = HeldWarp(body, np.flatnonzero(~np.any(psi.reshape(-1, 3 * psi.shape[1]), 1))
                          ) if warped else None
     r = psi.shape[1]
@@ -456,7 +459,9 @@ def secondary_motion(
         keys.append((kf, k, A, c_A, c_B))
     info: dict = {"secondary": True, "free_modes": r, "driver_frames": len(frames),
                   "unknowns": int(N - fixed.sum()), "warped": warped, "loop": loop,
-                  "intensity": float(intensity), "rig_seconds": rig_seconds}
+                  "intensity": float(intensity),
+                  "seconds": {"rig": rig_seconds, "free modes": modes_seconds}}
+    t1 = _time.perf_counter()
     iterations, converged, previous = 0, True, None
     n = body.tets.n_vertices
     while True:
@@ -470,8 +475,10 @@ def secondary_motion(
             if warped:  # linearize the held warp at the current state of the node
                 u = ubar + (psi @ qk).reshape(n, 3)
                 Wu = held_warp.apply(u[None], ubar[None])[0]
-                J = np.stack([_field_rows(body, held_warp.warp.jvp(u, psi[:, j].reshape(n, 3)),
-                                          kf.vertices, kf.on).ravel() for j in range(r)], 1)
+                dW = held_warp.warp.jvp(np.repeat(u[None], r, axis=0),
+                                        np.ascontiguousarray(psi.T.reshape(r, n, 3)))
+                J = np.stack([_field_rows(body, dW[j], kf.vertices, kf.on).ravel()
+                              for j in range(r)], 1)
                 base = _field_rows(body, Wu, kf.vertices, kf.on).ravel() - J @ qk
             else:
                 J, base = A, _field_rows(body, ubar, kf.vertices, kf.on).ravel()
@@ -490,7 +497,7 @@ def secondary_motion(
                 else:
                     vbase = _field_rows(body, vel.reshape(n, 3), kf.vertices, kf.on).ravel()
                 vblk = blk + r
-                target = kf.velocity.ravel() - vbase
+                target = np.broadcast_to(kf.velocity, (len(kf.vertices), 3)).ravel() - vbase
                 H[np.ix_(vblk, vblk)] += c_B * (J.T @ J)
                 b[vblk] += c_B * (J.T @ target)
         H = sp.csr_matrix(H)
@@ -510,6 +517,8 @@ def secondary_motion(
             converged = False
             break
         previous = value_of_keys
+    info["seconds"]["spline solve" + (" (Gauss-Newton)" if warped and keys else "")] = \
+        _time.perf_counter() - t1
     if warped and keys:
         info.update(iterations=iterations, converged=converged)
     values = z.reshape(blocks, 2, r)[:, 0]

@@ -34,6 +34,9 @@ from wiggly.linalg import factorize_spd
 
 __all__ = ["MAX_ANGLE", "MIN_DET", "Unwarp", "unwarp_gradients"]
 
+#: Extension penalty relative to the Laplacian's mean diagonal (per unit of E^T E).
+_PENALTY = 1e2
+
 #: Tets whose deformation keeps less than this volume ratio keep their linear gradient.
 MIN_DET = 0.25
 #: Tets turned by more than this angle (radians) keep their linear gradient.
@@ -185,6 +188,21 @@ class Unwarp:
         self.mu = 1e-9 * float(L.diagonal().mean()) / max(float(self.mass.mean()), 1e-300)
         self.solve = factorize_spd(sp.csr_matrix(L + sp.diags(self.mu * self.mass)))
         self.n, self.m = n, m
+
+    def extend(self, embedding: sp.spmatrix, D: np.ndarray) -> np.ndarray:
+        """Tet-mesh fields (3n, F) meeting surface displacements D (F, p, 3), carried by the
+        barycentric ``embedding`` (p, n), as harmonic per component: the minimiser of
+        x^T L x + c |embedding x - d|^2 (L = G^T Vol G).  Affine motions (translations,
+        linearized rotations, uniform strains) are reproduced exactly."""
+        E = sp.csr_matrix(embedding)
+        EtE = (E.T @ E).tocsr()
+        L = (self.G.T @ sp.diags(self.vol3) @ self.G).tocsr()
+        c = _PENALTY * float(L.diagonal().mean()) / max(float(EtE.diagonal().mean()), 1e-300)
+        solve = factorize_spd(sp.csr_matrix(L + c * EtE))
+        F, p = D.shape[:2]
+        rhs = c * (E.T @ np.ascontiguousarray(D.transpose(1, 0, 2)).reshape(p, -1))  # (n, 3F)
+        X = solve(np.asarray(rhs)).reshape(self.n, F, 3)
+        return X.transpose(0, 2, 1).reshape(3 * self.n, F)
 
     def __call__(self, U: np.ndarray, progress: Any = None) -> np.ndarray:
         """Linear fields (3n, F) whose warp is approximately the displacements U (3n, F)."""
