@@ -165,7 +165,7 @@ def test_failed_output_replaces_no_file(user, capsys, monkeypatch):
     def disk_full(*args, **kwargs):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(importlib.import_module("wiggly.export.formats"), "_write_npz", disk_full)
+    monkeypatch.setattr(importlib.import_module("wiggly.export.formats"), "write_npz", disk_full)
     path = scene({"output.paths": ["out/shot.glb", "out/shot.npz"], "output.overwrite": True,
                   "simulation.modes": 8, "simulation.warp": False, "mesh.resolution": 6})
     line = refused(capsys, folder, path)

@@ -448,7 +448,7 @@ def fail_after(original, partial: bool):
 @pytest.mark.parametrize("ext", [".glb", ".usda", ".usdc", ".npz"])
 @pytest.mark.parametrize("partial", [True, False], ids=["partial", "complete"])
 def test_failed_write_leaves_nothing(tmp_path, monkeypatch, ext, partial):
-    name = {".glb": "_write_glb", ".npz": "_write_npz"}.get(ext, "_write_usd")
+    name = {".glb": "write_glb", ".npz": "write_npz"}.get(ext, "write_usd")
     monkeypatch.setattr(formats, name, fail_after(getattr(formats, name), partial))
     with pytest.raises(OSError, match="disk full"):
         write_animation(tmp_path / f"a{ext}", sphere_animation(F=3))
@@ -459,7 +459,7 @@ def test_failed_write_leaves_nothing(tmp_path, monkeypatch, ext, partial):
 def test_failed_overwrite_keeps_the_old_file(tmp_path, monkeypatch, ext):
     path = write_animation(tmp_path / f"a{ext}", sphere_animation(F=2))
     before = path.read_bytes()
-    name = {".glb": "_write_glb", ".npz": "_write_npz"}.get(ext, "_write_usd")
+    name = {".glb": "write_glb", ".npz": "write_npz"}.get(ext, "write_usd")
     monkeypatch.setattr(formats, name, fail_after(getattr(formats, name), partial=True))
     with pytest.raises(OSError):
         write_animation(path, sphere_animation(F=3), overwrite=True)

@@ -16,10 +16,10 @@ from wiggly.export.animation import (
     checked_animation,
     without_seam,
 )
-from wiggly.export.gltf import _read_glb, _write_glb
-from wiggly.export.npz import _read_npz, _write_npz
-from wiggly.export.obj import _read_obj_sequence, _stage_obj_sequence
-from wiggly.export.usd import _read_usd, _write_usd
+from wiggly.export.gltf import read_glb, write_glb
+from wiggly.export.npz import read_npz, write_npz
+from wiggly.export.obj import read_obj_sequence, stage_obj_sequence
+from wiggly.export.usd import read_usd, write_usd
 from wiggly.files import OutputSet
 
 
@@ -98,18 +98,18 @@ def stage_animation(
     if path.is_dir():
         raise WigglyInputError(f"cannot write {path}: it is a directory; give a file name")
     if ext == ".obj":
-        _stage_obj_sequence(outputs, path, without_seam(anim), overwrite=overwrite,
+        stage_obj_sequence(outputs, path, without_seam(anim), overwrite=overwrite,
                             progress=progress)
         return
     if path.exists() and not overwrite:
         raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
     tmp = outputs.stage(path)
     if ext == ".glb":
-        _write_glb(tmp, anim, progress=progress, frame_start=frame_start, targets=gltf_targets)
+        write_glb(tmp, anim, progress=progress, frame_start=frame_start, targets=gltf_targets)
     elif ext == ".npz":
-        _write_npz(tmp, anim, progress=progress)
+        write_npz(tmp, anim, progress=progress)
     else:
-        _write_usd(tmp, without_seam(anim), progress=progress, frame_start=frame_start)
+        write_usd(tmp, without_seam(anim), progress=progress, frame_start=frame_start)
 
 
 def read_animation(path) -> SurfaceAnimation:
@@ -127,10 +127,10 @@ def read_animation(path) -> SurfaceAnimation:
             f"supported: {', '.join(SUPPORTED)}"
         )
     if ext == ".obj":
-        anim = _read_obj_sequence(path)
+        anim = read_obj_sequence(path)
     else:
         if not path.is_file():
             raise WigglyInputError(f"cannot read {path}: no such file")
-        reader = {".glb": _read_glb, ".npz": _read_npz}.get(ext, _read_usd)
+        reader = {".glb": read_glb, ".npz": read_npz}.get(ext, read_usd)
         anim = reader(path)
     return checked_animation(anim, f"{path}")

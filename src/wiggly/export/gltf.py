@@ -28,7 +28,7 @@ _GL_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 51
 _GL_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 
-def _write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False,
+def write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False,
                frame_start: int | None = None, targets: str = "frames") -> None:
     gl = _require("pygltflib", "pygltflib", ".glb")
 
@@ -189,7 +189,7 @@ def _gl_accessor(gltf, blob: bytes, index: int) -> np.ndarray:
     return out
 
 
-def _read_glb(path: Path) -> SurfaceAnimation:
+def read_glb(path: Path) -> SurfaceAnimation:
     gl = _require("pygltflib", "pygltflib", ".glb")
 
     try:

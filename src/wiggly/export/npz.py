@@ -13,7 +13,7 @@ from wiggly.export.animation import FORMAT_VERSION, SurfaceAnimation
 # npz
 
 
-def _write_npz(path: Path, anim: SurfaceAnimation, progress: bool = False) -> None:
+def write_npz(path: Path, anim: SurfaceAnimation, progress: bool = False) -> None:
     arrays = {
         "format_version": np.array(FORMAT_VERSION),
         "times": anim.times,
@@ -30,7 +30,7 @@ def _write_npz(path: Path, anim: SurfaceAnimation, progress: bool = False) -> No
         np.savez_compressed(f, **arrays)
 
 
-def _read_npz(path: Path) -> SurfaceAnimation:
+def read_npz(path: Path) -> SurfaceAnimation:
     try:
         with np.load(path, allow_pickle=False) as data:
             d = {key: data[key] for key in data.files}

@@ -53,7 +53,7 @@ def _write_frame_file(path: Path, data: bytes) -> None:
     path.write_bytes(data)
 
 
-def _stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *,
+def stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *,
                         overwrite: bool, progress: bool) -> None:
     F = anim.n_frames
     names = frame_names(path, F)
@@ -139,7 +139,7 @@ def _read_obj_frame(file: Path) -> tuple[bytes, np.ndarray]:
         raise WigglyInputError(f"cannot read {file}: malformed v line ({e})") from e
 
 
-def _read_obj_sequence(path: Path) -> SurfaceAnimation:
+def read_obj_sequence(path: Path) -> SurfaceAnimation:
     frames = _obj_existing_frames(path)
     if frames:
         missing = sorted(set(range(max(frames) + 1)) - set(frames))

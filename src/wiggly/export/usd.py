@@ -20,7 +20,7 @@ from wiggly.export.animation import (
 # USD
 
 
-def _write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False,
+def write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False,
                frame_start: int | None = None) -> None:
     _require("pxr", "usd-core", "USD")
     from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, Vt
@@ -82,7 +82,7 @@ def _forget_usd_layer(path: Path) -> None:
         layer.Reload(force=True)
 
 
-def _read_usd(path: Path) -> SurfaceAnimation:
+def read_usd(path: Path) -> SurfaceAnimation:
     _require("pxr", "usd-core", "USD")
     from pxr import Usd, UsdGeom
 
