@@ -93,7 +93,7 @@ class TetMesh:
         ndarray, shape (m,)
             Positive for a checked mesh (see :func:`check_tet_mesh`).
         """
-        return _tet_volumes(self.vertices, self.tets)
+        return tet_volumes(self.vertices, self.tets)
 
     def boundary_faces(self) -> np.ndarray:
         """Triangles used by exactly one tet, oriented outwards.
@@ -228,7 +228,7 @@ class Embedding:
         """
         T = mesh.tets[self.tet_index]
         V = mesh.vertices
-        volume = np.abs(_tet_volumes(V, T))
+        volume = np.abs(tet_volumes(V, T))
         faces = V[T[:, _TET_FACES]]  # (p, 4, 3, 3): face i opposite vertex i
         area = 0.5 * np.linalg.norm(np.cross(faces[:, :, 1] - faces[:, :, 0],
                                              faces[:, :, 2] - faces[:, :, 0]), axis=-1)
@@ -269,7 +269,7 @@ def _as_groups(groups: dict) -> dict[str, np.ndarray]:
     return {str(k): np.asarray(v, dtype=np.int64).ravel() for k, v in groups.items()}
 
 
-def _check_surface_arrays(surface: Surface, source: str) -> None:
+def check_surface_arrays(surface: Surface, source: str) -> None:
     """Raise for an empty surface, non-finite coordinates or out-of-range face indices."""
     if surface.n_faces == 0:
         raise WigglyInputError(f"{source}: the surface has no triangles.")
@@ -277,7 +277,7 @@ def _check_surface_arrays(surface: Surface, source: str) -> None:
     checks.indices_in_range(surface.faces, surface.n_vertices, source, "face")
 
 
-def _tet_volumes(V: np.ndarray, T: np.ndarray) -> np.ndarray:
+def tet_volumes(V: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Signed tet volumes ``det[v1 - v0, v2 - v0, v3 - v0] / 6``."""
     e = V[T[:, 1:]] - V[T[:, :1]]
     return np.einsum("ij,ij->i", e[:, 0], np.cross(e[:, 1], e[:, 2])) / 6.0

@@ -24,7 +24,7 @@ from wiggly.mesh.data import (
     ENVELOPE_PER_EDGE,
     Surface,
     TetMesh,
-    _check_surface_arrays,
+    check_surface_arrays,
     embed,
     used_only,
 )
@@ -33,7 +33,7 @@ from wiggly.mesh.defects import (
     SurfaceReport,
     diagonal,
 )
-from wiggly.mesh.validate import _refuse_defects, check_tet_mesh, checked_surface
+from wiggly.mesh.validate import check_tet_mesh, checked_surface, refuse_defects
 from wiggly.progress import activity
 
 # --------------------------------------------------------------------------- meshing
@@ -168,9 +168,9 @@ def tetrahedralize(
     default resolution once simplified (the 52k-triangle armadillo did not finish in 300 s
     unsimplified).
     """
-    mesh, report, _ = _tetrahedralize(surface, edge_length=edge_length, resolution=resolution,
-                                      repair=repair, progress=progress, source=source,
-                                      cache_dir=cache_dir)
+    mesh, report, _ = tetrahedralize_with_report(
+        surface, edge_length=edge_length, resolution=resolution, repair=repair,
+        progress=progress, source=source, cache_dir=cache_dir)
     if not report.clean:
         warnings.warn(repair_note(source, report), MeshRepairWarning, stacklevel=2)
     return mesh
@@ -242,7 +242,7 @@ def check_tet_budget(report: SurfaceReport, edge_length: float, source: str,
     return estimate
 
 
-def _tetrahedralize(
+def tetrahedralize_with_report(
     surface: Surface,
     *,
     edge_length: float | None,
@@ -257,14 +257,14 @@ def _tetrahedralize(
     """:func:`tetrahedralize`, also returning the surface report and what was done
     (``simplify=False``: fTetWild gets the surface as it is)."""
     if checked is None:
-        _check_surface_arrays(surface, source)
+        check_surface_arrays(surface, source)
         edge_length_for(1.0, edge_length, resolution, source)  # options first: fail fast
         with activity(f"checking {source} ({counted(surface.n_faces, 'triangle')})",
                       progress):
             checked = checked_surface(surface, source)
     report = checked.report
     if repair is False:
-        _refuse_defects(report, source)
+        refuse_defects(report, source)
     h = edge_length_for(report.diagonal, edge_length, resolution, source)
     asked = f"edge_length={edge_length}" if edge_length is not None else \
         f"resolution={resolution or DEFAULT_RESOLUTION}"
@@ -352,7 +352,7 @@ def coarse_mesh(
                            diagonal=diagonal(V[np.unique(T)]))
     checked = CheckedSurface(V, B, report)  # a tet mesh's boundary: closed, oriented outwards
     for _ in range(3):
-        coarse, _, _ = _tetrahedralize(
+        coarse, _, _ = tetrahedralize_with_report(
             Surface(V, B), edge_length=edge, resolution=None, repair=True, progress=False,
             source="coarse mesh", cache_dir=cache_dir, checked=checked,
             simplify=False)  # its boundary must follow the fine mesh (the warp's lift)

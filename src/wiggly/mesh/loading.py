@@ -19,7 +19,7 @@ from wiggly.mesh.data import (
     VOLUME_EXTENSIONS,
     Surface,
     TetMesh,
-    _check_surface_arrays,
+    check_surface_arrays,
 )
 from wiggly.mesh.validate import check_tet_mesh
 
@@ -96,7 +96,7 @@ def load_mesh(path: str | Path) -> TetMesh | Surface:
         raise WigglyInputError(f"{source}: {where}; give the path of a mesh file.")
     if ext in SURFACE_EXTENSIONS:
         surface = _load_trimesh(path, ext)
-        _check_surface_arrays(surface, source)
+        check_surface_arrays(surface, source)
         return surface
     if ext not in VOLUME_EXTENSIONS:
         raise WigglyInputError(
@@ -153,7 +153,7 @@ def _from_meshio(raw: meshio.Mesh, source: str) -> TetMesh | Surface:
             f"{', '.join(types) or 'none'}); give a tetrahedral mesh or a closed triangle surface."
         )
     surface = Surface(V, F, groups=groups)
-    _check_surface_arrays(surface, source)
+    check_surface_arrays(surface, source)
     return surface
 
 

@@ -12,7 +12,12 @@ from wiggly.mesh.data import Embedding, Model, Surface, TetMesh, embed, without_
 from wiggly.mesh.defects import (
     CheckedSurface,
 )
-from wiggly.mesh.filling import FAR_OUTSIDE, MeshRepairWarning, _tetrahedralize, repair_note
+from wiggly.mesh.filling import (
+    FAR_OUTSIDE,
+    MeshRepairWarning,
+    repair_note,
+    tetrahedralize_with_report,
+)
 from wiggly.mesh.loading import load_mesh
 
 #: Solid pieces of a filled surface's tet mesh with less than this share of its volume are left
@@ -77,7 +82,7 @@ def build_model(
     any, are placed by :func:`embed`).
     """
     if isinstance(loaded, Surface):
-        tets, report, info = _tetrahedralize(
+        tets, report, info = tetrahedralize_with_report(
             loaded, edge_length=edge_length, resolution=resolution, repair=repair,
             progress=progress, source=source, cache_dir=cache_dir, checked=checked)
         # slivers and bits that hold to the body by an edge or a vertex only would hinge

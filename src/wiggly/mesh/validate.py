@@ -8,7 +8,7 @@ import numpy as np
 from wiggly import checks
 from wiggly.errors import WigglyInputError, counted
 from wiggly.mesh import defects as mesh_checks
-from wiggly.mesh.data import Surface, TetMesh, _check_surface_arrays, _tet_volumes
+from wiggly.mesh.data import Surface, TetMesh, check_surface_arrays, tet_volumes
 from wiggly.mesh.defects import (
     DEGENERATE_VOLUME,
     CheckedSurface,
@@ -49,7 +49,7 @@ def check_tet_mesh(mesh: TetMesh, source: str = "tet mesh") -> TetMesh:
     checks.indices_in_range(T, n, source, "tet")
     for name, idx in mesh.groups.items():
         checks.indices_in_range(idx[:, None], n, source, f"group {name!r} entry")
-    vol = _tet_volumes(V, T)
+    vol = tet_volumes(V, T)
     used = V[np.unique(T)]
     diag = float(np.linalg.norm(used.max(axis=0) - used.min(axis=0)))
     limit = DEGENERATE_VOLUME * diag**3
@@ -102,7 +102,7 @@ def check_surface(surface: Surface, source: str = "surface") -> Surface:
         7)"), and what :func:`inspect_surface` refuses.
     """
     checked = checked_surface(surface, source)
-    _refuse_defects(checked.report, source)
+    refuse_defects(checked.report, source)
     V, F = surface.vertices, surface.faces
     volume = float(np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]]))) / 6
     if volume >= 0:
@@ -119,7 +119,7 @@ class SurfaceDefectError(WigglyInputError):
         self.source, self.defects = source, defects
 
 
-def _refuse_defects(report: SurfaceReport, source: str) -> None:
+def refuse_defects(report: SurfaceReport, source: str) -> None:
     if report.clean:
         return
     defects = "; ".join(report.defects(detailed=True))
@@ -132,5 +132,5 @@ def _refuse_defects(report: SurfaceReport, source: str) -> None:
 def checked_surface(surface: Surface, source: str = "surface") -> CheckedSurface:
     """The surface welded, oriented and inspected for meshing (:func:`inspect_surface`),
     to pass to :func:`build_model` after looking at its report."""
-    _check_surface_arrays(surface, source)
+    check_surface_arrays(surface, source)
     return mesh_checks.inspect_surface(surface.vertices, surface.faces, source)
