@@ -17,7 +17,7 @@ from wiggly.limits import MAX_TETS
 from wiggly.mesh import DEFAULT_RESOLUTION, TetBudgetError, check_tet_budget, edge_length_for
 from wiggly.progress import activity, say
 from wiggly.scene.drive import check_driver_against, driven_body, driven_keyframes_of
-from wiggly.scene.groups import _resolve, resolve_groups
+from wiggly.scene.groups import resolve_group_arrays, resolve_groups
 from wiggly.scene.spec import RIGID_MODES, Absolute, Offset, Rest, Scene
 from wiggly.scene.validation import _error, _Problems, _show
 
@@ -38,7 +38,7 @@ def _load_model(scene: Scene, progress: bool):
     checked = None
     if isinstance(loaded, meshing.Surface):  # check what we can before tetrahedralizing
         p = _Problems(where)
-        _resolve(scene, loaded.vertices, loaded.groups, None, None, p)
+        resolve_group_arrays(scene, loaded.vertices, loaded.groups, None, None, p)
         check_driver_against(scene, loaded.n_vertices, loaded.faces, f.name, p, progress)
         p.raise_if_any()
         with activity(f"checking {f.name} ({counted(loaded.n_faces, 'triangle')})", progress):
@@ -120,14 +120,14 @@ def build(scene: Scene, progress: bool = False):
     """Body and keyframes of a scene: ``(wiggly.Body, list[wiggly.Keyframe])``.
 
     Reads and tetrahedralizes the mesh, resolves the groups, assembles the FEM and computes
-    the modes (cached on disk).  ``progress`` prints stages and progress bars on stderr.
+    the modes (cached on disk).  ``progress`` reports the stages (:mod:`wiggly.progress`).
     """
-    body, keyframes, _ = _build(scene, progress)
+    body, keyframes, _ = build_with_groups(scene, progress)
     return body, keyframes
 
 
-def _build(scene: Scene, progress: bool):
-
+def build_with_groups(scene: Scene, progress: bool = False):
+    """:func:`build`, also returning the resolved vertex groups ``{name: indices}``."""
     model = _load_model(scene, progress)
     groups = resolve_groups(scene, model)
     body = body_of(scene, model, groups, progress=progress)

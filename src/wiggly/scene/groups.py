@@ -78,13 +78,15 @@ def resolve_groups(scene: Scene, model=None, *, surface=None) -> dict[str, np.nd
     else:
         raise TypeError("resolve_groups needs a model or a surface")
     p = _Problems(scene.where())
-    out = _resolve(scene, surface.vertices, surface.groups, tet_X, tet_groups, p)
+    out = resolve_group_arrays(scene, surface.vertices, surface.groups, tet_X, tet_groups, p)
     p.raise_if_any()
     return out
 
 
-def _resolve(scene: Scene, surface_X, surface_groups, tet_X, tet_groups,
-             p: _Problems) -> dict[str, np.ndarray]:
+def resolve_group_arrays(scene: Scene, surface_X, surface_groups, tet_X, tet_groups,
+                         p: _Problems) -> dict[str, np.ndarray]:
+    """The groups of ``scene`` on the given vertex arrays (``tet_X`` None: surface groups
+    only), adding every mistake to ``p``."""
     out = {}
     for name, g in scene.groups.items():
         if g.on == "tets":

@@ -17,7 +17,7 @@ from wiggly.export import SurfaceAnimation, stage_animation
 from wiggly.files import OutputSet, check_writable
 from wiggly.progress import say
 from wiggly.render import Highlight
-from wiggly.scene.build import _build
+from wiggly.scene.build import build_with_groups
 from wiggly.scene.drive import secondary_of
 from wiggly.scene.groups import resolve_groups
 from wiggly.scene.spec import (
@@ -147,7 +147,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
     _check_gltf_targets(scene, paths)
     timings: dict[str, float] = {}
     t = _time.perf_counter()
-    body, keyframes, groups = _build(scene, progress)
+    body, keyframes, groups = build_with_groups(scene, progress)
     timings["prepare"] = _time.perf_counter() - t
     start, end = scene.time_range()
     say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
