@@ -51,6 +51,8 @@ def walk_driver(body) -> Driver:
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--secondary-only", action="store_true",
+                    help="only the secondary-motion solve (physics = \"secondary\")")
     args = ap.parse_args(argv)
     repeats = 1 if args.quick else 3
     warnings.simplefilter("ignore")
@@ -65,6 +67,9 @@ def main(argv: list[str] | None = None) -> None:
           f"{body.r} modes; driver: {driver.n_frames} frames over {end:.2f} s; driven: "
           f"{len(driven)} surface vertices\n")
 
+    if args.secondary_only:
+        secondary(body, driver, driven, end, repeats)
+        return
     t0 = time.perf_counter()
     rich = enrich(body, driver, driven)
     t_enrich = time.perf_counter() - t0

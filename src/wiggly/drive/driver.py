@@ -235,6 +235,14 @@ def following(anim) -> dict | None:
     driven keys (``spec["kind"] == "drive"``): ``{"frames", "vertices", "max", "rms",
     "worst_time"}`` (distances in metres), or None without driven keys.  One batched
     playback at all the key times."""
+    driven = getattr(anim, "driven_frames", None)
+    if driven is not None:  # a secondary motion: the driver owns the driven group
+        times, frames, vertices, driver = driven
+        positions = anim.positions(times)[:, vertices]
+        d = np.linalg.norm(positions - driver.positions[frames][:, vertices], axis=2)
+        return {"frames": len(times), "vertices": len(vertices), "max": float(d.max()),
+                "rms": float(np.sqrt(np.mean(d**2))),
+                "worst_time": float(times[int(d.max(axis=1).argmax())])}
     keys = [k for k in anim.keyframes if k.spec.get("kind") == "drive" and
             k.position is not None]
     if not keys:

@@ -47,7 +47,7 @@ from scipy.interpolate import CubicSpline
 
 from wiggly.body import Body, Where, fixed_from_surface
 from wiggly.checks import vertex_indices
-from wiggly.drive.driver import Driver, driven_keyframes, keyed_frames
+from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.drive.unwarp import Unwarp
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
@@ -249,6 +249,9 @@ class SecondaryMotion(Animation):
     psi: np.ndarray = field(default=None, repr=False)
     particular: np.ndarray = field(default=None, repr=False)
     held_warp: HeldWarp | None = field(default=None, repr=False)
+    #: (shot times, driver frame indices, driven surface vertices, driver): what
+    #: :func:`wiggly.drive.following` measures
+    driven_frames: tuple | None = field(default=None, repr=False)
 
     def modal(self, times: ArrayLike, n_derivatives: int = 0, side: str = "right") -> np.ndarray:
         """q(t) of the free modes and its time derivatives: shape (n_derivatives + 1, F, r)."""
@@ -386,20 +389,21 @@ def secondary_motion(
             f"{end:g}] s: secondary motion needs an animated driver (two frames or more)")
     duration = end - start
     tol = 1e-9 * duration
-    D = driver.positions[frames] - surface.vertices  # (F, p, 3)
+    frames = frames.copy()
     if loop:
         if times[0] > start + tol:
             raise WigglyInputError(
                 f"a looped shot needs a driver frame at its start ({start:g} s); the first "
                 f"frame of {driver.source} in the shot is at {times[0]:g} s")
         if times[-1] < end - tol:
-            times, D = np.r_[times, end], np.concatenate([D, D[:1]])
+            times, frames = np.r_[times, end], np.r_[frames, frames[:1]]
         else:
-            D[-1] = D[0]
+            frames[-1] = frames[0]
     # the rig: the driver extended into the tet mesh (unwarped for warped playback)
     mass = np.asarray(body.M.sum(axis=1)).ravel()[::3]
     rigging = Unwarp(body.tets.vertices, body.tets.tets, mass)
-    U = rigging.extend(body.surface_embedding, D)  # (3n, F)
+    U = rigging.extend(body.surface_embedding, driver.positions, frames,
+                       surface.vertices)  # (3n, F)
     if warped:
         U = rigging(U)
     hold_start, hold_end = bool(times[0] > start + tol), bool(times[-1] < end - tol)
@@ -415,7 +419,8 @@ def secondary_motion(
     alpha, beta = body.damping.alpha, body.damping.beta
     delta = 0.5 * (alpha + beta * lam)
     g = psi.T @ body.gravity_vector
-    proj = FrameSpline(times, (psi.T @ (body.M @ U)).T, (psi.T @ (body.M @ rig.slopes.T)).T)
+    C = np.ascontiguousarray((body.M @ psi).T)  # Psi^T M, (r, 3n)
+    proj = FrameSpline(times, (C @ U).T, rig.slopes @ C.T)
     own = [k for k in keyframes if k.spec.get("kind") != "drive"]
     nodes = node_times(start, end, list(times) + [k.time for k in own])
     m = len(nodes) - 1
@@ -526,9 +531,9 @@ def secondary_motion(
     if loop:
         values, velocities = np.vstack([values, values[:1]]), np.vstack([velocities,
                                                                          velocities[:1]])
-    kfs = list(own) + driven_keyframes(body, driver, v, offset=offset,
-                                       driver_range=driver_range, start=start, end=end)
+    kfs = list(own)
     info["solve_seconds"] = _time.perf_counter() - t0
     return SecondaryMotion(body, nodes, values.copy(), velocities.copy(), kfs, basis,
                            warped=warped, info=info, loop=loop, rig=rig, psi=psi,
-                           particular=a, held_warp=held_warp)
+                           particular=a, held_warp=held_warp,
+                           driven_frames=(times[:len(frames)], frames, v, driver))

@@ -23,6 +23,7 @@ iteration, rotation logarithm in closed form; about 0.1 us per tet) and vectoriz
 from __future__ import annotations
 
 import os
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -173,7 +174,8 @@ def unwarp_gradients(Fd: np.ndarray) -> np.ndarray:
 
 class Unwarp:
     """The unwarping of one tet mesh (module doc): its gradient operator G (3m, n), tet
-    volumes and the factorized Poisson matrix G^T Vol G + mu M_lumped, made once."""
+    volumes and Laplacian G^T Vol G, made once; the Poisson matrix is factorized on first
+    use.  :meth:`extend` carries surface displacements into the tet mesh."""
 
     def __init__(self, vertices: np.ndarray, tets: np.ndarray, mass: np.ndarray) -> None:
         grads, vol = tet_gradients(vertices, tets)
@@ -183,26 +185,36 @@ class Unwarp:
         self.G = sp.csr_matrix((grads.ravel(), (rows.ravel(), cols.ravel())),
                                shape=(3 * m, n))
         self.vol3 = np.repeat(vol, 3)
-        L = (self.G.T @ sp.diags(self.vol3) @ self.G).tocsr()
+        self.laplacian = (self.G.T @ sp.diags(self.vol3) @ self.G).tocsr()
         self.mass = np.asarray(mass, dtype=np.float64)
-        self.mu = 1e-9 * float(L.diagonal().mean()) / max(float(self.mass.mean()), 1e-300)
-        self.solve = factorize_spd(sp.csr_matrix(L + sp.diags(self.mu * self.mass)))
+        self.mu = 1e-9 * float(self.laplacian.diagonal().mean()) / max(
+            float(self.mass.mean()), 1e-300)
         self.n, self.m = n, m
 
-    def extend(self, embedding: sp.spmatrix, D: np.ndarray) -> np.ndarray:
-        """Tet-mesh fields (3n, F) meeting surface displacements D (F, p, 3), carried by the
-        barycentric ``embedding`` (p, n), as harmonic per component: the minimiser of
-        x^T L x + c |embedding x - d|^2 (L = G^T Vol G).  Affine motions (translations,
-        linearized rotations, uniform strains) are reproduced exactly."""
+    @cached_property
+    def solve(self):
+        """The factorized Poisson matrix G^T Vol G + mu M_lumped of the unwarping."""
+        return factorize_spd(sp.csr_matrix(self.laplacian + sp.diags(self.mu * self.mass)))
+
+    def extend(self, embedding: sp.spmatrix, positions: np.ndarray, frames: np.ndarray,
+               rest: np.ndarray) -> np.ndarray:
+        """Tet-mesh fields (3n, F) meeting the surface displacements positions[frames] - rest
+        (positions (K, p, 3)), carried by the barycentric ``embedding`` (p, n), harmonic per
+        component: the minimiser of x^T L x + c |embedding x - d|^2 (L = G^T Vol G).  Affine
+        motions (translations, linearized rotations, uniform strains) are reproduced
+        exactly."""
         E = sp.csr_matrix(embedding)
         EtE = (E.T @ E).tocsr()
-        L = (self.G.T @ sp.diags(self.vol3) @ self.G).tocsr()
+        L = self.laplacian
         c = _PENALTY * float(L.diagonal().mean()) / max(float(EtE.diagonal().mean()), 1e-300)
         solve = factorize_spd(sp.csr_matrix(L + c * EtE))
-        F, p = D.shape[:2]
-        rhs = c * (E.T @ np.ascontiguousarray(D.transpose(1, 0, 2)).reshape(p, -1))  # (n, 3F)
-        X = solve(np.asarray(rhs)).reshape(self.n, F, 3)
-        return X.transpose(0, 2, 1).reshape(3 * self.n, F)
+        Et = sp.csr_matrix(E.T)
+        base = Et @ rest  # (n, 3)
+        rhs = np.empty((self.n, len(frames), 3))
+        for j, k in enumerate(frames):  # frame by frame: no copy of all the frames at once
+            rhs[:, j] = Et @ positions[k] - base
+        X = solve(c * rhs.reshape(self.n, -1)).reshape(self.n, len(frames), 3)
+        return np.ascontiguousarray(X.transpose(0, 2, 1)).reshape(3 * self.n, len(frames))
 
     def __call__(self, U: np.ndarray, progress: Any = None) -> np.ndarray:
         """Linear fields (3n, F) whose warp is approximately the displacements U (3n, F)."""
