@@ -17,7 +17,8 @@ Usage: ``python benchmarks/bench_editor.py [--runs 7] [--only release prepare on
 * **onion**: frames drawn per second while the box plays with onion skins (3 ghosts on each
   side) in Chromium's software GL (SwiftShader), over 2-second windows, and the drawing
   resolution the page chose (it lowers it while frames take over a 30th of a second); plain
-  playback for comparison.
+  playback for comparison, and the skins of one selected group (they ghost only the selected
+  groups' faces).
 
 The editor answers a release with a linear solve and linear playback first (Theorem 1,
 milliseconds), then refines it with the warped solve in the background (Theorem 2, seconds on
@@ -225,8 +226,12 @@ def bench_onion(p, args, profile: str) -> tuple[list, str]:
         soft = page.evaluate("window.wiggly.softwareGL")
         page.keyboard.press("Space")
         for label, key in (("plain playback", None),
-                           ("with onion skins, 3 + 3 (target >= 30)", "o")):
-            if key:
+                           ("with onion skins, 3 + 3 (target >= 30)", "o"),
+                           ("with onion skins of one selected group (g5)", "g5")):
+            if key == "g5":  # the skins ghost only the selected groups
+                page.click("#groups li:has-text('g5')")
+                page.wait_for_function("window.wiggly.S.selectedGroup === 'g5'")
+            elif key:
                 page.keyboard.press(key)
             page.evaluate(FPS_WINDOW)  # let the resolution settle
             windows = [page.evaluate(FPS_WINDOW) for _ in range(args.windows)]
