@@ -40,7 +40,7 @@ from tests.editor_ui import bar_project
 from wiggly.editor import Sandbox, Session
 from wiggly.editor.history import history_path
 from wiggly.editor.session import autosave_path
-from wiggly.editor.state import EditorState, apply_edit, state_to_json
+from wiggly.editor.state import EditError, EditorState, apply_edit, state_to_json
 from wiggly.scene import load_scene
 
 ROUNDS = int(os.environ.get("WIGGLY_CRASH_ROUNDS", "16"))
@@ -433,3 +433,27 @@ def test_a_journal_that_cannot_be_replayed_is_dropped_with_a_notice(tmp_path):
                    for n in opened["notices"]), opened["notices"]
     finally:
         s2.close()
+
+
+def test_an_edit_that_cannot_be_journaled_is_refused(tmp_path):
+    """An edit is answered only once it is on the disk: if the journal cannot be written,
+    the edit (or undo) is refused with the reason and the scene stays as it was."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    session = Session(Sandbox([tmp_path]))
+    try:
+        session.open(path.name)
+        session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.7}})
+        history_path(path).unlink()
+        history_path(path).mkdir()  # a journal that cannot be appended to
+        version, scene = session.version, session.scene
+        for act in (lambda: session.edit({"op": "add_keyframe", "time": 0.9, "group": "mid"}),
+                    lambda: session.undo()):
+            with pytest.raises(EditError) as err:
+                act()
+            assert err.value.status == 507 and ".shot.history.jsonl" in str(err.value)
+            assert session.version == version and session.scene == scene
+            assert session.describe("api")["undo_label"] == "set damping"
+        history_path(path).rmdir()
+        assert session.undo()["changed"] and session.scene.damping.alpha == 0.5
+    finally:
+        session.close()

@@ -183,15 +183,20 @@ class Histories:
 
     # --- steps ----------------------------------------------------------------------------
     def record(self, tab: str, record: Record, state: EditorState) -> None:
+        """Journal the step ``record`` of ``tab`` that gave ``state`` (on the disk before
+        this returns), then push it on the tab's undo stack; :class:`EditError` (507) and
+        nothing recorded if the journal cannot be written."""
         self._begin()
+        self._journal({"op": "edit", "tab": tab, "rec": record.to_json()}, state)
         t = self._tab(tab)
         t.undo.append(record)
         del t.undo[:-MAX_RECORDS]
         t.redo.clear()
-        self._journal({"op": "edit", "tab": tab, "rec": record.to_json()}, state)
 
     def step(self, tab: str, state: EditorState, undo: bool) -> EditorState | None:
-        """``state`` with the tab's last step undone (redone); None if there is none."""
+        """``state`` with the tab's last step undone (redone), journaled; None if there is
+        none.  :class:`EditError`: another tab changed what it would change (409, the step is
+        dropped) or the journal cannot be written (507, nothing changes)."""
         self._begin()
         t = self._tab(tab)
         source, target = (t.undo, t.redo) if undo else (t.redo, t.undo)
@@ -201,10 +206,13 @@ class Histories:
             new = source[-1].applied(state, undo)
         except EditError:
             source.pop()
-            self._journal({"op": "drop", "tab": tab, "undo": undo}, None)
+            try:
+                self._journal({"op": "drop", "tab": tab, "undo": undo}, None)
+            except EditError:
+                pass  # the step is gone from this session; a restart may offer it again
             raise
-        target.append(source.pop())
         self._journal({"op": "undo" if undo else "redo", "tab": tab}, new)
+        target.append(source.pop())
         return new
 
     # --- the journal ----------------------------------------------------------------------
@@ -218,11 +226,11 @@ class Histories:
         """Start a new journal with the snapshot of the scene as it was opened (before the
         first step is journaled: a scene never saved is recovered from it)."""
         if self._base is not None:
-            base, self._base = self._base, None
-            self.compact(base)
+            self.compact(self._base, strict=True)
 
     def _journal(self, line: dict, state: EditorState | None) -> None:
-        """Append ``line`` and flush it to the disk before the edit is answered."""
+        """Append ``line`` and flush it to the disk (before the edit is answered);
+        :class:`EditError` (507) if it cannot be written."""
         if self.path is None:
             return
         try:
@@ -234,7 +242,12 @@ class Histories:
                 os.close(fd)
             self.write_error = None
         except OSError as err:
-            self.write_error = f"cannot keep the undo history in {self.path.name}: {err}"
+            raise self._unwritable(err) from None
+
+    def _unwritable(self, err: OSError) -> EditError:
+        return EditError(f"not done: the undo journal {self.path.name} cannot be written, so "
+                         f"the change would not survive a crash ({err.strerror or err}); "
+                         "free some disk space or save the scene elsewhere", 507)
 
     def load(self, scene: Scene | None, source: Path | None = None,
              ) -> tuple[EditorState | None, str | None]:
@@ -266,10 +279,11 @@ class Histories:
         self.compact(state)
         return state, None
 
-    def compact(self, state: EditorState) -> None:
-        """Rewrite the journal as one snapshot line (with the scene), atomically."""
-        self._base = None
+    def compact(self, state: EditorState, strict: bool = False) -> None:
+        """Rewrite the journal as one snapshot line (with the scene), atomically.  A failure
+        is kept in :attr:`write_error` (``strict``: raised as :class:`EditError`, 507)."""
         if self.path is None:
+            self._base = None
             return
         line = {"op": "snapshot", "scene": scene_to_dict(state.scene), "tabs": {
             tab: {"undo": [r.to_json() for r in t.undo], "redo": [r.to_json() for r in t.redo]}
@@ -282,7 +296,10 @@ class Histories:
                 os.fsync(f.fileno())
             tmp.replace(self.path)
             _sync_dir(self.path.parent)
+            self._base = None
         except OSError as err:
+            if strict:
+                raise self._unwritable(err) from None
             self.write_error = f"cannot keep the undo history in {self.path.name}: {err}"
 
     def _discard(self, base: EditorState | None) -> None:

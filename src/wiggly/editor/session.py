@@ -292,9 +292,9 @@ class Session:
             record = Record.between(old, new, _label(op, old, new))
             if record is None:
                 return {"version": self.version, "changed": False}
+            self.histories.record(tab, record, new)  # on the disk first (or refused)
             self._state = new
             self.version += 1
-            self.histories.record(tab, record, new)
             self._changed()
             out: dict[str, Any] = {"version": self.version, "changed": True}
             added = [i for i in new.keyframe_ids if i not in set(old.keyframe_ids)]
