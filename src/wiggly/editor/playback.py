@@ -221,6 +221,8 @@ class Playback:
                 self.bus.publish("solve", seq=req.seq, version=req.version, stage="error",
                                  message=str(err))
             except Exception as err:  # a bug: report it, keep the worker alive
+                if self._stop.is_set():  # closing: the physics' pool is shut down under it
+                    return
                 traceback.print_exc()
                 self.bus.publish("solve", seq=req.seq, version=req.version, stage="error",
                                  message=f"internal error: {type(err).__name__}: {err}")
