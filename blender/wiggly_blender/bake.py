@@ -86,7 +86,11 @@ def bake_mesh_cache(obj, shot: Shot, local: np.ndarray) -> Path:
     stack = DRIVER_STACK if shot.driver is not None else DEFORMING
     index = next((i for i, m in enumerate(obj.modifiers)
                   if m.type not in stack and m != mod), len(obj.modifiers) - 1)
-    obj.modifiers.move(len(obj.modifiers) - 1, index)
+    if hasattr(obj.modifiers, "move"):
+        obj.modifiers.move(len(obj.modifiers) - 1, index)
+    else:  # Blender before 4.1
+        with bpy.context.temp_override(object=obj, active_object=obj):
+            bpy.ops.object.modifier_move_to_index(modifier=mod.name, index=index)
     return path
 
 

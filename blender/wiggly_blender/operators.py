@@ -81,6 +81,8 @@ class WIGGLY_OT_bake(bpy.types.Operator):
 
     def _finish(self, context, code: int) -> set[str]:
         self.times["wiggly"] = time.perf_counter() - self.solve.started
+        # an undo during the solve replaces the object's Python wrapper: find it by name
+        self.obj = bpy.data.objects.get(self.shot.name) or self.obj
         try:
             if code != 0:
                 raise ShotError(f"wiggly could not solve the shot of '{self.obj.name}': "

@@ -29,7 +29,7 @@ class WigglyPreferences(bpy.types.AddonPreferences):
 
     def draw(self, context):
         self.layout.prop(self, "command")
-        self.layout.label(text="e.g. /path/to/venv/bin/wiggly (pip install wiggly in any Python)")
+        self.layout.label(text="e.g. /path/to/wiggly/.venv/bin/wiggly (any Python with wiggly)")
 
 
 def _folder_property(**kwargs):

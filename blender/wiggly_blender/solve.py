@@ -26,9 +26,9 @@ def wiggly_command(command: str) -> str:
     path = os.path.expanduser(command.strip() or "wiggly")
     found = shutil.which(path)
     if found is None:
-        raise ShotError(f"the wiggly command '{command}' was not found: install wiggly (pip "
-                        "install wiggly) and set its path in Edit > Preferences > Add-ons > "
-                        "wiggly")
+        raise ShotError(f"the wiggly command '{command}' was not found: install wiggly in a "
+                        "Python environment and set the path of its wiggly command in Edit > "
+                        "Preferences > Add-ons > wiggly")
     return found
 
 
@@ -76,8 +76,11 @@ class Solve:
         text = self.log.read_text("utf-8", "replace")
         lines = [s.strip() for s in re.split(r"[\r\n]", text) if s.strip()
                  and not s.startswith(("Traceback", "  File", "    "))]
-        message = " ".join(lines[-3:]) or f"exit code {self.process.returncode}"
-        return message.replace(str(self.files["scene"]), f"the shot of '{self.shot.name}'")
+        errors = [s.split("error:", 1)[1].strip() for s in lines if "error:" in s]
+        message = " ".join(errors or lines[-3:]) or f"exit code {self.process.returncode}"
+        for name in (str(self.files["scene"]), self.files["scene"].name):
+            message = message.replace(f"{name}: ", "")  # the report names the object
+        return message
 
     def cancel(self) -> None:
         """Stop wiggly (and the programs it runs) at once."""

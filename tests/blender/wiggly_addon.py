@@ -307,9 +307,11 @@ def case_cancel() -> None:
     obj.wiggly.resolution = 40
     job = Solve(shot.gather(bpy.context, obj), command)
     job.start()
-    time.sleep(options.get("after", 2.0))
-    report["running_before"] = job.poll() is None
+    waited = time.perf_counter()
+    while not job.status().startswith("[wiggly]") and time.perf_counter() - waited < 60:
+        time.sleep(0.05)  # until wiggly's first progress line (the status bar's text)
     report["status"] = job.status()
+    report["running_before"] = job.poll() is None
     t = time.perf_counter()
     job.cancel()
     report["cancel_seconds"] = time.perf_counter() - t
@@ -400,19 +402,29 @@ def case_pictures() -> None:
     """Workbench renders of the handle bake, the timeline's data, the panel's layout."""
     scene = fresh(24, 1.0, (1, 25))
     obj = handles_scene("MESH_CACHE")
-    blue, red, grey = (0.25, 0.45, 0.95, 1), (0.9, 0.3, 0.25, 1), (0.78, 0.78, 0.74, 1)
-    groups = {obj.vertex_groups["left end.001"].index: blue,
-              obj.vertex_groups["middle"].index: red}
+    scene.use_gravity = False  # the swing of the free end, not its sag
+    obj.wiggly.groups.remove(1)  # the middle is free too
+    obj.wiggly.active_group = 0
+    blue, grey = (0.25, 0.45, 0.95, 1), (0.78, 0.78, 0.74, 1)
+    groups = {obj.vertex_groups["left end.001"].index: blue}
     _color(obj, lambda v: next((groups[g.group] for g in v.groups if g.group in groups), grey))
     handle = obj.wiggly.groups[0].handle
+    vertex_group(obj, "whole", lambda c: True)  # the whole bar: still, at rest, on frame 1
+    use_group(obj, "whole")
+    obj.wiggly.active_group = 1
+    bpy.ops.wiggly.add_handle()
+    key_handle(obj.wiggly.groups[1].handle, 1, still=True)
+    obj.wiggly.active_group = 0
     _handle_proxy(handle)
+    bpy.ops.wm.save_as_mainfile(filepath=str(workdir / "bar.blend"))
+    obj.wiggly.cache_dir = "//wiggly/"  # beside the .blend, the default
     report["bake"] = run(bpy.ops.wiggly.bake)
     target = bpy.data.objects.new("target", None)
     target.location = (0.8, -0.2, 0.55)
     scene.collection.objects.link(target)
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     cam.location = (1.9, -2.4, 1.35)
-    cam.data.lens = 40
+    cam.data.lens = 50
     scene.collection.objects.link(cam)
     cam.constraints.new("TRACK_TO").target = target
     scene.camera = cam
@@ -433,17 +445,19 @@ def case_pictures() -> None:
             bpy.ops.render.render(write_still=True)
         report["renders"].append([f, scene.render.filepath])
     # the timeline: the handle's keys and the baked motion of both ends
-    keys = {}
-    for curve in bake.fcurves_of(handle):
-        for p in curve.keyframe_points:
-            keys[float(p.co[0])] = p.type
-    report["keys"] = sorted(keys.items())
+    report["keys"] = {}
+    for item in obj.wiggly.groups:
+        keys = {}
+        for curve in bake.fcurves_of(item.handle):
+            for p in curve.keyframe_points:
+                keys[float(p.co[0])] = p.type
+        report["keys"][item.handle.name] = sorted(keys.items())
     positions = np.array(evaluated(obj, range(1, 26)))
-    rest = positions[0]
+    world = np.array([list(r) for r in obj.matrix_world])
+    rest = np.array([list(v.co) for v in obj.data.vertices]) @ world[:3, :3].T + world[:3, 3]
     x = np.array([v.co.x for v in obj.data.vertices])
-    report["left_z"] = positions[:, x < 0.05, 2].mean(axis=1).tolist()
-    report["right_z"] = positions[:, x > 0.95, 2].mean(axis=1).tolist()
-    report["rest_z"] = float(rest[:, 2].mean())
+    for end, inside in (("left", x < 0.05), ("right", x > 0.95)):  # heights above rest
+        report[f"{end}_z"] = (positions[:, inside, 2] - rest[inside, 2]).mean(axis=1).tolist()
     report["panel"] = panel_layout(obj)
 
 
