@@ -87,9 +87,11 @@ class Sway(Bob):
         return np.array(out)
 
 
-def reference(body, driven, motion, T, dt, rig: FrameSpline | None):
+def reference(body, driven, motion, T, dt, rig: FrameSpline | None, gravity: bool = False):
     """Full-space Newmark simulation (module doc); surface displacement relative to the
-    driver's own motion of the surface, sampled at the driver frames (F, p, 3)."""
+    driver's own motion of the surface, sampled at the driver frames (F, p, 3).  With
+    ``gravity`` the body's gravity acts too, and the free parts start in static equilibrium
+    under it (as wiggly's do)."""
     n = body.tets.n_vertices
     held = fixed_from_surface(body.model, driven)
     fixed = np.zeros(3 * n, bool)
@@ -102,14 +104,16 @@ def reference(body, driven, motion, T, dt, rig: FrameSpline | None):
     Mf = M[f]
     ones = np.tile(np.eye(3), (n, 1))
 
+    g = body.gravity_vector[f] if gravity else np.zeros(int(f.sum()))
+
     def force(t):
         if rig is None:  # rigid translation: K and beta K annihilate it
             return -(Mf @ (ones @ (motion.translation(t, 2)[0] + alpha *
-                                   motion.translation(t, 1)[0])))
-        return -(Mf @ (rig([t], 2)[0] + alpha * rig([t], 1)[0]))
+                                   motion.translation(t, 1)[0]))) - g
+        return -(Mf @ (rig([t], 2)[0] + alpha * rig([t], 1)[0])) - g
 
     A = factorize_spd((Mff + dt / 2 * C + dt * dt / 4 * Kff).tocsr())
-    x = np.zeros(int(f.sum()))
+    x = factorize_spd(Kff.tocsr())(-g) if gravity else np.zeros(int(f.sum()))
     v, a = np.zeros_like(x), np.zeros_like(x)
     steps = round(T / dt)
     frames = np.round(np.arange(round(T * FPS) + 1) / FPS / dt).astype(int)

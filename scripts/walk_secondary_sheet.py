@@ -1,11 +1,12 @@
 """Render ``docs/walk_secondary.png``: the walk driver above, wiggly's motion below.
 
-Solves ``examples/walk_secondary.toml`` (about a minute on two cores) and renders two
-contact sheets at the same times, seen from three quarters: the driver
+Solves ``examples/walk_secondary.toml`` (about half a minute on two cores) and renders two
+contact sheets at the same times, seen from its side: the driver
 (``examples/critter_walk.glb``, whose tail and ears are skinned rigidly and which holds its
 last pose after 2 s) and the solved motion, with the driven group in blue and the free tail
-and ears in orange.  Mid-walk they look alike; once the walk stops the free parts swing on
-and settle.  Run from the repository root::
+and ears in orange.  The body is the driver's; the tail swings against the trot while the
+critter walks (the times are the swing's extremes), and on after it stops.  Run from the
+repository root::
 
     .venv/bin/python scripts/walk_secondary_sheet.py [out.png]
 """
@@ -24,7 +25,7 @@ from wiggly.render import Highlight, render_contact_sheet
 from wiggly.scene import load_scene, run
 
 ROOT = Path(__file__).resolve().parents[1]
-TIMES = (1.25, 2.0, 2.13, 2.27, 2.5, 3.5)
+TIMES = (0.45, 0.68, 0.93, 1.18, 2.1, 2.28)
 TILE = (300, 250)
 
 
@@ -47,15 +48,15 @@ def main(out: Path = ROOT / "docs" / "walk_secondary.png") -> Path:
         for name, positions in (("driver", driven_pose), ("wiggly", solved)):
             path = render_contact_sheet(Path(tmp) / f"{name}.png", times, positions, faces,
                                         at=TIMES, columns=len(TIMES), tile_size=TILE,
-                                        camera="three_quarter", highlights=colours)
+                                        camera="front", highlights=colours)
             rows.append(Image.open(path).convert("RGB"))
     label = 28
     sheet = Image.new("RGB", (rows[0].width, 2 * (rows[0].height + label)), (250, 250, 250))
     draw = ImageDraw.Draw(sheet)
     font = ImageFont.load_default(size=18)
     captions = ("driver: critter_walk.glb, skinned (tail and ears rigid), stops at 2 s",
-                "wiggly: the body (blue) keyed to the driver at every frame; the tail and the "
-                "ears (orange) free")
+                "wiggly: the body (blue) follows the driver; the tail and the ears (orange) "
+                "move by physics during the walk")
     for j, (row, caption) in enumerate(zip(rows, captions, strict=True)):
         y = j * (row.height + label)
         draw.text((10, y + label / 2), caption, anchor="lm", fill=(20, 22, 28), font=font)

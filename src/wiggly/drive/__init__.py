@@ -1,22 +1,25 @@
-"""Secondary motion on an existing animation: a *driver* animation of the user's surface keys a
-vertex group at every driver frame, and the rest of the body moves freely.
+"""Secondary motion on an existing animation: a *driver* animation of the user's surface owns
+a vertex group, and physics moves the rest of the body (tail, ears, belly, antennae).
 
-The paper's partial keyframes (Schulz et al. 2014, eq. (6)) are used densely in time: the driven
-group gets a position keyframe at every frame of the driver, the user adds sparse keys of
-their own (e.g. "the ears are back at rest at 2 s"), and the solve (warped by default,
-Theorem 2) gives the free parts (ears, tail, belly) their lag, overshoot and settling::
+:func:`secondary_motion` (the default of a scene's ``[drive]``) takes the driver as a moving
+rest state, extended over the body, and solves the free parts' complementary motion: its
+fixed-interface modes, each a wiggly spline forced by the driver's accelerations
+(:mod:`wiggly.drive.secondary`; Schulz et al. 2014, Theorem 1 with a forcing term), plus
+sparse keys of the user's own on the free parts::
 
     import wiggly
-    from wiggly.drive import driven_keyframes, enrich, read_driver
+    from wiggly.drive import read_driver, secondary_motion
 
-    body = wiggly.prepare("critter.glb", n_modes=40)
+    body = wiggly.prepare("critter.glb", n_modes=12)
     driver = read_driver("critter.glb")                    # its skinned walk, every frame
     X = body.rest_positions()
     driven = (X[:, 0] > -0.28) & (X[:, 1] < 0.745)          # all but the tail and the ears
-    body = enrich(body, driver, driven)                     # + the driver's shapes
-    keys = driven_keyframes(body, driver, driven)
-    keys.append(wiggly.Keyframe.rest(body, 3.0, driven, still=True))
-    anim = wiggly.solve(body, keys, start=0.0, end=3.0)
+    anim = secondary_motion(body, driver, driven, start=0.0, end=3.0)
+
+The older model keys the driven group at every driver frame with the paper's partial
+keyframes (eq. (6)) and minimises the spacetime energy of the whole body
+(:func:`driven_keyframes`, with :func:`enrich` adding the driver's shapes to the modes);
+there the free parts are carried nearly rigidly while the driver plays.
 
 Readers (:func:`read_driver` picks one by extension), each giving frame times and the
 positions (F, n, 3) of the surface's n vertices in wiggly's axes (y up, metres):
@@ -28,10 +31,7 @@ positions (F, n, 3) of the surface's n vertices in wiggly's axes (y up, metres):
 * :mod:`~wiggly.drive.sequence` -- numbered OBJ files, and wiggly's ``.npz``.
 
 :meth:`Driver.check` refuses a driver of another surface (naming both vertex counts),
-:func:`enrich` adds the driver's shapes to the modal basis (Rayleigh-Ritz,
-:mod:`~wiggly.drive.basis`: the lowest eigenmodes alone follow a skinned limb only to a few
-percent), :func:`driven_keyframes` makes the keyframes and :func:`following` measures how
-closely the solved motion follows them.
+:func:`following` measures how closely a solved motion follows the driver.
 """
 
 from __future__ import annotations
@@ -47,10 +47,12 @@ from wiggly.drive.driver import (
     following,
     keyed_frames,
 )
+from wiggly.drive.secondary import SecondaryMotion, secondary_motion
 from wiggly.errors import WigglyInputError
 
-__all__ = ["DRIVER_EXTENSIONS", "DRIVE_STIFFNESS", "Driver", "driven_keyframes", "enrich",
-           "following", "keyed_frames", "read_driver"]
+__all__ = ["DRIVER_EXTENSIONS", "DRIVE_STIFFNESS", "Driver", "SecondaryMotion",
+           "driven_keyframes", "enrich", "following", "keyed_frames", "read_driver",
+           "secondary_motion"]
 
 #: Driver formats by file extension.
 DRIVER_EXTENSIONS = {
