@@ -16,14 +16,19 @@ import os
 import shutil
 import subprocess
 import sys
+import tomllib
+import zipfile
+from importlib import resources
 from pathlib import Path
 
+import jsonschema
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = Path(__file__).parent / "blender" / "wiggly_addon.py"
+SCHEMA = resources.files("wiggly") / "data" / "scene.schema.json"
 WIGGLY = shutil.which("wiggly", path=str(Path(sys.executable).parent)) or "wiggly"
 
 
@@ -82,6 +87,17 @@ def test_handle_bake_equals_wiggly_animate(blender_python, tmp_path, bake_as, fp
     assert seen["frame_range"] == frames and seen["fps"] == pytest.approx(rate, rel=1e-12)
     assert f"{frames[0]}-{frames[1]} at {rate:g} fps" in seen["bake"]["printed"]
 
+    scene = tomllib.loads((tmp_path / "shot.toml").read_text())
+    jsonschema.validate(scene, json.loads(SCHEMA.read_text()))  # the documented format
+    assert scene["time"] == {"start": 0.0, "end": (frames[1] - frames[0]) / rate,
+                             "fps": pytest.approx(rate, rel=1e-12), "loop": False}
+    assert scene["simulation"]["fixed"] == ["middle"]
+    assert scene["simulation"]["gravity"] == [0.0, -9.81, 0.0]  # Blender's, y up
+    assert [k["group"] for k in scene["keyframes"]] == ["left_end_001"] * 3
+    assert [k["time"] for k in scene["keyframes"]] == pytest.approx(
+        [0.0, 8 / rate, 16.5 / rate], rel=1e-12)
+    assert ["velocity" in k for k in scene["keyframes"]] == [True, False, True]  # Moving Hold
+    assert scene["output"] == {"paths": ["shot_wiggly.glb"], "frame_start": frames[0]}
     times, cli = wiggly_animate(tmp_path / "shot.toml")
     F = frames[1] - frames[0] + 1
     np.testing.assert_allclose(times * rate, np.arange(F), atol=1e-9)  # frame f at (f - fs)/fps
@@ -162,6 +178,7 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
         "unsaved blend": ("Object 'Tail': the cache folder //wiggly/ is relative to the "
                           ".blend file",),
         "no groups": ("Add a vertex group to the Wiggly group list first",),
+        "animated transform": ("Object 'Tail': its own location/rotation/scale is animated",),
     }
     assert sorted(errors) == sorted(expected)
     for label, parts in expected.items():
@@ -192,8 +209,6 @@ def test_extension_zip_builds(tmp_path):
     if done.returncode != 0 and "No rule to make target" in done.stderr:
         pytest.fail(done.stderr)
     assert done.returncode == 0, done.stderr
-    import tomllib
-    import zipfile
 
     (zip_path,) = tmp_path.glob("wiggly-*.zip")
     with zipfile.ZipFile(zip_path) as z:

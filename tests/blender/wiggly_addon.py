@@ -294,6 +294,10 @@ def case_errors() -> None:
     obj.wiggly.resolution = 10
     attempt("unsaved blend")
     obj.wiggly.cache_dir = str(workdir / "cache")
+    obj.location.x += 0.1
+    obj.keyframe_insert("location", frame=1)
+    attempt("animated transform")
+    obj.animation_data_clear()
     fresh(24, 1.0, (1, 13))
     bpy.ops.mesh.primitive_cube_add()
     attempt("no groups")
