@@ -27,23 +27,23 @@ import numpy as np
 from wiggly.errors import WigglyInputError
 from wiggly.limits import MAX_SHOTS
 from wiggly.scene import Scene, scene_from_dict, scene_to_dict
-from wiggly.scene.schema import _OUTPUT_PATTERN, _SCENE
+from wiggly.scene.schema import OUTPUT_PATTERN, SCENE_FORMAT
 from wiggly.scene.spec import OUTPUT_EXTENSIONS
 from wiggly.scene.validation import (
-    _Array,
-    _Bad,
-    _ByType,
-    _error,
-    _Map,
-    _Number,
-    _PositionTable,
-    _Problems,
-    _show,
-    _Spec,
-    _String,
-    _Table,
-    _unknown_key,
-    _Vector,
+    Array,
+    Bad,
+    ByType,
+    Map,
+    Number,
+    PositionTable,
+    Problems,
+    Spec,
+    String,
+    Table,
+    Vector,
+    input_error,
+    show,
+    unknown_key,
 )
 
 #: Sweep format version written in examples and the newest one read.
@@ -57,7 +57,7 @@ _STEP = re.compile(r"([A-Za-z0-9_-]+)(?:\[([^\[\]]+)\])?")
 _ZERO_DEFAULT = ("offset", "rotation", "translation")  # position vectors that default to 0
 
 
-class _Any(_Spec):
+class _Any(Spec):
     """Any TOML value (checked later against the key it is meant for)."""
 
     what = "a value"
@@ -69,7 +69,7 @@ class _Any(_Spec):
         return {}
 
 
-class _ParamMap(_Map):
+class _ParamMap(Map):
     """``[grid]`` / ``[random]``: parameter paths (quoted TOML keys) to values."""
 
     def key_path(self, path: str, key: str) -> str:
@@ -81,33 +81,33 @@ class _ParamMap(_Map):
 PARAM_PATTERN = r"^[A-Za-z0-9_-]+(\[[^\[\]]+\])?(\.[A-Za-z0-9_-]+(\[[^\[\]]+\])?)*$"
 _PARAM_WHAT = ('a parameter is a quoted key path into the scene, e.g. "material.young", '
                '"keyframes[2].position.offset" or "keyframes[take-off].velocity[1]"')
-_PAIR = _Vector(2, "low, high", item=_Any(), what="an array [low, high]")
-_DISTRIBUTION = _Table(
+_PAIR = Vector(2, "low, high", item=_Any(), what="an array [low, high]")
+_DISTRIBUTION = Table(
     {"uniform": _PAIR, "log_uniform": _PAIR, "integers": _PAIR,
-     "choice": _Array(_Any(), min_items=1, as_list=True, what="an array of values")},
+     "choice": Array(_Any(), min_items=1, as_list=True, what="an array of values")},
     one_of=DISTRIBUTIONS, one_of_what="distribution",
     what="a table with one of uniform, log_uniform, integers, choice",
     doc="uniform = [low, high] (numbers or vectors, per component), log_uniform = [low, high] "
         "(> 0), integers = [low, high] (inclusive), choice = [value, ...]")
-_SWEEP = _Table(
-    {"format": _Number(integer=True, ge=1, le=SWEEP_FORMAT, doc="sweep format version",
+_SWEEP = Table(
+    {"format": Number(integer=True, ge=1, le=SWEEP_FORMAT, doc="sweep format version",
                        what=f"{SWEEP_FORMAT} (the newest sweep format this wiggly reads)"),
-     "base": _String(doc="the base scene file, relative to the sweep file"),
-     "name": _String(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$",
+     "base": String(doc="the base scene file, relative to the sweep file"),
+     "name": String(pattern=r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$",
                      what='a name of letters, digits, "_", "-" and "."',
                      doc="prefix of the shot names (default: the sweep file's stem)"),
-     "samples": _Number(integer=True, ge=1, le=MAX_SHOTS,
+     "samples": Number(integer=True, ge=1, le=MAX_SHOTS,
                         doc="random draws per grid point (default 1)"),
-     "seed": _Number(integer=True, ge=0, le=2**63 - 1, what="an integer >= 0",
+     "seed": Number(integer=True, ge=0, le=2**63 - 1, what="an integer >= 0",
                      doc="seed of the random draws (default 0)"),
-     "grid": _ParamMap(_Array(_Any(), min_items=1, as_list=True, what="an array of values"),
+     "grid": _ParamMap(Array(_Any(), min_items=1, as_list=True, what="an array of values"),
                        PARAM_PATTERN, _PARAM_WHAT,
                        doc="every combination of these values (a cartesian product)"),
      "random": _ParamMap(_DISTRIBUTION, PARAM_PATTERN, _PARAM_WHAT,
                          doc="values drawn independently for every shot"),
-     "output": _Table(
-         {"dir": _String(doc="where `wiggly batch` writes, relative to the sweep file"),
-          "paths": _Array(_String(pattern=_OUTPUT_PATTERN,
+     "output": Table(
+         {"dir": String(doc="where `wiggly batch` writes, relative to the sweep file"),
+          "paths": Array(String(pattern=OUTPUT_PATTERN,
                                   what="a file name ending in " + ", ".join(OUTPUT_EXTENSIONS)),
                           unique=True, as_list=True,
                           doc="files written into every shot's folder")},
@@ -136,36 +136,36 @@ class Param:
 
     path: str
     steps: tuple[str | int, ...]
-    spec: _Spec
+    spec: Spec
     drop: tuple[str, ...] = ()  # keys of the table ``steps[:drop_at]`` that this replaces
     drop_at: int = 0
     fill: tuple | None = None
 
     @property
     def numeric(self) -> bool:
-        return isinstance(self.spec, _Number | _Vector)
+        return isinstance(self.spec, Number | Vector)
 
     @property
     def integer(self) -> bool:
-        return isinstance(self.spec, _Number) and self.spec.integer
+        return isinstance(self.spec, Number) and self.spec.integer
 
 
-def _child(spec: _Spec, key: str) -> _Spec | None:
-    if isinstance(spec, _Table):
+def _child(spec: Spec, key: str) -> Spec | None:
+    if isinstance(spec, Table):
         return spec.keys.get(key)
-    if isinstance(spec, _Map):
+    if isinstance(spec, Map):
         return spec.item
-    if isinstance(spec, _ByType):  # a keyframe's position: "rest" or a table
-        table = next((s for s in spec.options.values() if isinstance(s, _PositionTable)), None)
+    if isinstance(spec, ByType):  # a keyframe's position: "rest" or a table
+        table = next((s for s in spec.options.values() if isinstance(s, PositionTable)), None)
         return None if table is None else table.all_keys.get(key)
     return None
 
 
-def _keys_of(spec: _Spec) -> list[str]:
-    if isinstance(spec, _Table):
+def _keys_of(spec: Spec) -> list[str]:
+    if isinstance(spec, Table):
         return list(spec.keys)
-    if isinstance(spec, _ByType):
-        table = next((s for s in spec.options.values() if isinstance(s, _PositionTable)), None)
+    if isinstance(spec, ByType):
+        table = next((s for s in spec.options.values() if isinstance(s, PositionTable)), None)
         return list(table.all_keys) if table else []
     return []
 
@@ -182,7 +182,7 @@ def resolve_param(path: str, base: dict, label: str) -> Param:
     :class:`WigglyInputError` (``label: ...``) when the scene format has no such key or the
     base scene lacks what it refers to."""
     steps: list[str | int] = []
-    spec: _Spec = _SCENE
+    spec: Spec = SCENE_FORMAT
     node: Any = base
     drop: tuple[str, ...] = ()
     drop_at = 0
@@ -202,14 +202,14 @@ def resolve_param(path: str, base: dict, label: str) -> Param:
         child = _child(spec, key)
         if child is None:
             allowed = _keys_of(spec)
-            if where == "keyframes" and isinstance(spec, _Array):
+            if where == "keyframes" and isinstance(spec, Array):
                 raise WigglyInputError(f"{label}: keyframes is an array; pick a keyframe by "
                                        "index or name: keyframes[2] or keyframes[take-off]")
             if not allowed:
                 raise WigglyInputError(f"{label}: {where or 'the scene'} takes no key "
                                        f"{key!r}; vary it whole")
-            raise WigglyInputError(f"{label}: {_unknown_key(key, where, allowed)}")
-        if isinstance(spec, _Map) and (not isinstance(node, dict) or key not in node):
+            raise WigglyInputError(f"{label}: {unknown_key(key, where, allowed)}")
+        if isinstance(spec, Map) and (not isinstance(node, dict) or key not in node):
             names = ", ".join(node) if isinstance(node, dict) and node else "none"
             if not last_key:
                 raise WigglyInputError(f"{label}: the base scene has no {where} {key!r}; "
@@ -218,7 +218,7 @@ def resolve_param(path: str, base: dict, label: str) -> Param:
         if replaced:
             drop, drop_at = replaced, len(steps)
         where = f"{where}.{key}" if where else key
-        if isinstance(node, str) and isinstance(spec, _ByType):
+        if isinstance(node, str) and isinstance(spec, ByType):
             node = {}  # "rest" is an offset of 0, a rigid target with no rotation
         node = node.get(key) if isinstance(node, dict) else None
         steps.append(key)
@@ -244,10 +244,10 @@ def _split(path: str) -> list[str]:
     return [*parts, cur]
 
 
-def _replaced(spec: _Spec, key: str, node, label: str, where: str, last: bool) -> tuple:
+def _replaced(spec: Spec, key: str, node, label: str, where: str, last: bool) -> tuple:
     """Keys of the same table that setting ``key`` replaces (``end`` replaces ``duration``, a
     group's ``sphere`` its ``box``); an error when a path below ``key`` would mix them."""
-    if isinstance(spec, _ByType):
+    if isinstance(spec, ByType):
         kind = "offset" if key == "offset" else "absolute" if key == "absolute" else "rigid"
         have = _position_kind(node)
         if have is not None and have != kind:
@@ -256,7 +256,7 @@ def _replaced(spec: _Spec, key: str, node, label: str, where: str, last: bool) -
                 f"base scene; a sweep may vary its {have} keys, or replace the whole position "
                 f'(e.g. "{where}" = [...])')
         return ()
-    if not isinstance(spec, _Table) or not isinstance(node, dict):
+    if not isinstance(spec, Table) or not isinstance(node, dict):
         return ()
     out = [b for a, b in spec.exclusive if a == key] + [a for a, b in spec.exclusive if b == key]
     if key in spec.one_of:
@@ -269,9 +269,9 @@ def _replaced(spec: _Spec, key: str, node, label: str, where: str, last: bool) -
     return tuple(out)
 
 
-def _index(spec: _Spec, node, bracket: str, label: str, where: str, key: str, parts, n):
+def _index(spec: Spec, node, bracket: str, label: str, where: str, key: str, parts, n):
     """A ``[...]`` step: a keyframe by index or name, or a component of a vector."""
-    if isinstance(spec, _Array) and key == "keyframes" and n == 0:
+    if isinstance(spec, Array) and key == "keyframes" and n == 0:
         frames = node if isinstance(node, list) else []
         if bracket.isdigit():
             index = int(bracket)
@@ -289,7 +289,7 @@ def _index(spec: _Spec, node, bracket: str, label: str, where: str, key: str, pa
                                        f"{', '.join(names) or 'none'} (or use keyframes[index])")
             index = hits[0]
         return frames[index], index, spec.item, None
-    if isinstance(spec, _Vector):
+    if isinstance(spec, Vector):
         if not (bracket.isdigit() and int(bracket) < spec.n):
             raise WigglyInputError(f"{label}: {where} has {spec.n} components; index them "
                                    f"[0] .. [{spec.n - 1}]")
@@ -443,15 +443,15 @@ def sweep_from_dict(data: dict, where: str, source: Path) -> Sweep:
     directory)."""
     from wiggly.scene import load_scene
 
-    p = _Problems(where)
+    p = Problems(where)
     d = p.parse(_SWEEP, data)
     base_path = (source.parent / Path(d["base"]).expanduser()).resolve()
     try:
         base = load_scene(base_path)
     except WigglyInputError as err:
-        raise _error(where, [f"base = {_show(d['base'])}: the base scene is not valid:\n{err}"]
+        raise input_error(where, [f"base = {show(d['base'])}: the base scene is not valid:\n{err}"]
                      if base_path.is_file() else
-                     [f"base = {_show(d['base'])}: no such scene file ({base_path})"]) from None
+                     [f"base = {show(d['base'])}: no such scene file ({base_path})"]) from None
     base_dict = scene_to_dict(base)
     params: dict[str, Param] = {}
     grid, random = d.get("grid", {}), d.get("random", {})
@@ -494,22 +494,22 @@ def sweep_from_dict(data: dict, where: str, source: Path) -> Sweep:
                 why = ("must be a file name, without folders: every shot writes into its own "
                        "folder" if Path(name).name != name else
                        f"is a name the batch uses itself ({', '.join(RESERVED_NAMES)})")
-                p.add(f"output.paths[{j}] = {_show(name)} {why}")
+                p.add(f"output.paths[{j}] = {show(name)} {why}")
     p.raise_if_any()
     out_dir = (source.parent / Path(out["dir"]).expanduser()) if "dir" in out else None
     return Sweep(source, base, d.get("name", source.stem), int(d.get("seed", 0)), samples,
                  {k: list(v) for k, v in grid.items()}, dists, params, outputs, out_dir)
 
 
-def _check_value(param: Param, value, label: str, p: _Problems) -> bool:
+def _check_value(param: Param, value, label: str, p: Problems) -> bool:
     try:
         param.spec.parse(value, label, p)
-    except _Bad:
+    except Bad:
         return False
     return True
 
 
-def _check_distribution(param: Param, table: dict, label: str, p: _Problems):
+def _check_distribution(param: Param, table: dict, label: str, p: Problems):
     kind = next(k for k in DISTRIBUTIONS if k in table)
     args = table[kind]
     at = f"{label}.{kind}"
@@ -528,11 +528,11 @@ def _check_distribution(param: Param, table: dict, label: str, p: _Problems):
         return None
     lo, hi = (np.atleast_1d(np.asarray(a, dtype=float)) for a in args)
     if np.any(lo > hi):
-        p.add(f"{at} = {_show(list(args))}: low exceeds high"
+        p.add(f"{at} = {show(list(args))}: low exceeds high"
               + (f" in component {int(np.argmax(lo > hi))}" if lo.size > 1 else ""))
         return None
     if kind == "log_uniform" and np.any(lo <= 0):
-        p.add(f"{at} = {_show(list(args))}: log_uniform needs low > 0 (use uniform to include "
+        p.add(f"{at} = {show(list(args))}: log_uniform needs low > 0 (use uniform to include "
               "0 or negative values)")
         return None
     return Distribution(kind, tuple(args))

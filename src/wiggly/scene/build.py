@@ -19,7 +19,7 @@ from wiggly.progress import activity, say
 from wiggly.scene.drive import check_driver_against, driven_body, driven_keyframes_of
 from wiggly.scene.groups import resolve_group_arrays, resolve_groups
 from wiggly.scene.spec import RIGID_MODES, Absolute, Offset, Rest, Scene
-from wiggly.scene.validation import _error, _Problems, _show
+from wiggly.scene.validation import Problems, input_error, show
 
 # ----------------------------------------------------------------------------------------------
 # building and running
@@ -34,10 +34,10 @@ def _load_model(scene: Scene, progress: bool):
     try:
         loaded = meshing.load_mesh(f)
     except WigglyInputError as err:  # a file that is there but cannot be read
-        raise WigglyInputError(f"{where}: mesh.path = {_show(scene.mesh.path)}: {err}") from None
+        raise WigglyInputError(f"{where}: mesh.path = {show(scene.mesh.path)}: {err}") from None
     checked = None
     if isinstance(loaded, meshing.Surface):  # check what we can before tetrahedralizing
-        p = _Problems(where)
+        p = Problems(where)
         resolve_group_arrays(scene, loaded.vertices, loaded.groups, None, None, p)
         check_driver_against(scene, loaded.n_vertices, loaded.faces, f.name, p, progress)
         p.raise_if_any()
@@ -51,7 +51,7 @@ def _load_model(scene: Scene, progress: bool):
     say(f"{counted(model.tets.n_tets, 'tet')}, {counted(model.tets.n_vertices, 'vertex')} "
          f"({_time.perf_counter() - t:.1f} s)", progress)
     if checked is None:  # a tet mesh: its surface is known now
-        p = _Problems(where)
+        p = Problems(where)
         check_driver_against(scene, model.surface.n_vertices, model.surface.faces, f.name, p,
                              progress)
         p.raise_if_any()
@@ -64,21 +64,21 @@ def _check_surface_for_scene(scene: Scene, report, name: str) -> None:
 
     where, m = scene.where(), scene.mesh
     if m.repair is False and not report.clean:
-        raise _error(where, [
+        raise input_error(where, [
             f"mesh.repair = false refuses {name}: {'; '.join(report.defects(detailed=True))}. "
             "Remove repair = false (or set it to true) to let fTetWild fill the solid its "
             "triangles enclose, or fix the model in a modelling tool"])
     if m.edge_length is not None:
-        key, value = "mesh.edge_length", _show(m.edge_length)
+        key, value = "mesh.edge_length", show(m.edge_length)
     else:
         key = "mesh.resolution"
-        value = _show(m.resolution) if m.resolution is not None else \
+        value = show(m.resolution) if m.resolution is not None else \
             f"{DEFAULT_RESOLUTION} (the default)"
     h = edge_length_for(report.diagonal, m.edge_length, m.resolution, where)
     try:
         check_tet_budget(report, h, where, key)
     except TetBudgetError as err:
-        raise _error(where, [
+        raise input_error(where, [
             f"{key} = {value} would make about {err.estimate:.2g} tetrahedra of {name}, more "
             f"than wiggly's limit of {MAX_TETS} (wiggly.limits.MAX_TETS); use resolution <= "
             f"{err.max_resolution} (or edge_length >= {err.min_edge_length:.3g} m)"]) from None
@@ -93,13 +93,13 @@ def _check_modes_for_scene(scene: Scene, model, fixed_vertices) -> None:
     modes, name = scene.simulation.modes, scene.mesh_file().name
     if modes > free:
         held = f", {len(fixed)} of them fixed" if len(fixed) else ""
-        raise _error(scene.where(), [
+        raise input_error(scene.where(), [
             f"simulation.modes = {modes} is more than the {free} degrees of freedom of {name}'s "
             f"tet mesh ({counted(n, 'vertex')}{held}, 3 each); use at most {free}, or a higher "
             "mesh.resolution"])
     rigid = _rigid_mode_count(model.tets.vertices[fixed])
     if modes < rigid:
-        raise _error(scene.where(), [
+        raise input_error(scene.where(), [
             f"simulation.modes = {modes} is fewer than the {rigid} rigid modes that the fixed "
             f"groups leave free (they are {'collinear' if len(fixed) > 1 else 'one point'}), "
             f"which the basis must contain; use at least {rigid + 1}"])

@@ -4,7 +4,6 @@ the driven keyframes (:func:`wiggly.drive.driven_keyframes`)."""
 
 from __future__ import annotations
 
-import difflib
 import threading
 from pathlib import Path
 
@@ -17,7 +16,7 @@ from wiggly.errors import WigglyInputError, counted
 from wiggly.keyframes import Keyframe
 from wiggly.progress import activity, say
 from wiggly.scene.spec import Scene
-from wiggly.scene.validation import _Problems, _show
+from wiggly.scene.validation import Problems, did_you_mean, show
 
 __all__ = ["check_drive", "check_drive_file", "check_driver_against", "driven_body",
            "driven_keyframes_of", "driven_vertices", "scene_driver", "secondary_of"]
@@ -25,12 +24,7 @@ __all__ = ["check_drive", "check_drive_file", "check_driver_against", "driven_bo
 _GLTF, _USD = (".glb", ".gltf"), (".usd", ".usda", ".usdc", ".usdz")
 
 
-def _suggest(name: str, names) -> str:
-    close = difflib.get_close_matches(name, list(names), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
-def check_drive(scene: Scene, p: _Problems) -> None:
+def check_drive(scene: Scene, p: Problems) -> None:
     """References of ``[drive]``: its groups exist and are on the surface, the shot has a
     time range, and the options fit the driver's format."""
     drive = scene.drive
@@ -42,10 +36,10 @@ def check_drive(scene: Scene, p: _Problems) -> None:
     for j, g in enumerate(drive.groups):
         key = f"drive.group[{j}]" if many else "drive.group"
         if g not in scene.groups:
-            p.add(f"{key} = {_show(g)} is not a group{_suggest(g, names)}; groups are: "
+            p.add(f"{key} = {show(g)} is not a group{did_you_mean(g, names)}; groups are: "
                   f"{listing}")
         elif scene.groups[g].on != "surface":
-            p.add(f"{key} = {_show(g)} selects tet-mesh vertices (on = \"tets\"); a driver "
+            p.add(f"{key} = {show(g)} selects tet-mesh vertices (on = \"tets\"); a driver "
                   "animates the surface: use a group of surface vertices")
     if scene.time.end is None and scene.time.duration is None:
         p.add("time.end (or time.duration) is missing: a driven shot needs its time range"
@@ -55,8 +49,8 @@ def check_drive(scene: Scene, p: _Problems) -> None:
                                                                "glTF and USD"),
                                ("frame_rate", (".obj",), "OBJ sequence")):
         if getattr(drive, key) is not None and ext not in formats:
-            p.add(f"drive.{key} = {_show(getattr(drive, key))} applies to {what} drivers only; "
-                  f"drive.path = {_show(drive.path)} is not one")
+            p.add(f"drive.{key} = {show(getattr(drive, key))} applies to {what} drivers only; "
+                  f"drive.path = {show(drive.path)} is not one")
 
 
 def _span_hint(scene: Scene) -> str:
@@ -70,7 +64,7 @@ def _span_hint(scene: Scene) -> str:
             f"end = {end:g} to [time])")
 
 
-def check_drive_file(scene: Scene, p: _Problems) -> None:
+def check_drive_file(scene: Scene, p: Problems) -> None:
     """The driver file exists (an OBJ sequence: some numbered file matches)."""
     drive = scene.drive
     if drive is None:
@@ -80,13 +74,13 @@ def check_drive_file(scene: Scene, p: _Problems) -> None:
         try:
             found = sequence_files(path)
         except WigglyInputError as err:
-            p.add(f"drive.path = {_show(drive.path)}: {err}")
+            p.add(f"drive.path = {show(drive.path)}: {err}")
             return
         if not found:
-            p.add(f"drive.path = {_show(drive.path)}: no OBJ sequence there (no numbered file "
+            p.add(f"drive.path = {show(drive.path)}: no OBJ sequence there (no numbered file "
                   f"such as {path.stem.rstrip('#_')}_0001.obj in {path.parent})")
     elif not path.is_file():
-        p.add(f"drive.path = {_show(drive.path)}: "
+        p.add(f"drive.path = {show(drive.path)}: "
               f"{'is a directory' if path.is_dir() else 'no such file'} ({path})")
 
 
@@ -128,7 +122,7 @@ def scene_driver(scene: Scene, progress: bool = False) -> Driver:
             driver = read_driver(path, animation=drive.animation, object=drive.object,
                                  frame_rate=rate, progress=progress)
     except WigglyInputError as err:
-        raise WigglyInputError(f"{scene.where()}: drive.path = {_show(drive.path)}: "
+        raise WigglyInputError(f"{scene.where()}: drive.path = {show(drive.path)}: "
                                f"{err}") from None
     with _LOCK:
         _CACHE[key] = driver
@@ -138,7 +132,7 @@ def scene_driver(scene: Scene, progress: bool = False) -> Driver:
 
 
 def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: str,
-                         p: _Problems, progress: bool = False) -> None:
+                         p: Problems, progress: bool = False) -> None:
     """The driver animates the surface just read (``vertices`` vertices, triangles
     ``faces``, file ``mesh``): checked before tetrahedralizing."""
     if scene.drive is None:
@@ -150,7 +144,7 @@ def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: s
         return
     why = driver.mismatch(vertices, faces, mesh)
     if why is not None:
-        p.add(f"drive.path = {_show(scene.drive.path)}: {why}")
+        p.add(f"drive.path = {show(scene.drive.path)}: {why}")
 
 
 def driven_vertices(scene: Scene, groups: dict[str, np.ndarray]) -> np.ndarray:
@@ -188,7 +182,7 @@ def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
             offset=drive.offset, driver_range=drive.range, start=start, end=end,
             name=f"drive {'+'.join(drive.groups)}")
     except WigglyInputError as err:
-        raise WigglyInputError(f"{scene.where()}: drive.path = {_show(drive.path)}: "
+        raise WigglyInputError(f"{scene.where()}: drive.path = {show(drive.path)}: "
                                f"{err}") from None
     say(f"driving {counted(len(keys[0].vertices), 'vertex')} ({'+'.join(drive.groups)}) at "
         f"{counted(len(keys), 'frame')} of {Path(drive.path).name} ({driver.kind})", progress)
@@ -214,7 +208,7 @@ def secondary_of(scene: Scene, body, groups: dict[str, np.ndarray], keyframes: l
                 free_mode_count=drive.free_modes, intensity=drive.intensity,
                 offset=drive.offset, driver_range=drive.range)
     except WigglyInputError as err:
-        raise WigglyInputError(f"{scene.where()}: drive.path = {_show(drive.path)}: "
+        raise WigglyInputError(f"{scene.where()}: drive.path = {show(drive.path)}: "
                                f"{err}") from None
     say(f"driving {counted(len(driven), 'vertex')} ({'+'.join(drive.groups)}) with "
         f"{counted(anim.info['driver_frames'], 'frame')} of {Path(drive.path).name} "

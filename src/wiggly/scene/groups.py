@@ -7,7 +7,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wiggly.errors import counted
-from wiggly.scene.schema import _suggest
 from wiggly.scene.spec import (
     _SELECTOR_KEYS,
     Absolute,
@@ -18,14 +17,14 @@ from wiggly.scene.spec import (
     Scene,
     Sphere,
 )
-from wiggly.scene.validation import _Problems, _show
+from wiggly.scene.validation import Problems, did_you_mean, show
 
 # ----------------------------------------------------------------------------------------------
 # groups (checked against the mesh)
 
 
 def _select(name: str, group: GroupSpec, X: np.ndarray, mesh_groups: dict[str, np.ndarray],
-            what: str, p: _Problems) -> np.ndarray | None:
+            what: str, p: Problems) -> np.ndarray | None:
     """Vertex indices of one group among the rest positions ``X``; None (and a problem)."""
     sel = group.selector
     path = f"groups.{name}"
@@ -54,14 +53,14 @@ def _select(name: str, group: GroupSpec, X: np.ndarray, mesh_groups: dict[str, n
         if sel.name not in mesh_groups:
             have = (f"its groups are: {', '.join(mesh_groups)}" if mesh_groups else
                     "it has no vertex groups")
-            p.add(f"{path}.from_mesh = {_show(sel.name)}: the {what} has no vertex group of "
-                  f"that name{_suggest(sel.name, mesh_groups)}; {have}")
+            p.add(f"{path}.from_mesh = {show(sel.name)}: the {what} has no vertex group of "
+                  f"that name{did_you_mean(sel.name, mesh_groups)}; {have}")
             return None
         idx = np.asarray(mesh_groups[sel.name], dtype=np.int64)
     if idx.size == 0:
         lo, hi = X.min(axis=0), X.max(axis=0)
         p.add(f"{path} ({_SELECTOR_KEYS[type(sel)]}) selects no vertex of the {what}; its "
-              f"bounding box is {_show(lo.round(4).tolist())} .. {_show(hi.round(4).tolist())}")
+              f"bounding box is {show(lo.round(4).tolist())} .. {show(hi.round(4).tolist())}")
         return None
     return idx
 
@@ -77,14 +76,14 @@ def resolve_groups(scene: Scene, model=None, *, surface=None) -> dict[str, np.nd
         tet_X = tet_groups = None
     else:
         raise TypeError("resolve_groups needs a model or a surface")
-    p = _Problems(scene.where())
+    p = Problems(scene.where())
     out = resolve_group_arrays(scene, surface.vertices, surface.groups, tet_X, tet_groups, p)
     p.raise_if_any()
     return out
 
 
 def resolve_group_arrays(scene: Scene, surface_X, surface_groups, tet_X, tet_groups,
-                         p: _Problems) -> dict[str, np.ndarray]:
+                         p: Problems) -> dict[str, np.ndarray]:
     """The groups of ``scene`` on the given vertex arrays (``tet_X`` None: surface groups
     only), adding every mistake to ``p``."""
     out = {}

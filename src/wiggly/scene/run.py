@@ -29,7 +29,7 @@ from wiggly.scene.spec import (
     OutputSpec,
     Scene,
 )
-from wiggly.scene.validation import _error, _show
+from wiggly.scene.validation import input_error, show
 from wiggly.solve import SpacetimeProblem, solve
 
 
@@ -73,7 +73,7 @@ def check_outputs(paths: list[Path], overwrite: bool, where: str = "outputs",
                 problems.append(f"{label}: {existing} exists; pass --overwrite (or overwrite = "
                                 "true in [output]) to replace it")
     if problems:
-        raise _error(where, problems)
+        raise input_error(where, problems)
 
 
 def _hex_rgb(color: str) -> tuple[float, float, float]:
@@ -141,7 +141,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
 
     overwrite = scene.output.overwrite if overwrite is None else overwrite
     paths = _output_paths(scene, outputs)
-    labels = ([f"output.paths[{i}] = {_show(p)}" for i, p in enumerate(scene.output.paths)]
+    labels = ([f"output.paths[{i}] = {show(p)}" for i, p in enumerate(scene.output.paths)]
               if outputs is None else [f"-o {o}" for o in outputs])
     check_outputs(paths, overwrite, scene.where(), labels)
     _check_gltf_targets(scene, paths)
@@ -169,7 +169,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
 def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
     if scene.output.gltf_targets == "modes" and scene.simulation.warp and \
             any(p.suffix.lower() == ".glb" for p in paths):
-        raise _error(scene.where(), [
+        raise input_error(scene.where(), [
             'output.gltf_targets = "modes" needs a linear shot: a warped motion is no linear '
             "combination of modes; set simulation.warp = false (or pass --linear), or use "
             '"frames"'])

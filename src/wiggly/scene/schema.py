@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import difflib
 import json
 import math
 import os
@@ -41,60 +40,61 @@ from wiggly.scene.spec import (
     TimeSpec,
 )
 from wiggly.scene.validation import (
-    _Array,
-    _Bool,
-    _ByType,
-    _Const,
-    _Map,
-    _Number,
-    _PositionTable,
-    _Problems,
-    _show,
-    _String,
-    _Table,
-    _Vector,
+    Array,
+    Bool,
+    ByType,
+    Const,
+    Map,
+    Number,
+    PositionTable,
+    Problems,
+    String,
+    Table,
+    Vector,
+    did_you_mean,
+    show,
 )
 
 # --- the scene format ---------------------------------------------------------------------------
 
 
-def _check_box(d: dict, path: str, p: _Problems) -> None:
+def _check_box(d: dict, path: str, p: Problems) -> None:
     lo, hi = d["min"], d["max"]
     bad = [a for a, x, y in zip("xyz", lo, hi, strict=True) if x > y]
     if bad:
-        raise p.bad(f"{path}.min = {_show(list(lo))} exceeds {path}.max = {_show(list(hi))} "
+        raise p.bad(f"{path}.min = {show(list(lo))} exceeds {path}.max = {show(list(hi))} "
                     f"in {', '.join(bad)}; min must be <= max in every coordinate")
 
 
-def _check_time(d: dict, path: str, p: _Problems) -> None:
+def _check_time(d: dict, path: str, p: Problems) -> None:
     start = d.get("start", 0.0)
     if "end" in d and d["end"] <= start:
-        raise p.bad(f"{path}.end = {_show(d['end'])} must be after {path}.start = {_show(start)}")
+        raise p.bad(f"{path}.end = {show(d['end'])} must be after {path}.start = {show(start)}")
     if "end" in d and d["end"] - start > MAX_DURATION:
-        raise p.bad(f"{path}.end = {_show(d['end'])} makes a shot of {d['end'] - start:g} s; "
+        raise p.bad(f"{path}.end = {show(d['end'])} makes a shot of {d['end'] - start:g} s; "
                     f"shots may last at most {MAX_DURATION:g} s (wiggly.limits.MAX_DURATION)")
 
 
 _POSITIVE = {"gt": 0.0}
 _SELECTOR_SPECS = {
-    "box": _Table({"min": _Vector(3, unit="m"), "max": _Vector(3, unit="m")},
+    "box": Table({"min": Vector(3, unit="m"), "max": Vector(3, unit="m")},
                   required=("min", "max"), check=_check_box,
                   make=lambda d: Box(d["min"], d["max"]),
                   doc="vertices with min <= x <= max in every coordinate"),
-    "sphere": _Table({"center": _Vector(3, unit="m"), "radius": _Number(unit="m", **_POSITIVE)},
+    "sphere": Table({"center": Vector(3, unit="m"), "radius": Number(unit="m", **_POSITIVE)},
                      required=("center", "radius"),
                      make=lambda d: Sphere(d["center"], d["radius"]),
                      doc="vertices with |x - center| <= radius"),
-    "nearest": _Table({"points": _Array(_Vector(3, unit="m"), min_items=1,
+    "nearest": Table({"points": Array(Vector(3, unit="m"), min_items=1,
                                         what="an array of [x, y, z] points"),
-                       "count": _Number(integer=True, ge=1, doc="vertices per point (default 1)")},
+                       "count": Number(integer=True, ge=1, doc="vertices per point (default 1)")},
                       required=("points",), make=lambda d: Nearest(d["points"],
                                                                    d.get("count", 1)),
                       doc="the count nearest vertices to each point"),
-    "indices": _Array(_Number(integer=True, ge=0), min_items=1, unique=True,
+    "indices": Array(Number(integer=True, ge=0), min_items=1, unique=True,
                       what="an array of distinct vertex indices (integers >= 0)",
                       doc="explicit vertex indices (0-based); absolute targets follow this order"),
-    "from_mesh": _String(doc="name of a vertex group stored in the mesh file"),
+    "from_mesh": String(doc="name of a vertex group stored in the mesh file"),
 }
 
 
@@ -106,40 +106,40 @@ def _make_group(d: dict) -> GroupSpec:
     return GroupSpec(selector, d.get("on", "surface"), d.get("color"), d.get("young"))
 
 
-_GROUP = _Table(
+_GROUP = Table(
     {**_SELECTOR_SPECS,
-     "on": _String(enum=("surface", "tets"),
+     "on": String(enum=("surface", "tets"),
                    doc='"surface" (default): vertices of the user\'s surface; "tets": '
                        "vertices of the tet mesh"),
-     "color": _String(pattern=r"^#[0-9a-fA-F]{6}$", what='a color "#rrggbb"',
+     "color": String(pattern=r"^#[0-9a-fA-F]{6}$", what='a color "#rrggbb"',
                       doc="color in previews and the editor"),
-     "young": _Number(unit="Pa", **_POSITIVE,
+     "young": Number(unit="Pa", **_POSITIVE,
                       doc="Young's modulus (Pa) of the group's tets (those whose corners all "
                           "carry the group) in place of [material] young: a softer tail on a "
                           "stiffer body; later groups win where groups overlap")},
     one_of=tuple(_SELECTOR_SPECS), make=_make_group,
     doc="a named vertex group: exactly one selector")
 
-_KEYFRAME = _Table(
-    {"time": _Number(unit="s", doc="key time (s), within the shot's time range"),
-     "group": _String(doc="name of a group"),
-     "position": _ByType({str: _Const("rest", Rest(), _PositionTable.what),
-                          dict: _PositionTable()},
+_KEYFRAME = Table(
+    {"time": Number(unit="s", doc="key time (s), within the shot's time range"),
+     "group": String(doc="name of a group"),
+     "position": ByType({str: Const("rest", Rest(), PositionTable.what),
+                          dict: PositionTable()},
                          what='"rest" or a table with offset, absolute, or '
                               "rotation/translation (and optional center)",
                          doc="position target"),
-     "velocity": _Vector(3, "vx, vy, vz", "m/s", doc="target velocity (m/s) of every vertex"),
-     "stiffness": _Number(ge=0.0, doc="dimensionless weight (default 1e6)"),
-     "c_A": _Number(ge=0.0, doc="explicit position weight of eq. (4)"),
-     "c_B": _Number(ge=0.0, doc="explicit velocity weight of eq. (4)"),
-     "name": _String(min_length=0, what="a string", doc="label")},
+     "velocity": Vector(3, "vx, vy, vz", "m/s", doc="target velocity (m/s) of every vertex"),
+     "stiffness": Number(ge=0.0, doc="dimensionless weight (default 1e6)"),
+     "c_A": Number(ge=0.0, doc="explicit position weight of eq. (4)"),
+     "c_B": Number(ge=0.0, doc="explicit velocity weight of eq. (4)"),
+     "name": String(min_length=0, what="a string", doc="label")},
     required=("time", "group"), any_of=("position", "velocity"),
     make=lambda d: KeyframeSpec(**d), what="a table ([[keyframes]])",
     doc="constraints on one group at one time")
 
-def _check_drive_range(d: dict, path: str, p: _Problems) -> None:
+def _check_drive_range(d: dict, path: str, p: Problems) -> None:
     if "range" in d and d["range"][0] > d["range"][1]:
-        raise p.bad(f"{path}.range = {_show(list(d['range']))} must be [first, last] with "
+        raise p.bad(f"{path}.range = {show(list(d['range']))} must be [first, last] with "
                     "first <= last (seconds of the driver's clock)")
 
 
@@ -148,121 +148,121 @@ def _extensions_pattern(extensions) -> str:
                                       for c in e[1:]) for e in extensions) + r")$"
 
 
-_DRIVE = _Table(
-    {"path": _String(pattern=_extensions_pattern(DRIVER_EXTENSIONS),
+_DRIVE = Table(
+    {"path": String(pattern=_extensions_pattern(DRIVER_EXTENSIONS),
                      what="a driver file ending in " + ", ".join(DRIVER_EXTENSIONS),
                      doc="driver animation of the surface, relative to the scene file: glTF "
                          "(skinned or morph targets), USD (time-sampled points or UsdSkel), "
                          "an OBJ sequence (walk_####.obj, walk_000001.obj) or a wiggly .npz"),
-     "group": _ByType({str: _String(what="a group name"),
-                       list: _Array(_String(what="a group name"), min_items=1, unique=True)},
+     "group": ByType({str: String(what="a group name"),
+                       list: Array(String(what="a group name"), min_items=1, unique=True)},
                       what="a group name or an array of group names",
                       doc="the driven group (or groups: their union), keyed to the driver at "
                           "every driver frame"),
-     "offset": _Number(unit="s", doc="driver time t plays at shot time t + offset (default 0)"),
-     "range": _Vector(2, "first, last", "s",
+     "offset": Number(unit="s", doc="driver time t plays at shot time t + offset (default 0)"),
+     "range": Vector(2, "first, last", "s",
                       doc="only driver frames with first <= t <= last (driver seconds) are "
                           "keyed (default: all)"),
-     "physics": _String(enum=DRIVE_PHYSICS,
+     "physics": String(enum=DRIVE_PHYSICS,
                         doc='"secondary" (default): the driver is a moving rest state, the '
                             "driven group follows it exactly and physics moves the free parts "
                             'during the animation; "keys": the driven group is keyed at every '
                             "driver frame and the whole body minimises the spacetime energy"),
-     "free_modes": _Number(integer=True, ge=1, le=500,
+     "free_modes": Number(integer=True, ge=1, le=500,
                            doc="secondary: modes of the free parts with the driven group held "
                                "(default 24)"),
-     "intensity": _Number(ge=0.0, le=100.0,
+     "intensity": Number(ge=0.0, le=100.0,
                           doc="secondary: scales the driver's inertial forces on the free "
                               "parts without changing their timing (1 physical, 0 carried "
                               "with the driver; default 1)"),
-     "stiffness": _Number(ge=0.0, doc='physics = "keys": dimensionless weight of every driven '
+     "stiffness": Number(ge=0.0, doc='physics = "keys": dimensionless weight of every driven '
                                        "key (default 1e12: the driven group meets the driver)"),
-     "enrich": _Bool(doc='physics = "keys": add the driver\'s shapes to the modal basis '
+     "enrich": Bool(doc='physics = "keys": add the driver\'s shapes to the modal basis '
                          "(Rayleigh-Ritz), so that the driven group can follow it closely "
                          "(default true)"),
-     "animation": _ByType({str: _String(), int: _Number(integer=True, ge=0)},
+     "animation": ByType({str: String(), int: Number(integer=True, ge=0)},
                           what="an animation name or index (integer >= 0)",
                           doc="glTF: the animation to play, by name or index (default: the "
                               "first)"),
-     "object": _String(doc="glTF: the mesh node (or mesh) to read; USD: the prim at or below "
+     "object": String(doc="glTF: the mesh node (or mesh) to read; USD: the prim at or below "
                            "which meshes are read, by path or name (default: every mesh)"),
-     "frame_rate": _Number(gt=0.0, le=MAX_FPS, unit="frames/s",
+     "frame_rate": Number(gt=0.0, le=MAX_FPS, unit="frames/s",
                            doc="OBJ sequences without wiggly's # time comments: frame N is at "
                                "N / frame_rate s (default: time.fps)")},
     required=("path", "group"), check=_check_drive_range, make=lambda d: DriveSpec(**d),
     doc="secondary motion on an existing animation: a driver animation of the surface moves "
         "the driven group; the rest moves freely, driven by physics")
 
-_OUTPUT_PATTERN = r"\.(" + "|".join(
+OUTPUT_PATTERN = r"\.(" + "|".join(
     "".join(f"[{c.lower()}{c.upper()}]" if c.isalpha() else c for c in e[1:])
     for e in OUTPUT_EXTENSIONS) + r")$"
 
-_SCENE = _Table(
-    {"format": _Number(integer=True, ge=1, le=FORMAT, doc="scene format version",
+SCENE_FORMAT = Table(
+    {"format": Number(integer=True, ge=1, le=FORMAT, doc="scene format version",
                        what=f"{FORMAT} (the newest format this version of wiggly reads)"),
-     "mesh": _Table(
-         {"path": _String(doc='mesh file, relative to the scene file, or "builtin:critter", '
+     "mesh": Table(
+         {"path": String(doc='mesh file, relative to the scene file, or "builtin:critter", '
                               '"builtin:plant", "builtin:bar"'),
-          "resolution": _Number(integer=True, ge=1, le=MAX_RESOLUTION,
+          "resolution": Number(integer=True, ge=1, le=MAX_RESOLUTION,
                                 doc="tet edges along the bounding-box diagonal (default "
                                     f"{DEFAULT_RESOLUTION})"),
-          "edge_length": _Number(unit="m", **_POSITIVE, doc="target tet edge length (m)"),
-          "repair": _Bool(doc="accept open, non-manifold or self-intersecting surfaces and "
+          "edge_length": Number(unit="m", **_POSITIVE, doc="target tet edge length (m)"),
+          "repair": Bool(doc="accept open, non-manifold or self-intersecting surfaces and "
                               "let fTetWild fill them (default true; false refuses them)")},
          required=("path",), exclusive=(("resolution", "edge_length"),),
          make=lambda d: MeshSpec(**d), doc="the model"),
-     "material": _Table(
-         {"young": _Number(unit="Pa", **_POSITIVE, doc="Young's modulus E (Pa)"),
-          "poisson": _Number(ge=0.0, lt=0.5, doc="Poisson ratio"),
-          "density": _Number(unit="kg/m^3", **_POSITIVE, doc="density (kg/m^3)")},
+     "material": Table(
+         {"young": Number(unit="Pa", **_POSITIVE, doc="Young's modulus E (Pa)"),
+          "poisson": Number(ge=0.0, lt=0.5, doc="Poisson ratio"),
+          "density": Number(unit="kg/m^3", **_POSITIVE, doc="density (kg/m^3)")},
          make=lambda d: MaterialSpec(**d)),
-     "damping": _Table(
-         {"alpha": _Number(ge=0.0, unit="1/s", doc="mass-proportional damping (1/s)"),
-          "beta": _Number(ge=0.0, unit="s", doc="stiffness-proportional damping (s)")},
+     "damping": Table(
+         {"alpha": Number(ge=0.0, unit="1/s", doc="mass-proportional damping (1/s)"),
+          "beta": Number(ge=0.0, unit="s", doc="stiffness-proportional damping (s)")},
          make=lambda d: DampingSpec(**d), doc="Rayleigh damping D = alpha M + beta K"),
-     "simulation": _Table(
-         {"gravity": _Vector(3, "gx, gy, gz", "m/s^2", doc="gravity (m/s^2)"),
-          "modes": _Number(integer=True, ge=1, le=MAX_MODES,
+     "simulation": Table(
+         {"gravity": Vector(3, "gx, gy, gz", "m/s^2", doc="gravity (m/s^2)"),
+          "modes": Number(integer=True, ge=1, le=MAX_MODES,
                            doc="number of eigenmodes (rigid ones included)"),
-          "warp": _Bool(doc="rotation-strain warping (false: linear)"),
-          "lumped_mass": _Bool(doc="lumped instead of consistent mass matrix"),
-          "fixed": _Array(_String(what="a group name"), unique=True,
+          "warp": Bool(doc="rotation-strain warping (false: linear)"),
+          "lumped_mass": Bool(doc="lumped instead of consistent mass matrix"),
+          "fixed": Array(String(what="a group name"), unique=True,
                           what="an array of group names", doc="groups held at rest"),
-          "preroll": _Number(ge=0.0, unit="s",
+          "preroll": Number(ge=0.0, unit="s",
                              doc="seconds of rest before the start (default: the duration)")},
          make=lambda d: SimulationSpec(**d)),
-     "time": _Table(
-         {"start": _Number(unit="s"),
-          "end": _Number(unit="s"),
-          "duration": _Number(unit="s", gt=0.0, le=MAX_DURATION),
-          "fps": _Number(gt=0.0, le=MAX_FPS, doc="frames per second of the outputs"),
-          "loop": _Bool(doc="a periodic shot: the end is the start (positions and velocities), "
+     "time": Table(
+         {"start": Number(unit="s"),
+          "end": Number(unit="s"),
+          "duration": Number(unit="s", gt=0.0, le=MAX_DURATION),
+          "fps": Number(gt=0.0, le=MAX_FPS, doc="frames per second of the outputs"),
+          "loop": Bool(doc="a periodic shot: the end is the start (positions and velocities), "
                             "and it plays as a cycle with no seam")},
          exclusive=(("end", "duration"),), check=_check_time, make=lambda d: TimeSpec(**d),
          doc="time range (default: start 0, end at the last keyframe, at least 1 s)"),
-     "groups": _Map(_GROUP, GROUP_NAME,
+     "groups": Map(_GROUP, GROUP_NAME,
                     "group names may contain only letters, digits, '_' and '-'",
                     doc="named vertex groups"),
-     "keyframes": _Array(_KEYFRAME, as_list=True, what="an array of tables ([[keyframes]])"),
-     "output": _Table(
-         {"paths": _Array(_String(pattern=_OUTPUT_PATTERN,
+     "keyframes": Array(_KEYFRAME, as_list=True, what="an array of tables ([[keyframes]])"),
+     "output": Table(
+         {"paths": Array(String(pattern=OUTPUT_PATTERN,
                                   what="a file name ending in "
                                        + ", ".join(OUTPUT_EXTENSIONS)),
                           unique=True, doc="output files, by extension"),
-          "overwrite": _Bool(doc="replace existing outputs"),
-          "size": _Vector(2, item=_Number(integer=True, ge=16, le=8192),
+          "overwrite": Bool(doc="replace existing outputs"),
+          "size": Vector(2, item=Number(integer=True, ge=16, le=8192),
                           what="[width, height] in pixels (integers from 16 to 8192)",
                           doc="video size in pixels (default [960, 540])"),
-          "camera": _ByType({str: _String(enum=CAMERAS),
-                             list: _Vector(2, "azimuth, elevation", "degrees")},
+          "camera": ByType({str: String(enum=CAMERAS),
+                             list: Vector(2, "azimuth, elevation", "degrees")},
                             what=" or ".join(json.dumps(c) for c in CAMERAS)
                             + " or [azimuth, elevation] in degrees",
                             doc="preview camera"),
-          "frame_start": _Number(integer=True, ge=-1_000_000, le=1_000_000,
+          "frame_start": Number(integer=True, ge=-1_000_000, le=1_000_000,
                                  doc="glTF/USD frame of the first output frame: frame k lands "
                                      "on frame_start + k at the output fps (default: the "
                                      "shot's own time, t * fps)"),
-          "gltf_targets": _String(enum=GLTF_TARGETS,
+          "gltf_targets": String(enum=GLTF_TARGETS,
                                   doc='glTF morph targets: "frames" (one per frame, default) '
                                       'or "modes" (one per mode, weights q(t); linear shots '
                                       "only: exact and compact)")},
@@ -277,7 +277,7 @@ def scene_schema() -> dict:
     It checks the structure (keys, types, ranges); references between keys (a keyframe's
     group exists, its time lies in the shot) and checks against the mesh are the validator's.
     """
-    s = _SCENE.schema()
+    s = SCENE_FORMAT.schema()
     return {"$schema": "https://json-schema.org/draft/2020-12/schema",
             "title": "wiggly scene",
             "description": "A wiggly scene file (TOML), format 1: see docs/scene-format.md.",
@@ -308,8 +308,8 @@ def scene_from_dict(data: dict, where: str = "scene", source: Path | None = None
     """Check a parsed scene (the TOML as dicts and lists) and build the :class:`Scene`;
     ``source`` is the file it came from (relative paths resolve against its directory and the
     mesh file must exist)."""
-    p = _Problems(where)
-    scene = p.parse(_SCENE, data)
+    p = Problems(where)
+    scene = p.parse(SCENE_FORMAT, data)
     scene.source = source
     _cross_check(scene, p)
     if source is not None:
@@ -318,31 +318,26 @@ def scene_from_dict(data: dict, where: str = "scene", source: Path | None = None
     return scene
 
 
-def _suggest(name: str, names) -> str:
-    close = difflib.get_close_matches(name, list(names), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
-def _cross_check(scene: Scene, p: _Problems) -> None:
+def _cross_check(scene: Scene, p: Problems) -> None:
     """Checks between keys: group names, key times in the shot's time range."""
     names = list(scene.groups)
     listing = ", ".join(names) if names else "none are defined ([groups.<name>])"
     for j, kf in enumerate(scene.keyframes):
         if kf.group not in scene.groups:
-            p.add(f"keyframes[{j}].group = {_show(kf.group)} is not a group"
-                  f"{_suggest(kf.group, names)}; groups are: {listing}")
+            p.add(f"keyframes[{j}].group = {show(kf.group)} is not a group"
+                  f"{did_you_mean(kf.group, names)}; groups are: {listing}")
     for j, g in enumerate(scene.simulation.fixed):
         if g not in scene.groups:
-            p.add(f"simulation.fixed[{j}] = {_show(g)} is not a group{_suggest(g, names)}; "
+            p.add(f"simulation.fixed[{j}] = {show(g)} is not a group{did_you_mean(g, names)}; "
                   f"groups are: {listing}")
     t0, t1 = scene.time_range()
     for j, kf in enumerate(scene.keyframes):
         if not t0 - 1e-9 <= kf.time <= t1 + 1e-9:
-            p.add(f"keyframes[{j}].time = {_show(kf.time)} is outside the shot's time range "
+            p.add(f"keyframes[{j}].time = {show(kf.time)} is outside the shot's time range "
                   f"[{t0}, {t1}] s")
     if scene.mesh.path.startswith("builtin:") and \
             scene.mesh.path.removeprefix("builtin:") not in BUILTIN_MODELS:
-        p.add(f"mesh.path = {_show(scene.mesh.path)} is not a bundled model; use one of "
+        p.add(f"mesh.path = {show(scene.mesh.path)} is not a bundled model; use one of "
               + ", ".join(f'"builtin:{m}"' for m in BUILTIN_MODELS))
     if t1 - t0 > MAX_DURATION and scene.time.end is None and scene.time.duration is None:
         p.add(f"the shot runs from {t0:g} s to the last keyframe at {t1:g} s, longer than "
@@ -355,10 +350,10 @@ def _cross_check(scene: Scene, p: _Problems) -> None:
               f"{max(1, round(cycle)) / scene.time.fps:.6g} s or fps = "
               f"{max(1, round(cycle)) / (t1 - t0):.6g}")
     if scene.time.loop and scene.simulation.preroll not in (None, 0.0):
-        p.add(f"simulation.preroll = {_show(scene.simulation.preroll)} does not apply to a "
+        p.add(f"simulation.preroll = {show(scene.simulation.preroll)} does not apply to a "
               "looped shot (time.loop = true): a loop has no before; leave it out")
     if frames > MAX_FRAMES and t1 - t0 <= MAX_DURATION:
-        p.add(f"time.fps = {_show(scene.time.fps)} makes {frames} frames of a {t1 - t0:g} s "
+        p.add(f"time.fps = {show(scene.time.fps)} makes {frames} frames of a {t1 - t0:g} s "
               f"shot, more than {MAX_FRAMES} (wiggly.limits.MAX_FRAMES); use fps <= "
               f"{math.floor((MAX_FRAMES - 1) / (t1 - t0)):g}")
     check_drive(scene, p)
@@ -369,11 +364,11 @@ def _cross_check(scene: Scene, p: _Problems) -> None:
               "elastic ones; the default is 40), or hold a group fixed")
 
 
-def _check_files(scene: Scene, p: _Problems) -> None:
+def _check_files(scene: Scene, p: Problems) -> None:
     check_drive_file(scene, p)
     if scene.mesh.path.startswith("builtin:"):
         return
     f = scene.mesh_file()
     if not f.is_file():
-        p.add(f"mesh.path = {_show(scene.mesh.path)}: "
+        p.add(f"mesh.path = {show(scene.mesh.path)}: "
               f"{'is a directory' if f.is_dir() else 'no such file'} ({f})")

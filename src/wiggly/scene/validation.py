@@ -18,11 +18,11 @@ from wiggly.scene.spec import Absolute, Offset, Rigid
 # specs: one description drives the validator and the JSON Schema
 
 
-class _Bad(Exception):
+class Bad(Exception):
     """Raised inside the validator: one problem, already recorded."""
 
 
-class _Problems:
+class Problems:
     """Collects the problems of one file; messages are prefixed with the file name."""
 
     def __init__(self, where: str):
@@ -32,31 +32,37 @@ class _Problems:
     def add(self, message: str) -> None:
         self.items.append(message)
 
-    def bad(self, message: str) -> _Bad:
+    def bad(self, message: str) -> Bad:
         self.add(message)
-        return _Bad(message)
+        return Bad(message)
 
     def raise_if_any(self) -> None:
         if self.items:
-            raise _error(self.where, self.items)
+            raise input_error(self.where, self.items)
 
     def parse(self, spec: Any, data: Any) -> Any:
         """``spec`` applied to a whole file's ``data``, its problems collected here; raises
         them when parsing could not go on."""
         try:
             return spec.parse(data, "", self)
-        except _Bad:
+        except Bad:
             self.raise_if_any()
             raise
 
 
-def _error(where: str, messages: list[str]) -> WigglyInputError:
+def input_error(where: str, messages: list[str]) -> WigglyInputError:
     err = WigglyInputError("\n".join(f"{where}: {m}" for m in messages))
     err.problems = list(messages)
     return err
 
 
-def _show(value: Any, limit: int = 60) -> str:
+def did_you_mean(name: str, names) -> str:
+    """`` (did you mean 'x'?)`` for the closest of ``names`` to a misspelt ``name``, or ""."""
+    close = difflib.get_close_matches(name, list(names), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def show(value: Any, limit: int = 60) -> str:
     """A value as it would be written in TOML (shortened)."""
     if isinstance(value, bool):
         s = "true" if value else "false"
@@ -66,9 +72,9 @@ def _show(value: Any, limit: int = 60) -> str:
         s = "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf") \
             if math.isinf(value) else repr(value)
     elif isinstance(value, list | tuple):
-        s = "[" + ", ".join(_show(v, limit) for v in value) + "]"
+        s = "[" + ", ".join(show(v, limit) for v in value) + "]"
     elif isinstance(value, dict):
-        s = ("{ " + ", ".join(f"{k} = {_show(v, limit)}" for k, v in value.items()) + " }"
+        s = ("{ " + ", ".join(f"{k} = {show(v, limit)}" for k, v in value.items()) + " }"
              if value else "{}")
     else:
         s = str(value)
@@ -79,22 +85,22 @@ def _num(x: float) -> str:
     return repr(int(x)) if float(x).is_integer() and abs(x) < 1e15 else repr(float(x))
 
 
-class _Spec(ABC):
+class Spec(ABC):
     what = "a value"
 
     @abstractmethod
-    def parse(self, value: Any, path: str, p: _Problems) -> Any:
+    def parse(self, value: Any, path: str, p: Problems) -> Any:
         """Validate ``value`` at key ``path``; record problems in ``p``."""
 
     @abstractmethod
     def schema(self) -> dict:
         """The JSON Schema of this spec."""
 
-    def fail(self, value, path: str, p: _Problems) -> _Bad:
-        return p.bad(f"{path} = {_show(value)} must be {self.what}")
+    def fail(self, value, path: str, p: Problems) -> Bad:
+        return p.bad(f"{path} = {show(value)} must be {self.what}")
 
 
-class _Number(_Spec):
+class Number(Spec):
     def __init__(self, *, integer: bool = False, ge: float | None = None, gt: float | None = None,
                  le: float | None = None, lt: float | None = None, unit: str = "",
                  doc: str = "", what: str | None = None):
@@ -134,7 +140,7 @@ class _Number(_Spec):
         return _described(s, self.doc)
 
 
-class _Bool(_Spec):
+class Bool(Spec):
     what = "true or false"
 
     def __init__(self, doc: str = ""):
@@ -149,7 +155,7 @@ class _Bool(_Spec):
         return _described({"type": "boolean"}, self.doc)
 
 
-class _String(_Spec):
+class String(Spec):
     def __init__(self, *, enum: tuple[str, ...] | None = None, pattern: str | None = None,
                  min_length: int = 1, what: str = "a non-empty string", doc: str = ""):
         self.enum, self.pattern, self.min_length, self.doc = enum, pattern, min_length, doc
@@ -175,21 +181,21 @@ class _String(_Spec):
         return _described(s, self.doc)
 
 
-class _Vector(_Spec):
+class Vector(Spec):
     """A fixed-length array of finite numbers -> tuple of floats (or of ints)."""
 
     def __init__(self, n: int = 3, names: str = "x, y, z", unit: str = "", doc: str = "",
-                 item: _Number | None = None, what: str | None = None):
+                 item: Number | None = None, what: str | None = None):
         self.n, self.doc = n, doc
-        self.item = item or _Number()
+        self.item = item or Number()
         self.what = what or (f"an array of {n} numbers [{names}]" + (f" ({unit})" if unit else ""))
 
     def parse(self, value, path, p):
         if not (isinstance(value, list) and len(value) == self.n):
             raise self.fail(value, path, p)
         try:
-            return tuple(self.item.parse(x, path, _Problems("")) for x in value)
-        except _Bad:
+            return tuple(self.item.parse(x, path, Problems("")) for x in value)
+        except Bad:
             raise self.fail(value, path, p) from None
 
     def schema(self):
@@ -197,10 +203,10 @@ class _Vector(_Spec):
                            "maxItems": self.n}, self.doc)
 
 
-class _Array(_Spec):
+class Array(Spec):
     """An array of items -> tuple (or list) of parsed items."""
 
-    def __init__(self, item: _Spec, *, min_items: int = 0, unique: bool = False,
+    def __init__(self, item: Spec, *, min_items: int = 0, unique: bool = False,
                  what: str | None = None, doc: str = "", as_list: bool = False):
         self.item, self.min_items, self.unique, self.doc = item, min_items, unique, doc
         self.as_list = as_list
@@ -210,21 +216,21 @@ class _Array(_Spec):
         if not isinstance(value, list):
             raise self.fail(value, path, p)
         if len(value) < self.min_items:
-            raise p.bad(f"{path} = {_show(value)} must have at least {self.min_items} "
+            raise p.bad(f"{path} = {show(value)} must have at least {self.min_items} "
                         f"item{'s' if self.min_items > 1 else ''}")
         out, failed = [], False
         for i, v in enumerate(value):
             try:
                 out.append(self.item.parse(v, f"{path}[{i}]", p))
-            except _Bad:
+            except Bad:
                 failed = True
         if failed:
-            raise _Bad(path)
+            raise Bad(path)
         if self.unique:
             seen: dict = {}
             for i, v in enumerate(out):
                 if v in seen:
-                    raise p.bad(f"{path}[{i}] = {_show(value[i])} repeats {path}[{seen[v]}]; "
+                    raise p.bad(f"{path}[{i}] = {show(value[i])} repeats {path}[{seen[v]}]; "
                                 "items must be distinct")
                 seen[v] = i
         return out if self.as_list else tuple(out)
@@ -238,17 +244,17 @@ class _Array(_Spec):
         return _described(s, self.doc)
 
 
-class _Table(_Spec):
+class Table(Spec):
     """A table with known keys.
 
     ``one_of``: exactly one of these keys; ``any_of``: at least one; ``exclusive``: pairs
     that may not appear together; ``make`` builds the result from the parsed keys.
     """
 
-    def __init__(self, keys: dict[str, _Spec], *, required: tuple[str, ...] = (),
+    def __init__(self, keys: dict[str, Spec], *, required: tuple[str, ...] = (),
                  make: Callable[[dict], Any] = dict, one_of: tuple[str, ...] = (),
                  any_of: tuple[str, ...] = (), exclusive: tuple[tuple[str, str], ...] = (),
-                 check: Callable[[dict, str, _Problems], None] | None = None,
+                 check: Callable[[dict, str, Problems], None] | None = None,
                  what: str = "a table", doc: str = "", one_of_what: str = "selector"):
         self.keys, self.required, self.make = keys, required, make
         self.one_of_what = one_of_what
@@ -261,12 +267,12 @@ class _Table(_Spec):
         out, failed = {}, False
         for k, v in value.items():
             if k not in self.keys:
-                p.add(_unknown_key(k, path, self.keys))
+                p.add(unknown_key(k, path, self.keys))
                 failed = True
                 continue
             try:
                 out[k] = self.keys[k].parse(v, _join(path, k), p)
-            except _Bad:
+            except Bad:
                 failed = True
         for k in self.required:
             if k not in value:
@@ -287,7 +293,7 @@ class _Table(_Spec):
                 p.add(f"{path} has both {a} and {b}; give only one")
                 failed = True
         if failed:
-            raise _Bad(path)
+            raise Bad(path)
         if self.check is not None:
             self.check(out, path, p)
         return self.make(out)
@@ -312,10 +318,10 @@ class _Table(_Spec):
         return _described(s, self.doc)
 
 
-class _Map(_Spec):
+class Map(Spec):
     """A table of named items (``[groups.<name>]``)."""
 
-    def __init__(self, item: _Spec, key_pattern: str, key_what: str, doc: str = ""):
+    def __init__(self, item: Spec, key_pattern: str, key_what: str, doc: str = ""):
         self.item, self.key_pattern, self.key_what, self.doc = item, key_pattern, key_what, doc
         self.what = "a table of named items"
 
@@ -330,10 +336,10 @@ class _Map(_Spec):
                 continue
             try:
                 out[k] = self.item.parse(v, self.item_path(path, k), p)
-            except _Bad:
+            except Bad:
                 failed = True
         if failed:
-            raise _Bad(path)
+            raise Bad(path)
         return out
 
     def key_path(self, path: str, key: str) -> str:
@@ -349,10 +355,10 @@ class _Map(_Spec):
                            "additionalProperties": self.item.schema()}, self.doc)
 
 
-class _ByType(_Spec):
+class ByType(Spec):
     """One of several specs, chosen by the value's TOML type (string, array or table)."""
 
-    def __init__(self, options: dict[type, _Spec], what: str, doc: str = ""):
+    def __init__(self, options: dict[type, Spec], what: str, doc: str = ""):
         self.options, self.what, self.doc = options, what, doc
 
     def parse(self, value, path, p):
@@ -361,8 +367,8 @@ class _ByType(_Spec):
                 n = len(p.items)
                 try:
                     return spec.parse(value, path, p)
-                except _Bad:
-                    if not isinstance(spec, _String):
+                except Bad:
+                    if not isinstance(spec, String):
                         raise
                     del p.items[n:]  # say what every alternative allows
                     raise self.fail(value, path, p) from None
@@ -372,7 +378,7 @@ class _ByType(_Spec):
         return _described({"oneOf": [s.schema() for s in self.options.values()]}, self.doc)
 
 
-class _Const(_String):
+class Const(String):
     def __init__(self, value: str, result: Any, what: str, doc: str = ""):
         super().__init__(enum=(value,), doc=doc)
         self.result, self.what = result, what
@@ -382,26 +388,26 @@ class _Const(_String):
         return self.result
 
 
-class _PositionTable(_Spec):
+class PositionTable(Spec):
     """``{ offset = ... }`` | ``{ absolute = ... }`` | ``{ rotation, translation, center }``."""
 
     what = ('"rest" or a table with offset, absolute, or rotation/translation '
             "(and optional center)")
 
     def __init__(self):
-        self.vec = _Vector(3, unit="m")
+        self.vec = Vector(3, unit="m")
         self.kinds = {
-            "offset": {"offset": _Vector(3, "dx, dy, dz", "m",
+            "offset": {"offset": Vector(3, "dx, dy, dz", "m",
                                          doc="displacement from rest (m) of every vertex")},
-            "absolute": {"absolute": _Array(_Vector(3, unit="m"), min_items=1,
+            "absolute": {"absolute": Array(Vector(3, unit="m"), min_items=1,
                                             what="an array of [x, y, z] rows, one per vertex",
                                             doc="target positions (m), one row per group vertex "
                                                 "in group order")},
-            "rigid": {"rotation": _Vector(3, "rx, ry, rz", "degrees",
+            "rigid": {"rotation": Vector(3, "rx, ry, rz", "degrees",
                                           doc="Euler angles in degrees, applied X then Y then Z "
                                               "(fixed axes)"),
-                      "translation": _Vector(3, "tx, ty, tz", "m", doc="translation (m)"),
-                      "center": _Vector(3, "cx, cy, cz", "m",
+                      "translation": Vector(3, "tx, ty, tz", "m", doc="translation (m)"),
+                      "center": Vector(3, "cx, cy, cz", "m",
                                         doc="center of rotation (m); default: group centroid")},
         }
         self.all_keys = {k: s for kinds in self.kinds.values() for k, s in kinds.items()}
@@ -410,18 +416,18 @@ class _PositionTable(_Spec):
         out, failed = {}, False
         for k, v in value.items():
             if k not in self.all_keys:
-                p.add(_unknown_key(k, path, self.all_keys))
+                p.add(unknown_key(k, path, self.all_keys))
                 failed = True
                 continue
             try:
                 out[k] = self.all_keys[k].parse(v, _join(path, k), p)
-            except _Bad:
+            except Bad:
                 failed = True
         if failed:
-            raise _Bad(path)
+            raise Bad(path)
         kinds = [kind for kind, keys in self.kinds.items() if any(k in value for k in keys)]
         if len(kinds) != 1:
-            raise p.bad(f"{path} = {_show(value)} must be {self.what}"
+            raise p.bad(f"{path} = {show(value)} must be {self.what}"
                         + (f"; it mixes {' and '.join(kinds)} targets" if kinds else ""))
         if kinds == ["rigid"] and not ({"rotation", "translation"} & value.keys()):
             raise p.bad(f"{path} has a center but neither rotation nor translation; give at "
@@ -455,7 +461,7 @@ def _join(path: str, key: str) -> str:
     return f"{path}.{key}" if path else key
 
 
-def _unknown_key(key: str, path: str, allowed) -> str:
+def unknown_key(key: str, path: str, allowed) -> str:
     where = f"in [{path}]" if path and "[" not in path else f"in {path}" if path else \
         "at the top level"
     close = difflib.get_close_matches(key, list(allowed), n=1, cutoff=0.6)
