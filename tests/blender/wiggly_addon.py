@@ -267,6 +267,7 @@ def case_errors() -> None:
     fresh(24, 1.0, (1, 13))
     obj, _ = armature_bar()
     use_group(obj, "body", "DRIVEN")
+    obj.wiggly.cache_dir = str(workdir / "cache")
     sub = obj.modifiers.new("Subdivision", "SUBSURF")
     obj.modifiers.move(len(obj.modifiers) - 1, 0)
     attempt("unsupported modifier")
