@@ -268,9 +268,9 @@ def test_failed_render_leaves_no_file(offscreen, ball, tmp_path, monkeypatch, na
 
 @pytest.mark.parametrize(("change", "message"), [
     (dict(positions=np.zeros((3, 4, 2))), r"positions should have shape \(F, n, 3\)"),
-    (dict(times=[0.0, 1.0]), r"times should have shape \(F,\) with F = 3"),
+    (dict(times=[0.0, 1.0]), r"positions should have shape \(F, n, 3\) with F = len\(times\) = 2"),
     (dict(times=[0.0, 2.0, 1.0]), "strictly increasing"),
-    (dict(faces=np.array([[0, 1, 4]])), r"faces index vertices 0..4, but positions have 4"),
+    (dict(faces=np.array([[0, 1, 4]])), r"faces should index the n = 4 vertices .* face 0 is"),
     (dict(faces=np.array([[0.0, 1, 2]])), "integer"),
     (dict(highlights=[Highlight(np.array([7]), 0.5)]), r"vertex indices 7..7 out of range"),
     (dict(highlights=[Highlight(np.array([1]), 0.5, color=(2, 0, 0))]), "color"),

@@ -7,16 +7,21 @@ positions should have shape (n, 3); shape is (n, 2)"), and raises
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import NoReturn
+
 import numpy as np
 from numpy.typing import ArrayLike
 
 from wiggly.errors import WigglyInputError, counted
 
 __all__ = [
+    "animation_arrays",
     "array",
     "finite_vertices",
     "indices_in_range",
     "mesh_arrays",
+    "real_array",
     "vertex_indices",
     "vertex_set",
 ]
@@ -113,3 +118,74 @@ def vertex_set(vertices: ArrayLike | None, n: int, what: str = "fixed vertices")
     if vertices is None:
         return np.zeros(0, np.int64)
     return np.unique(vertex_indices(vertices, n, "mesh", what, allow_empty=True))
+
+
+def _raise(message: str) -> NoReturn:
+    raise WigglyInputError(message)
+
+
+def real_array(value, name: str, shape: str,
+               fail: Callable[[str], NoReturn] = _raise) -> np.ndarray:
+    """``value`` as an array of integers or floats (its shape is the caller's to check; the
+    ``shape`` it should have is only named in the message)."""
+    try:
+        a = np.asarray(value)
+    except ValueError as e:
+        fail(f"{name} should be an array of shape {shape}; {e}")
+    if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        fail(f"{name} should be a real-valued array of shape {shape}; dtype is {a.dtype}")
+    return a
+
+
+def animation_arrays(
+    times: ArrayLike, positions: ArrayLike, faces: ArrayLike, *, min_vertices: int = 1,
+    fail: Callable[[str], NoReturn] = _raise,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frame times (F,) float64, finite and strictly increasing; surface positions
+    (F, n >= ``min_vertices``, 3), finite (float32 stays float32, anything else becomes
+    float64); triangles (k >= 1, 3) int64 indexing them.  ``fail(message)`` raises (default:
+    :class:`WigglyInputError`; a caller prefixes its file)."""
+
+    def real(name: str, value, shape: str) -> np.ndarray:
+        return real_array(value, name, shape, fail)
+
+    times = real("times", times, "(F,)")
+    if times.ndim != 1 or len(times) < 1:
+        fail(f"times should have shape (F,) with F >= 1; shape is {times.shape}")
+    times = times.astype(np.float64)
+    if not np.all(np.isfinite(times)):
+        fail(f"times should be finite; frame {int(np.flatnonzero(~np.isfinite(times))[0])} is not")
+    if np.any(np.diff(times) <= 0):
+        k = int(np.flatnonzero(np.diff(times) <= 0)[0])
+        fail(f"times should be strictly increasing; times[{k}] = {times[k]} and "
+             f"times[{k + 1}] = {times[k + 1]}")
+    F = len(times)
+
+    positions = real("positions", positions, "(F, n, 3)")
+    if positions.ndim != 3 or positions.shape[2] != 3:
+        fail(f"positions should have shape (F, n, 3); shape is {positions.shape}")
+    if positions.shape[0] != F:
+        fail(f"positions should have shape (F, n, 3) with F = len(times) = {F}; "
+             f"shape is {positions.shape}")
+    n = positions.shape[1]
+    if n < min_vertices:
+        fail(f"positions should have shape (F, n, 3) with n >= {min_vertices} "
+             f"{'vertex' if min_vertices == 1 else 'vertices'}; shape is {positions.shape}")
+    if positions.dtype not in (np.float32, np.float64):
+        positions = positions.astype(np.float64)
+    bad = ~np.isfinite(positions)
+    if bad.any():
+        k, v, _ = np.argwhere(bad)[0]
+        fail(f"positions should be finite; frame {k}, vertex {v} is {positions[k, v].tolist()}")
+
+    faces = real("faces", faces, "(k, 3)")
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) < 1:
+        fail(f"faces should have shape (k, 3) with k >= 1 triangles; shape is {faces.shape}")
+    if not np.issubdtype(faces.dtype, np.integer):
+        fail(f"faces should be an integer array; dtype is {faces.dtype}")
+    faces = faces.astype(np.int64)
+    if faces.min() < 0 or faces.max() >= n:
+        t = int(np.flatnonzero((faces < 0).any(1) | (faces >= n).any(1))[0])
+        fail(f"faces should index the n = {n} vertices (0 <= i < {n}); face {t} is "
+             f"{faces[t].tolist()}")
+    return times, positions, faces

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
+from wiggly.checks import animation_arrays, real_array
 from wiggly.errors import WigglyInputError
 from wiggly.files import shown_name
 from wiggly.progress import frames
@@ -97,58 +98,16 @@ def checked_animation(anim: SurfaceAnimation, where: str) -> SurfaceAnimation:
     def fail(msg):
         raise WigglyInputError(f"{where}: {msg}")
 
-    def array(name, value, ndim_shape):
-        try:
-            a = np.asarray(value)
-        except ValueError as e:
-            fail(f"{name} should be an array of shape {ndim_shape}; {e}")
-        if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
-            fail(f"{name} should be a real-valued array of shape {ndim_shape}; dtype is {a.dtype}")
-        return a
+    def array(name, value, shape):
+        return real_array(value, name, shape, fail)
 
-    times = array("times", anim.times, "(F,)")
-    if times.ndim != 1 or len(times) < 1:
-        fail(f"times should have shape (F,) with F >= 1; shape is {times.shape}")
-    times = times.astype(np.float64)
-    if not np.all(np.isfinite(times)):
-        fail(f"times should be finite; frame {int(np.flatnonzero(~np.isfinite(times))[0])} is not")
-    if np.any(np.diff(times) <= 0):
-        k = int(np.flatnonzero(np.diff(times) <= 0)[0])
-        fail(f"times should be strictly increasing; times[{k}] = {times[k]} and "
-             f"times[{k + 1}] = {times[k + 1]}")
-    F = len(times)
-
-    positions = array("positions", anim.positions, "(F, n, 3)")
-    if positions.ndim != 3 or positions.shape[2] != 3:
-        fail(f"positions should have shape (F, n, 3); shape is {positions.shape}")
-    if positions.shape[0] != F:
-        fail(f"positions should have shape (F, n, 3) with F = len(times) = {F}; "
-             f"shape is {positions.shape}")
-    n = positions.shape[1]
-    if n < 3:
-        fail(f"positions should have shape (F, n, 3) with n >= 3 vertices; shape is "
-             f"{positions.shape}")
-    if positions.dtype not in (np.float32, np.float64):
-        positions = positions.astype(np.float64)
-    bad = ~np.isfinite(positions)
-    if bad.any():
-        k, v, _ = np.argwhere(bad)[0]
-        fail(f"positions should be finite; frame {k}, vertex {v} is {positions[k, v].tolist()}")
+    times, positions, faces = animation_arrays(anim.times, anim.positions, anim.faces,
+                                               min_vertices=3, fail=fail)
+    F, n = positions.shape[:2]
     limit = float(np.finfo(np.float32).max) / 2
     if np.abs(positions).max() > limit:
         fail(f"positions should fit in float32 (|x| <= {limit:.3g}); the largest is "
              f"{np.abs(positions).max():.3g}")
-
-    faces = array("faces", anim.faces, "(k, 3)")
-    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) < 1:
-        fail(f"faces should have shape (k, 3) with k >= 1 triangles; shape is {faces.shape}")
-    if not np.issubdtype(faces.dtype, np.integer):
-        fail(f"faces should be an integer array; dtype is {faces.dtype}")
-    faces = faces.astype(np.int64)
-    if faces.min() < 0 or faces.max() >= n:
-        t = int(np.flatnonzero((faces < 0).any(1) | (faces >= n).any(1))[0])
-        fail(f"faces should index the n = {n} vertices (0 <= i < {n}); face {t} is "
-             f"{faces[t].tolist()}")
 
     uvs = normals = None
     if anim.uvs is not None:

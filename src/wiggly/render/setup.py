@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wiggly.checks import animation_arrays
 from wiggly.errors import WigglyInputError
 
 VIDEO_FORMATS = (".mp4", ".gif")
@@ -160,36 +161,12 @@ def check_offscreen(timeout: float = 60.0) -> str:
 
 
 def _check_animation(times, positions, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    times = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    """:func:`wiggly.checks.animation_arrays`, also taking one frame as (n, 3) positions."""
+    times = np.atleast_1d(np.asarray(times))
     positions = np.asarray(positions)
-    if positions.dtype not in (np.float32, np.float64):  # float32 stays: half the memory
-        positions = positions.astype(np.float64)
     if positions.ndim == 2:
         positions = positions[None]
-    if positions.ndim != 3 or positions.shape[2] != 3 or positions.shape[1] == 0:
-        raise WigglyInputError(
-            f"positions should have shape (F, n, 3) (or (n, 3) for one frame); shape is "
-            f"{positions.shape}")
-    if times.ndim != 1 or len(times) != positions.shape[0]:
-        raise WigglyInputError(
-            f"times should have shape (F,) with F = {positions.shape[0]} frames of positions; "
-            f"shape is {times.shape}")
-    if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
-        raise WigglyInputError("times should be finite and strictly increasing")
-    if not np.all(np.isfinite(positions)):
-        bad = np.flatnonzero(~np.isfinite(positions).all(axis=(1, 2)))
-        raise WigglyInputError(f"positions contain NaN or inf (frames {bad[:5].tolist()})")
-    faces = np.asarray(faces)
-    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
-        raise WigglyInputError(
-            f"faces should have shape (m, 3) (triangles); shape is {faces.shape}")
-    if not np.issubdtype(faces.dtype, np.integer):
-        raise WigglyInputError(f"faces should be integer vertex indices; dtype is {faces.dtype}")
-    n = positions.shape[1]
-    if faces.min() < 0 or faces.max() >= n:
-        raise WigglyInputError(
-            f"faces index vertices {faces.min()}..{faces.max()}, but positions have {n} vertices")
-    return times, positions, faces.astype(np.int64)
+    return animation_arrays(times, positions, faces)
 
 
 def _check_highlights(highlights: Sequence[Highlight], n: int) -> list[Highlight]:
