@@ -190,16 +190,25 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
 
 
 @pytest.mark.skipif(os.name != "posix", reason="checks the process group with os.killpg")
-def test_escape_stops_wiggly_and_leaves_the_object(blender_python, tmp_path):
-    seen = in_blender(blender_python, "cancel", tmp_path)
-    assert seen["running_before"], seen
-    assert seen["status"].startswith("[wiggly] "), seen  # its progress, for the status bar
-    assert seen["cancel_seconds"] < 5
-    assert seen["returncode"] != 0
-    assert not seen["folder_left"]
-    assert seen["modifiers"] == ["own smooth"]
+def test_modal_bake_escape_and_finish(blender_python, tmp_path):
+    seen = in_blender(blender_python, "modal", tmp_path)
+    esc, done = seen["escape"], seen["finish"]
+    for run in (esc, done):
+        assert run["blocked"]  # no second bake while one runs
+        assert not run["running"] and run["poll_after"]
+        assert not run["folder_left"]
+    # Esc: wiggly's progress was the status text; its process group is gone, nothing baked
+    assert esc["running_before"] and esc["status"].startswith("[wiggly] "), esc
+    assert esc["result"] == ["CANCELLED"] and esc["cancel_seconds"] < 5
+    assert esc["returncode"] != 0
     with pytest.raises(ProcessLookupError):
-        os.killpg(seen["pid"], 0)  # wiggly and whatever it started are gone
+        os.killpg(esc["pid"], 0)  # wiggly and whatever it started are gone
+    assert esc["modifiers"] == ["own smooth"]
+    assert esc["reports"][-1] == ["WARNING", "wiggly bake of 'Bar' cancelled; nothing changed"]
+    # to the end: timer events while wiggly ran, then the bake
+    assert done["result"] == ["FINISHED"] and done["events"] > 1 and done["returncode"] == 0
+    assert done["modifiers"] == ["own smooth", "Wiggly bake"]
+    assert done["reports"][-1][0] == "INFO" and "Baked 25 frames" in done["reports"][-1][1]
 
 
 def test_extension_zip_builds(tmp_path):

@@ -24,7 +24,6 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "blender"))
 import wiggly_blender  # noqa: E402
 from wiggly_blender import bake, shot  # noqa: E402
-from wiggly_blender.solve import Solve  # noqa: E402
 
 case, out, command, workdir = sys.argv[1:5]
 options = json.loads(Path(sys.argv[5]).read_text()) if len(sys.argv) > 5 else {}
@@ -305,26 +304,50 @@ def case_errors() -> None:
     report["errors"] = out
 
 
-def case_cancel() -> None:
-    """Esc: the solve is stopped at once, wiggly's process group is gone, nothing is baked."""
-    fresh(24, 1.0, (1, 49))
-    obj = handles_scene("MESH_CACHE")
-    obj.wiggly.resolution = 40
-    job = Solve(shot.gather(bpy.context, obj), command)
-    job.start()
-    waited = time.perf_counter()
-    while not job.status().startswith("[wiggly]") and time.perf_counter() - waited < 60:
-        time.sleep(0.05)  # until wiggly's first progress line (the status bar's text)
-    report["status"] = job.status()
-    report["running_before"] = job.poll() is None
-    t = time.perf_counter()
-    job.cancel()
-    report["cancel_seconds"] = time.perf_counter() - t
-    report["returncode"] = job.process.returncode
-    report["pid"] = job.process.pid
-    job.cleanup()
-    report["folder_left"] = job.folder.exists()
-    report["modifiers"] = [m.name for m in obj.modifiers]
+def case_modal() -> None:
+    """The modal Bake as Blender drives it (timer events, then Esc or the end), its methods
+    called on a stand-in operator: bpy as a module has no event loop to run a modal operator."""
+    from types import MethodType, SimpleNamespace
+
+    from wiggly_blender import operators
+
+    context = bpy.context
+    for scenario in ("escape", "finish"):
+        fresh(24, 1.0, (1, 25))
+        obj = handles_scene("MESH_CACHE")
+        if scenario == "escape":
+            obj.wiggly.resolution = 40  # a longer solve
+        reports = []
+
+        def note(kind, text, out=reports):
+            out.append([sorted(kind)[0], text])
+
+        op = SimpleNamespace(report=note)
+        for name in ("_prepare", "_finish", "_status", "_end", "modal"):
+            setattr(op, name, MethodType(getattr(operators.WIGGLY_OT_bake, name), op))
+        assert op._prepare(context)
+        operators._running["op"] = op  # what invoke() does besides the event handler
+        op.timer = context.window_manager.event_timer_add(0.2, window=context.window)
+        seen = {"blocked": not operators.WIGGLY_OT_bake.poll(context), "events": 0}
+        while True:
+            time.sleep(0.05)
+            if scenario == "escape" and op.solve.status().startswith("[wiggly]"):
+                seen["status"] = op.solve.status()
+                seen["running_before"] = op.solve.poll() is None
+                t = time.perf_counter()
+                result = op.modal(context, SimpleNamespace(type="ESC"))
+                seen["cancel_seconds"] = time.perf_counter() - t
+                break
+            result = op.modal(context, SimpleNamespace(type="TIMER"))
+            seen["events"] += 1
+            if result != {"PASS_THROUGH"}:
+                break
+        seen.update(result=sorted(result), reports=reports, running=bool(operators._running),
+                    returncode=op.solve.process.returncode, pid=op.solve.process.pid,
+                    folder_left=op.solve.folder.exists(),
+                    modifiers=[m.name for m in obj.modifiers],
+                    poll_after=operators.WIGGLY_OT_bake.poll(context))
+        report[scenario] = seen
 
 
 def case_critter() -> None:
@@ -545,6 +568,6 @@ def panel_layout(obj) -> list:
     return out
 
 
-{"handles": case_handles, "driven": case_driven, "errors": case_errors, "cancel": case_cancel,
+{"handles": case_handles, "driven": case_driven, "errors": case_errors, "modal": case_modal,
  "critter": case_critter, "pictures": case_pictures}[case]()
 Path(out).write_text(json.dumps(report))
