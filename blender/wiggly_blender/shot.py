@@ -106,9 +106,14 @@ def _rigid(m) -> tuple[np.ndarray, np.ndarray]:
     return _matrix(rot.to_matrix()), np.array(loc, dtype=np.float64)
 
 
-def _members(mesh, index: int) -> np.ndarray:
-    return np.array([v.index for v in mesh.vertices
-                     if any(g.group == index and g.weight > 0 for g in v.groups)], np.int64)
+def _members(mesh, indices: set[int]) -> dict[int, np.ndarray]:
+    """The vertices (weight above 0) of each vertex group in ``indices``, in one pass."""
+    out: dict[int, list[int]] = {i: [] for i in indices}
+    for v in mesh.vertices:
+        for g in v.groups:
+            if g.group in out and g.weight > 0:
+                out[g.group].append(v.index)
+    return {i: np.array(idx, np.int64) for i, idx in out.items()}
 
 
 def gather(context, obj) -> Shot:
@@ -156,6 +161,8 @@ def gather(context, obj) -> Shot:
         if not len(s.groups):
             raise ShotError(f"{where} has no vertex groups in the Wiggly panel: add the vertex "
                             "groups to key, fix or drive (+ under Wiggly > Groups)")
+        members = _members(mesh, {g.index for g in obj.vertex_groups
+                                  if any(item.name == g.name for item in s.groups)})
         for item in s.groups:
             vg = obj.vertex_groups.get(item.name)
             at = f"{where}, group '{item.name}'"
@@ -163,7 +170,7 @@ def gather(context, obj) -> Shot:
                 raise ShotError(f"{at}: no such vertex group (renamed or deleted?); the "
                                 f"object's vertex groups are: "
                                 f"{', '.join(g.name for g in obj.vertex_groups) or 'none'}")
-            idx = _members(mesh, vg.index)
+            idx = members[vg.index]
             if not len(idx):
                 raise ShotError(f"{at}: the vertex group has no vertices (assign some with a "
                                 "weight above 0 in Edit Mode)")
