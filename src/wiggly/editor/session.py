@@ -292,10 +292,17 @@ class Session:
             record = Record.between(old, new, _label(op, old, new))
             if record is None:
                 return {"version": self.version, "changed": False}
-            self.histories.record(tab, record, new)  # on the disk first (or refused)
+            # the solve starts while the journal line is flushed to the disk; the edit is
+            # made (and told) only once it is there
+            self.playback.request(new, self.version + 1, "final")
+            try:
+                self.histories.record(tab, record, new)
+            except EditError:
+                self.playback.restore(old, self.version)
+                raise
             self._state = new
             self.version += 1
-            self._changed()
+            self._changed(solve=False)
             out: dict[str, Any] = {"version": self.version, "changed": True}
             added = [i for i in new.keyframe_ids if i not in set(old.keyframe_ids)]
             if added:
@@ -359,11 +366,13 @@ class Session:
         op["position"] = rigid_fit(self.surface.vertices[idx], fs.positions[k][idx])
         return op
 
-    def _changed(self, autosave: bool = True) -> None:
-        """After a state change: solve, tell the browsers, autosave (in the background)."""
+    def _changed(self, autosave: bool = True, solve: bool = True) -> None:
+        """After a state change: solve (unless already asked), tell the browsers, autosave
+        (in the background)."""
         state = self.state
         self.bus.publish("state", version=self.version, dirty=self.dirty)
-        self.playback.request(state, self.version, "final")
+        if solve:
+            self.playback.request(state, self.version, "final")
         if autosave and self.autosave and state.scene.source is not None:
             target = autosave_path(Path(state.scene.source))
             if self.sandbox.contains(target.parent):

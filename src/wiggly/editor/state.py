@@ -238,8 +238,9 @@ class _Draft:
         try:
             return self.ids.index(kid)
         except ValueError:
-            raise EditError(f"there is no keyframe with id {kid} (it may have been deleted); "
-                            f"ids are {_show(self.ids)}", 404) from None
+            raise EditError("that keyframe was deleted meanwhile (in another tab or by an "
+                            f"undo), so this edit of it is not made (keyframe id {kid}; ids "
+                            f"are {_show(self.ids)})", 404) from None
 
     def group(self, name: str) -> dict:
         if name not in self.d["groups"]:

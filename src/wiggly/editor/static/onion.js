@@ -34,14 +34,14 @@ function skin() {
 export function selectedGroups() {
   const names = new Set(S.groups);
   if (S.selectedGroup) names.add(S.selectedGroup);
-  return [...names].filter((g) => S.groupVerts[g] && S.groupVerts[g].length).sort();
+  return [...names].filter((g) => S.groupVerts[g] && S.groupVerts[g].length);
 }
 
 // The faces the skins draw: the body's, or those touching a selected group's vertices.
 let ghostIndex = { key: null, index: null };
 function ghostFaces() {
   const body = geometry.getIndex();
-  const names = selectedGroups();
+  const names = selectedGroups().sort();
   if (!names.length || !body) return body;
   const key = JSON.stringify([S.meshKey, names, names.map((g) => S.groupVerts[g].length)]);
   if (ghostIndex.key === key && ghostIndex.index) return ghostIndex.index;
