@@ -16,10 +16,13 @@ Endpoints (JSON bodies are objects; errors answer ``{"error": message}``)::
                                their shot times and groups in the X-Wiggly-Driver header
     GET  /api/events           Server-Sent Events: state, frames, solve, physics, export, notice
     GET  /api/files            scene and mesh files inside the sandbox
-    POST /api/edit             an edit {"op": ...} (see wiggly.editor.state), logged
+    POST /api/edit             an edit {"op": ...} (see wiggly.editor.state), logged:
+                               answered once its undo journal line is on the disk (507 if
+                               the journal cannot be written; nothing changes then)
     POST /api/preview          the same, solved (linear) but not logged: gizmo drags
     POST /api/preview/cancel   a drag was abandoned: show the scene's frames again
-    POST /api/undo, /api/redo  the tab's last edit (its own history, kept across restarts)
+    POST /api/undo, /api/redo  the tab's last edit (its own history, kept across restarts and
+                               crashes; journaled like an edit)
     POST /api/open             {"path": "scene.toml" | "mesh.obj" | "builtin:critter"}
     POST /api/save             {"path": optional}
     POST /api/export           {"paths": ["out/shot.glb", ...], "overwrite": false}
