@@ -226,7 +226,7 @@ $('btn-help').onclick = () => toast([
   'W move / E rotate the keyframe (gizmo) · V its velocity · while dragging: X Y Z axis, type a value + Enter, Ctrl snap, Esc cancels',
   'Shift+right-click places the 3D cursor (pivot choice) · Shift+Tab snapping on/off',
   'Ctrl+C / Ctrl+V / Shift+D copy, paste, duplicate keys · Delete deletes them',
-  '1 / 3 / 7 (numpad) front, side, top (Ctrl or Shift: opposite) · F or numpad . frame selected · O onion skins · P motion paths · D the driver ghost ([drive] scenes)',
+  '1 / 3 / 7 (numpad) front, side, top (Ctrl or Shift: opposite) · F or numpad . frame selected · O onion skins (of the selected groups; the whole body when none is) · P motion paths · D the driver ghost ([drive] scenes)',
   'Ctrl+Z undo · Ctrl+Shift+Z / Ctrl+Y redo (this tab\'s edits) · Ctrl+S save'].join('\n'));
 
 // ------------------------------------------------------------------------------------------
