@@ -183,18 +183,29 @@ def free_modes(body: Body, driven: np.ndarray, count: int) -> tuple[np.ndarray, 
 
 
 def _particular(lam: np.ndarray, delta: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Coefficients a (..., 3) of the quadratic q_p = a0 + a1 x + a2 x^2 with
-    q_p'' + 2 delta q_p' + lambda q_p = -(c0 + c1 x + c2 x^2) (lambda > 0)."""
-    a2 = -c[..., 2] / lam
-    a1 = (-c[..., 1] - 4 * delta * a2) / lam
-    a0 = (-c[..., 0] - 2 * a2 - 2 * delta * a1) / lam
-    return np.stack([a0, a1, a2], axis=-1)
+    """Coefficients a (..., 4) of the cubic q_p = a0 + a1 x + a2 x^2 + a3 x^3 with
+    q_p'' + 2 delta q_p' + lambda q_p = -(c0 + c1 x + c2 x^2 + c3 x^3) (lambda > 0)."""
+    a3 = -c[..., 3] / lam
+    a2 = (-c[..., 2] - 6 * delta * a3) / lam
+    a1 = (-c[..., 1] - 4 * delta * a2 - 6 * a3) / lam
+    a0 = (-c[..., 0] - 2 * delta * a1 - 2 * a2) / lam
+    return np.stack([a0, a1, a2, a3], axis=-1)
+
+
+def _poly(a: np.ndarray, x: np.ndarray, derivative: int) -> np.ndarray:
+    """The ``derivative``-th derivative of cubics a (..., 4) at x."""
+    if derivative == 0:
+        return a[..., 0] + x * (a[..., 1] + x * (a[..., 2] + x * a[..., 3]))
+    if derivative == 1:
+        return a[..., 1] + x * (2 * a[..., 2] + 3 * x * a[..., 3])
+    if derivative == 2:
+        return 2 * a[..., 2] + 6 * x * a[..., 3]
+    return 6 * a[..., 3] + 0 * x
 
 
 def _hermite_of(a: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """Hermite data (q(0), q'(0), q(h), q'(h)) of quadratics a (..., 3) on intervals h."""
-    return np.stack([a[..., 0], a[..., 1], a[..., 0] + a[..., 1] * h + a[..., 2] * h**2,
-                     a[..., 1] + 2 * a[..., 2] * h], axis=-1)
+    """Hermite data (q(0), q'(0), q(h), q'(h)) of cubics a (..., 4) on intervals h."""
+    return np.stack([a[..., 0], a[..., 1], _poly(a, h, 0), _poly(a, h, 1)], axis=-1)
 
 
 class HeldWarp:
@@ -269,15 +280,12 @@ class SecondaryMotion(Animation):
         idx = (k[:, None] * r + np.arange(r)).ravel()
         data = np.stack([self.values[k], self.velocities[k], self.values[k + 1],
                          self.velocities[k + 1]], axis=-1)  # (F, r, 4)
-        a = self.particular[k]  # (F, r, 3)
+        a = self.particular[k]  # (F, r, 4)
         data = (data - _hermite_of(a, h[:, None])).reshape(-1, 4)
         out = evaluate(self.basis.take(idx), data, 0.0, np.repeat(x / h, r), n_derivatives)
         out = out.reshape(n_derivatives + 1, len(t), r)
-        xx = x[:, None]
-        poly = [a[..., 0] + a[..., 1] * xx + a[..., 2] * xx**2, a[..., 1] + 2 * a[..., 2] * xx,
-                2 * a[..., 2], np.zeros_like(a[..., 0])]
-        for d in range(n_derivatives + 1):
-            out[d] += poly[d] if d < 4 else 0.0
+        for d in range(min(n_derivatives, 3) + 1):
+            out[d] += _poly(a, x[:, None], d)
         return out
 
     def linear_field(self, times: ArrayLike, derivative: int = 0,
@@ -347,6 +355,25 @@ def _field_rows(body: Body, U: np.ndarray, vertices: np.ndarray, on: Where) -> n
     return np.asarray(body.surface_embedding[vertices] @ U) if on == "surface" else U[vertices]
 
 
+def _forcing(nodes: np.ndarray, rig: FrameSpline, C: np.ndarray, body: Body, alpha: float,
+             intensity: float) -> np.ndarray:
+    """Coefficients c (m, r, 4) of the forcing g + p(t) on every interval between ``nodes``,
+    in local time: intensity Psi^T M (ubar'' + alpha ubar') of the rig (exact: a quadratic,
+    ubar being cubic) plus gravity's g = -Psi^T M gravity; C = Psi^T M (r, 3n).  The
+    accelerations are the driver's in world space, for warped playback too (module doc)."""
+    m, r = len(nodes) - 1, C.shape[0]
+    out = np.zeros((m, r, 4))
+    for j0 in range(0, m, 64):  # a few intervals at a time: the Taylor fields are (J, 4, 3n)
+        j1 = min(m, j0 + 64)
+        s = rig.taylor(nodes[j0:j1]) @ C.T  # (J, 4, r): the projected Taylor coefficients
+        out[j0:j1, :, 0] = intensity * (2 * s[:, 2] + alpha * s[:, 1])
+        out[j0:j1, :, 1] = intensity * (6 * s[:, 3] + 2 * alpha * s[:, 2])
+        out[j0:j1, :, 2] = intensity * 3 * alpha * s[:, 3]
+    n = C.shape[1] // 3
+    out[:, :, 0] += C @ np.tile(-np.asarray(body.gravity, float), n)
+    return out
+
+
 def secondary_motion(
     body: Body,
     driver: Driver,
@@ -404,10 +431,10 @@ def secondary_motion(
     rigging = Unwarp(body.tets.vertices, body.tets.tets, mass)
     U = rigging.extend(body.surface_embedding, driver.positions, frames,
                        surface.vertices)  # (3n, F)
-    if warped:
-        U = rigging(U)
     hold_start, hold_end = bool(times[0] > start + tol), bool(times[-1] < end - tol)
-    rig = FrameSpline.fit(times, U.T, loop=loop, hold_start=hold_start, hold_end=hold_end)
+    bc = {"loop": loop, "hold_start": hold_start, "hold_end": hold_end}
+    linear_rig = FrameSpline.fit(times, U.T, **bc)
+    rig = FrameSpline.fit(times, rigging(U).T, **bc) if warped else linear_rig
     rig_seconds = _time.perf_counter() - t0
     # the free parts' modes and their forcing
     t1 = _time.perf_counter()
@@ -418,19 +445,14 @@ def secondary_motion(
     r = psi.shape[1]
     alpha, beta = body.damping.alpha, body.damping.beta
     delta = 0.5 * (alpha + beta * lam)
-    g = psi.T @ body.gravity_vector
     C = np.ascontiguousarray((body.M @ psi).T)  # Psi^T M, (r, 3n)
-    proj = FrameSpline(times, (C @ U).T, rig.slopes @ C.T)
     own = [k for k in keyframes if k.spec.get("kind") != "drive"]
     nodes = node_times(start, end, list(times) + [k.time for k in own])
     m = len(nodes) - 1
     h = np.diff(nodes)
-    s = proj.taylor(nodes[:-1])  # (m, 4, r): s, s', s''/2, s'''/6 right of each node
-    c = np.empty((m, r, 3))
-    c[..., 0] = intensity * (2 * s[:, 2] + alpha * s[:, 1]) + g
-    c[..., 1] = intensity * (6 * s[:, 3] + 2 * alpha * s[:, 2])
-    c[..., 2] = intensity * 3 * alpha * s[:, 3]
-    a = _particular(lam, delta, c)  # (m, r, 3)
+    c = _forcing(nodes, linear_rig, C, body, alpha, intensity)  # (m, r, 4): g + p(t)
+    g = C @ np.tile(-np.asarray(body.gravity, float), body.tets.n_vertices)  # the sag
+    a = _particular(lam, delta, c)  # (m, r, 4)
     xp = _hermite_of(a, h[:, None])  # (m, r, 4)
     basis = wiggly_basis(np.tile(lam, m), np.tile(delta, m), np.repeat(h, r))
     Q = energy_form(basis, np.zeros(m * r)).Q.reshape(m, r, 4, 4)
