@@ -8,6 +8,7 @@ two-level solve reaches a stationary point of the *fine* problem.
 
 from __future__ import annotations
 
+import importlib
 import itertools
 
 import numpy as np
@@ -203,6 +204,26 @@ def test_two_level_solve_reaches_the_fine_stationary_point(slab, velocity):
     assert np.abs(z2 - z1).max() < 1e-5 * np.abs(z1).max()
     assert_stationary(two, tol)
 
+
+
+def test_a_coarse_mesh_that_is_no_coarser_is_not_used(slab, monkeypatch):
+    """fTetWild keeps thin parts at the fine edge length, so a body's "coarse" mesh can have
+    more tets than the body (the camel's: 27.6k for 7.9k).  A coarse level with more than
+    ``COARSER`` of the fine tets is then skipped: the solve runs on the fine level alone,
+    with exact Newton matrices, and reaches the same stationary point."""
+    levels = importlib.import_module("wiggly.solve.levels")
+    keys = turn_and_swing(slab)
+    share = slab.coarse_level.warp.n_tets / slab.fine_level.warp.n_tets
+    assert 0 < share < levels.COARSER  # the slab's coarse mesh is coarser: two levels
+    used = SpacetimeProblem(slab, 0.0, 1.2).solve(keys, warped=True)
+    assert "coarse" in used.info
+    monkeypatch.setattr(levels, "COARSER", 0.5 * share)  # now it counts as no coarser
+    skipped = SpacetimeProblem(slab, 0.0, 1.2).solve(
+        keys, warped=True, options=SolveOptions(tolerance=1e-11)
+    )
+    assert skipped.info["converged"] and "coarse" not in skipped.info
+    assert skipped.info["exact_newton_from"] is None  # exact from the start: never switched
+    assert_stationary(skipped, 1e-11)
 
 def edited(keys, degrees=8.0):
     """``keys`` with the 0.6 s pose turned further about y (one keyframe changed)."""

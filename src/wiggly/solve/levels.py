@@ -14,7 +14,9 @@ the same solid (:mod:`wiggly.warp.transfer`).  The warped solve then runs
    interpolation error of the modes (:mod:`wiggly.solve.warped`).  This changes the path,
    never the solution.
 
-Smaller bodies solve on the fine level only, with exact Newton matrices.
+Smaller bodies solve on the fine level only, with exact Newton matrices, and so do bodies
+whose coarse mesh is not coarser (more than ``COARSER`` of the fine mesh's tets: thin parts
+keep fTetWild's coarse mesh at the fine edge length).
 
 Warm starts.  A solve returns a :class:`WarmStart` (``Animation.warm_start``); the caller
 passes it back to re-solve the problem with edited keyframes.  It holds the last fine point
@@ -52,6 +54,11 @@ __all__ = ["WarmStart", "solve_warped"]
 # body's size goes to the fine level directly: there, one iteration with the coarse-model
 # matrix gains as much as the whole coarse level (and its transfer) does.
 NEAR = 0.1
+# A coarse level with more than this share of the fine mesh's tets is no coarser (fTetWild
+# keeps thin legs and tails at about the fine mesh's edge length: the camel's "coarse" mesh
+# had 27.6k tets for a 7.9k-tet body), so its iterations cost more than the fine level's
+# exact ones and it gains nothing: such bodies solve on the fine level alone.
+COARSER = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,6 +112,8 @@ def solve_warped(
     """Minimise E + E_WC from z0 (module docstring); returns z, a report, the warm start."""
     body = problem.body
     coarse = body.coarse_level if options.two_level else body.fine_level
+    if coarse.warp.n_tets > COARSER * body.fine_level.warp.n_tets:
+        coarse = body.fine_level
     two = not coarse.exact
     blocks = warm.blocks if warm is not None and warm.blocks.level is coarse else None
     blocks = blocks or NewtonBlocks(coarse)
