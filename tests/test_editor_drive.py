@@ -151,3 +151,72 @@ def test_driver_errors_reach_the_page(chromium, tmp_path):
         assert status == 404 and "no [drive]" in body["error"]
     finally:
         server.stop()
+
+
+def _session_final(session, timeout: float = 60.0):
+    """The final frames of the session's current version (bounded wait)."""
+    import time
+
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        fs = session.latest_frames(final=True)
+        if fs is not None and fs.version == session.version:
+            return fs
+        time.sleep(0.02)
+    raise AssertionError(f"no final frames for version {session.version} in {timeout} s")
+
+
+@pytest.mark.parametrize("warp", [False, True])
+def test_secondary_motion_in_the_editor_and_its_controls(tmp_path, warp):
+    """A [drive] scene plays the library's secondary motion (linear and warped: the editor's
+    final frames equal wiggly.scene's solve); the swing (drive.intensity) and a group's own
+    Young's modulus are edits that change the motion, and undo walks them back with the
+    [drive] table intact."""
+    from wiggly.editor.session import Sandbox, Session
+    from wiggly.scene import solve_scene
+    from wiggly.scene.build import build_with_groups
+
+    path, _ = drive_project(tmp_path)
+    if warp:
+        path.write_text(SCENE.replace("warp = false", "warp = true"))
+    session = Session(Sandbox([tmp_path]))
+    session.open(str(path))
+    try:
+        first = _session_final(session).positions.copy()
+
+        def library():
+            body, keys, groups = build_with_groups(session.scene)
+            anim = solve_scene(session.scene, body, keys, groups=groups)
+            assert anim.info["secondary"]
+            return anim.positions(anim.frame_times(FPS), dtype=np.float32)
+
+        assert np.abs(library() - first).max() < 1e-5
+        session.edit({"op": "set", "section": "drive", "values": {"intensity": 2.0}})
+        assert session.scene.drive.intensity == 2.0
+        doubled = _session_final(session).positions.copy()
+        assert np.abs(library() - doubled).max() < 1e-5
+        assert np.abs(doubled - first).max() > 1e-4  # the free end swings more
+        session.edit({"op": "set_group_young", "name": "tip", "young": 1e4})
+        assert session.scene.groups["tip"].young == 1e4
+        soft = _session_final(session).positions.copy()
+        assert np.abs(library() - soft).max() < 1e-5 and np.abs(soft - doubled).max() > 1e-4
+        session.undo()
+        session.undo()
+        assert session.scene.drive is not None and session.scene.drive.intensity == 1.0
+        assert session.scene.groups["tip"].young is None
+        assert np.abs(_session_final(session).positions - first).max() < 1e-5
+    finally:
+        session.close()
+
+
+def test_drive_settings_need_a_drive(tmp_path):
+    from wiggly.editor.state import EditError, EditorState, apply_edit
+    from wiggly.scene import load_scene
+
+    path, _ = drive_project(tmp_path)
+    path.write_text(SCENE.split("[drive]")[0])
+    state = EditorState.of(load_scene(path))
+    with pytest.raises(EditError, match="no \\[drive\\]"):
+        apply_edit(state, {"op": "set", "section": "drive", "values": {"intensity": 2.0}})
+    with pytest.raises(EditError):
+        apply_edit(state, {"op": "set_group_young", "name": "tip", "young": -5})

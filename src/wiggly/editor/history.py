@@ -37,7 +37,7 @@ from wiggly.scene import Scene, scene_from_dict, scene_to_dict
 
 __all__ = ["Histories", "Record", "history_path", "key_phrase", "scene_hash"]
 
-SECTIONS = ("mesh", "material", "damping", "simulation", "time", "output")
+SECTIONS = ("mesh", "material", "damping", "simulation", "time", "output", "drive")
 MAX_RECORDS = 500  # per tab
 MAX_TABS = 16
 DEFAULT_TAB = "api"  # requests that do not name a tab (scripts, tests)
@@ -59,7 +59,7 @@ def scene_hash(state: EditorState) -> str:
 
 def entities(state: EditorState) -> dict[Entity, Any]:
     d = scene_to_dict(state.scene)
-    out: dict[Entity, Any] = {("section", s): d[s] for s in SECTIONS}
+    out: dict[Entity, Any] = {("section", s): d[s] for s in SECTIONS if s in d}
     out.update({("group", n): g for n, g in d["groups"].items()})
     out.update({("key", i): k for i, k in zip(state.keyframe_ids, d["keyframes"], strict=True)})
     return out
@@ -126,7 +126,7 @@ class Record:
             else:
                 now[(kind, name)] = value
         d: dict[str, Any] = {"format": state.scene.format}
-        d.update({s: now[("section", s)] for s in SECTIONS})
+        d.update({s: now[("section", s)] for s in SECTIONS if ("section", s) in now})
         d["groups"] = {n: v for (k, n), v in now.items() if k == "group"}
         keys = sorted((n, v) for (k, n), v in now.items() if k == "key")
         d["keyframes"] = [v for _, v in keys]

@@ -231,6 +231,7 @@ class Playback:
         """Linear solve and linear playback (fast); then hand final requests of warped scenes
         to the refinement process."""
         from wiggly.scene import keyframes_of, problem_of, scene_to_dict
+        from wiggly.scene.drive import secondary_of
 
         scene = req.state.scene
         body = self.physics.body(scene, abandon=lambda: box.pending() or self._stop.is_set())
@@ -250,7 +251,12 @@ class Playback:
         t0 = time.perf_counter()
         self.bus.publish("solve", sticky=not drag, seq=req.seq, version=req.version,
                          stage="linear", message="linear solve")
-        anim = problem.solve(keys, warped=False)
+        if scene.drive is not None and scene.drive.physics == "secondary":
+            # the driver owns its groups, physics the rest (wiggly.drive.secondary)
+            linear = replace(scene, simulation=replace(scene.simulation, warp=False))
+            anim = secondary_of(linear, body, groups, keys)
+        else:
+            anim = problem.solve(keys, warped=False)
         if drag and box.pending():
             return  # a newer request waits: skip this stale preview's playback frames
         fps = playback_fps(scene.time.fps, start, end, body.surface.n_vertices)

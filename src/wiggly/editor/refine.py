@@ -151,6 +151,9 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
                 previous.clear()
                 bodies[bkey] = body
             keys = keyframes_of(scene, body, groups)
+            if scene.drive is not None and scene.drive.physics == "secondary":
+                _secondary(seq, version, scene, body, groups, keys, out)
+                continue
             pkey = (*scene.time_range(), s.preroll, scene.time.loop)
             problem = problems.get(pkey)
             if problem is None:
@@ -162,6 +165,25 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
             traceback.print_exc()
             write_message(out, ("error", seq, version,
                                 f"internal error: {type(err).__name__}: {err}"))
+
+
+def _secondary(seq, version, scene, body, groups, keys,
+               out) -> None:  # pragma: no cover - runs in the subprocess
+    """The warped secondary motion of a ``[drive]`` scene (one linear solve, Gauss-Newton
+    only for keys on the free parts), as ``wiggly animate`` runs it."""
+    from wiggly.scene.drive import secondary_of
+
+    t0 = time.perf_counter()
+    anim = secondary_of(scene, body, groups, keys)
+    info = {"iterations": int(anim.info.get("iterations", 0)),
+            "converged": bool(anim.info.get("converged", True)),
+            "objective": float(anim.energy()),
+            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim)}
+    start, end = scene.time_range()
+    fps = playback_fps(scene.time.fps, start, end, body.surface.n_vertices)
+    times = anim.frame_times(fps)
+    positions = anim.positions(times, dtype=np.float32)
+    write_message(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
 
 
 class _Abandoned(Exception):

@@ -14,12 +14,13 @@ Operations (fields in brackets are optional):
 ``set_group``       ``name, indices [, color, on]``: create or replace a group of vertices
 ``rename_group``    ``name, new_name``: also renames it in keyframes and fixed groups
 ``recolor_group``   ``name, color`` ("#rrggbb")
+``set_group_young`` ``name, young``: the group's own Young's modulus (Pa; ``null``: none)
 ``delete_group``    ``name``: also deletes its keyframes and its fixed entry
 ``set_fixed``       ``name, fixed`` (bool): hold the group's vertices at rest or not
 ``add_keyframe``    ``time, group [, position, velocity, stiffness, c_A, c_B, name]``
 ``update_keyframe`` ``id`` and any of the fields above (``velocity: null`` removes it)
 ``delete_keyframe`` ``id``
-``set``             ``section`` (material, damping, simulation, time, mesh, output) and
+``set``             ``section`` (material, damping, simulation, time, mesh, output, drive) and
                     ``values``: a table of that section's keys (``null`` removes a key)
 ``batch``           ``ops``: a list of the edits above, applied in order as one step (one
                     undo): pasting keyframes, keying several groups at once
@@ -61,6 +62,7 @@ SETTABLE = {
     "time": ("start", "end", "duration", "fps"),
     "mesh": ("resolution", "edge_length", "repair"),
     "output": ("paths", "overwrite", "size", "camera"),
+    "drive": ("intensity", "free_modes", "physics"),
 }
 KEYFRAME_FIELDS = ("time", "group", "position", "velocity", "stiffness", "c_A", "c_B", "name")
 
@@ -319,6 +321,16 @@ def _recolor_group(draft, op, n):
     draft.group(_group_name(_need(op, "name")))["color"] = _color(_need(op, "color"))
 
 
+def _set_group_young(draft, op, n):
+    """A group's own Young's modulus (Pa), or none (``young`` null: the material's)."""
+    group = draft.group(_group_name(_need(op, "name")))
+    young = _need(op, "young")
+    if young is None:
+        group.pop("young", None)
+    else:
+        group["young"] = _number(young, "young (Pa)")
+
+
 def _delete_group(draft, op, n):
     name = _group_name(_need(op, "name"))
     d = draft.d
@@ -369,6 +381,8 @@ def _set(draft, op, n):
     values = _need(op, "values")
     if not isinstance(values, dict):
         raise EditError(f"values must be a table of {section} keys; got {_show(values)}")
+    if section == "drive" and "drive" not in draft.d:
+        raise EditError("the scene has no [drive]: there is no driver whose settings to set")
     table = draft.d.setdefault(section, {})
     for key, v in values.items():
         if key not in SETTABLE[section]:
@@ -392,6 +406,7 @@ _EDITS = {
     "set_group": _set_group,
     "rename_group": _rename_group,
     "recolor_group": _recolor_group,
+    "set_group_young": _set_group_young,
     "delete_group": _delete_group,
     "set_fixed": _set_fixed,
     "add_keyframe": _add_keyframe,

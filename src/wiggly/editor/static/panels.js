@@ -123,6 +123,15 @@ export function renderPanels() {
     cb.type = 'checkbox'; cb.checked = sc.simulation.fixed.includes(name);
     cb.onchange = () => edit({ op: 'set_fixed', name, fixed: cb.checked });
     fixed.append(cb, ' fixed');
+    const young = document.createElement('input');  // a softer (or stiffer) group
+    young.type = 'number'; young.step = 'any'; young.min = '0'; young.className = 'young';
+    young.placeholder = 'E'; young.value = g.young === undefined ? '' : g.young;
+    young.title = "this group's Young's modulus (Pa); empty: the material's";
+    young.onchange = () => {
+      const v = young.value === '' ? null : Number(young.value);
+      if (v !== null && !(v > 0)) { toast(`${name}: Young's modulus must be a number > 0 Pa`, true); renderPanels(); return; }
+      edit({ op: 'set_group_young', name, young: v });
+    };
     const del = document.createElement('button');
     del.className = 'x'; del.textContent = '✕'; del.title = 'delete group (and its keyframes)';
     del.onclick = (e) => { e.stopPropagation(); deleteGroup(name); };
@@ -131,7 +140,7 @@ export function renderPanels() {
       const add = e.shiftKey || e.ctrlKey || e.metaKey;
       selectGroup(name, { add, vertices: !add });
     };
-    li.append(color, label, fixed, del);
+    li.append(color, label, young, fixed, del);
     ul.append(li);
   }
   // keyframes
@@ -163,6 +172,8 @@ export function renderPanels() {
   }
   if (sc.time.end === undefined) document.querySelector('[data-set="time.end"]').value = sc.time_range[1];
   $('driver-toggle').hidden = !sc.drive;  // the driver ghost: [drive] scenes only
+  for (const el of document.querySelectorAll('.drive-only')) el.hidden = !sc.drive;
+  if (sc.drive && sc.drive.intensity === undefined) document.querySelector('[data-set="drive.intensity"]').value = 1;
   const lim = d.limits || {};
   if (lim.MAX_MODES) document.querySelector('[data-set="simulation.modes"]').max = lim.MAX_MODES;
   if (lim.MAX_NAME_LENGTH) { $('group-name').maxLength = lim.MAX_NAME_LENGTH; $('key-name').maxLength = lim.MAX_NAME_LENGTH; }
