@@ -161,6 +161,8 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
             _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox)
         except WigglyInputError as err:
             write_message(out, ("error", seq, version, str(err)))
+        except BrokenPipeError:  # the editor is gone (stopped or killed): nobody to tell
+            return
         except Exception as err:
             traceback.print_exc()
             write_message(out, ("error", seq, version,
