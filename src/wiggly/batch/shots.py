@@ -274,11 +274,15 @@ def keyed(shots: list[Shot], digest: Digests) -> None:
 
 
 def saved_scene(shot: Shot) -> Scene:
-    """The shot's scene as saved in its folder: the mesh by absolute path, the outputs by
-    their names in the folder (``wiggly animate scene.toml --overwrite`` redoes the shot)."""
+    """The shot's scene as saved in its folder: the mesh and a ``[drive]``'s driver by
+    absolute path, the outputs by their names in the folder (``wiggly animate scene.toml
+    --overwrite`` redoes the shot)."""
     scene = shot.scene
     assert scene is not None
     mesh = scene.mesh if scene.mesh.path.startswith("builtin:") else \
         replace(scene.mesh, path=os.fspath(scene.mesh_file().resolve()))
-    return replace(scene, mesh=mesh, output=replace(scene.output, paths=shot.outputs,
-                                                    overwrite=False), source=None)
+    drive = scene.drive if scene.drive is None else \
+        replace(scene.drive, path=os.fspath(scene.resolve(scene.drive.path).resolve()))
+    return replace(scene, mesh=mesh, drive=drive,
+                   output=replace(scene.output, paths=shot.outputs, overwrite=False),
+                   source=None)

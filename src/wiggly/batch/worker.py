@@ -252,6 +252,7 @@ def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
         resolve_groups,
         write_outputs,
     )
+    from wiggly.scene.drive import secondary_of
 
     scene = job.scene
     warped = scene.simulation.warp
@@ -269,13 +270,17 @@ def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
     body = problem.body
     groups = resolve_groups(scene, body.model)
     keyframes = keyframes_of(scene, body, groups)
+    secondary = scene.drive is not None and scene.drive.physics == "secondary"
     t = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        anim = problem.solve(keyframes, warped=warped,
-                             warm_start=entry[1] if job.warm_start else None)
+        if secondary:  # the driver owns its groups, physics the rest (one linear solve)
+            anim = secondary_of(scene, body, groups, keyframes)
+        else:
+            anim = problem.solve(keyframes, warped=warped,
+                                 warm_start=entry[1] if job.warm_start else None)
     solve_seconds = time.perf_counter() - t
-    if warped:
+    if warped and not secondary:
         entry[1] = anim.warm_start
     info = anim.info
     rows = anim.constraint_residuals()
@@ -290,6 +295,10 @@ def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
         "keyframe_velocity_rms": _worst(rows, "velocity_rms"),
         "keyframes": rows, "warnings": sorted({str(w.message) for w in caught}),
     }
+    if scene.drive is not None:  # how closely the driven groups followed the driver
+        from wiggly.drive import following
+
+        record["drive"] = following(anim)
     t = time.perf_counter()
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / name for name in job.outputs]
