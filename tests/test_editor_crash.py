@@ -457,3 +457,35 @@ def test_an_edit_that_cannot_be_journaled_is_refused(tmp_path):
         assert session.undo()["changed"] and session.scene.damping.alpha == 0.5
     finally:
         session.close()
+
+
+def test_a_failed_flush_leaves_no_line_behind(tmp_path, monkeypatch):
+    """A journal line whose flush fails is taken back: the refused edit does not come back
+    after a restart (the disk said nothing about it; a full disk cuts lines short)."""
+    import wiggly.editor.history as history
+
+    path = bar_project(tmp_path, KEYS, warp=False)
+    session = Session(Sandbox([tmp_path]))
+    try:
+        session.open(path.name)
+        session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.7}})
+        before = history_path(path).read_bytes()
+
+        def failing_fsync(fd):
+            raise OSError(5, "Input/output error")
+
+        monkeypatch.setattr(history.os, "fsync", failing_fsync)
+        with pytest.raises(EditError) as err:
+            session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.9}})
+        assert err.value.status == 507 and "Input/output error" in str(err.value)
+        monkeypatch.undo()
+        assert history_path(path).read_bytes() == before
+        assert session.scene.damping.alpha == 0.7
+    finally:
+        session.close()
+    s2 = Session(Sandbox([tmp_path]))
+    try:
+        s2.open(path.name)
+        assert s2.scene.damping.alpha == 0.7 and s2.describe("api")["undo_label"] == "set damping"
+    finally:
+        s2.close()

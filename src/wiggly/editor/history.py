@@ -22,6 +22,7 @@ rewritten compactly (one snapshot line, atomically) when it is opened.
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
@@ -233,11 +234,21 @@ class Histories:
         :class:`EditError` (507) if it cannot be written."""
         if self.path is None:
             return
+        data = self._line(line, state).encode()
         try:
             fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
             try:
-                os.write(fd, self._line(line, state).encode())
-                os.fsync(fd)
+                end = os.lseek(fd, 0, os.SEEK_END)
+                try:
+                    if os.write(fd, data) != len(data):  # a full disk: a short write
+                        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                    os.fsync(fd)
+                except OSError:  # a refused edit leaves no line (nor part of one) behind
+                    try:
+                        os.ftruncate(fd, end)
+                    except OSError:
+                        pass
+                    raise
             finally:
                 os.close(fd)
             self.write_error = None
