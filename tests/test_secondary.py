@@ -276,6 +276,19 @@ def test_unwarp_kernel_matches_svd_and_inverts_the_warp():
         np.testing.assert_allclose(expm(W) @ (np.eye(3) + sym[k]), F[k], atol=1e-9)
 
 
+def test_unwarp_of_gradient_fields_matches_the_svd_path():
+    """The compiled pass over gradient fields (the unwarp's own layout, d u_i / d X_j per tet
+    and frame) equals the SVD path, nearly inverted and far-turned tets included."""
+    from wiggly.drive.unwarp import _linear_gradients
+
+    rng = np.random.default_rng(1)
+    grad = 0.3 * rng.normal(size=(400, 3, 3, 5))
+    grad[:20] *= 4.0  # some tets past MIN_DET or MAX_ANGLE: they keep F - I
+    Fd = np.eye(3) + np.moveaxis(grad, -1, 0).transpose(0, 1, 3, 2)
+    expected = _unwarp_numpy(Fd).transpose(1, 3, 2, 0)
+    np.testing.assert_allclose(_linear_gradients(grad), expected, atol=1e-10)
+
+
 def test_bad_drivers_are_refused(bar, tmp_path):
     body, driven = bar
     X = body.surface.vertices

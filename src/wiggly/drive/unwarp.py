@@ -16,7 +16,7 @@ extension of a driver may nearly invert tets that bridge two limbs moving apart)
 linear gradient F - I: their polar rotation means nothing.
 
 The per-tet pass is compiled with numba (polar decomposition by Higham's scaled Newton
-iteration, rotation logarithm in closed form; about 0.1 us per tet) and vectorized numpy
+iteration, rotation logarithm in closed form) and vectorized numpy
 (SVD) where numba is not available.
 """
 
@@ -79,84 +79,87 @@ def _unwarp_numpy(Fd: np.ndarray) -> np.ndarray:
 
 if _HAVE_NUMBA:
 
-    @njit(cache=True, nogil=True, parallel=True, fastmath={"contract"})
-    def _unwarp_compiled(Fd, min_det, max_angle, out):  # pragma: no cover - compiled
-        N = Fd.shape[0]
-        for e in prange(N):
-            F = Fd[e]
-            det = (F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
-                   - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
-                   + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]))
-            A = out[e]
-            if not det >= min_det:
-                for i in range(3):
-                    for j in range(3):
-                        A[i, j] = F[i, j] - (1.0 if i == j else 0.0)
-                continue
-            # Higham's Newton iteration for the polar factor, with determinant scaling
-            R = F.copy()
-            for _ in range(40):
-                c00 = R[1, 1] * R[2, 2] - R[1, 2] * R[2, 1]
-                c01 = R[1, 2] * R[2, 0] - R[1, 0] * R[2, 2]
-                c02 = R[1, 0] * R[2, 1] - R[1, 1] * R[2, 0]
-                c10 = R[0, 2] * R[2, 1] - R[0, 1] * R[2, 2]
-                c11 = R[0, 0] * R[2, 2] - R[0, 2] * R[2, 0]
-                c12 = R[0, 1] * R[2, 0] - R[0, 0] * R[2, 1]
-                c20 = R[0, 1] * R[1, 2] - R[0, 2] * R[1, 1]
-                c21 = R[0, 2] * R[1, 0] - R[0, 0] * R[1, 2]
-                c22 = R[0, 0] * R[1, 1] - R[0, 1] * R[1, 0]
-                d = R[0, 0] * c00 + R[0, 1] * c01 + R[0, 2] * c02
-                g = abs(d) ** (-1.0 / 3.0)
-                # R^-T = cofactor matrix / det
-                change = 0.0
-                for i in range(3):
-                    for j in range(3):
-                        if i == 0:
-                            cij = c00 if j == 0 else (c01 if j == 1 else c02)
-                        elif i == 1:
-                            cij = c10 if j == 0 else (c11 if j == 1 else c12)
-                        else:
-                            cij = c20 if j == 0 else (c21 if j == 1 else c22)
-                        new = 0.5 * (g * R[i, j] + cij / (g * d))
-                        change = max(change, abs(new - R[i, j]))
-                        R[i, j] = new
+    @njit(cache=True, nogil=True, inline="always", fastmath={"contract"})
+    def _unwarp_one(f00, f01, f02, f10, f11, f12, f20, f21, f22, min_det,
+                    max_angle):  # pragma: no cover - compiled
+        """A = [log R]x + S - I of one F = R S (row-major 9-tuple), or F - I (module doc)."""
+        det = (f00 * (f11 * f22 - f12 * f21) - f01 * (f10 * f22 - f12 * f20)
+               + f02 * (f10 * f21 - f11 * f20))
+        linear = not det >= min_det
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = f00, f01, f02, f10, f11, f12, f20, f21, f22
+        theta = 0.0
+        if not linear:
+            # Higham's Newton iteration R <- (g R + R^-T / g) / 2 for the polar factor,
+            # with determinant scaling g = |det R|^(-1/3) while far from convergence
+            for it in range(40):
+                c00 = r11 * r22 - r12 * r21
+                c01 = r12 * r20 - r10 * r22
+                c02 = r10 * r21 - r11 * r20
+                c10 = r02 * r21 - r01 * r22
+                c11 = r00 * r22 - r02 * r20
+                c12 = r01 * r20 - r00 * r21
+                c20 = r01 * r12 - r02 * r11
+                c21 = r02 * r10 - r00 * r12
+                c22 = r00 * r11 - r01 * r10
+                d = r00 * c00 + r01 * c01 + r02 * c02
+                g = abs(d) ** (-1.0 / 3.0) if it < 3 else 1.0
+                h = 1.0 / (g * d)
+                n00 = 0.5 * (g * r00 + c00 * h)
+                n01 = 0.5 * (g * r01 + c01 * h)
+                n02 = 0.5 * (g * r02 + c02 * h)
+                n10 = 0.5 * (g * r10 + c10 * h)
+                n11 = 0.5 * (g * r11 + c11 * h)
+                n12 = 0.5 * (g * r12 + c12 * h)
+                n20 = 0.5 * (g * r20 + c20 * h)
+                n21 = 0.5 * (g * r21 + c21 * h)
+                n22 = 0.5 * (g * r22 + c22 * h)
+                change = max(abs(n00 - r00), abs(n01 - r01), abs(n02 - r02),
+                             abs(n10 - r10), abs(n11 - r11), abs(n12 - r12),
+                             abs(n20 - r20), abs(n21 - r21), abs(n22 - r22))
+                r00, r01, r02, r10, r11, r12, r20, r21, r22 = \
+                    n00, n01, n02, n10, n11, n12, n20, n21, n22
                 if change < 1e-15:
                     break
-            # S = sym(R^T F)
-            S = np.empty((3, 3))
-            for i in range(3):
-                for j in range(3):
-                    S[i, j] = R[0, i] * F[0, j] + R[1, i] * F[1, j] + R[2, i] * F[2, j]
-            for i in range(3):
-                for j in range(i + 1, 3):
-                    s = 0.5 * (S[i, j] + S[j, i])
-                    S[i, j] = s
-                    S[j, i] = s
             # w = log R
-            cos = 0.5 * (R[0, 0] + R[1, 1] + R[2, 2] - 1.0)
-            cos = min(1.0, max(-1.0, cos))
+            cos = min(1.0, max(-1.0, 0.5 * (r00 + r11 + r22 - 1.0)))
             theta = np.arccos(cos)
-            if theta > max_angle:
-                for i in range(3):
-                    for j in range(3):
-                        A[i, j] = F[i, j] - (1.0 if i == j else 0.0)
-                continue
-            if theta < 1e-4:
-                f = 0.5 + theta * theta / 12.0
-            else:
-                f = 0.5 * theta / np.sin(theta)
-            w0 = f * (R[2, 1] - R[1, 2])
-            w1 = f * (R[0, 2] - R[2, 0])
-            w2 = f * (R[1, 0] - R[0, 1])
-            for i in range(3):
-                for j in range(3):
-                    A[i, j] = S[i, j] - (1.0 if i == j else 0.0)
-            A[0, 1] -= w2
-            A[0, 2] += w1
-            A[1, 0] += w2
-            A[1, 2] -= w0
-            A[2, 0] -= w1
-            A[2, 1] += w0
+            linear = theta > max_angle
+        if linear:
+            return (f00 - 1.0, f01, f02, f10, f11 - 1.0, f12, f20, f21, f22 - 1.0)
+        fac = 0.5 + theta * theta / 12.0 if theta < 1e-4 else 0.5 * theta / np.sin(theta)
+        w0 = fac * (r21 - r12)
+        w1 = fac * (r02 - r20)
+        w2 = fac * (r10 - r01)
+        # S = sym(R^T F), and A = S - I + [w]x
+        s00 = r00 * f00 + r10 * f10 + r20 * f20
+        s11 = r01 * f01 + r11 * f11 + r21 * f21
+        s22 = r02 * f02 + r12 * f12 + r22 * f22
+        s01 = 0.5 * (r00 * f01 + r10 * f11 + r20 * f21 + r01 * f00 + r11 * f10 + r21 * f20)
+        s02 = 0.5 * (r00 * f02 + r10 * f12 + r20 * f22 + r02 * f00 + r12 * f10 + r22 * f20)
+        s12 = 0.5 * (r01 * f02 + r11 * f12 + r21 * f22 + r02 * f01 + r12 * f11 + r22 * f21)
+        return (s00 - 1.0, s01 - w2, s02 + w1, s01 + w2, s11 - 1.0, s12 - w0,
+                s02 - w1, s12 + w0, s22 - 1.0)
+
+    @njit(cache=True, nogil=True, parallel=True, fastmath={"contract"})
+    def _unwarp_compiled(Fd, min_det, max_angle, out):  # pragma: no cover - compiled
+        for e in prange(Fd.shape[0]):
+            F = Fd[e]
+            A = _unwarp_one(F[0, 0], F[0, 1], F[0, 2], F[1, 0], F[1, 1], F[1, 2], F[2, 0],
+                            F[2, 1], F[2, 2], min_det, max_angle)
+            for k in range(9):
+                out[e, k // 3, k % 3] = A[k]
+
+    @njit(cache=True, nogil=True, parallel=True, fastmath={"contract"})
+    def _unwarp_fields(grad, min_det, max_angle, out):  # pragma: no cover - compiled
+        """grad[e, j, i, f] = d u_i / d X_j of frame f; out[e, j, i, f] = A_ij."""
+        for e in prange(grad.shape[0]):
+            for f in range(grad.shape[3]):
+                A = _unwarp_one(1.0 + grad[e, 0, 0, f], grad[e, 1, 0, f], grad[e, 2, 0, f],
+                                grad[e, 0, 1, f], 1.0 + grad[e, 1, 1, f], grad[e, 2, 1, f],
+                                grad[e, 0, 2, f], grad[e, 1, 2, f], 1.0 + grad[e, 2, 2, f],
+                                min_det, max_angle)
+                for k in range(9):
+                    out[e, k % 3, k // 3, f] = A[k]
 
 
 def unwarp_gradients(Fd: np.ndarray) -> np.ndarray:
@@ -170,6 +173,17 @@ def unwarp_gradients(Fd: np.ndarray) -> np.ndarray:
     out = np.empty_like(flat)
     _unwarp_compiled(flat, MIN_DET, MAX_ANGLE, out)
     return out.reshape(Fd.shape)
+
+
+def _linear_gradients(grad: np.ndarray) -> np.ndarray:
+    """A[e, j, i, f] (the layout of ``grad[e, j, i, f]`` = d u_i / d X_j of frame f) of the
+    deformation gradients I + grad (:func:`unwarp_gradients`)."""
+    if _HAVE_NUMBA:
+        out = np.empty_like(grad)
+        _unwarp_fields(np.ascontiguousarray(grad), MIN_DET, MAX_ANGLE, out)
+        return out
+    Fd = np.eye(3) + np.moveaxis(grad, -1, 0).transpose(0, 1, 3, 2)  # (f, m, i, j)
+    return _unwarp_numpy(Fd).transpose(1, 3, 2, 0)
 
 
 class Unwarp:
@@ -224,10 +238,8 @@ class Unwarp:
             f1 = min(F, f0 + _BATCH)
             Uk = U[:, f0:f1].reshape(n, 3, -1)  # (n, 3 components, frames)
             grad = (self.G @ Uk.reshape(n, -1)).reshape(m, 3, 3, -1)  # [tet, d/dX_j, u_i, f]
-            Fd = np.eye(3) + np.moveaxis(grad, -1, 0).transpose(0, 1, 3, 2)  # (f, m, i, j)
-            A = unwarp_gradients(Fd)
             # per component i: G^T Vol G x_i = G^T Vol a_i, a_i[3 e + j] = A[e, i, j]
-            a = A.transpose(1, 3, 2, 0).reshape(3 * m, -1)  # columns i * f + frame, as Uk
+            a = _linear_gradients(grad).reshape(3 * m, -1)  # columns i * f + frame, as Uk
             rhs = self.G.T @ (self.vol3[:, None] * a)
             rhs += self.mu * self.mass[:, None] * Uk.reshape(n, -1)
             out[:, f0:f1] = self.solve(rhs).reshape(3 * n, -1)
