@@ -32,8 +32,9 @@ from scipy.spatial.transform import Rotation
 
 from wiggly.fem import tet_gradients
 from wiggly.linalg import factorize_spd
+from wiggly.progress import activity
 
-__all__ = ["MAX_ANGLE", "MIN_DET", "Unwarp", "unwarp_gradients"]
+__all__ = ["MAX_ANGLE", "MIN_DET", "Unwarp", "compile_kernels", "unwarp_gradients"]
 
 #: Extension penalty relative to the Laplacian's mean diagonal (per unit of E^T E).
 _PENALTY = 1e2
@@ -162,6 +163,32 @@ if _HAVE_NUMBA:
                     out[e, k % 3, k // 3, f] = A[k]
 
 
+#: Said before a first compilation of the unwarp kernels (numba's cache is cold).
+COMPILING = "compiling the unwarp kernels, once, about 10 s (longer on a busy machine)"
+_ready = False
+
+
+def compile_kernels(progress: bool = True) -> None:
+    """Compile (or load from numba's on-disk cache) the unwarp kernels once per process,
+    announcing a compilation first, so that a first warped secondary motion never looks
+    hung."""
+    global _ready
+    if _ready or not _HAVE_NUMBA:
+        return
+    cold = False
+    for kernel in (_unwarp_compiled, _unwarp_fields):
+        try:  # numba keeps an index of the compiled signatures beside the source
+            cold = cold or not kernel._cache._cache_file._load_index()
+        except Exception:  # another numba's layout: assume the worst, say so
+            cold = True
+    with activity(COMPILING, progress and cold):
+        F = np.eye(3)[None] + 0.01
+        _unwarp_compiled(F, MIN_DET, MAX_ANGLE, np.empty_like(F))
+        grad = np.zeros((1, 3, 3, 1))
+        _unwarp_fields(grad, MIN_DET, MAX_ANGLE, np.empty_like(grad))
+    _ready = True
+
+
 def unwarp_gradients(Fd: np.ndarray) -> np.ndarray:
     """Linear gradients A = [log R]x + S - I of deformation gradients Fd = R S, (..., 3, 3);
     F - I where the tet is nearly inverted (det F < :data:`MIN_DET`) or turned by more than
@@ -169,6 +196,7 @@ def unwarp_gradients(Fd: np.ndarray) -> np.ndarray:
     Fd = np.asarray(Fd, dtype=np.float64)
     if not _HAVE_NUMBA:
         return _unwarp_numpy(Fd)
+    compile_kernels()
     flat = np.ascontiguousarray(Fd.reshape(-1, 3, 3))
     out = np.empty_like(flat)
     _unwarp_compiled(flat, MIN_DET, MAX_ANGLE, out)
@@ -179,6 +207,7 @@ def _linear_gradients(grad: np.ndarray) -> np.ndarray:
     """A[e, j, i, f] (the layout of ``grad[e, j, i, f]`` = d u_i / d X_j of frame f) of the
     deformation gradients I + grad (:func:`unwarp_gradients`)."""
     if _HAVE_NUMBA:
+        compile_kernels()
         out = np.empty_like(grad)
         _unwarp_fields(np.ascontiguousarray(grad), MIN_DET, MAX_ANGLE, out)
         return out
