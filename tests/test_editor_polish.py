@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.editor_ui import bar_project, editor_page, post, wait_final
+from tests.editor_ui import bar_project, editor_page, post, select_key, wait_final
 from tests.test_editor_drive import drive_project
 from wiggly.editor import Sandbox, Session, serve
 from wiggly.editor.session import autosave_path
@@ -112,6 +112,24 @@ def _ghosted(page) -> set[int]:
     return set(vertices.pop())
 
 
+def _pick_group(page, name: str, add: bool = False) -> None:
+    """Click the group in the list (Shift: add it to the selected ones) until it is selected
+    (a state refresh may redraw the list under the click)."""
+    from playwright.sync_api import TimeoutError as PageTimeout
+
+    done = f"window.wiggly.S.selectedGroup === {name!r} && window.wiggly.S.groups.has({name!r})"
+    for _attempt in range(3):
+        if page.evaluate(done):
+            return
+        page.click(f"#groups li[data-group={name}] .name", modifiers=["Shift"] if add else [])
+        try:
+            page.wait_for_function(done, timeout=10_000)
+            return
+        except PageTimeout:  # the click missed a redrawn list: again
+            continue
+    raise AssertionError(f"cannot select group {name!r} in the list")
+
+
 def test_onion_skins_ghost_only_the_selected_groups(chromium, bar, tmp_path):
     session = bar.session
     faces = session.surface.faces
@@ -131,14 +149,10 @@ def test_onion_skins_ghost_only_the_selected_groups(chromium, bar, tmp_path):
             page.wait_for_function("window.wiggly.onionInfo().length > 0")
             page.evaluate("window.wiggly.setTime(0.5)")
             assert _ghosted(page) == set(np.unique(faces).tolist())  # none selected: all
-            page.click("#groups li:has-text('right')")
-            page.wait_for_function("window.wiggly.S.selectedGroup === 'right'")
+            _pick_group(page, "right")
             ghosted = _ghosted(page)
             assert ghosted == touching(["right"]) and len(ghosted) < 0.4 * len(faces)
-            page.keyboard.down("Shift")  # a second group joins the ghosts
-            page.click("#groups li:has-text('mid')")
-            page.keyboard.up("Shift")
-            page.wait_for_function("window.wiggly.S.groups.size === 2")
+            _pick_group(page, "mid", add=True)  # a second group joins the ghosts
             assert _ghosted(page) == touching(["right", "mid"])
             check_layout(page, "onion-selected", tmp_path)
             assert not errors, errors
@@ -220,14 +234,14 @@ def test_messages_name_keyframes_and_read_well(chromium, bar, tmp_path):
     with editor_page(chromium, url, *SIZES[0]) as (page, errors):
         wait_final(page)
         # the named key (id 1): moved in its panel; the undo button names it, not its id
-        page.click("#keys li[data-key='1']")
+        select_key(page, 1)
         page.fill("#key-time", "0.3")
         page.press("#key-time", "Enter")
         page.wait_for_function("window.wiggly.S.desc.can_undo")
         title = page.get_attribute("#btn-undo", "title")
         assert "move keyframe 'lift' (mid at 0.25 s) to 0.3 s" in title, title
         # an unnamed key: its group and time
-        page.click("#keys li[data-key='0']")
+        select_key(page, 0)
         page.fill("#key-time", "0.6")
         page.press("#key-time", "Enter")
         page.wait_for_function("window.wiggly.S.desc.undo_label.includes('right at 0.5 s')")
