@@ -81,7 +81,8 @@ class SolveOptions:
     coarse_tolerance : tolerance of the coarse first level (its solution only starts the
         fine one).
     two_level : solve on the body's coarse mesh first (bodies above ``COARSE_WARP_ABOVE``
-        tets); False: the fine level only, with exact Newton matrices.
+        tets whose coarse mesh is coarser, :data:`wiggly.solve.levels.COARSER`); False: the
+        fine level only, with exact Newton matrices.
     warn : emit a :class:`WarpedSolveWarning` when the solve stops unconverged.
     callback : called with the number of iterations so far (both levels) after each one; an
         exception it raises ends the solve and propagates (the editor abandons an outdated
