@@ -465,3 +465,18 @@ def test_the_same_motion_at_any_driver_frame_rate(bar):
     gaps = [np.abs(motion[f] - motion[480.0]).max() for f in (30.0, 60.0, 120.0)]
     assert gaps[0] < 0.05 * size
     assert 12.0 < gaps[1] / gaps[2] < 20.0, gaps
+
+
+@pytest.mark.parametrize("hold", [(False, False), (True, False), (False, True), (True, True)])
+def test_frame_spline_slopes_equal_scipy_cubic_spline(hold):
+    """The banded slope solve of FrameSpline.fit is scipy's CubicSpline (not-a-knot, or a
+    zero first derivative where the pose is held) on uneven frame spacing."""
+    rng = np.random.default_rng(5)
+    times = np.cumsum(rng.uniform(0.02, 0.05, 17))
+    values = rng.normal(size=(17, 6))
+    s = FrameSpline.fit(times, values, hold_start=hold[0], hold_end=hold[1])
+    bc = tuple((1, np.zeros(6)) if h else "not-a-knot" for h in hold)
+    from scipy.interpolate import CubicSpline
+
+    np.testing.assert_allclose(s.slopes, CubicSpline(times, values, bc_type=bc)(times, 1),
+                               rtol=1e-10, atol=1e-10)

@@ -44,6 +44,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 from scipy.interpolate import CubicSpline
+from scipy.linalg import solve_banded
 
 from wiggly.body import Body, Where, fixed_from_surface
 from wiggly.checks import vertex_indices
@@ -97,6 +98,8 @@ class FrameSpline:
                   "not-a-knot")
             if len(times) < 4 and "not-a-knot" in bc:
                 bc = ((1, 0.0) if hold_start else (2, 0.0), (1, 0.0) if hold_end else (2, 0.0))
+        if not loop and len(times) >= 4:  # one banded solve for every column
+            return cls(times, values, _spline_slopes(times, values, hold_start, hold_end))
         slopes = np.empty_like(values)
         for c0 in range(0, values.shape[1], _CHUNK):
             c1 = min(values.shape[1], c0 + _CHUNK)
@@ -164,6 +167,37 @@ class FrameSpline:
         out[:, 2] = np.where(inside[:, None], c2 + 3 * c3 * x, 0.0)
         out[:, 3] = np.where(inside[:, None], c3, 0.0)
         return out
+
+
+def _spline_slopes(x: np.ndarray, y: np.ndarray, clamped_start: bool,
+                   clamped_end: bool) -> np.ndarray:
+    """Slopes (F, N) at the knots of the C^2 cubic spline through y (F, N), F >= 4: the
+    tridiagonal system of spline slopes with a zero slope (clamped) or not-a-knot condition
+    at each end, one banded solve for all columns (the system scipy's CubicSpline solves,
+    without its piecewise-polynomial coefficients)."""
+    n = len(x)
+    dx = np.diff(x)
+    slope = np.diff(y, axis=0) / dx[:, None]
+    A = np.zeros((3, n))
+    A[1, 1:-1] = 2 * (dx[:-1] + dx[1:])
+    A[0, 2:] = dx[:-1]
+    A[-1, :-2] = dx[1:]
+    b = np.empty_like(y)
+    b[1:-1] = 3 * (dx[1:, None] * slope[:-1] + dx[:-1, None] * slope[1:])
+    if clamped_start:
+        A[1, 0], A[0, 1], b[0] = 1.0, 0.0, 0.0
+    else:  # not-a-knot: the first two intervals are one cubic
+        d = x[2] - x[0]
+        A[1, 0], A[0, 1] = dx[1], d
+        b[0] = ((dx[0] + 2 * d) * dx[1] * slope[0] + dx[0] ** 2 * slope[1]) / d
+    if clamped_end:
+        A[1, -1], A[-1, -2], b[-1] = 1.0, 0.0, 0.0
+    else:
+        d = x[-1] - x[-3]
+        A[1, -1], A[-1, -2] = dx[-2], d
+        b[-1] = (dx[-1] ** 2 * slope[-2] + (2 * d + dx[-1]) * dx[-2] * slope[-1]) / d
+    return solve_banded((1, 1), A, b, overwrite_ab=True, overwrite_b=True,
+                        check_finite=False)
 
 
 def free_modes(body: Body, driven: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
@@ -363,12 +397,12 @@ def _forcing(nodes: np.ndarray, rig: FrameSpline, C: np.ndarray, body: Body, alp
     accelerations are the driver's in world space, for warped playback too (module doc)."""
     m, r = len(nodes) - 1, C.shape[0]
     out = np.zeros((m, r, 4))
-    for j0 in range(0, m, 64):  # a few intervals at a time: the Taylor fields are (J, 4, 3n)
-        j1 = min(m, j0 + 64)
-        s = rig.taylor(nodes[j0:j1]) @ C.T  # (J, 4, r): the projected Taylor coefficients
-        out[j0:j1, :, 0] = intensity * (2 * s[:, 2] + alpha * s[:, 1])
-        out[j0:j1, :, 1] = intensity * (6 * s[:, 3] + 2 * alpha * s[:, 2])
-        out[j0:j1, :, 2] = intensity * 3 * alpha * s[:, 3]
+    # the Taylor coefficients are linear in the frames' values and slopes: project first
+    projected = FrameSpline(rig.times, rig.values @ C.T, rig.slopes @ C.T)
+    s = projected.taylor(nodes[:-1])  # (m, 4, r): Taylor coefficients right of each node
+    out[:, :, 0] = intensity * (2 * s[:, 2] + alpha * s[:, 1])
+    out[:, :, 1] = intensity * (6 * s[:, 3] + 2 * alpha * s[:, 2])
+    out[:, :, 2] = intensity * 3 * alpha * s[:, 3]
     n = C.shape[1] // 3
     out[:, :, 0] += C @ np.tile(-np.asarray(body.gravity, float), n)
     return out
