@@ -153,17 +153,11 @@ def test_driver_errors_reach_the_page(chromium, tmp_path):
         server.stop()
 
 
-def _session_final(session, timeout: float = 60.0):
-    """The final frames of the session's current version (bounded wait)."""
-    import time
+def _session_final(session):
+    """The final frames of the session's current version (a minute at the most)."""
+    from tests.test_editor_server import wait_final as final_frames
 
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        fs = session.latest_frames(final=True)
-        if fs is not None and fs.version == session.version:
-            return fs
-        time.sleep(0.02)
-    raise AssertionError(f"no final frames for version {session.version} in {timeout} s")
+    return final_frames(session, timeout=60.0)
 
 
 @pytest.mark.parametrize("warp", [False, True])

@@ -47,12 +47,11 @@ import numpy as np
 import scipy.linalg as sl
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
-from scipy.spatial.transform import Rotation
 
 from wiggly.body import Body, fixed_from_surface
 from wiggly.checks import vertex_indices
 from wiggly.drive.driver import Driver
-from wiggly.fem import tet_gradients
+from wiggly.drive.unwarp import Unwarp
 from wiggly.linalg import factorize_spd
 from wiggly.modes import Modes, compute_modes
 from wiggly.progress import iterations
@@ -63,15 +62,9 @@ __all__ = ["enrich"]
 #: the driver no closer (the surface has more vertices than the tets) but let poorly held
 #: tet vertices run wild.
 _PENALTY = 1e2
-#: Frames per batch of the unwarping (per-tet polar decompositions).
-_BATCH = 16
 #: At most this many driver frames are unwarped: those that span the others best (a walk
 #: repeats itself; 300 frames of a 20k-tet body would take half a minute).
 _FRAMES = 32
-#: Tets squeezed below this volume ratio, or turned by more than this angle (radians), keep
-#: their linear gradient when unwarping: the elastic extension may nearly invert tets that
-#: bridge two limbs moving apart, and their polar rotation is meaningless.
-_MIN_DET, _MAX_ANGLE = 0.25, 2.0
 
 
 def _extend(body: Body, vertices: np.ndarray, D: np.ndarray) -> np.ndarray:
@@ -91,57 +84,12 @@ def _extend(body: Body, vertices: np.ndarray, D: np.ndarray) -> np.ndarray:
     return U
 
 
-def _laplacian(body: Body) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
-    """The scalar P1 gradient operator G (3m, n), tet volumes (m,) and G^T Vol G."""
-    V, T = body.tets.vertices, body.tets.tets
-    grads, vol = tet_gradients(V, T)
-    m, n = len(T), len(V)
-    rows = (3 * np.arange(m)[:, None, None] + np.arange(3)[None, None, :]).repeat(4, axis=1)
-    cols = np.broadcast_to(T[:, :, None], (m, 4, 3))
-    G = sp.csr_matrix((grads.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * m, n))
-    L = (G.T @ sp.diags(np.repeat(vol, 3)) @ G).tocsr()
-    return G, vol, L
-
-
 def _unwarp(body: Body, U: np.ndarray, progress: bool) -> np.ndarray:
-    """Linear fields (3n, F) whose rotation-strain warp is approximately U (module doc)."""
-    n, F = body.tets.n_vertices, U.shape[1]
-    G, vol, L = _laplacian(body)
-    m = len(vol)
-    mass = np.asarray(body.M.diagonal()[::3]) if body.lumped else \
-        np.asarray(body.M.sum(axis=1)).ravel()[::3]
-    mu = 1e-9 * float(L.diagonal().mean()) / max(float(mass.mean()), 1e-300)
-    solve = factorize_spd(sp.csr_matrix(L + sp.diags(mu * mass)))
-    out = np.empty_like(U)
-    eye = np.eye(3)
+    """Linear fields (3n, F) whose rotation-strain warp is approximately U (module doc;
+    :class:`wiggly.drive.unwarp.Unwarp`)."""
+    mass = np.asarray(body.M.sum(axis=1)).ravel()[::3]  # lumped: the diagonal
     bar = iterations("unwarping driver frames", progress, unit="frame")
-    for f0 in range(0, F, _BATCH):
-        f1 = min(F, f0 + _BATCH)
-        Uk = U[:, f0:f1].reshape(n, 3, -1)  # (n, 3 components, frames)
-        grad = (G @ Uk.reshape(n, -1)).reshape(m, 3, 3, -1)  # [tet, d/dx_j, u_i, frame]
-        Fd = eye + np.moveaxis(grad, -1, 0).transpose(0, 1, 3, 2)  # (f, m, 3, 3): dx_i/dX_j
-        W, s, Vt = np.linalg.svd(Fd)
-        flip = np.linalg.det(W @ Vt) < 0  # keep R a rotation (inverted tets: reflect)
-        W[flip, :, 2] *= -1
-        s[flip, 2] *= -1
-        R = W @ Vt
-        Sym = np.einsum("...ki,...k,...kj->...ij", Vt, s, Vt)
-        w = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(*R.shape[:2], 3)
-        A = Sym - eye  # the linear gradient [w]x + S - I
-        A[..., 0, 1] -= w[..., 2]
-        A[..., 0, 2] += w[..., 1]
-        A[..., 1, 0] += w[..., 2]
-        A[..., 1, 2] -= w[..., 0]
-        A[..., 2, 0] -= w[..., 1]
-        A[..., 2, 1] += w[..., 0]
-        bad = (np.linalg.det(Fd) < _MIN_DET) | (np.linalg.norm(w, axis=-1) > _MAX_ANGLE)
-        A[bad] = Fd[bad] - eye  # nearly inverted tets: their rotation means nothing
-        # per component i: G^T Vol G x_i = G^T Vol a_i, a_i[3 e + j] = A[e, i, j]
-        a = A.transpose(1, 3, 2, 0).reshape(3 * m, -1)  # columns: i * f + frame, as Uk
-        rhs = G.T @ (np.repeat(vol, 3)[:, None] * a)
-        rhs += mu * mass[:, None] * Uk.reshape(n, -1)
-        out[:, f0:f1] = solve(rhs).reshape(3 * n, -1)
-        bar.update(f1 - f0)
+    out = Unwarp(body.tets.vertices, body.tets.tets, mass)(U, bar)
     bar.close()
     return out
 
