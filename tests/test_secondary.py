@@ -480,3 +480,14 @@ def test_frame_spline_slopes_equal_scipy_cubic_spline(hold):
 
     np.testing.assert_allclose(s.slopes, CubicSpline(times, values, bc_type=bc)(times, 1),
                                rtol=1e-10, atol=1e-10)
+
+
+def test_a_key_of_driven_vertices_is_named_in_a_warning(bar):
+    """The driver owns its group: a key of driven vertices only cannot enter; it is named."""
+    body, driven = bar
+    key = Keyframe.rest(body, 0.5, driven, still=True)
+    with pytest.warns(UserWarning, match="at 0.5 s keys only vertices that the driver moves"):
+        anim = secondary_motion(body, bob_driver(body, 30.0), driven, [key], start=0.0,
+                                end=T_END, warped=False)
+    assert np.abs(anim.positions(anim.driven_frames[0])[:, driven] -
+                  bob_driver(body, 30.0).positions[:, driven]).max() < 1e-7

@@ -38,6 +38,7 @@ nodes (Theorem 2: the minimiser is still a wiggly spline in every mode).
 from __future__ import annotations
 
 import time as _time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -514,7 +515,10 @@ def secondary_motion(
     for kf in own:
         k = node_index(nodes, kf.time) % blocks
         A = _rows(body, psi, kf.vertices, kf.on)
-        if not np.any(A):
+        if not np.any(A):  # the driver owns every vertex it keys
+            warnings.warn(f"keyframe {kf.name or ''} at {kf.time:g} s keys only vertices that "
+                          "the driver moves; it does not enter the secondary motion (key the "
+                          "free parts, or remove it)", stacklevel=2)
             continue
         c_A, c_B = kf.weights(body, duration)
         keys.append((kf, k, A, c_A, c_B))
