@@ -48,12 +48,13 @@ import scipy.linalg as sl
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from wiggly.body import Body, fixed_from_surface
+from wiggly.body import Body
 from wiggly.checks import vertex_indices
 from wiggly.drive.driver import Driver
+from wiggly.drive.secondary import free_modes, held_vertices
 from wiggly.drive.unwarp import Unwarp
 from wiggly.linalg import factorize_spd
-from wiggly.modes import Modes, compute_modes
+from wiggly.modes import Modes
 from wiggly.progress import iterations
 
 __all__ = ["enrich"]
@@ -98,14 +99,10 @@ def _free_modes(body: Body, vertices: np.ndarray, count: int) -> np.ndarray:
     """The lowest ``count`` modes of the free parts with the driven ones held: eigenvectors of
     (K, M) with the tet vertices that carry ``vertices`` fixed (3n, k), zero there; none if
     nothing is free."""
-    support = fixed_from_surface(body.model, vertices)
-    fixed = np.union1d(support, body.fixed_vertices)
-    free_dofs = 3 * (body.tets.n_vertices - len(fixed))
-    count = min(count, free_dofs - 1)
-    if count <= 0:
+    free_dofs = 3 * (body.tets.n_vertices - len(held_vertices(body, vertices)))
+    if min(count, free_dofs - 1) <= 0:
         return np.zeros((3 * body.tets.n_vertices, 0))
-    return compute_modes(body.K, body.M, count, vertices=body.tets.vertices,
-                         fixed_vertices=fixed, cache_dir=body.cache_dir).vectors
+    return free_modes(body, vertices, count)[0]
 
 
 def enrich(body: Body, driver: Driver, vertices: ArrayLike, *, warped: bool = True,

@@ -61,6 +61,7 @@ from wiggly.splines import energy_form, evaluate, wiggly_basis
 from wiggly.warp import Warp
 
 __all__ = ["DEFAULT_FREE_MODES", "FrameSpline", "HeldWarp", "SecondaryMotion", "free_modes",
+           "held_vertices",
            "secondary_motion"]
 
 #: Fixed-interface modes of the free parts, unless asked otherwise.
@@ -201,11 +202,17 @@ def _spline_slopes(x: np.ndarray, y: np.ndarray, clamped_start: bool,
                         check_finite=False)
 
 
+def held_vertices(body: Body, driven: np.ndarray) -> np.ndarray:
+    """The tet vertices a driver holds: those that carry the driven surface vertices (the
+    corners of their tets), and the body's fixed vertices."""
+    return np.union1d(fixed_from_surface(body.model, driven), body.fixed_vertices)
+
+
 def free_modes(body: Body, driven: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """The lowest ``count`` modes of the body with the tet vertices that carry the driven
-    surface vertices (and the body's fixed vertices) held: (Psi (3n, r), lambda (r,)),
-    Psi^T M Psi = I, Psi^T K Psi = diag(lambda), Psi zero on the held vertices."""
-    held = np.union1d(fixed_from_surface(body.model, driven), body.fixed_vertices)
+    """The lowest ``count`` modes of the body with :func:`held_vertices` held: (Psi (3n, r),
+    lambda (r,)), Psi^T M Psi = I, Psi^T K Psi = diag(lambda), Psi zero on the held
+    vertices."""
+    held = held_vertices(body, driven)
     free_dofs = 3 * (body.tets.n_vertices - len(held))
     if free_dofs <= 0:
         raise WigglyInputError("the driven groups hold every vertex of the body: nothing is "
@@ -390,12 +397,12 @@ def _field_rows(body: Body, U: np.ndarray, vertices: np.ndarray, on: Where) -> n
     return np.asarray(body.surface_embedding[vertices] @ U) if on == "surface" else U[vertices]
 
 
-def _forcing(nodes: np.ndarray, rig: FrameSpline, C: np.ndarray, body: Body, alpha: float,
-             intensity: float) -> np.ndarray:
+def _forcing(nodes: np.ndarray, rig: FrameSpline, C: np.ndarray, g: np.ndarray,
+             alpha: float, intensity: float) -> np.ndarray:
     """Coefficients c (m, r, 4) of the forcing g + p(t) on every interval between ``nodes``,
     in local time: intensity Psi^T M (ubar'' + alpha ubar') of the rig (exact: a quadratic,
-    ubar being cubic) plus gravity's g = -Psi^T M gravity; C = Psi^T M (r, 3n).  The
-    accelerations are the driver's in world space, for warped playback too (module doc)."""
+    ubar being cubic) plus gravity's g (r,); C = Psi^T M (r, 3n).  The accelerations are the
+    driver's in world space, for warped playback too (module doc)."""
     m, r = len(nodes) - 1, C.shape[0]
     out = np.zeros((m, r, 4))
     # the Taylor coefficients are linear in the frames' values and slopes: project first
@@ -404,8 +411,7 @@ def _forcing(nodes: np.ndarray, rig: FrameSpline, C: np.ndarray, body: Body, alp
     out[:, :, 0] = intensity * (2 * s[:, 2] + alpha * s[:, 1])
     out[:, :, 1] = intensity * (6 * s[:, 3] + 2 * alpha * s[:, 2])
     out[:, :, 2] = intensity * 3 * alpha * s[:, 3]
-    n = C.shape[1] // 3
-    out[:, :, 0] += C @ np.tile(-np.asarray(body.gravity, float), n)
+    out[:, :, 0] += g
     return out
 
 
@@ -475,8 +481,7 @@ def secondary_motion(
     t1 = _time.perf_counter()
     psi, lam = free_modes(body, v, free_mode_count)
     modes_seconds = _time.perf_counter() - t1
-    held_warp = HeldWarp(body, np.flatnonzero(~np.any(psi.reshape(-1, 3 * psi.shape[1]), 1))
-                         ) if warped else None
+    held_warp = HeldWarp(body, held_vertices(body, v)) if warped else None
     r = psi.shape[1]
     alpha, beta = body.damping.alpha, body.damping.beta
     delta = 0.5 * (alpha + beta * lam)
@@ -485,8 +490,8 @@ def secondary_motion(
     nodes = node_times(start, end, list(times) + [k.time for k in own])
     m = len(nodes) - 1
     h = np.diff(nodes)
-    c = _forcing(nodes, linear_rig, C, body, alpha, intensity)  # (m, r, 4): g + p(t)
-    g = C @ np.tile(-np.asarray(body.gravity, float), body.tets.n_vertices)  # the sag
+    g = psi.T @ body.gravity_vector  # gravity's g_i = psi_i^T g (the sag: -g / lambda)
+    c = _forcing(nodes, linear_rig, C, g, alpha, intensity)  # (m, r, 4): g + p(t)
     a = _particular(lam, delta, c)  # (m, r, 4)
     xp = _hermite_of(a, h[:, None])  # (m, r, 4)
     basis = wiggly_basis(np.tile(lam, m), np.tile(delta, m), np.repeat(h, r))
