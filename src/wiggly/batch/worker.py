@@ -270,7 +270,7 @@ def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
     body = problem.body
     groups = resolve_groups(scene, body.model)
     keyframes = keyframes_of(scene, body, groups)
-    secondary = scene.drive is not None and scene.drive.physics == "secondary"
+    secondary = scene.secondary_motion
     t = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

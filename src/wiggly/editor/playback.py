@@ -251,7 +251,7 @@ class Playback:
         t0 = time.perf_counter()
         self.bus.publish("solve", sticky=not drag, seq=req.seq, version=req.version,
                          stage="linear", message="linear solve")
-        if scene.drive is not None and scene.drive.physics == "secondary":
+        if scene.secondary_motion:
             # the driver owns its groups, physics the rest (wiggly.drive.secondary)
             linear = replace(scene, simulation=replace(scene.simulation, warp=False))
             anim = secondary_of(linear, body, groups, keys)

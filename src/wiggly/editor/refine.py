@@ -151,7 +151,7 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
                 previous.clear()
                 bodies[bkey] = body
             keys = keyframes_of(scene, body, groups)
-            if scene.drive is not None and scene.drive.physics == "secondary":
+            if scene.secondary_motion:
                 _secondary(seq, version, scene, body, groups, keys, out)
                 continue
             pkey = (*scene.time_range(), s.preroll, scene.time.loop)

@@ -171,7 +171,7 @@ def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
     """The keyframes of ``[drive]`` with ``physics = "keys"`` (none otherwise): the driven
     groups keyed to the driver at every driver frame in the shot."""
     drive = scene.drive
-    if drive is None or drive.physics != "keys":
+    if drive is None or scene.secondary_motion:
         return []
     driver = scene_driver(scene, progress)
     start, end = scene.time_range()

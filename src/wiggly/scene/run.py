@@ -117,7 +117,7 @@ def solve_scene(scene: Scene, body, keyframes, progress: bool = False,
     "secondary"`` solves for the free parts' motion on the driver
     (:func:`wiggly.scene.drive.secondary_of`; ``groups`` as resolved on ``body``'s mesh,
     resolved again when not given)."""
-    if scene.drive is not None and scene.drive.physics == "secondary":
+    if scene.secondary_motion:
         if groups is None:
             groups = resolve_groups(scene, body.model)
         return secondary_of(scene, body, groups, keyframes, progress)

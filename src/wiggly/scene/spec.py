@@ -346,6 +346,12 @@ class Scene:
         except ValueError:
             return str(self.source)
 
+    @property
+    def secondary_motion(self) -> bool:
+        """A ``[drive]`` with ``physics = "secondary"``: the driver owns the driven groups
+        and physics moves the rest (:func:`wiggly.drive.secondary_motion`)."""
+        return self.drive is not None and self.drive.physics == "secondary"
+
     def mesh_file(self) -> Path:
         """The mesh file (``builtin:<name>`` resolved to the bundled model)."""
         p = self.mesh.path
