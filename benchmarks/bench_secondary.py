@@ -110,10 +110,7 @@ def corotational_reference(body, driven, bob: Bob, T, dt):
         lam * np.einsum("eai,ebj->eabij", grads, grads)
         + mu * np.einsum("ebi,eaj->eabij", grads, grads)
         + mu * np.einsum("eak,ebk->eab", grads, grads)[..., None, None] * np.eye(3))
-    held = fixed_from_surface(body.model, driven)
-    fixed = np.zeros(3 * n, bool)
-    fixed[(3 * held[:, None] + np.arange(3)).ravel()] = True
-    f = ~fixed
+    f = free_dofs(body, driven)
     M = body.M.tocsr()
     Mff, Mf = M[f][:, f], M[f]
     alpha, beta = body.damping.alpha, body.damping.beta
@@ -169,10 +166,7 @@ def corotated_reference(body, driven, sway: Sway, T, dt):
     w and w' lag by a Newmark predictor.  Returns the surface's w (F, p, 3) at the frames: the
     motion relative to the driver, in the body's frame."""
     n = body.tets.n_vertices
-    held = fixed_from_surface(body.model, driven)
-    fixed = np.zeros(3 * n, bool)
-    fixed[(3 * held[:, None] + np.arange(3)).ravel()] = True
-    f = ~fixed
+    f = free_dofs(body, driven)
     M, K = body.M.tocsr(), body.K.tocsr()
     Mff, Kff, Mf = M[f][:, f], K[f][:, f], M[f]
     alpha, beta = body.damping.alpha, body.damping.beta
@@ -210,16 +204,22 @@ def corotated_reference(body, driven, sway: Sway, T, dt):
     return np.stack([E @ u.reshape(n, 3) for u in out])
 
 
+def free_dofs(body, driven) -> np.ndarray:
+    """Mask (3n,) of the degrees of freedom the references integrate: every dof but those of
+    the tet vertices that carry the driven surface vertices."""
+    held = fixed_from_surface(body.model, driven)
+    free = np.ones(3 * body.tets.n_vertices, bool)
+    free[(3 * held[:, None] + np.arange(3)).ravel()] = False
+    return free
+
+
 def reference(body, driven, motion, T, dt, rig: FrameSpline | None, gravity: bool = False):
     """Full-space Newmark simulation (module doc); surface displacement relative to the
     driver's own motion of the surface, sampled at the driver frames (F, p, 3).  With
     ``gravity`` the body's gravity acts too, and the free parts start in static equilibrium
     under it (as wiggly's do)."""
     n = body.tets.n_vertices
-    held = fixed_from_surface(body.model, driven)
-    fixed = np.zeros(3 * n, bool)
-    fixed[(3 * held[:, None] + np.arange(3)).ravel()] = True
-    f = ~fixed
+    f = free_dofs(body, driven)
     M, K = body.M.tocsr(), body.K.tocsr()
     Mff, Kff = M[f][:, f], K[f][:, f]
     alpha, beta = body.damping.alpha, body.damping.beta
