@@ -4,6 +4,8 @@ and headless Chromium for the editor's browser tests (one browser per test proce
 from __future__ import annotations
 
 import os
+import subprocess
+from pathlib import Path
 
 import meshio
 import numpy as np
@@ -74,3 +76,20 @@ def chromium():
             yield browser
         finally:
             browser.close()
+
+
+@pytest.fixture(scope="session")
+def blender_python() -> str:
+    """The Python of Blender as a module (PyPI bpy, `make blender`); the test skips, with
+    the reason, without it."""
+    python = os.environ.get("WIGGLY_BLENDER_PYTHON") or str(
+        Path(__file__).resolve().parents[1] / ".venv-blender" / "bin" / "python")
+    try:
+        done = subprocess.run([python, "-c", "import bpy; print(bpy.app.version_string)"],
+                              capture_output=True, text=True, timeout=120)
+    except OSError:
+        done = None
+    if done is None or done.returncode != 0:
+        pytest.skip(f"no Blender as a Python module at {python}: `make blender` installs PyPI "
+                    "bpy (Python 3.11) into .venv-blender (or set WIGGLY_BLENDER_PYTHON)")
+    return python

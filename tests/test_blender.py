@@ -12,12 +12,10 @@ interpreter) and runs ``tests/blender/inspect_imports.py`` in a subprocess.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from wiggly.export import SurfaceAnimation, write_animation
 from wiggly.keyframes import Keyframe
@@ -27,21 +25,6 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = Path(__file__).parent / "blender" / "inspect_imports.py"
 FPS = 24  # a new Blender scene's frame rate
 FRAME_START = 1  # a new Blender scene's first frame
-
-
-@pytest.fixture(scope="module")
-def blender_python() -> str:
-    python = os.environ.get("WIGGLY_BLENDER_PYTHON") or str(
-        ROOT / ".venv-blender" / "bin" / "python")
-    try:
-        done = subprocess.run([python, "-c", "import bpy; print(bpy.app.version_string)"],
-                              capture_output=True, text=True, timeout=120)
-    except OSError:
-        done = None
-    if done is None or done.returncode != 0:
-        pytest.skip(f"no Blender as a Python module at {python}: `make blender` installs PyPI "
-                    "bpy (Python 3.11) into .venv-blender (or set WIGGLY_BLENDER_PYTHON)")
-    return python
 
 
 def blender_view(python: str, tmp_path: Path, frames: list[int], files: list[Path]) -> dict:

@@ -32,21 +32,6 @@ SCHEMA = resources.files("wiggly") / "data" / "scene.schema.json"
 WIGGLY = shutil.which("wiggly", path=str(Path(sys.executable).parent)) or "wiggly"
 
 
-@pytest.fixture(scope="module")
-def blender_python() -> str:
-    python = os.environ.get("WIGGLY_BLENDER_PYTHON") or str(
-        ROOT / ".venv-blender" / "bin" / "python")
-    try:
-        done = subprocess.run([python, "-c", "import bpy; print(bpy.app.version_string)"],
-                              capture_output=True, text=True, timeout=120)
-    except OSError:
-        done = None
-    if done is None or done.returncode != 0:
-        pytest.skip(f"no Blender as a Python module at {python}: `make blender` installs PyPI "
-                    "bpy (Python 3.11) into .venv-blender (or set WIGGLY_BLENDER_PYTHON)")
-    return python
-
-
 def in_blender(python: str, case: str, workdir: Path, **options) -> dict:
     out, opts = workdir / f"{case}.json", workdir / f"{case}-options.json"
     opts.write_text(json.dumps(options))
