@@ -482,3 +482,51 @@ def test_target_fits_give_the_least_squares_residual_alone_and_in_batches(free_b
         np.testing.assert_allclose(cotangent, S.T @ r, atol=1e-12 * np.abs(S.T @ r).max())
         np.testing.assert_allclose(fit.X, alone.X, atol=1e-13 * np.abs(alone.X).max())
         assert fit.F == pytest.approx(alone.F, rel=1e-12, abs=1e-15)
+
+
+def test_second_order_correction_is_the_residuals_nonlinear_part_pulled_back(free_bar):
+    """The second-order correction's right-hand side is ``J^T C m`` with ``m = r(z + dz) -
+    r(z) - J dz`` (Nocedal & Wright, sec. 18.3): checked against the warp map alone (each
+    keyframe's selection, W and DW[v], central differences for J), in random directions,
+    and it is second order in the step."""
+    problem = SpacetimeProblem(free_bar, 0.0, 1.5)
+    kfs = problem.checked(velocity_keys(free_bar))
+    nodes = problem.nodes_for(kfs)
+    z = problem.solve_linear(kfs, nodes)
+    obj = WarpedObjective(problem, free_bar.fine_level, kfs, nodes)
+    layout, modal, warp = problem.layout(nodes), free_bar.fine_level.modal, free_bar.warp
+    rng = np.random.default_rng(7)
+    dz = 0.05 * rng.standard_normal(z.size) * np.abs(z).max()
+
+    def residuals(x):
+        """Each keyframe's weighted residual field sqrt(c) (S X - target) at its node."""
+        q, v = layout.states(x)
+        out = []
+        for kf in kfs:
+            k = layout.canonical(int(np.argmin(np.abs(nodes - kf.time))))
+            c_A, c_B = kf.weights(free_bar, problem.duration)
+            S = free_bar.scalar_selection(kf.vertices, kf.on)
+            u = modal.displacements(q[k])[0]
+            if kf.position is not None:
+                out.append(np.sqrt(c_A) * (S @ warp.apply(u) - problem.offsets(kf)))
+            if kf.velocity is not None:
+                w = modal.displacements(v[k])[0]
+                out.append(np.sqrt(c_B) * (S @ warp.jvp(u, w) - kf.velocity))
+        return out
+
+    def along(x, d, h=1e-5):
+        plus, minus = residuals(x + h * d), residuals(x - h * d)
+        return [(a - b) / (2 * h) for a, b in zip(plus, minus, strict=True)]
+
+    def correction(step):
+        return obj.correction_gradient(obj.evaluate(z), step, obj.evaluate(z + step))
+
+    r0, r1, Jdz = residuals(z), residuals(z + dz), along(z, dz)
+    m = [b - a - j for a, b, j in zip(r0, r1, Jdz, strict=True)]
+    g = correction(dz)
+    for _ in range(3):
+        e = rng.standard_normal(z.size)
+        expected = sum(float(np.vdot(je, mi)) for je, mi in zip(along(z, e), m, strict=True))
+        assert abs(float(e @ g) - expected) <= 1e-3 * abs(expected)
+    small = [np.linalg.norm(correction(s * dz)) for s in (0.02, 0.01)]
+    assert small[1] / small[0] == pytest.approx(0.25, rel=0.05)

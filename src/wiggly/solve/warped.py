@@ -50,6 +50,9 @@ __all__ = ["WarpedObjective", "WarpedPoint"]
 
 # Relative step of the central difference of vjps that gives D^2W(u)[., v]^T y.
 VJP_STEP = 1e-6
+# Relative step of the forward difference J dz ~ (r(z + h dz) - r(z)) / h in the second-order
+# correction (its error, ~h of the correction, only changes the path).
+CORRECTION_STEP = 1e-5
 
 
 @dataclass(frozen=True)
@@ -221,8 +224,6 @@ class WarpedObjective:
         nodes (an earlier solve's last point: a warm start), its W values are reused and only
         the cotangents that changed are pulled back (the vjp is linear in them)."""
         z = np.asarray(z, dtype=np.float64)
-        q, v = self._states(z)
-        modal, warp = self.level.modal, self.level.warp
         t0 = time.perf_counter()
         reuse = (
             prior is not None
@@ -233,14 +234,7 @@ class WarpedObjective:
         if reuse:
             U, WU, V, Vel = prior.U, prior.WU, prior.V, prior.Vel
         else:
-            empty = np.zeros((0, modal.n_vertices, 3))
-            U = modal.displacements(q[self.active]) if self.active else empty
-            V = modal.displacements(v[self.vel]) if self.vel else empty
-            if self.vel:
-                WU, Vel = warp.apply_and_jvp(U, [self.slot[k] for k in self.vel], V)
-            else:
-                WU, Vel = (warp.apply(U) if self.active else U), V
-            self.counts["W"] += len(self.active) + len(self.vel)
+            U, WU, V, Vel = self._warped(z)
         t1 = time.perf_counter()
         self.timing["W"] += t1 - t0
         Hz = band_matvec(self.ab_E, z)
@@ -259,6 +253,30 @@ class WarpedObjective:
         magnitude = abs(quad) + abs(lin) + abs(self.c_E) + F_res
         g = Hz + self.f_E
         pulled = self._pull_back(U, V, YA, YB, prior if reuse else None)
+        self._add_pulled(g, pulled, U, V)
+        self.timing["vjp"] += time.perf_counter() - t1
+        return WarpedPoint(
+            z.copy(), float(F), g, magnitude, self.name, self.signature,
+            U, WU, V, Vel, YA, YB, pulled,
+        )
+
+    def _warped(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``u = Phi q`` at the active nodes, ``W(u)``, ``v = Phi q'`` at the velocity nodes
+        and ``DW(u)[v]`` there, on this objective's level."""
+        q, v = self._states(z)
+        modal, warp = self.level.modal, self.level.warp
+        empty = np.zeros((0, modal.n_vertices, 3))
+        U = modal.displacements(q[self.active]) if self.active else empty
+        V = modal.displacements(v[self.vel]) if self.vel else empty
+        if self.vel:
+            WU, Vel = warp.apply_and_jvp(U, [self.slot[k] for k in self.vel], V)
+        else:
+            WU, Vel = (warp.apply(U) if self.active else U), V
+        self.counts["W"] += len(self.active) + len(self.vel)
+        return U, WU, V, Vel
+
+    def _add_pulled(self, g: np.ndarray, pulled: np.ndarray, U: np.ndarray, V: np.ndarray) -> None:
+        """Add the modal pull-backs of :meth:`_pull_back` to the node gradient g."""
         f, nv = len(self.active), len(self.vel)
         self.layout.add_to(g, self.active, pulled[:f], None)
         if nv:
@@ -266,11 +284,35 @@ class WarpedObjective:
             h = self._vjp_steps(U[iv], V)
             dq = pulled[f + nv : f + 2 * nv] - pulled[f + 2 * nv :]
             self.layout.add_to(g, self.vel, dq / (2 * h[:, None]), pulled[f : f + nv])
-        self.timing["vjp"] += time.perf_counter() - t1
-        return WarpedPoint(
-            z.copy(), float(F), g, magnitude, self.name, self.signature,
-            U, WU, V, Vel, YA, YB, pulled,
-        )
+
+    def correction_gradient(
+        self, point: WarpedPoint, dz: np.ndarray, trial: WarpedPoint
+    ) -> np.ndarray | None:
+        """The right-hand side of the second-order correction of a step ``dz`` from
+        ``point`` to ``trial`` (Nocedal & Wright 2006, sec. 18.3; Transtrum & Sethna 2012's
+        geodesic acceleration): ``J^T C m``, the residuals' nonlinear part along the step,
+
+            m = r(z + dz) - r(z) - J dz,
+
+        (J dz from a forward difference of W along dz) weighted by the keyframes' Grams and
+        pulled back at ``point``.  The correction ``-B^-1 J^T C m`` moves the step back onto
+        the curved valley of stiff keyframes, which a quadratic model cannot follow.  None
+        without constrained nodes."""
+        if not self.active:
+            return None
+        t0 = time.perf_counter()
+        _, WU_h, _, Vel_h = self._warped(point.z + CORRECTION_STEP * dz)
+        mU = trial.WU - point.WU - (WU_h - point.WU) / CORRECTION_STEP
+        mV = trial.Vel - point.Vel - (Vel_h - point.Vel) / CORRECTION_STEP
+        YA, YB = np.zeros_like(point.U), np.zeros_like(point.V)
+        for t in self.positions:
+            YA[self.slot[t.node]] += t.w**2 * (t.fit.C @ mU[self.slot[t.node]])
+        for t in self.velocities:
+            YB[self.vslot[t.node]] += t.w**2 * (t.fit.C @ mV[self.vslot[t.node]])
+        g = np.zeros_like(point.z)
+        self._add_pulled(g, self._pull_back(point.U, point.V, YA, YB, None), point.U, point.V)
+        self.timing["vjp"] += time.perf_counter() - t0
+        return g
 
     @staticmethod
     def _vjp_steps(U: np.ndarray, V: np.ndarray) -> np.ndarray:
