@@ -32,6 +32,7 @@ __all__ = [
     "add_blocks",
     "band_matvec",
     "band_to_dense",
+    "dense_to_band",
     "extended_residual",
 ]
 
@@ -189,3 +190,14 @@ class BandedCholesky:
                 break
             last = size
         return z
+
+
+def dense_to_band(H: np.ndarray, bw: int | None = None) -> np.ndarray:
+    """Upper band storage (Fortran order) of the symmetric matrix H with upper bandwidth
+    ``bw`` (default: the full matrix); the inverse of :func:`band_to_dense`."""
+    N = H.shape[0]
+    bw = N - 1 if bw is None else bw
+    ab = np.zeros((bw + 1, N), order="F")
+    for d in range(bw + 1):
+        ab[bw - d, d:] = np.diagonal(H, offset=d)
+    return ab

@@ -136,10 +136,10 @@ def solve_warped(
         point, fine_report = minimize(
             fine, start, options, contraction=warm.contraction if warm else None, bar=bar
         )
-    report.update(fine_report)
-    if not report["converged"] and options.warn:
-        warn_unconverged(report)
-    theta = fine_report["contraction"]
+    report.update(fine_report.as_info())
+    if not fine_report.converged and options.warn:
+        warn_unconverged(fine_report)
+    theta = fine_report.contraction
     if theta is None and warm is not None:
         theta = warm.contraction
     return point.z, report, WarmStart(nodes.copy(), point.z, tuple(kfs), point, theta, fine.blocks)
@@ -186,17 +186,17 @@ def _coarse_level(problem, coarse, kfs, nodes, fine, z0, start, options, bar, bl
         corrected = WarpedObjective(  # near its solution: Newton's matrices at once
             problem, coarse, kfs, nodes, correction=correction, blocks=blocks
         )
-        point, report = minimize(
+        point, result = minimize(
             corrected, corrected.evaluate(z0, prior=at_z0), options,
             tolerance=options.coarse_tolerance, certify=False, bar=bar,
         )
-        report["corrected"] = True
         candidate = fine.evaluate(point.z)
-        if report["converged"] and candidate.F < start.F:
-            return candidate, report
-    point, report = minimize(
+        if result.converged and candidate.F < start.F:
+            return candidate, {**result.as_info(), "corrected": True}
+    point, result = minimize(
         plain, at_z0, options, tolerance=options.coarse_tolerance, certify=False, bar=bar
     )
+    report = result.as_info()
     candidate = fine.evaluate(point.z)
     if start is not None and candidate.F >= start.F:
         report["kept_start"] = True

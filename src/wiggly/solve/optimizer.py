@@ -13,6 +13,14 @@ large as the rest).  The step is
   matrix, whose norm measures the region: it follows negative curvature to the boundary,
   so saddle regions (large turns, velocity keyframes) are left quickly.
 
+Stiff keyframes make E + E_WC a narrow, curved valley: a quadratic model follows it only for
+short steps, and the trust region crawls.  A step along negative curvature or to the region's
+boundary, or a poorly predicted Newton step, therefore also tries its second-order correction
+(Nocedal & Wright 2006, sec. 18.3; the geodesic acceleration of Transtrum & Sethna 2012):
+``dz - B^-1 J^T C m`` with ``m = r(z + dz) - r(z) - J dz`` the residuals' nonlinear part
+along the step, which moves the step back onto the valley; the corrected point is taken
+when its F is lower.  The correction changes the path, never the stopping rule.
+
 A step is accepted when F drops by more than 1e-4 of the model's prediction; the radius
 shrinks by 4 on a poor prediction and doubles on a good one at the boundary.  Newton
 matrices built from reused derivatives (:mod:`wiggly.solve.blocks`) are renewed when a step
@@ -48,14 +56,14 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
 import numpy as np
 
 from wiggly.solve.banded import BandedCholesky, band_matvec
 
-__all__ = ["SolveOptions", "WarpedSolveWarning", "minimize"]
+__all__ = ["SolveOptions", "SolveReport", "WarpedSolveWarning", "minimize"]
 
 
 class WarpedSolveWarning(UserWarning):
@@ -132,6 +140,10 @@ class Objective(Protocol):
 
     def step_size(self, dz: np.ndarray) -> float: ...
 
+    def correction_gradient(
+        self, point: Point, dz: np.ndarray, trial: Point
+    ) -> np.ndarray | None: ...
+
 
 # Conjugate gradients of the trust-region steps: relative residual and iterations.
 CG_TOLERANCE = 1e-6
@@ -140,7 +152,11 @@ CG_ITERATIONS = 200
 NEWTON_RESIDUAL = 1e-8
 # Accept a step when F drops by at least this share of the model's prediction.
 ACCEPT = 1e-4
-DEBUG = False
+# Steps along negative curvature or to the trust region's boundary, and Newton steps whose
+# reduction ratio is poor (below 0.25), also try their second-order correction, unless the
+# predicted decrease is below this share of F's magnitude: there the correction's forward
+# difference is rounding noise (a Newton step near the minimiser needs no correction).
+CORRECTION_FLOOR = 1e-10
 # Approximate matrices: improve them by a stage (Objective.use_exact) after this many
 # iterations in a row where the matrix is indefinite or contracts by more than
 # ``contraction``, or after APPROXIMATE_ITERATIONS iterations in all (the coarse start
@@ -222,6 +238,228 @@ def _factor(ab: np.ndarray) -> BandedCholesky | None:
         return None
 
 
+def _second_order_correction(
+    objective: Objective, point: Point, dz: np.ndarray, trial: Point, factor
+) -> tuple[np.ndarray, Point] | None:
+    """The step ``dz`` plus its second-order correction ``-B^-1 J^T C m`` (m: the residuals'
+    nonlinear part along dz, :meth:`WarpedObjective.correction_gradient`), and the objective
+    there; None when there is nothing to correct."""
+    if factor is None:
+        return None
+    g = objective.correction_gradient(point, dz, trial)
+    if g is None or not np.all(np.isfinite(g)) or not np.any(g):
+        return None
+    step = dz - factor.solve(g, refine=False)
+    return step, objective.evaluate(point.z + step)
+
+
+@dataclass(frozen=True)
+class SolveReport:
+    """What :func:`minimize` did, and where it stopped.
+
+    ``stop`` is ``"decrement"`` or ``"round-off"`` (the stopping rule held: ``converged``),
+    ``"max_iterations"``, ``"no progress"`` (the trust region shrank to nothing) or
+    ``"singular"`` (no positive definite matrix to step with).  ``distance_bound`` (m) is
+    the stopping rule's ``d`` (None when unknown); ``contraction`` the last measured theta;
+    ``exact_newton_from`` the iteration from which an approximate objective used its exact
+    Newton matrices; ``corrections`` how many steps took their second-order correction.
+    """
+
+    iterations: int
+    converged: bool
+    stop: str
+    objective_start: float
+    objective: float
+    objective_history: tuple[float, ...]
+    newton_decrement: float
+    contraction: float | None
+    distance_bound: float | None
+    exact_newton_from: int | None
+    newton_steps: int
+    corrections: int
+    evaluations: dict[str, int]
+    seconds: dict[str, float]
+
+    def as_info(self) -> dict:
+        """The report as a plain dict (``Animation.info``, JSON summaries)."""
+        info = asdict(self)
+        info["objective_history"] = list(self.objective_history)
+        return info
+
+
+@dataclass
+class _Model:
+    """The quadratic model of F at the current point."""
+
+    gauss_newton: np.ndarray  # band storage; positive definite wherever H is
+    newton: np.ndarray  # band storage; may be indefinite
+    computed: bool  # from derivatives computed at this point (not reused ones)
+    hessian: bool  # ``newton`` is F's exact Hessian here
+    factor: BandedCholesky | None  # of ``newton``, when it is positive definite
+    step: np.ndarray | None  # Newton's step -B^-1 g (None: B is not positive definite)
+    decrement: float  # -1/2 g^T step (inf without a step)
+
+
+@dataclass
+class _State:
+    """The iteration's state between its named steps (:func:`minimize`)."""
+
+    point: Point
+    theta: float | None  # measured contraction per iteration
+    history: list[float]
+    iterations: int = 0
+    radius: float | None = None  # trust region, in the Gauss-Newton matrix's norm
+    last_full: float | None = None  # decrement of the last iteration that took Newton's step
+    slow: int = 0  # approximate matrices: iterations in a row that did not earn their keep
+    fresh: bool = False  # ask for a matrix from derivatives computed at the point itself
+    exact_from: int | None = None
+    newton_steps: int = 0
+    corrections: int = 0
+    t_solve: float = 0.0
+
+
+@dataclass
+class _Step:
+    """The outcome of one trust-region step: a new point, a retry from the same point with
+    fresh derivatives, or no step at all (``stop``)."""
+
+    point: Point | None = None
+    newton: bool = False
+    refresh: bool = False  # the model came from reused derivatives and predicted poorly
+    stop: str | None = None
+
+
+def _quadratic_model(objective: Objective, state: _State) -> _Model:
+    """Step 1, the model: the objective's matrices at the point, Newton's step where the
+    Newton matrix is positive definite, and the contraction measured against the last full
+    step's decrement."""
+    B_gn, B, computed = objective.newton_matrices(state.point, state.fresh)
+    state.fresh = False
+    t0 = time.perf_counter()
+    chol = _factor(B)
+    g = state.point.g
+    step = _newton_step(chol, B, g) if chol is not None else None
+    decrement = -0.5 * float(g @ step) if step is not None else np.inf
+    if not decrement >= 0:  # not a descent direction: B is not positive definite
+        chol, decrement, step = None, np.inf, None
+    state.t_solve += time.perf_counter() - t0
+    if chol is not None and state.last_full is not None and state.last_full > 0:
+        state.theta = float(np.sqrt(decrement / state.last_full))
+    return _Model(B_gn, B, computed, objective.exact and computed, chol, step, decrement)
+
+
+def _certificate(
+    objective: Objective,
+    model: _Model,
+    state: _State,
+    tolerance: float,
+    options: SolveOptions,
+    certify: bool,
+) -> str | None:
+    """Step 2, certification: ``"decrement"`` or ``"round-off"`` when the stopping rule holds
+    at the point (module docstring), else None.  Without ``certify`` the decrement alone
+    decides."""
+    point = state.point
+    floor = ROUNDING * point.magnitude
+    small = model.decrement <= tolerance * max(point.F, 0.0) + floor
+    if not small:
+        return None
+    # the last step was a full step and the iteration contracted by theta; an exact model
+    # must also have its derivatives computed at this point
+    trusted = (
+        state.theta is not None
+        and state.theta <= options.contraction
+        and (model.hessian or not objective.exact)
+    )
+    distance = _distance(objective, model.step, state.theta)
+    close = distance <= options.distance_tolerance * objective.size
+    if (trusted and close) or not certify or model.decrement <= floor:
+        return "decrement" if model.decrement > floor else "round-off"
+    return None
+
+
+def _improve_matrix(objective: Objective, model: _Model, state: _State, options) -> bool:
+    """Step 3, an approximate matrix must keep earning its keep: after ``SLOW_STEPS``
+    iterations in a row where it is indefinite or contracts by more than ``contraction``, or
+    after ``APPROXIMATE_ITERATIONS`` in all, the objective improves it by a stage.  True when
+    it did (the model is then made again at the same point)."""
+    if objective.exact:
+        return False
+    slow = model.factor is None or (state.theta or 0.0) > options.contraction
+    state.slow = state.slow + 1 if slow else 0
+    if state.slow < SLOW_STEPS and state.iterations < APPROXIMATE_ITERATIONS:
+        return False
+    if not objective.use_exact():
+        return False
+    state.theta, state.last_full, state.slow = None, None, 0
+    if objective.exact and state.exact_from is None:
+        state.exact_from = state.iterations
+    return True
+
+
+def _trust_region_step(objective: Objective, model: _Model, state: _State) -> _Step:
+    """Step 4, the step and its acceptance: Newton's step where it fits in the trust region,
+    else Steihaug-Toint conjugate gradients on B preconditioned by the Gauss-Newton matrix
+    (which follows negative curvature); each tried with its second-order correction where
+    the valley curves; accepted when F drops by more than ``ACCEPT`` of the model's
+    prediction, the region shrinking by 4 on a poor prediction and doubling on a good one
+    at its boundary."""
+    point, B_gn, B = state.point, model.gauss_newton, model.newton
+    floor = ROUNDING * point.magnitude
+    t0 = time.perf_counter()
+    precondition = None  # the Gauss-Newton matrix's factor, made when first needed
+    if model.step is None:
+        precondition = _factor(B_gn)
+        if precondition is None:  # only when H itself is singular (no pre-roll)
+            return _Step(stop="singular")
+    if state.radius is None:
+        dz0 = model.step if model.step is not None else precondition.solve(-point.g)
+        state.radius = _norm(B_gn, dz0)
+    newton, refresh, rho, new = False, False, -np.inf, None
+    while True:
+        if model.step is not None and _norm(B_gn, model.step) <= state.radius * (1 + 1e-12):
+            dz, newton = model.step, True
+        else:
+            precondition = precondition or _factor(B_gn) or model.factor
+            dz, newton = steihaug(B, B_gn, precondition, point.g, state.radius), False
+        size = _norm(B_gn, dz)
+        predicted = -(float(point.g @ dz) + 0.5 * float(dz @ band_matvec(B, dz)))
+        state.t_solve += time.perf_counter() - t0
+        if not predicted > floor:  # no decrease left above F's rounding level
+            if model.computed:
+                state.radius = 0.0
+            else:
+                refresh, rho = True, -np.inf
+            break
+        new = objective.evaluate(point.z + dz)
+        t0 = time.perf_counter()
+        rho = (point.F - new.F) / predicted
+        if (not newton or rho < 0.25) and predicted > CORRECTION_FLOOR * point.magnitude:
+            precondition = precondition or _factor(B_gn) or model.factor
+            corrected = _second_order_correction(objective, point, dz, new, precondition)
+            if corrected is not None and corrected[1].F < new.F:
+                dz, new = corrected
+                rho = (point.F - new.F) / predicted
+                state.corrections += 1
+        if rho < 0.25 and not model.computed:  # a poor model from reused derivatives: renew
+            refresh = True
+            break
+        if rho < 0.25:
+            state.radius = 0.25 * size
+        elif rho > 0.75 and size >= 0.99 * state.radius:
+            state.radius = 2.0 * state.radius
+        if rho > ACCEPT:
+            break
+        if state.radius <= 1e-14 * max(_norm(B_gn, point.z), 1e-300):
+            state.radius = 0.0
+            break
+    if state.radius == 0.0:
+        return _Step(stop="no progress")
+    if refresh and rho <= ACCEPT:  # retry from the same point with fresh derivatives
+        return _Step(refresh=True)
+    return _Step(point=new, newton=newton, refresh=refresh)
+
+
 def minimize(
     objective: Objective,
     point: Point,
@@ -231,160 +469,93 @@ def minimize(
     contraction: float | None = None,
     certify: bool = True,
     bar=None,
-) -> tuple[Point, dict]:
+) -> tuple[Point, SolveReport]:
     """Minimise ``objective`` from ``point`` (evaluated); see the module docstring.
+
+    Each iteration runs four named steps: the quadratic model at the point
+    (:func:`_quadratic_model`), certification by the stopping rule (:func:`_certificate`),
+    improvement of an approximate matrix that converges slowly (:func:`_improve_matrix`),
+    and the trust-region step with its acceptance (:func:`_trust_region_step`).
 
     ``contraction`` is a contraction factor known from an earlier solve of the same problem
     (a warm start), which lets an approximate matrix certify a start that already meets the
     tolerance.  ``certify=False`` stops on the decrement alone (a coarse level, whose
-    solution only starts the fine one).  Returns the final point and a report.
+    solution only starts the fine one).  Returns the final point and a :class:`SolveReport`.
     """
     tol = options.tolerance if tolerance is None else tolerance
-    F_start = point.F
-    history = [point.F]
-    radius: float | None = None
-    theta = contraction
-    last_full: float | None = None  # decrement of the last iteration that took a Newton step
-    slow, exact_from, newton_steps = 0, None, 0
-    converged, stop, it = False, "max_iterations", 0
-    decrement, dz_newton = np.inf, None
-    t_solve = 0.0
-    fresh = False  # ask for a matrix from derivatives computed at the point itself
+    state = _State(point=point, theta=contraction, history=[point.F])
+    converged, stop = False, "max_iterations"
     while True:
-        B_gn, B, computed = objective.newton_matrices(point, fresh)
-        fresh = False
-        hessian = objective.exact and computed
-        t0 = time.perf_counter()
-        chol = _factor(B)
-        dz_newton = _newton_step(chol, B, point.g) if chol is not None else None
-        decrement = -0.5 * float(point.g @ dz_newton) if dz_newton is not None else np.inf
-        if not decrement >= 0:  # not a descent direction: B is not positive definite
-            chol, decrement, dz_newton = None, np.inf, None
-        t_solve += time.perf_counter() - t0
-        if chol is not None and last_full is not None and last_full > 0:
-            theta = float(np.sqrt(decrement / last_full))
-        floor = ROUNDING * point.magnitude
-        distance = _distance(objective, dz_newton, theta)
-        small = decrement <= tol * max(point.F, 0.0) + floor
-        close = distance <= options.distance_tolerance * objective.size
-        if DEBUG:
-            print(f"  check exact={objective.exact} computed={computed} "
-                  f"dec/F={decrement / max(point.F, 1e-300):.3g} "
-                  f"dist/size={distance / objective.size:.3g} theta={theta}")
-        # the last step was a full step of this iteration and it contracted by theta; an
-        # exact model must also have its derivatives computed at this point
-        trusted = (
-            theta is not None
-            and theta <= options.contraction
-            and (hessian or not objective.exact)
+        model = _quadratic_model(objective, state)
+        verdict = _certificate(objective, model, state, tol, options, certify)
+        if verdict is not None:
+            converged, stop = True, verdict
+            break
+        small = model.decrement <= tol * max(state.point.F, 0.0) + ROUNDING * (
+            state.point.magnitude
         )
-        if small and ((trusted and close) or not certify or decrement <= floor):
-            converged, stop = True, "decrement" if decrement > floor else "round-off"
-            break
-        if not computed and ((small and certify) or chol is None):  # reused: check afresh
-            fresh = True
+        if not model.computed and ((small and certify) or model.factor is None):
+            state.fresh = True  # reused derivatives: check afresh at this point
             continue
-        if not objective.exact:  # an approximate matrix must keep earning its keep
-            slow = slow + 1 if chol is None or (theta or 0.0) > options.contraction else 0
-            if (slow >= SLOW_STEPS or it >= APPROXIMATE_ITERATIONS) and objective.use_exact():
-                theta, last_full, slow = None, None, 0
-                exact_from = it if objective.exact and exact_from is None else exact_from
-                continue  # recompute the matrix at the same point
-        if it >= options.max_iterations:
+        if _improve_matrix(objective, model, state, options):
+            continue  # the model again at the same point, with the better matrix
+        if state.iterations >= options.max_iterations:
             break
-        it += 1
-        # trust region in the Gauss-Newton matrix's norm: Newton's step where B is positive
-        # definite and the step fits, else Steihaug-Toint conjugate gradients on B
-        # preconditioned by the Gauss-Newton matrix (which follows negative curvature)
-        t0 = time.perf_counter()
-        precondition = None  # the Gauss-Newton matrix's factor, made when first needed
-        if dz_newton is None:
-            precondition = _factor(B_gn)
-            if precondition is None:  # only when H itself is singular (no pre-roll)
-                stop = "singular"
-                break
-        if radius is None:
-            dz0 = dz_newton if dz_newton is not None else precondition.solve(-point.g)
-            radius = _norm(B_gn, dz0)
-        newton, refresh, rho = False, False, -np.inf
-        while True:
-            if dz_newton is not None and _norm(B_gn, dz_newton) <= radius * (1 + 1e-12):
-                dz, newton = dz_newton, True
-            else:
-                precondition = precondition or _factor(B_gn) or chol
-                dz, newton = steihaug(B, B_gn, precondition, point.g, radius), False
-            size = _norm(B_gn, dz)
-            predicted = -(float(point.g @ dz) + 0.5 * float(dz @ band_matvec(B, dz)))
-            t_solve += time.perf_counter() - t0
-            if not predicted > floor:  # no decrease left above F's rounding level
-                if computed:
-                    radius = 0.0
-                else:
-                    refresh, rho = True, -np.inf
-                break
-            new = objective.evaluate(point.z + dz)
-            t0 = time.perf_counter()
-            rho = (point.F - new.F) / predicted
-            if DEBUG:
-                print(f"  it={it} radius={radius:.3g} size={size:.3g} rho={rho:.3g} "
-                      f"newton={newton} step={objective.step_size(dz):.3g} F={new.F:.6g}")
-            if rho < 0.25 and not computed:  # a poor model from reused derivatives: renew
-                refresh = True
-                break
-            if rho < 0.25:
-                radius = 0.25 * size
-            elif rho > 0.75 and size >= 0.99 * radius:
-                radius = 2.0 * radius
-            if rho > ACCEPT:
-                break
-            if radius <= 1e-14 * max(_norm(B_gn, point.z), 1e-300):
-                radius = 0.0
-                break
-        if radius == 0.0:
-            stop = "no progress"
+        state.iterations += 1
+        step = _trust_region_step(objective, model, state)
+        if step.stop is not None:
+            stop = step.stop
             break
-        if refresh and rho <= ACCEPT:  # retry from the same point with fresh derivatives
-            fresh = True
-            it -= 1
+        if step.point is None:  # retry from the same point with fresh derivatives
+            state.iterations -= 1
+            state.fresh = True
             continue
-        newton_steps += newton
-        last_full = decrement if newton else None
-        fresh = refresh  # a poor step on reused derivatives: renew them at the new point
-        point = new
-        history.append(point.F)
+        state.newton_steps += step.newton
+        state.last_full = model.decrement if step.newton else None
+        state.fresh = step.refresh  # a poor step on reused derivatives: renew them
+        state.point = step.point
+        state.history.append(step.point.F)
         if bar is not None:
             bar.update(1)
-            bar.set_postfix_str(f"objective {point.F:.6g}")
-    distance = _distance(objective, dz_newton, theta)
-    if stop == "round-off" and decrement > 0:
+            bar.set_postfix_str(f"objective {step.point.F:.6g}")
+    return state.point, _report(objective, model, state, converged, stop)
+
+
+def _report(
+    objective: Objective, model: _Model, state: _State, converged: bool, stop: str
+) -> SolveReport:
+    """The :class:`SolveReport` of a finished :func:`minimize`."""
+    point = state.point
+    distance = _distance(objective, model.step, state.theta)
+    if stop == "round-off" and model.decrement > 0:
         # below F's rounding level the gradient is rounding noise: widen the bound to the move
         # along the Newton direction whose decrement is the rounding level
-        distance *= float(np.sqrt(max(ROUNDING * point.magnitude / decrement, 1.0)))
-    objective.timing["solve"] = objective.timing.get("solve", 0.0) + t_solve
-    report = {
-        "iterations": it,
-        "converged": converged,
-        "stop": stop,
-        "objective_start": F_start,
-        "objective": point.F,
-        "objective_history": history,
-        "newton_decrement": decrement,
-        "contraction": theta,
-        "distance_bound": None if not np.isfinite(distance) else distance,
-        "exact_newton_from": exact_from,
-        "newton_steps": newton_steps,
-        "evaluations": dict(objective.counts),
-        "seconds": dict(objective.timing),
-    }
-    return point, report
+        distance *= float(np.sqrt(max(ROUNDING * point.magnitude / model.decrement, 1.0)))
+    objective.timing["solve"] = objective.timing.get("solve", 0.0) + state.t_solve
+    return SolveReport(
+        iterations=state.iterations,
+        converged=converged,
+        stop=stop,
+        objective_start=state.history[0],
+        objective=point.F,
+        objective_history=tuple(state.history),
+        newton_decrement=model.decrement,
+        contraction=state.theta,
+        distance_bound=None if not np.isfinite(distance) else distance,
+        exact_newton_from=state.exact_from,
+        newton_steps=state.newton_steps,
+        corrections=state.corrections,
+        evaluations=dict(objective.counts),
+        seconds=dict(objective.timing),
+    )
 
 
-def warn_unconverged(report: dict, level: str = "") -> None:
+def warn_unconverged(report: SolveReport, level: str = "") -> None:
     """A :class:`WarpedSolveWarning` with the decrement reached."""
     warnings.warn(
-        f"warped solve{level} did not converge in {report['iterations']} iterations "
-        f"({report['stop']}): objective {report['objective']:.6g} (start "
-        f"{report['objective_start']:.6g}), Newton decrement {report['newton_decrement']:.2e}; "
+        f"warped solve{level} did not converge in {report.iterations} iterations "
+        f"({report.stop}): objective {report.objective:.6g} (start "
+        f"{report.objective_start:.6g}), Newton decrement {report.newton_decrement:.2e}; "
         "the result is the best iterate",
         WarpedSolveWarning,
         stacklevel=4,
