@@ -18,7 +18,7 @@ venv: $(STAMP)
 kernels: $(STAMP)
 	@$(BIN)/python -c "import time; t = time.perf_counter(); \
 	  from wiggly.warp.kernels import compile_all; compile_all(); \
-	  from wiggly.drive.unwarp import compile_kernels; compile_kernels(False); \
+	  from wiggly.drive.unwarp import compile_kernels; compile_kernels(); \
 	  print(f'[wiggly] warp kernels ready ({time.perf_counter() - t:.1f} s)')"
 
 ## Animate the bundled critter and say where the results are.

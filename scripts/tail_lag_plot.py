@@ -29,13 +29,15 @@ from bench_secondary import reference  # noqa: E402
 from wiggly.drive import read_driver  # noqa: E402
 from wiggly.drive.secondary import FrameSpline  # noqa: E402
 from wiggly.drive.unwarp import Unwarp  # noqa: E402
+from wiggly.progress import reporting  # noqa: E402
 from wiggly.scene import load_scene, run  # noqa: E402
 
 
 def main(out: Path = ROOT / "docs" / "tail_lag.png") -> Path:
     scene = load_scene(ROOT / "examples" / "walk_secondary.toml")
     scene = replace(scene, keyframes=())  # the free parts on their own
-    warped = run(scene, outputs=[], progress=True)
+    with reporting():  # bars on a terminal
+        warped = run(scene, outputs=[])
     linear = run(replace(scene, simulation=replace(scene.simulation, warp=False)), outputs=[])
     driver = read_driver(ROOT / "examples" / "critter_walk.glb")
     body = warped.body

@@ -21,6 +21,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from wiggly.drive import read_driver
+from wiggly.progress import reporting
 from wiggly.render import Highlight, render_contact_sheet
 from wiggly.scene import load_scene, run
 
@@ -31,7 +32,8 @@ TILE = (300, 250)
 
 def main(out: Path = ROOT / "docs" / "walk_secondary.png") -> Path:
     scene = load_scene(ROOT / "examples" / "walk_secondary.toml")
-    anim = run(scene, outputs=[], progress=True)
+    with reporting():  # bars on a terminal
+        anim = run(scene, outputs=[])
     driver = read_driver(ROOT / "examples" / "critter_walk.glb")
     times = anim.frame_times(scene.time.fps)
     solved = anim.positions(times)

@@ -69,7 +69,7 @@ def test_a_batch_compiles_before_starting_its_workers(tmp_path, monkeypatch, cap
     import wiggly.batch.driver as driver
 
     events: list[str] = []
-    monkeypatch.setattr(kernels, "ensure_compiled", lambda progress=True: events.append(
+    monkeypatch.setattr(kernels, "ensure_compiled", lambda: events.append(
         "compiled"))
 
     class Pool(driver.LocalPool):

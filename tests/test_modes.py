@@ -322,7 +322,7 @@ def test_unused_vertex_is_rejected(small_body):
 def test_progress_reports_on_the_logger(small_body, caplog):
     V, _, K, M = small_body
     with caplog.at_level(logging.INFO, logger="wiggly"):
-        compute_modes(K, M, 10, vertices=V, cache_dir=False, method="sparse", progress=True)
+        compute_modes(K, M, 10, vertices=V, cache_dir=False, method="sparse")
     err = caplog.text
     assert "factoriz" in err and "eigsh done" in err and "solves" in err
 

@@ -30,7 +30,7 @@ from wiggly.linalg import SPDSolver, factorize_spd
 from wiggly.memo import Memo, value_key
 from wiggly.mesh import Model, Surface, TetMesh, coarse_mesh, embed, load_model
 from wiggly.modes import Modes, compute_modes
-from wiggly.progress import say
+from wiggly.progress import deprecated_progress, say
 from wiggly.warp import Warp, WarpLevel, coarse_level, fine_level
 
 Where = Literal["surface", "tets"]
@@ -303,6 +303,7 @@ def fixed_from_surface(model: Model, surface_vertices: np.ndarray) -> np.ndarray
     return np.unique(verts[np.abs(w) > 1e-9])
 
 
+@deprecated_progress
 def prepare(
     model: Model | str | os.PathLike[str],
     *,
@@ -316,7 +317,6 @@ def prepare(
     resolution: int | None = None,
     edge_length: float | None = None,
     young: np.ndarray | None = None,
-    progress: bool = False,
 ) -> Body:
     """Load (if a path), assemble M and K, compute ``n_modes`` eigenmodes (cached on disk).
 
@@ -328,20 +328,18 @@ def prepare(
     if not isinstance(model, Model):
         path = Path(model)
         model = load_model(
-            path, resolution=resolution, edge_length=edge_length, progress=progress,
-            cache_dir=cache_dir,
+            path, resolution=resolution, edge_length=edge_length, cache_dir=cache_dir
         )
     material = material or Material()
     damping = damping or Damping()
     gravity = _checked_gravity(gravity)
     V, T = model.tets.vertices, model.tets.tets
     fixed = vertex_set(fixed_vertices, len(V), "fixed vertices")
-    if progress:
-        say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")
+    say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")
     M = mass_matrix(V, T, material.density, lumped=lumped)
     K = stiffness_matrix(V, T, material.young if young is None else young, material.poisson)
     modes = compute_modes(
-        K, M, n_modes, vertices=V, fixed_vertices=fixed, cache_dir=cache_dir, progress=progress
+        K, M, n_modes, vertices=V, fixed_vertices=fixed, cache_dir=cache_dir
     )
     if model.embedding is None:  # a new model: the caller's is not changed
         model = replace(model, embedding=embed(model.surface.vertices, model.tets))

@@ -43,7 +43,7 @@ from wiggly.checks import vertex_set
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, default_cache_dir
 from wiggly.linalg import blas_single_thread, factorize_spd
-from wiggly.progress import iterations, say
+from wiggly.progress import deprecated_progress, iterations, say, shown
 
 log = logging.getLogger(__name__)
 
@@ -327,6 +327,7 @@ def _normalize_signs(Phi: np.ndarray) -> np.ndarray:
     return Phi * signs
 
 
+@deprecated_progress
 def compute_modes(
     K: sp.spmatrix,
     M: sp.spmatrix,
@@ -335,7 +336,6 @@ def compute_modes(
     vertices: np.ndarray,
     fixed_vertices: np.ndarray | list[int] | None = None,
     cache_dir: str | os.PathLike[str] | Literal[False] | None = None,
-    progress: bool = False,
     method: Literal["auto", "sparse", "dense"] = "auto",
     backend: str | None = None,
 ) -> Modes:
@@ -353,8 +353,6 @@ def compute_modes(
         Vertices held at rest; their dofs are removed.
     cache_dir : path, None or False
         Directory of the ``.npz`` cache; None uses :func:`default_cache_dir`; False disables.
-    progress : bool
-        Print status lines and a counter of shift-invert solves on stderr.
     method : {"auto", "sparse", "dense"}
         "sparse": shift-invert ``eigsh``; "dense": ``scipy.linalg.eigh`` on dense matrices;
         "auto": dense up to :data:`DENSE_MAX_DOFS` free dofs (or when r >= free dofs - 1).
@@ -401,11 +399,11 @@ def compute_modes(
         path = directory / f"modes-{key[:40]}.npz"
         cached = _load_cache(path, key, r, n)
         if cached is not None:
-            say(f"loaded {r} modes from {path}", progress, log)
+            say(f"loaded {r} modes from {path}", logger=log)
             return cached
 
     with blas_single_thread():
-        modes = _compute_modes(K, M, r, V, fixed, free_dofs, method, backend, _Progress(progress))
+        modes = _compute_modes(K, M, r, V, fixed, free_dofs, method, backend, _Progress(shown()))
     if path is not None:
         _save_cache(path, key, modes)
     return modes

@@ -4,26 +4,84 @@ stage in a log.
 Library modules print nothing themselves: they report through the ``wiggly`` logger
 (:mod:`logging`), whose INFO lines the command line shows (``-v`` adds DEBUG, ``-q`` keeps
 warnings and errors only); a program that imports wiggly sees them only if it configures
-logging.  The bars (tqdm) of the functions below are drawn only when they are enabled (the
-``progress`` arguments of the library) *and* stderr is a terminal; otherwise each stage is one
-INFO line on the logger, so a log holds no carriage-return updates.
+logging.  No library function takes a ``progress`` flag: stages are reported when
+:func:`shown` is true, that is when the ``wiggly`` logger is enabled for INFO, or as a
+:func:`reporting` block says (the command line, the editor and a batch's workers use it to
+switch reporting on or off whatever the logger's level).  The bars (tqdm) of the functions
+below are drawn only when stages are reported *and* stderr is a terminal; otherwise each stage
+is one INFO line on the logger, so a log holds no carriage-return updates.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import sys
 import threading
 import time
-from collections.abc import Iterable, Iterator
+import warnings
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
+from contextvars import ContextVar
+from typing import TypeVar
 
 from tqdm import tqdm
 
-__all__ = ["Counter", "activity", "frames", "iterations", "log", "on_terminal", "say"]
+__all__ = [
+    "Counter", "activity", "deprecated_progress", "frames", "iterations", "log", "on_terminal",
+    "reporting", "say", "shown",
+]
 
 #: The library's logger; modules log on ``logging.getLogger(__name__)`` beneath it.
 log = logging.getLogger("wiggly")
+
+# None: as the logger's level says; True/False: inside ``reporting(True/False)`` (per thread
+# and per asyncio task: a thread starts with None)
+_reporting: ContextVar[bool | None] = ContextVar("wiggly_reporting", default=None)
+
+F = TypeVar("F", bound=Callable)
+
+
+def shown() -> bool:
+    """Whether stages are reported here and now: as the innermost :func:`reporting` block
+    says, else when the ``wiggly`` logger is enabled for INFO."""
+    on = _reporting.get()
+    return log.isEnabledFor(logging.INFO) if on is None else on
+
+
+@contextmanager
+def reporting(on: bool = True) -> Iterator[None]:
+    """Report stages (bars on a terminal, INFO lines otherwise) inside the block, or with
+    ``on=False`` report none, whatever the ``wiggly`` logger's level.  It holds for the
+    current thread: a thread the block starts reports as the logger's level says.
+
+    A stage line still reaches a log only if the logger is enabled for INFO; ``reporting``
+    decides whether it is said, and whether bars are drawn."""
+    token = _reporting.set(bool(on))
+    try:
+        yield
+    finally:
+        _reporting.reset(token)
+
+
+def deprecated_progress(function: F) -> F:
+    """Accept the retired ``progress=`` keyword of a public function with a
+    :class:`DeprecationWarning`: ``progress=True`` (or False) runs the call inside
+    ``reporting(True)`` (or False), as the flag once did."""
+
+    @functools.wraps(function)
+    def accepting(*args, **kwargs):
+        if "progress" not in kwargs:
+            return function(*args, **kwargs)
+        on = kwargs.pop("progress")
+        warnings.warn(
+            f"{function.__module__}.{function.__qualname__}(progress=...) is deprecated: "
+            "stages are reported when the 'wiggly' logger is enabled for INFO, or inside "
+            "wiggly.progress.reporting(True)", DeprecationWarning, stacklevel=2)
+        with reporting(bool(on)):
+            return function(*args, **kwargs)
+
+    return accepting  # type: ignore[return-value]
 
 
 def on_terminal() -> bool:
@@ -36,8 +94,9 @@ def on_terminal() -> bool:
 
 
 def say(message: str, enabled: bool = True, logger: logging.Logger = log) -> None:
-    """One INFO line of a stage (when ``enabled``: the caller's ``progress``)."""
-    if enabled:
+    """One INFO line of a stage, when stages are :func:`shown` (and ``enabled``: a further
+    condition of the caller, e.g. only for a large sweep)."""
+    if enabled and shown():
         logger.info(message)
 
 
@@ -64,8 +123,8 @@ def _ticking(desc: str) -> Iterator[None]:
 @contextmanager
 def activity(desc: str, enabled: bool = True) -> Iterator[None]:
     """While a blocking call (e.g. fTetWild) runs: a live elapsed-time line on a terminal, or
-    one INFO line before it starts."""
-    if not enabled:
+    one INFO line before it starts (when stages are :func:`shown` and ``enabled``)."""
+    if not (enabled and shown()):
         yield
     elif on_terminal():
         with _ticking(desc):
@@ -109,7 +168,9 @@ class Counter:
 
 def iterations(desc: str, enabled: bool = True, unit: str = "it") -> tqdm | Counter:
     """A counter of solver iterations (``bar.update(1)``, ``bar.set_postfix_str(...)``),
-    with no total: the iteration budget is no estimate of the iterations a solve takes."""
+    with no total: the iteration budget is no estimate of the iterations a solve takes.
+    It reports when stages are :func:`shown` and ``enabled``."""
+    enabled = enabled and shown()
     if enabled and on_terminal():
         return tqdm(total=None, desc=desc, file=sys.stderr, leave=False, unit=unit)
     return Counter(desc, unit, enabled)
@@ -117,8 +178,9 @@ def iterations(desc: str, enabled: bool = True, unit: str = "it") -> tqdm | Coun
 
 def frames(items: Iterable, total: int | None, desc: str, enabled: bool = True,
            unit: str = "frame") -> Iterable:
-    """``items`` with a bar on a terminal, or one INFO line when they are done."""
-    if not enabled:
+    """``items`` with a bar on a terminal, or one INFO line when they are done (when stages
+    are :func:`shown` and ``enabled``)."""
+    if not (enabled and shown()):
         return items
     if on_terminal():
         return tqdm(items, total=total, file=sys.stderr, unit=unit, desc=desc)

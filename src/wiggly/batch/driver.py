@@ -27,7 +27,7 @@ from wiggly.batch.sweep import Sweep
 from wiggly.batch.worker import THUMBNAIL, ShotJob
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, check_writable
-from wiggly.progress import Counter, activity, log, on_terminal, say
+from wiggly.progress import Counter, activity, deprecated_progress, log, on_terminal, say, shown
 from wiggly.scene import Scene, scene_to_toml
 
 MARKER = ".wiggly-batch"
@@ -39,11 +39,11 @@ DEFAULT_DIR = "wiggly-batch"
 TICK = 0.5
 
 
+@deprecated_progress
 def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int | None = None,
         ray: bool | str | None = None, write: Sequence[str] | None = None,
         overwrite: bool = False, contact_sheet: bool = True,
-        thumbnail_time: float | None = None, warm_start: bool = True,
-        progress: bool = False) -> list[dict]:
+        thumbnail_time: float | None = None, warm_start: bool = True) -> list[dict]:
     """Run many shots; return the summary as records (one dict per shot, in input order).
 
     ``inputs``: scene files, sweep files (``docs/sweep-format.md``), :class:`~wiggly.scene.Scene`
@@ -59,6 +59,8 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
     per shot (at ``thumbnail_time`` s, default: the frame farthest from rest).
     ``warm_start``: start each solve from the previous solution of the same problem in the
     worker (faster; agrees with a cold solve within the solver's distance bound).
+    The shots done and failed are counted as :mod:`wiggly.progress` says: a bar on a
+    terminal, a line per shot in a log.
 
     Paths in the records are relative to ``out_dir``.  Failed shots have ``status`` "failed"
     and an ``error``; they never stop the others.  Raises :class:`WigglyInputError` before
@@ -80,9 +82,9 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
     if workers is not None and ray not in (None, False):
         raise WigglyInputError("workers counts local processes; a Ray cluster uses its CPUs: "
                                "give workers or ray, not both")
-    shots, sweeps = collect(inputs, write, progress)
+    shots, sweeps = collect(inputs, write)
     out = Path(out_dir).expanduser() if out_dir is not None else default_out_dir(inputs, sweeps)
-    with activity(f"hashing {len(shots)} shots", progress and len(shots) > 5000):
+    with activity(f"hashing {len(shots)} shots", len(shots) > 5000):
         keyed(shots, Digests())
     request = {"contact_sheet": contact_sheet, "thumbnail_time": thumbnail_time}
     with _batch_folder(out) as token:
@@ -102,13 +104,13 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
             # compiled (or loaded) here, once, with its line; workers then load, never compile
             from wiggly.warp.kernels import ensure_compiled
 
-            ensure_compiled(progress)
+            ensure_compiled()
         if todo:
             # a Ray worker may run on a machine without offscreen rendering: it checks itself
             backend = (RayCluster(None if ray is True else str(ray), False)
                        if ray not in (None, False) else
                        LocalPool(min(workers or cpu_count(), len(todo)), render_checked))
-        driver = _Driver(out, token, backend, records, replace, request, warm_start, progress)
+        driver = _Driver(out, token, backend, records, replace, request, warm_start)
         try:
             driver.run(shots, todo)
         finally:
@@ -121,8 +123,8 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
             ordered = [records[s.name] for s in shots if s.name in records]
             summary_files.write_summary(out, ordered, meta)
             if contact_sheet:
-                with activity("writing the contact sheets", progress and len(ordered) > 100):
-                    summary_files.write_contact_sheets(out, ordered, progress)
+                with activity("writing the contact sheets", len(ordered) > 100):
+                    summary_files.write_contact_sheets(out, ordered)
     return ordered
 
 
@@ -247,10 +249,11 @@ class _Driver:
     body is ready; commits finished shots; shows progress."""
 
     def __init__(self, out: Path, token: str, backend, records: dict, replace: set,
-                 request: dict, warm_start: bool, progress: bool) -> None:
+                 request: dict, warm_start: bool) -> None:
         self.out, self.token, self.backend = out, token, backend
         self.records, self.replace, self.request = records, replace, request
-        self.warm_start, self.progress = warm_start, progress
+        self.warm_start = warm_start
+        self.shown = shown()  # the bar, or the lines, of the whole batch (wiggly.progress)
         self.bodies: list[dict] = []
         self.interrupted = False
         self.in_flight: dict[Any, tuple[str, Any]] = {}
@@ -261,12 +264,12 @@ class _Driver:
         done = sum(r["status"] == "done" for r in self.records.values())
         failed = len(self.records) - done
         self.total = len(shots)
-        self.live = self.progress and on_terminal()
+        self.live = self.shown and on_terminal()
         if self.live:
             self.bar = tqdm(total=len(shots), initial=done + failed, desc="[wiggly] batch",
                             unit="shot", file=sys.stderr, dynamic_ncols=True)
         else:  # in a log: a line per shot, and the counts at the end
-            self.bar = Counter("batch", "shot", self.progress)
+            self.bar = Counter("batch", "shot", self.shown)
             self.bar.n = done + failed
         self.counts = {"done": done, "failed": failed}
         for r in self.records.values():
@@ -446,7 +449,7 @@ class _Driver:
         self.bar.update(1)
         self._status(0)
         if not self.live and record["status"] == "done":
-            say(f"{record['shot']} done ({self.bar.n} of {self.total})", self.progress)
+            say(f"{record['shot']} done ({self.bar.n} of {self.total})")
         for w in record.get("warnings") or ():
             self._warn(f"{record['shot']}: {w}")
 
@@ -460,7 +463,7 @@ class _Driver:
             warnings.warn(message, stacklevel=3)
 
     def _say_failed(self, record: dict) -> None:
-        if self.progress:
+        if self.shown:
             first = (record.get("error") or "").splitlines() or [""]
             if self.live:
                 self.bar.write(f"[wiggly] {record['shot']} failed: {first[0]}", file=sys.stderr)

@@ -65,12 +65,12 @@ class Shot:
         return out
 
 
-def collect(inputs: Sequence, write: Sequence[str] | None = None,
-            progress: bool = False) -> tuple[list[Shot], list]:
+def collect(inputs: Sequence, write: Sequence[str] | None = None) -> tuple[list[Shot], list]:
     """The shots of ``inputs`` (scene files, sweep files, :class:`Scene` or :class:`Sweep`
     objects), with unique folder names, and the sweeps among them.  An unreadable or invalid
     scene file becomes a failed shot; an invalid sweep raises :class:`WigglyInputError`
-    (it describes many shots).  ``progress``: a line while a large sweep is expanded."""
+    (it describes many shots).  A large sweep says that it is being expanded
+    (:mod:`wiggly.progress`)."""
     if write is not None:  # the same for every shot: a mistake fails the batch, not each shot
         problem = check_output_names(write, "--write")
         if problem:
@@ -80,7 +80,7 @@ def collect(inputs: Sequence, write: Sequence[str] | None = None,
     for item in inputs:
         if isinstance(item, Sweep):
             sweeps.append(item)
-            shots += _sweep_shots(item, write, progress)
+            shots += _sweep_shots(item, write)
         elif isinstance(item, Scene):
             shots.append(_scene_shot(item, item.name, item.where(), write))
         else:
@@ -93,7 +93,7 @@ def collect(inputs: Sequence, write: Sequence[str] | None = None,
             if is_sweep(data):
                 sweep = sweep_from_dict(data, where=str(path), source=path.resolve())
                 sweeps.append(sweep)
-                shots += _sweep_shots(sweep, write, progress)
+                shots += _sweep_shots(sweep, write)
             else:
                 try:
                     scene = scene_from_dict(data, where=str(path), source=path.resolve())
@@ -118,7 +118,7 @@ def _scene_shot(scene: Scene, name: str, origin: str, write) -> Shot:
     return shot
 
 
-def _sweep_shots(sweep: Sweep, write, progress: bool = False) -> list[Shot]:
+def _sweep_shots(sweep: Sweep, write) -> list[Shot]:
     names = tuple(write) if write is not None else sweep.outputs if sweep.outputs is not None \
         else tuple(Path(p).name for p in sweep.base.output.paths)
     problem = check_output_names(names, "--write" if write is not None else "output.paths")
@@ -126,8 +126,7 @@ def _sweep_shots(sweep: Sweep, write, progress: bool = False) -> list[Shot]:
         raise WigglyInputError(f"{sweep.where()}: {problem}")
     width = max(4, len(str(len(sweep) - 1)))
     out = []
-    with activity(f"checking the {len(sweep)} shots of {sweep.where()}",
-                  progress and len(sweep) > 1000):
+    with activity(f"checking the {len(sweep)} shots of {sweep.where()}", len(sweep) > 1000):
         for i in range(len(sweep)):
             out.append(_sweep_shot(sweep, i, width, names))
     return out

@@ -105,7 +105,7 @@ def _short(value: Any) -> str:
     return str(value)
 
 
-def write_contact_sheets(out: Path, records: list[dict], progress: bool = False) -> None:
+def write_contact_sheets(out: Path, records: list[dict]) -> None:
     """``contact-sheet.html`` (every shot: thumbnail, varied parameters, solve, links) and
     ``contact-sheet.png`` (the first :data:`MAX_SHEET_TILES` thumbnails, captioned)."""
     varied = _varied(records)
@@ -113,7 +113,7 @@ def write_contact_sheets(out: Path, records: list[dict], progress: bool = False)
     _write_png(out, records[:MAX_SHEET_TILES], varied)
     if len(records) > MAX_SHEET_TILES:
         say(f"contact-sheet.png shows the first {MAX_SHEET_TILES} of {len(records)} shots; "
-            "contact-sheet.html shows all", progress)
+            "contact-sheet.html shows all")
 
 
 _STYLE = """

@@ -11,7 +11,8 @@ Each subcommand is a module with ``add_args(parser)`` and ``run(args) -> int`` (
 
 What the library logs on the ``wiggly`` logger goes to stderr while a command runs: its stage
 lines (INFO) by default, DEBUG lines with ``-v``, only warnings and errors with ``-q``.
-Progress bars are drawn only on a terminal (:mod:`wiggly.progress`).
+Stages are reported (:func:`wiggly.progress.reporting`) unless ``-q``; their bars are drawn
+only on a terminal (:mod:`wiggly.progress`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import warnings
 
 from wiggly.cli import animate, batch, demo, edit, modes, render, schema
 from wiggly.errors import WigglyInputError
+from wiggly.progress import reporting
 
 __all__ = ["main"]
 
@@ -124,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
     handler, level = _Stderr(), logger.level
     logger.addHandler(handler)
     logger.setLevel(_logging_level(args))
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), reporting(logger.isEnabledFor(logging.INFO)):
         warnings.showwarning = _show_warning
         try:
             return int(args.run(args) or 0)

@@ -58,8 +58,7 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     scene = with_overrides(scene, fps=args.fps, warp=False if args.linear else None,
                            frame_start=args.frame_start, gltf_targets=args.gltf_targets)
-    anim = run_scene(scene, outputs=args.output, overwrite=args.overwrite,
-                     progress=not args.quiet)
+    anim = run_scene(scene, outputs=args.output, overwrite=args.overwrite)
     print(summary(scene, anim))
     return 0
 

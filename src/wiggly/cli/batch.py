@@ -91,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     records = run_batch(args.inputs, out, workers=args.workers, ray=ray,
                         write=args.write, overwrite=args.overwrite,
                         contact_sheet=not args.no_sheet, thumbnail_time=args.thumbnail_time,
-                        warm_start=not args.cold, progress=not args.quiet)
+                        warm_start=not args.cold)
     print(report(records, out, args))
     return 0 if all(r["status"] == "done" for r in records) else 1
 

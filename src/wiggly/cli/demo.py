@@ -46,6 +46,6 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(demo_scene_path())
     directory = Path(args.output).expanduser()
     outputs = [directory / Path(p).name for p in scene.output.paths]
-    anim = run_scene(scene, outputs=outputs, overwrite=args.overwrite, progress=not args.quiet)
+    anim = run_scene(scene, outputs=outputs, overwrite=args.overwrite)
     print(summary(scene, anim))
     return 0

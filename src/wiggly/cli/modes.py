@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from wiggly.mesh import DEFAULT_RESOLUTION
+from wiggly.progress import say
 
 HELP = "list a model's eigenmodes (frequencies) and preview their shapes"
 DESCRIPTION = """\
@@ -95,11 +95,10 @@ def run(args: argparse.Namespace) -> int:
                             args.density or m.density)
     sim = replace(scene.simulation, modes=args.modes or scene.simulation.modes)
     scene = replace(scene, mesh=mesh, material=material, simulation=sim)
-    body, _ = build(scene, progress=not args.quiet)
+    body, _ = build(scene)
     print(table(scene, body))
     if args.output is not None:
-        path = preview(Path(args.output), body, overwrite=args.overwrite,
-                       progress=not args.quiet)
+        path = preview(Path(args.output), body, overwrite=args.overwrite)
         print(f"wrote {path.resolve()}")
     return 0
 
@@ -142,7 +141,7 @@ def mode_shapes(body, modes, phase) -> np.ndarray:
     return out + body.surface.vertices
 
 
-def preview(path: Path, body, *, overwrite: bool = False, progress: bool = False) -> Path:
+def preview(path: Path, body, *, overwrite: bool = False) -> Path:
     """Render the elastic modes: a video (one second each) or a contact sheet (at peak)."""
     from wiggly.errors import WigglyInputError
     from wiggly.render import Highlight, render_contact_sheet, render_video
@@ -165,9 +164,7 @@ def preview(path: Path, body, *, overwrite: bool = False, progress: bool = False
         return Highlight(moving, t, (1.0, 0.45, 0.1), f"mode {i + 1}: {hz:.3g} Hz",
                          window=0.5 * PREVIEW_SECONDS)
 
-    if progress:
-        print(f"[wiggly] rendering {len(elastic)} mode shapes (largest displacement "
-              f"{AMPLITUDE * diag:.3g} m)", file=sys.stderr)
+    say(f"rendering {len(elastic)} mode shapes (largest displacement {AMPLITUDE * diag:.3g} m)")
     faces = body.surface.faces
     if sheet:
         times = PREVIEW_SECONDS * (np.arange(len(elastic)) + 0.25)
@@ -175,7 +172,7 @@ def preview(path: Path, body, *, overwrite: bool = False, progress: bool = False
         hls = [highlight(i, t) for i, t in zip(elastic, times, strict=True)]
         return render_contact_sheet(path, times, positions, faces, at=times, columns=4,
                                     highlights=hls, title="elastic modes at peak amplitude",
-                                    progress=progress, overwrite=overwrite)
+                                    overwrite=overwrite)
     per = round(PREVIEW_SECONDS * PREVIEW_FPS)
     tau = np.arange(per) / PREVIEW_FPS
     times = np.concatenate([k * PREVIEW_SECONDS + tau for k in range(len(elastic))] +
@@ -185,8 +182,7 @@ def preview(path: Path, body, *, overwrite: bool = False, progress: bool = False
     positions = mode_shapes(body, modes, phase)
     hls = [highlight(i, (k + 0.5) * PREVIEW_SECONDS) for k, i in enumerate(elastic)]
     return render_video(path, times, positions, faces, highlights=hls, fps=PREVIEW_FPS,
-                        title="elastic modes, one per second", progress=progress,
-                        overwrite=overwrite)
+                        title="elastic modes, one per second", overwrite=overwrite)
 
 
 def _int_at_least(low: int):

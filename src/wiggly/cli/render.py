@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 HELP = "render a preview (.mp4, .gif, .png) of a scene or an exported animation"
@@ -44,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
 
     from wiggly.cli.animate import summary
     from wiggly.errors import WigglyInputError
+    from wiggly.progress import say
     from wiggly.scene import (
         PREVIEW_EXTENSIONS,
         OutputSpec,
@@ -63,13 +63,12 @@ def run(args: argparse.Namespace) -> int:
         raise WigglyInputError(f"--fps {args.fps:g} must be > 0")
     source = Path(args.input)
     ext = source.suffix.lower()
-    progress = not args.quiet
     if ext == ".toml":
         scene = load_scene(source)
         scene = with_overrides(scene, fps=args.fps)
         if args.camera is not None:
             scene = replace(scene, output=replace(scene.output, camera=args.camera))
-        anim = run_scene(scene, outputs=outputs, overwrite=args.overwrite, progress=progress)
+        anim = run_scene(scene, outputs=outputs, overwrite=args.overwrite)
         print(summary(scene, anim))
         return 0
     if ext not in ANIMATION_EXTENSIONS:
@@ -82,10 +81,9 @@ def run(args: argparse.Namespace) -> int:
     anim = read_animation(source)
     spec = OutputSpec(camera=args.camera or "three_quarter")
     for out in outputs:
-        if progress:
-            print(f"[wiggly] rendering {out}", file=sys.stderr, flush=True)
+        say(f"rendering {out}")
         render_preview(out, anim.times, anim.positions, anim.faces, output=spec, title=anim.name,
-                       overwrite=overwrite, progress=progress, fps=args.fps)
+                       overwrite=overwrite, fps=args.fps)
     print(f"{source}: {anim.n_frames} frames, {anim.n_vertices} vertices, "
           f"[{anim.times[0]:g}, {anim.times[-1]:g}] s")
     print("wrote")

@@ -49,6 +49,7 @@ from wiggly.drive.driver import (
 )
 from wiggly.drive.secondary import SecondaryMotion, secondary_motion
 from wiggly.errors import WigglyInputError
+from wiggly.progress import deprecated_progress
 
 __all__ = ["DRIVER_EXTENSIONS", "DRIVE_STIFFNESS", "Driver", "SecondaryMotion",
            "driven_keyframes", "enrich", "following", "keyed_frames", "read_driver",
@@ -67,9 +68,9 @@ DRIVER_EXTENSIONS = {
 }
 
 
+@deprecated_progress
 def read_driver(path: str | os.PathLike[str], *, animation: str | int | None = None,
-                object: str | None = None, frame_rate: float | None = None,
-                progress: bool = False) -> Driver:
+                object: str | None = None, frame_rate: float | None = None) -> Driver:
     """Read a driver animation (format by extension, :data:`DRIVER_EXTENSIONS`).
 
     ``animation`` picks a glTF animation by name or index (default: the first); ``object``
@@ -89,7 +90,7 @@ def read_driver(path: str | os.PathLike[str], *, animation: str | int | None = N
     if ext == ".obj":
         from wiggly.drive.sequence import read_obj_sequence
 
-        return read_obj_sequence(path, frame_rate=frame_rate, progress=progress)
+        return read_obj_sequence(path, frame_rate=frame_rate)
     if not path.is_file():
         raise WigglyInputError(f"cannot read the driver {path}: "
                                f"{'it is a directory' if path.is_dir() else 'no such file'}")

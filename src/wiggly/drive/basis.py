@@ -55,7 +55,7 @@ from wiggly.drive.secondary import free_modes, held_vertices
 from wiggly.drive.unwarp import Unwarp
 from wiggly.linalg import factorize_spd
 from wiggly.modes import Modes
-from wiggly.progress import iterations
+from wiggly.progress import deprecated_progress, iterations
 
 __all__ = ["enrich"]
 
@@ -85,11 +85,11 @@ def _extend(body: Body, vertices: np.ndarray, D: np.ndarray) -> np.ndarray:
     return U
 
 
-def _unwarp(body: Body, U: np.ndarray, progress: bool) -> np.ndarray:
+def _unwarp(body: Body, U: np.ndarray) -> np.ndarray:
     """Linear fields (3n, F) whose rotation-strain warp is approximately U (module doc;
     :class:`wiggly.drive.unwarp.Unwarp`)."""
     mass = np.asarray(body.M.sum(axis=1)).ravel()[::3]  # lumped: the diagonal
-    bar = iterations("unwarping driver frames", progress, unit="frame")
+    bar = iterations("unwarping driver frames", unit="frame")
     out = Unwarp(body.tets.vertices, body.tets.tets, mass)(U, bar)
     bar.close()
     return out
@@ -105,9 +105,9 @@ def _free_modes(body: Body, vertices: np.ndarray, count: int) -> np.ndarray:
     return free_modes(body, vertices, count)[0]
 
 
+@deprecated_progress
 def enrich(body: Body, driver: Driver, vertices: ArrayLike, *, warped: bool = True,
-           tolerance: float = 1e-5, max_shapes: int = 32, free_modes: int = 0,
-           progress: bool = False) -> Body:
+           tolerance: float = 1e-5, max_shapes: int = 32, free_modes: int = 0) -> Body:
     """``body`` with its eigenmodes followed by the driver's shapes and the free parts' own
     modes (module docstring): a new :class:`~wiggly.body.Body` whose ``modes`` are the old
     ones plus Ritz vectors of (a) at most ``max_shapes`` POD directions of the driver's
@@ -124,7 +124,7 @@ def enrich(body: Body, driver: Driver, vertices: ArrayLike, *, warped: bool = Tr
     if U.shape[1] > _FRAMES:  # frames repeat themselves: keep those that span the others
         U = U[:, _spanning(U - Phi @ (Phi.T @ (M @ U)), M, _FRAMES)]
     if warped:
-        U = _unwarp(body, U, progress)
+        U = _unwarp(body, U)
     U -= Phi @ (Phi.T @ (M @ U))
     sigma2, Y = _principal(U, M)
     rms = np.sqrt(np.maximum(sigma2, 0.0) / (len(D) * body.mass))  # m, per direction

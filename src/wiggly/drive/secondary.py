@@ -55,6 +55,7 @@ from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import factorize_spd
 from wiggly.modes import compute_modes
+from wiggly.progress import deprecated_progress, reporting
 from wiggly.solve.animation import Animation
 from wiggly.solve.nodes import node_index, node_times
 from wiggly.splines import energy_form, evaluate, wiggly_basis
@@ -218,8 +219,9 @@ def free_modes(body: Body, driven: np.ndarray, count: int) -> tuple[np.ndarray, 
         raise WigglyInputError("the driven groups hold every vertex of the body: nothing is "
                                "left free to move on its own; drive fewer vertices")
     count = min(int(count), free_dofs - 1)
-    modes = compute_modes(body.K, body.M, count, vertices=body.tets.vertices,
-                          fixed_vertices=held, cache_dir=body.cache_dir)
+    with reporting(False):  # a step of the caller's stage, not a stage of its own
+        modes = compute_modes(body.K, body.M, count, vertices=body.tets.vertices,
+                              fixed_vertices=held, cache_dir=body.cache_dir)
     lam = np.maximum(np.asarray(modes.eigenvalues, float), 0.0)
     return np.asarray(modes.vectors), lam
 
@@ -415,6 +417,7 @@ def _forcing(nodes: np.ndarray, rig: FrameSpline, C: np.ndarray, g: np.ndarray,
     return out
 
 
+@deprecated_progress
 def secondary_motion(
     body: Body,
     driver: Driver,
@@ -429,7 +432,6 @@ def secondary_motion(
     intensity: float = 1.0,
     offset: float = 0.0,
     driver_range: tuple[float, float] | None = None,
-    progress: bool = False,
 ) -> SecondaryMotion:
     """Secondary motion of the free parts on a driver (module doc).
 

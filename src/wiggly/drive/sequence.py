@@ -87,10 +87,9 @@ def _polygons(file: Path, data: bytes, n: int) -> list[np.ndarray]:
     return polys
 
 
-def read_obj_sequence(path: Path, *, frame_rate: float | None = None,
-                      progress: bool = False) -> Driver:
-    """The driver of an OBJ sequence (module docstring); ``progress`` shows a bar over the
-    files on stderr."""
+def read_obj_sequence(path: Path, *, frame_rate: float | None = None) -> Driver:
+    """The driver of an OBJ sequence (module docstring), with a bar over the files when
+    stages are shown (:mod:`wiggly.progress`)."""
     path = Path(path)
     files = sequence_files(path)
     if not files:
@@ -99,7 +98,7 @@ def read_obj_sequence(path: Path, *, frame_rate: float | None = None,
             f"{path.stem.rstrip('#_')}_0001.obj) in {path.parent}")
     positions, stamps = [], []
     polys: list[np.ndarray] = []
-    bar = frames(files, len(files), f"reading {path.name}", progress, unit="file")
+    bar = frames(files, len(files), f"reading {path.name}", unit="file")
     for k, (_, file) in enumerate(bar):
         data = file.read_bytes()
         P = _floats(file, _V.findall(data))

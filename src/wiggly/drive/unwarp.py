@@ -168,10 +168,10 @@ COMPILING = "compiling the unwarp kernels, once, about 10 s (longer on a busy ma
 _ready = False
 
 
-def compile_kernels(progress: bool = True) -> None:
+def compile_kernels() -> None:
     """Compile (or load from numba's on-disk cache) the unwarp kernels once per process,
-    announcing a compilation first, so that a first warped secondary motion never looks
-    hung."""
+    announcing a compilation first (when stages are shown: :mod:`wiggly.progress`), so that
+    a first warped secondary motion never looks hung."""
     global _ready
     if _ready or not _HAVE_NUMBA:
         return
@@ -181,7 +181,7 @@ def compile_kernels(progress: bool = True) -> None:
             cold = cold or not kernel._cache._cache_file._load_index()
         except Exception:  # another numba's layout: assume the worst, say so
             cold = True
-    with activity(COMPILING, progress and cold):
+    with activity(COMPILING, cold):
         F = np.eye(3)[None] + 0.01
         _unwarp_compiled(F, MIN_DET, MAX_ANGLE, np.empty_like(F))
         grad = np.zeros((1, 3, 3, 1))

@@ -36,6 +36,7 @@ from wiggly.editor.physics import Physics, Superseded, model_key, modes_key
 from wiggly.editor.refine import Refiner, playback_fps, residual_max
 from wiggly.editor.state import EditorState
 from wiggly.errors import WigglyInputError
+from wiggly.progress import reporting
 from wiggly.scene import resolve_groups
 
 __all__ = ["FrameSet", "Playback", "Request"]
@@ -208,6 +209,10 @@ class Playback:
             self._refiner = Refiner(self._on_refined)
 
     def _worker(self, box: Mailbox) -> None:
+        with reporting(False):  # the page shows the solves; the server's terminal stays quiet
+            self._serve(box)
+
+    def _serve(self, box: Mailbox) -> None:
         problems: OrderedDict[tuple, Any] = OrderedDict()
         while not self._stop.is_set():
             req = box.take(timeout=0.5)

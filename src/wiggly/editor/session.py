@@ -47,6 +47,7 @@ from wiggly.editor.state import (
     state_to_json,
 )
 from wiggly.errors import WigglyInputError
+from wiggly.progress import reporting
 from wiggly.scene import (
     BUILTIN_MODELS,
     OUTPUT_EXTENSIONS,
@@ -467,7 +468,8 @@ class Session:
             raise EditError("the mesh is not loaded yet", 409)
         drive = scene.drive
         try:
-            driver = scene_driver(scene)
+            with reporting(False):  # the page shows the driver, the terminal stays quiet
+                driver = scene_driver(scene)
             why = driver.mismatch(surface.n_vertices, surface.faces, scene.mesh.path)
             if why is not None:
                 raise WigglyInputError(f"{scene.where()}: drive.path = {drive.path!r}: {why}")
@@ -511,6 +513,10 @@ class Session:
 
     def _export(self, state: EditorState, version: int, paths: list[Path], overwrite: bool):
         """Solve the scene as ``wiggly animate`` does (same body) and write ``paths``."""
+        with reporting(False):  # the page shows the export; the terminal stays quiet
+            self._solve_and_write(state, paths, overwrite)
+
+    def _solve_and_write(self, state: EditorState, paths: list[Path], overwrite: bool):
         scene = state.scene
         names = [p.name for p in paths]
         self.bus.publish("export", stage="running", message=f"exporting {', '.join(names)}")

@@ -232,8 +232,8 @@ def _require(module: str, package: str, ext: str):
         raise ImportError(f"{ext} files need the package {package}: pip install {package}") from e
 
 
-def _progress(iterable, total: int, enabled: bool, what: str):
-    return frames(iterable, total, shown_name(what), enabled)
+def _progress(iterable, total: int, what: str):
+    return frames(iterable, total, shown_name(what))
 
 
 # time codes of the formats

@@ -21,10 +21,12 @@ from wiggly.export.npz import read_npz, write_npz
 from wiggly.export.obj import read_obj_sequence, stage_obj_sequence
 from wiggly.export.usd import read_usd, write_usd
 from wiggly.files import OutputSet
+from wiggly.progress import deprecated_progress
 
 
+@deprecated_progress
 def write_animation(
-    path, anim: SurfaceAnimation, *, overwrite: bool = False, progress: bool = False,
+    path, anim: SurfaceAnimation, *, overwrite: bool = False,
     frame_start: int | None = None, gltf_targets: str = "frames",
 ) -> Path:
     """Write ``anim`` to ``path`` in the format of its extension (:data:`SUPPORTED`).
@@ -38,8 +40,6 @@ def write_animation(
         The animation; its arrays are validated first.
     overwrite : bool
         Replace existing output (for OBJ: any existing frame of the sequence).
-    progress : bool
-        Show a tqdm progress bar over frames on stderr (OBJ and USD).
     frame_start : int, optional
         glTF and USD: put frame k on frame ``frame_start + k`` at the frames' rate (glTF time
         ``(frame_start + k) / fps``, USD time code ``frame_start + k``), so that keys land on
@@ -59,17 +59,23 @@ def write_animation(
     ------
     WigglyInputError
         Unknown extension, existing output without ``overwrite``, or invalid arrays.
+
+    Notes
+    -----
+    Writing OBJ, USD and glTF frames is reported as :mod:`wiggly.progress` says: a bar on a
+    terminal, one line in a log.
     """
     path = Path(path)
     with OutputSet() as outputs:
-        stage_animation(outputs, path, anim, overwrite=overwrite, progress=progress,
+        stage_animation(outputs, path, anim, overwrite=overwrite,
                         frame_start=frame_start, gltf_targets=gltf_targets)
     return path
 
 
+@deprecated_progress
 def stage_animation(
     outputs: OutputSet, path, anim: SurfaceAnimation, *, overwrite: bool = False,
-    progress: bool = False, frame_start: int | None = None, gltf_targets: str = "frames",
+    frame_start: int | None = None, gltf_targets: str = "frames",
 ) -> None:
     """:func:`write_animation` into temporary files of ``outputs``
     (:class:`wiggly.files.OutputSet`), which moves them into place with the other outputs."""
@@ -98,18 +104,17 @@ def stage_animation(
     if path.is_dir():
         raise WigglyInputError(f"cannot write {path}: it is a directory; give a file name")
     if ext == ".obj":
-        stage_obj_sequence(outputs, path, without_seam(anim), overwrite=overwrite,
-                            progress=progress)
+        stage_obj_sequence(outputs, path, without_seam(anim), overwrite=overwrite)
         return
     if path.exists() and not overwrite:
         raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
     tmp = outputs.stage(path)
     if ext == ".glb":
-        write_glb(tmp, anim, progress=progress, frame_start=frame_start, targets=gltf_targets)
+        write_glb(tmp, anim, frame_start=frame_start, targets=gltf_targets)
     elif ext == ".npz":
-        write_npz(tmp, anim, progress=progress)
+        write_npz(tmp, anim)
     else:
-        write_usd(tmp, without_seam(anim), progress=progress, frame_start=frame_start)
+        write_usd(tmp, without_seam(anim), frame_start=frame_start)
 
 
 def read_animation(path) -> SurfaceAnimation:

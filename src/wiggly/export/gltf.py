@@ -28,8 +28,8 @@ _GL_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 51
 _GL_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 
-def write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False,
-               frame_start: int | None = None, targets: str = "frames") -> None:
+def write_glb(path: Path, anim: SurfaceAnimation, *,
+              frame_start: int | None = None, targets: str = "frames") -> None:
     gl = _require("pygltflib", "pygltflib", ".glb")
 
     F, n = anim.n_frames, anim.n_vertices
@@ -44,7 +44,7 @@ def write_glb(path: Path, anim: SurfaceAnimation, progress: bool = False,
     else:
         dP = P - base_p
         dN = np.empty_like(dP)
-        for k in _progress(range(F), F, progress, "normals"):
+        for k in _progress(range(F), F, "normals"):
             dN[k] = frame_normals(anim.positions[k]).astype(np.float32) - base_n
         weights = np.eye(F, dtype=np.float32)  # keyframe k: weight 1 on target k
         names = [f"frame_{k:04d}" for k in range(F)]

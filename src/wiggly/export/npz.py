@@ -13,7 +13,7 @@ from wiggly.export.animation import FORMAT_VERSION, SurfaceAnimation
 # npz
 
 
-def write_npz(path: Path, anim: SurfaceAnimation, progress: bool = False) -> None:
+def write_npz(path: Path, anim: SurfaceAnimation) -> None:
     arrays = {
         "format_version": np.array(FORMAT_VERSION),
         "times": anim.times,

@@ -54,7 +54,7 @@ def _write_frame_file(path: Path, data: bytes) -> None:
 
 
 def stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *,
-                        overwrite: bool, progress: bool) -> None:
+                        overwrite: bool) -> None:
     F = anim.n_frames
     names = frame_names(path, F)
     existing = _obj_existing_frames(path)
@@ -77,7 +77,7 @@ def stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *
     face_block = ((face_row * len(f)) % tuple(face_values.ravel().tolist())).encode()
     header = f"# wiggly frame {{k}} of {F}\n# time {{t!r}}\no {anim.name}\n"
 
-    for k in _progress(range(F), F, progress, "OBJ"):
+    for k in _progress(range(F), F, "OBJ"):
         data = b"".join([
             header.format(k=k, t=float(anim.times[k])).encode(),
             _format_obj_block("v", anim.positions[k], POSITION_FORMAT),

@@ -20,8 +20,8 @@ from wiggly.export.animation import (
 # USD
 
 
-def write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False,
-               frame_start: int | None = None) -> None:
+def write_usd(path: Path, anim: SurfaceAnimation, *,
+              frame_start: int | None = None) -> None:
     _require("pxr", "usd-core", "USD")
     from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, Vt
 
@@ -56,7 +56,7 @@ def write_usd(path: Path, anim: SurfaceAnimation, progress: bool = False,
         normals = mesh.CreateNormalsAttr()
         mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
         frame_normals = FrameNormals(anim)
-    for k in _progress(range(anim.n_frames), anim.n_frames, progress, "USD"):
+    for k in _progress(range(anim.n_frames), anim.n_frames, "USD"):
         t = Usd.TimeCode(float(codes[k]))
         p = anim.positions[k].astype(np.float32)
         points.Set(Vt.Vec3fArray.FromNumpy(p), t)

@@ -34,7 +34,7 @@ from wiggly.mesh.defects import (
     diagonal,
 )
 from wiggly.mesh.validate import check_tet_mesh, checked_surface, refuse_defects
-from wiggly.progress import activity
+from wiggly.progress import activity, deprecated_progress, reporting
 
 # --------------------------------------------------------------------------- meshing
 
@@ -99,13 +99,13 @@ class TetBudgetError(WigglyInputError):
 FAR_OUTSIDE = 1.0
 
 
+@deprecated_progress
 def tetrahedralize(
     surface: Surface,
     *,
     edge_length: float | None = None,
     resolution: int | None = None,
     repair: bool | None = True,
-    progress: bool = False,
     source: str = "surface",
     cache_dir: str | os.PathLike[str] | bool | None = None,
 ) -> TetMesh:
@@ -150,8 +150,6 @@ def tetrahedralize(
     repair : bool
         Accept (True, the default; None means the same) or refuse (False) surfaces that are
         not clean closed surfaces.
-    progress : bool
-        Print the stages (checking, tetrahedralizing) with the elapsed time on stderr.
     source : str
         Name used in messages (usually the file path).
 
@@ -170,7 +168,7 @@ def tetrahedralize(
     """
     mesh, report, _ = tetrahedralize_with_report(
         surface, edge_length=edge_length, resolution=resolution, repair=repair,
-        progress=progress, source=source, cache_dir=cache_dir)
+        source=source, cache_dir=cache_dir)
     if not report.clean:
         warnings.warn(repair_note(source, report), MeshRepairWarning, stacklevel=2)
     return mesh
@@ -248,7 +246,6 @@ def tetrahedralize_with_report(
     edge_length: float | None,
     resolution: int | None,
     repair: bool | None,
-    progress: bool,
     source: str,
     cache_dir: str | os.PathLike[str] | bool | None,
     checked: CheckedSurface | None = None,
@@ -259,8 +256,7 @@ def tetrahedralize_with_report(
     if checked is None:
         check_surface_arrays(surface, source)
         edge_length_for(1.0, edge_length, resolution, source)  # options first: fail fast
-        with activity(f"checking {source} ({counted(surface.n_faces, 'triangle')})",
-                      progress):
+        with activity(f"checking {source} ({counted(surface.n_faces, 'triangle')})"):
             checked = checked_surface(surface, source)
     report = checked.report
     if repair is False:
@@ -291,7 +287,7 @@ def tetrahedralize_with_report(
         what = (f"{counted(len(F), 'triangle')} simplified from {report.n_faces}"
                 if simple is not None else counted(len(F), "triangle"))
         with activity(f"tetrahedralizing {source} (fTetWild: {what}, about "
-                      f"{_round(estimate)} tets)", progress), _scratch_cwd():
+                      f"{_round(estimate)} tets)"), _scratch_cwd():
             tv, tt = pytetwild.tetrahedralize(
                 np.ascontiguousarray(V),
                 np.ascontiguousarray(F, dtype=np.int32),
@@ -352,10 +348,11 @@ def coarse_mesh(
                            diagonal=diagonal(V[np.unique(T)]))
     checked = CheckedSurface(V, B, report)  # a tet mesh's boundary: closed, oriented outwards
     for _ in range(3):
-        coarse, _, _ = tetrahedralize_with_report(
-            Surface(V, B), edge_length=edge, resolution=None, repair=True, progress=False,
-            source="coarse mesh", cache_dir=cache_dir, checked=checked,
-            simplify=False)  # its boundary must follow the fine mesh (the warp's lift)
+        with reporting(False):
+            coarse, _, _ = tetrahedralize_with_report(
+                Surface(V, B), edge_length=edge, resolution=None, repair=True,
+                source="coarse mesh", cache_dir=cache_dir, checked=checked,
+                simplify=False)  # its boundary must follow the fine mesh (the warp's lift)
         if embed(V, coarse).barycentric.min() > -0.5:
             return coarse
         edge /= 1.5

@@ -19,6 +19,7 @@ from wiggly.mesh.filling import (
     tetrahedralize_with_report,
 )
 from wiggly.mesh.loading import load_mesh
+from wiggly.progress import deprecated_progress
 
 #: Solid pieces of a filled surface's tet mesh with less than this share of its volume are left
 #: out (:func:`wiggly.mesh.data.without_small_pieces`); larger loose parts are refused by the
@@ -26,13 +27,13 @@ from wiggly.mesh.loading import load_mesh
 SMALL_PIECE = 0.02
 
 
+@deprecated_progress
 def load_model(
     path: str | Path,
     *,
     edge_length: float | None = None,
     resolution: int | None = None,
     repair: bool | None = True,
-    progress: bool = False,
     cache_dir: str | os.PathLike[str] | bool | None = None,
 ) -> Model:
     """Load a model, tetrahedralize it if it is a surface and embed the surface.
@@ -43,7 +44,7 @@ def load_model(
     ----------
     path : str or Path
         Surface or tet mesh file (see :func:`load_mesh`).
-    edge_length, resolution, repair, progress
+    edge_length, resolution, repair
         Passed to :func:`tetrahedralize` for a surface; ignored for a tet mesh.
 
     Returns
@@ -51,10 +52,10 @@ def load_model(
     Model
     """
     return build_model(load_mesh(path), str(path), edge_length=edge_length,
-                       resolution=resolution, repair=repair, progress=progress,
-                       cache_dir=cache_dir)
+                       resolution=resolution, repair=repair, cache_dir=cache_dir)
 
 
+@deprecated_progress
 def build_model(
     loaded: TetMesh | Surface,
     source: str,
@@ -62,7 +63,6 @@ def build_model(
     edge_length: float | None = None,
     resolution: int | None = None,
     repair: bool | None = True,
-    progress: bool = False,
     cache_dir: str | os.PathLike[str] | bool | None = None,
     checked: CheckedSurface | None = None,
 ) -> Model:
@@ -84,7 +84,7 @@ def build_model(
     if isinstance(loaded, Surface):
         tets, report, info = tetrahedralize_with_report(
             loaded, edge_length=edge_length, resolution=resolution, repair=repair,
-            progress=progress, source=source, cache_dir=cache_dir, checked=checked)
+            source=source, cache_dir=cache_dir, checked=checked)
         # slivers and bits that hold to the body by an edge or a vertex only would hinge
         # there (a motion of zero elastic energy): the surface around them follows the
         # nearest tets of the body instead

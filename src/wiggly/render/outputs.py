@@ -12,7 +12,7 @@ import numpy as np
 
 from wiggly.errors import WigglyInputError
 from wiggly.files import atomic_file, shown_name
-from wiggly.progress import frames
+from wiggly.progress import deprecated_progress, frames
 from wiggly.render.preview import Preview
 from wiggly.render.setup import (
     GIF_MAX_FPS,
@@ -83,15 +83,15 @@ def video_frame_times(times, fps: float | None = None,
     return times[0] + np.arange(count) / rate, rate
 
 
-def _scene_progress(times, enabled: bool, what: str):
-    return frames(times, len(times), shown_name(what), enabled)
+def _scene_progress(times, what: str):
+    return frames(times, len(times), shown_name(what))
 
 
+@deprecated_progress
 def render_video(path, times, positions, faces, *, highlights: Sequence[Highlight] = (),
                  fps: float | None = None, size=(960, 540), up=(0.0, 1.0, 0.0),
                  ground: bool = True, camera=None, title: str | None = None,
-                 anti_aliasing: bool = False, progress: bool = False,
-                 overwrite: bool = False) -> Path:
+                 anti_aliasing: bool = False, overwrite: bool = False) -> Path:
     """Render the animation to an ``.mp4`` or ``.gif`` video; return the path.
 
     ``anti_aliasing`` (FXAA) is off by default here: with software rendering it halves the
@@ -104,8 +104,8 @@ def render_video(path, times, positions, faces, *, highlights: Sequence[Highligh
     ``size`` and downscaled (Lanczos, which anti-aliases too: no FXAA then) to at most
     :data:`GIF_MAX_SIDE` pixels per side; one 256-color palette for all frames; loops forever.
     Written atomically (temporary file in the same directory, then :func:`os.replace`); an
-    existing ``path`` is kept unless ``overwrite``.  Scene parameters as in :class:`Preview`;
-    ``progress`` shows a progress bar on stderr.
+    existing ``path`` is kept unless ``overwrite``.  Scene parameters as in :class:`Preview`.
+    The frames are counted as :mod:`wiggly.progress` says (a bar on a terminal).
     """
     path = _check_output(path, VIDEO_FORMATS, overwrite)
     w, h = _check_size(size)
@@ -123,7 +123,7 @@ def render_video(path, times, positions, faces, *, highlights: Sequence[Highligh
             frame_times, _ = video_frame_times(preview.times, 100 / delay_cs)
         else:
             frame_times, rate = video_frame_times(preview.times, fps)
-        frames = _scene_progress(frame_times, progress, path.name)
+        frames = _scene_progress(frame_times, path.name)
         with atomic_file(path) as tmp:
             if gif:
                 _write_gif(tmp, preview, frame_times, frames, delay_cs)
@@ -188,12 +188,13 @@ def _gif_palette(images) -> Image.Image:
     return Image.fromarray(distinct[None]).quantize(256, method=Image.Quantize.MEDIANCUT)
 
 
+@deprecated_progress
 def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, columns: int = 4,
                          at: Sequence[float] | None = None,
                          highlights: Sequence[Highlight] = (), tile_size=(480, 270),
                          up=(0.0, 1.0, 0.0), ground: bool = True, camera=None,
                          title: str | None = None, anti_aliasing: bool = True,
-                         progress: bool = False, overwrite: bool = False) -> Path:
+                         overwrite: bool = False) -> Path:
     """A PNG grid of frames (each with its time label), row by row; return the path.
 
     The frames are at ``n_frames`` evenly spaced times from the first to the last (or at the
@@ -224,7 +225,7 @@ def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, co
                     dtype=np.uint8)
     with Preview(times, positions, faces, highlights=highlights, size=(tw, th), up=up,
                  ground=ground, camera=camera, anti_aliasing=anti_aliasing) as preview:
-        for k, t in enumerate(_scene_progress(sheet_times, progress, path.name)):
+        for k, t in enumerate(_scene_progress(sheet_times, path.name)):
             r, c = divmod(k, cols)
             y, x = header + gap + r * (th + gap), gap + c * (tw + gap)
             sheet[y:y + th, x:x + tw] = preview.render(t)

@@ -15,7 +15,7 @@ from wiggly.fem import Material
 from wiggly.keyframes import Keyframe
 from wiggly.limits import MAX_TETS
 from wiggly.mesh import DEFAULT_RESOLUTION, TetBudgetError, check_tet_budget, edge_length_for
-from wiggly.progress import activity, say
+from wiggly.progress import activity, deprecated_progress, say
 from wiggly.scene.drive import check_driver_against, driven_body, driven_keyframes_of
 from wiggly.scene.groups import resolve_group_arrays, resolve_groups
 from wiggly.scene.spec import RIGID_MODES, Absolute, Offset, Rest, Scene
@@ -25,7 +25,7 @@ from wiggly.scene.validation import Problems, input_error, show
 # building and running
 
 
-def _load_model(scene: Scene, progress: bool):
+def _load_model(scene: Scene):
     """Read the mesh; check the groups, the surface and the size of its tet mesh before any
     computation; then tetrahedralize and embed."""
 
@@ -39,21 +39,20 @@ def _load_model(scene: Scene, progress: bool):
     if isinstance(loaded, meshing.Surface):  # check what we can before tetrahedralizing
         p = Problems(where)
         resolve_group_arrays(scene, loaded.vertices, loaded.groups, None, None, p)
-        check_driver_against(scene, loaded.n_vertices, loaded.faces, f.name, p, progress)
+        check_driver_against(scene, loaded.n_vertices, loaded.faces, f.name, p)
         p.raise_if_any()
-        with activity(f"checking {f.name} ({counted(loaded.n_faces, 'triangle')})", progress):
+        with activity(f"checking {f.name} ({counted(loaded.n_faces, 'triangle')})"):
             checked = meshing.checked_surface(loaded, str(f))
         _check_surface_for_scene(scene, checked.report, f.name)
     t = _time.perf_counter()
     model = meshing.build_model(loaded, str(f), resolution=scene.mesh.resolution,
                                 edge_length=scene.mesh.edge_length, repair=scene.mesh.repair,
-                                progress=progress, checked=checked)
+                                checked=checked)
     say(f"{counted(model.tets.n_tets, 'tet')}, {counted(model.tets.n_vertices, 'vertex')} "
-         f"({_time.perf_counter() - t:.1f} s)", progress)
+         f"({_time.perf_counter() - t:.1f} s)")
     if checked is None:  # a tet mesh: its surface is known now
         p = Problems(where)
-        check_driver_against(scene, model.surface.n_vertices, model.surface.faces, f.name, p,
-                             progress)
+        check_driver_against(scene, model.surface.n_vertices, model.surface.faces, f.name, p)
         p.raise_if_any()
     return model
 
@@ -116,22 +115,23 @@ def _rigid_mode_count(points: np.ndarray) -> int:
     return {0: 3, 1: 1}.get(rank, 0)
 
 
-def build(scene: Scene, progress: bool = False):
+@deprecated_progress
+def build(scene: Scene):
     """Body and keyframes of a scene: ``(wiggly.Body, list[wiggly.Keyframe])``.
 
     Reads and tetrahedralizes the mesh, resolves the groups, assembles the FEM and computes
-    the modes (cached on disk).  ``progress`` reports the stages (:mod:`wiggly.progress`).
+    the modes (cached on disk), reporting the stages (:mod:`wiggly.progress`).
     """
-    body, keyframes, _ = build_with_groups(scene, progress)
+    body, keyframes, _ = build_with_groups(scene)
     return body, keyframes
 
 
-def build_with_groups(scene: Scene, progress: bool = False):
+def build_with_groups(scene: Scene):
     """:func:`build`, also returning the resolved vertex groups ``{name: indices}``."""
-    model = _load_model(scene, progress)
+    model = _load_model(scene)
     groups = resolve_groups(scene, model)
-    body = body_of(scene, model, groups, progress=progress)
-    return body, keyframes_of(scene, body, groups, progress), groups
+    body = body_of(scene, model, groups)
+    return body, keyframes_of(scene, body, groups), groups
 
 
 def fixed_vertices_of(scene: Scene, model, groups: dict[str, np.ndarray]) -> np.ndarray | None:
@@ -165,8 +165,8 @@ def young_of(scene: Scene, model, groups: dict[str, np.ndarray]) -> np.ndarray |
     return young
 
 
-def body_of(scene: Scene, model, groups: dict[str, np.ndarray], *, progress: bool = False,
-            dynamics: bool = True):
+@deprecated_progress
+def body_of(scene: Scene, model, groups: dict[str, np.ndarray], *, dynamics: bool = True):
     """The scene's :class:`wiggly.Body` on ``model`` (material, fixed groups, modes, lumped
     mass, and the driver's shapes with ``[drive]``; with ``dynamics`` its damping and
     gravity, else the library's defaults, for :meth:`wiggly.Body.with_dynamics` to set).
@@ -180,12 +180,12 @@ def body_of(scene: Scene, model, groups: dict[str, np.ndarray], *, progress: boo
                  "gravity": s.gravity}
     body = prepare(model, material=Material(m.young, m.poisson, m.density),
                    fixed_vertices=fixed_vertices, n_modes=s.modes, lumped=s.lumped_mass,
-                   young=young_of(scene, model, groups), progress=progress, **extra)
-    return driven_body(scene, body, groups, progress)  # + the driver's shapes ([drive])
+                   young=young_of(scene, model, groups), **extra)
+    return driven_body(scene, body, groups)  # + the driver's shapes ([drive])
 
 
-def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
-                 progress: bool = False) -> list:
+@deprecated_progress
+def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray]) -> list:
     """The scene's keyframes as :class:`wiggly.Keyframe` objects for ``body``: its
     ``[[keyframes]]``, then the driven keys of ``[drive]`` (one per driver frame)."""
 
@@ -211,4 +211,4 @@ def keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
                                translation=pos.translation, center=pos.center, velocity=vel,
                                **kw)
         out.append(k)
-    return out + driven_keyframes_of(scene, body, groups, progress)
+    return out + driven_keyframes_of(scene, body, groups)

@@ -104,7 +104,7 @@ def _stamp(path: Path) -> tuple:
     return tuple(out)
 
 
-def scene_driver(scene: Scene, progress: bool = False) -> Driver:
+def scene_driver(scene: Scene) -> Driver:
     """The scene's driver (:func:`wiggly.drive.read_driver`), kept for the two most recent
     (file, modification time, size, options) values so that re-solves do not read it
     again."""
@@ -118,9 +118,9 @@ def scene_driver(scene: Scene, progress: bool = False) -> Driver:
         if key in _CACHE:
             return _CACHE[key]
     try:
-        with activity(f"reading the driver {path.name}", progress):
+        with activity(f"reading the driver {path.name}"):
             driver = read_driver(path, animation=drive.animation, object=drive.object,
-                                 frame_rate=rate, progress=progress)
+                                 frame_rate=rate)
     except WigglyInputError as err:
         raise WigglyInputError(f"{scene.where()}: drive.path = {show(drive.path)}: "
                                f"{err}") from None
@@ -132,13 +132,13 @@ def scene_driver(scene: Scene, progress: bool = False) -> Driver:
 
 
 def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: str,
-                         p: Problems, progress: bool = False) -> None:
+                         p: Problems) -> None:
     """The driver animates the surface just read (``vertices`` vertices, triangles
     ``faces``, file ``mesh``): checked before tetrahedralizing."""
     if scene.drive is None:
         return
     try:
-        driver = scene_driver(scene, progress)
+        driver = scene_driver(scene)
     except WigglyInputError as err:
         p.add(str(err).removeprefix(f"{scene.where()}: "))
         return
@@ -152,28 +152,27 @@ def driven_vertices(scene: Scene, groups: dict[str, np.ndarray]) -> np.ndarray:
     return np.unique(np.concatenate([groups[g] for g in scene.drive.groups]))
 
 
-def driven_body(scene: Scene, body, groups: dict[str, np.ndarray], progress: bool = False):
+def driven_body(scene: Scene, body, groups: dict[str, np.ndarray]):
     """``body`` with the driver's shapes added to its modes (``drive.enrich``, the default),
     else ``body`` itself."""
     drive = scene.drive
     if drive is None or not drive.adds_shapes:
         return body
-    driver = scene_driver(scene, progress)
-    with activity("adding the driver's shapes to the modes", progress):
+    driver = scene_driver(scene)
+    with activity("adding the driver's shapes to the modes"):
         out = enrich(body, driver, driven_vertices(scene, groups),
                      warped=scene.simulation.warp)
-    say(f"{body.r} modes + {counted(out.r - body.r, 'driver shape')}", progress)
+    say(f"{body.r} modes + {counted(out.r - body.r, 'driver shape')}")
     return out
 
 
-def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
-                        progress: bool = False) -> list[Keyframe]:
+def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray]) -> list[Keyframe]:
     """The keyframes of ``[drive]`` with ``physics = "keys"`` (none otherwise): the driven
     groups keyed to the driver at every driver frame in the shot."""
     drive = scene.drive
     if drive is None or scene.secondary_motion:
         return []
-    driver = scene_driver(scene, progress)
+    driver = scene_driver(scene)
     start, end = scene.time_range()
     try:
         keys = driven_keyframes(
@@ -185,23 +184,22 @@ def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray],
         raise WigglyInputError(f"{scene.where()}: drive.path = {show(drive.path)}: "
                                f"{err}") from None
     say(f"driving {counted(len(keys[0].vertices), 'vertex')} ({'+'.join(drive.groups)}) at "
-        f"{counted(len(keys), 'frame')} of {Path(drive.path).name} ({driver.kind})", progress)
+        f"{counted(len(keys), 'frame')} of {Path(drive.path).name} ({driver.kind})")
     return keys
 
 
 
-def secondary_of(scene: Scene, body, groups: dict[str, np.ndarray], keyframes: list[Keyframe],
-                 progress: bool = False):
+def secondary_of(scene: Scene, body, groups: dict[str, np.ndarray], keyframes: list[Keyframe]):
     """The scene's secondary motion (``[drive]`` with ``physics = "secondary"``): the driver
     owns the driven groups, physics and ``keyframes`` move the rest
     (:func:`wiggly.drive.secondary_motion`)."""
     drive = scene.drive
-    driver = scene_driver(scene, progress)
+    driver = scene_driver(scene)
     start, end = scene.time_range()
     driven = driven_vertices(scene, groups)
     try:
         with activity(f"secondary motion on {Path(drive.path).name} ({drive.free_modes} "
-                      f"modes of the free parts)", progress):
+                      f"modes of the free parts)"):
             anim = secondary_motion(
                 body, driver, driven, keyframes, start=start, end=end,
                 warped=scene.simulation.warp, loop=scene.time.loop,
@@ -212,5 +210,5 @@ def secondary_of(scene: Scene, body, groups: dict[str, np.ndarray], keyframes: l
                                f"{err}") from None
     say(f"driving {counted(len(driven), 'vertex')} ({'+'.join(drive.groups)}) with "
         f"{counted(anim.info['driver_frames'], 'frame')} of {Path(drive.path).name} "
-        f"({driver.kind}); {anim.info['free_modes']} modes of the free parts", progress)
+        f"({driver.kind}); {anim.info['free_modes']} modes of the free parts")
     return anim

@@ -15,7 +15,7 @@ from wiggly.drive import following
 from wiggly.errors import WigglyInputError, counted
 from wiggly.export import SurfaceAnimation, stage_animation
 from wiggly.files import OutputSet, check_writable
-from wiggly.progress import say
+from wiggly.progress import deprecated_progress, say, shown
 from wiggly.render import Highlight
 from wiggly.scene.build import build_with_groups
 from wiggly.scene.drive import secondary_of
@@ -110,8 +110,8 @@ def problem_of(scene: Scene, body) -> SpacetimeProblem:
     return SpacetimeProblem(body, start, end, scene.simulation.preroll, loop=scene.time.loop)
 
 
-def solve_scene(scene: Scene, body, keyframes, progress: bool = False,
-                groups: dict[str, np.ndarray] | None = None):
+@deprecated_progress
+def solve_scene(scene: Scene, body, keyframes, *, groups: dict[str, np.ndarray] | None = None):
     """The scene's spacetime solve (its time range, warp, pre-roll and loop): the one call
     behind ``wiggly animate`` and the editor's exports.  A ``[drive]`` with ``physics =
     "secondary"`` solves for the free parts' motion on the driver
@@ -120,14 +120,14 @@ def solve_scene(scene: Scene, body, keyframes, progress: bool = False,
     if scene.secondary_motion:
         if groups is None:
             groups = resolve_groups(scene, body.model)
-        return secondary_of(scene, body, groups, keyframes, progress)
+        return secondary_of(scene, body, groups, keyframes)
     start, end = scene.time_range()
     return solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
-                 preroll=scene.simulation.preroll, loop=scene.time.loop, progress=progress)
+                 preroll=scene.simulation.preroll, loop=scene.time.loop, progress=shown())
 
 
-def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
-        progress: bool = False):
+@deprecated_progress
+def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     """Animate the scene and write every output; return the :class:`wiggly.Animation`.
 
     ``outputs`` replaces the scene's ``[output] paths`` (relative to the current directory,
@@ -136,7 +136,8 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
     :func:`wiggly.render.render_video` with the keyframed groups highlighted, .png through
     :func:`wiggly.render.render_contact_sheet`.  Outputs are checked before anything is
     computed and written atomically.  ``anim.info["scene"]`` has the written paths and the
-    time spent per stage.
+    time spent per stage.  Its stages are reported as :mod:`wiggly.progress` says (on the
+    ``wiggly`` logger at INFO, with bars on a terminal).
     """
 
     overwrite = scene.output.overwrite if overwrite is None else overwrite
@@ -147,19 +148,19 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None,
     _check_gltf_targets(scene, paths)
     timings: dict[str, float] = {}
     t = _time.perf_counter()
-    body, keyframes, groups = build_with_groups(scene, progress)
+    body, keyframes, groups = build_with_groups(scene)
     timings["prepare"] = _time.perf_counter() - t
     start, end = scene.time_range()
     say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
-         f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s", progress)
+         f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s")
     t = _time.perf_counter()
-    anim = solve_scene(scene, body, keyframes, progress=progress, groups=groups)
+    anim = solve_scene(scene, body, keyframes, groups=groups)
     timings["solve"] = _time.perf_counter() - t
     if scene.drive is not None:
         anim.info["drive"] = following(anim)
         say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"
-             f" mm (rms {1e3 * anim.info['drive']['rms']:.3g} mm)", progress)
-    written = write_outputs(scene, anim, paths, overwrite=overwrite, progress=progress,
+             f" mm (rms {1e3 * anim.info['drive']['rms']:.3g} mm)")
+    written = write_outputs(scene, anim, paths, overwrite=overwrite,
                             highlights=keyframe_highlights(scene, body, anim.keyframes, groups),
                             timings=timings)
     anim.info["scene"] = {"outputs": written, "seconds": timings, "groups": groups}
@@ -175,9 +176,9 @@ def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
             '"frames"'])
 
 
+@deprecated_progress
 def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
-                  progress: bool = False, highlights=(), timings: dict | None = None
-                  ) -> list[Path]:
+                  highlights=(), timings: dict | None = None) -> list[Path]:
     """Sample ``anim`` at the scene's fps and write ``paths`` (geometry first), all or
     nothing: every output goes to a temporary file first and all are moved into place once
     all are written (:class:`wiggly.files.OutputSet`); on a failure none is replaced."""
@@ -188,7 +189,7 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
     _check_gltf_targets(scene, paths)
     t = _time.perf_counter()
     times = anim.frame_times(scene.time.fps)
-    say(f"sampling {counted(len(times), 'frame')} at {scene.time.fps:g} fps", progress)
+    say(f"sampling {counted(len(times), 'frame')} at {scene.time.fps:g} fps")
     positions = anim.positions(times, dtype=np.float32)
     surf = anim.body.surface
     data = SurfaceAnimation(times, positions, surf.faces, surf.uvs, surf.normals,
@@ -204,9 +205,9 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
         for path in sorted(paths, key=lambda q: q.suffix.lower() in PREVIEW_EXTENSIONS):
             t = _time.perf_counter()
             ext = path.suffix.lower()
-            say(f"writing {path}", progress)
+            say(f"writing {path}")
             if ext in GEOMETRY_EXTENSIONS:
-                stage_animation(outputs, path, data, overwrite=overwrite, progress=progress,
+                stage_animation(outputs, path, data, overwrite=overwrite,
                                 frame_start=scene.output.frame_start, gltf_targets=targets)
             else:
                 if path.exists() and not overwrite:
@@ -214,16 +215,16 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
                                            "true in [output]) to replace it")
                 render_preview(outputs.stage(path), times, positions, surf.faces,
                                highlights=highlights, output=scene.output, title=scene.name,
-                               overwrite=True, progress=progress)
+                               overwrite=True)
             timings[f"write {path.name}"] = _time.perf_counter() - t
             written.append(path)
     return written
 
 
+@deprecated_progress
 def render_preview(path: Path, times, positions, faces, *, highlights=(),
                    output: OutputSpec | None = None, title: str | None = None,
-                   overwrite: bool = False, progress: bool = False,
-                   fps: float | None = None) -> Path:
+                   overwrite: bool = False, fps: float | None = None) -> Path:
     """An .mp4/.gif video (at ``fps``, default: the frames' rate) or a .png contact sheet of
     an animated surface."""
 
@@ -233,10 +234,10 @@ def render_preview(path: Path, times, positions, faces, *, highlights=(),
         tile = (max(16, output.size[0] // 2), max(16, output.size[1] // 2))
         return render.render_contact_sheet(path, times, positions, faces, n_frames=8, columns=4,
                                            highlights=highlights, tile_size=tile, camera=camera,
-                                           title=title, progress=progress, overwrite=overwrite)
+                                           title=title, overwrite=overwrite)
     return render.render_video(path, times, positions, faces, highlights=highlights,
                                fps=fps, size=output.size, camera=camera, title=title,
-                               progress=progress, overwrite=overwrite)
+                               overwrite=overwrite)
 
 
 def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None = None,
