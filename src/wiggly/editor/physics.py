@@ -8,8 +8,8 @@ waits on its pipe, publishing the child's stage and the elapsed time twice a sec
 nobody wants any more (the user changed the resolution again) is abandoned by killing the
 child, which is started again for the next job.
 
-Protocol (pickled messages, each preceded by its length as in :mod:`wiggly.editor.refine`):
-the parent sends ``("model", key, path, resolution, edge_length, repair)`` and ``("modes",
+Protocol (messages of :mod:`wiggly.editor.channel` on the child's stdin and stdout): the
+parent sends ``("model", key, path, resolution, edge_length, repair)`` and ``("modes",
 model_key, model or None, scene_dict, source)``; the child answers ``("status", stage, message,
 fraction)`` while it works, then ``("model", model)``, ``("modes", body)`` (the scene's body
 from :func:`wiggly.scene.body_of`, without its damping and gravity) or ``("error", message,
@@ -20,9 +20,6 @@ so the parent sends a model only to a child that does not have it.
 from __future__ import annotations
 
 import os
-import pickle
-import select
-import signal
 import subprocess
 import sys
 import threading
@@ -36,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from wiggly.editor import channel
 from wiggly.editor.bus import EventBus
-from wiggly.editor.refine import write_message
 from wiggly.errors import WigglyInputError
 from wiggly.scene import Scene, resolve_groups, scene_to_dict
 from wiggly.scene import modes_key as scene_modes_key
@@ -84,41 +81,19 @@ def with_dynamics(body, damping, gravity):
 # the child process
 
 
-def _read_exact(fd: int, n: int) -> bytes | None:
-    chunks, got = [], 0
-    while got < n:
-        chunk = os.read(fd, min(n - got, 1 << 24))
-        if not chunk:
-            return None
-        chunks.append(chunk)
-        got += len(chunk)
-    return b"".join(chunks)
-
-
-def _read(fd: int) -> Any:
-    """The next message on a raw file descriptor (None at its end)."""
-    head = _read_exact(fd, 8)
-    if head is None:
-        return None
-    data = _read_exact(fd, int.from_bytes(head, "little"))
-    return None if data is None else pickle.loads(data)
-
-
 def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end to end)
     """The child's loop (started by :class:`Preparer`)."""
-    inp, out = sys.stdin.fileno(), sys.stdout.buffer
-    sys.stdout = sys.stderr  # the protocol owns stdout
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C is the parent's; it closes our stdin
+    inp, out = channel.child_ends()
     from wiggly.mesh import load_model
     from wiggly.scene import body_of, scene_from_dict
 
     models: OrderedDict[tuple, Any] = OrderedDict()
 
     def status(stage: str, message: str, fraction: float) -> None:
-        write_message(out, ("status", stage, message, fraction))
+        channel.send(out, ("status", stage, message, fraction))
 
     while True:
-        msg = _read(inp)
+        msg = channel.receive(inp)
         if msg is None:
             return
         try:
@@ -129,7 +104,7 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
                 model = load_model(path, resolution=resolution, edge_length=edge_length,
                                    repair=repair)
                 models[key] = model
-                write_message(out, ("model", model))
+                channel.send(out, ("model", model))
             else:
                 _, key, model, data, source = msg
                 if model is None:
@@ -140,14 +115,14 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
                 status("modes", f"computing {scene.simulation.modes} modes of "
                        f"{model.tets.n_tets} tets (E = {scene.material.young:g} Pa)", 0.4)
                 body = body_of(scene, model, resolve_groups(scene, model), dynamics=False)
-                write_message(out, ("modes", body))
+                channel.send(out, ("modes", body))
             while len(models) > 2:
                 models.popitem(last=False)
         except WigglyInputError as err:
-            write_message(out, ("error", str(err), True))
+            channel.send(out, ("error", str(err), True))
         except Exception as err:
             traceback.print_exc()
-            write_message(out, ("error", f"{type(err).__name__}: {err}", False))
+            channel.send(out, ("error", f"{type(err).__name__}: {err}", False))
 
 
 class Preparer:
@@ -187,7 +162,7 @@ class Preparer:
         if proc is None:
             raise Superseded("the editor is closing")
         try:
-            write_message(proc.stdin, msg)
+            channel.send(proc.stdin.fileno(), msg)
         except (BrokenPipeError, OSError, ValueError):
             self.kill()
             raise RuntimeError("the physics process exited") from None
@@ -196,10 +171,10 @@ class Preparer:
             if abandon():
                 self.kill()
                 raise Superseded("superseded by a newer edit")
-            if not select.select([fd], [], [], HEARTBEAT)[0]:
+            if not channel.ready(fd, HEARTBEAT):
                 on_status(None)
                 continue
-            reply = _read(fd)
+            reply = channel.receive(fd)
             if reply is None:
                 code = proc.wait()
                 self.kill()

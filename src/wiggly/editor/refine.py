@@ -8,8 +8,8 @@ that keeps its own bodies: the parent sends the tet mesh once per model (fTetWil
 randomized, so the child must not tetrahedralize again) and the modes come from the disk cache
 that the parent filled.
 
-Protocol: pickled messages, each preceded by its length (8 bytes, little endian), on the
-child's stdin and stdout.  The parent sends ``("model", key, model)``,
+Protocol: messages of :mod:`wiggly.editor.channel` on the child's stdin and stdout.  The
+parent sends ``("model", key, model)``,
 ``("solve", seq, version, scene_dict, source, model_key)`` and ``("newest", seq)``; the child
 answers ``("progress", seq, version, info)``, ``("frames", seq, version, final, start, fps,
 positions, info)``, ``("error", seq, version, message)`` and ``("abandoned", seq, version,
@@ -21,18 +21,17 @@ from __future__ import annotations
 
 import os
 import pickle
-import select
-import signal
 import subprocess
 import sys
 import threading
 import time
 import traceback
 import warnings
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 
+from wiggly.editor import channel
 from wiggly.solve import SolveOptions
 
 PUSH_SECONDS = 1.5
@@ -50,29 +49,12 @@ def playback_fps(fps: float, start: float, end: float, n_vertices: int) -> float
     return float((most - 1) / (end - start))
 
 
-def write_message(stream: BinaryIO, obj: Any) -> None:
-    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
-    stream.write(len(data).to_bytes(8, "little") + data)
-    stream.flush()
-
-
-def read_message(stream: BinaryIO) -> Any:
-    """The next message (None at the end of the stream)."""
-    head = stream.read(8)
-    if len(head) < 8:
-        return None
-    n = int.from_bytes(head, "little")
-    data = stream.read(n)
-    if len(data) < n:
-        return None
-    return pickle.loads(data)
-
-
 class _Inbox:
-    """The child's view of its stdin: messages in order, and the newest request's seq."""
+    """The child's view of its stdin (a file descriptor): messages in order, and the newest
+    request's seq."""
 
-    def __init__(self, stream: BinaryIO):
-        self.stream = stream
+    def __init__(self, fd: int):
+        self.fd = fd
         self.pending: list = []
         self.newest = 0
 
@@ -87,23 +69,21 @@ class _Inbox:
 
     def poll(self) -> None:
         """Read every message that has arrived, without blocking."""
-        while select.select([self.stream], [], [], 0)[0]:
-            msg = read_message(self.stream)
+        while channel.ready(self.fd):
+            msg = channel.receive(self.fd)
             self._take(msg)
             if msg is None:
                 return
 
     def get(self):
         while not self.pending:
-            self._take(read_message(self.stream))
+            self._take(channel.receive(self.fd))
         return self.pending.pop(0)
 
 
 def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end to end)
     """The child's loop (started by :class:`Refiner`)."""
-    inp, out = sys.stdin.buffer, sys.stdout.buffer
-    sys.stdout = sys.stderr  # the protocol owns stdout
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C is the parent's; it closes our stdin
+    inp, out = channel.child_ends()
     try:
         os.nice(10)
     except OSError:
@@ -160,13 +140,13 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
                 problem = problems[pkey] = problem_of(scene, body)
             _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox)
         except WigglyInputError as err:
-            write_message(out, ("error", seq, version, str(err)))
+            channel.send(out, ("error", seq, version, str(err)))
         except BrokenPipeError:  # the editor is gone (stopped or killed): nobody to tell
             return
         except Exception as err:
             traceback.print_exc()
-            write_message(out, ("error", seq, version,
-                                f"internal error: {type(err).__name__}: {err}"))
+            channel.send(out, ("error", seq, version,
+                               f"internal error: {type(err).__name__}: {err}"))
 
 
 def _secondary(seq, version, scene, body, groups, keys,
@@ -185,7 +165,7 @@ def _secondary(seq, version, scene, body, groups, keys,
     fps = playback_fps(scene.time.fps, start, end, body.surface.n_vertices)
     times = anim.frame_times(fps)
     positions = anim.positions(times, dtype=np.float32)
-    write_message(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
+    channel.send(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
 
 
 class _Abandoned(Exception):
@@ -207,9 +187,9 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
         if inbox.newest > seq:
             raise _Abandoned(count)
         if time.perf_counter() - last_push > PUSH_SECONDS:
-            write_message(out, ("progress", seq, version,
-                                {"iterations": count, "converged": False,
-                                 "seconds": time.perf_counter() - t0}))
+            channel.send(out, ("progress", seq, version,
+                               {"iterations": count, "converged": False,
+                                "seconds": time.perf_counter() - t0}))
             last_push = time.perf_counter()
 
     try:
@@ -221,7 +201,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
                 options=SolveOptions(warn=False, callback=after_iteration),
             )
     except _Abandoned as stop:
-        write_message(out, ("abandoned", seq, version, {"iterations": stop.args[0]}))
+        channel.send(out, ("abandoned", seq, version, {"iterations": stop.args[0]}))
         return
     previous[pkey] = anim
     info = {"iterations": int(anim.info.get("iterations", 0)),
@@ -232,7 +212,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
                        problem.body.surface.n_vertices)
     times = anim.frame_times(fps)
     positions = anim.positions(times, dtype=np.float32)
-    write_message(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
+    channel.send(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
 
 
 def residual_max(anim) -> float | None:
@@ -254,7 +234,7 @@ class Refiner:
     def __init__(self, on_result):
         self._proc = subprocess.Popen(
             [sys.executable, "-c", "from wiggly.editor.refine import _child; _child()"],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, close_fds=True)
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, close_fds=True)
         self._lock = threading.Lock()
         self._sent_models: list[tuple] = []
         self._newest = 0
@@ -267,7 +247,7 @@ class Refiner:
     def _send(self, msg) -> None:
         with self._lock:
             try:
-                write_message(self._proc.stdin, msg)
+                channel.send(self._proc.stdin.fileno(), msg)
             except (BrokenPipeError, OSError, ValueError):
                 pass  # the relay reports a dead child
 
@@ -288,7 +268,7 @@ class Refiner:
     def _relay(self) -> None:
         while True:
             try:
-                msg = read_message(self._proc.stdout)
+                msg = channel.receive(self._proc.stdout.fileno())
             except (OSError, ValueError, pickle.UnpicklingError):
                 msg = None
             if msg is None:
