@@ -230,6 +230,50 @@ def test_sandbox_refuses_escapes(tmp_path):
 # plumbing
 
 
+def test_the_physics_parent_knows_which_models_its_child_holds(tmp_path):
+    """The parent sends a model only to a child without it; both keep the two models used
+    last (wiggly.memo), so after models A, B, the modes of A and model C the child still
+    holds A, as the parent assumes (a first-in-first-out child had dropped A)."""
+    from wiggly.editor.physics import Preparer, model_key
+
+    scenes = {}
+    for name, cells in (("a", (4, 1, 1)), ("b", (5, 1, 1)), ("c", (6, 1, 1))):
+        folder = tmp_path / name
+        folder.mkdir()
+        V, T = box_mesh(cells, (1.0, 0.1, 0.1))
+        meshio.write(folder / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+        (folder / "shot.toml").write_text(SCENE.replace("modes = 12", "modes = 8"))
+        scenes[name] = load_scene(folder / "shot.toml")
+    preparer, models = Preparer(), {}
+
+    def load(name: str) -> None:
+        scene = scenes[name]
+        m = scene.mesh
+        _, models[name] = preparer.call(
+            ("model", model_key(scene), str(scene.mesh_file()), m.resolution, m.edge_length,
+             m.repair), lambda _: None, lambda: False)
+
+    def modes(name: str):
+        from wiggly.scene import scene_to_dict
+
+        scene, key = scenes[name], model_key(scenes[name])
+        sent = None if preparer.knows(key) else models[name]
+        return preparer.call(("modes", key, sent, scene_to_dict(scene), scene.source),
+                             lambda _: None, lambda: False)[1]
+
+    try:
+        load("a")
+        load("b")
+        assert modes("a").r == 8
+        load("c")
+        assert preparer.knows(model_key(scenes["a"])) and not preparer.knows(
+            model_key(scenes["b"]))
+        assert modes("a").r == 8  # sent no model: the child has it
+        assert modes("b").r == 8  # sent again
+    finally:
+        preparer.close()
+
+
 def test_mailbox_newest_wins():
     box = Mailbox()
     for i in range(5):

@@ -40,3 +40,20 @@ def test_value_key_follows_the_array_value_not_its_identity():
     assert value_key(a) != key
     assert value_key(a.astype(np.float32)) != value_key(a)
     assert value_key(None) is None
+
+
+def test_put_stores_as_most_recent_and_peek_does_not_use():
+    """For values made elsewhere (a child process's models, futures that may fail): put
+    stores and uses, peek only looks; both keep the limit."""
+    memo = Memo(limit=2)
+    memo.put("a", 1)
+    memo.put("b", 2)
+    assert memo.peek("a") == 1 and memo.peek("z") is None and memo.peek("z", 0) == 0
+    memo.put("c", 3)  # "a" was only peeked at: it is the least recently used
+    assert memo.keys() == ["b", "c"]
+    memo.put("b", 20)  # replacing a value uses it
+    memo.put("d", 4)
+    assert memo.keys() == ["b", "d"] and memo.peek("b") == 20
+    assert (memo.hits, memo.misses) == (0, 0)  # only get counts
+    assert memo.get("b", lambda: 99) == 20 and memo.keys() == ["d", "b"]
+

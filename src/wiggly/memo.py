@@ -35,6 +35,9 @@ class Memo:
     """A bounded map from value keys to derived values (least recently used leaves first).
 
     ``memo.get(key, compute)`` returns the value for ``key``, calling ``compute()`` on a miss.
+    Where the value is made elsewhere (in another process, or as a future that may fail and
+    be made again), :meth:`peek` looks without using and :meth:`put` stores and uses.
+    A memo does no locking: an owner shared by threads locks around it.
     """
 
     def __init__(self, limit: int = 128) -> None:
@@ -49,10 +52,25 @@ class Memo:
             return self._values[key]  # type: ignore[return-value]
         self.misses += 1
         value = compute()
-        self._values[key] = value
-        if len(self._values) > self.limit:
-            self._values.popitem(last=False)
+        self.put(key, value)
         return value
+
+    def peek(self, key: Hashable, default: T | None = None) -> object | T | None:
+        """The value for ``key`` (``default`` if there is none), leaving it as recently used
+        as it was."""
+        return self._values.get(key, default)
+
+    def put(self, key: Hashable, value: object) -> None:
+        """Store ``value`` for ``key`` as the most recently used (the least recently used
+        beyond ``limit`` leave)."""
+        self._values[key] = value
+        self._values.move_to_end(key)
+        while len(self._values) > self.limit:
+            self._values.popitem(last=False)
+
+    def keys(self) -> list[Hashable]:
+        """The keys, least recently used first."""
+        return list(self._values)
 
     def __contains__(self, key: Hashable) -> bool:
         return key in self._values

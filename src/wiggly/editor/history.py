@@ -148,7 +148,12 @@ class _Tab:
 
 def _use(tabs: OrderedDict[str, _Tab], tab: str) -> _Tab:
     """``tab``'s stacks, now the most recently used (the least recently used beyond
-    :data:`MAX_TABS` are forgotten)."""
+    :data:`MAX_TABS` are forgotten).
+
+    Not a :class:`wiggly.memo.Memo`: the stacks are the tabs' own state, which nothing can
+    compute again, and forgetting a tab is part of the journal's meaning: a snapshot lists
+    the tabs in this order and :func:`_replay` applies the same rule line by line, so that
+    a restarted editor has the tabs it had."""
     t = tabs.pop(tab, None) or _Tab()
     tabs[tab] = t
     while len(tabs) > MAX_TABS:

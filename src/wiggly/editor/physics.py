@@ -13,8 +13,9 @@ parent sends ``("model", key, path, resolution, edge_length, repair)`` and ``("m
 model_key, model or None, scene_dict, source)``; the child answers ``("status", stage, message,
 fraction)`` while it works, then ``("model", model)``, ``("modes", body)`` (the scene's body
 from :func:`wiggly.scene.body_of`, without its damping and gravity) or ``("error", message,
-is_input_error)``.  The child keeps the models it loaded,
-so the parent sends a model only to a child that does not have it.
+is_input_error)``.  The child keeps the :data:`MODELS_KEPT` models it used last (a
+:class:`~wiggly.memo.Memo`, touched when a job succeeds), and the parent mirrors that memo
+with the same rule, so it sends a model only to a child that does not have it.
 """
 
 from __future__ import annotations
@@ -25,23 +26,25 @@ import sys
 import threading
 import time
 import traceback
-from collections import OrderedDict
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
-from typing import Any
 
 import numpy as np
 
 from wiggly.editor import channel
 from wiggly.editor.bus import EventBus
 from wiggly.errors import WigglyInputError
+from wiggly.memo import Memo
 from wiggly.scene import Scene, resolve_groups, scene_to_dict
 from wiggly.scene import modes_key as scene_modes_key
 
 __all__ = ["Physics", "Superseded", "model_key", "modes_key", "with_dynamics"]
 
 HEARTBEAT = 0.5  # s between progress events while the child works
+MODELS_KEPT = 2  # tet meshes the child keeps (and the parent's model futures)
+BODIES_KEPT = 3  # bodies (M, K, modes) by setting
+VARIANTS_KEPT = 4  # bodies with their damping and gravity
 # The child yields the processor to the server (and the page) when both want it: a busy machine
 # must not delay the server's answers (it costs the preparation little: the server is idle).
 CHILD_NICENESS = 5
@@ -87,7 +90,7 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
     from wiggly.mesh import load_model
     from wiggly.scene import body_of, scene_from_dict
 
-    models: OrderedDict[tuple, Any] = OrderedDict()
+    models = Memo(MODELS_KEPT)  # touched on success only: the parent's mirror does the same
 
     def status(stage: str, message: str, fraction: float) -> None:
         channel.send(out, ("status", stage, message, fraction))
@@ -103,21 +106,21 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
                 status("mesh", f"reading and tetrahedralizing {name}", 0.1)
                 model = load_model(path, resolution=resolution, edge_length=edge_length,
                                    repair=repair)
-                models[key] = model
                 channel.send(out, ("model", model))
+                models.put(key, model)
             else:
                 _, key, model, data, source = msg
                 if model is None:
-                    model = models[key]
-                models[key] = model
+                    model = models.peek(key)
+                if model is None:
+                    raise RuntimeError("the physics process does not hold the model")
                 scene = scene_from_dict(data)
                 scene.source = source
                 status("modes", f"computing {scene.simulation.modes} modes of "
                        f"{model.tets.n_tets} tets (E = {scene.material.young:g} Pa)", 0.4)
                 body = body_of(scene, model, resolve_groups(scene, model), dynamics=False)
                 channel.send(out, ("modes", body))
-            while len(models) > 2:
-                models.popitem(last=False)
+                models.put(key, model)
         except WigglyInputError as err:
             channel.send(out, ("error", str(err), True))
         except Exception as err:
@@ -130,7 +133,7 @@ class Preparer:
 
     def __init__(self):
         self._proc: subprocess.Popen | None = None
-        self._known: list[tuple] = []  # model keys the running child holds
+        self._known = Memo(MODELS_KEPT)  # the model keys the running child holds (its mirror)
         self._lock = threading.Lock()
         self._closed = False
         self.start()
@@ -144,7 +147,7 @@ class Preparer:
                 [sys.executable, "-c", _NICE.format(CHILD_NICENESS) +
                  "from wiggly.editor.physics import _child; _child()"],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, close_fds=True)
-            self._known = []
+            self._known.clear()
 
     @property
     def pid(self) -> int | None:
@@ -187,13 +190,13 @@ class Preparer:
                     raise WigglyInputError(reply[1])
                 raise RuntimeError(reply[1])
             if reply[0] in ("model", "modes"):
-                key = msg[1]
-                self._known = [*[k for k in self._known if k != key][-1:], key]
+                self._known.put(msg[1], True)
             return reply
 
     def kill(self) -> None:
         with self._lock:
-            proc, self._proc, self._known = self._proc, None, []
+            proc, self._proc = self._proc, None
+            self._known.clear()
         if proc is not None and proc.poll() is None:
             proc.kill()
             proc.wait()
@@ -223,9 +226,11 @@ class Physics:
         self.preparer = Preparer()
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="wiggly-physics")
         self._lock = threading.RLock()
-        self._models: OrderedDict[tuple, Future] = OrderedDict()
-        self._bodies: OrderedDict[tuple, Future] = OrderedDict()
-        self._variants: OrderedDict[tuple, Any] = OrderedDict()
+        # futures by model_key / modes_key, and bodies with dynamics by (modes_key, damping,
+        # gravity): value keys; a failed future is submitted again
+        self._models = Memo(MODELS_KEPT)
+        self._bodies = Memo(BODIES_KEPT)
+        self._variants = Memo(VARIANTS_KEPT)
         self._wanted: tuple = ()
         self._held: dict[tuple, int] = {}
         self._closed = False
@@ -263,12 +268,10 @@ class Physics:
     def model_future(self, scene: Scene) -> Future:
         key = model_key(scene)
         with self._lock:
-            fut = self._models.get(key)
-            if fut is None or (fut.done() and fut.exception() is not None):
+            fut = self._models.peek(key)
+            if not _usable(fut):
                 fut = self._pool.submit(self._load_model, scene, key)
-                self._models[key] = fut
-                while len(self._models) > 2:
-                    self._models.popitem(last=False)
+            self._models.put(key, fut)
             return fut
 
     def _load_model(self, scene: Scene, key: tuple):
@@ -292,13 +295,11 @@ class Physics:
     def body_future(self, scene: Scene) -> Future:
         key = modes_key(scene)
         with self._lock:
-            fut = self._bodies.get(key)
-            if fut is None or (fut.done() and fut.exception() is not None):
+            fut = self._bodies.peek(key)
+            if not _usable(fut):
                 model_fut = self.model_future(scene)
                 fut = self._pool.submit(self._prepare, scene, key, model_fut)
-                self._bodies[key] = fut
-                while len(self._bodies) > 3:
-                    self._bodies.popitem(last=False)
+            self._bodies.put(key, fut)
             return fut
 
     def _prepare(self, scene: Scene, key: tuple, model_fut: Future):
@@ -351,10 +352,10 @@ class Physics:
                         del self._held[key]
         vkey = (key, scene.damping, scene.simulation.gravity)
         with self._lock:
-            body = self._variants.get(vkey)
-            if body is None:
-                body = with_dynamics(base, scene.damping, scene.simulation.gravity)
-                self._variants[vkey] = body
-                while len(self._variants) > 4:
-                    self._variants.popitem(last=False)
-            return body
+            return self._variants.get(vkey, lambda: with_dynamics(base, scene.damping,
+                                                                  scene.simulation.gravity))
+
+
+def _usable(fut: Future | None) -> bool:
+    """A future to keep: running, or done with a result (a failed one is submitted again)."""
+    return fut is not None and not (fut.done() and fut.exception() is not None)

@@ -27,7 +27,6 @@ import traceback
 from collections import OrderedDict
 from concurrent.futures import CancelledError
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 
@@ -36,12 +35,14 @@ from wiggly.editor.physics import Physics, Superseded, model_key, modes_key
 from wiggly.editor.refine import Refiner, playback_fps, residual_max
 from wiggly.editor.state import EditorState
 from wiggly.errors import WigglyInputError
+from wiggly.memo import Memo
 from wiggly.progress import reporting
 from wiggly.scene import resolve_groups
 
 __all__ = ["FrameSet", "Playback", "Request"]
 
 FRAME_SETS_KEPT = 6
+PROBLEMS_KEPT = 3
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,8 @@ class Playback:
         self.bus, self.physics, self.instance = bus, physics, instance
         self._lock = threading.Lock()
         self._seq = 0
+        # the published frame sets by id (a counter), oldest first; not a cache (a page that
+        # asks for a forgotten id gets a 404) and the newest final ones are never evicted
         self._frames: OrderedDict[int, FrameSet] = OrderedDict()
         self._frame_id = 0
         self.fast_box = Mailbox()
@@ -213,7 +216,7 @@ class Playback:
             self._serve(box)
 
     def _serve(self, box: Mailbox) -> None:
-        problems: OrderedDict[tuple, Any] = OrderedDict()
+        problems = Memo(PROBLEMS_KEPT)  # by body and time range: their splines are reused
         while not self._stop.is_set():
             req = box.take(timeout=0.5)
             if req is None:
@@ -247,11 +250,7 @@ class Playback:
         start, end = scene.time_range()
         pkey = (modes_key(scene), scene.damping, scene.simulation.gravity, start, end,
                 scene.simulation.preroll, scene.time.loop)
-        problem = problems.get(pkey)
-        if problem is None:
-            problem = problems[pkey] = problem_of(scene, body)
-            while len(problems) > 3:
-                problems.popitem(last=False)
+        problem = problems.get(pkey, lambda: problem_of(scene, body))
         drag = req.kind == "drag"
         t0 = time.perf_counter()
         self.bus.publish("solve", sticky=not drag, seq=req.seq, version=req.version,

@@ -32,9 +32,11 @@ from typing import Any
 import numpy as np
 
 from wiggly.editor import channel
+from wiggly.memo import Memo
 from wiggly.solve import SolveOptions
 
 PUSH_SECONDS = 1.5
+MODELS_KEPT = 2  # tet meshes the child keeps
 PLAYBACK_BYTES = 256 * 2**20  # playback frames of one solve (float32) kept in memory
 
 
@@ -99,7 +101,7 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
     )
 
     inbox = _Inbox(inp)
-    models: dict[tuple, Any] = {}
+    models = Memo(MODELS_KEPT)  # as sent, oldest out: the parent's Refiner keeps the same
     bodies: dict[tuple, Any] = {}
     problems: dict[tuple, Any] = {}
     previous: dict[tuple, Any] = {}
@@ -108,9 +110,7 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
         if msg is None:
             return
         if msg[0] == "model":
-            models[msg[1]] = msg[2]
-            while len(models) > 2:
-                models.pop(next(iter(models)))
+            models.put(msg[1], msg[2])
             continue
         _, seq, version, data, source, model_key = msg
         inbox.poll()
@@ -119,7 +119,9 @@ def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end t
         try:
             scene = scene_from_dict(data)
             scene.source = source
-            model = models[model_key]
+            model = models.peek(model_key)
+            if model is None:
+                raise RuntimeError("the warped solver process does not hold the model")
             s = scene.simulation
             groups = resolve_groups(scene, model)
             bkey = (model_key, *modes_key(scene), scene.damping, s.gravity)
@@ -236,7 +238,7 @@ class Refiner:
             [sys.executable, "-c", "from wiggly.editor.refine import _child; _child()"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, close_fds=True)
         self._lock = threading.Lock()
-        self._sent_models: list[tuple] = []
+        self._sent_models = Memo(MODELS_KEPT)  # what the child holds: put on send, as there
         self._newest = 0
         self._on_result = on_result
         self._stop = threading.Event()
@@ -261,7 +263,7 @@ class Refiner:
               model) -> None:
         if model_key not in self._sent_models:
             self._send(("model", model_key, model))
-            self._sent_models = [*self._sent_models[-1:], model_key]
+            self._sent_models.put(model_key, True)
         self._newest = max(self._newest, seq)
         self._send(("solve", seq, version, scene_dict, source, model_key))
 

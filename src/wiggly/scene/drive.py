@@ -14,6 +14,7 @@ from wiggly.drive.secondary import secondary_motion
 from wiggly.drive.sequence import sequence_files
 from wiggly.errors import WigglyInputError, counted
 from wiggly.keyframes import Keyframe
+from wiggly.memo import Memo
 from wiggly.progress import activity, say
 from wiggly.scene.spec import Scene
 from wiggly.scene.validation import Problems, did_you_mean, show
@@ -87,9 +88,8 @@ def check_drive_file(scene: Scene, p: Problems) -> None:
 # ----------------------------------------------------------------------------------------------
 # the driver, read once per state of its file(s)
 
-_CACHE: dict[tuple, Driver] = {}
+_DRIVERS = Memo(2)  # by (path, file stamps, options); read outside the lock, stored under it
 _LOCK = threading.Lock()
-_KEEP = 2
 
 
 def _stamp(path: Path) -> tuple:
@@ -115,8 +115,10 @@ def scene_driver(scene: Scene) -> Driver:
     rate = drive.frame_rate if drive.frame_rate is not None else scene.time.fps
     key = (str(path), _stamp(path), drive.animation, drive.object, rate)
     with _LOCK:
-        if key in _CACHE:
-            return _CACHE[key]
+        kept = _DRIVERS.peek(key)
+        if kept is not None:
+            _DRIVERS.put(key, kept)  # the most recently used
+            return kept
     try:
         with activity(f"reading the driver {path.name}"):
             driver = read_driver(path, animation=drive.animation, object=drive.object,
@@ -125,9 +127,7 @@ def scene_driver(scene: Scene) -> Driver:
         raise WigglyInputError(f"{scene.where()}: drive.path = {show(drive.path)}: "
                                f"{err}") from None
     with _LOCK:
-        _CACHE[key] = driver
-        while len(_CACHE) > _KEEP:
-            _CACHE.pop(next(iter(_CACHE)))
+        _DRIVERS.put(key, driver)
     return driver
 
 
