@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 
 from wiggly import WigglyInputError, render
-from wiggly.checks import animation_arrays
+from wiggly.checks import (
+    animation_arrays,
+    brief,
+    extension,
+    finite_number,
+    pixel_size,
+    positive_number,
+    unit_color,
+)
 from wiggly.export import SurfaceAnimation, write_animation
 
 TIMES = np.array([0.0, 0.5, 1.0])
@@ -47,3 +55,45 @@ def test_valid_arrays_come_back_in_canonical_dtypes():
     assert t.dtype == np.float64 and P.dtype == np.float32 and F.dtype == np.int64
     _, P, _ = animation_arrays([0], np.zeros((1, 3, 3), np.int32), [[0, 1, 2]])
     assert P.dtype == np.float64
+
+
+@pytest.mark.parametrize(("check", "value", "message"), [
+    (lambda v: finite_number(v, "keyframe time"), "soon",
+     "keyframe time should be a finite number; got 'soon'"),
+    (lambda v: finite_number(v, "keyframe time"), True,
+     "keyframe time should be a finite number; got True"),
+    (lambda v: finite_number(v, "keyframe time"), float("inf"),
+     "keyframe time should be a finite number; got inf"),
+    (lambda v: positive_number(v, "window", "s"), 0,
+     "window should be a number > 0 (s); got 0"),
+    (lambda v: pixel_size(v, "tile_size"), (8, 600),
+     "tile_size should be (width, height) with each between 16 and 8192 pixels; got (8, 600)"),
+    (lambda v: pixel_size(v), "large",
+     "size should be (width, height) with each between 16 and 8192 pixels; got 'large'"),
+    (lambda v: unit_color(v), (1, 0.5),
+     "color should be 3 numbers in [0, 1] (red, green, blue); got (1, 0.5)"),
+    (lambda v: extension(v, (".mp4", ".gif")), "shot.avi",
+     "shot.avi should end in .mp4 or .gif; its extension is '.avi'"),
+    (lambda v: extension(v, (".png",)), "sheet", "sheet should end in .png; it has no extension"),
+])
+def test_scalar_checks_name_the_field_what_is_right_and_the_value(check, value, message):
+    with pytest.raises(WigglyInputError) as err:
+        check(value)
+    assert str(err.value) == message
+
+
+def test_scalar_checks_return_the_value_and_fail_as_told():
+    assert finite_number(np.float32(0.5), "t") == 0.5 and positive_number(2, "w") == 2.0
+    assert pixel_size((640.0, 480), "size") == (640, 480)
+    assert unit_color([1, 0, 0.5]) == (1.0, 0.0, 0.5)
+    assert extension("a/B.GIF", (".mp4", ".gif")) == ".gif"
+    assert brief("x" * 100) == repr("x" * 100)[:57] + "..."
+
+    class Refused(Exception):
+        pass
+
+    def refuse(message: str):
+        raise Refused(message)
+
+    with pytest.raises(Refused, match="young should be a finite number"):
+        finite_number(None, "young", refuse)

@@ -272,12 +272,20 @@ def test_failed_render_leaves_no_file(offscreen, ball, tmp_path, monkeypatch, na
     (dict(times=[0.0, 2.0, 1.0]), "strictly increasing"),
     (dict(faces=np.array([[0, 1, 4]])), r"faces should index the n = 4 vertices .* face 0 is"),
     (dict(faces=np.array([[0.0, 1, 2]])), "integer"),
-    (dict(highlights=[Highlight(np.array([7]), 0.5)]), r"vertex indices 7..7 out of range"),
-    (dict(highlights=[Highlight(np.array([1]), 0.5, color=(2, 0, 0))]), "color"),
+    (dict(highlights=[Highlight(np.array([7]), 0.5)]),
+     r"highlights\[0\]: vertex index 7 does not exist: the surface has 4 vertices"),
+    (dict(highlights=[Highlight(np.array([1]), 0.5, color=(2, 0, 0))]),
+     r"highlights\[0\]: color should be 3 numbers in \[0, 1\] \(red, green, blue\); "
+     r"got \(2, 0, 0\)"),
+    (dict(highlights=[Highlight(np.array([1]), float("nan"), label="lift")]),
+     r"highlights\[0\] \('lift'\): time should be a finite number; got nan"),
+    (dict(highlights=[Highlight(np.array([1]), 0.5, window=0.0)]),
+     r"highlights\[0\]: window should be a number > 0 \(s\); got 0\.0"),
     (dict(camera="sideways"), "unknown camera 'sideways'"),
     (dict(camera=(1, 2, 3)), "camera should be one of"),
     (dict(up=(0, 0, 0)), "up should be a non-zero 3-vector"),
-    (dict(size=(8, 8)), "between 16 and 8192"),
+    (dict(size=(8, 8)), r"size should be \(width, height\) with each between 16 and 8192 "
+                        r"pixels; got \(8, 8\)"),
 ])
 def test_bad_input_is_reported(change, message, monkeypatch):
     monkeypatch.setattr(render.preview, "check_offscreen", lambda: "not needed")
@@ -290,9 +298,10 @@ def test_bad_input_is_reported(change, message, monkeypatch):
 
 def test_bad_output_paths(tmp_path, ball):
     times, P, F = ball
-    with pytest.raises(WigglyInputError, match=r"unsupported extension '\.avi'"):
+    with pytest.raises(WigglyInputError, match=r"x\.avi should end in \.mp4 or \.gif; its "
+                                               r"extension is '\.avi'"):
         render_video(tmp_path / "x.avi", times, P, F)
-    with pytest.raises(WigglyInputError, match=r"unsupported extension '\.jpg'"):
+    with pytest.raises(WigglyInputError, match=r"should end in \.png; its extension is '\.jpg'"):
         render_contact_sheet(tmp_path / "x.jpg", times, P, F)
 
 

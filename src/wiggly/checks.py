@@ -1,13 +1,18 @@
 """Input checks shared by every stage: one definition, one wording.
 
-Each check names what is wrong and what would be right, in the style of polyscope ("vertex
-positions should have shape (n, 3); shape is (n, 2)"), and raises
-:class:`wiggly.errors.WigglyInputError`, which every entry point reports as one message.
+Each check names the field, what would be right and the value it got, in the style of
+polyscope ("vertex positions should have shape (n, 3); shape is (n, 2)"; "keyframe time
+should be a finite number; got 'soon'"), and raises :class:`wiggly.errors.WigglyInputError`,
+which every entry point reports as one message.  Checks that take ``fail`` call it with the
+message instead (it raises: the editor's :class:`~wiggly.editor.state.EditError`, or a
+message prefixed with a file name).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import NoReturn
 
 import numpy as np
@@ -18,10 +23,16 @@ from wiggly.errors import WigglyInputError, counted
 __all__ = [
     "animation_arrays",
     "array",
+    "brief",
+    "extension",
+    "finite_number",
     "finite_vertices",
     "indices_in_range",
     "mesh_arrays",
+    "pixel_size",
+    "positive_number",
     "real_array",
+    "unit_color",
     "vertex_indices",
     "vertex_set",
 ]
@@ -122,6 +133,66 @@ def vertex_set(vertices: ArrayLike | None, n: int, what: str = "fixed vertices")
 
 def _raise(message: str) -> NoReturn:
     raise WigglyInputError(message)
+
+
+def brief(value, limit: int = 60) -> str:
+    """How a message shows a value it got: its ``repr``, cut to ``limit`` characters."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _real(value) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int | float | np.integer |
+                                                      np.floating)
+
+
+def finite_number(value, name: str, fail: Callable[[str], NoReturn] = _raise) -> float:
+    """``value`` as a float: an integer or a float (not a bool), finite."""
+    if not (_real(value) and math.isfinite(value)):
+        fail(f"{name} should be a finite number; got {brief(value)}")
+    return float(value)
+
+
+def positive_number(value, name: str, unit: str = "",
+                    fail: Callable[[str], NoReturn] = _raise) -> float:
+    """``value`` as a float: a finite number > 0 (``unit`` is named in the message)."""
+    if not (_real(value) and math.isfinite(value) and value > 0):
+        fail(f"{name} should be a number > 0{f' ({unit})' if unit else ''}; got {brief(value)}")
+    return float(value)
+
+
+def pixel_size(size, name: str = "size", low: int = 16, high: int = 8192,
+               fail: Callable[[str], NoReturn] = _raise) -> tuple[int, int]:
+    """``size`` as (width, height) in whole pixels, each between ``low`` and ``high``."""
+    right = f"{name} should be (width, height) with each between {low} and {high} pixels"
+    try:
+        w, h = (int(s) for s in size)
+    except (TypeError, ValueError):
+        fail(f"{right}; got {brief(size)}")
+    if not (low <= w <= high and low <= h <= high):
+        fail(f"{right}; got {brief(size)}")
+    return w, h
+
+
+def unit_color(color, name: str = "color",
+               fail: Callable[[str], NoReturn] = _raise) -> tuple[float, float, float]:
+    """``color`` as (red, green, blue), each a number in [0, 1]."""
+    try:
+        c = np.asarray(color, dtype=np.float64)
+    except (TypeError, ValueError):
+        c = np.zeros(0)
+    if c.shape != (3,) or not np.all((c >= 0) & (c <= 1)):
+        fail(f"{name} should be 3 numbers in [0, 1] (red, green, blue); got {brief(color)}")
+    return tuple(c.tolist())  # type: ignore[return-value]
+
+
+def extension(path, suffixes: Sequence[str], fail: Callable[[str], NoReturn] = _raise) -> str:
+    """The lower-case extension of ``path``, one of ``suffixes``."""
+    suffix = Path(path).suffix.lower()
+    if suffix not in suffixes:
+        it = f"its extension is {Path(path).suffix!r}" if suffix else "it has no extension"
+        fail(f"{path} should end in {' or '.join(suffixes)}; {it}")
+    return suffix
 
 
 def real_array(value, name: str, shape: str,

@@ -43,11 +43,12 @@ import os
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
 from wiggly import limits
+from wiggly.checks import brief, finite_number
 from wiggly.errors import WigglyInputError
 from wiggly.scene import PALETTE, Scene, scene_from_dict, scene_to_dict
 
@@ -93,9 +94,9 @@ class EditorState:
 # checks of JSON payloads
 
 
-def _show(v: Any, limit: int = 60) -> str:
-    text = repr(v)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+def _refuse(message: str) -> NoReturn:
+    """Raise the message of a :mod:`wiggly.checks` check as an edit refused (400)."""
+    raise EditError(message)
 
 
 def _need(op: dict, key: str) -> Any:
@@ -106,21 +107,19 @@ def _need(op: dict, key: str) -> Any:
 
 def _string(v: Any, what: str) -> str:
     if not isinstance(v, str):
-        raise EditError(f"{what} must be a string; got {_show(v)}")
+        raise EditError(f"{what} must be a string; got {brief(v)}")
     return v
 
 
 def _number(v: Any, what: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-        raise EditError(f"{what} must be a finite number; got {_show(v)}")
-    return float(v)
+    return finite_number(v, what, _refuse)
 
 
 def _group_name(v: Any) -> str:
     name = _string(v, "group name")
     n = limits.MAX_NAME_LENGTH
     if not re.fullmatch(rf"[A-Za-z0-9_-]{{1,{n}}}", name):
-        raise EditError(f"group name {_show(name)} is invalid: use 1 to {n} letters, digits, "
+        raise EditError(f"group name {brief(name)} is invalid: use 1 to {n} letters, digits, "
                         "'_' or '-'")
     return name
 
@@ -128,13 +127,13 @@ def _group_name(v: Any) -> str:
 def _color(v: Any) -> str:
     c = _string(v, "color")
     if not re.fullmatch(r"#[0-9a-fA-F]{6}", c):
-        raise EditError(f"color {_show(c)} is invalid: use \"#rrggbb\"")
+        raise EditError(f"color {brief(c)} is invalid: use \"#rrggbb\"")
     return c.lower()
 
 
 def _indices(v: Any, n_vertices: int | None) -> list[int]:
     if not isinstance(v, list) or not v:
-        raise EditError(f"indices must be a non-empty list of vertex indices; got {_show(v)}")
+        raise EditError(f"indices must be a non-empty list of vertex indices; got {brief(v)}")
     if not all(isinstance(i, int) and not isinstance(i, bool) for i in v):
         raise EditError("indices must be integers")
     idx = sorted(set(v))
@@ -183,7 +182,7 @@ def check_limits(scene: Scene, diagonal: float | None = None) -> None:
         [("group name", g) for g in scene.groups]
     for what, name in names:
         if len(name) > limits.MAX_NAME_LENGTH:
-            problems.append(f"a {what} of {len(name)} characters ({_show(name, 40)}): at most "
+            problems.append(f"a {what} of {len(name)} characters ({brief(name, 40)}): at most "
                             f"{limits.MAX_NAME_LENGTH}")
             break
     if problems:
@@ -236,13 +235,13 @@ class _Draft:
 
     def key_index(self, kid: Any) -> int:
         if isinstance(kid, bool) or not isinstance(kid, int):
-            raise EditError(f"keyframe id must be an integer; got {_show(kid)}")
+            raise EditError(f"keyframe id must be an integer; got {brief(kid)}")
         try:
             return self.ids.index(kid)
         except ValueError:
             raise EditError("that keyframe was deleted meanwhile (in another tab or by an "
                             f"undo), so this edit of it is not made (keyframe id {kid}; ids "
-                            f"are {_show(self.ids)})", 404) from None
+                            f"are {brief(self.ids)})", 404) from None
 
     def group(self, name: str) -> dict:
         if name not in self.d["groups"]:
@@ -279,11 +278,11 @@ def apply_edit(state: EditorState, op: Any, n_vertices: int | None = None,
 
 def _apply(draft: _Draft, op: Any, n_vertices: int | None) -> None:
     if not isinstance(op, dict):
-        raise EditError(f"an edit must be a JSON object with an 'op' field; got {_show(op)}")
+        raise EditError(f"an edit must be a JSON object with an 'op' field; got {brief(op)}")
     kind = op.get("op")
     handler = _EDITS.get(kind) if isinstance(kind, str) else None
     if handler is None:
-        raise EditError(f"unknown edit op {_show(kind)}; known: {', '.join(_EDITS)}, batch")
+        raise EditError(f"unknown edit op {brief(kind)}; known: {', '.join(_EDITS)}, batch")
     handler(draft, op, n_vertices)
     if len(draft.ids) > limits.MAX_KEYFRAMES:
         raise EditError(f"{len(draft.ids)} keyframes: at most {limits.MAX_KEYFRAMES}")
@@ -296,7 +295,7 @@ def _set_group(draft, op, n):
     g: dict[str, Any] = {"indices": _indices(_need(op, "indices"), n)}
     on = op.get("on", old.get("on", "surface"))
     if on not in ("surface", "tets"):
-        raise EditError(f"group 'on' must be \"surface\" or \"tets\"; got {_show(on)}")
+        raise EditError(f"group 'on' must be \"surface\" or \"tets\"; got {brief(on)}")
     if on != "surface":
         g["on"] = on
     color = op.get("color") or old.get("color") or PALETTE[len(d["groups"]) % len(PALETTE)]
@@ -346,7 +345,7 @@ def _set_fixed(draft, op, n):
     name = _group_name(_need(op, "name"))
     fixed = _need(op, "fixed")
     if not isinstance(fixed, bool):
-        raise EditError(f"fixed must be true or false; got {_show(fixed)}")
+        raise EditError(f"fixed must be true or false; got {brief(fixed)}")
     draft.group(name)
     names = [g for g in draft.d["simulation"]["fixed"] if g != name]
     draft.d["simulation"]["fixed"] = [*names, name] if fixed else names
@@ -376,11 +375,11 @@ def _delete_keyframe(draft, op, n):
 def _set(draft, op, n):
     section = _need(op, "section")
     if section not in SETTABLE:
-        raise EditError(f"section {_show(section)} cannot be set; use one of "
+        raise EditError(f"section {brief(section)} cannot be set; use one of "
                         f"{', '.join(SETTABLE)}")
     values = _need(op, "values")
     if not isinstance(values, dict):
-        raise EditError(f"values must be a table of {section} keys; got {_show(values)}")
+        raise EditError(f"values must be a table of {section} keys; got {brief(values)}")
     if section == "drive" and "drive" not in draft.d:
         raise EditError("the scene has no [drive]: there is no driver whose settings to set")
     table = draft.d.setdefault(section, {})

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from wiggly.checks import pixel_size
 from wiggly.errors import WigglyInputError
 from wiggly.files import atomic_file, shown_name
 from wiggly.progress import deprecated_progress, frames
@@ -25,7 +26,6 @@ from wiggly.render.setup import (
     Highlight,
     _check_animation,
     _check_output,
-    _check_size,
 )
 from wiggly.solve.animation import DEFAULT_FPS
 
@@ -108,7 +108,7 @@ def render_video(path, times, positions, faces, *, highlights: Sequence[Highligh
     The frames are counted as :mod:`wiggly.progress` says (a bar on a terminal).
     """
     path = _check_output(path, VIDEO_FORMATS, overwrite)
-    w, h = _check_size(size)
+    w, h = pixel_size(size)
     gif = path.suffix.lower() == ".gif"
     if gif:
         anti_aliasing = anti_aliasing and GIF_MAX_SIDE / max(w, h) > 0.67
@@ -204,7 +204,7 @@ def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, co
     high.  Written atomically; an existing ``path`` is kept unless ``overwrite``.
     """
     path = _check_output(path, (".png",), overwrite)
-    tw, th = _check_size(tile_size, "tile_size")
+    tw, th = pixel_size(tile_size, "tile_size")
     times, positions, faces = _check_animation(times, positions, faces)
     if at is None:
         if not (isinstance(n_frames, int | np.integer) and n_frames >= 1):

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from wiggly.checks import pixel_size
 from wiggly.errors import WigglyInputError
 from wiggly.render.setup import (
     BACKGROUND_BOTTOM,
@@ -21,7 +22,6 @@ from wiggly.render.setup import (
     Highlight,
     _check_animation,
     _check_highlights,
-    _check_size,
     _configure_headless,
     check_offscreen,
 )
@@ -168,7 +168,7 @@ class Preview:
         self.times, self.positions, self.faces = _check_animation(times, positions, faces)
         n = self.positions.shape[1]
         self.highlights = _check_highlights(highlights, n)
-        self.size = _check_size(size)
+        self.size = pixel_size(size)
         self.frame = _up_frame(up)
         if os.environ.get("WIGGLY_RENDER_PROBE", "1") != "0":
             check_offscreen()

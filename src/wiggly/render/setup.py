@@ -4,7 +4,6 @@ inputs of every renderer checked."""
 from __future__ import annotations
 
 import functools
-import math
 import os
 import re
 import subprocess
@@ -15,7 +14,15 @@ from pathlib import Path
 
 import numpy as np
 
-from wiggly.checks import animation_arrays
+from wiggly.checks import (
+    animation_arrays,
+    array,
+    extension,
+    finite_number,
+    positive_number,
+    unit_color,
+    vertex_indices,
+)
 from wiggly.errors import WigglyInputError
 
 VIDEO_FORMATS = (".mp4", ".gif")
@@ -175,50 +182,25 @@ def _check_highlights(highlights: Sequence[Highlight], n: int) -> list[Highlight
         if not isinstance(h, Highlight):
             raise WigglyInputError(
                 f"highlights[{i}] should be a Highlight; it is {type(h).__name__}")
-        v = np.asarray(h.vertices)
-        if v.ndim != 1 or len(v) == 0 or not np.issubdtype(v.dtype, np.integer):
-            raise WigglyInputError(
-                f"highlight {i} ({h.label!r}): vertices should be a non-empty 1-d integer array; "
-                f"got shape {v.shape}, dtype {v.dtype}")
-        if v.min() < 0 or v.max() >= n:
-            raise WigglyInputError(
-                f"highlight {i} ({h.label!r}): vertex indices {v.min()}..{v.max()} out of range "
-                f"for {n} surface vertices")
-        color = np.asarray(h.color, dtype=np.float64)
-        if color.shape != (3,) or not np.all((color >= 0) & (color <= 1)):
-            raise WigglyInputError(
-                f"highlight {i} ({h.label!r}): color should be 3 floats in [0, 1]; got {h.color}")
-        if not math.isfinite(h.time):
-            raise WigglyInputError(f"highlight {i} ({h.label!r}): time should be finite")
-        if not h.window > 0:
-            raise WigglyInputError(f"highlight {i} ({h.label!r}): window should be > 0 s")
+        where = f"highlights[{i}]" + (f" ({h.label!r})" if h.label else "")
+        v = vertex_indices(h.vertices, n, "surface", where)
+        color = unit_color(h.color, f"{where}: color")
+        time = finite_number(h.time, f"{where}: time")
+        window = positive_number(h.window, f"{where}: window", "s")
         targets = None
         if h.targets is not None:
-            targets = np.asarray(h.targets, dtype=np.float64)
-            if targets.ndim != 2 or targets.shape[1] != 3 or not np.all(np.isfinite(targets)):
-                raise WigglyInputError(
-                    f"highlight {i} ({h.label!r}): targets should be finite with shape (k, 3); "
-                    f"shape is {targets.shape}")
-        out.append(Highlight(v.astype(np.int64), float(h.time), tuple(color.tolist()), h.label,
-                             targets, float(h.window)))
+            targets = array(h.targets, f"{where}: targets", 3)
+            bad = np.flatnonzero(~np.isfinite(targets).all(axis=1))
+            if len(bad):
+                raise WigglyInputError(f"{where}: targets should be finite; target {bad[0]} is "
+                                       f"{targets[bad[0]].tolist()}")
+        out.append(Highlight(v, time, color, h.label, targets, window))
     return out
-
-
-def _check_size(size, what: str = "size") -> tuple[int, int]:
-    try:
-        w, h = (int(s) for s in size)
-    except (TypeError, ValueError) as e:
-        raise WigglyInputError(f"{what} should be (width, height) in pixels; got {size!r}") from e
-    if w < 16 or h < 16 or w > 8192 or h > 8192:
-        raise WigglyInputError(f"{what} should be between 16 and 8192 pixels per side; got {size}")
-    return w, h
 
 
 def _check_output(path, suffixes: Sequence[str], overwrite: bool) -> Path:
     path = Path(path)
-    if path.suffix.lower() not in suffixes:
-        raise WigglyInputError(
-            f"{path}: unsupported extension {path.suffix!r}; use one of {', '.join(suffixes)}")
+    extension(path, suffixes)
     if path.exists() and not overwrite:
         raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
     if path.is_dir():
