@@ -54,10 +54,10 @@ def _imports() -> float:
 
 def worker_start() -> float:
     """Seconds to start a worker process as the pool does and import what a shot needs."""
-    from wiggly.batch.backends import _context
+    from wiggly.batch.backends import forkserver_context
 
     t = time.perf_counter()
-    with ProcessPoolExecutor(1, mp_context=_context()) as pool:
+    with ProcessPoolExecutor(1, mp_context=forkserver_context()) as pool:
         pool.submit(_imports).result()
     return time.perf_counter() - t
 
@@ -73,9 +73,9 @@ def free_cores(n: int, seconds: float = 2.0) -> float:
     """Cores this machine gives ``n`` busy processes now: ``n`` spins of ``seconds`` CPU
     seconds each, divided by their wall time (a shared or virtual machine gives less than
     ``n``; the wall times above depend on it, CPU seconds do not)."""
-    from wiggly.batch.backends import _context
+    from wiggly.batch.backends import forkserver_context
 
-    with ProcessPoolExecutor(n, mp_context=_context()) as pool:
+    with ProcessPoolExecutor(n, mp_context=forkserver_context()) as pool:
         list(pool.map(_spin, [0.1] * n))
         t = time.perf_counter()
         list(pool.map(_spin, [seconds] * n))

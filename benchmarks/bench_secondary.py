@@ -37,7 +37,7 @@ import wiggly
 from common import table
 from wiggly.body import Damping, Material, fixed_from_surface
 from wiggly.drive import read_driver
-from wiggly.drive.basis import _extend
+from wiggly.drive.basis import least_energy_fields
 from wiggly.drive.driver import Driver
 from wiggly.drive.secondary import FrameSpline, secondary_motion
 from wiggly.linalg import factorize_spd
@@ -260,7 +260,7 @@ def scene_rows(name, body, driven, driver, motion, T, rig_reference, quick):
     times = driver.times
     if rig_reference:
         D = driver.positions - X
-        U = _extend(body, np.arange(len(X)), D)
+        U = least_energy_fields(body, np.arange(len(X)), D)
         rig = FrameSpline.fit(times, U.T)
     else:
         rig = None

@@ -62,7 +62,7 @@ ONE_THREAD = {name: "1" for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                                      "NUMBA_NUM_THREADS")}
 
 
-def _context():
+def forkserver_context():
     """The ``forkserver`` context, its server started with :data:`ONE_THREAD` in its
     environment (workers are forked from it, so libraries load single-threaded)."""
     from multiprocessing import forkserver
@@ -95,7 +95,7 @@ class LocalPool:
         self.bodies = cache / "batch" / "bodies"
 
     def _start(self) -> None:
-        self._pool = cf.ProcessPoolExecutor(self.slots, mp_context=_context(),
+        self._pool = cf.ProcessPoolExecutor(self.slots, mp_context=forkserver_context(),
                                             initializer=worker.init_process,
                                             initargs=self._args)
 

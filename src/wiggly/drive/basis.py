@@ -57,7 +57,7 @@ from wiggly.linalg import factorize_spd
 from wiggly.modes import Modes
 from wiggly.progress import deprecated_progress, iterations
 
-__all__ = ["enrich"]
+__all__ = ["enrich", "least_energy_fields"]
 
 #: Extension penalty c relative to K's mean diagonal (per unit of E^T E): larger values fit
 #: the driver no closer (the surface has more vertices than the tets) but let poorly held
@@ -68,7 +68,7 @@ _PENALTY = 1e2
 _FRAMES = 32
 
 
-def _extend(body: Body, vertices: np.ndarray, D: np.ndarray) -> np.ndarray:
+def least_energy_fields(body: Body, vertices: np.ndarray, D: np.ndarray) -> np.ndarray:
     """Tet-mesh fields (3n, F) of least elastic energy meeting the surface displacements
     D (F, s, 3) of ``vertices``; zero on fixed vertices."""
     n = body.tets.n_vertices
@@ -119,7 +119,7 @@ def enrich(body: Body, driver: Driver, vertices: ArrayLike, *, warped: bool = Tr
     driver.check(surface.n_vertices, surface.faces, body.model.source or "of the body")
     v = vertex_indices(vertices, surface.n_vertices, "surface", "driven group")
     D = driver.positions[:, v] - surface.vertices[v]
-    U = _extend(body, v, D)
+    U = least_energy_fields(body, v, D)
     Phi, M, K = body.modes.vectors, body.M, body.K
     if U.shape[1] > _FRAMES:  # frames repeat themselves: keep those that span the others
         U = U[:, _spanning(U - Phi @ (Phi.T @ (M @ U)), M, _FRAMES)]

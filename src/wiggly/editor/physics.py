@@ -1,7 +1,7 @@
 """The editor's physics: models (tet meshes) and bodies (M, K, modes) by setting.
 
 Tetrahedralization (fTetWild) and the eigensolver run for seconds in native calls that hold
-Python's global interpreter lock, so they run in a child process (:func:`_child`): in a thread
+Python's global interpreter lock, so they run in a child process (:func:`child_main`): in a thread
 they would stop the server from answering, and the page from showing their progress, until
 they end.  The parent keeps one job thread (:class:`Physics`) that sends a job to the child and
 waits on its pipe, publishing the child's stage and the elapsed time twice a second.  A job
@@ -39,7 +39,8 @@ from wiggly.memo import Memo
 from wiggly.scene import Scene, resolve_groups, scene_to_dict
 from wiggly.scene import modes_key as scene_modes_key
 
-__all__ = ["Physics", "Superseded", "model_key", "modes_key", "with_dynamics"]
+__all__ = ["Physics", "Preparer", "Superseded", "child_main", "model_key", "modes_key",
+           "with_dynamics"]
 
 HEARTBEAT = 0.5  # s between progress events while the child works
 MODELS_KEPT = 2  # tet meshes the child keeps (and the parent's model futures)
@@ -84,7 +85,7 @@ def with_dynamics(body, damping, gravity):
 # the child process
 
 
-def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end to end)
+def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested end to end)
     """The child's loop (started by :class:`Preparer`)."""
     inp, out = channel.child_ends()
     from wiggly.mesh import load_model
@@ -145,7 +146,7 @@ class Preparer:
                 return
             self._proc = subprocess.Popen(
                 [sys.executable, "-c", _NICE.format(CHILD_NICENESS) +
-                 "from wiggly.editor.physics import _child; _child()"],
+                 "from wiggly.editor.physics import child_main; child_main()"],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, close_fds=True)
             self._known.clear()
 

@@ -3,7 +3,7 @@
 The Gauss-Newton iterations of the warped solve spend most of their time in calls that hold
 Python's global interpreter lock (sparse products, small dense kernels); run in a thread they
 would delay the server's answers and the fast linear solves by seconds while a gizmo is
-dragged.  So they run in a child process (:func:`_child`, at ``nice`` +10),
+dragged.  So they run in a child process (:func:`child_main`, at ``nice`` +10),
 that keeps its own bodies: the parent sends the tet mesh once per model (fTetWild is
 randomized, so the child must not tetrahedralize again) and the modes come from the disk cache
 that the parent filled.
@@ -83,7 +83,7 @@ class _Inbox:
         return self.pending.pop(0)
 
 
-def _child() -> None:  # pragma: no cover - runs in the subprocess (tested end to end)
+def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested end to end)
     """The child's loop (started by :class:`Refiner`)."""
     inp, out = channel.child_ends()
     try:
@@ -235,7 +235,7 @@ class Refiner:
 
     def __init__(self, on_result):
         self._proc = subprocess.Popen(
-            [sys.executable, "-c", "from wiggly.editor.refine import _child; _child()"],
+            [sys.executable, "-c", "from wiggly.editor.refine import child_main; child_main()"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, close_fds=True)
         self._lock = threading.Lock()
         self._sent_models = Memo(MODELS_KEPT)  # what the child holds: put on send, as there

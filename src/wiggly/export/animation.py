@@ -222,7 +222,7 @@ class FrameNormals:
 # atomic output
 
 
-def _require(module: str, package: str, ext: str):
+def format_library(module: str, package: str, ext: str):
     """Import an optional format library, or say which package to install."""
     import importlib
 
@@ -232,23 +232,25 @@ def _require(module: str, package: str, ext: str):
         raise ImportError(f"{ext} files need the package {package}: pip install {package}") from e
 
 
-def _progress(iterable, total: int, what: str):
+def frame_progress(iterable, total: int, what: str):
+    """``iterable`` with the frames written counted as :mod:`wiggly.progress` says, named
+    after the user's file ``what`` (not its hidden temporary file)."""
     return frames(iterable, total, shown_name(what))
 
 
 # time codes of the formats
 
 
-def _gltf_times(times: np.ndarray, frame_start: int | None = None) -> np.ndarray:
+def gltf_times(times: np.ndarray, frame_start: int | None = None) -> np.ndarray:
     """Sampler input: float32 seconds, shifted to start at 0 if the first time is negative;
     with ``frame_start``, ``(frame_start + k) / fps``."""
     if frame_start is not None:
-        fps, codes = _frame_codes(times, frame_start, "glTF", gltf=True)
+        fps, codes = frame_codes(times, frame_start, "glTF", gltf=True)
         return (codes / fps).astype(np.float32)
     return (times - min(times[0], 0.0)).astype(np.float32)
 
 
-def _frame_codes(times: np.ndarray, frame_start: int | None, where: str,
+def frame_codes(times: np.ndarray, frame_start: int | None, where: str,
                  gltf: bool = False) -> tuple[float, np.ndarray]:
     """(frames per second, frame number of every frame): ``frame_start + k`` when given
     (uniform times only), else the USD time codes of the module docstring."""

@@ -11,9 +11,9 @@ from wiggly.export.animation import (
     GLTF_TARGETS,
     SUPPORTED,
     SurfaceAnimation,
-    _frame_codes,
-    _gltf_times,
     checked_animation,
+    frame_codes,
+    gltf_times,
     without_seam,
 )
 from wiggly.export.gltf import read_glb, write_glb
@@ -95,8 +95,8 @@ def stage_animation(
                                "animation has no mode shapes (a warped motion is not a linear "
                                "combination of modes); use gltf_targets='frames'")
     if frame_start is not None:
-        _frame_codes(anim.times, frame_start, f"cannot write {path}", gltf=ext == ".glb")
-    if ext == ".glb" and np.any(np.diff(_gltf_times(anim.times, frame_start)) <= 0):
+        frame_codes(anim.times, frame_start, f"cannot write {path}", gltf=ext == ".glb")
+    if ext == ".glb" and np.any(np.diff(gltf_times(anim.times, frame_start)) <= 0):
         raise WigglyInputError(
             f"cannot write {path}: frame times are too close to be distinct in float32, which "
             "glTF uses; use a larger frame interval (or export .usd / .npz)"

@@ -12,9 +12,9 @@ from wiggly.export.animation import (
     FORMAT_VERSION,
     FrameNormals,
     SurfaceAnimation,
-    _gltf_times,
-    _progress,
-    _require,
+    format_library,
+    frame_progress,
+    gltf_times,
 )
 
 # ----------------------------------------------------------------------------------------------
@@ -30,7 +30,7 @@ _GL_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 def write_glb(path: Path, anim: SurfaceAnimation, *,
               frame_start: int | None = None, targets: str = "frames") -> None:
-    gl = _require("pygltflib", "pygltflib", ".glb")
+    gl = format_library("pygltflib", "pygltflib", ".glb")
 
     F, n = anim.n_frames, anim.n_vertices
     frame_normals = FrameNormals(anim)
@@ -44,12 +44,12 @@ def write_glb(path: Path, anim: SurfaceAnimation, *,
     else:
         dP = P - base_p
         dN = np.empty_like(dP)
-        for k in _progress(range(F), F, "normals"):
+        for k in frame_progress(range(F), F, "normals"):
             dN[k] = frame_normals(anim.positions[k]).astype(np.float32) - base_n
         weights = np.eye(F, dtype=np.float32)  # keyframe k: weight 1 on target k
         names = [f"frame_{k:04d}" for k in range(F)]
     n_targets = len(dP)
-    t32 = _gltf_times(anim.times, frame_start)
+    t32 = gltf_times(anim.times, frame_start)
     index_type = _GL_UNSIGNED_SHORT if n <= 65535 else _GL_UNSIGNED_INT
 
     blob = bytearray()
@@ -190,7 +190,7 @@ def _gl_accessor(gltf, blob: bytes, index: int) -> np.ndarray:
 
 
 def read_glb(path: Path) -> SurfaceAnimation:
-    gl = _require("pygltflib", "pygltflib", ".glb")
+    gl = format_library("pygltflib", "pygltflib", ".glb")
 
     try:
         gltf = gl.GLTF2().load(str(path))

@@ -11,9 +11,9 @@ from wiggly.export.animation import (
     FORMAT_VERSION,
     FrameNormals,
     SurfaceAnimation,
-    _frame_codes,
-    _progress,
-    _require,
+    format_library,
+    frame_codes,
+    frame_progress,
 )
 
 # ----------------------------------------------------------------------------------------------
@@ -22,10 +22,10 @@ from wiggly.export.animation import (
 
 def write_usd(path: Path, anim: SurfaceAnimation, *,
               frame_start: int | None = None) -> None:
-    _require("pxr", "usd-core", "USD")
+    format_library("pxr", "usd-core", "USD")
     from pxr import Gf, Kind, Sdf, Tf, Usd, UsdGeom, Vt
 
-    fps, codes = _frame_codes(anim.times, frame_start, f"cannot write {path}")
+    fps, codes = frame_codes(anim.times, frame_start, f"cannot write {path}")
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -56,7 +56,7 @@ def write_usd(path: Path, anim: SurfaceAnimation, *,
         normals = mesh.CreateNormalsAttr()
         mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
         frame_normals = FrameNormals(anim)
-    for k in _progress(range(anim.n_frames), anim.n_frames, "USD"):
+    for k in frame_progress(range(anim.n_frames), anim.n_frames, "USD"):
         t = Usd.TimeCode(float(codes[k]))
         p = anim.positions[k].astype(np.float32)
         points.Set(Vt.Vec3fArray.FromNumpy(p), t)
@@ -83,7 +83,7 @@ def _forget_usd_layer(path: Path) -> None:
 
 
 def read_usd(path: Path) -> SurfaceAnimation:
-    _require("pxr", "usd-core", "USD")
+    format_library("pxr", "usd-core", "USD")
     from pxr import Usd, UsdGeom
 
     _forget_usd_layer(path)

@@ -38,8 +38,10 @@ DEFAULT_RESOLUTION = 25
 # Faces of a positively oriented tet (v0, v1, v2, v3), each ordered so that its
 # normal points out of the tet; face i is opposite vertex i.
 _TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
-_VOLUME_CELLS = {"tetra10", "hexahedron", "hexahedron20", "hexahedron27", "wedge", "pyramid"}
-_CELL_DIMENSION = {"vertex": 0, "line": 1, "triangle": 2, "quad": 2, "tetra": 3}
+#: meshio cell types of volume meshes other than linear tets (refused by the loader, by name)
+VOLUME_CELLS = {"tetra10", "hexahedron", "hexahedron20", "hexahedron27", "wedge", "pyramid"}
+#: The dimension of meshio's cell types of linear meshes
+CELL_DIMENSION = {"vertex": 0, "line": 1, "triangle": 2, "quad": 2, "tetra": 3}
 
 
 # --------------------------------------------------------------------------- data

@@ -13,9 +13,9 @@ import numpy as np
 from wiggly import checks
 from wiggly.errors import WigglyInputError
 from wiggly.mesh.data import (
-    _CELL_DIMENSION,
-    _VOLUME_CELLS,
+    CELL_DIMENSION,
     SURFACE_EXTENSIONS,
+    VOLUME_CELLS,
     VOLUME_EXTENSIONS,
     Surface,
     TetMesh,
@@ -128,7 +128,7 @@ def _from_meshio(raw: meshio.Mesh, source: str) -> TetMesh | Surface:
         )
     blocks = [(c.type, np.asarray(c.data, dtype=np.int64)) for c in raw.cells]
     types = sorted({t for t, _ in blocks})
-    other = sorted(set(types) & _VOLUME_CELLS)
+    other = sorted(set(types) & VOLUME_CELLS)
     if other:
         raise WigglyInputError(
             f"{source}: contains {', '.join(other)} cells, which wiggly cannot simulate; it needs "
@@ -182,7 +182,7 @@ def _meshio_groups(
             verts = [
                 d[np.asarray(p) == tag].ravel()
                 for (t, d), p in zip(blocks, physical, strict=False)
-                if _CELL_DIMENSION.get(t) == dim
+                if CELL_DIMENSION.get(t) == dim
             ]
             if verts and sum(len(v) for v in verts):
                 groups[name] = np.unique(np.concatenate(verts))

@@ -24,8 +24,8 @@ from wiggly.render.setup import (
     TEXT_COLOR,
     VIDEO_FORMATS,
     Highlight,
-    _check_animation,
-    _check_output,
+    output_path,
+    preview_arrays,
 )
 from wiggly.solve.animation import DEFAULT_FPS
 
@@ -107,7 +107,7 @@ def render_video(path, times, positions, faces, *, highlights: Sequence[Highligh
     existing ``path`` is kept unless ``overwrite``.  Scene parameters as in :class:`Preview`.
     The frames are counted as :mod:`wiggly.progress` says (a bar on a terminal).
     """
-    path = _check_output(path, VIDEO_FORMATS, overwrite)
+    path = output_path(path, VIDEO_FORMATS, overwrite)
     w, h = pixel_size(size)
     gif = path.suffix.lower() == ".gif"
     if gif:
@@ -203,9 +203,9 @@ def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, co
     ``rows * tile_h + (rows + 1) * SHEET_GAP`` (plus :data:`SHEET_HEADER` with a ``title``)
     high.  Written atomically; an existing ``path`` is kept unless ``overwrite``.
     """
-    path = _check_output(path, (".png",), overwrite)
+    path = output_path(path, (".png",), overwrite)
     tw, th = pixel_size(tile_size, "tile_size")
-    times, positions, faces = _check_animation(times, positions, faces)
+    times, positions, faces = preview_arrays(times, positions, faces)
     if at is None:
         if not (isinstance(n_frames, int | np.integer) and n_frames >= 1):
             raise WigglyInputError(f"n_frames should be an integer >= 1; got {n_frames!r}")
@@ -255,7 +255,7 @@ def plot_diagnostics(path, times, modal, residuals: Sequence[dict], eigenvalues,
     on a second axis, the RMS velocity error (mm/s) at the key times; the maximum position
     error is a dot.  Key times are dashed lines in every panel.  Written atomically.
     """
-    path = _check_output(path, (".png",), overwrite)
+    path = output_path(path, (".png",), overwrite)
     times = np.atleast_1d(np.asarray(times, dtype=np.float64))
     modal = np.asarray(modal, dtype=np.float64)
     lam = np.atleast_1d(np.asarray(eigenvalues, dtype=np.float64))

@@ -20,10 +20,10 @@ from wiggly.render.setup import (
     SHADOW_STRENGTH,
     TEXT_COLOR,
     Highlight,
-    _check_animation,
-    _check_highlights,
-    _configure_headless,
     check_offscreen,
+    checked_highlights,
+    configure_headless,
+    preview_arrays,
 )
 
 # ----------------------------------------------------------------------------------------------
@@ -165,14 +165,14 @@ class Preview:
     def __init__(self, times, positions, faces, *, highlights: Sequence[Highlight] = (),
                  size=(960, 540), up=(0.0, 1.0, 0.0), ground: bool = True, camera=None,
                  title: str | None = None, anti_aliasing: bool = True):
-        self.times, self.positions, self.faces = _check_animation(times, positions, faces)
+        self.times, self.positions, self.faces = preview_arrays(times, positions, faces)
         n = self.positions.shape[1]
-        self.highlights = _check_highlights(highlights, n)
+        self.highlights = checked_highlights(highlights, n)
         self.size = pixel_size(size)
         self.frame = _up_frame(up)
         if os.environ.get("WIGGLY_RENDER_PROBE", "1") != "0":
             check_offscreen()
-        _configure_headless()
+        configure_headless()
         import pyvista as pv  # deferred: importing VTK takes a second
 
         upv = self.frame[1]

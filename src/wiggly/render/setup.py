@@ -100,7 +100,7 @@ class Highlight:
 # headless setup
 
 
-def _configure_headless() -> None:
+def configure_headless() -> None:
     """Point VTK at EGL on a Linux machine without a display (see the module docstring)."""
     if (sys.platform.startswith("linux") and not os.environ.get("DISPLAY")
             and not os.environ.get("WAYLAND_DISPLAY")):
@@ -144,7 +144,7 @@ def check_offscreen(timeout: float = 60.0) -> str:
     RenderingError
         Rendering fails or gives a wrong pixel; the message lists the fixes.
     """
-    _configure_headless()
+    configure_headless()
     try:
         out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True,
                              timeout=timeout, env=os.environ.copy())
@@ -167,7 +167,7 @@ def check_offscreen(timeout: float = 60.0) -> str:
 # input checks
 
 
-def _check_animation(times, positions, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def preview_arrays(times, positions, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`wiggly.checks.animation_arrays`, also taking one frame as (n, 3) positions."""
     times = np.atleast_1d(np.asarray(times))
     positions = np.asarray(positions)
@@ -176,7 +176,9 @@ def _check_animation(times, positions, faces) -> tuple[np.ndarray, np.ndarray, n
     return animation_arrays(times, positions, faces)
 
 
-def _check_highlights(highlights: Sequence[Highlight], n: int) -> list[Highlight]:
+def checked_highlights(highlights: Sequence[Highlight], n: int) -> list[Highlight]:
+    """``highlights`` on a surface of ``n`` vertices, checked (:mod:`wiggly.checks`) and with
+    plain types: int64 vertex indices, float time and window, a color tuple."""
     out = []
     for i, h in enumerate(highlights):
         if not isinstance(h, Highlight):
@@ -198,7 +200,9 @@ def _check_highlights(highlights: Sequence[Highlight], n: int) -> list[Highlight
     return out
 
 
-def _check_output(path, suffixes: Sequence[str], overwrite: bool) -> Path:
+def output_path(path, suffixes: Sequence[str], overwrite: bool) -> Path:
+    """``path`` as a Path, if it ends in one of ``suffixes`` and is not an existing file
+    (unless ``overwrite``) or a directory."""
     path = Path(path)
     extension(path, suffixes)
     if path.exists() and not overwrite:

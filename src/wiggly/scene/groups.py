@@ -8,7 +8,7 @@ from scipy.spatial import cKDTree
 
 from wiggly.errors import counted
 from wiggly.scene.spec import (
-    _SELECTOR_KEYS,
+    SELECTOR_KEYS,
     Absolute,
     Box,
     GroupSpec,
@@ -59,7 +59,7 @@ def _select(name: str, group: GroupSpec, X: np.ndarray, mesh_groups: dict[str, n
         idx = np.asarray(mesh_groups[sel.name], dtype=np.int64)
     if idx.size == 0:
         lo, hi = X.min(axis=0), X.max(axis=0)
-        p.add(f"{path} ({_SELECTOR_KEYS[type(sel)]}) selects no vertex of the {what}; its "
+        p.add(f"{path} ({SELECTOR_KEYS[type(sel)]}) selects no vertex of the {what}; its "
               f"bounding box is {show(lo.round(4).tolist())} .. {show(hi.round(4).tolist())}")
         return None
     return idx

@@ -160,7 +160,8 @@ class FromMesh:
 
 
 Selector = Box | Sphere | Nearest | Indices | FromMesh
-_SELECTOR_KEYS = {Box: "box", Sphere: "sphere", Nearest: "nearest", Indices: "indices",
+#: The scene file's key of each group selector (``[groups.<name>] box = ...``)
+SELECTOR_KEYS = {Box: "box", Sphere: "sphere", Nearest: "nearest", Indices: "indices",
                   FromMesh: "from_mesh"}
 
 

@@ -15,8 +15,8 @@ from wiggly.errors import WigglyInputError
 from wiggly.files import atomic_file
 from wiggly.scene.schema import scene_from_dict
 from wiggly.scene.spec import (
-    _SELECTOR_KEYS,
     FORMAT,
+    SELECTOR_KEYS,
     Absolute,
     Box,
     GroupSpec,
@@ -67,7 +67,7 @@ def _fields(obj) -> dict:
 
 def _group_to_dict(g: GroupSpec) -> dict:
     sel = g.selector
-    key = _SELECTOR_KEYS[type(sel)]
+    key = SELECTOR_KEYS[type(sel)]
     if isinstance(sel, Box):
         value: Any = {"min": list(sel.min), "max": list(sel.max)}
     elif isinstance(sel, Sphere):
