@@ -15,7 +15,7 @@ from wiggly.drive import following
 from wiggly.errors import WigglyInputError, counted
 from wiggly.export import SurfaceAnimation, stage_animation
 from wiggly.files import OutputSet, check_writable
-from wiggly.progress import deprecated_progress, say, shown
+from wiggly.progress import deprecated_progress, say
 from wiggly.render import Highlight
 from wiggly.scene.build import build_with_groups
 from wiggly.scene.drive import secondary_of
@@ -123,7 +123,7 @@ def solve_scene(scene: Scene, body, keyframes, *, groups: dict[str, np.ndarray] 
         return secondary_of(scene, body, groups, keyframes)
     start, end = scene.time_range()
     return solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
-                 preroll=scene.simulation.preroll, loop=scene.time.loop, progress=shown())
+                 preroll=scene.simulation.preroll, loop=scene.time.loop)
 
 
 @deprecated_progress

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from wiggly.body import Body
 from wiggly.keyframes import Keyframe
-from wiggly.progress import say
+from wiggly.progress import deprecated_progress, say
 from wiggly.solve.animation import Animation
 from wiggly.solve.levels import WarmStart
 from wiggly.solve.optimizer import SolveOptions, WarpedSolveWarning
@@ -38,6 +38,7 @@ __all__ = [
 ]
 
 
+@deprecated_progress
 def solve(
     body: Body,
     keyframes: list[Keyframe],
@@ -49,7 +50,6 @@ def solve(
     preroll: float | None = None,
     loop: bool = False,
     options: SolveOptions | None = None,
-    progress: bool = False,
 ) -> Animation:
     """Animate ``body`` through the sparse ``keyframes``.
 
@@ -66,14 +66,13 @@ def solve(
             duration = max(float(last) - start, 1.0)
         end = start + float(duration)
     problem = SpacetimeProblem(body, start, end, preroll, loop=loop)
-    anim = problem.solve(keyframes, warped=warp, options=options, progress=progress)
-    if progress:
-        extra = ""
-        if warp:
-            extra = (
-                f", {anim.info['iterations']} Newton iterations"
-                f"{'' if anim.info['converged'] else ' (not converged)'}"
-            )
-        say(f"{'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
-            f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}")
+    anim = problem.solve(keyframes, warped=warp, options=options)
+    extra = ""
+    if warp:
+        extra = (
+            f", {anim.info['iterations']} Newton iterations"
+            f"{'' if anim.info['converged'] else ' (not converged)'}"
+        )
+    say(f"{'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
+        f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}")
     return anim

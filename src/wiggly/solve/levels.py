@@ -107,7 +107,6 @@ def solve_warped(
     z0: np.ndarray,
     options: SolveOptions,
     warm: WarmStart | None,
-    progress: bool = False,
 ) -> tuple[np.ndarray, dict, WarmStart]:
     """Minimise E + E_WC from z0 (module docstring); returns z, a report, the warm start."""
     body = problem.body
@@ -121,7 +120,7 @@ def solve_warped(
         problem, body.fine_level, kfs, nodes, model=coarse if two else None, blocks=blocks
     )
     report: dict = {}
-    with iterations("warped solve (Newton)", progress) as tqdm_bar:
+    with iterations("warped solve (Newton)") as tqdm_bar:
         bar = _Iterations(tqdm_bar, options.callback)
         start = None
         if warm is not None:  # cheap: W at z0 is kept

@@ -31,6 +31,7 @@ from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread
 from wiggly.memo import Memo, value_key
+from wiggly.progress import deprecated_progress
 from wiggly.solve.animation import Animation
 from wiggly.solve.banded import BandedCholesky, add_block, add_blocks
 from wiggly.solve.levels import WarmStart, solve_warped
@@ -281,6 +282,7 @@ class SpacetimeProblem:
             ) from err
 
     # ----------------------------------------------------------------- solve
+    @deprecated_progress
     def solve(
         self,
         keyframes: list[Keyframe],
@@ -288,7 +290,6 @@ class SpacetimeProblem:
         warped: bool = False,
         warm_start: WarmStart | None = None,
         options: SolveOptions | None = None,
-        progress: bool = False,
     ) -> Animation:
         """Minimise E + E_C (linear, Theorem 1) or E + E_WC (``warped``, Theorem 2).
 
@@ -314,7 +315,7 @@ class SpacetimeProblem:
                     z = self.solve_linear(unwarped(kfs, self.body), nodes)
                 info["warm_start"] = warm is not None
                 info["linear_seconds"] = time.perf_counter() - t0
-                z, report, new_warm = solve_warped(self, kfs, nodes, z, options, warm, progress)
+                z, report, new_warm = solve_warped(self, kfs, nodes, z, options, warm)
                 info.update(report)
             else:
                 z, new_warm = self.solve_linear(kfs, nodes), None

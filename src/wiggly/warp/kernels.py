@@ -181,7 +181,7 @@ def cache_is_cold() -> bool:
     return False
 
 
-def ensure_compiled(progress: bool = True) -> None:
+def ensure_compiled() -> None:
     """Compile or load every kernel once per process, announcing a compilation first (on the
     ``wiggly`` logger, and as a live line on a terminal), so a first run never looks hung.
     Batches call it before starting their workers, so that workers load, never compile."""
@@ -189,7 +189,7 @@ def ensure_compiled(progress: bool = True) -> None:
     if _ready or not compiled.AVAILABLE:
         return
     if cache_is_cold():
-        with activity(COMPILING, progress):
+        with activity(COMPILING):
             compile_all()
     else:
         compile_all()
