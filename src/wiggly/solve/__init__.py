@@ -9,8 +9,8 @@ Modules, in the order data flows:
   sparse keyframes E_C, the linear solve (Theorem 1);
 * :mod:`~wiggly.solve.warped` -- the warped objective E + E_WC: value, exact gradient,
   Newton matrix (Theorem 2);
-* :mod:`~wiggly.solve.optimizer` -- damped Newton with an honest stopping rule
-  (:class:`SolveOptions`);
+* :mod:`~wiggly.solve.optimizer` -- a trust-region Newton method with second-order
+  corrections and an honest stopping rule (:class:`SolveOptions`, :class:`SolveReport`);
 * :mod:`~wiggly.solve.levels` -- the coarse and fine levels, and :class:`WarmStart`;
 * :mod:`~wiggly.solve.animation` -- :class:`Animation`, the solved motion and its playback.
 """
@@ -22,13 +22,14 @@ from wiggly.keyframes import Keyframe
 from wiggly.progress import deprecated_progress, say
 from wiggly.solve.animation import Animation
 from wiggly.solve.levels import WarmStart
-from wiggly.solve.optimizer import SolveOptions, WarpedSolveWarning
+from wiggly.solve.optimizer import SolveOptions, SolveReport, WarpedSolveWarning
 from wiggly.solve.problem import SpacetimeProblem
 from wiggly.solve.warped import WarpedObjective, WarpedPoint
 
 __all__ = [
     "Animation",
     "SolveOptions",
+    "SolveReport",
     "SpacetimeProblem",
     "WarmStart",
     "WarpedObjective",
