@@ -62,12 +62,12 @@ __all__ = [
 # cos or division): a = sum (-t2)^k/(2k+1)!, b = sum (-t2)^k/(2k+2)!, c = sum (-t2)^k/(2k+3)!.
 # The first omitted terms are below pi^28/29! ~ 1e-17 (a), pi^28/30! ~ 3e-19 (b) and
 # pi^26/29! ~ 1e-18 (c), and the largest term is 1.7 (a at th = pi): errors ~1e-16 absolute.
-_POLY_ANGLE2 = math.pi**2
-_A = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(14))
-_B = tuple((-1.0) ** k / math.factorial(2 * k + 2) for k in range(14))
-_C = tuple((-1.0) ** k / math.factorial(2 * k + 3) for k in range(13))
+POLY_ANGLE2 = math.pi**2
+SERIES_A = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(14))
+SERIES_B = tuple((-1.0) ** k / math.factorial(2 * k + 2) for k in range(14))
+SERIES_C = tuple((-1.0) ** k / math.factorial(2 * k + 3) for k in range(13))
 # Per-tet linearization record: w (3), b, c, R (9), F (9).
-_LIN = 23
+LIN = 23
 @jit
 def gradient(U, tets, grads, t, A):
     """``A_ij = sum_k U[v_k, i] grad_k_j`` on tet ``t``."""
@@ -94,7 +94,7 @@ def scatter(H, scale, tets, grads, t, out):
 
 
 @jit
-def _series(coefficients, t2):
+def series(coefficients, t2):
     """``sum_k coefficients[k] t2^k`` (Horner)."""
     acc = coefficients[len(coefficients) - 1]
     for k in range(len(coefficients) - 2, -1, -1):
@@ -107,8 +107,8 @@ def rotation_ab(t2):
     """``a = sin(th)/th`` and ``b = (1 - cos th)/th^2`` from ``t2 = th^2``: Taylor series up
     to th = pi, beyond it one sin and one cos of ``th/2`` (``a = 2 sin(th/2) cos(th/2)/th``,
     ``b = 2 (sin(th/2)/th)^2``)."""
-    if t2 <= _POLY_ANGLE2:
-        return _series(_A, t2), _series(_B, t2)
+    if t2 <= POLY_ANGLE2:
+        return series(SERIES_A, t2), series(SERIES_B, t2)
     th = math.sqrt(t2)
     s = math.sin(0.5 * th) / th
     return 2.0 * s * math.cos(0.5 * th), 2.0 * s * s
@@ -117,8 +117,8 @@ def rotation_ab(t2):
 @jit
 def rotation_c(t2, a):
     """``c = (th - sin th)/th^3``: Taylor series up to th = pi, beyond it ``(1 - a)/t2``."""
-    if t2 <= _POLY_ANGLE2:
-        return _series(_C, t2)
+    if t2 <= POLY_ANGLE2:
+        return series(SERIES_C, t2)
     return (1.0 - a) / t2
 
 
@@ -298,7 +298,7 @@ def jvp_rhs(U, dU, tets, grads, vol, out, chunks):
         dA = np.empty(9)
         S = np.empty(9)
         dH = np.empty(9)
-        lin = np.empty(_LIN)
+        lin = np.empty(LIN)
         for b0 in range(0, m, _TET_BLOCK):
             b1 = min(m, b0 + _TET_BLOCK)
             for s in range(s0, s1):
@@ -322,7 +322,7 @@ def vjp_rhs(U, Z, index, tets, grads, vol, out, chunks):
         Y = np.empty(9)
         S = np.empty(9)
         dA = np.empty(9)
-        lin = np.empty(_LIN)
+        lin = np.empty(LIN)
         for b0 in range(0, m, _TET_BLOCK):
             b1 = min(m, b0 + _TET_BLOCK)
             for s in range(s0, s1):
@@ -358,7 +358,7 @@ def jacobians_rhs(U, GB, tets, grads, vol, out):
     :func:`field_gradients`), ``out`` (f, r, n, 3).
     """
     f, r, m = U.shape[0], GB.shape[0], tets.shape[0]
-    lins = np.empty((f, m, _LIN))
+    lins = np.empty((f, m, LIN))
     for s in prange(f):
         A = np.empty(9)
         S = np.empty(9)

@@ -14,17 +14,17 @@ import math
 import numpy as np
 
 from wiggly.warp.compiled import (
-    _B,
-    _C,
-    _LIN,
-    _POLY_ANGLE2,
-    _series,
+    LIN,
+    POLY_ANGLE2,
+    SERIES_B,
+    SERIES_C,
     gradient,
     jit,
     linearize,
     pjit,
     prange,
     scatter,
+    series,
 )
 
 __all__ = [
@@ -35,8 +35,8 @@ __all__ = [
     "split_fields",
 ]
 
-_BT = tuple(k * _B[k] for k in range(1, 14))
-_CT = tuple(k * _C[k] for k in range(1, 13))
+_BT = tuple(k * SERIES_B[k] for k in range(1, 14))
+_CT = tuple(k * SERIES_C[k] for k in range(1, 13))
 # unit gradient E_k (flat k = 3 i + j): its rotation vector is SIGN[k] e_COMPONENT[k]
 _COMPONENT = (-1, 2, 1, 2, -1, 0, 1, 0, -1)
 _SIGN = (0.0, -0.5, 0.5, 0.5, 0.0, -0.5, -0.5, 0.5, 0.0)
@@ -47,8 +47,8 @@ def rotation_bc_derivatives(t2):
     """``db/dt`` and ``dc/dt`` with ``t = th^2``: Taylor series up to th = pi, beyond it
     ``(th sin th - 2 + 2 cos th) / (2 th^4)`` and ``(th (1 - cos th) - 3 th + 3 sin th) /
     (2 th^5)``."""
-    if t2 <= _POLY_ANGLE2:
-        return _series(_BT, t2), _series(_CT, t2)
+    if t2 <= POLY_ANGLE2:
+        return series(_BT, t2), series(_CT, t2)
     th = math.sqrt(t2)
     s, co = math.sin(th), math.cos(th)
     return (th * s - 2.0 + 2.0 * co) / (2.0 * t2 * t2), (
@@ -240,7 +240,7 @@ def second_derivatives_rhs(U, V, GB, tets, grads, vol, out):
         A = np.empty(9)
         gv = np.empty(9)
         S = np.empty(9)
-        lin = np.empty(_LIN)
+        lin = np.empty(LIN)
         J = np.empty(9)
         Q = np.empty(36)
         gradient(U[s], tets, grads, t, A)
@@ -342,7 +342,7 @@ def curvature_products(u, z, zv, v, F, step3, tets, grads, vol, Cqq, Cqv, veloci
         Y2 = np.empty(9)
         a = np.empty(9)
         S = np.empty(9)
-        lin = np.empty(_LIN)
+        lin = np.empty(LIN)
         J = np.empty(9)
         N = np.empty(9)
         P = np.empty(36)
