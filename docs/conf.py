@@ -37,9 +37,6 @@ html_theme = "furo"
 html_title = "wiggly"
 html_static_path: list[str] = []
 
-# Two attributes named ``r`` (Body.r, Modes.r) make the shape "(m+1, r)" of an attribute's
-# type ambiguous as a cross-reference; shapes are not references.
-suppress_warnings = ["ref.python"]
 
 
 def _plain_fields(app, what, name, obj, options, lines):

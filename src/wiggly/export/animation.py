@@ -56,11 +56,12 @@ class SurfaceAnimation:
     rest : (n, 3) float array or None
         The rest positions: the glTF base mesh (Blender's ``Basis`` shape key), with every
         frame a morph target relative to it.  None: frame 0 is the base.
-    mode_shapes : (r, n, 3) float array or None
-        For a linear motion, ``positions[k] = rest + sum_i modal[k, i] * mode_shapes[i]``
-        (the modes on the surface): the compact glTF layout (``gltf_targets="modes"``).
-    modal : (F, r) float array or None
-        The modal coordinates q(t) of every frame, with ``mode_shapes``.
+    mode_shapes : float array or None
+        Shape (r, n, 3).  For a linear motion,
+        ``positions[k] = rest + sum_i modal[k, i] * mode_shapes[i]`` (the modes on the
+        surface): the compact glTF layout (``gltf_targets="modes"``).
+    modal : float array or None
+        Shape (F, r): the modal coordinates q(t) of every frame, with ``mode_shapes``.
     loop : bool
         A cycle whose last frame is its first: glTF keeps that frame (a time-based player
         then wraps between identical poses), USD and OBJ sequences leave it out (a frame-based

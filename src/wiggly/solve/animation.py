@@ -36,7 +36,8 @@ class Animation:
     ----------
     body : Body
     nodes : (m+1,) node times t_0 < ... < t_m in seconds.
-    values, velocities : (m+1, r) q_i(t_k) and q_i'(t_k) of every mode at every node.
+    values, velocities : numpy.ndarray
+        q_i(t_k) and q_i'(t_k) of every mode at every node, shape (m+1, r).
     keyframes : the (validated) keyframes that produced it.
     info : how it was solved (unknowns, timings; for warped motions the iterations,
         ``converged``, the final Newton decrement and ``distance_bound``, see
