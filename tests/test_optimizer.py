@@ -37,10 +37,16 @@ class Toy:
         self.timing: dict = {}
         self.counts = {"evaluate": 0, "newton": 0}
 
-    def evaluate(self, z):
+    def evaluate(self, z, gradient=True):
         self.counts["evaluate"] += 1
         z = np.asarray(z, dtype=float)
-        return Point(z.copy(), float(self.F(z)), self.grad(z), float(self.magnitude(z)))
+        g = self.grad(z) if gradient else None
+        return Point(z.copy(), float(self.F(z)), g, float(self.magnitude(z)))
+
+    def with_gradient(self, point):
+        return point if point.g is not None else Point(
+            point.z, point.F, self.grad(point.z), point.magnitude
+        )
 
     def newton_matrices(self, point, fresh=False):
         self.counts["newton"] += 1

@@ -21,7 +21,8 @@ boundary, or a poorly predicted Newton step, therefore also tries its second-ord
 along the step, which moves the step back onto the valley; the corrected point is taken
 when its F is lower.  The correction changes the path, never the stopping rule.
 
-A step is accepted when F drops by more than 1e-4 of the model's prediction; the radius
+A step is accepted when F drops by more than 1e-4 of the model's prediction (trial points
+are evaluated without their gradient, which an accepted point then gets); the radius
 shrinks by 4 on a poor prediction and doubles on a good one at the boundary.  Newton
 matrices built from reused derivatives (:mod:`wiggly.solve.blocks`) are renewed when a step
 fails or the matrix is indefinite.
@@ -118,7 +119,7 @@ class SolveOptions:
 class Point(Protocol):
     z: np.ndarray
     F: float
-    g: np.ndarray
+    g: np.ndarray | None  # None at trial points (Objective.evaluate(z, gradient=False))
     magnitude: float
 
 
@@ -130,7 +131,9 @@ class Objective(Protocol):
     timing: dict
     counts: dict
 
-    def evaluate(self, z: np.ndarray) -> Point: ...
+    def evaluate(self, z: np.ndarray, gradient: bool = True) -> Point: ...
+
+    def with_gradient(self, point: Point) -> Point: ...
 
     def newton_matrices(
         self, point: Point, fresh: bool = False
@@ -250,7 +253,7 @@ def _second_order_correction(
     if g is None or not np.all(np.isfinite(g)) or not np.any(g):
         return None
     step = dz - factor.solve(g, refine=False)
-    return step, objective.evaluate(point.z + step)
+    return step, objective.evaluate(point.z + step, gradient=False)
 
 
 @dataclass(frozen=True)
@@ -431,7 +434,7 @@ def _trust_region_step(objective: Objective, model: _Model, state: _State) -> _S
             else:
                 refresh, rho = True, -np.inf
             break
-        new = objective.evaluate(point.z + dz)
+        new = objective.evaluate(point.z + dz, gradient=False)
         t0 = time.perf_counter()
         rho = (point.F - new.F) / predicted
         if (not newton or rho < 0.25) and predicted > CORRECTION_FLOOR * point.magnitude:
@@ -513,7 +516,7 @@ def minimize(
         state.newton_steps += step.newton
         state.last_full = model.decrement if step.newton else None
         state.fresh = step.refresh  # a poor step on reused derivatives: renew them
-        state.point = step.point
+        state.point = objective.with_gradient(step.point)
         state.history.append(step.point.F)
         if bar is not None:
             bar.update(1)

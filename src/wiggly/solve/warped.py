@@ -30,7 +30,7 @@ W is replaced by W~ = P W_c(R .), i.e. S_k by S_k P and the fine warp by the coa
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -72,7 +72,7 @@ class WarpedPoint:
 
     z: np.ndarray
     F: float
-    g: np.ndarray
+    g: np.ndarray | None  # None: a trial point, evaluated without its gradient
     magnitude: float  # sum of the magnitudes of F's terms (its rounding level / eps)
     level: str
     signature: tuple  # (active nodes, velocity nodes)
@@ -82,7 +82,7 @@ class WarpedPoint:
     Vel: np.ndarray  # DW(U[velocity nodes])[V]
     YA: np.ndarray  # position cotangents per active node (f, n_L, 3)
     YB: np.ndarray  # velocity cotangents per velocity node (k, n_L, 3)
-    pulled: np.ndarray  # their pull-backs to modal coordinates (f + 3 k, r)
+    pulled: np.ndarray | None  # their pull-backs to modal coordinates (f + 3 k, r)
 
 
 class WarpedObjective:
@@ -219,10 +219,14 @@ class WarpedObjective:
     def _states(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self.layout.states(z)
 
-    def evaluate(self, z: np.ndarray, prior: WarpedPoint | None = None) -> WarpedPoint:
+    def evaluate(
+        self, z: np.ndarray, prior: WarpedPoint | None = None, gradient: bool = True
+    ) -> WarpedPoint:
         """F and its gradient at z.  With a ``prior`` point at the same z, level and node
         nodes (an earlier solve's last point: a warm start), its W values are reused and only
-        the cotangents that changed are pulled back (the vjp is linear in them)."""
+        the cotangents that changed are pulled back (the vjp is linear in them).
+        ``gradient=False`` leaves the gradient (its vjps, two thirds of the cost) to
+        :meth:`with_gradient`: a trial point of the trust region needs F only."""
         z = np.asarray(z, dtype=np.float64)
         t0 = time.perf_counter()
         reuse = (
@@ -251,14 +255,23 @@ class WarpedObjective:
             YB[self.vslot[t.node]] += t.w**2 * cotangent
         F = quad + lin + self.c_E + F_res
         magnitude = abs(quad) + abs(lin) + abs(self.c_E) + F_res
-        g = Hz + self.f_E
-        pulled = self._pull_back(U, V, YA, YB, prior if reuse else None)
-        self._add_pulled(g, pulled, U, V)
-        self.timing["vjp"] += time.perf_counter() - t1
-        return WarpedPoint(
-            z.copy(), float(F), g, magnitude, self.name, self.signature,
-            U, WU, V, Vel, YA, YB, pulled,
+        point = WarpedPoint(
+            z.copy(), float(F), None, magnitude, self.name, self.signature,
+            U, WU, V, Vel, YA, YB, None,
         )
+        return self.with_gradient(point, prior if reuse else None) if gradient else point
+
+    def with_gradient(self, point: WarpedPoint, prior: WarpedPoint | None = None) -> WarpedPoint:
+        """``point`` with its gradient (the same point if it has one); ``prior``: an earlier
+        point at the same z whose pull-backs are updated by the change of the cotangents."""
+        if point.g is not None:
+            return point
+        t0 = time.perf_counter()
+        g = band_matvec(self.ab_E, point.z) + self.f_E
+        pulled = self._pull_back(point.U, point.V, point.YA, point.YB, prior)
+        self._add_pulled(g, pulled, point.U, point.V)
+        self.timing["vjp"] += time.perf_counter() - t0
+        return replace(point, g=g, pulled=pulled)
 
     def _warped(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``u = Phi q`` at the active nodes, ``W(u)``, ``v = Phi q'`` at the velocity nodes
