@@ -1,4 +1,4 @@
-"""Timing of rotation-strain warping (SYSTEM.md §6) on structured boxes.
+"""Timing of rotation-strain warping (Schulz et al. 2014, Theorem 2) on structured boxes.
 
 Usage: ``PYTHONPATH=src python benchmarks/bench_warp.py [cells_per_axis ...]``
 (default 8 15: about 3k and 20k tets). Prints the median of 5 runs (wall clock)

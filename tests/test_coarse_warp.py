@@ -1,4 +1,5 @@
-"""The coarse warp level W~ = P W_c(R u) and the two-level warped solve (SYSTEM.md §6).
+"""The coarse warp level W~ = P W_c(R u) and the two-level warped solve (Schulz et al. 2014,
+Theorem 2).
 
 W~ stands in for W in the first level of the solve and in the fine level's Newton matrices;
 these tests check the mathematics it must keep (rigid motions exactly, derivatives

@@ -1,4 +1,5 @@
-"""Linear FEM on P1 tets (SYSTEM.md §2): hand-derived single-element values and identities."""
+"""Linear FEM on P1 tets (Schulz et al. 2014, eq. (1)):
+hand-derived single-element values and identities."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Eigenmodes (SYSTEM.md §3) and the sparse SPD factorizations behind them."""
+"""Eigenmodes (Schulz et al. 2014, eq. (5)) and the sparse SPD factorizations behind them."""
 
 from __future__ import annotations
 

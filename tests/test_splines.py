@@ -1,4 +1,5 @@
-"""Wiggly-spline basis (SYSTEM.md §5): ODE residual, Hermite data, exact energy, extremes."""
+"""Wiggly-spline basis (Schulz et al. 2014, Theorem 1):
+ODE residual, Hermite data, exact energy, extremes."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Tests of rotation-strain warping (SYSTEM.md §6; Huang et al. 2011): the mathematics of W."""
+"""Tests of rotation-strain warping (Schulz et al. 2014, Theorem 2; Huang et al. 2011):
+the mathematics of W."""
 
 from __future__ import annotations
 

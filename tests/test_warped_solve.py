@@ -1,4 +1,4 @@
-"""The warped sparse spacetime solve (Theorem 2, SYSTEM.md §6): objective, Newton matrix,
+"""The warped sparse spacetime solve (Schulz et al. 2014, Theorem 2): objective, Newton matrix,
 stopping rule and solutions."""
 
 from __future__ import annotations
