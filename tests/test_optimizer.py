@@ -194,3 +194,23 @@ def test_the_report_counts_iterations_and_keeps_the_objective_history():
 def test_band_storage_round_trips():
     H = spd(7, 3)
     assert np.array_equal(band_to_dense(dense_to_band(H)), H)
+
+
+def test_a_slowly_contracting_matrix_of_reused_derivatives_is_renewed():
+    """An exact objective whose Newton matrix comes from reused derivatives (here three times
+    the Hessian, contracting by 2/3) renews them once the measured contraction exceeds
+    ``contraction``, instead of creeping on: a stale matrix can hide negative curvature."""
+    A = spd(8, 11, condition=20.0)
+    b = np.random.default_rng(12).standard_normal(8)
+    toy = quadratic(A, b)
+    fresh_calls = []
+
+    def newton_matrices(point, fresh=False):
+        fresh_calls.append(fresh)
+        return dense_to_band(A), dense_to_band(A if fresh else 3.0 * A), fresh
+
+    toy.newton_matrices = newton_matrices
+    point, report = minimize(toy, toy.evaluate(np.zeros(8)), SolveOptions(tolerance=1e-14))
+    assert report.converged
+    assert np.allclose(point.z, np.linalg.solve(A, -b), rtol=1e-8, atol=1e-12)
+    assert any(fresh_calls) and report.iterations <= 6

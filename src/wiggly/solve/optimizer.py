@@ -497,8 +497,11 @@ def minimize(
         small = model.decrement <= tol * max(state.point.F, 0.0) + ROUNDING * (
             state.point.magnitude
         )
-        if not model.computed and ((small and certify) or model.factor is None):
-            state.fresh = True  # reused derivatives: check afresh at this point
+        slow = (state.theta or 0.0) > options.contraction
+        if not model.computed and ((small and certify) or model.factor is None or slow):
+            # reused derivatives: check afresh at this point (and renew them when their
+            # matrix is indefinite or contracts slowly: it may hide negative curvature)
+            state.fresh = True
             continue
         if _improve_matrix(objective, model, state, options):
             continue  # the model again at the same point, with the better matrix
