@@ -25,7 +25,7 @@ A step is accepted when F drops by more than 1e-4 of the model's prediction (tri
 are evaluated without their gradient, which an accepted point then gets); the radius
 shrinks by 4 on a poor prediction and doubles on a good one at the boundary.  Newton
 matrices built from reused derivatives (:mod:`wiggly.solve.blocks`) are renewed when a step
-fails or the matrix is indefinite.
+fails, the matrix is indefinite or it contracts by more than ``contraction``.
 
 Stopping rule.  With the Newton decrement ``dec = -1/2 g^T dz`` (dz = -B^-1 g, B positive
 definite) and the distance bound ``d`` (the largest vertex move of dz at any node, m), the
@@ -351,6 +351,16 @@ def _quadratic_model(objective: Objective, state: _State) -> _Model:
     return _Model(B_gn, B, computed, objective.exact and computed, chol, step, decrement)
 
 
+def _small(model: _Model, point: Point, tolerance: float) -> bool:
+    """Whether the Newton decrement is below ``tolerance * F`` plus F's rounding level."""
+    return model.decrement <= tolerance * max(point.F, 0.0) + ROUNDING * point.magnitude
+
+
+def _slow(state: _State, options: SolveOptions) -> bool:
+    """Whether the measured contraction exceeds ``options.contraction``."""
+    return (state.theta or 0.0) > options.contraction
+
+
 def _certificate(
     objective: Objective,
     model: _Model,
@@ -362,10 +372,8 @@ def _certificate(
     """Step 2, certification: ``"decrement"`` or ``"round-off"`` when the stopping rule holds
     at the point (module docstring), else None.  Without ``certify`` the decrement alone
     decides."""
-    point = state.point
-    floor = ROUNDING * point.magnitude
-    small = model.decrement <= tolerance * max(point.F, 0.0) + floor
-    if not small:
+    floor = ROUNDING * state.point.magnitude
+    if not _small(model, state.point, tolerance):
         return None
     # the last step was a full step and the iteration contracted by theta; an exact model
     # must also have its derivatives computed at this point
@@ -388,8 +396,7 @@ def _improve_matrix(objective: Objective, model: _Model, state: _State, options)
     it did (the model is then made again at the same point)."""
     if objective.exact:
         return False
-    slow = model.factor is None or (state.theta or 0.0) > options.contraction
-    state.slow = state.slow + 1 if slow else 0
+    state.slow = state.slow + 1 if model.factor is None or _slow(state, options) else 0
     if state.slow < SLOW_STEPS and state.iterations < APPROXIMATE_ITERATIONS:
         return False
     if not objective.use_exact():
@@ -494,11 +501,11 @@ def minimize(
         if verdict is not None:
             converged, stop = True, verdict
             break
-        small = model.decrement <= tol * max(state.point.F, 0.0) + ROUNDING * (
-            state.point.magnitude
-        )
-        slow = (state.theta or 0.0) > options.contraction
-        if not model.computed and ((small and certify) or model.factor is None or slow):
+        if not model.computed and (
+            (certify and _small(model, state.point, tol))
+            or model.factor is None
+            or _slow(state, options)
+        ):
             # reused derivatives: check afresh at this point (and renew them when their
             # matrix is indefinite or contracts slowly: it may hide negative curvature)
             state.fresh = True
