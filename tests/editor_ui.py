@@ -64,7 +64,9 @@ def editor_page(chromium, url: str, width: int = 1280, height: int = 800, mesh: 
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(f"{e}: {e.stack}"))
     try:
-        page.goto(url)
+        # the load event: the page's modules can take more than the default 30 s while the
+        # rest of the suite loads both cores
+        page.goto(url, timeout=90_000)
         page.wait_for_function("window.wiggly && window.wiggly.ready" +
                                (" && window.wiggly.S.n > 0" if mesh else ""), timeout=60_000)
         yield page, errors

@@ -54,7 +54,7 @@ def test_edit_pose_play_save_reproduces(chromium, tmp_path):
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(f"{e}: {e.stack}"))
     try:
-        page.goto(server.url)
+        page.goto(server.url, timeout=90_000)  # the default 30 s, under the suite's load
         page.wait_for_function("window.wiggly && window.wiggly.ready && window.wiggly.S.n > 0",
                                timeout=60_000)
         _wait_final(page)
