@@ -49,127 +49,120 @@ def test_edit_pose_play_save_reproduces(chromium, tmp_path):
     from wiggly.scene import load_scene, run
 
     server = serve("builtin:bar", roots=[tmp_path])
-    context = chromium.new_context(viewport={"width": 1280, "height": 800})
-    page = context.new_page()
-    errors: list[str] = []
-    page.on("pageerror", lambda e: errors.append(f"{e}: {e.stack}"))
     try:
-        page.goto(server.url, timeout=90_000)  # the default 30 s, under the suite's load
-        page.wait_for_function("window.wiggly && window.wiggly.ready && window.wiggly.S.n > 0",
-                               timeout=60_000)
-        _wait_final(page)
-        rest = np.asarray(server.session.surface.vertices)
-        x = rest[:, 0]
+        with editor_page(chromium, server.url) as (page, errors):
+            try:
+                _wait_final(page)
+                rest = np.asarray(server.session.surface.vertices)
+                x = rest[:, 0]
 
-        # 0. a stiffer material (the default 2e5 Pa bar would sag far out of linear range)
-        page.fill("#physics input[data-set='material.young']", "2e7")
-        page.press("#physics input[data-set='material.young']", "Enter")
-        page.wait_for_function("window.wiggly.S.desc.scene.material.young === 2e7")
-        _wait_final(page)
+                # 0. a stiffer material (the default 2e5 Pa bar would sag far out of linear range)
+                page.fill("#physics input[data-set='material.young']", "2e7")
+                page.press("#physics input[data-set='material.young']", "Enter")
+                page.wait_for_function("window.wiggly.S.desc.scene.material.young === 2e7")
+                _wait_final(page)
 
-        # 1. groups: a fixed base and the tip, by box selection
-        _box_select(page, np.flatnonzero(x < 0.08))
-        page.fill("#group-name", "base")
-        page.click("#btn-group-new")
-        page.wait_for_selector("#groups li[data-group=base]")
-        page.check("#groups li[data-group=base] input[type=checkbox]")
-        page.wait_for_function("window.wiggly.S.desc.scene.simulation.fixed.length === 1")
-        _wait_final(page)  # the fixed base changes the modes and the motion: select on it
-        _box_select(page, np.flatnonzero(x > 0.92))
-        page.fill("#group-name", "tip")
-        page.click("#btn-group-new")
-        page.wait_for_selector("#groups li[data-group=tip]")
-        page.click("#groups li[data-group=tip] .name")
-        groups = server.session.groups()
-        assert set(groups) == {"base", "tip"}
-        # a screen-space box around the (sagging) tip: the tip's vertices, maybe a few more
-        assert set(np.flatnonzero(x > 0.92)) <= set(groups["tip"].tolist())
-        assert x[groups["tip"]].min() > 0.7 and x[groups["base"]].max() < 0.3
-        assert server.session.scene.simulation.fixed == ("base",)
+                # 1. groups: a fixed base and the tip, by box selection
+                _box_select(page, np.flatnonzero(x < 0.08))
+                page.fill("#group-name", "base")
+                page.click("#btn-group-new")
+                page.wait_for_selector("#groups li[data-group=base]")
+                page.check("#groups li[data-group=base] input[type=checkbox]")
+                page.wait_for_function("window.wiggly.S.desc.scene.simulation.fixed.length === 1")
+                _wait_final(page)  # the fixed base changes the modes and the motion: select on it
+                _box_select(page, np.flatnonzero(x > 0.92))
+                page.fill("#group-name", "tip")
+                page.click("#btn-group-new")
+                page.wait_for_selector("#groups li[data-group=tip]")
+                page.click("#groups li[data-group=tip] .name")
+                groups = server.session.groups()
+                assert set(groups) == {"base", "tip"}
+                # a screen-space box around the (sagging) tip: the tip's vertices, maybe a few more
+                assert set(np.flatnonzero(x > 0.92)) <= set(groups["tip"].tolist())
+                assert x[groups["tip"]].min() > 0.7 and x[groups["base"]].max() < 0.3
+                assert server.session.scene.simulation.fixed == ("base",)
 
-        # 2. two keyframes of the tip: t = 0 (current pose) and t = 1 s
-        page.keyboard.press("Home")
-        page.keyboard.press("k")
-        page.wait_for_function("window.wiggly.S.desc.scene.keyframes.length === 1")
-        # the second key takes the pose shown at t = 1 s: that of the final (warped) motion
-        # with the first key, not whatever frames are on screen while it is being solved (a
-        # CI run under load keyed the tip turned by 118 degrees and the lift test failed)
-        _wait_final(page)
-        ruler = page.evaluate("window.wiggly.timePoint(1.0)")  # the dope sheet's time ruler
-        page.mouse.click(ruler["x"], ruler["y"])
-        page.wait_for_function("Math.abs(window.wiggly.S.t - 1.0) < 1e-6")
-        page.keyboard.press("k")
-        page.wait_for_function("window.wiggly.S.desc.scene.keyframes.length === 2")
-        keys = server.session.scene.keyframes
-        assert [k.time for k in keys] == [0.0, 1.0]
-        _wait_final(page)
+                # 2. two keyframes of the tip: t = 0 (current pose) and t = 1 s
+                page.keyboard.press("Home")
+                page.keyboard.press("k")
+                page.wait_for_function("window.wiggly.S.desc.scene.keyframes.length === 1")
+                # the second key takes the pose shown at t = 1 s: that of the final (warped) motion
+                # with the first key, not whatever frames are on screen while it is being solved (a
+                # CI run under load keyed the tip turned by 118 degrees and the lift test failed)
+                _wait_final(page)
+                ruler = page.evaluate("window.wiggly.timePoint(1.0)")  # the dope sheet's time ruler
+                page.mouse.click(ruler["x"], ruler["y"])
+                page.wait_for_function("Math.abs(window.wiggly.S.t - 1.0) < 1e-6")
+                page.keyboard.press("k")
+                page.wait_for_function("window.wiggly.S.desc.scene.keyframes.length === 2")
+                keys = server.session.scene.keyframes
+                assert [k.time for k in keys] == [0.0, 1.0]
+                _wait_final(page)
 
-        # 3. pose the second keyframe: drag the gizmo's Y arrow up
-        page.keyboard.press("w")
-        page.wait_for_function("window.wiggly.S.posing !== null")
-        _drag_gizmo(page, "Y", 80)
-        page.wait_for_function("window.wiggly.latencies.length > 0", timeout=30_000)
-        pos = server.session.scene.keyframes[1].position
-        assert pos.translation[1] > 0.02, pos  # the tip was lifted
+                # 3. pose the second keyframe: drag the gizmo's Y arrow up
+                page.keyboard.press("w")
+                page.wait_for_function("window.wiggly.S.posing !== null")
+                _drag_gizmo(page, "Y", 80)
+                page.wait_for_function("window.wiggly.latencies.length > 0", timeout=30_000)
+                pos = server.session.scene.keyframes[1].position
+                assert pos.translation[1] > 0.02, pos  # the tip was lifted
 
-        # ... and give it a velocity by dragging the arrow's tip along x
-        page.keyboard.press("v")
-        page.wait_for_function("window.wiggly.S.posing.mode === 'velocity'")
-        _drag_gizmo(page, "X", 40)
-        page.wait_for_function("window.wiggly.S.desc.scene.keyframes[1].velocity !== undefined")
-        vel = server.session.scene.keyframes[1].velocity
-        assert vel[0] > 0.05 and abs(vel[1]) < 1e-9, vel
-        page.keyboard.press("Escape")
-        meta = _wait_final(page)
-        assert meta["stage"] == "warped"
+                # ... and give it a velocity by dragging the arrow's tip along x
+                page.keyboard.press("v")
+                page.wait_for_function("window.wiggly.S.posing.mode === 'velocity'")
+                _drag_gizmo(page, "X", 40)
+                page.wait_for_function(
+                    "window.wiggly.S.desc.scene.keyframes[1].velocity !== undefined")
+                vel = server.session.scene.keyframes[1].velocity
+                assert vel[0] > 0.05 and abs(vel[1]) < 1e-9, vel
+                page.keyboard.press("Escape")
+                meta = _wait_final(page)
+                assert meta["stage"] == "warped"
 
-        # 4. play: the canvas shows something, and it changes over time
-        page.evaluate("window.wiggly.renderedT = undefined")
-        page.keyboard.press("Home")
-        first = _image(page, shown="t === window.wiggly.S.t && t < 0.1")
-        page.keyboard.press("Space")
-        assert page.evaluate("window.wiggly.S.playing")
-        page.wait_for_function("window.wiggly.S.t > 0.6", timeout=20_000)
-        page.keyboard.press("Space")
-        assert not page.evaluate("window.wiggly.S.playing")
-        second = _image(page, shown="t > 0.6")
-        assert first.std() > 5 and second.std() > 5, "blank canvas"
-        assert np.abs(first - second).mean() > 0.2, "playback does not move"
+                # 4. play: the canvas shows something, and it changes over time
+                page.evaluate("window.wiggly.renderedT = undefined")
+                page.keyboard.press("Home")
+                first = _image(page, shown="t === window.wiggly.S.t && t < 0.1")
+                page.keyboard.press("Space")
+                assert page.evaluate("window.wiggly.S.playing")
+                page.wait_for_function("window.wiggly.S.t > 0.6", timeout=20_000)
+                page.keyboard.press("Space")
+                assert not page.evaluate("window.wiggly.S.playing")
+                second = _image(page, shown="t > 0.6")
+                assert first.std() > 5 and second.std() > 5, "blank canvas"
+                assert np.abs(first - second).mean() > 0.2, "playback does not move"
 
-        # 5. save, and the library path reproduces the motion
-        page.keyboard.press("Control+s")
-        saved = tmp_path / "bar.toml"
-        deadline = time.time() + 10
-        while not saved.exists() and time.time() < deadline:
-            time.sleep(0.05)
-        assert saved.exists()
-        page.wait_for_function("!window.wiggly.S.desc.dirty")
-        scene = load_scene(saved)
-        assert scene == server.session.scene
-        data, headers = get(server.url + "api/frames/latest?final=1")
-        shown = json.loads(headers["X-Wiggly-Frames"])
-        assert shown["id"] == page.evaluate("window.wiggly.S.frames.meta.id")
-        F, n = shown["n_frames"], shown["n_vertices"]
-        editor = np.frombuffer(data, "<f4").reshape(F, n, 3)
-        anim = run(scene, outputs=[tmp_path / "out.npz"])
-        library = np.load(tmp_path / "out.npz")["positions"]
-        assert library.shape == editor.shape
-        motion = np.abs(library - rest[None]).max()
-        assert motion > 0.05  # the tip moves by centimetres
-        err = np.abs(library - editor).max()
-        print(f"motion {motion:.4f} m, editor vs library {err:.2e} m, release latencies "
-              f"{page.evaluate('window.wiggly.latencies')}")
-        # both are warped Gauss-Newton results from different starts (the editor warm-starts
-        # and iterates in chunks); they agree to well under a millimetre on a 1 m bar
-        assert err < 1e-3 * max(1.0, motion), (err, motion, anim.info.get("converged"))
-        assert not errors, errors
-    except Exception:
-        page.screenshot(path=str(tmp_path / "failure.png"))
-        print("status:", page.locator("#status-text").text_content(),
-              "toast:", page.locator("#toast").text_content(), "errors:", errors)
-        raise
+                # 5. save, and the library path reproduces the motion
+                page.keyboard.press("Control+s")
+                saved = tmp_path / "bar.toml"
+                deadline = time.time() + 10
+                while not saved.exists() and time.time() < deadline:
+                    time.sleep(0.05)
+                assert saved.exists()
+                page.wait_for_function("!window.wiggly.S.desc.dirty")
+                scene = load_scene(saved)
+                assert scene == server.session.scene
+                data, headers = get(server.url + "api/frames/latest?final=1")
+                shown = json.loads(headers["X-Wiggly-Frames"])
+                assert shown["id"] == page.evaluate("window.wiggly.S.frames.meta.id")
+                F, n = shown["n_frames"], shown["n_vertices"]
+                editor = np.frombuffer(data, "<f4").reshape(F, n, 3)
+                anim = run(scene, outputs=[tmp_path / "out.npz"])
+                library = np.load(tmp_path / "out.npz")["positions"]
+                assert library.shape == editor.shape
+                motion = np.abs(library - rest[None]).max()
+                assert motion > 0.05  # the tip moves by centimetres
+                err = np.abs(library - editor).max()
+                print(f"motion {motion:.4f} m, editor vs library {err:.2e} m, release latencies "
+                      f"{page.evaluate('window.wiggly.latencies')}")
+                # both are warped Gauss-Newton results from different starts (the editor warm-starts
+                # and iterates in chunks); they agree to well under a millimetre on a 1 m bar
+                assert err < 1e-3 * max(1.0, motion), (err, motion, anim.info.get("converged"))
+                assert not errors, errors
+            except Exception:
+                page.screenshot(path=str(tmp_path / "failure.png"))
+                raise
     finally:
-        context.close()
         server.stop()
 
 
