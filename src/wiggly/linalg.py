@@ -19,6 +19,7 @@ import importlib.util
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
 import scipy.sparse as sp
@@ -193,10 +194,22 @@ def blas_single_thread() -> AbstractContextManager[object]:
     The eigensolve is dominated by level-2 BLAS and skinny products with tall (3n, r) blocks:
     memory bound.  Multithreaded OpenBLAS busy-waits badly on such products when the cores are
     shared (measured 5-10x slower on a loaded 2-core machine), so one thread is both safer
-    and, on an idle machine, hardly slower.
+    and, on an idle machine, hardly slower.  The loaded libraries are inspected once per
+    process (:func:`_blas_controller`; about 2 ms each time with numba loaded), so that the
+    editor's many short solves do not pay for it.
     """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
+    controller = _blas_controller()
+    if controller is None:
         return nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
+    return controller.limit(limits=1, user_api="blas")
+
+
+@cache
+def _blas_controller() -> object | None:
+    """threadpoolctl's view of this process's thread pools (None without threadpoolctl).
+    BLAS libraries are loaded with numpy and scipy, before the first solve asks."""
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:
+        return None
+    return ThreadpoolController()

@@ -15,6 +15,8 @@ cannot recover the digits the factorization loses.
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 import scipy.linalg as sla
 
@@ -54,11 +56,11 @@ def add_blocks(ab: np.ndarray, idx: np.ndarray, blocks: np.ndarray) -> None:
     b = idx.shape[1]
     disjoint = len(np.unique(idx)) == idx.size  # each entry is hit once
     if disjoint and np.array_equal(idx - idx[:, :1], np.broadcast_to(np.arange(b), idx.shape)):
-        # blocks of consecutive indices (a node's unknowns): diagonal d of every block is a
-        # run of band row bw - d, added without index masks
-        for d in range(b):
-            cols = (idx[:, :1] + d + np.arange(b - d)).ravel()
-            ab[bw - d, cols] += np.diagonal(blocks, offset=d, axis1=1, axis2=2).ravel()
+        # blocks of consecutive indices (a node's unknowns): entry (i, j), i <= j, of a block
+        # starting at c sits at band row bw - (j - i), column c + j; disjoint blocks hit
+        # distinct entries, so one indexed add does all of them
+        i, j = _upper(b)
+        ab[bw - (j - i), idx[:, :1] + j] += blocks[:, i, j]
         return
     rows = np.broadcast_to(idx[:, :, None], blocks.shape)
     cols = np.broadcast_to(idx[:, None, :], blocks.shape)
@@ -68,6 +70,15 @@ def add_blocks(ab: np.ndarray, idx: np.ndarray, blocks: np.ndarray) -> None:
         ab[where] += blocks[upper]
     else:
         np.add.at(ab, where, blocks[upper])
+
+
+@cache
+def _upper(b: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row and column indices of the upper triangle of a b x b block (read-only)."""
+    i, j = np.triu_indices(b)
+    for a in (i, j):
+        a.flags.writeable = False
+    return i, j
 
 
 def add_block(ab: np.ndarray, idx: np.ndarray, block: np.ndarray) -> None:
