@@ -37,6 +37,10 @@ from wiggly.solve import SolveOptions
 
 PUSH_SECONDS = 1.5
 MODELS_KEPT = 2  # tet meshes the child keeps
+# time ranges (start, end, preroll, loop) of the current body whose problems and last warped
+# solutions the child keeps: a solution's warm start holds per-node Jacobians (tens of MB on
+# a 20k-tet body), so a session that tries many shot lengths must not keep them all
+RANGES_KEPT = 3
 PLAYBACK_BYTES = 256 * 2**20  # playback frames of one solve (float32) kept in memory
 
 
@@ -103,8 +107,8 @@ def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested e
     inbox = _Inbox(inp)
     models = Memo(MODELS_KEPT)  # as sent, oldest out: the parent's Refiner keeps the same
     bodies: dict[tuple, Any] = {}
-    problems: dict[tuple, Any] = {}
-    previous: dict[tuple, Any] = {}
+    problems = Memo(RANGES_KEPT)  # per time range: its SpacetimeProblem
+    previous = Memo(RANGES_KEPT)  # per time range: the last warped solution (warm start)
     while True:
         msg = inbox.get()
         if msg is None:
@@ -137,9 +141,10 @@ def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested e
                 _secondary(seq, version, scene, body, groups, keys, out)
                 continue
             pkey = (*scene.time_range(), s.preroll, scene.time.loop)
-            problem = problems.get(pkey)
-            if problem is None:
-                problem = problems[pkey] = problem_of(scene, body)
+            problem = problems.peek(pkey)
+            if problem is None:  # a new time range (the oldest kept one leaves)
+                problem = problem_of(scene, body)
+            problems.put(pkey, problem)
             _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox)
         except WigglyInputError as err:
             channel.send(out, ("error", seq, version, str(err)))
@@ -180,7 +185,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
     exports and the CLI agree), reading the inbox after every iteration: a newer request
     abandons it, and a progress line goes out every ``PUSH_SECONDS``."""
     t0 = time.perf_counter()
-    init = previous.get(pkey)
+    init = previous.peek(pkey)
     last_push = time.perf_counter()
 
     def after_iteration(count: int) -> None:
@@ -205,7 +210,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
     except _Abandoned as stop:
         channel.send(out, ("abandoned", seq, version, {"iterations": stop.args[0]}))
         return
-    previous[pkey] = anim
+    previous.put(pkey, anim)
     info = {"iterations": int(anim.info.get("iterations", 0)),
             "converged": bool(anim.info.get("converged")),
             "objective": float(anim.info.get("objective", np.nan)),
