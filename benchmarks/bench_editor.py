@@ -1,6 +1,6 @@
 """``wiggly edit``: the three figures of issue 16, measured in headless Chromium.
 
-Usage: ``python benchmarks/bench_editor.py [--runs 7] [--only release prepare onion]``
+Usage: ``python benchmarks/bench_editor.py [--runs 7] [--only release hold prepare onion]``
 
 * **release**: from the release of a dragged gizmo to updated playback on screen.  A structured
   tet box (30 x 10 x 11 cells, 19,800 tets), a scene with 40 modes and 10 keyframes on 10
@@ -9,6 +9,9 @@ Usage: ``python benchmarks/bench_editor.py [--runs 7] [--only release prepare on
   ``requestAnimationFrame`` callback after the new frames were applied and drawn
   (``window.wiggly.latencies``).  Median, min and max over ``--runs`` drags of the total and its
   parts, and once the time until the first warped (Gauss-Newton) frames.
+* **hold**: on the same box, drag the gizmo and hold it still without releasing: the time
+  from the last pointer move until the warped frames of the held pose are on screen (the
+  refinement process solves a drag's pose warped once no newer drag request supersedes it).
 * **prepare**: how fast the server answers while it prepares a mesh.  The bundled critter
   tetrahedralized at resolution 46 (about 20k tets, fTetWild) with 40 modes, from an empty
   cache, in the editor's physics process; meanwhile ``GET /api/state`` and ``POST /api/edit``
@@ -82,7 +85,7 @@ def make_project(folder: Path, cells: tuple[int, int, int] = CELLS, warp: bool =
     return folder / "bench.toml"
 
 
-def drag_gizmo(page, pixels: float) -> None:
+def drag_gizmo(page, pixels: float, release: bool = True) -> None:
     h = page.evaluate("window.wiggly.gizmoHandle('Y')")
     for d in range(12, 240, 4):
         x, y = h["x"] + d * h["dx"], h["y"] + d * h["dy"]
@@ -95,7 +98,8 @@ def drag_gizmo(page, pixels: float) -> None:
     for k in range(1, 7):
         page.mouse.move(x + k * pixels / 6 * h["dx"], y + k * pixels / 6 * h["dy"])
         page.evaluate(FRAME)
-    page.mouse.up()
+    if release:
+        page.mouse.up()
 
 
 def _stats(values: list[float]) -> tuple[float, float, float]:
@@ -155,6 +159,58 @@ def bench_release(p, args, profile: str) -> tuple[list, str]:
             out.append([label, *_stats(vals)])
     notes.append(f"stage of the first update: {', '.join(sorted({r['stage'] for r in rows}))}")
     return out, "\n".join(notes)
+
+
+# resolves, polled every animation frame, with the ms from its start until the frames shown
+# are the warped frames of a drag (the held pose's)
+HELD = """() => new Promise((resolve) => { const t0 = performance.now();
+  const poll = () => { const m = window.wiggly.S.frames && window.wiggly.S.frames.meta;
+    if (m && m.request === 'drag' && m.stage === 'warped') resolve(performance.now() - t0);
+    else if (performance.now() - t0 > 60000) resolve(null);
+    else requestAnimationFrame(poll); };
+  poll(); })"""
+
+
+def bench_hold(p, args, profile: str) -> tuple[list, str]:
+    work = Path(tempfile.mkdtemp(prefix="wiggly-bench-hold-"))
+    server = serve(make_project(work, tuple(args.cells)), autosave=False)
+    held, warm = [], []
+    try:
+        ctx = p.chromium.launch_persistent_context(
+            profile, executable_path=args.chromium, headless=True, args=FLAGS,
+            viewport={"width": 1280, "height": 800})
+        page = ctx.new_page()
+        page.goto(server.url)
+        final = ("window.wiggly.S.frames && window.wiggly.S.frames.meta.final && "
+                 "window.wiggly.S.frames.meta.stage === 'warped' && "
+                 "window.wiggly.S.committing === null")
+        page.wait_for_function(f"window.wiggly.ready && {final}", timeout=600_000)
+        page.click("#keys li[data-key='5']")
+        page.keyboard.press("w")
+        page.wait_for_function("window.wiggly.S.posing !== null")
+        events = server.session.bus.subscribe()
+        for run in range(args.runs):
+            drag_gizmo(page, 30 if run % 2 == 0 else -30, release=False)
+            held.append(page.evaluate(HELD))
+            page.mouse.up()
+            page.wait_for_function(final, timeout=120_000)
+        while not events.empty():  # the child's own time for the held poses' warped solves
+            e = events.get_nowait()
+            if e["type"] == "frames" and e.get("request") == "drag" and e["stage"] == "warped":
+                warm.append(1e3 * e["seconds"])
+        ctx.close()
+    finally:
+        server.stop()
+        shutil.rmtree(work, ignore_errors=True)
+    done = [h for h in held if h is not None]
+    rows = []
+    if done:
+        rows.append(["last pointer move -> warped frames of the held pose drawn", *_stats(done)])
+    if warm:
+        rows.append(["  refinement process: the held pose's warped solve (warm start)",
+                     *_stats(warm)])
+    notes = f"{len(done)} of {len(held)} held drags showed warped frames within 60 s"
+    return rows, notes
 
 
 def bench_prepare(args) -> tuple[list, str]:
@@ -251,8 +307,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--prepare-runs", type=int, default=2, help="mesh preparations")
     ap.add_argument("--windows", type=int, default=5, help="2-second playback windows")
     ap.add_argument("--quick", action="store_true", help="fewer runs (run_all.py --quick)")
-    ap.add_argument("--only", nargs="+", choices=("release", "prepare", "onion"),
-                    default=("release", "prepare", "onion"))
+    ap.add_argument("--only", nargs="+", choices=("release", "hold", "prepare", "onion"),
+                    default=("release", "hold", "prepare", "onion"))
     ap.add_argument("--cells", type=int, nargs=3, default=CELLS)
     ap.add_argument("--chromium", default="/usr/bin/chromium")
     args = ap.parse_args(argv)
@@ -277,6 +333,11 @@ def main(argv: list[str] | None = None) -> int:
             if "release" in args.only:
                 rows, notes = bench_release(p, args, profile)
                 print(table(f"Editor: gizmo release to updated playback ({args.runs} drags, "
+                            "ms)", ["measure", "median", "min", "max"], rows))
+                print(notes + "\n")
+            if "hold" in args.only:
+                rows, notes = bench_hold(p, args, tempfile.mkdtemp(prefix="wiggly-bench-h-"))
+                print(table(f"Editor: a held gizmo drag to warped frames ({args.runs} drags, "
                             "ms)", ["measure", "median", "min", "max"], rows))
                 print(notes + "\n")
             if "onion" in args.only:

@@ -630,6 +630,34 @@ def test_drag_previews_keep_the_final_frames(server):
     assert np.array_equal(restored.positions, final.positions)
 
 
+def test_a_held_drag_gets_warped_frames(server):
+    """A drag preview of a warped scene is refined warped when no newer request comes (the
+    gizmo holds still): frames of request "drag", never final, equal to the warped frames of
+    the same edit once committed; the committed final frames stay the newest final ones."""
+    session = server.session
+    final = wait_final(session)
+    op = {"op": "update_keyframe", "id": 0, "position": {"offset": [0.0, 0.2, 0.0]}}
+    seq = session.preview(op)["seq"]
+    deadline = time.time() + 30
+    while True:
+        held = session.latest_frames()
+        if held.seq == seq and held.stage == "warped":
+            break
+        assert time.time() < deadline, "no warped frames for the held drag"
+        time.sleep(0.02)
+    assert held.kind == "drag" and not held.final
+    assert session.latest_frames(final=True) is final
+    assert session.playback.latest(committed=True).seq < seq
+    linear = next(fs for fs in map(session.frames, range(held.id - 1, final.id, -1))
+                  if fs.seq == seq)  # published before the warped ones, kept (FRAME_SETS_KEPT)
+    assert linear.stage == "linear" and linear.kind == "drag"
+    assert np.abs(held.positions - linear.positions).max() > 1e-3  # warped, not linear
+    session.edit(op)
+    committed = wait_final(session)
+    assert committed.kind == "final" and committed.stage == "warped"
+    assert np.abs(held.positions - committed.positions).max() < 1e-4
+
+
 def test_undo_belongs_to_the_tab_that_edited(project):
     session = Session(Sandbox([project]))
     try:

@@ -3,7 +3,7 @@
 * the *fast* worker thread answers every request with a linear solve (Theorem 1) and linear
   playback (milliseconds: this is what the browser shows while a gizmo is dragged and right
   after it is released);
-* the *warped* refinement then solves committed states with the warped solve (Theorem 2), a
+* the *warped* refinement then solves the same states with the warped solve (Theorem 2), a
   few Gauss-Newton iterations at a time, warm-started from its previous result, publishing
   frames as it goes.  It runs in a child process (:mod:`wiggly.editor.refine`) so that its
   long calls holding the GIL never delay the server or the fast worker.
@@ -15,8 +15,11 @@ number ``seq``; the browser shows frames of the highest ``seq`` it has seen (and
 ``seq``, warped frames over linear ones).  Sequence numbers restart with the process, so every
 frame set also carries the process's ``instance`` id (a restarted server is a new instance).
 
-Gizmo drags ask for "drag" requests (linear only): their frames and status events are not
-replayed to tabs opened later, and the newest final frames are never evicted by them.
+Gizmo drags ask for "drag" requests: their frames and status events are not replayed to tabs
+opened later, and the newest final frames are never evicted by them.  While the gizmo moves,
+each drag request supersedes the last, so the refinement abandons their warped solves after
+an iteration; when the gizmo holds still, the warped solve of the held pose completes and its
+frames (``final`` False, request "drag") replace the linear preview before the release.
 """
 
 from __future__ import annotations
@@ -47,7 +50,7 @@ PROBLEMS_KEPT = 3
 
 @dataclass(frozen=True)
 class Request:
-    """A solve of ``state``: ``kind`` "drag" (linear only) or "final" (linear, then warped)."""
+    """A solve of ``state`` (linear, then warped): ``kind`` "drag" (a preview) or "final"."""
 
     seq: int
     version: int
@@ -188,17 +191,21 @@ class Playback:
         """Answers of the warped refinement process (on its relay thread)."""
         if kind == "frames":
             final, start, fps, positions, info = payload
-            self._publish(FrameSet(0, seq, version, "warped", final, start, fps, positions,
-                                   "final", info))
+            request = info.pop("request", "final")
+            drag = request == "drag"  # a held drag's warped preview: never the final frames
+            self._publish(FrameSet(0, seq, version, "warped", final and not drag, start, fps,
+                                   positions, request, info))
             if final:
-                self.bus.publish("solve", seq=seq, version=version, stage="done",
-                                 message=done_message(info), **info)
+                self.bus.publish("solve", sticky=not drag, seq=seq, version=version,
+                                 stage="done", message=done_message(info), **info)
             else:
-                self.bus.publish("solve", seq=seq, version=version, stage="warped",
+                self.bus.publish("solve", sticky=not drag, seq=seq, version=version,
+                                 stage="warped",
                                  message=f"warped solve: {info['iterations']} iterations", **info)
         elif kind == "progress":
             info = payload[0]
-            self.bus.publish("solve", seq=seq, version=version, stage="warped",
+            drag = info.pop("request", "final") == "drag"
+            self.bus.publish("solve", sticky=not drag, seq=seq, version=version, stage="warped",
                              message=f"warped solve: {info['iterations']} iterations", **info)
         elif kind == "abandoned":
             self.bus.publish("solve", sticky=False, seq=seq, version=version, stage="abandoned",
@@ -275,7 +282,8 @@ class Playback:
         if final:
             self.bus.publish("solve", seq=req.seq, version=req.version, stage="done",
                              message="linear solve", **info)
-        elif warp and not drag:
+        elif warp and not (drag and scene.secondary_motion):
+            # a drag's warped solve completes only while the gizmo holds still (newest wins)
             model = self.physics.model_future(scene).result()
             self.refiner.solve(req.seq, req.version, scene_to_dict(scene), scene.source,
-                               model_key(scene), model)
+                               model_key(scene), model, req.kind)

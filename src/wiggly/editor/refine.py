@@ -10,11 +10,12 @@ that the parent filled.
 
 Protocol: messages of :mod:`wiggly.editor.channel` on the child's stdin and stdout.  The
 parent sends ``("model", key, model)``,
-``("solve", seq, version, scene_dict, source, model_key)`` and ``("newest", seq)``; the child
-answers ``("progress", seq, version, info)``, ``("frames", seq, version, final, start, fps,
-positions, info)``, ``("error", seq, version, message)`` and ``("abandoned", seq, version,
-info)``.  After every iteration the child reads what has arrived and stops as soon as a
-newer request exists (newest request wins).
+``("solve", seq, version, scene_dict, source, model_key, kind)`` (kind "final" or "drag", as
+in :class:`wiggly.editor.playback.Request`) and ``("newest", seq)``; the child answers
+``("progress", seq, version, info)``, ``("frames", seq, version, final, start, fps,
+positions, info)`` (``info["request"]`` is the kind), ``("error", seq, version, message)``
+and ``("abandoned", seq, version, info)``.  After every iteration the child reads what has
+arrived and stops as soon as a newer request exists (newest request wins).
 """
 
 from __future__ import annotations
@@ -116,7 +117,7 @@ def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested e
         if msg[0] == "model":
             models.put(msg[1], msg[2])
             continue
-        _, seq, version, data, source, model_key = msg
+        _, seq, version, data, source, model_key, kind = msg
         inbox.poll()
         if inbox.newest > seq:
             continue
@@ -145,7 +146,7 @@ def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested e
             if problem is None:  # a new time range (the oldest kept one leaves)
                 problem = problem_of(scene, body)
             problems.put(pkey, problem)
-            _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox)
+            _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox, kind)
         except WigglyInputError as err:
             channel.send(out, ("error", seq, version, str(err)))
         except BrokenPipeError:  # the editor is gone (stopped or killed): nobody to tell
@@ -179,11 +180,12 @@ class _Abandoned(Exception):
     """A newer request arrived: this refinement's result would be outdated."""
 
 
-def _refine(seq, version, scene, problem, keys, previous, pkey, out,
-            inbox):  # pragma: no cover - runs in the subprocess
+def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
+            kind="final"):  # pragma: no cover - runs in the subprocess
     """One warped solve, as ``wiggly animate`` runs it (the same options: the editor's
     exports and the CLI agree), reading the inbox after every iteration: a newer request
-    abandons it, and a progress line goes out every ``PUSH_SECONDS``."""
+    abandons it, and a progress line goes out every ``PUSH_SECONDS``.  Its answers carry the
+    request's ``kind``; a drag's solution, too, starts the next solve of the range."""
     t0 = time.perf_counter()
     init = previous.peek(pkey)
     last_push = time.perf_counter()
@@ -196,7 +198,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
         if time.perf_counter() - last_push > PUSH_SECONDS:
             channel.send(out, ("progress", seq, version,
                                {"iterations": count, "converged": False,
-                                "seconds": time.perf_counter() - t0}))
+                                "seconds": time.perf_counter() - t0, "request": kind}))
             last_push = time.perf_counter()
 
     try:
@@ -214,7 +216,8 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out,
     info = {"iterations": int(anim.info.get("iterations", 0)),
             "converged": bool(anim.info.get("converged")),
             "objective": float(anim.info.get("objective", np.nan)),
-            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim)}
+            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim),
+            "request": kind}
     fps = playback_fps(scene.time.fps, problem.start, problem.end,
                        problem.body.surface.n_vertices)
     times = anim.frame_times(fps)
@@ -265,12 +268,12 @@ class Refiner:
             self._send(("newest", seq))
 
     def solve(self, seq: int, version: int, scene_dict: dict, source, model_key: tuple,
-              model) -> None:
+              model, kind: str = "final") -> None:
         if model_key not in self._sent_models:
             self._send(("model", model_key, model))
             self._sent_models.put(model_key, True)
         self._newest = max(self._newest, seq)
-        self._send(("solve", seq, version, scene_dict, source, model_key))
+        self._send(("solve", seq, version, scene_dict, source, model_key, kind))
 
     def _relay(self) -> None:
         while True:
