@@ -530,3 +530,37 @@ def test_second_order_correction_is_the_residuals_nonlinear_part_pulled_back(fre
         assert abs(float(e @ g) - expected) <= 1e-3 * abs(expected)
     small = [np.linalg.norm(correction(s * dz)) for s in (0.02, 0.01)]
     assert small[1] / small[0] == pytest.approx(0.25, rel=0.05)
+
+
+def test_constraint_residuals_sample_each_keyframe_at_its_time(free_bar):
+    """Residuals are sampled in batches of frames (more keyframes than a batch here, on both
+    meshes, with velocities): each row equals the motion sampled at that keyframe alone."""
+    X = free_bar.rest_positions()
+    tip = np.flatnonzero(X[:, 0] > 0.9)
+    Xt = free_bar.rest_positions("tets")
+    root = np.flatnonzero(Xt[:, 0] < 0.1)
+    rng = np.random.default_rng(3)
+    keys = [Keyframe.rest(free_bar, 0.0, np.arange(len(X)), still=True)]
+    for k, t in enumerate(np.linspace(0.02, 1.5, 70)):
+        if k % 3 == 0:
+            keys.append(Keyframe.offset(free_bar, t, root, rng.normal(0, 0.01, 3), on="tets"))
+        else:
+            keys.append(Keyframe.offset(free_bar, t, tip, rng.normal(0, 0.05, 3),
+                                        velocity=rng.normal(0, 0.2, 3)))
+    anim = solve(free_bar, keys, end=1.5, warp=True, options=SolveOptions(max_iterations=3,
+                                                                          warn=False))
+    rows = anim.constraint_residuals()
+    assert len(rows) == len(anim.keyframes) > 64
+    for row, kf in zip(rows, anim.keyframes, strict=True):
+        assert row["time"] == kf.time
+        x = anim.positions([kf.time], kf.on)[0][kf.vertices]
+        d = np.linalg.norm(x - kf.position, axis=1)
+        assert row["position_max"] == pytest.approx(d.max(), rel=1e-9, abs=1e-12)
+        assert row["position_rms"] == pytest.approx(np.sqrt(np.mean(d**2)), rel=1e-9, abs=1e-12)
+        if kf.velocity is not None:
+            v = anim.velocities_at([kf.time], kf.on)[0][kf.vertices]
+            e = np.linalg.norm(v - kf.velocity, axis=1)
+            assert row["velocity_rms"] == pytest.approx(np.sqrt(np.mean(e**2)), rel=1e-9,
+                                                        abs=1e-12)
+        else:
+            assert "velocity_rms" not in row

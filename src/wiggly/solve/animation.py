@@ -178,7 +178,7 @@ class Animation:
             {"time": kf.time, "name": kf.name, "n_vertices": len(kf.vertices)} for kf in kfs
         ]
         for kind, sample in (("position", self.positions), ("velocity", self.velocities_at)):
-            for on in ("surface", "tets"):
+            for on in sorted({kf.on for kf in kfs}):
                 which = [j for j, kf in enumerate(kfs)
                          if getattr(kf, kind) is not None and kf.on == on]
                 for a in range(0, len(which), _PLAYBACK_BATCH):
