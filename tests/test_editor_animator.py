@@ -592,3 +592,35 @@ def test_undo_is_per_tab_and_survives_a_restart(chromium, tmp_path):
             assert not a_errors and not b_errors, (a_errors, b_errors)
     finally:
         server.stop()
+
+
+def test_a_held_drag_shows_its_warped_frames_before_the_release(chromium, tmp_path):
+    """On a warped scene, drag the Y arrow 60 px and hold still: the page shows the held
+    pose's warped frames (request "drag", not final) while the mouse is down and nothing is
+    logged; the release then logs one edit and shows its final warped frames."""
+    server = serve(bar_project(tmp_path))
+    try:
+        with editor_page(chromium, server.url) as (page, errors):
+            wait_final(page)
+            version = server.session.version
+            select_key(page, 0)
+            page.keyboard.press("w")
+            page.wait_for_function("window.wiggly.S.posing && "
+                                   "window.wiggly.S.posing.mode === 'translate'")
+            x, y, h = grab_gizmo(page, "Y")
+            move_along(page, x, y, h, 60)
+            page.wait_for_function("window.wiggly.S.frames.meta.request === 'drag' && "
+                                   "window.wiggly.S.frames.meta.stage === 'warped'",
+                                   timeout=60_000)
+            held = page.evaluate("window.wiggly.S.frames.meta")
+            assert not held["final"] and held["version"] == version
+            assert page.evaluate("window.wiggly.S.dragging")
+            assert server.session.version == version
+            page.mouse.up()
+            meta = wait_final(page)
+            assert meta["version"] == server.session.version == version + 1
+            page.wait_for_function("window.wiggly.S.frames.meta.stage === 'warped' && "
+                                   "window.wiggly.S.frames.meta.final", timeout=60_000)
+            assert not errors, errors
+    finally:
+        server.stop()
