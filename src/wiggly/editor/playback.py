@@ -50,7 +50,8 @@ PROBLEMS_KEPT = 3
 
 @dataclass(frozen=True)
 class Request:
-    """A solve of ``state`` (linear, then warped): ``kind`` "drag" (a preview) or "final"."""
+    """A solve of ``state`` (linear, then warped if the scene warps): ``kind`` "drag" (a
+    gizmo's preview, never logged) or "final"."""
 
     seq: int
     version: int
