@@ -38,6 +38,7 @@ import statistics
 import tempfile
 import time
 import urllib.request
+from contextlib import contextmanager
 from pathlib import Path
 
 import meshio
@@ -102,29 +103,48 @@ def drag_gizmo(page, pixels: float, release: bool = True) -> None:
         page.mouse.up()
 
 
-def _stats(values: list[float]) -> tuple[float, float, float]:
-    return (round(statistics.median(values), 1), round(min(values), 1), round(max(values), 1))
-
-
-def bench_release(p, args, profile: str) -> tuple[list, str]:
+@contextmanager
+def box_page(p, args, profile: str, ready: str, autosave: bool = True):
+    """The benchmark box (:func:`make_project`) served from a temporary folder and open in
+    headless Chromium, once the page's ``ready`` condition holds; yields (server, page)."""
     work = Path(tempfile.mkdtemp(prefix="wiggly-bench-editor-"))
-    server = serve(make_project(work, tuple(args.cells)))  # autosave and undo journal on
-    notes = []
+    server = serve(make_project(work, tuple(args.cells)), autosave=autosave)
+    ctx = None
     try:
         ctx = p.chromium.launch_persistent_context(
             profile, executable_path=args.chromium, headless=True, args=FLAGS,
             viewport={"width": 1280, "height": 800})
         page = ctx.new_page()
         page.goto(server.url)
-        page.wait_for_function("window.wiggly.ready && window.wiggly.S.frames !== null",
-                               timeout=600_000)
+        page.wait_for_function(f"window.wiggly.ready && {ready}", timeout=600_000)
+        yield server, page
+    finally:
+        if ctx is not None:
+            ctx.close()
+        server.stop()
+        shutil.rmtree(work, ignore_errors=True)
+
+
+def pose_key(page, key_id: int = 5) -> None:
+    """Select keyframe ``key_id`` and pose it with the move gizmo (W)."""
+    page.click(f"#keys li[data-key='{key_id}']")
+    page.keyboard.press("w")
+    page.wait_for_function("window.wiggly.S.posing !== null")
+
+
+def _stats(values: list[float]) -> tuple[float, float, float]:
+    return (round(statistics.median(values), 1), round(min(values), 1), round(max(values), 1))
+
+
+def bench_release(p, args, profile: str) -> tuple[list, str]:
+    notes = []
+    # autosave and undo journal on
+    with box_page(p, args, profile, "window.wiggly.S.frames !== null") as (server, page):
         body = server.session.physics.body_future(server.session.scene).result()
         notes.append(f"body: {body.tets.n_tets} tets, {body.surface.n_vertices} surface "
                      f"vertices, {body.r} modes, {len(server.session.scene.keyframes)} keyframes;"
                      f" software GL: {page.evaluate('window.wiggly.softwareGL')}")
-        page.click("#keys li[data-key='5']")
-        page.keyboard.press("w")
-        page.wait_for_function("window.wiggly.S.posing !== null")
+        pose_key(page)
         rows = []
         for run in range(args.runs):
             n = page.evaluate("window.wiggly.latencies.length")
@@ -141,10 +161,6 @@ def bench_release(p, args, profile: str) -> tuple[list, str]:
                          f"{page.evaluate(last)['ms']:.0f} ms")
         except Exception:
             notes.append("release -> first warped frames: not within 180 s")
-        ctx.close()
-    finally:
-        server.stop()
-        shutil.rmtree(work, ignore_errors=True)
     for r in rows:
         r["server_ms"] = 1e3 * r["server_seconds"] if r.get("server_seconds") else None
     parts = [("gizmo release -> new frames drawn (target < 300 ms)", "ms"),
@@ -172,22 +188,12 @@ HELD = """() => new Promise((resolve) => { const t0 = performance.now();
 
 
 def bench_hold(p, args, profile: str) -> tuple[list, str]:
-    work = Path(tempfile.mkdtemp(prefix="wiggly-bench-hold-"))
-    server = serve(make_project(work, tuple(args.cells)), autosave=False)
     held, warm = [], []
-    try:
-        ctx = p.chromium.launch_persistent_context(
-            profile, executable_path=args.chromium, headless=True, args=FLAGS,
-            viewport={"width": 1280, "height": 800})
-        page = ctx.new_page()
-        page.goto(server.url)
-        final = ("window.wiggly.S.frames && window.wiggly.S.frames.meta.final && "
-                 "window.wiggly.S.frames.meta.stage === 'warped' && "
-                 "window.wiggly.S.committing === null")
-        page.wait_for_function(f"window.wiggly.ready && {final}", timeout=600_000)
-        page.click("#keys li[data-key='5']")
-        page.keyboard.press("w")
-        page.wait_for_function("window.wiggly.S.posing !== null")
+    final = ("window.wiggly.S.frames && window.wiggly.S.frames.meta.final && "
+             "window.wiggly.S.frames.meta.stage === 'warped' && "
+             "window.wiggly.S.committing === null")
+    with box_page(p, args, profile, final, autosave=False) as (server, page):
+        pose_key(page)
         events = server.session.bus.subscribe()
         for run in range(args.runs):
             drag_gizmo(page, 30 if run % 2 == 0 else -30, release=False)
@@ -198,10 +204,6 @@ def bench_hold(p, args, profile: str) -> tuple[list, str]:
             e = events.get_nowait()
             if e["type"] == "frames" and e.get("request") == "drag" and e["stage"] == "warped":
                 warm.append(1e3 * e["seconds"])
-        ctx.close()
-    finally:
-        server.stop()
-        shutil.rmtree(work, ignore_errors=True)
     done = [h for h in held if h is not None]
     rows = []
     if done:
@@ -267,18 +269,10 @@ def bench_prepare(args) -> tuple[list, str]:
 
 
 def bench_onion(p, args, profile: str) -> tuple[list, str]:
-    work = Path(tempfile.mkdtemp(prefix="wiggly-bench-onion-"))
-    server = serve(make_project(work, tuple(args.cells)), autosave=False)
     rows = []
-    try:
-        ctx = p.chromium.launch_persistent_context(
-            profile, executable_path=args.chromium, headless=True, args=FLAGS,
-            viewport={"width": 1280, "height": 800})
-        page = ctx.new_page()
-        page.goto(server.url)
-        page.wait_for_function("window.wiggly.ready && window.wiggly.S.frames && "
-                               "window.wiggly.S.frames.meta.final && "
-                               "window.wiggly.S.frames.meta.stage === 'warped'", timeout=600_000)
+    final = ("window.wiggly.S.frames && window.wiggly.S.frames.meta.final && "
+             "window.wiggly.S.frames.meta.stage === 'warped'")
+    with box_page(p, args, profile, final, autosave=False) as (_, page):
         soft = page.evaluate("window.wiggly.softwareGL")
         page.keyboard.press("Space")
         for label, key in (("plain playback", None),
@@ -294,10 +288,6 @@ def bench_onion(p, args, profile: str) -> tuple[list, str]:
             fps = [w["fps"] for w in windows]
             scale = statistics.median(w["scale"] for w in windows)
             rows.append([label, *_stats(fps), round(scale, 2)])
-        ctx.close()
-    finally:
-        server.stop()
-        shutil.rmtree(work, ignore_errors=True)
     return rows, f"software GL: {soft}; viewport 1280 x 800"
 
 
