@@ -279,7 +279,7 @@ def bench_onion(p, args, profile: str) -> tuple[list, str]:
                            ("with onion skins, 3 + 3 (target >= 30)", "o"),
                            ("with onion skins of one selected group (g5)", "g5")):
             if key == "g5":  # the skins ghost only the selected groups
-                page.click("#groups li:has-text('g5')")
+                page.click("#groups li[data-group=g5] .name")
                 page.wait_for_function("window.wiggly.S.selectedGroup === 'g5'")
             elif key:
                 page.keyboard.press(key)
