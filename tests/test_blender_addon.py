@@ -164,6 +164,9 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
                           ".blend file",),
         "no groups": ("Add a vertex group to the Wiggly group list first",),
         "animated transform": ("Object 'Tail': its own location/rotation/scale is animated",),
+        "animated parent": ("Object 'Tail': its parent 'Mover' moves over the frames",),
+        "shared mesh": ("Object 'Bar': its mesh 'Bar' is shared with 1 other object(s)",
+                        "bake as Mesh Cache"),
     }
     assert sorted(errors) == sorted(expected)
     for label, parts in expected.items():
@@ -172,6 +175,22 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
         for part in parts:
             assert part in seen["result"][1], (label, part, seen["result"][1])
         assert "Traceback" not in seen["printed"], (label, seen["printed"])
+
+
+def test_bakes_keep_to_their_object(blender_python, tmp_path):
+    """Look-alike names get their own cache files; a bake from Edit Mode has the edited
+    vertices; Remove Bake also removes the Basis a shape-key bake added."""
+    seen = in_blender(blender_python, "housekeeping", tmp_path)
+    paths = seen["cache_paths"]
+    assert len({p.lower() for p in paths}) == len(paths), paths  # also on case-blind disks
+    assert seen["edit_bake"]["result"] == ["FINISHED"], seen["edit_bake"]
+    assert seen["edit_vertices"] == seen["mesh_vertices"] == seen["pc2_vertices"]
+    assert "mismatch" not in seen["edit_bake"]["printed"]
+    assert seen["moved"] > 1e-3  # the bake plays on the edited mesh
+    assert seen["keys_bake"]["result"] == ["FINISHED"], seen["keys_bake"]
+    assert seen["keys_baked"] > 2
+    assert seen["keys_remove"]["result"] == ["FINISHED"]
+    assert not seen["keys_after"]  # the mesh as it was: no shape keys at all
 
 
 @pytest.mark.skipif(os.name != "posix", reason="checks the process group with os.killpg")

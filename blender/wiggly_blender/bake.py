@@ -5,6 +5,7 @@ modifiers, shape keys and animation stay as they are."""
 
 from __future__ import annotations
 
+import hashlib
 import re
 import struct
 from pathlib import Path
@@ -14,6 +15,9 @@ import numpy as np
 
 from .blender_data import fcurves_of, new_fcurve, remove_fcurves
 from .shot import BAKE_NAME, DEFORMING, DRIVER_STACK, SHAPE_PREFIX, Shot, ShotError, _replace
+
+#: an ID property on the shape keys of a mesh whose Basis a bake added (Remove Bake clears it)
+MADE_BASIS = "wiggly_made_basis"
 
 
 def read_result(path: Path, shot: Shot) -> np.ndarray:
@@ -49,6 +53,9 @@ def remove_bake(obj) -> int:
         for block in [k for k in keys.key_blocks if k.name.startswith(SHAPE_PREFIX)]:
             obj.shape_key_remove(block)
             gone += 1
+        # the Basis a bake added to a mesh without shape keys goes with the last of its keys
+        if keys.get(MADE_BASIS) and len(keys.key_blocks) == 1:
+            obj.shape_key_clear()
     return gone
 
 
@@ -64,7 +71,16 @@ def cache_path(obj) -> Path:
     except OSError as e:
         raise ShotError(f"Object '{obj.name}': cannot make the cache folder {directory}: "
                         f"{e.strerror}") from None
-    return directory / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', obj.name)}_wiggly.pc2"
+    return directory / cache_name(obj.name, bpy.data.filepath)
+
+
+def cache_name(name: str, blend: str) -> str:
+    """The PC2 file's name for object ``name`` of the .blend file ``blend``: the name with
+    characters outside ``[A-Za-z0-9_.-]`` replaced by ``_``, then a digest of the exact name
+    and .blend path, so that objects whose names differ only there ("My Obj", "My_Obj"), or
+    only in case, or objects of two .blend files sharing a cache folder never share a file."""
+    digest = hashlib.sha1(f"{blend}\0{name}".encode()).hexdigest()[:8]
+    return f"{re.sub(r'[^A-Za-z0-9_.-]', '_', name)}-{digest}_wiggly.pc2"
 
 
 def bake_mesh_cache(obj, shot: Shot, local: np.ndarray) -> Path:
@@ -94,15 +110,32 @@ def bake_mesh_cache(obj, shot: Shot, local: np.ndarray) -> Path:
     return path
 
 
+def check_shape_keys(obj) -> None:
+    """Raise ShotError where a shape-key bake would reach beyond ``obj``: a mesh shared with
+    other objects (linked duplicates), or an object in Edit Mode (leaving it writes the edit
+    mesh over new shape keys)."""
+    users = obj.data.users - int(obj.data.use_fake_user)
+    if users > 1:
+        raise ShotError(f"Object '{obj.name}': its mesh '{obj.data.name}' is shared with "
+                        f"{users - 1} other object(s) (linked duplicates), which shape keys "
+                        "would move too: bake as Mesh Cache, or make the mesh single-user "
+                        "(Object > Relations > Make Single User > Object & Data)")
+    if obj.mode == "EDIT":
+        raise ShotError(f"Object '{obj.name}' is in Edit Mode: leave it (Tab) to bake shape "
+                        "keys, or bake as Mesh Cache")
+
+
 def bake_shape_keys(obj, shot: Shot, local: np.ndarray) -> int:
     """A shape key ``wiggly.NNNN`` per frame N, its value 1 on frame N and 0 on the frames
     next to it (the first and last hold before and after the range)."""
     if shot.driver is not None:
         raise ShotError(f"Object '{obj.name}': a driven bake cannot be shape keys (they sit "
                         "under the modifiers, which would move it twice): bake as Mesh Cache")
+    check_shape_keys(obj)
     remove_bake(obj)
     if obj.data.shape_keys is None:
         obj.shape_key_add(name="Basis", from_mix=False)
+        obj.data.shape_keys[MADE_BASIS] = True
     keys = obj.data.shape_keys
     fs, fe = shot.frame_start, shot.frame_end
     for i, frame in enumerate(shot.frames):

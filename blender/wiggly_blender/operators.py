@@ -71,6 +71,8 @@ class WIGGLY_OT_bake(bpy.types.Operator):
             self.times["gather"] = time.perf_counter() - t
             if self.obj.wiggly.bake_as == "MESH_CACHE":
                 bake.cache_path(self.obj)  # a cache folder that cannot be, before the solve
+            else:
+                bake.check_shape_keys(self.obj)  # a bake that cannot be, before the solve
             t = time.perf_counter()
             self.solve = Solve(self.shot, _command(context))
         except ShotError as e:

@@ -123,6 +123,8 @@ def gather(context, obj) -> Shot:
     where = f"Object '{obj.name}'"
     if obj.type != "MESH":
         raise ShotError(f"{where} is a {obj.type.lower()}, not a mesh")
+    if obj.mode == "EDIT":
+        obj.update_from_editmode()  # the edit mesh, not the mesh as it was before Edit Mode
     mesh = obj.data
     V = len(mesh.vertices)
     if V == 0 or len(mesh.polygons) == 0:
@@ -134,6 +136,11 @@ def gather(context, obj) -> Shot:
     if _transform_animated(obj):
         raise ShotError(f"{where}: its own location/rotation/scale is animated; wiggly solves "
                         "in a still placement: animate it with handles or an armature")
+    mover = _moving_parent(obj)
+    if mover is not None:
+        raise ShotError(f"{where}: its parent '{mover}' moves over the frames; wiggly solves "
+                        "in a still placement: unparent it (Alt+P > Clear and Keep "
+                        "Transformation), or animate it with handles or an armature")
     mesh.calc_loop_triangles()
     tris = np.empty(3 * len(mesh.loop_triangles), np.int64)
     mesh.loop_triangles.foreach_get("vertices", tris)
@@ -202,6 +209,21 @@ def _single(value: float) -> float:
     return float(f"{value:.7g}")
 
 
+def _moving_parent(obj) -> str | None:
+    """The name of the first parent of ``obj`` (up its chain) whose location, rotation or
+    scale is animated, or whose bone parent's armature is animated; None if none is."""
+    child = obj
+    while child.parent is not None:
+        parent = child.parent
+        if _transform_animated(parent) or (
+            child.parent_type == "BONE" and parent.animation_data is not None
+            and parent.animation_data.action is not None
+        ):
+            return parent.name
+        child = parent
+    return None
+
+
 def _transform_animated(obj) -> bool:
     paths = ("location", "rotation_euler", "rotation_quaternion", "rotation_axis_angle",
              "scale", "delta_")
@@ -224,9 +246,13 @@ def _handle_keys(scene, item, at: str, name: str, X: np.ndarray, unit: float, si
         warnings.append(f"{at}: {len(frames) - len(inside)} keyframes of handle "
                         f"'{handle.name}' lie outside frames {fs}-{fe} and were left out")
     if not inside:
+        outside = (f" (its {len(frames)} keyframes, at frames "
+                   f"{', '.join(f'{f:g}' for f in sorted(frames)[:5])}"
+                   f"{', ...' if len(frames) > 5 else ''}, lie outside the range)"
+                   if frames else "")
         raise ShotError(f"{at}: its handle '{handle.name}' has no keyframes in frames "
-                        f"{fs}-{fe}; key its location/rotation (I over the viewport), or set "
-                        "the group's role to Fixed")
+                        f"{fs}-{fe}{outside}; key its location/rotation (I over the "
+                        "viewport), or set the group's role to Fixed")
     R0, l0 = _rigid(_rest_matrix(item))
     center = X.mean(axis=0)
     keys = []

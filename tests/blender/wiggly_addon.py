@@ -298,10 +298,59 @@ def case_errors() -> None:
     obj.keyframe_insert("location", frame=1)
     attempt("animated transform")
     obj.animation_data_clear()
+    rig = bpy.data.objects.new("Mover", None)  # an Empty parent carrying the object along
+    bpy.context.scene.collection.objects.link(rig)
+    obj.parent = rig
+    rig.keyframe_insert("location", frame=1)
+    rig.location.x += 1.0
+    rig.keyframe_insert("location", frame=13)
+    attempt("animated parent")
+    obj.parent = None
+    fresh(24, 1.0, (1, 13))
+    obj = handles_scene("SHAPE_KEYS")
+    twin = obj.copy()  # Alt+D: a second object on the same mesh
+    bpy.context.scene.collection.objects.link(twin)
+    attempt("shared mesh")
     fresh(24, 1.0, (1, 13))
     bpy.ops.mesh.primitive_cube_add()
     attempt("no groups")
     report["errors"] = out
+
+
+def case_housekeeping() -> None:
+    """Cache files of look-alike names; a bake from Edit Mode; the Basis a bake adds."""
+    fresh(24, 1.0, (1, 13))
+    obj = handles_scene("MESH_CACHE")
+    names = ["My Obj", "My_Obj", "my_obj", "My?Obj"]
+    paths = []
+    for name in names:
+        obj.name = name
+        paths.append(str(bake.cache_path(obj)))
+    report["cache_paths"] = paths
+    import bmesh
+
+    obj.name = "Bar"
+    bpy.context.view_layer.objects.active = obj
+    bpy.ops.object.mode_set(mode="EDIT")
+    bm = bmesh.from_edit_mesh(obj.data)
+    bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=1, use_grid_fill=True)
+    bmesh.update_edit_mesh(obj.data)
+    report["edit_vertices"] = len(bm.verts)
+    report["edit_bake"] = run(bpy.ops.wiggly.bake)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    report["mesh_vertices"] = len(obj.data.vertices)
+    cache = next(m for m in obj.modifiers if m.name == shot.BAKE_NAME)
+    with open(bpy.path.abspath(cache.filepath), "rb") as f:
+        report["pc2_vertices"] = int.from_bytes(f.read(20)[16:20], "little")
+    report["moved"] = float(np.abs(np.array(evaluated(obj, [9])[0])
+                                   - np.array(evaluated(obj, [1])[0])).max())
+    fresh(24, 1.0, (1, 13))
+    obj = handles_scene("SHAPE_KEYS")
+    obj.shape_key_clear()  # a mesh with no shape keys of its own
+    report["keys_bake"] = run(bpy.ops.wiggly.bake)
+    report["keys_baked"] = len(obj.data.shape_keys.key_blocks)
+    report["keys_remove"] = run(bpy.ops.wiggly.remove_bake)
+    report["keys_after"] = obj.data.shape_keys is not None
 
 
 def case_modal() -> None:
@@ -569,5 +618,5 @@ def panel_layout(obj) -> list:
 
 
 {"handles": case_handles, "driven": case_driven, "errors": case_errors, "modal": case_modal,
- "critter": case_critter, "pictures": case_pictures}[case]()
+ "critter": case_critter, "pictures": case_pictures, "housekeeping": case_housekeeping}[case]()
 Path(out).write_text(json.dumps(report))
