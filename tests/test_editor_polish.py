@@ -296,3 +296,36 @@ def test_labels_of_keyframe_edits(tmp_path):
         assert "group 'tip' was changed since" in str(err.value)
     finally:
         session.close()
+
+
+def test_save_asks_before_overwriting_a_change_made_on_disk(chromium, tmp_path):
+    """Ctrl+S over a scene file changed in another program asks first (the server's 409 in
+    a confirm): declined, the other program's file stays; accepted, the editor's scene is
+    saved."""
+    path = bar_project(tmp_path, warp=False)
+    server = serve(path)
+    try:
+        with editor_page(chromium, server.url, *SIZES[0]) as (page, errors):
+            page.wait_for_function("window.wiggly.S.desc && window.wiggly.S.desc.open")
+            theirs = path.read_text() + "# changed in another program\n"
+            path.write_text(theirs)
+            asked = []
+
+            def answer(dialog, accept):
+                asked.append(dialog.message)
+                dialog.accept() if accept else dialog.dismiss()
+
+            page.once("dialog", lambda d: answer(d, False))
+            page.locator("#canvas").click(position={"x": 5, "y": 5})
+            page.keyboard.press("Control+s")
+            page.wait_for_function("document.querySelector('#status').textContent"
+                                   ".includes('not saved')")
+            assert "was changed on disk" in asked[0] and path.read_text() == theirs
+            page.once("dialog", lambda d: answer(d, True))
+            page.keyboard.press("Control+s")
+            page.wait_for_function("document.querySelector('#status').textContent"
+                                   ".includes('saved shot.toml')")
+            assert len(asked) == 2 and "another program" not in path.read_text()
+            assert not errors, errors
+    finally:
+        server.stop()

@@ -725,3 +725,57 @@ def test_an_undo_that_would_make_the_scene_invalid_is_refused(project):
         assert "mid" in session.scene.groups and not session.describe("a")["can_undo"]
     finally:
         session.close()
+
+
+def test_save_never_overwrites_a_change_made_on_disk_unasked(server, project):
+    """A scene file changed on disk after it was opened, or another existing file, is
+    overwritten only with ``overwrite``; the 409 says which file and why."""
+    call(server, "POST", "/api/edit", {"op": "add_keyframe", "time": 0.75, "group": "right",
+                                       "position": {"offset": [0.0, 0.1, 0.0]}})
+    shot = project / "shot.toml"
+    theirs = shot.read_text() + "# changed in another program\n"
+    shot.write_text(theirs)
+    st, r = call(server, "POST", "/api/save", {})
+    assert st == 409 and "shot.toml was changed on disk" in r["error"], r
+    assert shot.read_text() == theirs  # untouched
+    st, r = call(server, "POST", "/api/save", {"overwrite": True})
+    assert st == 200, r
+    assert load_scene(shot) == server.session.scene
+    call(server, "POST", "/api/edit", {"op": "add_keyframe", "time": 0.5, "group": "right",
+                                       "position": {"offset": [0.0, 0.2, 0.0]}})
+    st, r = call(server, "POST", "/api/save", {})  # its own last save: no question
+    assert st == 200, r
+    other = project / "other.toml"
+    other.write_text("# someone's notes\n")
+    st, r = call(server, "POST", "/api/save", {"path": "other.toml"})
+    assert st == 409 and "other.toml already exists" in r["error"], r
+    assert other.read_text() == "# someone's notes\n"
+    st, r = call(server, "POST", "/api/save", {"path": "other.toml", "overwrite": True})
+    assert st == 200 and load_scene(other) == server.session.scene
+
+
+def test_a_read_only_folder_gets_a_clear_refusal(server, project, monkeypatch):
+    """Saving into a folder that cannot be written is a 403 naming the folder and the way
+    out, never an internal error; an edit that cannot be journaled says the same.  (The
+    file system's refusal is simulated: root writes into folders without write permission.)"""
+    import errno
+
+    import wiggly.editor.history as history
+    import wiggly.editor.session as session_module
+
+    def read_only(*args, **kwargs):
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(project / ".shot.tmp"))
+
+    monkeypatch.setattr(session_module, "save_scene", read_only)
+    before = (project / "shot.toml").read_bytes()
+    st, r = call(server, "POST", "/api/save", {})
+    assert st == 403 and "cannot be written to" in r["error"] and "Save as" in r["error"], r
+    assert str(project) in r["error"] and "Read-only file system" in r["error"]
+    monkeypatch.setattr(history.os, "open", read_only)
+    st, r = call(server, "POST", "/api/edit", {"op": "add_keyframe", "time": 0.25,
+                                               "group": "right",
+                                               "position": {"offset": [0, 0.1, 0]}})
+    assert st == 403 and "cannot be written to" in r["error"], r
+    assert "disk space" not in r["error"]
+    monkeypatch.undo()
+    assert (project / "shot.toml").read_bytes() == before

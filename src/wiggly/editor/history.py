@@ -261,9 +261,9 @@ class Histories:
             raise self._unwritable(err) from None
 
     def _unwritable(self, err: OSError) -> EditError:
-        return EditError(f"not done: the undo journal {self.path.name} cannot be written, so "
-                         f"the change would not survive a crash ({err.strerror or err}); "
-                         "free some disk space or save the scene elsewhere", 507)
+        return EditError("not done: " + unwritable(
+            err, f"the undo journal {self.path.name} cannot be written, so the change would "
+            "not survive a crash", self.path.parent), write_status(err))
 
     def load(self, scene: Scene | None, source: Path | None = None,
              ) -> tuple[EditorState | None, str | None]:
@@ -412,3 +412,24 @@ def _replay(lines: list[dict], scene: Scene | None, source: Path | None,
                              "the scene it journaled")
         state = new
     return state, tabs
+
+
+#: errors of a file system or folder that refuses writes
+READ_ONLY = (errno.EROFS, errno.EACCES, errno.EPERM)
+
+
+def unwritable(err: OSError, what: str, folder: Path) -> str:
+    """A message for a file that cannot be written: the cause, and the way out that fits."""
+    cause = err.strerror or str(err)
+    if err.errno in (errno.ENOSPC, errno.EDQUOT):
+        return f"{what} ({cause}): free some disk space, or Save as a scene elsewhere"
+    if err.errno in READ_ONLY:
+        return (f"{what} ({cause}): the folder {folder} cannot be written to; Save as a "
+                "scene in a folder you can write (inside the editor's --root)")
+    return f"{what} ({cause}); Save as a scene elsewhere"
+
+
+def write_status(err: OSError) -> int:
+    """The HTTP status of a write that failed: 403 for a folder that cannot be written, 507
+    (insufficient storage) otherwise."""
+    return 403 if err.errno in READ_ONLY else 507

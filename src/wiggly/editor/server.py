@@ -318,7 +318,9 @@ class _Handler(BaseHTTPRequestHandler):
         self._post(lambda b: self.server.session.open(_field(b, "path", str)))
 
     def post_save(self) -> None:
-        self._post(lambda b: self.server.session.save(_field(b, "path", str, required=False)))
+        self._post(lambda b: self.server.session.save(
+            _field(b, "path", str, required=False),
+            _field(b, "overwrite", bool, False, required=False)))
 
     def post_export(self) -> None:
         self._post(lambda b: self.server.session.export(_field(b, "paths", list),

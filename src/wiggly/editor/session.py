@@ -19,6 +19,7 @@ and the mesh when it meets a new one (a restarted server).  Exports solve the sc
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import secrets
 import threading
@@ -33,7 +34,15 @@ import numpy as np
 from wiggly import limits
 from wiggly.editor.autosave import Autosaver, autosave_path
 from wiggly.editor.bus import EventBus
-from wiggly.editor.history import DEFAULT_TAB, Histories, Record, history_path, key_phrase
+from wiggly.editor.history import (
+    DEFAULT_TAB,
+    Histories,
+    Record,
+    history_path,
+    key_phrase,
+    unwritable,
+    write_status,
+)
 from wiggly.editor.physics import Physics
 from wiggly.editor.playback import FrameSet, Playback
 from wiggly.editor.sandbox import Sandbox
@@ -199,6 +208,8 @@ class Session:
             self._state = state
             self.histories = histories
             self._saved = file_scene
+            # the scene file as read: a save checks that nobody changed it since
+            self._disk = _stamp(scene.source)
             self.surface, self.diagonal = surface, diagonal
             self._opened += 1
             self._groups_cache = None
@@ -246,7 +257,10 @@ class Session:
                            "file is unchanged until you save)")
         return state, file_scene, histories
 
-    def save(self, path: str | None = None) -> dict:
+    def save(self, path: str | None = None, overwrite: bool = False) -> dict:
+        """Save the scene to its file, or to ``path`` (inside the sandbox).  A file that is
+        not the scene's own, or its own file changed on disk since it was opened or last
+        saved, is overwritten only with ``overwrite`` (409 otherwise, saying which)."""
         with self._lock:
             state = self.state
             scene = state.scene
@@ -260,10 +274,25 @@ class Session:
             if not out.mesh.path.startswith("builtin:") and \
                     not self.sandbox.contains(out.mesh_file()):
                 raise EditError(f"{out.mesh.path}: the mesh is outside the sandbox", 403)
+            on_disk = _stamp(target)
+            if on_disk is not None and not overwrite:
+                name = self.sandbox.relative(target)
+                if target != scene.source:
+                    raise EditError(f"{name} already exists: overwrite it, or save under "
+                                    "another name", 409)
+                if on_disk != self._disk:
+                    raise EditError(f"{name} was changed on disk after the editor opened or "
+                                    "last saved it: overwrite that change with the scene as "
+                                    "edited here, or Save as another file (opening "
+                                    f"{name} again shows the disk's version)", 409)
             try:
                 save_scene(out, target, overwrite=True)
             except WigglyInputError as err:
                 raise EditError(str(err)) from None
+            except OSError as err:
+                raise EditError(unwritable(err, f"cannot save {self.sandbox.relative(target)}",
+                                           target.parent), write_status(err)) from None
+            self._disk = _stamp(target)
             old_source = scene.source
             out.source = target
             if out is not scene or old_source != target:
@@ -547,6 +576,14 @@ def _free_name(folder: Path, stem: str) -> Path:
     while path.exists() or autosave_path(path).exists() or history_path(path).exists():
         path, k = folder / f"{stem}-{k}{SCENE_SUFFIX}", k + 1
     return path
+
+
+def _stamp(path: Path | None) -> str | None:
+    """A digest of the file's bytes (None: no such file, or unreadable)."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest() if path else None
+    except OSError:
+        return None
 
 
 def _load(path: Path) -> Scene:

@@ -133,8 +133,21 @@ function onPhysics(e) {
 // ------------------------------------------------------------------------------------------
 // buttons and fields
 
+// Save (to ``path``, or the scene's own file): a file changed on disk since it was opened, or
+// another existing file, is overwritten only when the user confirms what the server said.
+async function saveTo(body) {
+  try { return await api.post('/api/save', body); } catch (err) {
+    if (err.status === 409) {
+      if (confirm(`${err.message}\n\nOverwrite it?`)) return act(() => api.post('/api/save', { ...body, overwrite: true }));
+      setStatus('not saved', 'err');
+      return null;
+    }
+    toast(err.message, true); setStatus(err.message.split('\n')[0], 'err');
+    return null;
+  }
+}
 async function save() {
-  const r = await act(() => api.post('/api/save', {}));
+  const r = await saveTo({});
   if (r) { toast(`saved ${r.path}`); setStatus(`saved ${r.path}`, 'ok'); }
 }
 async function undoRedo(which) {
@@ -144,7 +157,7 @@ async function undoRedo(which) {
 $('btn-open').onclick = openDialog;
 $('btn-save').onclick = save;
 $('btn-saveas').onclick = () => promptDialog('Save scene as (.toml)', S.desc.path || 'scene.toml', async (p) => {
-  const r = await act(() => api.post('/api/save', { path: p }));
+  const r = await saveTo({ path: p });
   if (r) toast(`saved ${r.path}`);
   return !!r;
 });
