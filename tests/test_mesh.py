@@ -307,6 +307,38 @@ def test_obj_uvs_and_normals_per_vertex_and_at_seams(tmp_path):
     assert surface.uvs is None
 
 
+def test_obj_of_quads_only_is_split_into_triangles(tmp_path):
+    """A file of quads only (Blender's OBJ export of a quad mesh) loads as triangles: every
+    quad (a, b, c, d) as (a, b, c) and (a, c, d), the file's vertex order, an enclosed
+    volume equal to the quads' (so orientation is kept), and its per-vertex UVs."""
+    box = trimesh.creation.box(extents=(0.1, 1.0, 0.1))
+    V = np.asarray(box.vertices)
+    quads = np.array([[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4],
+                      [1, 5, 7, 3]])
+    quads_mesh = trimesh.Trimesh(V, np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]),
+                                 process=False)
+    assert quads_mesh.is_watertight
+    if quads_mesh.volume < 0:
+        quads = quads[:, ::-1]
+    uv = np.random.default_rng(5).random((len(V), 2))
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()]
+    lines += [f"vt {u!r} {v!r}" for u, v in uv.tolist()]
+    for corners in ("{i}", "{i}/{i}"):
+        path = tmp_path / "quads.obj"
+        path.write_text("\n".join(lines) + "\n" + "\n".join(
+            "f " + " ".join(corners.format(i=i) for i in q) for q in (quads + 1).tolist()) + "\n")
+        surface = load_mesh(path)
+        np.testing.assert_array_equal(surface.vertices, V)
+        assert surface.faces.shape == (2 * len(quads), 3)
+        assert {tuple(sorted(f)) for f in surface.faces.tolist()} == {
+            tuple(sorted(f)) for f in np.concatenate([quads[:, [0, 1, 2]],
+                                                       quads[:, [0, 2, 3]]]).tolist()}
+        tri = trimesh.Trimesh(surface.vertices, surface.faces, process=False)
+        assert tri.is_watertight and tri.volume == pytest.approx(0.01, rel=1e-12)
+        if corners == "{i}/{i}":
+            np.testing.assert_allclose(surface.uvs, uv, rtol=1e-12)
+
+
 def test_gltf_scene_is_concatenated_with_transforms(tmp_path):
     scene = trimesh.Scene()
     box = trimesh.creation.box(extents=(1, 2, 3))

@@ -334,7 +334,12 @@ def _obj_chunks(path: Path, maintain_order: bool) -> list[dict]:
             file, maintain_order=maintain_order, group_material=False, skip_materials=True
         )
     # trimesh builds the chunks from the end of the file backwards
-    return list(kwargs.get("geometry", {}).values())[::-1]
+    chunks = list(kwargs.get("geometry", {}).values())[::-1]
+    for chunk in chunks:  # a file of quads only comes back as quads (mixed: triangles)
+        faces = np.asarray(chunk["faces"], dtype=np.int64)
+        if faces.ndim == 2 and faces.shape[1] == 4:
+            chunk["faces"] = np.concatenate([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]])
+    return chunks
 
 
 def _chunk_uv(chunk: dict) -> np.ndarray | None:
