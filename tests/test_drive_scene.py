@@ -105,6 +105,24 @@ def test_driven_keyframes_api_and_range(shot):
     np.testing.assert_allclose(KK, np.diag(rich.eigenvalues), atol=1e-6 * np.abs(KK).max())
 
 
+def test_range_bounds_take_frames_stored_in_single_precision():
+    """glTF stores key times as float32: the frame shown at 0.8 s (frame 24 at 30 fps) is
+    0.800000012 s.  A range or shot bound at 0.8 s keeps it; a frame one step (1/30 s)
+    outside stays out."""
+    from wiggly.drive.driver import Driver, keyed_frames
+
+    times = (np.arange(46) / 30.0).astype(np.float32).astype(np.float64)
+    assert times[24] > 0.8
+    driver = Driver(times, np.zeros((46, 3, 3)), np.array([[0, 1, 2]]),
+                    np.array([[0, 1], [0, 2], [1, 2]]), "float32.glb", "glTF skin")
+    frames, shot = keyed_frames(driver, offset=0.5, driver_range=(0.2, 0.8))
+    assert frames[0] == 6 and frames[-1] == 24
+    frames, shot = keyed_frames(driver, start=0.0, end=0.8)
+    assert frames[-1] == 24 and shot[-1] == 0.8  # clamped into the shot
+    frames, _ = keyed_frames(driver, driver_range=(0.2, 0.8 - 1 / 30))
+    assert frames[-1] == 23
+
+
 def test_drive_round_trips_through_toml(shot, tmp_path):
     folder, data = shot
     data = {**data, "drive": {"path": str(folder / "walk.npz"), "group": ["driven", "tip"],

@@ -17,6 +17,13 @@ __all__ = ["DRIVE_STIFFNESS", "Driver", "driven_keyframes", "following", "polygo
 
 #: Driver times closer than this (seconds) are one frame.
 TIME_TOLERANCE = 1e-9
+
+
+def _slack(bound: float) -> float:
+    """How far past a range bound a driver time still counts as on it: TIME_TOLERANCE plus
+    four single-precision steps at the bound (glTF stores key times as float32, so the
+    frame shown at 0.8 s is stored as 0.800000012 s)."""
+    return TIME_TOLERANCE + 4.0 * float(np.finfo(np.float32).eps) * abs(bound)
 #: Default dimensionless stiffness of driven keys (see :class:`wiggly.Keyframe`): high, so
 #: that the driven group meets the driver although following a skinned limb exactly takes
 #: large forces (the driver's shapes are stiff, :mod:`wiggly.drive.basis`).
@@ -163,19 +170,20 @@ def keyed_frames(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The driver frames that :func:`driven_keyframes` keys, and their shot times: frames
     with driver time in ``driver_range`` (inclusive) and shot time ``t + offset`` in
-    ``[start, end]`` (when given; times within :data:`TIME_TOLERANCE` are clamped into it).
+    ``[start, end]`` (when given), each bound with the slack of single-precision key times
+    (:func:`_slack`; times just outside ``[start, end]`` are clamped into it).
     Raises :class:`WigglyInputError` when no frame falls in."""
     if not np.isfinite(offset):
         raise WigglyInputError(f"offset = {offset!r} s must be a finite number")
     keep = np.ones(driver.n_frames, bool)
     if driver_range is not None:
         lo, hi = (float(x) for x in driver_range)
-        keep &= (driver.times >= lo - TIME_TOLERANCE) & (driver.times <= hi + TIME_TOLERANCE)
+        keep &= (driver.times >= lo - _slack(lo)) & (driver.times <= hi + _slack(hi))
     t = driver.times + float(offset)
     if start is not None:
-        keep &= t >= start - TIME_TOLERANCE
+        keep &= t >= start - _slack(start)
     if end is not None:
-        keep &= t <= end + TIME_TOLERANCE
+        keep &= t <= end + _slack(end)
     if not keep.any():
         first, last = driver.span
         window = "" if driver_range is None else f", range {list(driver_range)} s"
