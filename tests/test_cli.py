@@ -352,3 +352,22 @@ def test_malformed_scenes_exit_1(data, tmp_path_factory, capsys):
     assert err.startswith("wiggly: error: ") and "Traceback" not in err
     assert out == ""
     assert sorted(p.name for p in directory.iterdir()) == ["shot.toml"]  # nothing written
+
+
+def test_a_body_in_loose_pieces_is_refused_naming_the_scene_and_mesh(capsys, tmp_path):
+    """Two cubes a metre apart, both keyed but none fixed: a one-line error naming the scene
+    file and its mesh.path, never a traceback."""
+    parts = [trimesh.creation.box(extents=(0.2, 0.2, 0.2)) for _ in range(2)]
+    parts[1].apply_translation((1.0, 0.0, 0.0))
+    trimesh.util.concatenate(parts).export(tmp_path / "two.obj")
+    (tmp_path / "two.toml").write_text(
+        'format = 1\n[mesh]\npath = "two.obj"\nresolution = 8\n[simulation]\nmodes = 16\n'
+        '[time]\nend = 1.0\n[groups.a]\nbox = { min = [-1, -1, -1], max = [0.5, 1, 1] }\n'
+        '[groups.b]\nbox = { min = [0.5, -1, -1], max = [2, 1, 1] }\n'
+        '[[keyframes]]\ntime = 0.5\ngroup = "a"\nposition = "rest"\n'
+        '[[keyframes]]\ntime = 0.5\ngroup = "b"\nposition = { offset = [0, 0.1, 0] }\n')
+    assert main(["animate", str(tmp_path / "two.toml"), "-o", str(tmp_path / "two.npz")]) == 1
+    err = capsys.readouterr().err
+    assert 'two.toml: mesh.path = "two.obj": the body has 2 disconnected parts' in err, err
+    assert "fix a group on each part" in err and "Traceback" not in err
+    assert not (tmp_path / "two.npz").exists()

@@ -522,5 +522,6 @@ def _check_connected(K: sp.csr_matrix, fixed: np.ndarray, used: np.ndarray) -> N
         raise WigglyInputError(
             f"the body has {parts.size} disconnected parts (vertex counts "
             f"{sorted(sizes.tolist(), reverse=True)[:8]}), and not every part has fixed "
-            "vertices; its loose parts would float away: mesh it as one connected body"
+            "vertices; its loose parts would float away (keyframes alone do not hold a "
+            "part): mesh it as one connected body, or fix a group on each part"
         )

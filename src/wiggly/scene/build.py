@@ -178,9 +178,13 @@ def body_of(scene: Scene, model, groups: dict[str, np.ndarray], *, dynamics: boo
     if dynamics:
         extra = {"damping": Damping(scene.damping.alpha, scene.damping.beta),
                  "gravity": s.gravity}
-    body = prepare(model, material=Material(m.young, m.poisson, m.density),
-                   fixed_vertices=fixed_vertices, n_modes=s.modes, lumped=s.lumped_mass,
-                   young=young_of(scene, model, groups), **extra)
+    try:
+        body = prepare(model, material=Material(m.young, m.poisson, m.density),
+                       fixed_vertices=fixed_vertices, n_modes=s.modes, lumped=s.lumped_mass,
+                       young=young_of(scene, model, groups), **extra)
+    except WigglyInputError as err:  # the body the mesh makes (loose parts): say which
+        raise WigglyInputError(f"{scene.where()}: mesh.path = {show(scene.mesh.path)}: {err}"
+                               ) from None
     return driven_body(scene, body, groups)  # + the driver's shapes ([drive])
 
 
