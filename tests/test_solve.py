@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+import warnings
 
 import numpy as np
 import pytest
@@ -180,6 +181,24 @@ def test_solver_vectorized_sampling_matches_pointwise(bar):
 def test_keyframe_outside_time_range(bar):
     with pytest.raises(WigglyInputError, match=r"time 3.0 is outside .*\[0.0, 2.0\]"):
         solve(bar, [Keyframe.rest(bar, 3.0, [0])], warp=False, end=2.0)
+
+
+def test_a_keyframe_on_fixed_vertices_only_warns(cantilever):
+    """A keyframe whose vertices the fixed end holds cannot be met: it warns, naming the
+    keyframe, when its target is away from rest or it has a velocity; at rest it is
+    harmless and silent."""
+    X = cantilever.rest_positions("tets")
+    held = np.flatnonzero(X[:, 0] < 1e-9)
+    lifted = Keyframe(0.5, held, X[held] + [0.0, 0.1, 0.0], on="tets", name="lift")
+    with pytest.warns(UserWarning, match=rf"'lift'.*all {len(held)} of its vertices are held"):
+        solve(cantilever, [lifted], warp=False, end=1.0)
+    with pytest.warns(UserWarning, match="held by the fixed vertices"):
+        solve(cantilever, [Keyframe(0.5, held, on="tets", velocity=(1.0, 0, 0))], warp=False,
+              end=1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        solve(cantilever, [Keyframe.rest(cantilever, 0.5, held, on="tets")], warp=False,
+              end=1.0)
 
 
 def test_unknown_vertex_index(bar):

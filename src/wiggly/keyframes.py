@@ -20,6 +20,7 @@ vertices and T the animation's duration: the units of the spacetime energy, so t
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -170,6 +171,7 @@ class Keyframe:
             w = getattr(self, name)
             if w is not None and (not np.isfinite(w) or w < 0):
                 raise WigglyInputError(f"{what}: {name} = {w!r} must be a finite number >= 0")
+        _warn_if_held(body, what, v, self.on, pos, vel)
         t = min(max(t, t0), t1)
         return replace(self, time=t, vertices=v, position=pos, velocity=vel)
 
@@ -182,6 +184,22 @@ class Keyframe:
         return float(c_A), float(c_B)
 
 
+
+
+def _warn_if_held(body: Body, what: str, v: np.ndarray, on: str, pos: np.ndarray | None,
+                  vel: np.ndarray | None) -> None:
+    """Warn when every vertex of a keyframe is held by the body's fixed vertices (the modes
+    vanish there) and its target is not the rest pose: it cannot be met, nor move anything."""
+    fixed = body.fixed_vertices
+    if fixed is None or not len(fixed) or np.any(body.basis_rows(v, on)):
+        return  # modes are exactly 0 on fixed vertices, and on surface points between them
+    rest = body.rest_positions(on)[v]
+    size = float(np.ptp(body.rest_positions(on), axis=0).max())
+    away = pos is not None and np.abs(pos - rest).max(initial=0.0) > 1e-9 * size
+    if away or (vel is not None and np.any(vel != 0.0)):
+        warnings.warn(f"{what}: all {len(v)} of its vertices are held by the fixed vertices, "
+                      "so it cannot be met and moves nothing (key vertices that are free, or "
+                      "remove it)", stacklevel=4)
 
 
 def _finite(a: np.ndarray, what: str) -> None:
