@@ -210,8 +210,13 @@ def test_folder_is_checked_first(tmp_path, capsys):
         fcntl.flock(lock, fcntl.LOCK_EX)
         with pytest.raises(WigglyInputError, match="another wiggly batch is writing into"):
             run(sweep, out)
-    code = main(["batch", str(tmp_path / "missing.toml"), "-o", str(out), "--dry-run"])
+    code = main(["batch", str(sweep), str(tmp_path / "missing.toml"), "-o", str(out),
+                 "--dry-run"])
     assert code == 1 and "missing.toml: no such file" in capsys.readouterr().out
+    nowhere = tmp_path / "nowhere"
+    code = main(["batch", str(tmp_path / "missing.toml"), "-o", str(nowhere)])
+    assert code == 2 and "no such file" in capsys.readouterr().err
+    assert not nowhere.exists()  # a lone typo makes no output folder
 
 
 def test_dry_run_and_schema(tmp_path, capsys):

@@ -69,7 +69,7 @@ def test_drive_scene_end_to_end(shot, capsys):
     path = write(folder, data)
     assert main(["animate", str(path), "--overwrite", "--quiet"]) == 0
     out = capsys.readouterr().out
-    assert "drive      walk.npz:" in out and "keyed at 21 frames" in out
+    assert "drive      walk.npz:" in out and "moved by the driver over 21 frames" in out
     scene = load_scene(path)
     anim = run(scene, outputs=[])
     report = following(anim)

@@ -114,7 +114,8 @@ def summary(scene, anim) -> str:
                          f"{mm('velocity_rms', 'mm/s'):>12}")
     drive = info.get("drive")
     if drive:
-        lines.append(f"drive      {scene.drive.path}: {drive['vertices']} vertices keyed at "
+        how = ("moved by the driver over" if scene.secondary_motion else "keyed at")
+        lines.append(f"drive      {scene.drive.path}: {drive['vertices']} vertices {how} "
                      f"{drive['frames']} frames, followed within {1e3 * drive['max']:.3g} mm "
                      f"(rms {1e3 * drive['rms']:.3g} mm)")
     outputs = info.get("scene", {}).get("outputs", [])

@@ -80,6 +80,11 @@ def run(args: argparse.Namespace) -> int:
         print("wiggly batch: error: -j counts local processes; a Ray cluster uses its CPUs: "
               "give -j or --ray-address, not both", file=sys.stderr)
         return 2
+    if not any(Path(i).is_file() for i in args.inputs):  # typos: before any folder is made
+        print(f"wiggly batch: error: no such file: {', '.join(args.inputs)} (give scene "
+              "files (.toml) or a sweep file; of several, a missing one is a failed shot)",
+              file=sys.stderr)
+        return 2
     if args.write is not None and any(w.lower() == "none" for w in args.write):
         args.write = []
     if args.dry_run:
