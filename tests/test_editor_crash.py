@@ -413,6 +413,32 @@ def test_a_scene_never_saved_comes_back_from_its_journal_alone(tmp_path):
         s2.close()
 
 
+def test_a_file_changed_on_disk_after_a_crash_keeps_the_old_journal(tmp_path):
+    """Edits journaled but not saved, the editor killed, then the scene file changed in
+    another program: it opens as it is on disk, the notice says the unsaved edits are not
+    applied, and the old journal is kept beside it (not deleted) with them in it."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    s1 = Session(Sandbox([tmp_path]))
+    s1.open(path.name)
+    s1.edit({"op": "set", "section": "damping", "values": {"alpha": 0.7}})
+    s1.close()
+    autosave_path(path).unlink(missing_ok=True)  # killed before the autosave was written
+    journal = history_path(path).read_text()
+    path.write_text(path.read_text().replace("end = 1.0", "end = 1.5"))
+    s2 = Session(Sandbox([tmp_path]))
+    try:
+        opened = s2.open(path.name)
+        assert s2.scene == load_scene(path) and s2.scene.damping.alpha != 0.7
+        notice = " ".join(opened["notices"])
+        assert "changed outside the editor" in notice and "without any edits" in notice, notice
+        kept = [p for p in tmp_path.iterdir()
+                if p.name.startswith(history_path(path).stem + "-")]
+        assert len(kept) == 1 and kept[0].name in notice
+        assert kept[0].read_text() == journal
+    finally:
+        s2.close()
+
+
 def test_a_journal_that_cannot_be_replayed_is_dropped_with_a_notice(tmp_path):
     path = bar_project(tmp_path, KEYS, warp=False)
     s1 = Session(Sandbox([tmp_path]))

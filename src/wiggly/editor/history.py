@@ -27,6 +27,7 @@ import hashlib
 import json
 import os
 import re
+import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -286,11 +287,15 @@ class Histories:
             why = str(err).splitlines()[0] if str(err) else type(err).__name__
             return fresh, f"ignored an unreadable undo history {self.path.name}: {why}"
         if state is None:
-            self._discard(fresh)
+            name = self.path.name
             if fresh is None or not any("hash" in line for line in lines):
+                self._discard(fresh)
                 return fresh, None
-            return fresh, (f"the undo history {self.path.name} does not match the scene (it "
-                           "was changed outside the editor); undo starts afresh")
+            kept = self._discard(fresh, keep=True)
+            where = (f"; the old history is kept as {kept.name}" if kept is not None else "")
+            return fresh, (f"the scene file was changed outside the editor after the edits in "
+                           f"the undo history {name}: it opens as it is on disk, without "
+                           f"any edits that were not saved before{where}; undo starts afresh")
         self.tabs = tabs
         self.compact(state)
         return state, None
@@ -318,10 +323,23 @@ class Histories:
                 raise self._unwritable(err) from None
             self.write_error = f"cannot keep the undo history in {self.path.name}: {err}"
 
-    def _discard(self, base: EditorState | None) -> None:
+    def _discard(self, base: EditorState | None, keep: bool = False) -> Path | None:
+        """Start afresh from ``base``; the journal is deleted, or with ``keep`` renamed
+        beside it with the time (what it held may be someone's work): that path, or None."""
         self._base = base
-        if self.path is not None:
-            self.path.unlink(missing_ok=True)
+        if self.path is None:
+            return None
+        if keep:
+            stamp = time.strftime("%Y%m%d-%H%M%S")
+            old = self.path.with_name(f"{self.path.stem}-{stamp}{self.path.suffix}")
+            try:
+                os.replace(self.path, old)
+            except OSError:  # best effort: then it goes, as a journal that does not match
+                self.path.unlink(missing_ok=True)
+                return None
+            return old
+        self.path.unlink(missing_ok=True)
+        return None
 
 
 def _sync_dir(folder: Path) -> None:
