@@ -165,6 +165,8 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
         "no groups": ("Add a vertex group to the Wiggly group list first",),
         "animated transform": ("Object 'Tail': its own location/rotation/scale is animated",),
         "animated parent": ("Object 'Tail': its parent 'Mover' moves over the frames",),
+        "constrained placement": ("Object 'Tail': its placement in the world changes from "
+                                  "frame 1 to frame",),
         "shared mesh": ("Object 'Bar': its mesh 'Bar' is shared with 1 other object(s)",
                         "bake as Mesh Cache"),
     }

@@ -163,6 +163,12 @@ def gather(context, obj) -> Shot:
         mesh.vertices.foreach_get("co", co)
         rest = co.reshape(-1, 3) @ to_wiggly[:3, :3].T + to_wiggly[:3, 3]
         size = float(np.ptp(rest, axis=0).max())
+        moved = _placement_moves(scene, obj, world, size / max(unit, 1e-300), fs, fe)
+        if moved is not None:
+            raise ShotError(f"{where}: its placement in the world changes from frame {fs} to "
+                            f"frame {moved} (a constraint, a driver or a moving parent); "
+                            "wiggly solves in a still placement: remove what moves it, or "
+                            "animate it with handles or an armature")
         groups, labels, keyframes, fixed, driven, warnings = {}, {}, [], [], [], []
         taken: set[str] = set()
         if not len(s.groups):
@@ -207,6 +213,27 @@ def gather(context, obj) -> Shot:
 def _single(value: float) -> float:
     """A single-precision property as the decimal number the user typed (7 digits)."""
     return float(f"{value:.7g}")
+
+
+#: Frames of the range at which :func:`_placement_moves` compares the world placement.
+PLACEMENT_SAMPLES = 8
+
+
+def _placement_moves(scene, obj, world: np.ndarray, size: float, fs: int, fe: int
+                     ) -> int | None:
+    """The first of ``PLACEMENT_SAMPLES`` frames spread over the range (ends included) at
+    which the object's world matrix differs from ``world`` (its matrix at frame ``fs``) by
+    more than 1e-6 of its size, or None: what the animated-transform and parent checks miss
+    (constraints, drivers).  The caller restores the current frame."""
+    frames = np.unique(np.linspace(fs, fe, PLACEMENT_SAMPLES).round().astype(int))[1:]
+    for f in frames:
+        scene.frame_set(int(f))
+        m = _matrix(obj.matrix_world)
+        if (np.abs(m[:3, :3] - world[:3, :3]).max() * size
+                + np.abs(m[:3, 3] - world[:3, 3]).max() > 1e-6 * max(size, 1e-300)):
+            return int(f)
+    scene.frame_set(fs)
+    return None
 
 
 def _moving_parent(obj) -> str | None:

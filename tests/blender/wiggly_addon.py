@@ -306,6 +306,10 @@ def case_errors() -> None:
     rig.keyframe_insert("location", frame=13)
     attempt("animated parent")
     obj.parent = None
+    follow = obj.constraints.new("COPY_LOCATION")  # a constraint on an animated target
+    follow.target, follow.use_offset = rig, True
+    attempt("constrained placement")
+    obj.constraints.remove(follow)
     fresh(24, 1.0, (1, 13))
     obj = handles_scene("SHAPE_KEYS")
     twin = obj.copy()  # Alt+D: a second object on the same mesh
