@@ -363,7 +363,7 @@ def test_the_journal_tail_is_replayed_over_a_lagging_autosave(tmp_path):
             assert s2.scene == end.scene and s2.state.keyframe_ids == end.keyframe_ids
             assert any("recovered unsaved edits" in n and ".history.jsonl" in n
                        for n in opened["notices"]), opened["notices"]
-            assert s2.dirty and s2.describe("a")["redo_label"] == "set damping"
+            assert s2.dirty and s2.describe("a")["redo_label"] == "set damping.alpha"
             assert s2.redo("a")["changed"] and s2.scene.damping.alpha == 0.9
             for _ in range(6):
                 assert s2.undo("a")["changed"]
@@ -478,7 +478,7 @@ def test_an_edit_that_cannot_be_journaled_is_refused(tmp_path):
                 act()
             assert err.value.status == 507 and ".shot.history.jsonl" in str(err.value)
             assert session.version == version and session.scene == scene
-            assert session.describe("api")["undo_label"] == "set damping"
+            assert session.describe("api")["undo_label"] == "set damping.alpha"
         history_path(path).rmdir()
         assert session.undo()["changed"] and session.scene.damping.alpha == 0.5
     finally:
@@ -512,6 +512,7 @@ def test_a_failed_flush_leaves_no_line_behind(tmp_path, monkeypatch):
     s2 = Session(Sandbox([tmp_path]))
     try:
         s2.open(path.name)
-        assert s2.scene.damping.alpha == 0.7 and s2.describe("api")["undo_label"] == "set damping"
+        assert s2.scene.damping.alpha == 0.7
+        assert s2.describe("api")["undo_label"] == "set damping.alpha"
     finally:
         s2.close()

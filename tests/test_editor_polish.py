@@ -306,7 +306,7 @@ def test_save_asks_before_overwriting_a_change_made_on_disk(chromium, tmp_path):
     server = serve(path)
     try:
         with editor_page(chromium, server.url, *SIZES[0]) as (page, errors):
-            page.wait_for_function("window.wiggly.S.desc && window.wiggly.S.desc.open")
+            wait_final(page)
             theirs = path.read_text() + "# changed in another program\n"
             path.write_text(theirs)
             asked = []
@@ -315,17 +315,46 @@ def test_save_asks_before_overwriting_a_change_made_on_disk(chromium, tmp_path):
                 asked.append(dialog.message)
                 dialog.accept() if accept else dialog.dismiss()
 
+            def until(check, what):
+                for _ in range(300):
+                    if check():
+                        return
+                    page.wait_for_timeout(100)
+                raise AssertionError(f"timed out waiting for {what}")
+
             page.once("dialog", lambda d: answer(d, False))
             page.locator("#canvas").click(position={"x": 5, "y": 5})
             page.keyboard.press("Control+s")
-            page.wait_for_function("document.querySelector('#status').textContent"
-                                   ".includes('not saved')")
-            assert "was changed on disk" in asked[0] and path.read_text() == theirs
+            until(lambda: asked, "the question")
+            assert "was changed on disk" in asked[0]
+            page.wait_for_timeout(300)  # a save after the answer would land by now
+            assert path.read_text() == theirs
             page.once("dialog", lambda d: answer(d, True))
             page.keyboard.press("Control+s")
-            page.wait_for_function("document.querySelector('#status').textContent"
-                                   ".includes('saved shot.toml')")
-            assert len(asked) == 2 and "another program" not in path.read_text()
+            until(lambda: "another program" not in path.read_text(), "the save")
+            assert len(asked) == 2
+            assert not errors, errors
+    finally:
+        server.stop()
+
+
+def test_a_long_scene_name_keeps_the_header_one_row(chromium, tmp_path):
+    """At 1280 x 800 the header stays one row for a long scene file name: the name is cut
+    with an ellipsis, and its tooltip has the whole name."""
+    path = bar_project(tmp_path, warp=False, name="a_rather_long_scene_name_v2.toml")
+    server = serve(path)
+    try:
+        with editor_page(chromium, server.url, *SIZES[0]) as (page, errors):
+            page.wait_for_function("window.wiggly.S.desc && window.wiggly.S.desc.open")
+            rows = page.evaluate("""() => {
+                const mid = (e) => {
+                  const r = e.getBoundingClientRect(); return r.top + r.height / 2; };
+                const kids = [...document.querySelectorAll('#bar > *')]
+                  .filter((e) => e.offsetParent);
+                return Math.max(...kids.map(mid)) - Math.min(...kids.map(mid)); }""")
+            assert rows < 6, f"the header wraps into rows ({rows:.0f} px between centres)"
+            title = page.locator("#file-name").get_attribute("title")
+            assert "a_rather_long_scene_name_v2.toml" in title
             assert not errors, errors
     finally:
         server.stop()

@@ -187,6 +187,11 @@ def test_rigid_fit_recovers_a_rigid_motion():
     fit = rigid_fit(X, x)
     assert np.allclose(fit["rotation"], [10, -20, 35], atol=1e-5)
     assert np.allclose(fit["translation"], [0.1, 0.2, -0.3], atol=1e-8)
+    # the rest pose as playback holds it (single precision): a rest key, not a noisy rigid one
+    assert rigid_fit(X, X.astype(np.float32).astype(float)) == "rest"
+    tiny = rigid_fit(X, X + np.array([1e-3, 0.0, 0.0]))  # a millimetre is a pose, and has no "-0.0"
+    assert tiny != "rest" and tiny["translation"][0] == pytest.approx(1e-3)
+    assert all(str(v) != "-0.0" for v in tiny["rotation"] + tiny["translation"])
 
 
 def test_rebased_keeps_files(project, state):
@@ -671,7 +676,7 @@ def test_undo_belongs_to_the_tab_that_edited(project):
         assert session.scene.material.young == 1e6 and session.scene.damping.alpha == 0.7
         assert not session.undo("a")["changed"]
         assert session.describe("b")["can_undo"] and not session.describe("b")["can_redo"]
-        assert session.describe("a")["redo_label"] == "set material"
+        assert session.describe("a")["redo_label"] == "set material.young"
         # another tab changed what a redo would overwrite: refused, and the step dropped
         session.edit({"op": "set", "section": "material", "values": {"density": 900}}, tab="b")
         with pytest.raises(EditError) as err:
@@ -779,3 +784,55 @@ def test_a_read_only_folder_gets_a_clear_refusal(server, project, monkeypatch):
     assert "disk space" not in r["error"]
     monkeypatch.undo()
     assert (project / "shot.toml").read_bytes() == before
+
+
+def test_an_undo_to_known_modes_says_they_are_ready(project):
+    """Modes 8 -> 6, then undo: the body of 8 modes is made already, and the physics heading
+    is told so again (it said '6 modes ready' before the undo)."""
+    session = Session(Sandbox([project]))
+    try:
+        session.open("shot.toml")
+        wait_final(session, timeout=60.0)
+        before = session.scene.simulation.modes
+        q = session.bus.subscribe()
+        session.edit({"op": "set", "section": "simulation", "values": {"modes": before - 2}})
+        wait_final(session, timeout=60.0)
+        session.undo()
+        wait_final(session, timeout=60.0)
+        ready = []
+        while not q.empty():
+            e = q.get_nowait()
+            if e["type"] == "physics" and e["stage"] == "ready":
+                ready.append(e["modes"])
+        assert ready and ready[-1] == before, ready
+    finally:
+        session.close()
+
+
+def test_export_asks_before_overwriting_and_names_an_obj_sequence(server, project):
+    """An export over existing files is a 409 naming them until ``overwrite``; an OBJ export
+    says which frame files it wrote."""
+    mine = project / "mine.glb"
+    mine.write_bytes(b"not yours")
+    st, r = call(server, "POST", "/api/export", {"paths": ["mine.glb"]})
+    assert st == 409 and "mine.glb exists" in r["error"], r
+    assert mine.read_bytes() == b"not yours"
+    q = server.session.bus.subscribe()
+    st, r = call(server, "POST", "/api/export", {"paths": ["seq/shot.obj"]})
+    assert st == 200, r
+    deadline, done = time.time() + 60, None
+    while done is None and time.time() < deadline:
+        try:
+            e = q.get(timeout=1.0)
+        except Exception:
+            continue
+        if e["type"] == "export" and e["stage"] != "running":
+            done = e
+    assert done is not None and done["stage"] == "done", done
+    frames = sorted((project / "seq").glob("shot_*.obj"))
+    assert frames and f"{frames[0].name} … {frames[-1].name} ({len(frames)} OBJ frames)" in \
+        done["message"], done["message"]
+    st, r = call(server, "POST", "/api/export", {"paths": ["seq/shot.obj"]})
+    assert st == 409 and "seq/shot.obj exists" in r["error"], r
+    st, r = call(server, "POST", "/api/export", {"paths": ["mine.glb"], "overwrite": True})
+    assert st == 200

@@ -300,6 +300,8 @@ class Physics:
             if not _usable(fut):
                 model_fut = self.model_future(scene)
                 fut = self._pool.submit(self._prepare, scene, key, model_fut)
+            elif fut.done():  # a body made before (an undo): the page's heading says it again
+                self._ready(fut.result(), time.perf_counter())
             self._bodies.put(key, fut)
             return fut
 
@@ -324,10 +326,14 @@ class Physics:
         except Exception as err:
             self._status("error", f"cannot compute the modes: {err}", 0.0, t0)
             raise
-        self._status("ready", f"{body.r} modes ready ({model.tets.n_tets} tets)", 1.0, t0,
-                     modes=body.r, tets=model.tets.n_tets,
-                     frequencies=[round(float(x), 4) for x in body.modes.frequencies_hz()[:12]])
+        self._ready(body, t0)
         return body
+
+    def _ready(self, body, t0: float) -> None:
+        n = body.tets.n_tets
+        self._status("ready", f"{body.r} modes ready ({n} tets)", 1.0, t0, modes=body.r,
+                     tets=n,
+                     frequencies=[round(float(x), 4) for x in body.modes.frequencies_hz()[:12]])
 
     def body(self, scene: Scene, abandon: Callable[[], bool], hold: bool = False):
         """The body of ``scene`` (None when ``abandon()`` turns true while waiting).

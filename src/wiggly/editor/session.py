@@ -96,8 +96,10 @@ def _label(op: Any, before: EditorState, after: EditorState) -> str:
         return label
     if kind == "batch":
         return f"{len(op.get('ops') or [])} edits"
-    if kind == "set":
-        return f"set {op.get('section')}"
+    if kind == "set":  # "set material.young", "set damping.alpha, damping.beta"
+        section, values = op.get("section"), op.get("values")
+        fields = sorted(values)[:3] if isinstance(values, dict) else []
+        return "set " + (", ".join(f"{section}.{f}" for f in fields) or str(section))
     if kind in ("update_keyframe", "delete_keyframe"):
         key = _key_of(before, op.get("id"))
         if kind == "delete_keyframe":
@@ -532,9 +534,15 @@ class Session:
         from wiggly.scene import check_outputs
 
         try:
-            check_outputs(real, overwrite)
+            check_outputs(real, True)
         except WigglyInputError as err:
             raise EditError(str(err)) from None
+        existing = [p for p in real if p.exists() or (
+            p.suffix.lower() == ".obj" and p.with_name(f"{p.stem}_0000.obj").exists())]
+        if existing and not overwrite:
+            raise EditError(f"{', '.join(self.sandbox.relative(p) for p in existing)} "
+                            f"{'exists' if len(existing) == 1 else 'exist'}: overwrite, or "
+                            "export under other names", 409)
         with self._lock:
             state, version = self.state, self.version
         self._export_pool.submit(self._export, state, version, real, overwrite)
@@ -562,7 +570,8 @@ class Session:
                 anim = solve_scene(scene, body, keys)
             write_outputs(scene, anim, paths, overwrite=overwrite,
                           highlights=keyframe_highlights(scene, body, anim.keyframes, groups))
-            self.bus.publish("export", stage="done", message=f"exported {', '.join(names)}",
+            written = [_written(p) for p in paths]
+            self.bus.publish("export", stage="done", message=f"exported {', '.join(written)}",
                              paths=[self.sandbox.relative(p) for p in paths])
         except Exception as err:
             if not isinstance(err, WigglyInputError):
@@ -576,6 +585,17 @@ def _free_name(folder: Path, stem: str) -> Path:
     while path.exists() or autosave_path(path).exists() or history_path(path).exists():
         path, k = folder / f"{stem}-{k}{SCENE_SUFFIX}", k + 1
     return path
+
+
+def _written(path: Path) -> str:
+    """What an export of ``path`` wrote, for its message: the file's name, or for an OBJ
+    the sequence of frame files ``NAME_0000.obj``."""
+    if path.suffix.lower() != ".obj":
+        return path.name
+    frames = sorted(path.parent.glob(f"{path.stem}_[0-9][0-9][0-9][0-9].obj"))
+    if not frames:
+        return path.name
+    return f"{frames[0].name} … {frames[-1].name} ({len(frames)} OBJ frames)"
 
 
 def _stamp(path: Path | None) -> str | None:

@@ -419,10 +419,16 @@ _EDITS = {
 # helpers for the browser
 
 
-def rigid_fit(rest: np.ndarray, current: np.ndarray) -> dict:
+#: A fitted pose this close to rest (radians of rotation; translation relative to the
+#: group's extent) is keyed as "rest": playback frames are single precision.
+REST_ANGLE, REST_SHIFT = 1e-5, 1e-6
+
+
+def rigid_fit(rest: np.ndarray, current: np.ndarray) -> dict | str:
     """The rigid position target closest to ``current`` (Kabsch fit of the rest vertices):
     ``{"rotation": Euler XYZ degrees, "translation": [...], "center": rest centroid}``, so
-    that a keyframe added at the current pose starts where the group is."""
+    that a keyframe added at the current pose starts where the group is; ``"rest"`` where
+    that pose is rest up to the frames' round-off (``REST_ANGLE``, ``REST_SHIFT``)."""
     from scipy.spatial.transform import Rotation
 
     rest, current = np.asarray(rest, float), np.asarray(current, float)
@@ -431,10 +437,14 @@ def rigid_fit(rest: np.ndarray, current: np.ndarray) -> dict:
         rot, _ = Rotation.align_vectors(current - c_t, rest - c)
     else:
         rot = Rotation.identity()
+    extent = float(np.ptp(rest, axis=0).max(initial=0.0)) if len(rest) else 0.0
+    if rot.magnitude() < REST_ANGLE and \
+            np.linalg.norm(c_t - c) <= REST_SHIFT * max(extent, np.finfo(float).tiny):
+        return "rest"
     angles = rot.as_euler("xyz", degrees=True)
-    return {"rotation": [round(float(a), 6) for a in angles],
-            "translation": [round(float(x), 9) for x in c_t - c],
-            "center": [round(float(x), 9) for x in c]}
+    return {"rotation": [round(float(a), 6) + 0.0 for a in angles],  # + 0.0: no "-0.0"
+            "translation": [round(float(x), 9) + 0.0 for x in c_t - c],
+            "center": [round(float(x), 9) + 0.0 for x in c]}
 
 
 def state_to_json(state: EditorState) -> dict:

@@ -116,7 +116,7 @@ function onSolve(e) {
   const res = e.residual_max != null ? `, max keyframe residual ${fmt(e.residual_max * 1000)} mm` : '';
   if (e.stage === 'error') setStatus(e.message, 'err');
   else if (e.stage === 'linear') setStatus('solving… (linear)', 'busy');
-  else if (e.stage === 'warped') setStatus(`solving… warped: ${e.iterations} Gauss-Newton iterations, objective ${fmt(e.objective, 4)}`, 'busy');
+  else if (e.stage === 'warped') setStatus(`solving… warped: ${e.iterations} Newton iterations${e.objective != null ? `, objective ${fmt(e.objective, 4)}` : ''}`, 'busy');
   else if (e.stage === 'done') setStatus(`${e.converged === undefined ? 'linear solve' : 'warped: ' + e.message} in ${fmt(e.seconds)} s${res}`, e.converged === false ? '' : 'ok');
 }
 function onPhysics(e) {
@@ -158,14 +158,19 @@ $('btn-open').onclick = openDialog;
 $('btn-save').onclick = save;
 $('btn-saveas').onclick = () => promptDialog('Save scene as (.toml)', S.desc.path || 'scene.toml', async (p) => {
   const r = await saveTo({ path: p });
-  if (r) toast(`saved ${r.path}`);
+  if (r) { toast(`saved ${r.path}`); setStatus(`saved ${r.path}`, 'ok'); }
   return !!r;
 });
 $('btn-export').onclick = () => {
   const n = scene().name;
   promptDialog('Export (comma-separated: .glb .usd .usda .usdc .npz .obj .mp4 .gif .png)', `out/${n}.glb, out/${n}.mp4`, async (v) => {
     const paths = v.split(',').map((s) => s.trim()).filter(Boolean);
-    const r = await act(() => api.post('/api/export', { paths, overwrite: true }));
+    let r = null;
+    try { r = await api.post('/api/export', { paths, overwrite: false }); } catch (err) {
+      if (err.status !== 409) { toast(err.message, true); setStatus(err.message.split('\n')[0], 'err'); return false; }
+      if (!confirm(`${err.message}\n\nOverwrite?`)) { setStatus('not exported', 'err'); return false; }
+      r = await act(() => api.post('/api/export', { paths, overwrite: true }));
+    }
     if (r) setStatus(`exporting ${r.paths.join(', ')}…`, 'busy');
     return !!r;
   });
@@ -197,7 +202,7 @@ for (const el of document.querySelectorAll('[data-set]')) {
   el.onchange = () => {
     const [section, key, index] = el.dataset.set.split('.');
     let v = el.type === 'checkbox' ? el.checked : parseFloat(el.value);
-    if (el.type !== 'checkbox' && Number.isNaN(v)) { toast(`${section}.${key}: not a number`, true); return; }
+    if (el.type !== 'checkbox' && Number.isNaN(v)) { toast(`${section}.${key}: not a number`, true); renderPanels(); return; }  // the scene's value again
     if (key === 'modes') v = Math.round(v);
     if (index !== undefined) { const vec = [...(scene()[section][key])]; vec[+index] = v; v = vec; }
     edit({ op: 'set', section, values: { [key]: v } }).then((r) => { if (!r) renderPanels(); });  // refused: the scene's value again

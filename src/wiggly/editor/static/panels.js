@@ -96,6 +96,7 @@ export function renderPanels() {
   if (!S.desc || !S.desc.open) return;
   const d = S.desc, sc = d.scene;
   $('file-name').textContent = d.path || sc.name;
+  $('file-name').title = `scene file: ${d.path || sc.name}`;  // the whole name, when it is cut
   $('dirty').textContent = d.dirty ? '●' : '';
   $('btn-undo').disabled = !d.can_undo;
   $('btn-redo').disabled = !d.can_redo;
