@@ -836,3 +836,45 @@ def test_export_asks_before_overwriting_and_names_an_obj_sequence(server, projec
     assert st == 409 and "seq/shot.obj exists" in r["error"], r
     st, r = call(server, "POST", "/api/export", {"paths": ["mine.glb"], "overwrite": True})
     assert st == 200
+
+
+def test_fall_notice_is_physics():
+    """The notice measures the centroid's sink along gravity against the body's size: a free
+    fall 1/2 g t^2 over 2 s (19.6 m for a 1 m body) is told, with its figures; a drop of
+    one size, a rise, and no gravity are not."""
+    from wiggly.editor.playback import fall_notice
+
+    times = np.linspace(0.0, 2.0, 41)
+    body = np.random.default_rng(3).random((50, 3))
+    size = float(np.linalg.norm(np.ptp(body, axis=0)))
+    fall = body[None] - (0.5 * 9.81 * times**2)[:, None, None] * np.array([0.0, 1.0, 0.0])
+    notice = fall_notice(fall, times, (0.0, -9.81, 0.0), size)
+    assert notice is not None and "falls 20 m by t = 2 s" in notice, notice
+    assert fall_notice(fall, times, (0.0, 0.0, 0.0), size) is None
+    assert fall_notice(fall[::-1], times, (0.0, -9.81, 0.0), size) is None  # rising
+    sink = body[None] - np.linspace(0.0, size, 41)[:, None, None] * np.array([0.0, 1.0, 0.0])
+    assert fall_notice(sink, times, (0.0, -9.81, 0.0), size) is None
+
+
+def test_a_body_that_nothing_holds_gets_a_notice_once(project):
+    """A free bar keyed at rest at t = 0 only, under gravity, falls off the view: the editor
+    says why once for the scene file, not again after the next edit."""
+    (project / "free.toml").write_text(
+        SCENE.replace('fixed = ["left"]\n', "").replace("end = 1.0", "end = 2.0")
+        .replace('position = { offset = [0.0, 0.05, 0.0] }', 'position = "rest"')
+        .replace("time = 0.5", "time = 0.0"))
+    session = Session(Sandbox([project]))
+    q = session.bus.subscribe()
+    try:
+        session.open("free.toml")
+        wait_final(session, timeout=60.0)
+        session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.6}})
+        wait_final(session, timeout=60.0)
+        notices = []
+        while not q.empty():
+            e = q.get_nowait()
+            if e["type"] == "notice" and "falls" in e["message"]:
+                notices.append(e["message"])
+        assert len(notices) == 1 and "nothing holds it" in notices[0], notices
+    finally:
+        session.close()

@@ -81,6 +81,28 @@ class FrameSet:
                 "n_vertices": n, "request": self.kind, **self.info}
 
 
+#: A body whose centroid sinks along gravity by more than this many times its size is
+#: told why (:func:`fall_notice`).
+FALL_SIZES = 2.0
+
+
+def fall_notice(positions: np.ndarray, times: np.ndarray, gravity, size: float) -> str | None:
+    """Why the body leaves the view, when its centroid sinks along gravity by more than
+    ``FALL_SIZES`` times its size over the frames (F, n, 3); None otherwise."""
+    g = np.asarray(gravity, dtype=np.float64)
+    norm = float(np.linalg.norm(g))
+    if norm == 0.0 or size <= 0.0 or len(positions) < 2:
+        return None
+    down = positions.mean(axis=1, dtype=np.float64) @ (g / norm)
+    k = int(np.argmax(down - down[0]))
+    drop = float(down[k] - down[0])
+    if drop <= FALL_SIZES * size:
+        return None
+    return (f"the body falls {drop:.2g} m by t = {float(times[k]):.3g} s ({drop / size:.0f} "
+            "times its size): gravity pulls it and nothing holds it; fix a group (Physics: "
+            "fixed), key it where it should be, or set gravity to 0")
+
+
 def done_message(info: dict) -> str:
     """The status of a finished warped solve."""
     return (f"converged in {info['iterations']} iterations" if info["converged"]
@@ -94,6 +116,7 @@ class Playback:
         self.bus, self.physics, self.instance = bus, physics, instance
         self._lock = threading.Lock()
         self._seq = 0
+        self._told_falling: set = set()  # scene files whose fall a notice explained
         # the published frame sets by id (a counter), oldest first; not a cache (a page that
         # asks for a forgotten id gets a 404) and the newest final ones are never evicted
         self._frames: OrderedDict[int, FrameSet] = OrderedDict()
@@ -280,6 +303,13 @@ class Playback:
                 "residual_max": residual_max(anim) if final else None}
         self._publish(FrameSet(0, req.seq, req.version, "linear", final, float(times[0]), fps,
                                positions, req.kind, info))
+        if req.kind == "final" and scene.source not in self._told_falling:
+            rest = body.rest_positions()
+            notice = fall_notice(positions, times, scene.simulation.gravity,
+                                 float(np.linalg.norm(np.ptp(rest, axis=0))))
+            if notice is not None:  # once per scene file: a drop may be what the user wants
+                self._told_falling.add(scene.source)
+                self.bus.publish("notice", sticky=False, level="warning", message=notice)
         if final:
             self.bus.publish("solve", seq=req.seq, version=req.version, stage="done",
                              message="linear solve", **info)
