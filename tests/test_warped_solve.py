@@ -172,6 +172,29 @@ def test_warped_meets_a_large_turn_better_than_linear(free_bar):
     assert war["position_rms"] < 1e-3
 
 
+@pytest.mark.parametrize("steps, turns", [(3, 1), (4, 1), (6, 1), (5, 2)])
+def test_a_turn_keyed_in_steps_keeps_its_direction(free_bar, steps, turns):
+    """The whole bar keyed at rest, then turned by 360 * turns / steps degrees more at each
+    of ``steps`` keys: consecutive poses are taken the short way (each step is below 180
+    degrees), so the bar turns one way through the full 360 * turns, never back, and meets
+    every key."""
+    X = free_bar.rest_positions()
+    allv = np.arange(len(X))
+    step = 2 * np.pi * turns / steps
+    keys = [Keyframe.rest(free_bar, 0.0, allv, still=True)] + [
+        Keyframe.rigid(free_bar, i / steps, allv, rotation=(0, 0, i * step))
+        for i in range(1, steps + 1)]
+    anim = solve(free_bar, keys, end=1.0, warp=True)
+    t = np.linspace(0.0, 1.0, 8 * steps + 1)
+    P = anim.positions(t)
+    tip, root = X[:, 0] > 0.9, X[:, 0] < 0.1
+    axis = P[:, tip].mean(axis=1) - P[:, root].mean(axis=1)
+    angle = np.unwrap(np.arctan2(axis[:, 1], axis[:, 0]))
+    assert np.all(np.diff(angle) > -0.02), np.degrees(angle).round()
+    assert angle[-1] - angle[0] == pytest.approx(2 * np.pi * turns, abs=0.02)
+    assert max(r["position_max"] for r in anim.constraint_residuals()) < 0.01
+
+
 def test_warping_keeps_every_tet_in_a_large_turn_while_linear_distorts(free_bar):
     """A rigid 120 degree turn: no strain at all, so every edge and tet volume is kept."""
     body, keys = free_bar, turn_keys(free_bar)

@@ -327,17 +327,35 @@ class SpacetimeProblem:
         )
 
 
+def nearest_turn(w: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """The rotation vector of the same rotation as ``w`` (its angle plus a multiple of 2 pi
+    about its axis) nearest to ``previous``: consecutive keyed poses of a group turn the short
+    way from one to the next, so a turn keyed in steps keeps its direction past 180 degrees
+    (as angles are unwrapped).  A rest pose (w = 0) takes the axis of ``previous``."""
+    theta = float(np.linalg.norm(w))
+    if theta > 1e-12:
+        axis = w / theta
+    elif np.linalg.norm(previous) > 1e-12:
+        axis = previous / np.linalg.norm(previous)
+    else:
+        return w
+    k = round((float(previous @ axis) - theta) / (2.0 * np.pi))
+    return (theta + 2.0 * np.pi * k) * axis
+
+
 def unwarped(kfs: list[Keyframe], body: Body) -> list[Keyframe]:
     """Keyframes whose targets a *linear* motion can meet and whose warp is near the originals.
 
     Each keyframe's best-fit rotation R of its targets about their centroid (Kabsch) is
-    replaced by its linearization with the same rotation vector w = log R (any angle below
-    pi): x = R (X - c) + c' + e becomes X + w x (X - c) + (c' - c) + R^T e; velocities are
-    rotated back by R^T.  Warping maps a linearized rotation to the exact one (Schulz et al.
-    2014, Theorem 2), so the linear solve with these targets starts the warped solve in the basin
-    of large-rotation keyframes.  Keyframes of the same vertex group are fitted together (a
-    driver keys one group at every frame); groups of fewer than 3 or collinear vertices have
-    no unique rotation and keep their targets.
+    replaced by its linearization with the same rotation vector w = log R: x = R (X - c) + c'
+    + e becomes X + w x (X - c) + (c' - c) + R^T e; velocities are rotated back by R^T.  The
+    angle of w is at most pi for a group's first key in time, and each later key takes the
+    equivalent nearest the one before it (:func:`nearest_turn`), so a turn keyed in steps
+    keeps its direction.  Warping maps a linearized rotation to the exact one (Schulz et al.
+    2014, Theorem 2), so the linear solve with these targets starts the warped solve in the
+    basin of large-rotation keyframes.  Keyframes of the same vertex group are fitted
+    together (a driver keys one group at every frame); groups of fewer than 3 or collinear
+    vertices have no unique rotation and keep their targets.
     """
     out = list(kfs)
     groups: dict[tuple, list[int]] = {}
@@ -358,6 +376,10 @@ def unwarped(kfs: list[Keyframe], body: Body) -> list[Keyframe]:
         U[:, :, 2] *= np.where(sign == 0, 1.0, sign)[:, None]  # det R = 1
         R = U @ Vt
         w = Rotation.from_matrix(R).as_rotvec()
+        previous = np.zeros(3)  # at rest before the first key: its turn is at most pi
+        for a in np.argsort([kfs[j].time for j in members], kind="stable"):
+            w[a] = nearest_turn(w[a], previous)
+            previous = w[a]
         # X + w x A + (c' - c) + (B - A R^T) R = x R + (c' - c' R) + w x A  (R^T R = I)
         cross = np.zeros((len(members), 3, 3))  # [w]x^T: a @ cross[a] = w x a
         cross[:, [1, 2, 0], [2, 0, 1]] = w
