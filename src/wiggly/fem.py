@@ -47,10 +47,17 @@ def _as_real(name: str, value: object, allowed: str) -> float:
         raise WigglyInputError(f"{name} should be {allowed}; got {value!r}") from None
 
 
+#: Material ranges wiggly accepts: far beyond real solids (gels of 1e2 Pa to diamond's
+#: 1.2e12 Pa; aerogels of 1 kg/m^3 to osmium's 2.3e4), short of where the modes' arithmetic
+#: overflows (a Young's modulus of 1e-300 Pa never finished; 1e300 overflowed K).
+YOUNG_RANGE = (1e-3, 1e13)
+DENSITY_RANGE = (1e-3, 1e6)
+
+
 def _check_young(young: float) -> float:
-    allowed = "finite and > 0 Pa"
+    allowed = f"finite and in [{YOUNG_RANGE[0]:g}, {YOUNG_RANGE[1]:g}] Pa"
     value = _as_real("young (Young's modulus)", young, allowed)
-    if not (math.isfinite(value) and value > 0.0):
+    if not (math.isfinite(value) and YOUNG_RANGE[0] <= value <= YOUNG_RANGE[1]):
         raise WigglyInputError(f"young (Young's modulus) should be {allowed}; got {young!r}")
     return value
 
@@ -64,9 +71,9 @@ def _check_poisson(poisson: float) -> float:
 
 
 def _check_density(density: float) -> float:
-    allowed = "finite and > 0 kg/m^3"
+    allowed = f"finite and in [{DENSITY_RANGE[0]:g}, {DENSITY_RANGE[1]:g}] kg/m^3"
     value = _as_real("density", density, allowed)
-    if not (math.isfinite(value) and value > 0.0):
+    if not (math.isfinite(value) and DENSITY_RANGE[0] <= value <= DENSITY_RANGE[1]):
         raise WigglyInputError(f"density should be {allowed}; got {density!r}")
     return value
 
@@ -250,9 +257,11 @@ def stiffness_matrix(
         if E.shape != (len(T),):
             raise WigglyInputError(f"young should be a number or one per tet ({len(T)},); "
                                    f"shape is {E.shape}")
-        if not np.all(np.isfinite(E) & (E > 0)):
-            raise WigglyInputError("young (Young's modulus) should be finite and > 0 Pa in "
-                                   f"every tet; got {E[~(np.isfinite(E) & (E > 0))][0]!r}")
+        ok = np.isfinite(E) & (E >= YOUNG_RANGE[0]) & (E <= YOUNG_RANGE[1])
+        if not np.all(ok):
+            raise WigglyInputError(f"young (Young's modulus) should be finite and in "
+                                   f"[{YOUNG_RANGE[0]:g}, {YOUNG_RANGE[1]:g}] Pa in every "
+                                   f"tet; got {E[~ok][0]!r}")
         lam1, mu1 = lame_parameters(1.0, poisson)
         lam, mu = (lam1 * E)[:, None, None], (mu1 * E)[:, None, None]
     grads, vol = tet_gradients(V, T)

@@ -12,6 +12,7 @@ from pathlib import Path
 from wiggly.drive import DRIVER_EXTENSIONS
 from wiggly.errors import WigglyInputError
 from wiggly.export import GLTF_TARGETS
+from wiggly.fem import DENSITY_RANGE, YOUNG_RANGE
 from wiggly.limits import MAX_DURATION, MAX_FPS, MAX_FRAMES, MAX_MODES, MAX_RESOLUTION
 from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION
 from wiggly.scene.drive import check_drive, check_drive_file
@@ -76,6 +77,7 @@ def _check_time(d: dict, path: str, p: Problems) -> None:
 
 
 _POSITIVE = {"gt": 0.0}
+_YOUNG = {"ge": YOUNG_RANGE[0], "le": YOUNG_RANGE[1]}
 _SELECTOR_SPECS = {
     "box": Table({"min": Vector(3, unit="m"), "max": Vector(3, unit="m")},
                   required=("min", "max"), check=_check_box,
@@ -113,7 +115,7 @@ _GROUP = Table(
                        "vertices of the tet mesh"),
      "color": String(pattern=r"^#[0-9a-fA-F]{6}$", what='a color "#rrggbb"',
                       doc="color in previews and the editor"),
-     "young": Number(unit="Pa", **_POSITIVE,
+     "young": Number(unit="Pa", **_YOUNG,
                       doc="Young's modulus (Pa) of the group's tets (those whose corners all "
                           "carry the group) in place of [material] young: a softer tail on a "
                           "stiffer body; later groups win where groups overlap")},
@@ -212,9 +214,10 @@ SCENE_FORMAT = Table(
          required=("path",), exclusive=(("resolution", "edge_length"),),
          make=lambda d: MeshSpec(**d), doc="the model"),
      "material": Table(
-         {"young": Number(unit="Pa", **_POSITIVE, doc="Young's modulus E (Pa)"),
+         {"young": Number(unit="Pa", **_YOUNG, doc="Young's modulus E (Pa)"),
           "poisson": Number(ge=0.0, lt=0.5, doc="Poisson ratio"),
-          "density": Number(unit="kg/m^3", **_POSITIVE, doc="density (kg/m^3)")},
+          "density": Number(unit="kg/m^3", ge=DENSITY_RANGE[0], le=DENSITY_RANGE[1],
+                            doc="density (kg/m^3)")},
          make=lambda d: MaterialSpec(**d)),
      "damping": Table(
          {"alpha": Number(ge=0.0, unit="1/s", doc="mass-proportional damping (1/s)"),

@@ -82,7 +82,9 @@ def show(value: Any, limit: int = 60) -> str:
 
 
 def _num(x: float) -> str:
-    return repr(int(x)) if float(x).is_integer() and abs(x) < 1e15 else repr(float(x))
+    if float(x).is_integer() and abs(x) < 1e7:
+        return repr(int(x))
+    return f"{float(x):.12g}" if abs(x) >= 1e7 else repr(float(x))
 
 
 class Spec(ABC):
