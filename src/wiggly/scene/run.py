@@ -4,6 +4,7 @@ all or nothing."""
 from __future__ import annotations
 
 import time as _time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -156,6 +157,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     t = _time.perf_counter()
     anim = solve_scene(scene, body, keyframes, groups=groups)
     timings["solve"] = _time.perf_counter() - t
+    _warn_missed(scene, anim, body)
     if scene.drive is not None:
         anim.info["drive"] = following(anim)
         say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"
@@ -165,6 +167,39 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
                             timings=timings)
     anim.info["scene"] = {"outputs": written, "seconds": timings, "groups": groups}
     return anim
+
+
+#: A keyframe missed by more than this share of the body's size is warned about.
+MISSED = 0.05
+
+
+def _warn_missed(scene: Scene, anim, body) -> None:
+    """One warning naming the scene's own keyframes (not a driver's) whose targets the motion
+    misses by more than ``MISSED`` of the body's size, with the likely causes: a shot long
+    enough that gravity outweighs the keys' stiffness (a key's weight falls as the cube of
+    the duration, gravity's work grows with it), a soft stiffness, or targets nothing can
+    reach (contradictory keys, fixed vertices, heavy damping)."""
+    own = replace(anim, keyframes=anim.keyframes[:len(scene.keyframes)])
+    if not own.keyframes:
+        return
+    size = float(np.linalg.norm(np.ptp(body.rest_positions(), axis=0)))
+    missed = [(j, row["position_max"]) for j, row in enumerate(own.constraint_residuals())
+              if row.get("position_max") is not None and row["position_max"] > MISSED * size]
+    if not missed:
+        return
+    start, end = scene.time_range()
+    listed = "; ".join(f"keyframes[{j}] (group {scene.keyframes[j].group!r}, t = "
+                       f"{scene.keyframes[j].time:g} s) by {miss:.3g} m, "
+                       f"{100 * miss / size:.0f} %" for j, miss in missed[:4])
+    more = f"; and {len(missed) - 4} more" if len(missed) > 4 else ""
+    why = "raise their stiffness (the default is 1e6; e.g. 1e9)"
+    if np.linalg.norm(scene.simulation.gravity) > 0 and end - start > 2.0:
+        why += (f"; over a {end - start:g} s shot gravity outweighs the keys (a key's weight "
+                "falls as the cube of the duration): key the body more often, or shorten it")
+    warnings.warn(f"{scene.where()}: {counted(len(missed), 'keyframe')} missed by more than "
+                  f"{100 * MISSED:g} % of the body's size ({listed}{more}): {why}; also check "
+                  "that the targets can be reached (fixed vertices, contradictory keys, heavy "
+                  "damping)", stacklevel=2)
 
 
 def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
