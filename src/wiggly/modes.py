@@ -455,7 +455,7 @@ def _compute_modes(
         raise WigglyInputError(
             f"r = {r} is smaller than the number of rigid modes of this body ({n_rigid}); "
             "the basis must contain all rigid modes, or the body could not move freely: use "
-            f"r >= {n_rigid + 1}"
+            f"r >= {n_rigid} (r = {n_rigid} moves it rigidly only; each mode more bends it)"
         )
     progress.say(f"{n_rigid} rigid modes; {r - n_rigid} elastic modes to compute ({nf} dofs)")
 
