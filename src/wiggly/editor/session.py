@@ -135,6 +135,7 @@ class Session:
         self.version = 0
         self._state: EditorState | None = None
         self._saved: Scene | None = None  # as last saved or loaded (None: never saved)
+        self._disk: str | None = None  # digest of the scene file as last read or written
         self.histories = Histories()
         self.surface = None  # the user's surface (rest), for the browser
         self.diagonal: float | None = None  # of the surface's bounding box
