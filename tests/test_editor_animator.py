@@ -293,6 +293,17 @@ def test_gizmo_axis_keys_and_typed_values(editor):
     page.wait_for_function(f"window.wiggly.S.desc.version > {version}")
     page.mouse.up()
     assert np.allclose(server.session.scene.keyframes[0].velocity, [1.5, 0, 0], atol=1e-4)
+    # a fast velocity's arrow runs far beyond the group: Frame (F) keeps its tip in view
+    edit_key = {"op": "update_keyframe", "id": server.session.state.keyframe_ids[0],
+                "velocity": [0.0, 8.0, 0.0]}
+    version = server.session.version
+    post(server.url, "/api/edit", edit_key)
+    page.wait_for_function(f"window.wiggly.S.desc.version > {version}")
+    page.keyboard.press("f")
+    tip = page.evaluate("window.wiggly.gizmoHandle('Y')")
+    box = page.locator("#canvas").bounding_box()
+    assert box["x"] <= tip["x"] <= box["x"] + box["width"], (tip, box)
+    assert box["y"] <= tip["y"] <= box["y"] + box["height"], (tip, box)
 
 
 def test_gizmo_snapping(editor):

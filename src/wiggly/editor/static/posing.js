@@ -103,6 +103,11 @@ export function pivotCenter(group, rg) {
 }
 
 // ------------------------------------------------------------------------------------------
+// The velocity arrow's tip while posing a velocity (Frame keeps it in view), else null.
+export function velocityTip() {
+  return S.posing && S.posing.mode === 'velocity' ? pivot.position.clone() : null;
+}
+
 // ghost of the target and velocity arrow
 
 function setGhost(k, rg) {

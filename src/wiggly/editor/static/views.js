@@ -3,7 +3,7 @@
 // groups, else the keyframe's target, else the whole body).  y is up, the front looks along -z.
 import * as THREE from 'three';
 import { S, camera, controls, geometry, boundsOf, redraw } from './core.js';
-import { ghostPoints } from './posing.js';
+import { ghostPoints, velocityTip } from './posing.js';
 
 const DIRS = { front: [0, 0, 1], back: [0, 0, -1], right: [1, 0, 0], left: [-1, 0, 0], top: [0, 1, 0], bottom: [0, -1, 0] };
 
@@ -36,6 +36,8 @@ function selectionBounds() {
 export function frameSelected() {
   const box = selectionBounds();
   if (!box || box.isEmpty()) return;
+  const tip = velocityTip();
+  if (tip) box.expandByPoint(tip);  // the arrow being posed stays in view
   const sphere = box.getBoundingSphere(new THREE.Sphere());
   const r = Math.max(sphere.radius, 1e-3 * (geometry.boundingSphere ? geometry.boundingSphere.radius : 1));
   const dir = camera.position.clone().sub(controls.target).normalize();
