@@ -228,7 +228,7 @@ ERRORS = [
     (with_(grid=None, random={"material.young": {"uniform": [2e5, 1e5]}}),
      'random."material.young".uniform = [200000.0, 100000.0]: low exceeds high'),
     (with_(grid=None, random={"material.young": {"uniform": [-1.0, 1e5]}}),
-     'random."material.young".uniform[0] = -1.0 must be a number > 0 (Pa)'),
+     'random."material.young".uniform[0] = -1.0 must be a number in [0.001, 1e+13] (Pa)'),
     (with_(grid=None, random={"damping.alpha": {"log_uniform": [0.0, 1.0]}}),
      "log_uniform needs low > 0"),
     (with_(random={"simulation.modes": {"uniform": [8, 12]}}),

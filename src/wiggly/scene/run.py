@@ -193,6 +193,9 @@ def _warn_missed(scene: Scene, anim, body) -> None:
                        f"{100 * miss / size:.0f} %" for j, miss in missed[:4])
     more = f"; and {len(missed) - 4} more" if len(missed) > 4 else ""
     why = "raise their stiffness (the default is 1e6; e.g. 1e9)"
+    if not scene.simulation.warp:
+        why = ("a linear solve (simulation.warp = false) cannot meet turned targets, it "
+               "stretches them: turn warping on; or " + why)
     if np.linalg.norm(scene.simulation.gravity) > 0 and end - start > 2.0:
         why += (f"; over a {end - start:g} s shot gravity outweighs the keys (a key's weight "
                 "falls as the cube of the duration): key the body more often, or shorten it")
