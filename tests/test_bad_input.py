@@ -92,7 +92,9 @@ def refused(capsys, folder: Path, scene: Path, *options) -> str:
     before = snapshot(folder)
     code = main(["animate", str(scene), "-q", *map(str, options)])
     _, err = capsys.readouterr()
-    lines = err.strip().splitlines()
+    # a refusal after the solve may follow the missed-keys warning: BASE's linear 45 degree
+    # turn misses its key by about 5 % of the ball, the warning's threshold
+    lines = [line for line in err.strip().splitlines() if "missed by more than" not in line]
     assert code == 1, err
     assert "Traceback" not in err and len(lines) == 1, err
     assert lines[0].startswith("wiggly: error: ")
