@@ -182,6 +182,10 @@ def test_open_dialog_uploads_and_opens_a_mesh(chromium, tmp_path):
     try:
         with editor_page(chromium, server.url, mesh=False) as (page, errors):
             page.wait_for_selector("#modal:not([hidden])")  # nothing open yet: the Open dialog
+            # the upload says what it is, and the list is in labelled sections
+            assert "upload a mesh" in page.locator("#modal-body label.upload").inner_text()
+            assert page.locator("#modal-body .file-heading").all_inner_texts()[-1] \
+                .lower() == "bundled models"
             page.set_input_files("#modal-body input[type=file]", str(upload / "brick.vtu"))
             page.wait_for_function(
                 "document.querySelector('#modal-body input[type=text]').value !== ''")

@@ -39,14 +39,25 @@ export async function openDialog() {
     });
     if (r) { input.value = r.path; toast(`uploaded ${r.path}`); }
   };
-  wrap.append(input, upload);
+  const uploadLabel = document.createElement('label');
+  uploadLabel.className = 'upload';
+  uploadLabel.append('or upload a mesh: ', upload);
+  wrap.append(input, uploadLabel);
   const label = (f) => (files.unsaved.includes(f) ? `${f}  (unsaved: recover from autosave)` : f);
-  for (const f of [...files.unsaved, ...files.scenes, ...files.meshes, ...files.builtin]) {
-    const d = document.createElement('div');
-    d.className = 'file'; d.textContent = label(f);
-    d.onclick = () => { input.value = f; };
-    d.ondblclick = () => $('modal-ok').click();
-    wrap.append(d);
+  const sections = [['Scenes', [...files.unsaved, ...files.scenes]], ['Meshes', files.meshes],
+                    ['Bundled models', files.builtin]];
+  for (const [title, list] of sections) {
+    if (!list.length) continue;
+    const h = document.createElement('div');
+    h.className = 'file-heading'; h.textContent = title;
+    wrap.append(h);
+    for (const f of list) {
+      const d = document.createElement('div');
+      d.className = 'file'; d.textContent = label(f);
+      d.onclick = () => { input.value = f; };
+      d.ondblclick = () => $('modal-ok').click();
+      wrap.append(d);
+    }
   }
   modal('Open a scene or a mesh', wrap, async () => {
     const r = await act(() => api.post('/api/open', { path: input.value.trim() }));
