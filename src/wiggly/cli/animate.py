@@ -24,7 +24,7 @@ examples:
 Blender: its glTF importer puts a key at t seconds on frame t * (scene fps), and its USD
 importer takes the frame range from the file but ignores its frame rate. Export at the
 Blender scene's rate (--fps 24 for a new scene) with --frame-start 1 to land on frames
-1, 2, ...; see the README."""
+1, 2, ...; see docs/blender.md."""
 
 
 def add_args(parser: argparse.ArgumentParser) -> None:
