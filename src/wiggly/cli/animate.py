@@ -100,8 +100,10 @@ def summary(scene, anim) -> str:
                      f"{seconds.get('solve', 0):.1f} s, outputs {write:.1f} s, total "
                      f"{sum(seconds.values()):.1f} s")
     lines.append(f"shot       [{anim.start:g}, {anim.end:g}] s at {scene.time.fps:g} fps")
-    sparse = replace(anim, keyframes=anim.keyframes[:len(scene.keyframes)])  # not [drive]'s
-    rows = sparse.constraint_residuals()
+    rows = anim.info.get("keyframe_residuals")  # scene.run's, of the scene's own keyframes
+    if rows is None:
+        sparse = replace(anim, keyframes=anim.keyframes[:len(scene.keyframes)])  # not [drive]'s
+        rows = sparse.constraint_residuals()
     if rows:
         lines.append("keyframes  residuals at the key times")
         lines.append(f"  {'#':>3}  {'time':>6}  {'group':<14} {'name':<16} {'pos rms':>10} "

@@ -136,7 +136,9 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     .obj .npz) goes through :func:`wiggly.export.write_animation`, previews (.mp4 .gif) through
     :func:`wiggly.render.render_video` with the keyframed groups highlighted, .png through
     :func:`wiggly.render.render_contact_sheet`.  Outputs are checked before anything is
-    computed and written atomically.  ``anim.info["scene"]`` has the written paths and the
+    computed and written atomically.  ``anim.info["keyframe_residuals"]`` has the scene's own
+    keyframes' residuals (:meth:`wiggly.Animation.constraint_residuals`), and
+    ``anim.info["scene"]`` has the written paths and the
     time spent per stage.  Its stages are reported as :mod:`wiggly.progress` says (on the
     ``wiggly`` logger at INFO, with bars on a terminal).
     """
@@ -182,8 +184,10 @@ def _warn_missed(scene: Scene, anim, body) -> None:
     own = replace(anim, keyframes=anim.keyframes[:len(scene.keyframes)])
     if not own.keyframes:
         return
+    rows = own.constraint_residuals()
+    anim.info["keyframe_residuals"] = rows  # the summary prints these rows
     size = float(np.linalg.norm(np.ptp(body.rest_positions(), axis=0)))
-    missed = [(j, row["position_max"]) for j, row in enumerate(own.constraint_residuals())
+    missed = [(j, row["position_max"]) for j, row in enumerate(rows)
               if row.get("position_max") is not None and row["position_max"] > MISSED * size]
     if not missed:
         return
