@@ -309,3 +309,52 @@ def test_unreadable_drivers_say_what_is_wrong(tmp_path):
         read_driver(tmp_path / "walk.fbx")
     with pytest.raises(WigglyInputError, match="no numbered files"):
         read_driver(tmp_path / "walk_####.obj", frame_rate=24)
+
+
+def test_a_skinned_rest_mesh_is_posed_by_its_joints_not_its_node(tmp_path):
+    """A rig scaled by 2 and moved, as Blender writes it: the skinned mesh node is the rig's
+    child, its positions are already in world scale, and each inverse bind matrix undoes its
+    joint's bind transform.  The rest mesh is the linear blend of the joints' static
+    transforms (glTF 3.7.3: the skinned node's transform is ignored), not the positions times
+    the node's transform (which trimesh alone applies: twice the scale, moved twice).  The
+    second joint's static rotation differs from its bind pose, so that vertex's rest is a
+    true blend; normals follow the blended linear parts."""
+    X = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+                 np.float32)
+    N = np.array([[-1, -1, -1], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], np.uint16)
+    joints = np.array([[0, 1, 0, 0]] * 4, np.uint8)
+    w = np.array([[1, 0, 0, 0], [1, 0, 0, 0], [0.5, 0.5, 0, 0], [0, 1, 0, 0]], np.float32)
+    rig = trans(3, 0, 0) @ np.diag([2.0, 2, 2, 1])
+    bind_root, bind_child = rig, rig @ trans(0, 0.5, 0)
+    static_child = rig @ trans(0, 0.5, 0) @ rot("x", np.radians(30))
+    ibm = np.stack([np.linalg.inv(bind_root), np.linalg.inv(bind_child)])
+    quat = Rotation.from_euler("x", np.radians(30)).as_quat().tolist()
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}],
+           "nodes": [{"name": "Rig", "translation": [3.0, 0, 0], "scale": [2.0, 2, 2],
+                      "children": [1, 2]},
+                     {"name": "Body", "mesh": 0, "skin": 0},
+                     {"name": "root", "children": [3]},
+                     {"name": "child", "translation": [0, 0.5, 0], "rotation": quat}],
+           "skins": [{"joints": [2, 3], "inverseBindMatrices": 5}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1,
+                                                      "JOINTS_0": 3, "WEIGHTS_0": 4},
+                                       "indices": 2}]}]}
+    path = write_glb(tmp_path / "rig.glb", doc, [
+        (X, "VEC3", False), (N, "VEC3", False), (faces.ravel(), "SCALAR", False),
+        (joints, "VEC4", False), (w, "VEC4", False),
+        (ibm.transpose(0, 2, 1).reshape(-1, 16).astype(np.float32), "MAT4", False)])
+    from wiggly.mesh.loading import load_mesh
+
+    surface = load_mesh(path)
+    J = [bind_root @ ibm[0], static_child @ ibm[1]]
+    B = np.array([w[i, 0] * J[0] + w[i, 1] * J[1] for i in range(4)])
+    expected = np.einsum("nab,nb->na", B[:, :3, :3], X) + B[:, :3, 3]
+    np.testing.assert_allclose(surface.vertices, expected, atol=1e-6)
+    np.testing.assert_allclose(surface.vertices[:2], X[:2], atol=1e-6)  # Blender's case
+    normals = np.einsum("ni,nij->nj", N, np.linalg.inv(B[:, :3, :3]))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    np.testing.assert_allclose(surface.normals, normals, atol=1e-6)
+    d = read_driver(path)  # no animation: the driver's one frame is the rest
+    np.testing.assert_allclose(d.positions[0], surface.vertices, atol=1e-6)

@@ -33,7 +33,7 @@ import numpy as np
 from wiggly.drive.driver import Driver, polygon_edges
 from wiggly.drive.gltf_file import GltfFile
 
-__all__ = ["read_gltf", "sample", "slerp", "trs_matrix"]
+__all__ = ["RestPose", "read_gltf", "rest_pose", "sample", "slerp", "trs_matrix"]
 
 _TRIANGLES = 4
 
@@ -271,10 +271,11 @@ def _joint_matrices(f: GltfFile, skin_index, world: dict[int, np.ndarray]) -> np
     return np.einsum("jfab,jbc->fjac", np.stack([world[j] for j in joints]), ibm)
 
 
-def _skinned(f: GltfFile, prim: dict, positions: np.ndarray, joint_mats: np.ndarray
-             ) -> np.ndarray:
+def _skinned(f: GltfFile, prim: dict, positions: np.ndarray, joint_mats: np.ndarray,
+             linear: list | None = None) -> np.ndarray:
     """Linear blend skinning (3.7.3) of (F, n, 3) positions by the primitive's JOINTS_s /
-    WEIGHTS_s and the joint matrices (F, J, 4, 4)."""
+    WEIGHTS_s and the joint matrices (F, J, 4, 4); ``linear`` gets each frame's blended
+    linear parts (n, 3, 3)."""
     attrs = prim["attributes"]
     J, W = [], []
     for s in range(8):
@@ -303,6 +304,10 @@ def _skinned(f: GltfFile, prim: dict, positions: np.ndarray, joint_mats: np.ndar
         p = positions[k]
         out[k] = np.einsum("nab,nb->na", B[:, :, :3], p) + B[:, :, 3]
         out[k, free] = p[free]
+        if linear is not None and k == 0:
+            L = B[:, :, :3].copy()
+            L[free] = np.eye(3)
+            linear.append(L)
     return out
 
 
@@ -311,10 +316,45 @@ def read_gltf(path: Path, *, animation: str | int | None = None,
     """The driver of a ``.glb`` / ``.gltf`` file: every frame of ``animation`` (a name or
     index; default the first) evaluated on the meshes of the scene (module docstring)."""
     f = GltfFile(Path(path))
-    nodes = f.list("nodes")
-    order, parent = _scene_nodes(f)
     channels = _channels(f, animation)
     times = _frame_times(channels)
+    parts, faces, edges, kinds, _ = _pose(f, channels, times, object)
+    kind = "glTF " + " and ".join(sorted(kinds)) if kinds else "glTF node animation"
+    return Driver(times, np.concatenate(parts, axis=1), np.concatenate(faces),
+                  np.concatenate(edges), str(path), kind)
+
+
+@dataclass
+class RestPose:
+    """The scene's meshes as a viewer shows them with no animation (module docstring).
+
+    ``positions`` (n, 3) in the vertex order of :func:`read_gltf`; ``node_linear`` (n, 3, 3)
+    the linear part of each vertex's node transform (what a reader that ignores skins
+    applies), ``linear`` (n, 3, 3) the one the pose applies (the blended joint matrices of a
+    skinned vertex); ``skinned`` whether any mesh is skinned."""
+
+    positions: np.ndarray
+    node_linear: np.ndarray
+    linear: np.ndarray
+    skinned: bool
+
+
+def rest_pose(path: Path) -> RestPose:
+    """The meshes of a ``.glb`` / ``.gltf`` file with no animation applied: node transforms
+    at their static values, default morph weights, and skins blended by their joints' static
+    transforms (the skinned node's own transform ignored, as the specification requires)."""
+    f = GltfFile(Path(path))
+    parts, _, _, kinds, (node_linear, linear) = _pose(f, [], np.zeros(1), None)
+    return RestPose(np.concatenate(parts, axis=1)[0], np.concatenate(node_linear),
+                    np.concatenate(linear), "skin" in kinds)
+
+
+def _pose(f: GltfFile, channels: list[_Channel], times: np.ndarray, object: str | None):
+    """Positions (F, n, 3) of each triangle primitive of the scene's mesh nodes at ``times``,
+    their faces and edges (offset to the concatenation), the kinds of deformation met, and
+    the per-vertex linear parts (node transform, applied transform) of the first frame."""
+    nodes = f.list("nodes")
+    order, parent = _scene_nodes(f)
     local, weights = _local_transforms(f, channels, times)
     world: dict[int, np.ndarray] = {}
     for i in order:  # parents come first
@@ -331,6 +371,8 @@ def read_gltf(path: Path, *, animation: str | int | None = None,
                          + (", ".join(repr(x) for x in have) or "unnamed"))
         with_mesh = kept
     parts, faces, edges, offset, kinds = [], [], [], 0, set()
+    node_linear: list[np.ndarray] = []
+    linear: list[np.ndarray] = []
     for i in with_mesh:
         node = nodes[i]
         mesh = f.item("meshes", node["mesh"], f"node {i}")
@@ -355,16 +397,18 @@ def read_gltf(path: Path, *, animation: str | int | None = None,
                 P = _morphed(f, prim, base, w)
             if node.get("skin") is not None:
                 kinds.add("skin")
-                P = _skinned(f, prim, P, _joint_matrices(f, node["skin"], world))
+                blended: list[np.ndarray] = []
+                P = _skinned(f, prim, P, _joint_matrices(f, node["skin"], world), blended)
+                linear.append(blended[0])
             else:
                 M = world[i]  # (F, 4, 4)
                 P = np.einsum("fab,fnb->fna", M[:, :3, :3], P) + M[:, None, :3, 3]
+                linear.append(np.broadcast_to(M[0, :3, :3], (n, 3, 3)))
+            node_linear.append(np.broadcast_to(world[i][0, :3, :3], (n, 3, 3)))
             parts.append(P)
             faces.append(tri + offset)
             edges.append(polygon_edges(tri) + offset)
             offset += n
     if not parts or offset == 0:
         raise f.fail("its scene has no mesh of triangles")
-    kind = "glTF " + " and ".join(sorted(kinds)) if kinds else "glTF node animation"
-    return Driver(times, np.concatenate(parts, axis=1), np.concatenate(faces),
-                  np.concatenate(edges), str(path), kind)
+    return parts, faces, edges, kinds, (node_linear, linear)
