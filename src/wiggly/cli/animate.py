@@ -24,7 +24,8 @@ examples:
 Blender: its glTF importer puts a key at t seconds on frame t * (scene fps), and its USD
 importer takes the frame range from the file but ignores its frame rate. Export at the
 Blender scene's rate (--fps 24 for a new scene) with --frame-start 1 to land on frames
-1, 2, ...; see docs/blender.md."""
+1, 2, ...; but leave --frame-start out for a shot driven by a Blender export, whose frame N
+is already at N / fps. See docs/blender.md."""
 
 
 def add_args(parser: argparse.ArgumentParser) -> None:
