@@ -358,3 +358,26 @@ def test_a_skinned_rest_mesh_is_posed_by_its_joints_not_its_node(tmp_path):
     np.testing.assert_allclose(surface.normals, normals, atol=1e-6)
     d = read_driver(path)  # no animation: the driver's one frame is the rest
     np.testing.assert_allclose(d.positions[0], surface.vertices, atol=1e-6)
+
+
+def test_a_glb_with_several_animations_says_which_it_plays(tmp_path):
+    """Blender writes a rig's action and a shape-key action as two glTF animations; the driver
+    plays the first and names the ones it leaves out, unless one is named."""
+    keys = np.array([0.0, 1.0], np.float32)
+    T = np.array([[0, 0, 0], [1.0, 0, 0]], np.float32)
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+           "animations": [
+               {"name": name, "samplers": [{"input": 2, "output": 3}],
+                "channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}}]}
+               for name in ("ArmatureAction", "KeyAction")]}
+    path = write_glb(tmp_path / "two.glb", doc, [
+        (CUBE.astype(np.float32), "VEC3", False), (TRIS.astype(np.uint16).ravel(), "SCALAR", False),
+        (keys, "SCALAR", False), (T, "VEC3", False)])
+    with pytest.warns(UserWarning, match=r"2 animations.*#0 'ArmatureAction', #1 'KeyAction'"):
+        read_driver(path)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_driver(path, animation="KeyAction")

@@ -25,6 +25,7 @@ specification defines them (sections 3.7 "Concepts: Geometry" and 3.11 "Animatio
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -130,6 +131,12 @@ def _channels(f: GltfFile, animation: str | int | None) -> list[_Channel]:
     listing = ", ".join(f"#{i} {n!r}" for i, n in enumerate(names))
     if animation is None:
         index = 0
+        if len(animations) > 1:
+            warnings.warn(
+                f"{f.path}: it has {len(animations)} animations, and the driver plays only the "
+                f"first; the others are left out: {listing}. Name one with drive.animation, "
+                "or export them as one (Blender's glTF export: Animation > Mode > Active "
+                "Actions merged, for a rig's action with a shape-key action)", stacklevel=2)
     elif isinstance(animation, int) and not isinstance(animation, bool):
         if not 0 <= animation < len(animations):
             raise f.fail(f"it has no animation #{animation}; its animations are: {listing}")
