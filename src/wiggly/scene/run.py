@@ -164,6 +164,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
         anim.info["drive"] = following(anim)
         say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"
              f" mm (rms {1e3 * anim.info['drive']['rms']:.3g} mm)")
+        _warn_unfollowed(scene, anim.info["drive"], body)
     written = write_outputs(scene, anim, paths, overwrite=overwrite,
                             highlights=keyframe_highlights(scene, body, anim.keyframes, groups),
                             timings=timings)
@@ -207,6 +208,36 @@ def _warn_missed(scene: Scene, anim, body) -> None:
                   f"{100 * MISSED:g} % of the body's size ({listed}{more}): {why}; also check "
                   "that the targets can be reached (fixed vertices, contradictory keys, heavy "
                   "damping)", stacklevel=2)
+
+
+#: Driven vertices further than this share of the body's size from the driver are warned about.
+UNFOLLOWED = 0.01
+
+
+def _warn_unfollowed(scene: Scene, report: dict | None, body) -> None:
+    """One warning when the driven group strays from its driver by more than ``UNFOLLOWED``
+    of the body's size, with the likely causes of each physics."""
+    if not report:
+        return
+    size = float(np.linalg.norm(np.ptp(body.rest_positions(), axis=0)))
+    if report["max"] <= UNFOLLOWED * size:
+        return
+    drive = scene.drive
+    group = drive.group if isinstance(drive.group, str) else ", ".join(drive.group)
+    if (drive.physics or "secondary") == "secondary":
+        why = ("the driven group is held on the driver's displacement from the rest mesh, "
+               "unwarped, and a displacement far from a rotation and stretch of each tet is "
+               "unwarped only approximately: check that mesh.path is the driver's mesh at its "
+               "rest pose (for glTF, the same file; for USD, an OBJ of the same object at "
+               "rest, with the same modifiers), not another scale or pose of it")
+    else:
+        why = ('physics = "keys" meets the driver only as closely as the modes can: keep '
+               "drive.enrich on, raise simulation.modes or drive.stiffness, or use "
+               'physics = "secondary"')
+    warnings.warn(
+        f"{scene.where()}: the driven vertices ({group}) stray up to "
+        f"{1e3 * report['max']:.3g} mm from the driver (at t = {report['worst_time']:g} s), "
+        f"{100 * report['max'] / size:.1f} % of the body's size: {why}", stacklevel=2)
 
 
 def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
