@@ -45,7 +45,7 @@ def in_blender(python: str, case: str, workdir: Path, **options) -> dict:
 def wiggly_animate(scene: Path) -> tuple[np.ndarray, np.ndarray]:
     """``wiggly animate`` on the exported scene: times and positions in Blender's world
     (wiggly's y up turned back to z up, as Blender's glTF importer does)."""
-    out = scene.with_name("cli.npz")
+    out = scene.with_name(f"{scene.stem}_cli.npz")
     done = subprocess.run([WIGGLY, "animate", str(scene), "-o", str(out), "--quiet"],
                           capture_output=True, text=True, timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -143,6 +143,17 @@ def test_driven_by_armature_equals_wiggly_animate(blender_python, tmp_path):
     assert np.abs(baked[:, free] - original[:, free]).max() > 5e-3 * size
     assert seen["shape_keys"]["result"][0] == "RuntimeError"
     assert "a driven bake cannot be shape keys" in seen["shape_keys"]["printed"]
+    # Drive physics: the default holds the group on the animation; Keys keys it stiffly,
+    # and then the free end follows the armature nearly rigidly (the docs' words)
+    held = tomllib.loads((tmp_path / "shot.toml").read_text())["drive"]
+    assert held["physics"] == "secondary" and "stiffness" not in held
+    assert seen["export_keys"]["result"] == ["FINISHED"]
+    keyed = tomllib.loads((tmp_path / "shot_keys.toml").read_text())["drive"]
+    assert keyed["physics"] == "keys" and keyed["stiffness"] == 1e12
+    _, cli_keys = wiggly_animate(tmp_path / "shot_keys.toml")
+    assert np.linalg.norm(cli_keys[:, body] - original[:, body], axis=-1).max() < 5e-3 * size
+    assert (np.abs(cli_keys[:, free] - original[:, free]).max()
+            < np.abs(baked[:, free] - original[:, free]).max())
 
 
 def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):

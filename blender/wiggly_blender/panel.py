@@ -64,7 +64,9 @@ class WIGGLY_PT_main(_WigglyPanel, bpy.types.Panel):
                 row.operator("wiggly.set_rest", icon="PINNED", text="")
                 box.prop(item, "stiffness")
             elif item.role == "DRIVEN":
-                box.prop(s, "drive_stiffness")
+                box.prop(s, "drive_physics")
+                if s.drive_physics == "KEYS":
+                    box.prop(s, "drive_stiffness")
 
 
 class WIGGLY_PT_material(_WigglyPanel, bpy.types.Panel):

@@ -115,10 +115,19 @@ class WigglySettings(bpy.types.PropertyGroup):
         name="Loop", default=False,
         description="A seamless cycle: the last frame's positions and velocities equal the "
                     "first's")
+    drive_physics: EnumProperty(
+        name="Drive physics",
+        description="How the Driven group's animation moves the body",
+        items=[("SECONDARY", "Secondary motion", "The animation owns the Driven group, which "
+                "follows it exactly; physics moves the free parts, pushed by its "
+                "accelerations"),
+               ("KEYS", "Keys", "The Driven group is keyed to the animation at every frame "
+                "(Drive stiffness) and the whole body minimises the spacetime energy")],
+        default="SECONDARY")
     drive_stiffness: FloatProperty(
         name="Drive stiffness", default=1e12, min=0.0, soft_min=1.0,
-        description="How hard the driven group follows the object's own animation "
-                    "(dimensionless)")
+        description="Keys physics: how hard the driven group follows the object's own "
+                    "animation (dimensionless)")
     bake_as: EnumProperty(
         name="Bake as",
         description="Where the baked motion lands",

@@ -200,7 +200,8 @@ def gather(context, obj) -> Shot:
         driver = _driver(context, obj, driven, labels, to_wiggly, fs, fe) if driven else None
     finally:
         scene.frame_set(frame[0], subframe=frame[1])
-    settings = {k: getattr(s, k) for k in ("modes", "resolution", "warp", "loop")}
+    settings = {k: getattr(s, k) for k in ("modes", "resolution", "warp", "loop",
+                                            "drive_physics")}
     # Blender keeps float properties in single precision: 0.45 reads 0.44999998807907104
     settings.update({k: _single(getattr(s, k)) for k in ("young", "poisson", "density",
                                                           "alpha", "beta", "drive_stiffness")})
@@ -425,8 +426,11 @@ def scene_toml(shot: Shot, mesh_file: str, driver_file: str | None,
     for key in shot.keyframes:
         parts.append("[[keyframes]]\n" + "".join(f"{k} = {_value(v)}\n" for k, v in key.items()))
     if shot.driver is not None:
-        parts.append(_table("drive", {"path": driver_file, "group": shot.driven,
-                                      "stiffness": s["drive_stiffness"]}))
+        drive = {"path": driver_file, "group": shot.driven,
+                 "physics": s["drive_physics"].lower()}
+        if drive["physics"] == "keys":
+            drive["stiffness"] = s["drive_stiffness"]
+        parts.append(_table("drive", drive))
     parts.append(_table("output", {"paths": outputs, "frame_start": shot.frame_start}))
     return "\n".join(parts)
 

@@ -233,6 +233,9 @@ def case_driven() -> None:
     report["body"] = [v.index for v in obj.data.vertices if v.co.x < 0.7]
     s.bake_as = "SHAPE_KEYS"
     report["shape_keys"] = run(bpy.ops.wiggly.bake)
+    s.drive_physics = "KEYS"
+    report["export_keys"] = run(bpy.ops.wiggly.export_scene,
+                                filepath=str(workdir / "shot_keys.toml"))
 
 
 def case_errors() -> None:
