@@ -427,3 +427,24 @@ def test_an_unreadable_prepared_body_is_prepared_again(tmp_path, monkeypatch):
     assert again[0]["status"] == "done" and again[0]["body"] == first[0]["body"]
     summary = json.loads((tmp_path / "b" / "summary.json").read_text())
     assert summary["bodies"][0]["cached"] is True and pickle.read_bytes() != b"not a pickle"
+
+
+def test_a_script_without_a_main_guard_is_told_how_to_fix_it(tmp_path):
+    """Local workers import the calling script first (forkserver); one that starts a batch at
+    import would start it again in every worker, which then dies.  The caller hears that,
+    with the fix, instead of "out of memory"; the worker says why it stopped."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    script = tmp_path / "sweep_script.py"
+    script.write_text("import wiggly.batch\n"
+                      f"wiggly.batch.run([{str(root / 'examples' / 'jump.toml')!r}], "
+                      f"{str(tmp_path / 'out')!r}, workers=1)\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=600, cwd=tmp_path)
+    assert done.returncode != 0
+    last = done.stderr.strip().splitlines()[-1]
+    assert "worker processes could not start" in last and str(script) in last, last
+    assert 'if __name__ == "__main__":' in last and "memory" not in last
+    assert "called while a worker process imported the script" in done.stderr

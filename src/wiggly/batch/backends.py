@@ -14,6 +14,7 @@ import json
 import logging
 import multiprocessing
 import os
+import sys
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any
@@ -95,9 +96,16 @@ class LocalPool:
         self.bodies = cache / "batch" / "bodies"
 
     def _start(self) -> None:
+        """A new pool whose workers are known to start: each first imports the calling
+        script (Python's forkserver), and a script that starts a batch at import kills it."""
         self._pool = cf.ProcessPoolExecutor(self.slots, mp_context=forkserver_context(),
                                             initializer=worker.init_process,
                                             initargs=self._args)
+        try:
+            self._pool.submit(os.getpid).result()
+        except BrokenProcessPool as err:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            raise WigglyInputError(_unstartable(err)) from None
 
     def describe(self) -> str:
         return f"{self.slots} local worker process{'es' if self.slots != 1 else ''}"
@@ -150,6 +158,17 @@ class LocalPool:
 
     def close(self, cancel: bool = False) -> None:
         self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
+
+
+def _unstartable(err: BaseException) -> str:
+    """Why the worker processes could not start, with the likely cause for a script."""
+    main = getattr(sys.modules.get("__main__"), "__file__", None)
+    message = f"the batch's worker processes could not start ({err})"
+    if main and "wiggly" not in Path(main).parts[-3:-1] and Path(main).name != "wiggly":
+        message += (f". Each worker first imports the script that started the batch, {main}; "
+                    "if it calls wiggly.batch.run at import, put the call under "
+                    '`if __name__ == "__main__":`')
+    return message
 
 
 class RayCluster:

@@ -68,6 +68,10 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
     unusable ``out_dir``.
     """
     t_start = time.perf_counter()
+    if _imported_by_a_worker():
+        raise WigglyInputError(
+            "wiggly.batch.run was called while a worker process imported the script that "
+            "started the batch: put the call under `if __name__ == \"__main__\":`")
     if isinstance(inputs, str | os.PathLike | Scene | Sweep):
         inputs = [inputs]
     inputs = list(inputs)
@@ -137,6 +141,17 @@ def default_out_dir(inputs: list, sweeps: list[Sweep]) -> Path:
 
 # ----------------------------------------------------------------------------------------------
 # the output folder
+
+
+def _imported_by_a_worker() -> bool:
+    """Whether this call comes from a script that a worker process is importing (Python's
+    forkserver and spawn run the calling script as ``__mp_main__``)."""
+    frame = sys._getframe(1)
+    while frame is not None:
+        if frame.f_globals.get("__name__") == "__mp_main__":
+            return True
+        frame = frame.f_back
+    return False
 
 
 @contextmanager
