@@ -381,3 +381,47 @@ def test_a_glb_with_several_animations_says_which_it_plays(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         read_driver(path, animation="KeyAction")
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0])
+def test_a_skin_saved_off_its_bind_pose_is_warned_about(tmp_path, angle):
+    """A bar skinned to two joints: saved at its bind pose (angle 0, as Blender's default
+    export) the rest mesh is the stored bar and nothing is said; with the second joint
+    turned 30 degrees from its bind, the rest mesh is the bent bar a viewer shows, and the
+    loader says that the skeleton is not at its bind pose."""
+    x = np.linspace(0.0, 1.0, 6)
+    X = np.array([[a, b, c] for a in x for b in (0.0, 0.1) for c in (0.0, 0.1)], np.float32)
+    faces = np.array([[i, i + 1, i + 2] for i in range(len(X) - 2)], np.uint16)
+    joints = np.zeros((len(X), 4), np.uint8)
+    joints[:, 0] = X[:, 0] > 0.5
+    w = np.zeros((len(X), 4), np.float32)
+    w[:, 0] = 1.0
+    ibm = np.stack([np.eye(4), np.linalg.inv(trans(0.5, 0, 0))])
+    quat = Rotation.from_euler("z", np.radians(angle)).as_quat().tolist()
+    doc = {"scene": 0, "scenes": [{"nodes": [0, 1]}],
+           "nodes": [{"mesh": 0, "skin": 0}, {"name": "root", "children": [2]},
+                     {"name": "tip", "translation": [0.5, 0, 0], "rotation": quat}],
+           "skins": [{"joints": [1, 2], "inverseBindMatrices": 4}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "JOINTS_0": 2,
+                                                      "WEIGHTS_0": 3}, "indices": 1}]}]}
+    path = write_glb(tmp_path / "bar.glb", doc, [
+        (X, "VEC3", False), (faces.ravel(), "SCALAR", False), (joints, "VEC4", False),
+        (w, "VEC4", False), (ibm.transpose(0, 2, 1).reshape(-1, 16).astype(np.float32),
+                             "MAT4", False)])
+    import warnings
+
+    from wiggly.mesh.loading import load_mesh
+
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        surface = load_mesh(path)
+    said = [str(s.message) for s in seen if "bind pose" in str(s.message)]
+    tip = X[:, 0] > 0.5
+    expected = X.astype(np.float64)
+    R = Rotation.from_euler("z", np.radians(angle)).as_matrix()
+    expected[tip] = (X[tip] - [0.5, 0, 0]) @ R.T + [0.5, 0, 0]
+    np.testing.assert_allclose(surface.vertices, expected, atol=1e-6)
+    if angle == 0.0:
+        assert not said, said
+    else:
+        assert len(said) == 1 and "bar.glb" in said[0] and "Use Rest Position" in said[0]

@@ -243,6 +243,7 @@ def _skinned_rest(path: Path, surface: Surface) -> Surface:
             f"{path}: its skinned meshes have {len(pose.positions)} vertices, but trimesh read "
             f"{len(surface.vertices)}; export the mesh without its armature (or apply it), or give "
             "the rest shape as its own file.")
+    _warn_posed(path, pose.bind, pose.positions)
     normals = surface.normals
     if normals is not None:  # undo the node transform trimesh applied, then apply the pose's
         raw = np.einsum("ni,nij->nj", normals, pose.node_linear)
@@ -250,6 +251,23 @@ def _skinned_rest(path: Path, surface: Surface) -> Surface:
         normals /= np.linalg.norm(normals, axis=1, keepdims=True).clip(1e-300)
     return Surface(pose.positions, surface.faces, uvs=surface.uvs, normals=normals,
                    groups=surface.groups)
+
+
+def _warn_posed(path: Path, bind: np.ndarray, posed: np.ndarray) -> None:
+    """Warn when a skin's static pose deforms its mesh (no one affine map takes the bind
+    positions to the posed ones): the file's skeleton was not saved at its bind pose, so
+    the rest mesh is bent as the pose bends it."""
+    size = float(np.linalg.norm(np.ptp(posed, axis=0)))
+    A = np.c_[bind, np.ones(len(bind))]
+    fit, *_ = np.linalg.lstsq(A, posed, rcond=None)
+    off = float(np.linalg.norm(A @ fit - posed, axis=1).max())
+    if off > 1e-3 * size:
+        warnings.warn(
+            f"{path}: its skeleton is not at its bind pose (the pose moves vertices up to "
+            f"{off:.3g} m, {100 * off / size:.2g} % of the mesh's size, beyond one rigid or "
+            "affine motion), so the rest mesh is the posed mesh a viewer shows, bent as the "
+            "pose bends it. For the undeformed mesh, export at the rest pose (Blender's glTF "
+            "export: Data > Armature > Use Rest Position).", stacklevel=3)
 
 
 _NO_TRIANGLES = (
