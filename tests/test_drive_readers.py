@@ -381,6 +381,36 @@ def test_a_glb_with_several_animations_says_which_it_plays(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         read_driver(path, animation="KeyAction")
+    with pytest.raises(WigglyInputError, match=r"'ArmatureAction' and 'KeyAction' both animate "
+                                               r"the translation of node 0"):
+        read_driver(path, animation=["ArmatureAction", "KeyAction"])
+
+
+def test_two_animations_play_together(tmp_path):
+    """A node's translation in one animation and the morph weights of its mesh in another
+    (as Blender writes a rig's action and a shape-key action): named together, both play,
+    at the union of their key times."""
+    D = 0.1 * CUBE
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1,
+                                       "targets": [{"POSITION": 2}]}]}],
+           "animations": [
+               {"name": "walk", "samplers": [{"input": 3, "output": 4}],
+                "channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}}]},
+               {"name": "breathe", "samplers": [{"input": 5, "output": 6}],
+                "channels": [{"sampler": 0, "target": {"node": 0, "path": "weights"}}]}]}
+    path = write_glb(tmp_path / "both.glb", doc, [
+        (CUBE.astype(np.float32), "VEC3", False), (TRIS.astype(np.uint16).ravel(), "SCALAR", False),
+        (D.astype(np.float32), "VEC3", False),
+        (np.array([0.0, 1.0], np.float32), "SCALAR", False),
+        (np.array([[0, 0, 0], [1.0, 0, 0]], np.float32), "VEC3", False),
+        (np.array([0.0, 0.5, 1.0], np.float32), "SCALAR", False),
+        (np.array([0.0, 1.0, 0.0], np.float32), "SCALAR", False)])
+    d = read_driver(path, animation=["walk", "breathe"])
+    np.testing.assert_allclose(d.times, [0.0, 0.5, 1.0])
+    for t, w, x in ((0.0, 0.0, 0.0), (0.5, 1.0, 0.5), (1.0, 0.0, 1.0)):
+        k = int(np.argmin(np.abs(d.times - t)))
+        np.testing.assert_allclose(d.positions[k], CUBE + w * D + [x, 0, 0], atol=1e-6)
 
 
 @pytest.mark.parametrize("angle", [0.0, 30.0])

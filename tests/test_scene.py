@@ -142,6 +142,21 @@ def test_round_trip_every_kind(tmp_path):
     assert scene_to_toml(loaded) == text
 
 
+def test_round_trip_a_drive_with_several_animations(tmp_path):
+    """drive.animation as an array (several glTF animations played together) reads as a
+    tuple, writes back as the same array, and its items are checked one by one."""
+    text = ('format = 1\n[mesh]\npath = "m.obj"\n[time]\nend = 1.0\n[groups.g]\n'
+            'indices = [0]\n[drive]\npath = "d.glb"\ngroup = "g"\n'
+            'animation = ["walk", 2]\n')
+    scene = scene_from_dict(tomllib.loads(text))
+    assert scene.drive.animation == ("walk", 2)
+    assert 'animation = ["walk", 2]' in scene_to_toml(scene)
+    assert scene_from_dict(tomllib.loads(scene_to_toml(scene))) == scene
+    with pytest.raises(WigglyInputError, match=r"drive\.animation\[1\] = 1\.5 must be an "
+                                               r"animation name or index"):
+        scene_from_dict(tomllib.loads(text.replace('["walk", 2]', '["walk", 1.5]')))
+
+
 def _without_none(d):
     if isinstance(d, dict):
         return {k: _without_none(v) for k, v in d.items() if v is not None}

@@ -37,6 +37,7 @@ positions (F, n, 3) of the surface's n vertices in wiggly's axes (y up, metres):
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 from wiggly.drive.basis import enrich
@@ -69,11 +70,14 @@ DRIVER_EXTENSIONS = {
 
 
 @deprecated_progress
-def read_driver(path: str | os.PathLike[str], *, animation: str | int | None = None,
+def read_driver(path: str | os.PathLike[str], *,
+                animation: str | int | Sequence[str | int] | None = None,
                 object: str | None = None, frame_rate: float | None = None) -> Driver:
     """Read a driver animation (format by extension, :data:`DRIVER_EXTENSIONS`).
 
-    ``animation`` picks a glTF animation by name or index (default: the first); ``object``
+    ``animation`` picks a glTF animation by name or index (default: the first), or several
+    to play together (a sequence: their channels merged, e.g. a rig's action and a shape-key
+    action); ``object``
     keeps the glTF mesh nodes, or the USD meshes at or below prims, of that name (default:
     every mesh, in file order); ``frame_rate`` times an OBJ sequence without wiggly's
     ``# time`` comments (frame N at N / frame_rate s).  Raises :class:`WigglyInputError`

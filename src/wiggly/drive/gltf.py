@@ -13,7 +13,8 @@ specification defines them (sections 3.7 "Concepts: Geometry" and 3.11 "Animatio
   by spherical linear interpolation along the shorter arc), CUBICSPLINE is the cubic Hermite
   spline of (in-tangent, value, out-tangent) triples with tangents scaled by the key interval
   (rotations normalized after).  Before the first key the first value holds, after the last
-  the last.  The driver's frames are the key times of every channel of the animation.
+  the last.  The driver's frames are the key times of every channel of the animation (of
+  every animation, when several play together).
 * **Morph targets** (3.7.2.2): POSITION + sum_i w_i delta_i, with w the node's animated
   ``weights`` (else the node's, else the mesh's default weights, else 0).
 * **Skins** (3.7.3): joint matrix j = global(joint j) * inverseBindMatrix j (identity when
@@ -26,6 +27,7 @@ specification defines them (sections 3.7 "Concepts: Geometry" and 3.11 "Animatio
 from __future__ import annotations
 
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -123,29 +125,51 @@ class _Channel:
     interpolation: str
 
 
-def _channels(f: GltfFile, animation: str | int | None) -> list[_Channel]:
+def _channels(f: GltfFile, animation) -> list[_Channel]:
+    """The channels of ``animation`` (a name or index, default the first), or of several
+    played together (a list: their channels merged; two that animate the same property of
+    the same node are refused)."""
     animations = f.list("animations")
     if not animations:
         return []
     names = [a.get("name") or f"#{i}" for i, a in enumerate(animations)]
     listing = ", ".join(f"#{i} {n!r}" for i, n in enumerate(names))
+    if isinstance(animation, list | tuple):
+        merged: list[_Channel] = []
+        owner: dict[tuple[int, str], str] = {}
+        for one in animation:
+            index = _animation_index(f, one, names, listing)
+            for c in _animation_channels(f, animations[index], names[index]):
+                other = owner.setdefault((c.node, c.path), names[index])
+                if other != names[index]:
+                    raise f.fail(f"animations {other!r} and {names[index]!r} both animate the "
+                                 f"{c.path} of node {c.node}; play one of them")
+                merged.append(c)
+        return merged
     if animation is None:
         index = 0
         if len(animations) > 1:
             warnings.warn(
                 f"{f.path}: it has {len(animations)} animations, and the driver plays only the "
                 f"first; the others are left out: {listing}. Name one with drive.animation, "
-                "or export them as one (Blender's glTF export: Animation > Mode > Active "
-                "Actions merged, for a rig's action with a shape-key action)", stacklevel=2)
-    elif isinstance(animation, int) and not isinstance(animation, bool):
-        if not 0 <= animation < len(animations):
-            raise f.fail(f"it has no animation #{animation}; its animations are: {listing}")
-        index = animation
-    elif animation in names:
-        index = names.index(animation)
+                "or several to play together (drive.animation = [\"walk\", \"breathe\"]; "
+                "a rig's action and a shape-key action)", stacklevel=2)
     else:
-        raise f.fail(f"it has no animation named {animation!r}; its animations are: {listing}")
-    anim, name = animations[index], names[index]
+        index = _animation_index(f, animation, names, listing)
+    return _animation_channels(f, animations[index], names[index])
+
+
+def _animation_index(f: GltfFile, animation, names: list[str], listing: str) -> int:
+    if isinstance(animation, int) and not isinstance(animation, bool):
+        if not 0 <= animation < len(names):
+            raise f.fail(f"it has no animation #{animation}; its animations are: {listing}")
+        return animation
+    if animation in names:
+        return names.index(animation)
+    raise f.fail(f"it has no animation named {animation!r}; its animations are: {listing}")
+
+
+def _animation_channels(f: GltfFile, anim: dict, name: str) -> list[_Channel]:
     samplers = anim.get("samplers") or []
     out = []
     for c in anim.get("channels") or []:
@@ -318,10 +342,11 @@ def _skinned(f: GltfFile, prim: dict, positions: np.ndarray, joint_mats: np.ndar
     return out
 
 
-def read_gltf(path: Path, *, animation: str | int | None = None,
+def read_gltf(path: Path, *, animation: str | int | Sequence[str | int] | None = None,
               object: str | None = None) -> Driver:
     """The driver of a ``.glb`` / ``.gltf`` file: every frame of ``animation`` (a name or
-    index; default the first) evaluated on the meshes of the scene (module docstring)."""
+    index, or several played together; default the first) evaluated on the meshes of the
+    scene (module docstring)."""
     f = GltfFile(Path(path))
     channels = _channels(f, animation)
     times = _frame_times(channels)

@@ -182,9 +182,13 @@ _DRIVE = Table(
      "enrich": Bool(doc='physics = "keys": add the driver\'s shapes to the modal basis '
                          "(Rayleigh-Ritz), so that the driven group can follow it closely "
                          "(default true)"),
-     "animation": ByType({str: String(), int: Number(integer=True, ge=0)},
-                          what="an animation name or index (integer >= 0)",
-                          doc="glTF: the animation to play, by name or index (default: the "
+     "animation": ByType({str: String(), int: Number(integer=True, ge=0),
+                          list: Array(ByType({str: String(), int: Number(integer=True, ge=0)},
+                                             what="an animation name or index (integer >= 0)"),
+                                      min_items=1, unique=True)},
+                          what="an animation name or index (integer >= 0), or an array of them",
+                          doc="glTF: the animation to play, by name or index, or several played "
+                              "together (a rig's action and a shape-key action; default: the "
                               "first)"),
      "object": String(doc="glTF: the mesh node (or mesh) to read; USD: the prim at or below "
                            "which meshes are read, by path or name (default: every mesh)"),

@@ -266,7 +266,7 @@ class DriveSpec:
     range: tuple[float, float] | None = None
     stiffness: float | None = None
     enrich: bool = True
-    animation: str | int | None = None
+    animation: str | int | tuple[str | int, ...] | None = None
     object: str | None = None
     frame_rate: float | None = None
     physics: str = "secondary"
@@ -278,6 +278,8 @@ class DriveSpec:
             _set(self, "group", tuple(self.group))
         if self.range is not None:
             _set(self, "range", _floats(self.range, 2))
+        if isinstance(self.animation, list):
+            _set(self, "animation", tuple(self.animation))
 
     @property
     def adds_shapes(self) -> bool:

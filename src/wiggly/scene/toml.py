@@ -57,6 +57,8 @@ def scene_to_dict(scene: Scene) -> dict:
             drive["group"] = list(drive["group"])
         if "range" in drive:
             drive["range"] = list(drive["range"])
+        if isinstance(drive.get("animation"), tuple):
+            drive["animation"] = list(drive["animation"])
         d["drive"] = drive
     return d
 
