@@ -39,6 +39,7 @@ export function layout() {
 // drag changes); playback only copies it and draws the cursor.
 const sheet = document.createElement('canvas');
 let ticks = {};  // group -> driven-frame ticks drawn (tests)
+let hinted = false;  // the rows hold the "no groups yet" hint: the cursor stays in the ruler
 export function drivenTicks() { return { ...ticks }; }
 export function draw() {
   layout();
@@ -65,7 +66,8 @@ export function draw() {
     g.fillStyle = sel ? '#fff' : '#dfe3ea';
     g.fillText(name.length > 15 ? name.slice(0, 14) + '…' : name, 20, y + ROW / 2);
   });
-  if (!names.length) { g.fillStyle = '#8d95a3'; g.fillText('no groups yet: select vertices, press G', 8, RULER + ROW / 2); }
+  hinted = !names.length;
+  if (hinted) { g.fillStyle = '#8d95a3'; g.fillText('no groups yet: select vertices, press G', 8, RULER + ROW / 2); }
   if (names.length > MAX_ROWS) { g.fillStyle = '#8d95a3'; g.fillText(`${scrollRow + 1}-${Math.min(names.length, scrollRow + MAX_ROWS)} of ${names.length} (wheel)`, 8, RULER / 2); }
   // ruler
   g.fillStyle = '#262a31'; g.fillRect(LABEL_W, 0, w - LABEL_W, RULER);
@@ -129,7 +131,7 @@ export function drawTimeCursor() {
   g.setTransform(dpr, 0, 0, dpr, 0, 0);
   const x = tlX(S.t);
   g.strokeStyle = '#4da3ff'; g.lineWidth = 2;
-  g.beginPath(); g.moveTo(x, 0); g.lineTo(x, ds.clientHeight); g.stroke();
+  g.beginPath(); g.moveTo(x, 0); g.lineTo(x, hinted ? RULER : ds.clientHeight); g.stroke();
   g.lineWidth = 1;
 }
 function niceStep(x) { const p = 10 ** Math.floor(Math.log10(x)); const m = x / p; return (m < 1.5 ? 1 : m < 3.5 ? 2 : m < 7.5 ? 5 : 10) * p; }
