@@ -125,7 +125,10 @@ class _Channel:
     interpolation: str
 
 
-def _channels(f: GltfFile, animation) -> list[_Channel]:
+AnimationChoice = str | int | Sequence[str | int] | None
+
+
+def _channels(f: GltfFile, animation: AnimationChoice) -> list[_Channel]:
     """The channels of ``animation`` (a name or index, default the first), or of several
     played together (a list: their channels merged; two that animate the same property of
     the same node are refused)."""
@@ -159,7 +162,8 @@ def _channels(f: GltfFile, animation) -> list[_Channel]:
     return _animation_channels(f, animations[index], names[index])
 
 
-def _animation_index(f: GltfFile, animation, names: list[str], listing: str) -> int:
+def _animation_index(f: GltfFile, animation: str | int, names: list[str], listing: str) -> int:
+    """The index of an animation given by index or name; refused, listing them, if none."""
     if isinstance(animation, int) and not isinstance(animation, bool):
         if not 0 <= animation < len(names):
             raise f.fail(f"it has no animation #{animation}; its animations are: {listing}")
@@ -170,6 +174,7 @@ def _animation_index(f: GltfFile, animation, names: list[str], listing: str) -> 
 
 
 def _animation_channels(f: GltfFile, anim: dict, name: str) -> list[_Channel]:
+    """The geometry channels (node TRS and morph weights) of one animation, checked."""
     samplers = anim.get("samplers") or []
     out = []
     for c in anim.get("channels") or []:
@@ -342,7 +347,7 @@ def _skinned(f: GltfFile, prim: dict, positions: np.ndarray, joint_mats: np.ndar
     return out
 
 
-def read_gltf(path: Path, *, animation: str | int | Sequence[str | int] | None = None,
+def read_gltf(path: Path, *, animation: AnimationChoice = None,
               object: str | None = None) -> Driver:
     """The driver of a ``.glb`` / ``.gltf`` file: every frame of ``animation`` (a name or
     index, or several played together; default the first) evaluated on the meshes of the
@@ -383,7 +388,8 @@ def rest_pose(path: Path) -> RestPose:
                     np.concatenate(linear), "skin" in kinds, np.concatenate(bind))
 
 
-def _pose(f: GltfFile, channels: list[_Channel], times: np.ndarray, object: str | None):
+def _pose(f: GltfFile, channels: list[_Channel], times: np.ndarray, object: str | None
+          ) -> tuple[list, list, list, set, tuple[list, list, list]]:
     """Positions (F, n, 3) of each triangle primitive of the scene's mesh nodes at ``times``,
     their faces and edges (offset to the concatenation), the kinds of deformation met, and
     the per-vertex linear parts (node transform, applied transform) and the positions before
