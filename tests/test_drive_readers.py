@@ -455,3 +455,33 @@ def test_a_skin_saved_off_its_bind_pose_is_warned_about(tmp_path, angle):
         assert not said, said
     else:
         assert len(said) == 1 and "bar.glb" in said[0] and "Use Rest Position" in said[0]
+
+
+def test_a_scaled_skin_beside_a_plain_mesh_is_not_called_posed(tmp_path):
+    """Centimetre exports (a skin whose joints scale it by 0.01, as converted Mixamo files
+    are) next to a mesh without a skin: each skinned primitive is checked on its own, so
+    one affine map per skin is not mistaken for a pose."""
+    import warnings
+
+    from wiggly.mesh.loading import load_mesh
+
+    X = (100 * CUBE).astype(np.float32)
+    joints = np.zeros((len(X), 4), np.uint8)
+    w = np.zeros((len(X), 4), np.float32)
+    w[:, 0] = 1.0
+    doc = {"scene": 0, "scenes": [{"nodes": [0, 1, 2]}],
+           "nodes": [{"mesh": 0, "skin": 0}, {"name": "root", "scale": [0.01, 0.01, 0.01]},
+                     {"mesh": 1, "translation": [2.0, 0, 0]}],
+           "skins": [{"joints": [1]}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "JOINTS_0": 2,
+                                                      "WEIGHTS_0": 3}, "indices": 1}]},
+                      {"primitives": [{"attributes": {"POSITION": 4}, "indices": 1}]}]}
+    path = write_glb(tmp_path / "cm.glb", doc, [
+        (X, "VEC3", False), (TRIS.astype(np.uint16).ravel(), "SCALAR", False),
+        (joints, "VEC4", False), (w, "VEC4", False), (CUBE.astype(np.float32), "VEC3", False)])
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        surface = load_mesh(path)
+    assert not [s for s in seen if "bind pose" in str(s.message)]
+    np.testing.assert_allclose(surface.vertices[:len(X)], CUBE, atol=1e-6)
+    np.testing.assert_allclose(surface.vertices[len(X):], CUBE + np.array([2.0, 0, 0]), atol=1e-6)

@@ -368,14 +368,15 @@ class RestPose:
     ``positions`` (n, 3) in the vertex order of :func:`read_gltf`; ``node_linear`` (n, 3, 3)
     the linear part of each vertex's node transform (what a reader that ignores skins
     applies), ``linear`` (n, 3, 3) the one the pose applies (the blended joint matrices of a
-    skinned vertex); ``skinned`` whether any mesh is skinned; ``bind`` (n, 3) the skinned
-    vertices as stored (their bind pose), the others as placed."""
+    skinned vertex); ``skinned`` whether any mesh is skinned; ``bind`` the vertices of each
+    skinned primitive as stored (their bind pose) with the slice of ``positions`` they
+    become."""
 
     positions: np.ndarray
     node_linear: np.ndarray
     linear: np.ndarray
     skinned: bool
-    bind: np.ndarray
+    bind: list[tuple[slice, np.ndarray]]
 
 
 def rest_pose(path: Path) -> RestPose:
@@ -385,15 +386,15 @@ def rest_pose(path: Path) -> RestPose:
     f = GltfFile(Path(path))
     parts, _, _, kinds, (node_linear, linear, bind) = _pose(f, [], np.zeros(1), None)
     return RestPose(np.concatenate(parts, axis=1)[0], np.concatenate(node_linear),
-                    np.concatenate(linear), "skin" in kinds, np.concatenate(bind))
+                    np.concatenate(linear), "skin" in kinds, bind)
 
 
 def _pose(f: GltfFile, channels: list[_Channel], times: np.ndarray, object: str | None
           ) -> tuple[list, list, list, set, tuple[list, list, list]]:
     """Positions (F, n, 3) of each triangle primitive of the scene's mesh nodes at ``times``,
     their faces and edges (offset to the concatenation), the kinds of deformation met, and
-    the per-vertex linear parts (node transform, applied transform) and the positions before
-    skinning of the first frame."""
+    the per-vertex linear parts (node transform, applied transform) and each skinned
+    primitive's positions before skinning, of the first frame."""
     nodes = f.list("nodes")
     order, parent = _scene_nodes(f)
     local, weights = _local_transforms(f, channels, times)
@@ -414,7 +415,7 @@ def _pose(f: GltfFile, channels: list[_Channel], times: np.ndarray, object: str 
     parts, faces, edges, offset, kinds = [], [], [], 0, set()
     node_linear: list[np.ndarray] = []
     linear: list[np.ndarray] = []
-    bind: list[np.ndarray] = []
+    bind: list[tuple[slice, np.ndarray]] = []
     for i in with_mesh:
         node = nodes[i]
         mesh = f.item("meshes", node["mesh"], f"node {i}")
@@ -440,14 +441,13 @@ def _pose(f: GltfFile, channels: list[_Channel], times: np.ndarray, object: str 
             if node.get("skin") is not None:
                 kinds.add("skin")
                 blended: list[np.ndarray] = []
-                bind.append(P[0])
+                bind.append((slice(offset, offset + n), P[0]))
                 P = _skinned(f, prim, P, _joint_matrices(f, node["skin"], world), blended)
                 linear.append(blended[0])
             else:
                 M = world[i]  # (F, 4, 4)
                 P = np.einsum("fab,fnb->fna", M[:, :3, :3], P) + M[:, None, :3, 3]
                 linear.append(np.broadcast_to(M[0, :3, :3], (n, 3, 3)))
-                bind.append(P[0])
             node_linear.append(np.broadcast_to(world[i][0, :3, :3], (n, 3, 3)))
             parts.append(P)
             faces.append(tri + offset)

@@ -253,14 +253,16 @@ def _skinned_rest(path: Path, surface: Surface) -> Surface:
                    groups=surface.groups)
 
 
-def _warn_posed(path: Path, bind: np.ndarray, posed: np.ndarray) -> None:
-    """Warn when a skin's static pose deforms its mesh (no one affine map takes the bind
-    positions to the posed ones): the file's skeleton was not saved at its bind pose, so
-    the rest mesh is bent as the pose bends it."""
+def _warn_posed(path: Path, bind: list[tuple[slice, np.ndarray]], posed: np.ndarray) -> None:
+    """Warn when a skin's static pose deforms its mesh (no one affine map takes a skinned
+    primitive's bind positions to its posed ones): the file's skeleton was not saved at its
+    bind pose, so the rest mesh is bent as the pose bends it."""
     size = float(np.linalg.norm(np.ptp(posed, axis=0)))
-    A = np.c_[bind, np.ones(len(bind))]
-    fit, *_ = np.linalg.lstsq(A, posed, rcond=None)
-    off = float(np.linalg.norm(A @ fit - posed, axis=1).max())
+    off = 0.0
+    for where, stored in bind:
+        A = np.c_[stored, np.ones(len(stored))]
+        fit, *_ = np.linalg.lstsq(A, posed[where], rcond=None)
+        off = max(off, float(np.linalg.norm(A @ fit - posed[where], axis=1).max()))
     if off > 1e-3 * size:
         warnings.warn(
             f"{path}: its skeleton is not at its bind pose (the pose moves vertices up to "
