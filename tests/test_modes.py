@@ -252,6 +252,7 @@ def test_cache_dir_from_environment_and_disabled(small_body, tmp_path, monkeypat
     [
         ({"r": 0}, r"r \(number of modes\).*got 0"),
         ({"r": 217}, r"\[1, 216\].*got 217"),
+        ({"r": 501}, r"at most 500 \(wiggly\.limits\.MAX_MODES, as in scene files\); got 501"),
         ({"r": 4}, r"r = 4 is smaller than the number of rigid modes.*\(6\)"),
         ({"r": 2.5}, "should be an integer; got 2.5"),
         ({"r": 8, "fixed_vertices": [72]}, r"vertex index 72 does not exist.*0\.\.71"),

@@ -42,6 +42,7 @@ from scipy.sparse.csgraph import connected_components
 from wiggly.checks import vertex_set
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, default_cache_dir
+from wiggly.limits import MAX_MODES
 from wiggly.linalg import blas_single_thread, factorize_spd
 from wiggly.progress import deprecated_progress, iterations, say, shown
 
@@ -346,7 +347,8 @@ def compute_modes(
     K, M : (3n, 3n) sparse, symmetric
         Stiffness (PSD) and mass (PD) from :mod:`wiggly.fem`.
     r : int
-        Number of modes, rigid ones included; ``n_rigid <= r <= number of free dofs``.
+        Number of modes, rigid ones included; ``n_rigid <= r <= number of free dofs`` and
+        ``r <= MAX_MODES`` (:mod:`wiggly.limits`, as for scene files).
     vertices : (n, 3) float
         Rest positions (the rigid motions depend on them).
     fixed_vertices : indices or (n,) bool mask, optional
@@ -385,6 +387,11 @@ def compute_modes(
     free_mask[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
     free_dofs = np.flatnonzero(free_mask)
     nf = free_dofs.size
+    if r > MAX_MODES:
+        raise WigglyInputError(
+            f"r (number of modes) should be at most {MAX_MODES} (wiggly.limits.MAX_MODES, as in "
+            f"scene files); got {r}"
+        )
     if r < 1 or r > nf:
         raise WigglyInputError(
             f"r (number of modes) should be in [1, {nf}] (the number of free dofs); got {r}"

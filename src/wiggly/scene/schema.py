@@ -170,7 +170,7 @@ _DRIVE = Table(
                             "driven group follows it exactly and physics moves the free parts "
                             'during the animation; "keys": the driven group is keyed at every '
                             "driver frame and the whole body minimises the spacetime energy"),
-     "free_modes": Number(integer=True, ge=1, le=500,
+     "free_modes": Number(integer=True, ge=1, le=MAX_MODES,
                            doc="secondary: modes of the free parts with the driven group held "
                                "(default 24)"),
      "intensity": Number(ge=0.0, le=100.0,
