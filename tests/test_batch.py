@@ -448,3 +448,35 @@ def test_a_script_without_a_main_guard_is_told_how_to_fix_it(tmp_path):
     assert "worker processes could not start" in last and str(script) in last, last
     assert 'if __name__ == "__main__":' in last and "memory" not in last
     assert "called while a worker process imported the script" in done.stderr
+
+
+def test_a_driven_shot_reports_how_closely_it_followed(tmp_path, monkeypatch):
+    """A batch of a [drive] scene: summary.csv gives drive_max and drive_rms, the same
+    figures as following() on the same scene run alone."""
+    import meshio
+
+    import wiggly.batch.driver as driver
+    from wiggly.drive import following
+    from wiggly.export import SurfaceAnimation, write_animation
+    from wiggly.mesh import TetMesh
+    from wiggly.primitives import box_mesh
+
+    V, T = box_mesh((8, 2, 2), (0.8, 0.1, 0.1))
+    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+    times = np.arange(11) / 10.0
+    sway = np.array([V + np.array([0.0, 0.05 * np.sin(2 * np.pi * t), 0.0]) for t in times])
+    write_animation(tmp_path / "sway.npz",
+                    SurfaceAnimation(times, sway, TetMesh(V, T).boundary_faces()))
+    scene = {"mesh": {"path": "bar.vtu"}, "material": {"young": 5e4},
+             "simulation": {"modes": 12}, "time": {"end": 1.0, "fps": 10},
+             "groups": {"driven": {"box": {"min": [-1, -1, -1], "max": [0.3, 1, 1]}}},
+             "drive": {"path": "sway.npz", "group": "driven"}}
+    (tmp_path / "shot.toml").write_text(tomli_w.dumps(scene))
+    monkeypatch.setattr(driver, "LocalPool", InProcessPool)
+    records = run([tmp_path / "shot.toml"], tmp_path / "out", contact_sheet=False)
+    assert records[0]["status"] == "done", records[0].get("error")
+    with open(tmp_path / "out" / "summary.csv", newline="") as f:
+        row = next(csv.DictReader(f))
+    alone = following(run_scene(load_scene(tmp_path / "shot.toml"), outputs=[]))
+    assert float(row["drive_max"]) == pytest.approx(alone["max"], rel=1e-6, abs=1e-12)
+    assert float(row["drive_rms"]) == pytest.approx(alone["rms"], rel=1e-6, abs=1e-12)

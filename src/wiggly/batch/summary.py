@@ -26,8 +26,8 @@ CAPTION = 34  # pixels of text under each tile
 #: CSV columns after the parameters, in this order (keyframe residuals in m and m/s).
 METRICS = ("solve_seconds", "iterations", "converged", "distance_bound", "warm_start",
            "keyframe_position_rms", "keyframe_position_max", "keyframe_velocity_rms",
-           "setup_seconds", "output_seconds", "thumbnail_seconds", "shot_seconds",
-           "cpu_seconds", "commit_seconds", "output_bytes")
+           "drive_max", "drive_rms", "setup_seconds", "output_seconds", "thumbnail_seconds",
+           "shot_seconds", "cpu_seconds", "commit_seconds", "output_bytes")
 PATHS = ("folder", "outputs", "thumbnail")
 TRAILING = ("body", "worker", "resumed", "origin", "key")
 

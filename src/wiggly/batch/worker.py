@@ -299,6 +299,9 @@ def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
         from wiggly.drive import following
 
         record["drive"] = following(anim)
+        if record["drive"]:
+            record["drive_max"] = record["drive"]["max"]
+            record["drive_rms"] = record["drive"]["rms"]
     t = time.perf_counter()
     folder.mkdir(parents=True, exist_ok=True)
     paths = [folder / name for name in job.outputs]
