@@ -495,11 +495,19 @@ def test_existing_output_is_kept_unless_overwrite(tmp_path, ext):
 
 
 def test_obj_any_existing_frame_blocks_and_overwrite_removes_stale_frames(tmp_path):
+    """Any file named like a frame blocks a write without overwrite; with it, the frames
+    that wiggly wrote for a longer sequence go, and a file that only has a frame's name (the
+    user's own) stays, with a warning that a reader would take it for a frame."""
     (tmp_path / "frame_0007.obj").write_text("# someone else's frame\n")
     with pytest.raises(WigglyInputError, match=r"frame_0007\.obj exists"):
         write_animation(tmp_path / "frame.obj", sphere_animation(F=3))
-    write_animation(tmp_path / "frame.obj", sphere_animation(F=3), overwrite=True)
-    assert listing(tmp_path) == ["frame_0000.obj", "frame_0001.obj", "frame_0002.obj"]
+    with pytest.warns(UserWarning, match=r"left 1 file\(s\) that wiggly did not write.*"
+                                         r"frame_0007\.obj"):
+        write_animation(tmp_path / "frame.obj", sphere_animation(F=3), overwrite=True)
+    assert listing(tmp_path) == ["frame_0000.obj", "frame_0001.obj", "frame_0002.obj",
+                                 "frame_0007.obj"]
+    assert (tmp_path / "frame_0007.obj").read_text() == "# someone else's frame\n"
+    (tmp_path / "frame_0007.obj").unlink()
     (tmp_path / "other.obj").write_text("")  # not part of the sequence: untouched
     write_animation(tmp_path / "frame.obj", sphere_animation(F=2), overwrite=True)
     assert listing(tmp_path) == ["frame_0000.obj", "frame_0001.obj", "other.obj"]

@@ -39,7 +39,10 @@ def write_animation(
     anim : SurfaceAnimation
         The animation; its arrays are validated first.
     overwrite : bool
-        Replace existing output (for OBJ: any existing frame of the sequence).
+        Replace existing output. For OBJ, any file named like a frame of the sequence blocks
+        the write without it; with it, the frames are replaced, frames that wiggly wrote for
+        a longer sequence are removed, and other files with a frame's name stay (a warning
+        names them).
     frame_start : int, optional
         glTF and USD: put frame k on frame ``frame_start + k`` at the frames' rate (glTF time
         ``(frame_start + k) / fps``, USD time code ``frame_start + k``), so that keys land on

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -86,9 +87,29 @@ def stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *
             face_block,
         ])
         _write_frame_file(outputs.stage(names[k]), data)
+    foreign = []
     for stale in existing.values():  # frames of an earlier, longer sequence
-        if stale not in names:
+        if stale in names:
+            continue
+        if _written_by_wiggly(stale):
             outputs.remove_on_commit(stale)
+        else:
+            foreign.append(stale.name)
+    if foreign:
+        warnings.warn(
+            f"{path.parent}: left {len(foreign)} file(s) that wiggly did not write although "
+            f"their names continue the OBJ sequence {path.name} ({', '.join(sorted(foreign)[:3])}"
+            f"{', ...' if len(foreign) > 3 else ''}); a program reading the sequence would take "
+            "them for frames", stacklevel=2)
+
+
+def _written_by_wiggly(path: Path) -> bool:
+    """Whether an OBJ file starts with the header wiggly writes on every frame."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(15) == b"# wiggly frame "
+    except OSError:
+        return False
 
 
 _OBJ_V = re.compile(rb"^v[ \t]+([^\n]*)", re.M)
