@@ -396,3 +396,14 @@ def test_keys_that_gravity_outweighs_are_warned_about(capsys, tmp_path):
         if warned:
             assert "keyframes[0] (group 'left', t = 0 s)" in captured.err
             assert "gravity outweighs the keys" in captured.err
+
+
+def test_iteration_counts_say_what_the_progress_bar_counted():
+    """The progress bar counts the coarse level's iterations and the fine level's; the
+    summary says the same total and splits it, instead of the fine level's alone."""
+    from wiggly.solve import iteration_count
+
+    assert iteration_count({"iterations": 11, "coarse": {"iterations": 25}}) == \
+        "36 Newton iterations (25 on the coarse mesh, 11 on the fine)"
+    assert iteration_count({"iterations": 1}) == "1 Newton iteration"
+    assert iteration_count({"iterations": 4}, "Gauss-Newton") == "4 Gauss-Newton iterations"

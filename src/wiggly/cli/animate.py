@@ -76,6 +76,8 @@ def _positive(text: str) -> float:
 
 def summary(scene, anim) -> str:
     """A short report of a solved scene: mesh, modes, solve, residuals, outputs."""
+    from wiggly.solve import iteration_count
+
     body, info = anim.body, anim.info
     lam = body.eigenvalues[body.modes.n_rigid:]
     hz = (lam ** 0.5) / (2 * 3.141592653589793)
@@ -91,8 +93,9 @@ def summary(scene, anim) -> str:
         solve += (f", secondary motion: {info['free_modes']} modes of the free parts on "
                   f"{info['driver_frames']} driver frames")
     if "iterations" in info:
-        solve += (f", {info['iterations']} {'Gauss-' if info.get('secondary') else ''}Newton "
-                  "iterations" + ("" if info.get("converged") else " (not converged)"))
+        kind = "Gauss-Newton" if info.get("secondary") else "Newton"
+        solve += (f", {iteration_count(info, kind)}"
+                  + ("" if info.get("converged") else " (not converged)"))
     lines.append(f"solve      {solve}")
     seconds = info.get("scene", {}).get("seconds", {})
     if seconds:

@@ -35,6 +35,7 @@ __all__ = [
     "WarpedObjective",
     "WarpedPoint",
     "WarpedSolveWarning",
+    "iteration_count",
     "solve",
 ]
 
@@ -71,9 +72,21 @@ def solve(
     extra = ""
     if warp:
         extra = (
-            f", {anim.info['iterations']} Newton iterations"
+            f", {iteration_count(anim.info)}"
             f"{'' if anim.info['converged'] else ' (not converged)'}"
         )
     say(f"{'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
         f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}")
     return anim
+
+
+def iteration_count(info: dict, kind: str = "Newton") -> str:
+    """The iterations of a solve's ``info`` as the progress bar counted them: "36 Newton
+    iterations (25 on the coarse mesh, 11 on the fine)" with a coarse level, else "11 Newton
+    iterations"."""
+    fine = int(info.get("iterations", 0))
+    coarse = int(info.get("coarse", {}).get("iterations", 0)) if "coarse" in info else 0
+    if not coarse:
+        return f"{fine} {kind} iteration{'s' if fine != 1 else ''}"
+    return (f"{coarse + fine} {kind} iterations ({coarse} on the coarse mesh, {fine} on the "
+            "fine)")
