@@ -607,3 +607,15 @@ def test_environment_independent_paths(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert scene.resolve("out/bar.npz") == tmp_path / "sub" / "out" / "bar.npz"
     assert scene.where() == os.path.join("sub", "s.toml")
+
+
+def test_a_stiffness_that_explicit_weights_replace_is_warned_about(recwarn):
+    """stiffness sets only the weights not given: with c_A beside it on a position key the
+    stiffness does nothing there, and the scene says so; alone, nothing is said."""
+    base = ('format = 1\n[mesh]\npath = "m.obj"\n[time]\nend = 1.0\n[groups.g]\n'
+            'indices = [0]\n[[keyframes]]\ntime = 0.5\ngroup = "g"\nposition = "rest"\n')
+    scene_from_dict(tomllib.loads(base + "stiffness = 1e7\n"))
+    assert not [w for w in recwarn if "replace" in str(w.message)]
+    scene_from_dict(tomllib.loads(base + "stiffness = 1e7\nc_A = 5.0\n"))
+    said = [str(w.message) for w in recwarn if "replace" in str(w.message)]
+    assert len(said) == 1 and "keyframes[0]: c_A = 5.0 replaces stiffness = 10000000.0" in said[0]

@@ -197,13 +197,16 @@ def _warn_missed(scene: Scene, anim, body) -> None:
                        f"{scene.keyframes[j].time:g} s) by {miss:.3g} m, "
                        f"{100 * miss / size:.0f} %" for j, miss in missed[:4])
     more = f"; and {len(missed) - 4} more" if len(missed) > 4 else ""
-    why = "raise their stiffness (the default is 1e6; e.g. 1e9)"
+    explicit = any(scene.keyframes[j].c_A is not None for j, _ in missed)
+    why = ("raise their stiffness (the default is 1e6; e.g. 1e9)"
+           + (", or their c_A, which replaces it where given" if explicit else ""))
     if not scene.simulation.warp:
         why = ("a linear solve (simulation.warp = false) cannot meet turned targets, it "
                "stretches them: turn warping on; or " + why)
     if np.linalg.norm(scene.simulation.gravity) > 0 and end - start > 2.0:
-        why += (f"; over a {end - start:g} s shot gravity outweighs the keys (a key's weight "
-                "falls as the cube of the duration): key the body more often, or shorten it")
+        why += (f"; over a {end - start:g} s shot gravity can outweigh the keys (a key's weight "
+                "falls as the cube of the duration): if so, key the body more often, or "
+                "shorten it")
     warnings.warn(f"{scene.where()}: {counted(len(missed), 'keyframe')} missed by more than "
                   f"{100 * MISSED:g} % of the body's size ({listed}{more}): {why}; also check "
                   "that the targets can be reached (fixed vertices, contradictory keys, heavy "

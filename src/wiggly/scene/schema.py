@@ -7,6 +7,7 @@ import json
 import math
 import os
 import tomllib
+import warnings
 from pathlib import Path
 
 from wiggly.drive import DRIVER_EXTENSIONS
@@ -364,6 +365,15 @@ def _cross_check(scene: Scene, p: Problems) -> None:
               f"shot, more than {MAX_FRAMES} (wiggly.limits.MAX_FRAMES); use fps <= "
               f"{math.floor((MAX_FRAMES - 1) / (t1 - t0)):g}")
     check_drive(scene, p)
+    for j, kf in enumerate(scene.keyframes):
+        replaced = [f"{w} = {show(v)}" for w, v, target in
+                    (("c_A", kf.c_A, kf.position), ("c_B", kf.c_B, kf.velocity))
+                    if v is not None and target is not None]
+        if kf.stiffness is not None and replaced:
+            warnings.warn(f"{p.where}: keyframes[{j}]: {' and '.join(replaced)} replace"
+                          f"{'s' if len(replaced) == 1 else ''} stiffness = "
+                          f"{show(kf.stiffness)} (stiffness sets only the weights not given "
+                          "explicitly); give one of them", stacklevel=4)
     if not scene.simulation.fixed and scene.simulation.modes < RIGID_MODES:
         p.add(f"simulation.modes = {scene.simulation.modes} is fewer than the {RIGID_MODES} "
               "rigid modes of a free body (simulation.fixed holds no group), which the basis "
