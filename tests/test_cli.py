@@ -407,3 +407,17 @@ def test_iteration_counts_say_what_the_progress_bar_counted():
         "36 Newton iterations (25 on the coarse mesh, 11 on the fine)"
     assert iteration_count({"iterations": 1}) == "1 Newton iteration"
     assert iteration_count({"iterations": 4}, "Gauss-Newton") == "4 Gauss-Newton iterations"
+
+
+def test_a_mesh_given_for_a_scene_and_a_missing_mesh_are_said_plainly(tmp_path, capsys):
+    """`wiggly animate mesh.obj` says it is a mesh and what to do instead of a TOML parse
+    error; `wiggly modes missing.obj` names the missing mesh without a scene it never had."""
+    mesh = tmp_path / "capsule.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    assert main(["animate", str(mesh)]) != 0
+    err = capsys.readouterr().err
+    assert "is a mesh, not a scene file (.toml)" in err and f"wiggly edit {mesh}" in err
+    assert "TOML" not in err.replace("(.toml)", "")
+    assert main(["modes", str(tmp_path / "missing.obj")]) != 0
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'missing.obj'}: no such mesh file" in err and "scene:" not in err

@@ -155,3 +155,18 @@ def test_a_looped_scene_needs_whole_frames_per_cycle(tmp_path):
     with pytest.raises(WigglyInputError, match=r"time.loop = true needs a whole number"):
         scene_from_dict({"mesh": {"path": "builtin:bar"},
                          "time": {"end": 1.05, "fps": 10, "loop": True}}, "s.toml")
+
+
+def test_an_undetermined_loop_in_a_scene_names_the_scene_file(tmp_path):
+    """A looped scene keyed only by a velocity: the refusal starts with the scene file."""
+    from wiggly.scene import load_scene
+    from wiggly.scene import run as run_scene
+
+    (tmp_path / "loop.toml").write_text(
+        'format = 1\n[mesh]\npath = "builtin:bar"\n[simulation]\nmodes = 12\n'
+        'gravity = [0.0, 0.0, 0.0]\n[time]\nend = 1.0\nfps = 10\nloop = true\n'
+        '[groups.tip]\nbox = { min = [0.9, -1, -1], max = [2, 1, 1] }\n'
+        '[[keyframes]]\ntime = 0.5\ngroup = "tip"\nvelocity = [0.0, 1.0, 0.0]\n')
+    with pytest.raises(WigglyInputError, match=r"^.*loop\.toml: the keyframes leave the looped "
+                                               r"motion undetermined"):
+        run_scene(load_scene(tmp_path / "loop.toml"), outputs=[])

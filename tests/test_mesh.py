@@ -786,3 +786,22 @@ def test_a_surface_with_a_small_loose_piece_animates_with_one_warning(tmp_path):
     assert model.tets.volumes().sum() == pytest.approx(0.16, rel=0.05)
     b = wiggly.prepare(model, n_modes=10, cache_dir=False)
     assert b.modes.n_rigid == 6
+
+
+@pytest.mark.parametrize(("scale", "said"), [(1.0, None), (1000.0, "0.001 or 0.01"),
+                                              (1e-4, "by 1000")])
+def test_a_mesh_in_other_units_is_warned_about(scale, said):
+    """A 1.2 m bar read as given, in millimetres (a 1.2 km body) and 0.1 mm long: only the
+    implausible sizes warn, with the scale that would make metres of them."""
+    from wiggly.mesh.model import build_model
+    from wiggly.primitives import box_mesh
+
+    V, T = box_mesh((6, 2, 2), (1.2, 0.2, 0.2))
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        build_model(wiggly.mesh.TetMesh(V * scale, T), "bar.vtu")
+    notes = [str(w.message) for w in seen if "reads its coordinates as metres" in str(w.message)]
+    if said is None:
+        assert not notes
+    else:
+        assert len(notes) == 1 and said in notes[0] and notes[0].startswith("bar.vtu: ")

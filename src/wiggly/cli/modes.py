@@ -85,6 +85,8 @@ def run(args: argparse.Namespace) -> int:
         scene = load_scene(args.mesh)
         scene = replace(scene, keyframes=[])
     else:
+        if not args.mesh.startswith("builtin:") and not Path(args.mesh).is_file():
+            raise WigglyInputError(f"{args.mesh}: no such mesh file")
         scene = Scene(MeshSpec(args.mesh), simulation=SimulationSpec(modes=20))
     mesh = scene.mesh
     if args.resolution is not None or args.edge_length is not None:

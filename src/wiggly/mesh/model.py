@@ -81,6 +81,7 @@ def build_model(
     up to order), so ``embedding.matrix(n)`` is the identity (vertices used by no tet, if
     any, are placed by :func:`embed`).
     """
+    _warn_units(loaded.vertices, source)
     if isinstance(loaded, Surface):
         tets, report, info = tetrahedralize_with_report(
             loaded, edge_length=edge_length, resolution=resolution, repair=repair,
@@ -114,3 +115,23 @@ def build_model(
         embedding.vertex_indices[loose] = extra.vertex_indices
     surface = Surface(tets.vertices, tets.boundary_faces(), groups=dict(tets.groups))
     return Model(surface, tets, embedding, source)
+
+
+#: Bodies whose bounding-box diagonal lies outside this range (m) are likely in other units.
+PLAUSIBLE_SIZE = (1e-3, 100.0)
+
+
+def _warn_units(vertices: np.ndarray, source: str) -> None:
+    """Warn when a mesh's size suggests millimetres or kilometres read as metres (wiggly's
+    units are SI: a 1.2 m capsule exported in millimetres becomes a 1.2 km body of 3e10 kg
+    whose modes are a few mHz)."""
+    size = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    low, high = PLAUSIBLE_SIZE
+    if low <= size <= high or size == 0.0:
+        return
+    hint = ("millimetres or centimetres, scale it by 0.001 or 0.01" if size > high
+            else "kilometres, scale it by 1000")
+    warnings.warn(
+        f"{source}: the mesh is {size:.3g} m across; wiggly reads its coordinates as metres "
+        f"(SI units throughout). If the file is in {hint} before using it (Blender: set the "
+        "object's scale and apply it, or the exporter's Scale)", stacklevel=3)

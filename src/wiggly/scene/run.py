@@ -123,8 +123,13 @@ def solve_scene(scene: Scene, body, keyframes, *, groups: dict[str, np.ndarray] 
             groups = resolve_groups(scene, body.model)
         return secondary_of(scene, body, groups, keyframes)
     start, end = scene.time_range()
-    return solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
-                 preroll=scene.simulation.preroll, loop=scene.time.loop)
+    try:
+        return solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
+                     preroll=scene.simulation.preroll, loop=scene.time.loop)
+    except WigglyInputError as err:  # the keyframes as a whole: said of the scene file
+        if str(err).startswith(scene.where()):
+            raise
+        raise WigglyInputError(f"{scene.where()}: {err}") from None
 
 
 @deprecated_progress

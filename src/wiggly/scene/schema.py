@@ -15,7 +15,7 @@ from wiggly.errors import WigglyInputError
 from wiggly.export import GLTF_TARGETS
 from wiggly.fem import DENSITY_RANGE, YOUNG_RANGE
 from wiggly.limits import MAX_DURATION, MAX_FPS, MAX_FRAMES, MAX_MODES, MAX_RESOLUTION
-from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION
+from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION, SURFACE_EXTENSIONS, VOLUME_EXTENSIONS
 from wiggly.scene.drive import check_drive, check_drive_file
 from wiggly.scene.spec import (
     CAMERAS,
@@ -303,6 +303,11 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     if not path.is_file():
         raise WigglyInputError(f"{path}: no such scene file" if not path.exists()
                                else f"{path}: is not a file")
+    ext = path.suffix.lower()
+    if ext in SURFACE_EXTENSIONS or ext in VOLUME_EXTENSIONS:
+        raise WigglyInputError(
+            f"{path}: is a mesh, not a scene file (.toml); write a scene that names it as "
+            f"mesh.path (docs/scene-format.md), or open it in the editor: wiggly edit {path}")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as err:

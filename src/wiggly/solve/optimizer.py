@@ -565,11 +565,14 @@ def _report(
 
 def warn_unconverged(report: SolveReport, level: str = "") -> None:
     """A :class:`WarpedSolveWarning` with the decrement reached."""
+    decrement = (f"Newton decrement {report.newton_decrement:.2e}"
+                 if np.isfinite(report.newton_decrement) else
+                 "no Newton decrement (the last Newton matrix was not positive definite: the "
+                 "iterate is not near a minimum)")
     warnings.warn(
         f"warped solve{level} did not converge in {report.iterations} iterations "
         f"({report.stop}): objective {report.objective:.6g} (start "
-        f"{report.objective_start:.6g}), Newton decrement {report.newton_decrement:.2e}; "
-        "the result is the best iterate",
+        f"{report.objective_start:.6g}), {decrement}; the result is the best iterate",
         WarpedSolveWarning,
         stacklevel=4,
     )
