@@ -84,10 +84,11 @@ def test_glb_and_usd_land_in_blender_as_documented(bar, tmp_path, blender_python
 
 
 def test_a_blender_rig_drives_its_mesh_on_its_own_frames(tmp_path, blender_python):
-    """A skinned glTF exported from Blender (armature scaled by 2 and moved; a 24 fps scene
-    from frame 1), used as docs/secondary-motion.md says: the same file as mesh and driver,
-    the output at the scene's rate with frame_start left out.  Imported back into Blender,
-    the driven half of the bar lies where Blender's own rig puts it at the same frame."""
+    """A skinned glTF exported from Blender (two objects under one armature, scaled by 2 and
+    moved; a 24 fps scene from frame 1), used as docs/secondary-motion.md says: the same file
+    as mesh and driver, the output at the scene's rate with frame_start left out.  Imported
+    back into Blender, the driven half of the bar lies where Blender's own rig puts it at the
+    same frame."""
     frames = [1, 7, 13, 20, 24]  # the shot's 1 s: frames 0..24
     glb, evaluated = tmp_path / "rig.glb", tmp_path / "rig.json"
     done = subprocess.run([blender_python, str(SCRIPT.parent / "make_rig.py"), str(glb),

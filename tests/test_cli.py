@@ -420,4 +420,4 @@ def test_a_mesh_given_for_a_scene_and_a_missing_mesh_are_said_plainly(tmp_path, 
     assert "TOML" not in err.replace("(.toml)", "")
     assert main(["modes", str(tmp_path / "missing.obj")]) != 0
     err = capsys.readouterr().err
-    assert f"{tmp_path / 'missing.obj'}: no such mesh file" in err and "scene:" not in err
+    assert f"{tmp_path / 'missing.obj'}: does not exist" in err and "scene:" not in err

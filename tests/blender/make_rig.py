@@ -1,7 +1,7 @@
-"""Run by Blender's Python (PyPI ``bpy``): a bar skinned to two bones, its armature scaled by 2
-and moved, animated over frames 1..25 of a 24 fps scene (Blender's defaults), exported as
-glTF the way the docs tell a user to, with the mesh as Blender evaluates it at each frame
-(tests/test_blender.py).
+"""Run by Blender's Python (PyPI ``bpy``): a bar and a cap at its tip, two objects skinned to two
+bones, their armature scaled by 2 and moved, animated over frames 1..25 of a 24 fps scene
+(Blender's defaults), exported as glTF the way the docs tell a user to, with the meshes as
+Blender evaluates them at each frame (tests/test_blender.py).
 
 usage: python make_rig.py OUT.glb OUT.json FRAME [FRAME ...]
 """
@@ -32,6 +32,15 @@ bm.to_mesh(mesh)
 bm.free()
 bar = bpy.data.objects.new("Bar", mesh)
 scene.collection.objects.link(bar)
+cap_mesh = bpy.data.meshes.new("Cap")  # a second object under the rig (glTF node order)
+bm = bmesh.new()
+bmesh.ops.create_cube(bm, size=0.12)
+bmesh.ops.translate(bm, vec=(1.0, 0.0, 0.0), verts=bm.verts)
+bmesh.ops.triangulate(bm, faces=bm.faces)
+bm.to_mesh(cap_mesh)
+bm.free()
+cap = bpy.data.objects.new("Cap", cap_mesh)
+scene.collection.objects.link(cap)
 
 armature = bpy.data.armatures.new("Rig")
 rig = bpy.data.objects.new("Rig", armature)
@@ -44,11 +53,12 @@ tip = armature.edit_bones.new("tip")
 tip.head, tip.tail, tip.parent = (0.5, 0.0, 0.0), (1.0, 0.0, 0.0), root
 bpy.ops.object.mode_set(mode="OBJECT")
 rig.scale, rig.location = (2.0, 2.0, 2.0), (0.3, -0.2, 0.5)
-bar.parent = rig
-bar.modifiers.new("Armature", "ARMATURE").object = rig
-groups = {name: bar.vertex_groups.new(name=name) for name in ("root", "tip")}
-for v in mesh.vertices:
-    groups["root" if v.co.x < 0.5 else "tip"].add([v.index], 1.0, "REPLACE")
+for obj in (bar, cap):
+    obj.parent = rig
+    obj.modifiers.new("Armature", "ARMATURE").object = rig
+    groups = {name: obj.vertex_groups.new(name=name) for name in ("root", "tip")}
+    for v in obj.data.vertices:
+        groups["root" if v.co.x < 0.5 else "tip"].add([v.index], 1.0, "REPLACE")
 
 bones = rig.pose.bones
 for b in bones:
@@ -65,6 +75,7 @@ scene.frame_set(1)
 
 bpy.ops.object.select_all(action="DESELECT")
 bar.select_set(True)
+cap.select_set(True)
 rig.select_set(True)
 bpy.ops.export_scene.gltf(filepath=glb, export_format="GLB", use_selection=True,
                           export_animations=True)
@@ -72,10 +83,12 @@ bpy.ops.export_scene.gltf(filepath=glb, export_format="GLB", use_selection=True,
 
 def world(f: int) -> list:
     scene.frame_set(f)
-    evaluated = bar.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    data = evaluated.to_mesh()
-    points = [list(evaluated.matrix_world @ v.co) for v in data.vertices]
-    evaluated.to_mesh_clear()
+    points = []
+    for obj in (bar, cap):
+        evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        data = evaluated.to_mesh()
+        points += [list(evaluated.matrix_world @ v.co) for v in data.vertices]
+        evaluated.to_mesh_clear()
     return points
 
 

@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         scene = replace(scene, keyframes=[])
     else:
         if not args.mesh.startswith("builtin:") and not Path(args.mesh).is_file():
-            raise WigglyInputError(f"{args.mesh}: no such mesh file")
+            raise WigglyInputError(f"{args.mesh}: does not exist; give the path of a mesh file.")
         scene = Scene(MeshSpec(args.mesh), simulation=SimulationSpec(modes=20))
     mesh = scene.mesh
     if args.resolution is not None or args.edge_length is not None:

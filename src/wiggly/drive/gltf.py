@@ -355,26 +355,30 @@ def read_gltf(path: Path, *, animation: AnimationChoice = None,
     f = GltfFile(Path(path))
     channels = _channels(f, animation)
     times = _frame_times(channels)
-    parts, faces, edges, kinds, _ = _pose(f, channels, times, object)
+    parts = _pose(f, channels, times, object)
+    kinds = {k for part in parts for k in part.kinds}
     kind = "glTF " + " and ".join(sorted(kinds)) if kinds else "glTF node animation"
-    return Driver(times, np.concatenate(parts, axis=1), np.concatenate(faces),
-                  np.concatenate(edges), str(path), kind)
+    return Driver(times, np.concatenate([part.positions for part in parts], axis=1),
+                  np.concatenate([part.faces for part in parts]),
+                  np.concatenate([polygon_edges(part.faces) for part in parts]), str(path),
+                  kind)
 
 
 @dataclass
 class RestPose:
-    """The scene's meshes as a viewer shows them with no animation (module docstring).
-
-    ``positions`` (n, 3) in the vertex order of :func:`read_gltf`; ``node_linear`` (n, 3, 3)
-    the linear part of each vertex's node transform (what a reader that ignores skins
-    applies), ``linear`` (n, 3, 3) the one the pose applies (the blended joint matrices of a
-    skinned vertex); ``skinned`` whether any mesh is skinned; ``bind`` the vertices of each
-    skinned primitive as stored (their bind pose) with the slice of ``positions`` they
-    become."""
+    """The scene's meshes as a viewer shows them with no animation (module docstring), in
+    the vertex order of :func:`read_gltf`: ``positions`` (n, 3), ``faces`` (k, 3), the file's
+    ``normals`` turned as the pose turns them and ``uvs`` (v up, as trimesh reads them; None
+    unless every primitive has them), ``groups`` (each mesh node's vertices, by node name,
+    when there are several), ``skinned`` (whether any mesh is skinned) and ``bind`` (each
+    skinned primitive's vertices as stored, their bind pose, with the slice of
+    ``positions`` they become)."""
 
     positions: np.ndarray
-    node_linear: np.ndarray
-    linear: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray | None
+    uvs: np.ndarray | None
+    groups: dict[str, np.ndarray]
     skinned: bool
     bind: list[tuple[slice, np.ndarray]]
 
@@ -384,17 +388,61 @@ def rest_pose(path: Path) -> RestPose:
     at their static values, default morph weights, and skins blended by their joints' static
     transforms (the skinned node's own transform ignored, as the specification requires)."""
     f = GltfFile(Path(path))
-    parts, _, _, kinds, (node_linear, linear, bind) = _pose(f, [], np.zeros(1), None)
-    return RestPose(np.concatenate(parts, axis=1)[0], np.concatenate(node_linear),
-                    np.concatenate(linear), "skin" in kinds, bind)
+    parts = _pose(f, [], np.zeros(1), None)
+    normals, uvs = [], []
+    for part in parts:
+        attrs = part.primitive["attributes"]
+        if attrs.get("NORMAL") is not None:  # row vectors: the inverse transpose
+            n = np.einsum("ni,nij->nj", f.accessor(attrs["NORMAL"]).astype(np.float64),
+                          np.linalg.inv(part.linear))
+            normals.append(n / np.linalg.norm(n, axis=1, keepdims=True).clip(1e-300))
+        if attrs.get("TEXCOORD_0") is not None:
+            uv = f.accessor(attrs["TEXCOORD_0"]).astype(np.float64)[:, :2].copy()
+            uv[:, 1] = 1.0 - uv[:, 1]
+            uvs.append(uv)
+    names: dict[int, str] = {}
+    for part in parts:  # one group per mesh node, named as the node (unique)
+        if part.node not in names:
+            base = f.list("nodes")[part.node].get("name") or f"node {part.node}"
+            name, k = base, 1
+            while name in names.values():
+                name, k = f"{base}.{k}", k + 1
+            names[part.node] = name
+    groups: dict[str, list[np.ndarray]] = {}
+    for part in parts:
+        groups.setdefault(names[part.node], []).append(
+            np.arange(part.vertices.start, part.vertices.stop))
+    return RestPose(
+        np.concatenate([part.positions[0] for part in parts]),
+        np.concatenate([part.faces for part in parts]),
+        np.concatenate(normals) if len(normals) == len(parts) else None,
+        np.concatenate(uvs) if len(uvs) == len(parts) else None,
+        {k: np.concatenate(v) for k, v in groups.items()} if len(groups) > 1 else {},
+        any(part.bind is not None for part in parts),
+        [(part.vertices, part.bind) for part in parts if part.bind is not None])
+
+
+@dataclass
+class _Part:
+    """One triangle primitive of a mesh node, posed: ``positions`` (F, n, 3), ``faces``
+    offset to the concatenation (reversed where a node transform mirrors), ``vertices`` its
+    slice of the concatenation, the deformations met (``kinds``), and of the first frame the
+    per-vertex linear parts applied (``linear``, (n, 3, 3)) and, when skinned, the positions
+    before skinning (``bind``)."""
+
+    node: int
+    primitive: dict
+    positions: np.ndarray
+    faces: np.ndarray
+    vertices: slice
+    kinds: set
+    linear: np.ndarray
+    bind: np.ndarray | None
 
 
 def _pose(f: GltfFile, channels: list[_Channel], times: np.ndarray, object: str | None
-          ) -> tuple[list, list, list, set, tuple[list, list, list]]:
-    """Positions (F, n, 3) of each triangle primitive of the scene's mesh nodes at ``times``,
-    their faces and edges (offset to the concatenation), the kinds of deformation met, and
-    the per-vertex linear parts (node transform, applied transform) and each skinned
-    primitive's positions before skinning, of the first frame."""
+          ) -> list[_Part]:
+    """Every triangle primitive of the scene's mesh nodes, posed at ``times``."""
     nodes = f.list("nodes")
     order, parent = _scene_nodes(f)
     local, weights = _local_transforms(f, channels, times)
@@ -412,10 +460,8 @@ def _pose(f: GltfFile, channels: list[_Channel], times: np.ndarray, object: str 
             raise f.fail(f"it has no mesh node or mesh named {object!r}; its meshes are: "
                          + (", ".join(repr(x) for x in have) or "unnamed"))
         with_mesh = kept
-    parts, faces, edges, offset, kinds = [], [], [], 0, set()
-    node_linear: list[np.ndarray] = []
-    linear: list[np.ndarray] = []
-    bind: list[tuple[slice, np.ndarray]] = []
+    parts: list[_Part] = []
+    offset = 0
     for i in with_mesh:
         node = nodes[i]
         mesh = f.item("meshes", node["mesh"], f"node {i}")
@@ -430,6 +476,7 @@ def _pose(f: GltfFile, channels: list[_Channel], times: np.ndarray, object: str 
             if tri.size and (tri.min() < 0 or tri.max() >= n):
                 raise f.fail(f"mesh {node['mesh']} has indices beyond its {n} vertices")
             P = np.broadcast_to(base, (len(times), n, 3))
+            kinds, bind = set(), None
             k = len(prim.get("targets") or [])
             if k:
                 kinds.add("morph targets")
@@ -441,18 +488,18 @@ def _pose(f: GltfFile, channels: list[_Channel], times: np.ndarray, object: str 
             if node.get("skin") is not None:
                 kinds.add("skin")
                 blended: list[np.ndarray] = []
-                bind.append((slice(offset, offset + n), P[0]))
+                bind = np.array(P[0])
                 P = _skinned(f, prim, P, _joint_matrices(f, node["skin"], world), blended)
-                linear.append(blended[0])
+                linear = blended[0]
             else:
                 M = world[i]  # (F, 4, 4)
                 P = np.einsum("fab,fnb->fna", M[:, :3, :3], P) + M[:, None, :3, 3]
-                linear.append(np.broadcast_to(M[0, :3, :3], (n, 3, 3)))
-            node_linear.append(np.broadcast_to(world[i][0, :3, :3], (n, 3, 3)))
-            parts.append(P)
-            faces.append(tri + offset)
-            edges.append(polygon_edges(tri) + offset)
+                linear = np.broadcast_to(M[0, :3, :3], (n, 3, 3))
+                if np.linalg.det(M[0, :3, :3]) < 0:  # a mirror: keep the faces outward
+                    tri = tri[:, ::-1]
+            parts.append(_Part(i, prim, P, tri + offset, slice(offset, offset + n), kinds,
+                               linear, bind))
             offset += n
     if not parts or offset == 0:
         raise f.fail("its scene has no mesh of triangles")
-    return parts, faces, edges, kinds, (node_linear, linear, bind)
+    return parts

@@ -62,9 +62,11 @@ def load_mesh(path: str | Path) -> TetMesh | Surface:
     - glTF stores one UV per vertex, so its vertices are already split at seams.
       A scene with several meshes is concatenated in node order with each
       node's scene transform applied; every node's vertices form a group named
-      after the node. A skinned mesh is posed by its joints' static transforms
-      and its own node transform is ignored, as the glTF specification says
-      (:func:`wiggly.drive.gltf.rest_pose`).
+      after the node. A file with skins is read by wiggly's glTF evaluator
+      instead (:func:`wiggly.drive.gltf.rest_pose`, the one that reads
+      drivers): its vertices in the driver's order, skinned meshes posed by
+      their joints' static transforms with their own node transform ignored,
+      as the glTF specification says.
 
     Other formats (``.msh .vtu .vtk .mesh .xdmf ...``, see
     :data:`VOLUME_EXTENSIONS`) are read with meshio. A file with ``tetra``
@@ -230,27 +232,19 @@ def _skinned_rest(path: Path, surface: Surface) -> Surface:
 
     trimesh ignores skins and applies a skinned node's own transform, which the glTF
     specification (3.7.3) says to ignore: a Blender rig scaled by 2 would give a rest mesh
-    scaled by 4 (Blender writes the skinned positions already in world scale).  The skinned
-    vertices are placed instead by their joints' static transforms, as a viewer shows the
-    file with no animation and as the glTF driver reader poses them; their normals follow."""
+    scaled by 4 (Blender writes the skinned positions already in world scale).  A file with
+    skins is therefore read by the glTF evaluator that reads drivers
+    (:func:`wiggly.drive.gltf.rest_pose`): vertices in the driver's order, skinned ones
+    placed by their joints' static transforms as a viewer shows the file with no animation,
+    normals turned with them, and a group per mesh node."""
     from wiggly.drive.gltf import rest_pose  # the glTF evaluator; no solver import
 
     pose = rest_pose(path)
     if not pose.skinned:
         return surface
-    if pose.positions.shape != surface.vertices.shape:
-        raise WigglyInputError(
-            f"{path}: its skinned meshes have {len(pose.positions)} vertices, but trimesh read "
-            f"{len(surface.vertices)}; export the mesh without its armature (or apply it), or give "
-            "the rest shape as its own file.")
     _warn_posed(path, pose.bind, pose.positions)
-    normals = surface.normals
-    if normals is not None:  # undo the node transform trimesh applied, then apply the pose's
-        raw = np.einsum("ni,nij->nj", normals, pose.node_linear)
-        normals = np.einsum("ni,nij->nj", raw, np.linalg.inv(pose.linear))
-        normals /= np.linalg.norm(normals, axis=1, keepdims=True).clip(1e-300)
-    return Surface(pose.positions, surface.faces, uvs=surface.uvs, normals=normals,
-                   groups=surface.groups)
+    return Surface(pose.positions, pose.faces, uvs=pose.uvs, normals=pose.normals,
+                   groups=pose.groups)
 
 
 def _warn_posed(path: Path, bind: list[tuple[slice, np.ndarray]], posed: np.ndarray) -> None:
