@@ -365,7 +365,7 @@ def test_a_glb_with_several_animations_says_which_it_plays(tmp_path):
     plays the first and names the ones it leaves out, unless one is named."""
     keys = np.array([0.0, 1.0], np.float32)
     T = np.array([[0, 0, 0], [1.0, 0, 0]], np.float32)
-    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0, "name": "hips"}],
            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
            "animations": [
                {"name": name, "samplers": [{"input": 2, "output": 3}],
@@ -382,7 +382,7 @@ def test_a_glb_with_several_animations_says_which_it_plays(tmp_path):
         warnings.simplefilter("error")
         read_driver(path, animation="KeyAction")
     with pytest.raises(WigglyInputError, match=r"'ArmatureAction' and 'KeyAction' both animate "
-                                               r"the translation of node 0"):
+                                               r"the translation of node 0 \('hips'\)"):
         read_driver(path, animation=["ArmatureAction", "KeyAction"])
 
 

@@ -145,8 +145,11 @@ def _channels(f: GltfFile, animation: AnimationChoice) -> list[_Channel]:
             for c in _animation_channels(f, animations[index], names[index]):
                 other = owner.setdefault((c.node, c.path), names[index])
                 if other != names[index]:
+                    node = f.list("nodes")[c.node].get("name") if 0 <= c.node < len(
+                        f.list("nodes")) else None
+                    what = f"node {c.node}" + (f" ({node!r})" if node else "")
                     raise f.fail(f"animations {other!r} and {names[index]!r} both animate the "
-                                 f"{c.path} of node {c.node}; play one of them")
+                                 f"{c.path} of {what}; play one of them")
                 merged.append(c)
         return merged
     if animation is None:
