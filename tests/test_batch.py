@@ -480,3 +480,23 @@ def test_a_driven_shot_reports_how_closely_it_followed(tmp_path, monkeypatch):
     alone = following(run_scene(load_scene(tmp_path / "shot.toml"), outputs=[]))
     assert float(row["drive_max"]) == pytest.approx(alone["max"], rel=1e-6, abs=1e-12)
     assert float(row["drive_rms"]) == pytest.approx(alone["rms"], rel=1e-6, abs=1e-12)
+
+
+def test_contact_sheet_captions_wrap_instead_of_cutting_values():
+    """A tile's caption gives every varied value whole, wrapped to the tile's width; a value
+    that cuts at 48 characters ("offset[1]=-0.") is not."""
+    from PIL import ImageFont
+
+    from wiggly.batch.summary import CAPTION_LINES, _caption_lines
+    from wiggly.batch.worker import THUMBNAIL_SIZE
+
+    font = ImageFont.load_default(size=11)
+    width = THUMBNAIL_SIZE[0] - 4
+    p = {"simulation.gravity": [0.0, -1.62, 0.0], "material.young": 150000.0,
+         "keyframes[crouch].position.offset[1]": -0.1234}
+    lines = _caption_lines(p, list(p), font, width)
+    text = ", ".join(lines)
+    assert "offset[1]=-0.1234" in text and "gravity=" in text and "young=" in text
+    assert all(font.getlength(line) <= width for line in lines)
+    many = {f"k{i}": 1000.0 + i for i in range(60)}
+    assert len(_caption_lines(many, list(many), font, width)) == CAPTION_LINES

@@ -171,13 +171,15 @@ def _write_png(out: Path, records: list[dict], varied: list[str]) -> None:
     gap = 6
     cols = min(SHEET_COLUMNS, len(records))
     rows = -(-len(records) // cols)
-    sheet = Image.new("RGB", (cols * tw + (cols + 1) * gap,
-                              rows * (th + CAPTION) + (rows + 1) * gap), (250, 250, 250))
-    draw = ImageDraw.Draw(sheet)
     font = ImageFont.load_default(size=11)
+    captions = [_caption_lines(r.get("parameters", {}), varied, font, tw - 4) for r in records]
+    caption = CAPTION + LINE * (max(map(len, captions), default=1) - 1)
+    sheet = Image.new("RGB", (cols * tw + (cols + 1) * gap,
+                              rows * (th + caption) + (rows + 1) * gap), (250, 250, 250))
+    draw = ImageDraw.Draw(sheet)
     for k, r in enumerate(records):
         row, col = divmod(k, cols)
-        x, y = gap + col * (tw + gap), gap + row * (th + CAPTION + gap)
+        x, y = gap + col * (tw + gap), gap + row * (th + caption + gap)
         thumb = out / r["thumbnail"] if r.get("thumbnail") else None
         if r["status"] == "done" and thumb is not None and thumb.is_file():
             with Image.open(thumb) as im:
@@ -187,9 +189,30 @@ def _write_png(out: Path, records: list[dict], varied: list[str]) -> None:
             draw.rectangle((x, y, x + tw - 1, y + th - 1), fill=fill)
             if r["status"] != "done":
                 draw.text((x + 8, y + 8), r["status"], fill=(180, 0, 0), font=font)
-        p = r.get("parameters", {})
-        text = ", ".join(f"{k.rsplit('.', 1)[-1]}={_short(p[k])}" for k in varied if k in p)
         draw.text((x + 2, y + th + 3), r["shot"], fill=(30, 30, 30), font=font)
-        draw.text((x + 2, y + th + 17), text[:48], fill=(90, 90, 90), font=font)
+        for j, line in enumerate(captions[k]):
+            draw.text((x + 2, y + th + 17 + LINE * j), line, fill=(90, 90, 90), font=font)
     with atomic_file(out / "contact-sheet.png") as tmp:
         sheet.save(tmp, format="PNG", optimize=True)
+
+
+#: Caption lines of varied parameters under a PNG tile, at most.
+CAPTION_LINES = 4
+LINE = 14  # pixels per caption line
+
+
+def _caption_lines(p: dict, varied: list[str], font, width: float) -> list[str]:
+    """The varied parameters of a shot as ``name=value`` items, wrapped to ``width`` pixels,
+    at most :data:`CAPTION_LINES` lines (the last ends with "..." when more did not fit)."""
+    items = [f"{k.rsplit('.', 1)[-1]}={_short(p[k])}" for k in varied if k in p]
+    lines: list[str] = []
+    for item in items:
+        while font.getlength(item) > width and len(item) > 1:  # one item wider than a tile
+            item = item[:-2] + "\u2026"
+        if lines and font.getlength(f"{lines[-1]}, {item}") <= width:
+            lines[-1] = f"{lines[-1]}, {item}"
+        else:
+            lines.append(item)
+    if len(lines) > CAPTION_LINES:
+        lines = [*lines[:CAPTION_LINES - 1], lines[CAPTION_LINES - 1] + ", ..."]
+    return lines or [""]
