@@ -373,25 +373,28 @@ class RestPose:
     the vertex order of :func:`read_gltf`: ``positions`` (n, 3), ``faces`` (k, 3), the file's
     ``normals`` turned as the pose turns them and ``uvs`` (v up, as trimesh reads them; None
     unless every primitive has them), ``groups`` (each mesh node's vertices, by node name,
-    when there are several), ``skinned`` (whether any mesh is skinned) and ``bind`` (each
-    skinned primitive's vertices as stored, their bind pose, with the slice of
-    ``positions`` they become)."""
+    when there are several) and ``bind`` (each skinned primitive's vertices as stored, their
+    bind pose, with the slice of ``positions`` they become)."""
 
     positions: np.ndarray
     faces: np.ndarray
     normals: np.ndarray | None
     uvs: np.ndarray | None
     groups: dict[str, np.ndarray]
-    skinned: bool
     bind: list[tuple[slice, np.ndarray]]
 
 
-def rest_pose(path: Path) -> RestPose:
+def rest_pose(path: Path) -> RestPose | None:
     """The meshes of a ``.glb`` / ``.gltf`` file with no animation applied: node transforms
     at their static values, default morph weights, and skins blended by their joints' static
-    transforms (the skinned node's own transform ignored, as the specification requires)."""
+    transforms (the skinned node's own transform ignored, as the specification requires).
+    None when no mesh of the scene is skinned (a reader that ignores skins reads it right)."""
     f = GltfFile(Path(path))
+    if not any(n.get("skin") is not None and n.get("mesh") is not None for n in f.list("nodes")):
+        return None  # without posing anything
     parts = _pose(f, [], np.zeros(1), None)
+    if all(part.bind is None for part in parts):
+        return None
     normals, uvs = [], []
     for part in parts:
         attrs = part.primitive["attributes"]
@@ -421,7 +424,6 @@ def rest_pose(path: Path) -> RestPose:
         np.concatenate(normals) if len(normals) == len(parts) else None,
         np.concatenate(uvs) if len(uvs) == len(parts) else None,
         {k: np.concatenate(v) for k, v in groups.items()} if len(groups) > 1 else {},
-        any(part.bind is not None for part in parts),
         [(part.vertices, part.bind) for part in parts if part.bind is not None])
 
 

@@ -240,7 +240,7 @@ def _skinned_rest(path: Path, surface: Surface) -> Surface:
     from wiggly.drive.gltf import rest_pose  # the glTF evaluator; no solver import
 
     pose = rest_pose(path)
-    if not pose.skinned:
+    if pose is None:
         return surface
     _warn_posed(path, pose.bind, pose.positions)
     return Surface(pose.positions, pose.faces, uvs=pose.uvs, normals=pose.normals,
