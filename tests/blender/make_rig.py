@@ -12,6 +12,7 @@ import math
 import sys
 
 import bpy
+from rigs import two_bone_rig  # beside this script
 
 bmesh = importlib.import_module("bmesh")  # importable once bpy is
 
@@ -42,16 +43,7 @@ bm.free()
 cap = bpy.data.objects.new("Cap", cap_mesh)
 scene.collection.objects.link(cap)
 
-armature = bpy.data.armatures.new("Rig")
-rig = bpy.data.objects.new("Rig", armature)
-scene.collection.objects.link(rig)
-bpy.context.view_layer.objects.active = rig
-bpy.ops.object.mode_set(mode="EDIT")
-root = armature.edit_bones.new("root")
-root.head, root.tail = (0.0, 0.0, 0.0), (0.5, 0.0, 0.0)
-tip = armature.edit_bones.new("tip")
-tip.head, tip.tail, tip.parent = (0.5, 0.0, 0.0), (1.0, 0.0, 0.0), root
-bpy.ops.object.mode_set(mode="OBJECT")
+rig = two_bone_rig()
 rig.scale, rig.location = (2.0, 2.0, 2.0), (0.3, -0.2, 0.5)
 for obj in (bar, cap):
     obj.parent = rig

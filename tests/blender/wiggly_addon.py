@@ -19,6 +19,7 @@ from pathlib import Path
 
 import bpy
 import numpy as np
+from rigs import two_bone_rig  # beside this script
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "blender"))
@@ -188,16 +189,7 @@ def case_handles() -> None:
 def armature_bar():
     """A bar skinned to two bones; the second bends up and back over the frames."""
     obj = box_mesh("Tail", size=(1.0, 0.16, 0.16), cuts=6, at=(0.0, 0.0, 0.0))
-    arm_data = bpy.data.armatures.new("Rig")
-    rig = bpy.data.objects.new("Rig", arm_data)
-    bpy.context.scene.collection.objects.link(rig)
-    bpy.context.view_layer.objects.active = rig
-    bpy.ops.object.mode_set(mode="EDIT")
-    a = arm_data.edit_bones.new("root")
-    a.head, a.tail = (0, 0, 0), (0.5, 0, 0)
-    b = arm_data.edit_bones.new("tip")
-    b.head, b.tail, b.parent = (0.5, 0, 0), (1.0, 0, 0), a
-    bpy.ops.object.mode_set(mode="OBJECT")
+    rig = two_bone_rig()
     w = {}
     for v in obj.data.vertices:
         t = min(max((v.co.x - 0.35) / 0.3, 0.0), 1.0)
