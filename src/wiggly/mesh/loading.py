@@ -21,6 +21,7 @@ from wiggly.mesh.data import (
     TetMesh,
     check_surface_arrays,
 )
+from wiggly.mesh.defects import diagonal
 from wiggly.mesh.validate import check_tet_mesh
 
 # --------------------------------------------------------------------------- loading
@@ -251,7 +252,7 @@ def _warn_posed(path: Path, bind: list[tuple[slice, np.ndarray]], posed: np.ndar
     """Warn when a skin's static pose deforms its mesh (no one affine map takes a skinned
     primitive's bind positions to its posed ones): the file's skeleton was not saved at its
     bind pose, so the rest mesh is bent as the pose bends it."""
-    size = float(np.linalg.norm(np.ptp(posed, axis=0)))
+    size = diagonal(posed)
     off = 0.0
     for where, stored in bind:
         A = np.c_[stored, np.ones(len(stored))]

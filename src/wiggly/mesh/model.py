@@ -11,6 +11,7 @@ import numpy as np
 from wiggly.mesh.data import Embedding, Model, Surface, TetMesh, embed, without_small_pieces
 from wiggly.mesh.defects import (
     CheckedSurface,
+    diagonal,
 )
 from wiggly.mesh.filling import (
     FAR_OUTSIDE,
@@ -125,7 +126,7 @@ def _warn_units(vertices: np.ndarray, source: str) -> None:
     """Warn when a mesh's size suggests millimetres or kilometres read as metres (wiggly's
     units are SI: a 1.2 m capsule exported in millimetres becomes a 1.2 km body of 3e10 kg
     whose modes are a few mHz)."""
-    size = float(np.linalg.norm(np.ptp(vertices, axis=0)))
+    size = diagonal(vertices)
     low, high = PLAUSIBLE_SIZE
     if low <= size <= high or size == 0.0:
         return

@@ -16,6 +16,7 @@ from wiggly.drive import following
 from wiggly.errors import WigglyInputError, counted
 from wiggly.export import SurfaceAnimation, stage_animation
 from wiggly.files import OutputSet, check_writable
+from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
 from wiggly.render import Highlight
 from wiggly.scene.build import build_with_groups
@@ -192,7 +193,7 @@ def _warn_missed(scene: Scene, anim, body) -> None:
         return
     rows = own.constraint_residuals()
     anim.info["keyframe_residuals"] = rows  # the summary prints these rows
-    size = float(np.linalg.norm(np.ptp(body.rest_positions(), axis=0)))
+    size = diagonal(body.rest_positions())
     missed = [(j, row["position_max"]) for j, row in enumerate(rows)
               if row.get("position_max") is not None and row["position_max"] > MISSED * size]
     if not missed:
@@ -227,7 +228,7 @@ def _warn_unfollowed(scene: Scene, report: dict | None, body) -> None:
     of the body's size, with the likely causes of each physics."""
     if not report:
         return
-    size = float(np.linalg.norm(np.ptp(body.rest_positions(), axis=0)))
+    size = diagonal(body.rest_positions())
     if report["max"] <= UNFOLLOWED * size:
         return
     drive = scene.drive
