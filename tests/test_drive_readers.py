@@ -114,6 +114,56 @@ def test_usd_points_driver_converts_axes_units_and_transforms(tmp_path):
     d.check(8, TRIS, "cube")
 
 
+@pytest.mark.parametrize("rate", [24, 30])
+def test_usd_skinning_driver_lands_on_its_time_codes(tmp_path, rate):
+    """UsdSkel skinning (one joint, turned and moved at time codes 1-5) at the stage's own
+    rate: the cube is posed by the joint at code k and lands at time k / rate.  The baked
+    points were off between the codes 1 and 5 at 30 codes per second (USD's session layer
+    keeps 24 unless told; Blender writes its scene's rate)."""
+    from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
+
+    stage = Usd.Stage.CreateNew(str(tmp_path / "rig.usda"))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetTimeCodesPerSecond(rate)
+    UsdSkel.Root.Define(stage, "/rig")
+    skel = UsdSkel.Skeleton.Define(stage, "/rig/skel")
+    identity = Vt.Matrix4dArray([Gf.Matrix4d(1.0)])
+    skel.CreateJointsAttr(Vt.TokenArray(["root"]))
+    skel.CreateBindTransformsAttr(identity)
+    skel.CreateRestTransformsAttr(identity)
+    anim = UsdSkel.Animation.Define(stage, "/rig/skel/anim")
+    anim.CreateJointsAttr(Vt.TokenArray(["root"]))
+    codes = np.arange(1, FRAMES + 1)
+    turns = Rotation.from_euler("y", 20.0 * codes[:, None], degrees=True)
+    shifts = np.stack([0.1 * codes, 0.02 * codes**2, np.zeros(FRAMES)], -1)
+    for k, code in enumerate(codes):
+        x, y, z, w = turns[k].as_quat()
+        anim.CreateRotationsAttr().Set(Vt.QuatfArray([Gf.Quatf(w, x, y, z)]), float(code))
+        anim.CreateTranslationsAttr().Set(Vt.Vec3fArray([Gf.Vec3f(*shifts[k])]), float(code))
+    anim.CreateScalesAttr().Set(Vt.Vec3hArray([Gf.Vec3h(1.0, 1.0, 1.0)]))
+    UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets(
+        [anim.GetPath()])
+    mesh = UsdGeom.Mesh.Define(stage, "/rig/cube")
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(CUBE.astype(np.float32)))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray([4] * len(QUADS)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(QUADS.ravel().tolist()))
+    binding = UsdSkel.BindingAPI.Apply(mesh.GetPrim())
+    binding.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    binding.CreateJointIndicesPrimvar(False, 1).Set(Vt.IntArray([0] * len(CUBE)))
+    binding.CreateJointWeightsPrimvar(False, 1).Set(Vt.FloatArray([1.0] * len(CUBE)))
+    binding.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+    stage.GetRootLayer().Save()
+    d = read_driver(tmp_path / "rig.usda")
+    assert d.kind == "USD skinning"
+    for k, code in enumerate(codes):
+        t = code / rate
+        row = int(np.argmin(np.abs(d.times - t)))
+        assert d.times[row] == pytest.approx(t, abs=1e-9)
+        np.testing.assert_allclose(d.positions[row], turns[k].apply(CUBE) + shifts[k],
+                                   atol=1e-6)
+
+
 def shift_yup(shift_cm: np.ndarray) -> np.ndarray:
     s = shift_cm / 100.0
     return np.stack([s[:, 0], s[:, 2], -s[:, 1]], -1)[:, None, :]

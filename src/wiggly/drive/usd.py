@@ -70,7 +70,14 @@ def _bake_skinning(stage) -> bool:
     roots = [p for p in stage.Traverse() if p.IsA(UsdSkel.Root)]
     if not roots:
         return False
-    stage.SetEditTarget(Usd.EditTarget(stage.GetSessionLayer()))
+    # the session layer keeps USD's default 24 time codes per second; samples authored
+    # there from a stage of another rate (Blender writes its scene's, e.g. 30) land at
+    # scaled times, and the baked points then lag the skeleton (by 110 mm on a 30 fps
+    # Blender plant): author them at the stage's rate
+    session = stage.GetSessionLayer()
+    session.timeCodesPerSecond = stage.GetTimeCodesPerSecond()
+    session.framesPerSecond = stage.GetFramesPerSecond()
+    stage.SetEditTarget(Usd.EditTarget(session))
     for root in roots:
         if not UsdSkel.BakeSkinning(UsdSkel.Root(root)):
             raise WigglyInputError(f"USD could not evaluate the skinning of {root.GetPath()}")
