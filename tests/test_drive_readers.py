@@ -346,6 +346,9 @@ def test_same_count_in_another_order_is_refused():
                "glTF skin")
     assert d.mismatch(8, TRIS, "cube.obj") is not None
     assert "another order" in d.mismatch(8, TRIS, "cube.obj")
+    # a mesh from another file: the hint names the one-glTF way for rigs of several objects
+    assert "one glTF file" in d.mismatch(8, TRIS, "cube.obj")
+    assert "one glTF file" not in d.mismatch(8, TRIS, "walk.glb")
     d.check(8, inverse[TRIS], "shuffled.obj")  # the same shuffle on both sides is fine
 
 

@@ -114,11 +114,16 @@ class Driver:
         missing = ~np.isin(_edge_codes(self.edges, n), known)
         if missing.any():
             a, b = self.edges[np.flatnonzero(missing)[0]]
+            hint = ""
+            if not surface.lower().endswith((".glb", ".gltf")):
+                hint = ("; for a rig of several objects, exporters list the objects in their "
+                        "own orders (Blender's OBJ and USD differ), so export the rig as one "
+                        "glTF file and give it as both the mesh and the driver")
             return (f"the driver {self.source} has the {counted(n, 'vertex')} of the surface "
                     f"{surface} but not its triangles: {int(missing.sum())} of its "
                     f"{len(self.edges)} edges join vertices that no triangle of the surface "
                     f"joins (e.g. {a}-{b}), so its vertices are in another order; export both "
-                    f"from the same object with the same settings")
+                    f"from the same object with the same settings{hint}")
         return None
 
     def check(self, vertices: int, faces: np.ndarray, surface: str) -> None:
