@@ -188,6 +188,38 @@ def test_topology_mismatch_stops_before_anything_is_computed(shot, capsys):
     assert not (folder / "out" / "never.npz").exists()
 
 
+def test_a_driver_outside_the_shot_stops_before_meshing(tmp_path, capsys, monkeypatch):
+    """A surface driven by frames at 0-1 s in a shot from 2 to 3 s: one message naming the
+    driver, its frame times and the shot, before the surface is tetrahedralized."""
+    import importlib
+
+    import trimesh
+
+    build = importlib.import_module("wiggly.scene.build")
+    V, T = box_mesh(SHAPE, SIZE)
+    faces = TetMesh(V, T).boundary_faces()
+    used, faces = np.unique(faces, return_inverse=True)
+    faces = faces.reshape(-1, 3)
+    trimesh.Trimesh(V[used], faces, process=False).export(tmp_path / "bar.ply")
+    times = np.arange(21) / 20.0
+    write_animation(tmp_path / "walk.npz",
+                    SurfaceAnimation(times, bar_motion(V[used], times), faces))
+    data = {"mesh": {"path": "bar.ply"}, "time": {"start": 2.0, "end": 3.0, "fps": 20},
+            "groups": {"driven": {"box": {"min": [-1, -1, -1], "max": [0.3, 1, 1]}}},
+            "drive": {"path": "walk.npz", "group": "driven"},
+            "output": {"paths": ["out/never.npz"]}}
+
+    def meshed(*args, **kwargs):
+        raise AssertionError("the surface was meshed before the driver was checked")
+
+    monkeypatch.setattr(build.meshing, "build_model", meshed)
+    assert main(["animate", str(write(tmp_path, data, "late.toml"))]) == 1
+    err = capsys.readouterr().err
+    assert ('drive.path = "walk.npz": no frame of the driver' in err
+            and "(frames from 0 to 1 s, offset 0 s) falls in the shot's [2.0, 3.0] s" in err), err
+    assert "Traceback" not in err and not (tmp_path / "out" / "never.npz").exists()
+
+
 def test_a_driver_the_modes_cannot_follow_is_warned_about(shot, recwarn):
     """physics = "keys" without enrichment on a driver that folds the driven part: 12 modes
     miss it by centimetres, and the run says so once, with the remedies; the secondary

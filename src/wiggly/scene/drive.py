@@ -9,7 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from wiggly.drive import DRIVE_STIFFNESS, Driver, driven_keyframes, enrich, read_driver
+from wiggly.drive import (
+    DRIVE_STIFFNESS,
+    Driver,
+    driven_keyframes,
+    enrich,
+    keyed_frames,
+    read_driver,
+)
 from wiggly.drive.secondary import secondary_motion
 from wiggly.drive.sequence import sequence_files
 from wiggly.errors import WigglyInputError, counted
@@ -134,7 +141,8 @@ def scene_driver(scene: Scene) -> Driver:
 def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: str,
                          p: Problems) -> None:
     """The driver animates the surface just read (``vertices`` vertices, triangles
-    ``faces``, file ``mesh``): checked before tetrahedralizing."""
+    ``faces``, file ``mesh``), and some of its frames fall in the shot: checked before
+    tetrahedralizing."""
     if scene.drive is None:
         return
     try:
@@ -145,6 +153,14 @@ def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: s
     why = driver.mismatch(vertices, faces, mesh)
     if why is not None:
         p.add(f"drive.path = {show(scene.drive.path)}: {why}")
+    if scene.time.end is None and scene.time.duration is None:
+        return  # check_drive has said so
+    start, end = scene.time_range()
+    try:  # some driver frame must fall in the shot, as the solve will need
+        keyed_frames(driver, offset=scene.drive.offset, driver_range=scene.drive.range,
+                     start=start, end=end)
+    except WigglyInputError as err:
+        p.add(f"drive.path = {show(scene.drive.path)}: {err}")
 
 
 def driven_vertices(scene: Scene, groups: dict[str, np.ndarray]) -> np.ndarray:
