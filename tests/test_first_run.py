@@ -130,3 +130,40 @@ class _Recorder(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         self.events.append(record.getMessage())
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="needs a POSIX pseudo-terminal")
+def test_bars_show_on_a_terminal_that_reports_zero_columns():
+    """A pseudo-terminal whose size was never set reports 0 x 0 (some container and CI
+    runners); tqdm then drew empty lines, and a run looked hung.  The bars fall back to 80 x
+    24 there."""
+    import fcntl
+    import pty
+    import struct
+    import termios
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 0, 0, 0, 0))
+    code = ("from wiggly.progress import frames, reporting\n"
+            "with reporting(True):\n"
+            "    for _ in frames(range(3), 3, '[wiggly] writing frames'):\n"
+            "        pass\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("COLUMNS", "LINES")}
+    try:
+        done = subprocess.run([sys.executable, "-c", code], stdin=subprocess.DEVNULL,
+                              stdout=subprocess.DEVNULL, stderr=slave, env=env, timeout=120)
+    finally:
+        os.close(slave)
+    chunks = []
+    while True:
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:  # EIO: the terminal's other end is closed and drained
+            break
+        if not chunk:
+            break
+        chunks.append(chunk)
+    os.close(master)
+    text = b"".join(chunks).decode(errors="replace")
+    assert done.returncode == 0, text
+    assert "[wiggly] writing frames" in text and "3/3" in text, repr(text)

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
+import shutil
 import sys
 import threading
 import time
@@ -28,8 +30,8 @@ from typing import TypeVar
 from tqdm import tqdm
 
 __all__ = [
-    "Counter", "activity", "deprecated_progress", "frames", "iterations", "log", "on_terminal",
-    "reporting", "say", "shown",
+    "Counter", "activity", "bar", "deprecated_progress", "frames", "iterations", "log",
+    "on_terminal", "reporting", "say", "shown",
 ]
 
 #: The library's logger; modules log on ``logging.getLogger(__name__)`` beneath it.
@@ -93,6 +95,20 @@ def on_terminal() -> bool:
         return False
 
 
+def bar(**options) -> tqdm:
+    """A tqdm bar on stderr.  A terminal that reports 0 columns (a pseudo-terminal whose size
+    was never set, as some container and CI runners give) would get empty lines from tqdm:
+    there the bar takes ``$COLUMNS`` x ``$LINES``, or 80 x 24."""
+    try:
+        columns = os.get_terminal_size(sys.stderr.fileno()).columns
+    except (AttributeError, ValueError, OSError):
+        columns = None
+    if columns == 0:
+        size = shutil.get_terminal_size()  # $COLUMNS and $LINES, or 80 x 24
+        options.update(ncols=size.columns, nrows=size.lines, dynamic_ncols=False)
+    return tqdm(file=sys.stderr, **options)
+
+
 def say(message: str, enabled: bool = True, logger: logging.Logger = log) -> None:
     """One INFO line of a stage, when stages are :func:`shown` (and ``enabled``: a further
     condition of the caller, e.g. only for a large sweep)."""
@@ -102,13 +118,13 @@ def say(message: str, enabled: bool = True, logger: logging.Logger = log) -> Non
 
 @contextmanager
 def _ticking(desc: str) -> Iterator[None]:
-    bar = tqdm(total=None, desc=f"[wiggly] {desc}", file=sys.stderr,
-               bar_format="{desc}: {elapsed} elapsed", leave=True)
+    line = bar(total=None, desc=f"[wiggly] {desc}", bar_format="{desc}: {elapsed} elapsed",
+               leave=True)
     stop = threading.Event()
 
     def tick() -> None:
         while not stop.wait(0.25):
-            bar.refresh()
+            line.refresh()
 
     thread = threading.Thread(target=tick, daemon=True)
     thread.start()
@@ -117,7 +133,7 @@ def _ticking(desc: str) -> Iterator[None]:
     finally:
         stop.set()
         thread.join()
-        bar.close()
+        line.close()
 
 
 @contextmanager
@@ -172,7 +188,7 @@ def iterations(desc: str, enabled: bool = True, unit: str = "it") -> tqdm | Coun
     It reports when stages are :func:`shown` and ``enabled``."""
     enabled = enabled and shown()
     if enabled and on_terminal():
-        return tqdm(total=None, desc=desc, file=sys.stderr, leave=False, unit=unit)
+        return bar(total=None, desc=desc, leave=False, unit=unit)
     return Counter(desc, unit, enabled)
 
 
@@ -183,7 +199,7 @@ def frames(items: Iterable, total: int | None, desc: str, enabled: bool = True,
     if not (enabled and shown()):
         return items
     if on_terminal():
-        return tqdm(items, total=total, file=sys.stderr, unit=unit, desc=desc)
+        return bar(iterable=items, total=total, unit=unit, desc=desc)
     return _logged(items, desc, unit)
 
 

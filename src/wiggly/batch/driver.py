@@ -27,7 +27,16 @@ from wiggly.batch.sweep import Sweep
 from wiggly.batch.worker import THUMBNAIL, ShotJob
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, check_writable
-from wiggly.progress import Counter, activity, deprecated_progress, log, on_terminal, say, shown
+from wiggly.progress import (
+    Counter,
+    activity,
+    bar,
+    deprecated_progress,
+    log,
+    on_terminal,
+    say,
+    shown,
+)
 from wiggly.scene import Scene, scene_to_toml
 
 MARKER = ".wiggly-batch"
@@ -281,8 +290,8 @@ class _Driver:
         self.total = len(shots)
         self.live = self.shown and on_terminal()
         if self.live:
-            self.bar = tqdm(total=len(shots), initial=done + failed, desc="[wiggly] batch",
-                            unit="shot", file=sys.stderr, dynamic_ncols=True)
+            self.bar = bar(total=len(shots), initial=done + failed, desc="[wiggly] batch",
+                           unit="shot", dynamic_ncols=True)
         else:  # in a log: a line per shot, and the counts at the end
             self.bar = Counter("batch", "shot", self.shown)
             self.bar.n = done + failed
