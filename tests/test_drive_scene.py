@@ -188,9 +188,19 @@ def test_topology_mismatch_stops_before_anything_is_computed(shot, capsys):
     assert not (folder / "out" / "never.npz").exists()
 
 
-def test_a_driver_outside_the_shot_stops_before_meshing(tmp_path, capsys, monkeypatch):
-    """A surface driven by frames at 0-1 s in a shot from 2 to 3 s: one message naming the
-    driver, its frame times and the shot, before the surface is tetrahedralized."""
+@pytest.mark.parametrize("time, drive, message", [
+    ({"start": 2.0, "end": 3.0}, {},
+     "walk.npz (frames from 0 to 1 s, offset 0 s) falls in the shot's [2.0, 3.0] s"),
+    ({"start": 1.0, "end": 2.0}, {},
+     "has 1 frame in the shot [1, 2] s: secondary motion needs an animated driver"),
+    ({"start": 0.0, "end": 1.0, "loop": True}, {"offset": 0.2},
+     "a looped shot needs a driver frame at its start (0 s)"),
+    ({"start": 1.0, "end": 2.0}, {"physics": "keys"}, None),  # keys: one frame is enough
+], ids=["outside", "one frame", "loop start"] + ["keys"])
+def test_a_driver_outside_the_shot_stops_before_meshing(tmp_path, capsys, monkeypatch, time,
+                                                        drive, message):
+    """A surface driven by frames at 0-1 s, in shots that miss them: one message naming the
+    driver, its frames and the shot, before the surface is tetrahedralized."""
     import importlib
 
     import trimesh
@@ -204,19 +214,22 @@ def test_a_driver_outside_the_shot_stops_before_meshing(tmp_path, capsys, monkey
     times = np.arange(21) / 20.0
     write_animation(tmp_path / "walk.npz",
                     SurfaceAnimation(times, bar_motion(V[used], times), faces))
-    data = {"mesh": {"path": "bar.ply"}, "time": {"start": 2.0, "end": 3.0, "fps": 20},
+    data = {"mesh": {"path": "bar.ply"}, "time": {**time, "fps": 20},
             "groups": {"driven": {"box": {"min": [-1, -1, -1], "max": [0.3, 1, 1]}}},
-            "drive": {"path": "walk.npz", "group": "driven"},
+            "drive": {"path": "walk.npz", "group": "driven", **drive},
             "output": {"paths": ["out/never.npz"]}}
 
     def meshed(*args, **kwargs):
         raise AssertionError("the surface was meshed before the driver was checked")
 
     monkeypatch.setattr(build.meshing, "build_model", meshed)
+    if message is None:  # the checks pass: meshing is next
+        assert main(["animate", str(write(tmp_path, data, "late.toml"))]) != 0
+        assert "the surface was meshed" in capsys.readouterr().err
+        return
     assert main(["animate", str(write(tmp_path, data, "late.toml"))]) == 1
     err = capsys.readouterr().err
-    assert ('drive.path = "walk.npz": no frame of the driver' in err
-            and "(frames from 0 to 1 s, offset 0 s) falls in the shot's [2.0, 3.0] s" in err), err
+    assert 'late.toml: drive.path = "walk.npz": ' in err and message in err, err
     assert "Traceback" not in err and not (tmp_path / "out" / "never.npz").exists()
 
 

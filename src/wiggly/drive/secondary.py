@@ -63,7 +63,7 @@ from wiggly.warp import Warp
 
 __all__ = ["DEFAULT_FREE_MODES", "FrameSpline", "HeldWarp", "SecondaryMotion", "free_modes",
            "held_vertices",
-           "secondary_motion"]
+           "secondary_frames", "secondary_motion"]
 
 #: Fixed-interface modes of the free parts, unless asked otherwise.
 DEFAULT_FREE_MODES = 24
@@ -418,6 +418,39 @@ def _forcing(nodes: np.ndarray, rig: FrameSpline, C: np.ndarray, g: np.ndarray,
 
 
 @deprecated_progress
+def secondary_frames(
+    driver: Driver,
+    *,
+    start: float,
+    end: float,
+    loop: bool = False,
+    offset: float = 0.0,
+    driver_range: tuple[float, float] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The driver frames secondary motion follows, and their shot times
+    (:func:`wiggly.drive.keyed_frames`): two or more in the shot; a looped shot needs one at
+    its start and ends on its first frame again.  Raises :class:`WigglyInputError` naming
+    the driver otherwise (the scene checks call it before meshing)."""
+    frames, times = keyed_frames(driver, offset=offset, driver_range=driver_range,
+                                 start=start, end=end)
+    if len(frames) < 2:
+        raise WigglyInputError(
+            f"the driver {driver.source} has {len(frames)} frame in the shot [{start:g}, "
+            f"{end:g}] s: secondary motion needs an animated driver (two frames or more)")
+    tol = 1e-9 * (end - start)
+    frames = frames.copy()
+    if loop:
+        if times[0] > start + tol:
+            raise WigglyInputError(
+                f"a looped shot needs a driver frame at its start ({start:g} s); the first "
+                f"frame of {driver.source} in the shot is at {times[0]:g} s")
+        if times[-1] < end - tol:
+            times, frames = np.r_[times, end], np.r_[frames, frames[:1]]
+        else:
+            frames[-1] = frames[0]
+    return frames, times
+
+
 def secondary_motion(
     body: Body,
     driver: Driver,
@@ -451,24 +484,10 @@ def secondary_motion(
     surface = body.surface
     driver.check(surface.n_vertices, surface.faces, body.model.source or "of the body")
     v = vertex_indices(driven, surface.n_vertices, "surface", "driven group")
-    frames, times = keyed_frames(driver, offset=offset, driver_range=driver_range,
-                                 start=start, end=end)
-    if len(frames) < 2:
-        raise WigglyInputError(
-            f"the driver {driver.source} has {len(frames)} frame in the shot [{start:g}, "
-            f"{end:g}] s: secondary motion needs an animated driver (two frames or more)")
+    frames, times = secondary_frames(driver, start=start, end=end, loop=loop, offset=offset,
+                                     driver_range=driver_range)
     duration = end - start
     tol = 1e-9 * duration
-    frames = frames.copy()
-    if loop:
-        if times[0] > start + tol:
-            raise WigglyInputError(
-                f"a looped shot needs a driver frame at its start ({start:g} s); the first "
-                f"frame of {driver.source} in the shot is at {times[0]:g} s")
-        if times[-1] < end - tol:
-            times, frames = np.r_[times, end], np.r_[frames, frames[:1]]
-        else:
-            frames[-1] = frames[0]
     # the rig: the driver extended into the tet mesh (unwarped for warped playback)
     mass = np.asarray(body.M.sum(axis=1)).ravel()[::3]
     rigging = Unwarp(body.tets.vertices, body.tets.tets, mass)

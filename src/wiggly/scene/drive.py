@@ -17,7 +17,7 @@ from wiggly.drive import (
     keyed_frames,
     read_driver,
 )
-from wiggly.drive.secondary import secondary_motion
+from wiggly.drive.secondary import secondary_frames, secondary_motion
 from wiggly.drive.sequence import sequence_files
 from wiggly.errors import WigglyInputError, counted
 from wiggly.keyframes import Keyframe
@@ -156,11 +156,16 @@ def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: s
     if scene.time.end is None and scene.time.duration is None:
         return  # check_drive has said so
     start, end = scene.time_range()
-    try:  # some driver frame must fall in the shot, as the solve will need
-        keyed_frames(driver, offset=scene.drive.offset, driver_range=scene.drive.range,
-                     start=start, end=end)
+    drive = scene.drive
+    try:  # the frames in the shot that the solve will need
+        if scene.secondary_motion:
+            secondary_frames(driver, start=start, end=end, loop=scene.time.loop,
+                             offset=drive.offset, driver_range=drive.range)
+        else:
+            keyed_frames(driver, offset=drive.offset, driver_range=drive.range, start=start,
+                         end=end)
     except WigglyInputError as err:
-        p.add(f"drive.path = {show(scene.drive.path)}: {err}")
+        p.add(f"drive.path = {show(drive.path)}: {err}")
 
 
 def driven_vertices(scene: Scene, groups: dict[str, np.ndarray]) -> np.ndarray:
