@@ -196,7 +196,7 @@ def test_topology_mismatch_stops_before_anything_is_computed(shot, capsys):
     ({"start": 0.0, "end": 1.0, "loop": True}, {"offset": 0.2},
      "a looped shot needs a driver frame at its start (0 s)"),
     ({"start": 1.0, "end": 2.0}, {"physics": "keys"}, None),  # keys: one frame is enough
-], ids=["outside", "one frame", "loop start"] + ["keys"])
+], ids=["outside", "one frame", "loop start", "keys"])
 def test_a_driver_outside_the_shot_stops_before_meshing(tmp_path, capsys, monkeypatch, time,
                                                         drive, message):
     """A surface driven by frames at 0-1 s, in shots that miss them: one message naming the
