@@ -140,6 +140,15 @@ def test_modes_solve_the_forced_ode(bar):
     assert np.abs(q0).max() < 1e-15 and np.abs(dq0).max() < 1e-15  # at rest, no gravity
 
 
+def test_the_retired_progress_flag_is_still_accepted(bar):
+    """secondary_motion(progress=...) warns that the flag is retired and runs as before."""
+    body, driven = bar
+    with pytest.warns(DeprecationWarning, match=r"secondary_motion\(progress=...\)"):
+        anim = secondary_motion(body, bob_driver(body, 30.0), driven, start=0.0, end=T_END,
+                                warped=False, free_mode_count=12, progress=False)
+    assert anim.info["driver_frames"] >= 2
+
+
 def test_rig_spline_is_c2_cubic_through_frames():
     """FrameSpline interpolates, is C^2 at interior frames, reproduces cubics exactly
     (not-a-knot) and holds its pose outside the frames."""

@@ -417,7 +417,6 @@ def _forcing(nodes: np.ndarray, rig: FrameSpline, C: np.ndarray, g: np.ndarray,
     return out
 
 
-@deprecated_progress
 def secondary_frames(
     driver: Driver,
     *,
@@ -451,6 +450,7 @@ def secondary_frames(
     return frames, times
 
 
+@deprecated_progress
 def secondary_motion(
     body: Body,
     driver: Driver,
