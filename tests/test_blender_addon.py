@@ -246,3 +246,38 @@ def test_extension_zip_builds(tmp_path):
     assert manifest["id"] == "wiggly" and manifest["type"] == "add-on"
     assert manifest["blender_version_min"] == "4.2.0"
     assert zip_path.name == f"wiggly-{manifest['version']}.zip"
+
+
+def test_what_animators_also_do(blender_python, tmp_path):
+    """Handles and rigs that Blender does not animate are refused (not read as still);
+    wiggly's own warnings reach the report; a key of the user's named ``wiggly.sag`` stays;
+    shape keys under a moving rig are refused; export paths; gravity in Blender's units; a
+    Mirror warns; Add Handle takes the edit mesh."""
+    seen = in_blender(blender_python, "sweep", tmp_path)
+    for case in ("excluded_handle", "disabled_handle"):
+        assert seen[case]["result"][0] == "RuntimeError", seen[case]
+        assert ("its handle 'left end.001 handle' is disabled in viewports, or in a collection "
+                "that is disabled or excluded") in seen[case]["result"][1]
+    assert seen["disabled_driven"]["result"][0] == "RuntimeError"
+    assert "driven group 'body': the object is disabled" in seen["disabled_driven"]["result"][1]
+    # hidden with H it is animated: the bake runs, and relays wiggly's warning of the key that
+    # the fixed group keeps from being met
+    bake = seen["warned_bake"]
+    assert bake["result"] == ["FINISHED"], bake
+    assert "Warning: Object 'Bar': 1 keyframe missed by more than 5 %" in bake["printed"]
+    assert "1 warning(s) above" in bake["printed"]
+    assert "wiggly-blender-" not in bake["printed"]  # the add-on's temporary folder
+    assert seen["shape_keys"] == ["Basis", "own", "wiggly.sag"]
+    assert "modifier 'Mirror' (mirror) adds copies of the mesh" in seen["mirror_export"][
+        "printed"]
+    assert "mirror.toml" in seen["files"]  # ".toml" added to a path without it
+    assert seen["no_path"]["result"][0] == "RuntimeError"
+    assert "no scene file given" in seen["no_path"]["result"][1]
+    assert "relative to the .blend file, which is not saved" in seen["relative_unsaved"][
+        "result"][1]
+    scene = tomllib.loads(seen["centimetres"])  # unit scale 0.01: -9.81 BU/s^2 is 0.0981 m/s^2
+    assert scene["simulation"]["gravity"] == [0.0, pytest.approx(-0.0981, rel=1e-6), 0.0]
+    assert seen["keys_under_rig"]["result"][0] == "RuntimeError"
+    assert "its modifiers 'Armature' move the vertices" in seen["keys_under_rig"]["result"][1]
+    assert seen["edit_handle"]["result"] == ["FINISHED"]
+    assert seen["edit_handle_off"] < 1e-6  # at the edited group's centre (0.5 m up)

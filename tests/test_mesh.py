@@ -578,6 +578,23 @@ def test_tetrahedralization_is_cached_and_reproducible(tmp_path):
     assert tetrahedralize(surface, resolution=8, cache_dir=False).n_tets > 0
 
 
+def test_tetrahedralization_does_not_depend_on_face_order(tmp_path):
+    """The same solid with its triangles in another order (and each triangle's corners
+    rotated, its orientation kept), as Blender's exports give, is the same cache entry, so
+    the same tet mesh and the same animation."""
+    from wiggly.mesh import Surface, load_mesh, tetrahedralize
+
+    surface = load_mesh("builtin:bar")
+    rng = np.random.default_rng(3)
+    F = surface.faces[rng.permutation(len(surface.faces))]
+    F = np.take_along_axis(F, (rng.integers(0, 3, len(F))[:, None] + np.arange(3)) % 3, axis=1)
+    first = tetrahedralize(surface, resolution=8, cache_dir=tmp_path)
+    second = tetrahedralize(Surface(surface.vertices, F), resolution=8, cache_dir=tmp_path)
+    assert len(list((tmp_path / "tets").glob("*.npz"))) == 1
+    assert np.array_equal(first.tets, second.tets)
+    assert np.array_equal(first.vertices, second.vertices)
+
+
 # --------------------------------------------------------------------------- imperfect surfaces
 
 

@@ -14,7 +14,18 @@ import bpy
 import numpy as np
 
 from .blender_data import fcurves_of, new_fcurve, remove_fcurves
-from .shot import BAKE_NAME, DEFORMING, DRIVER_STACK, SHAPE_PREFIX, Shot, ShotError, _replace
+from .shot import (
+    BAKE_NAME,
+    DEFORMING,
+    DRIVER_STACK,
+    PLACEMENT_SAMPLES,
+    SHAPE_PREFIX,
+    Shot,
+    ShotError,
+    _replace,
+    driver_modifiers,
+    is_bake_key,
+)
 
 #: an ID property on the shape keys of a mesh whose Basis a bake added (Remove Bake clears it)
 MADE_BASIS = "wiggly_made_basis"
@@ -49,8 +60,10 @@ def remove_bake(obj) -> int:
         gone += 1
     keys = obj.data.shape_keys
     if keys is not None:
-        remove_fcurves(keys, lambda path: not path.startswith(f'key_blocks["{SHAPE_PREFIX}'))
-        for block in [k for k in keys.key_blocks if k.name.startswith(SHAPE_PREFIX)]:
+        remove_fcurves(keys, lambda path: not (
+            path.startswith('key_blocks["') and path.endswith('"].value')
+            and is_bake_key(path[len('key_blocks["'):-len('"].value')])))
+        for block in [k for k in keys.key_blocks if is_bake_key(k.name)]:
             obj.shape_key_remove(block)
             gone += 1
         # the Basis a bake added to a mesh without shape keys goes with the last of its keys
@@ -125,12 +138,17 @@ def check_shape_keys(obj) -> None:
                         "keys, or bake as Mesh Cache")
 
 
-def bake_shape_keys(obj, shot: Shot, local: np.ndarray) -> int:
-    """A shape key ``wiggly.NNNN`` per frame N, its value 1 on frame N and 0 on the frames
-    next to it (the first and last hold before and after the range)."""
+def refuse_driven(obj, shot: Shot) -> None:
+    """A driven shot cannot be baked as shape keys: ShotError."""
     if shot.driver is not None:
         raise ShotError(f"Object '{obj.name}': a driven bake cannot be shape keys (they sit "
                         "under the modifiers, which would move it twice): bake as Mesh Cache")
+
+
+def bake_shape_keys(obj, shot: Shot, local: np.ndarray) -> int:
+    """A shape key ``wiggly.NNNN`` per frame N, its value 1 on frame N and 0 on the frames
+    next to it (the first and last hold before and after the range)."""
+    refuse_driven(obj, shot)
     check_shape_keys(obj)
     remove_bake(obj)
     if obj.data.shape_keys is None:
@@ -158,6 +176,60 @@ def shape_keys_at_work(obj) -> list[str]:
     keys = obj.data.shape_keys
     if keys is None:
         return []
-    animated = {c.data_path for c in fcurves_of(keys)}
-    return [k.name for k in keys.key_blocks[1:] if not k.name.startswith(SHAPE_PREFIX)
+    animated = {c.data_path for c in fcurves_of(keys)
+                if any(p.co[1] != 0 for p in c.keyframe_points) or c.driver is not None}
+    return [k.name for k in keys.key_blocks[1:] if not is_bake_key(k.name)
             and not k.mute and (k.value != 0 or f'key_blocks["{k.name}"].value' in animated)]
+
+
+def moving_modifiers(context, obj) -> list[str]:
+    """The object's modifiers that move its vertices on top of shape keys, as the Mesh Cache
+    bake would override them but a shape-key bake would not: those of its deforming stack
+    (:func:`wiggly_blender.shot.driver_modifiers`) when that stack moves a vertex by more
+    than 1e-6 of the mesh's size at one of ``PLACEMENT_SAMPLES`` frames of the range, and
+    every deforming modifier after one that makes new geometry.  The caller restores the
+    frame."""
+    try:
+        keep, off = driver_modifiers(obj)
+    except ShotError:  # a deforming modifier after a generating one
+        return [m.name for m in obj.modifiers if m.type in DEFORMING and m.show_viewport
+                and m.name != BAKE_NAME]
+    keep = [m for m in keep if m.show_viewport]
+    if not keep:
+        return []
+    V = len(obj.data.vertices)
+    rest = np.empty(3 * V)
+    obj.data.vertices.foreach_get("co", rest)
+    size = max(float(np.ptp(rest.reshape(-1, 3), axis=0).max()), 1e-300)
+    keys = obj.data.shape_keys
+    blocks = list(keys.key_blocks) if keys is not None else []
+    muted, shown = [k.mute for k in blocks], [m.show_viewport for m in off]
+    scene = context.scene
+    fs, fe = scene.frame_start, scene.frame_end
+    moved = False
+    try:
+        for k in blocks:
+            k.mute = True
+        for m in off:
+            m.show_viewport = False
+        for f in np.unique(np.linspace(fs, fe, PLACEMENT_SAMPLES).round().astype(int)):
+            scene.frame_set(int(f))
+            ev = obj.evaluated_get(context.evaluated_depsgraph_get())
+            mesh = ev.to_mesh()
+            try:
+                if len(mesh.vertices) != V:
+                    moved = True
+                else:
+                    co = np.empty(3 * V)
+                    mesh.vertices.foreach_get("co", co)
+                    moved = float(np.abs(co - rest).max()) > 1e-6 * size
+            finally:
+                ev.to_mesh_clear()
+            if moved:
+                break
+    finally:
+        for k, w in zip(blocks, muted, strict=True):
+            k.mute = w
+        for m, w in zip(off, shown, strict=True):
+            m.show_viewport = w
+    return [m.name for m in keep] if moved else []

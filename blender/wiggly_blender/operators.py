@@ -72,7 +72,9 @@ class WIGGLY_OT_bake(bpy.types.Operator):
             if self.obj.wiggly.bake_as == "MESH_CACHE":
                 bake.cache_path(self.obj)  # a cache folder that cannot be, before the solve
             else:
-                bake.check_shape_keys(self.obj)  # a bake that cannot be, before the solve
+                bake.refuse_driven(self.obj, self.shot)  # bakes that cannot be: now, not
+                bake.check_shape_keys(self.obj)  # after the solve
+                self._check_stack(context)
             t = time.perf_counter()
             self.solve = Solve(self.shot, _command(context))
         except ShotError as e:
@@ -82,6 +84,20 @@ class WIGGLY_OT_bake(bpy.types.Operator):
         _report_warnings(self, self.shot)
         self.solve.start()
         return True
+
+    def _check_stack(self, context) -> None:
+        """A shape-key bake under modifiers that move the vertices would be moved again."""
+        frame = context.scene.frame_current, context.scene.frame_subframe
+        try:
+            moving = bake.moving_modifiers(context, self.obj)
+        finally:
+            context.scene.frame_set(frame[0], subframe=frame[1])
+        if moving:
+            raise ShotError(
+                f"Object '{self.obj.name}': its modifiers {', '.join(map(repr, moving))} move "
+                "the vertices, and shape keys sit under the modifiers, so they would move the "
+                "bake again: bake as Mesh Cache (it takes the place of their deformation), or "
+                "turn them off")
 
     def _finish(self, context, code: int) -> set[str]:
         self.times["wiggly"] = time.perf_counter() - self.solve.started
@@ -109,12 +125,16 @@ class WIGGLY_OT_bake(bpy.types.Operator):
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
         finally:
+            said = self.solve.warnings()
             self.solve.cleanup()
+        for w in said:  # the bake is done; what wiggly warned of is the user's to see
+            self.report({"WARNING"}, f"Object '{self.obj.name}': {w}")
         context.scene.frame_set(context.scene.frame_current)
         sizes = ", ".join(f"{k} {v:.2f} s" for k, v in self.times.items())
+        warned = f"; {len(said)} warning(s) above" if said else ""
         self.report({"INFO"}, f"Baked {len(self.shot.frames)} frames ({self.shot.frame_start}-"
                     f"{self.shot.frame_end} at {self.shot.fps:g} fps) of '{self.obj.name}' "
-                    f"into {where} ({sizes})")
+                    f"into {where} ({sizes}){warned}")
         return {"FINISHED"}
 
     def execute(self, context):
@@ -169,6 +189,19 @@ class WIGGLY_OT_bake(bpy.types.Operator):
         self._end(context)
 
 
+def _scene_path(filepath: str) -> Path:
+    """The scene file to write for the operator's ``filepath``: Blender-relative ``//``
+    paths resolved against the .blend file, ``.toml`` added when missing."""
+    if not filepath.strip() or filepath.endswith(("/", "\\")):
+        raise ShotError("no scene file given: pick a file name for the scene (.toml) in the "
+                        "file browser (File > Export > wiggly scene)")
+    if filepath.startswith("//") and not bpy.data.filepath:
+        raise ShotError(f"the path {filepath} is relative to the .blend file, which is not "
+                        "saved yet: save it, or pick an absolute path")
+    path = Path(bpy.path.abspath(filepath))
+    return path if path.suffix.lower() == ".toml" else path.with_name(path.name + ".toml")
+
+
 class WIGGLY_OT_export_scene(bpy.types.Operator, ExportHelper):
     """Write the shot as a wiggly scene file (TOML) with its rest mesh (OBJ) and driver (npz),
     to run in `wiggly animate` or `wiggly batch`"""
@@ -190,8 +223,9 @@ class WIGGLY_OT_export_scene(bpy.types.Operator, ExportHelper):
     def execute(self, context):
         obj = context.active_object
         try:
+            path = _scene_path(self.filepath)
             shot = gather(context, obj)
-            files = write_shot(shot, Path(self.filepath), overwrite=self.overwrite)
+            files = write_shot(shot, path, overwrite=self.overwrite)
         except ShotError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
@@ -312,6 +346,8 @@ class WIGGLY_OT_add_handle(bpy.types.Operator):
         if vg is None:
             self.report({"ERROR"}, f"Object '{obj.name}' has no vertex group '{item.name}'")
             return {"CANCELLED"}
+        if obj.mode == "EDIT":
+            obj.update_from_editmode()  # the group where it is now, not before Edit Mode
         co = [obj.matrix_world @ v.co for v in obj.data.vertices
               if any(g.group == vg.index and g.weight > 0 for g in v.groups)]
         if not co:

@@ -34,8 +34,17 @@ DEFORMING = {
     "UV_PROJECT", "UV_WARP", "VERTEX_WEIGHT_EDIT", "VERTEX_WEIGHT_MIX",
     "VERTEX_WEIGHT_PROXIMITY", "DATA_TRANSFER", "MESH_SEQUENCE_CACHE",
 }
+# modifiers that add geometry made from the mesh's own (the bake goes before them, so the
+# parts they add take no part in the physics: a mirrored half tears at its seam)
+COPYING = {"MIRROR", "ARRAY"}
 # geometry nodes may deform or generate: a driver keeps them and checks the vertex count
 DRIVER_STACK = DEFORMING | {"NODES"}
+
+
+def is_bake_key(name: str) -> bool:
+    """Whether a shape key is one a bake added (``wiggly.`` and the frame's four or more
+    digits), not the user's own (``wiggly.sag`` is theirs)."""
+    return re.fullmatch(re.escape(SHAPE_PREFIX) + r"\d{4,}", name) is not None
 
 
 class ShotError(Exception):
@@ -194,10 +203,22 @@ def gather(context, obj) -> Shot:
             elif item.role == "DRIVEN":
                 driven.append(name)
             else:
-                keys = _handle_keys(scene, item, at, name, rest[idx], unit, size, fs, fe, fps,
-                                    warnings)
+                keys = _handle_keys(context, item, at, name, rest[idx], unit, size, fs, fe,
+                                    fps, warnings)
                 keyframes += keys
+        if driven and not animated_by_blender(context, obj):
+            raise ShotError(f"{where}, driven group "
+                            f"{', '.join(repr(labels[d]) for d in driven)}: "
+                            + not_evaluated("the object"))
         driver = _driver(context, obj, driven, labels, to_wiggly, fs, fe) if driven else None
+        for mod in obj.modifiers:
+            if mod.type in COPYING and mod.show_viewport:
+                warnings.append(
+                    f"{where}: modifier '{mod.name}' ({mod.type.lower()}) adds copies of the "
+                    "mesh after the bake, which take no part in the physics: the solve sees "
+                    "the mesh without them (an open half, for a mirror), so they may tear "
+                    "apart at the seams; apply the modifier before baking to animate the "
+                    "whole body")
     finally:
         scene.frame_set(frame[0], subframe=frame[1])
     settings = {k: getattr(s, k) for k in ("modes", "resolution", "warp", "loop",
@@ -205,7 +226,10 @@ def gather(context, obj) -> Shot:
     # Blender keeps float properties in single precision: 0.45 reads 0.44999998807907104
     settings.update({k: _single(getattr(s, k)) for k in ("young", "poisson", "density",
                                                           "alpha", "beta", "drive_stiffness")})
-    gravity = Y_UP @ np.array(scene.gravity, np.float64) if scene.use_gravity else np.zeros(3)
+    # Blender's gravity is in its units per second squared (the Gravity field shows it
+    # times the unit scale, in m/s^2): the same scale as the positions
+    gravity = (unit * Y_UP @ np.array(scene.gravity, np.float64) if scene.use_gravity
+               else np.zeros(3))
     settings["gravity"] = [_single(g) + 0.0 for g in gravity]
     return Shot(obj.name, rest, tris, groups, labels, keyframes, fixed, driven, driver, fs, fe,
                 fps, settings, np.linalg.inv(to_wiggly), warnings)
@@ -258,14 +282,54 @@ def _transform_animated(obj) -> bool:
     return any(c.data_path.startswith(paths) for c in fcurves_of(obj))
 
 
-def _handle_keys(scene, item, at: str, name: str, X: np.ndarray, unit: float, size: float,
+def animated_by_blender(context, obj) -> bool:
+    """Whether the view layer animates ``obj``: not when it is disabled in viewports, or
+    only in collections that are disabled in viewports or excluded (unticked), themselves or
+    above; its animation and constraints then do not run and frame changes leave it where it
+    was (even when another object's property points at it).  Hidden with H, or with the
+    collection's eye, it is still animated."""
+    if obj.hide_viewport:
+        return False
+    live: set[str] = set()
+
+    def walk(layer, alive: bool) -> None:
+        alive = alive and not layer.exclude and not layer.collection.hide_viewport
+        if alive:
+            live.add(layer.collection.name)
+        for child in layer.children:
+            walk(child, alive)
+
+    walk(context.view_layer.layer_collection, True)
+    return any(c.name in live for c in obj.users_collection)
+
+
+def not_evaluated(what: str) -> str:
+    return (f"{what} is disabled in viewports, or in a collection that is disabled or "
+            "excluded (unticked), so Blender does not animate it: enable it (to keep it out "
+            "of sight, hide it with H instead)")
+
+
+#: F-curves of a handle that key it (its location and rotation; scale plays no role)
+PLACEMENT_PATHS = ("location", "rotation_", "delta_location", "delta_rotation_")
+
+
+def _handle_keys(context, item, at: str, name: str, X: np.ndarray, unit: float, size: float,
                  fs: int, fe: int, fps: float, warnings: list[str]) -> list[dict]:
     """Rigid keyframes of one group from its handle's keyframes (Moving Hold keys: still)."""
+    scene = context.scene
     handle = item.handle
     if handle is None:
         raise ShotError(f"{at}: the role Handle needs an Empty: Add Handle, or pick one")
+    if not animated_by_blender(context, handle):
+        raise ShotError(f"{at}: " + not_evaluated(f"its handle '{handle.name}'"))
     frames: dict[float, bool] = {}
-    for curve in fcurves_of(handle):
+    curves = list(fcurves_of(handle))
+    placing = [c for c in curves if c.data_path.startswith(PLACEMENT_PATHS)]
+    if len(placing) < len(curves) and any(
+            c.data_path in ("scale", "delta_scale") for c in curves):
+        warnings.append(f"{at}: the scale keys of handle '{handle.name}' were left out (only "
+                        "its location and rotation key the group)")
+    for curve in placing:
         for point in curve.keyframe_points:
             f = float(point.co[0])
             frames[f] = frames.get(f, False) or point.type == "MOVING_HOLD"
@@ -346,7 +410,7 @@ def _driver(context, obj, driven: list[str], labels: dict, to_wiggly: np.ndarray
     _, off = driver_modifiers(obj)
     was = [m.show_viewport for m in off]
     keys = obj.data.shape_keys
-    ours = [k for k in keys.key_blocks if k.name.startswith(SHAPE_PREFIX)] if keys else []
+    ours = [k for k in keys.key_blocks if is_bake_key(k.name)] if keys else []
     muted = [k.mute for k in ours]
     V = len(obj.data.vertices)
     out = np.empty((fe - fs + 1, V, 3))

@@ -69,7 +69,29 @@ class Solve:
         except OSError:
             return ""
         lines = [s.strip() for s in re.split(r"[\r\n]", tail) if s.strip()]
-        return lines[-1] if lines else "starting"
+        return self._plain(lines[-1]) if lines else "starting"
+
+    def _plain(self, text: str) -> str:
+        """wiggly's text without the add-on's own temporary folder and files: the report
+        names the object instead."""
+        mesh = self.files["mesh"].name
+        for internal in (f'mesh.path = "{mesh}": ', f"mesh.path = '{mesh}': ",
+                         f"{self.files['scene']}: ", f"{self.files['scene'].name}: "):
+            text = text.replace(internal, "")
+        for name in (f"{self.folder}{os.sep}{mesh}", mesh):
+            text = text.replace(name, "the mesh")
+        return text.replace(f"{self.folder}{os.sep}", "")
+
+    def warnings(self) -> list[str]:
+        """wiggly's warnings of the run (a key it missed, a surface that is not closed, a
+        solve that did not converge, ...), one line each, as the add-on reports them."""
+        try:
+            text = self.log.read_text("utf-8", "replace")
+        except OSError:
+            return []
+        lines = [s.strip() for s in re.split(r"[\r\n]", text)]
+        return [self._plain(s.split("warning:", 1)[1].strip()) for s in lines
+                if s.startswith("wiggly: warning:")]
 
     def failure(self) -> str:
         """wiggly's own message (its last lines, without a traceback) of a failed run."""
@@ -78,9 +100,12 @@ class Solve:
                  and not s.startswith(("Traceback", "  File", "    "))]
         errors = [s.split("error:", 1)[1].strip() for s in lines if "error:" in s]
         message = " ".join(errors or lines[-3:]) or f"exit code {self.process.returncode}"
-        for name in (str(self.files["scene"]), self.files["scene"].name):
-            message = message.replace(f"{name}: ", "")  # the report names the object
-        return message
+        if not errors and "animate" in message and "can't open file" in message:
+            return (f"the wiggly command {self.command} is not wiggly's program (it could "
+                    "not run 'animate'): set the path of the wiggly command of the "
+                    "environment where wiggly is installed (e.g. .venv/bin/wiggly) in Edit > "
+                    "Preferences > Add-ons > wiggly")
+        return self._plain(message)
 
     def cancel(self) -> None:
         """Stop wiggly (and the programs it runs) at once."""

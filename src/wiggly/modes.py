@@ -527,7 +527,7 @@ def _check_connected(K: sp.csr_matrix, fixed: np.ndarray, used: np.ndarray) -> N
     if not np.all(held):
         sizes = np.bincount(labels, minlength=parts.size)
         raise WigglyInputError(
-            f"the body has {parts.size} disconnected parts (vertex counts "
+            f"the body has {parts.size} disconnected parts (tet-mesh vertex counts "
             f"{sorted(sizes.tolist(), reverse=True)[:8]}), and not every part has fixed "
             "vertices; its loose parts would float away (keyframes alone do not hold a "
             "part): mesh it as one connected body, or fix a group on each part"

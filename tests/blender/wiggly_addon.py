@@ -600,6 +600,79 @@ class _Recorder:
                                              for i in self.items]}
 
 
+def case_sweep() -> None:
+    """What animators do that the first cases do not: handles and meshes out of the view
+    layer's evaluation, wiggly's own warnings, a key of their own named ``wiggly.``, shape
+    keys under a rig, export paths, gravity at a unit scale, a Mirror, Add Handle in Edit
+    Mode."""
+    import bmesh
+
+    scene = fresh(24, 1.0, (1, 13))
+    obj = handles_scene("MESH_CACHE")
+    handle = obj.wiggly.groups[0].handle
+    controls = bpy.data.collections.new("Controls")
+    scene.collection.children.link(controls)
+    for c in list(handle.users_collection):
+        c.objects.unlink(handle)
+    controls.objects.link(handle)
+    layer = bpy.context.view_layer.layer_collection.children["Controls"]
+    layer.exclude = True
+    report["excluded_handle"] = run(bpy.ops.wiggly.bake)
+    layer.exclude = False
+    handle.hide_viewport = True
+    report["disabled_handle"] = run(bpy.ops.wiggly.export_scene,
+                                    filepath=str(workdir / "hidden.toml"))
+    handle.hide_viewport = False
+    handle.hide_set(True)  # hidden with H: still evaluated
+    # the user's own key named like wiggly's; the left end also fixed: wiggly warns
+    obj.shape_key_add(name="wiggly.sag")
+    vertex_group(obj, "left fixed", lambda c: c.x < 0.05)
+    use_group(obj, "left fixed", "FIXED")
+    bpy.context.view_layer.objects.active = obj
+    report["warned_bake"] = run(bpy.ops.wiggly.bake)
+    report["shape_keys"] = [k.name for k in obj.data.shape_keys.key_blocks]
+    obj.modifiers.new("Mirror", "MIRROR")
+    report["mirror_export"] = run(bpy.ops.wiggly.export_scene,
+                                  filepath=str(workdir / "mirror"), overwrite=True)
+    report["files"] = sorted(p.name for p in workdir.iterdir())
+    report["no_path"] = run(bpy.ops.wiggly.export_scene, filepath="")
+    report["relative_unsaved"] = run(bpy.ops.wiggly.export_scene, filepath="//x.toml")
+    scene.unit_settings.scale_length = 0.01
+    run(bpy.ops.wiggly.export_scene, filepath=str(workdir / "centimetres.toml"))
+    report["centimetres"] = (workdir / "centimetres.toml").read_text()
+
+    fresh(24, 1.0, (1, 13))
+    obj, _ = armature_bar()
+    use_group(obj, "body", "FIXED")
+    obj.wiggly.bake_as = "SHAPE_KEYS"
+    report["keys_under_rig"] = run(bpy.ops.wiggly.bake)
+    obj.wiggly.groups[0].role = "DRIVEN"
+    obj.wiggly.bake_as = "MESH_CACHE"
+    obj.hide_viewport = True
+    report["disabled_driven"] = run(bpy.ops.wiggly.export_scene,
+                                    filepath=str(workdir / "driven.toml"))
+
+    fresh(24, 1.0, (1, 13))
+    obj = box_mesh("Bar")
+    vertex_group(obj, "tip", lambda c: c.x > 0.95)
+    use_group(obj, "tip")
+    bpy.ops.object.mode_set(mode="EDIT")
+    bm = bmesh.from_edit_mesh(obj.data)
+    tip = obj.vertex_groups["tip"].index
+    layer = bm.verts.layers.deform.active
+    for v in bm.verts:
+        if tip in v[layer]:
+            v.co.z += 0.5
+    bmesh.update_edit_mesh(obj.data)
+    obj.wiggly.active_group = 0
+    report["edit_handle"] = run(bpy.ops.wiggly.add_handle)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    idx = [v.index for v in obj.data.vertices if any(g.group == tip for g in v.groups)]
+    centre = np.mean([list(obj.matrix_world @ obj.data.vertices[i].co) for i in idx], axis=0)
+    report["edit_handle_off"] = float(np.abs(np.array(obj.wiggly.groups[0].handle.location)
+                                             - centre).max())
+
+
 def panel_layout(obj) -> list:
     """The Wiggly panel and its sub-panels as their draw() lays them out for ``obj``."""
     from types import SimpleNamespace
@@ -617,5 +690,6 @@ def panel_layout(obj) -> list:
 
 
 {"handles": case_handles, "driven": case_driven, "errors": case_errors, "modal": case_modal,
- "critter": case_critter, "pictures": case_pictures, "housekeeping": case_housekeeping}[case]()
+ "critter": case_critter, "pictures": case_pictures, "housekeeping": case_housekeeping,
+ "sweep": case_sweep}[case]()
 Path(out).write_text(json.dumps(report))

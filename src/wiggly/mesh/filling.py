@@ -240,6 +240,15 @@ def check_tet_budget(report: SurfaceReport, edge_length: float, source: str,
     return estimate
 
 
+def canonical_faces(F: np.ndarray) -> np.ndarray:
+    """The triangles F (k, 3) in an order that does not depend on the input's: each rotated
+    to start at its smallest vertex index (its orientation kept), then sorted by rows."""
+    F = np.asarray(F)
+    first = np.argmin(F, axis=1)
+    rolled = F[np.arange(len(F))[:, None], (first[:, None] + np.arange(3)) % 3]
+    return rolled[np.lexsort(rolled.T[::-1])]
+
+
 def tetrahedralize_with_report(
     surface: Surface,
     *,
@@ -265,7 +274,8 @@ def tetrahedralize_with_report(
     asked = f"edge_length={edge_length}" if edge_length is not None else \
         f"resolution={resolution or DEFAULT_RESOLUTION}"
     estimate = check_tet_budget(report, h, source, asked)
-    V, F = checked.vertices, checked.faces
+    # the same solid in another face order: the same envelope and the same cache entry
+    V, F = checked.vertices, canonical_faces(checked.faces)
     simple = mesh_checks.simplified_envelope(V, F, h, report.area) if simplify else None
     if simple is not None:
         V, F = simple
