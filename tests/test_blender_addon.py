@@ -268,6 +268,8 @@ def test_what_animators_also_do(blender_python, tmp_path):
     assert "1 warning(s) above" in bake["printed"]
     assert "wiggly-blender-" not in bake["printed"]  # the add-on's temporary folder
     assert seen["shape_keys"] == ["Basis", "own", "wiggly.sag"]
+    first, second, *exist = seen["bake_files"]  # an undo of the re-bake finds the first
+    assert seen["rebake"]["result"] == ["FINISHED"] and first != second and all(exist)
     assert "modifier 'Mirror' (mirror) adds copies of the mesh" in seen["mirror_export"][
         "printed"]
     assert "mirror.toml" in seen["files"]  # ".toml" added to a path without it

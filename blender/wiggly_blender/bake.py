@@ -96,13 +96,38 @@ def cache_name(name: str, blend: str) -> str:
     return f"{re.sub(r'[^A-Za-z0-9_.-]', '_', name)}-{digest}_wiggly.pc2"
 
 
+#: PC2 files of earlier bakes of an object kept in the cache folder, so that undoing a re-bake
+#: (which restores the modifier, not files) plays the earlier bake again
+BAKES_KEPT = 4
+
+
+def bake_file(base: Path, local: np.ndarray) -> Path:
+    """The PC2 file of one bake: the object's cache name (:func:`cache_name`) with a digest
+    of the baked positions, so that a re-bake with other settings writes a new file and an
+    undo finds the earlier one where its modifier points."""
+    digest = hashlib.sha1(np.ascontiguousarray(local, "<f4").tobytes()).hexdigest()[:8]
+    return base.with_name(base.name.replace("_wiggly.pc2", f"-{digest}_wiggly.pc2"))
+
+
+def prune_bakes(path: Path) -> None:
+    """Delete all but the :data:`BAKES_KEPT` newest bakes of ``path``'s object."""
+    stem = path.name[: -len("-01234567_wiggly.pc2")]
+    mine = [p for p in path.parent.glob(f"{stem}-*_wiggly.pc2")
+            if re.fullmatch(re.escape(stem) + r"-[0-9a-f]{8}_wiggly\.pc2", p.name)]
+    mine.sort(key=lambda p: p.stat().st_mtime, reverse=True)
+    for old in mine[BAKES_KEPT:]:
+        if old != path:
+            old.unlink(missing_ok=True)
+
+
 def bake_mesh_cache(obj, shot: Shot, local: np.ndarray) -> Path:
     """Write the PC2 file and play it with a Mesh Cache modifier placed where the solve took
     the mesh: after the driver's modifiers (a driven shot) or the modifiers that only deform,
     before any that make new geometry (so a Subdivision Surface below it still smooths the
     result)."""
-    path = cache_path(obj)
+    path = bake_file(cache_path(obj), local)
     write_pc2(path, local, shot.frame_start)
+    prune_bakes(path)
     remove_bake(obj)
     mod = obj.modifiers.new(BAKE_NAME, "MESH_CACHE")
     mod.cache_format = "PC2"

@@ -631,6 +631,11 @@ def case_sweep() -> None:
     bpy.context.view_layer.objects.active = obj
     report["warned_bake"] = run(bpy.ops.wiggly.bake)
     report["shape_keys"] = [k.name for k in obj.data.shape_keys.key_blocks]
+    first = bpy.path.abspath(obj.modifiers[shot.BAKE_NAME].filepath)
+    obj.wiggly.young *= 4  # a re-bake with other settings: a new file, the first one kept
+    report["rebake"] = run(bpy.ops.wiggly.bake)
+    second = bpy.path.abspath(obj.modifiers[shot.BAKE_NAME].filepath)
+    report["bake_files"] = [first, second, Path(first).exists(), Path(second).exists()]
     obj.modifiers.new("Mirror", "MIRROR")
     report["mirror_export"] = run(bpy.ops.wiggly.export_scene,
                                   filepath=str(workdir / "mirror"), overwrite=True)
