@@ -83,15 +83,16 @@ class Solve:
         return text.replace(f"{self.folder}{os.sep}", "")
 
     def warnings(self) -> list[str]:
-        """wiggly's warnings of the run (a key it missed, a surface that is not closed, a
-        solve that did not converge, ...), one line each, as the add-on reports them."""
+        """wiggly's warnings and notes of the run (a key it missed, a surface that is not
+        closed, a solve that did not converge, a material too soft for the body's size, ...),
+        one line each, as the add-on reports them."""
         try:
             text = self.log.read_text("utf-8", "replace")
         except OSError:
             return []
         lines = [s.strip() for s in re.split(r"[\r\n]", text)]
-        return [self._plain(s.split("warning:", 1)[1].strip()) for s in lines
-                if s.startswith("wiggly: warning:")]
+        return [self._plain(s.split(":", 2 if s.startswith("wiggly:") else 1)[-1].strip())
+                for s in lines if s.startswith(("wiggly: warning:", "[wiggly] note:"))]
 
     def failure(self) -> str:
         """wiggly's own message (its last lines, without a traceback) of a failed run."""

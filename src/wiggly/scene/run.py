@@ -159,6 +159,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     t = _time.perf_counter()
     body, keyframes, groups = build_with_groups(scene)
     timings["prepare"] = _time.perf_counter() - t
+    _note_soft(scene, body)
     start, end = scene.time_range()
     say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
          f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s")
@@ -176,6 +177,42 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
                             timings=timings)
     anim.info["scene"] = {"outputs": written, "seconds": timings, "groups": groups}
     return anim
+
+
+#: A body held by fixed vertices whose static sag under gravity exceeds this share of its
+#: size is warned about (linear elasticity then models it poorly).
+SAG = 0.2
+
+
+def static_sag(body) -> float | None:
+    """The largest displacement (m) of the body's static equilibrium under gravity in its
+    modes, ``q_i = -g_i / lambda_i`` (eq. (4) at rest: the energy's minimiser without
+    keyframes), or None for a body with rigid modes (nothing holds it, so it falls)."""
+    if body.modes.n_rigid or not np.any(body.gravity):
+        return None
+    q = -body.modal_gravity / body.modes.eigenvalues
+    u = (body.modes.vectors @ q).reshape(-1, 3)
+    return float(np.sqrt((u**2).sum(axis=1)).max())
+
+
+def _note_soft(scene: Scene, body) -> None:
+    """A note on the log (a stage line; silent with ``-q``) when gravity alone would bend a
+    held body by more than ``SAG`` of its size: the material is too soft for the body's size
+    (a default material on a body of metres), and the sag would dominate the motion. Static
+    sag scales as 1 / Young's modulus, so the note says which modulus sags 5 %."""
+    sag = static_sag(body)
+    size = diagonal(body.rest_positions())
+    if sag is None or sag <= SAG * size:
+        return
+    young = scene.material.young
+    own = ", and the groups' own" if any(g.young is not None for g in scene.groups.values()) \
+        else ""
+    say(
+        f"note: under gravity alone the body would sag by {sag:.3g} m "
+        f"({100 * sag / size:.0f} % of its size) where its fixed vertices hold it, more than "
+        f"linear elasticity models well: the material is soft for a body of {size:.3g} m. "
+        f"Raise material.young ({young:g} Pa{own}; {young * sag / (0.05 * size):.2g} Pa sags "
+        "about 5 %), or lower simulation.gravity")
 
 
 #: A keyframe missed by more than this share of the body's size is warned about.
