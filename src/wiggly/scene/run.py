@@ -22,6 +22,7 @@ from wiggly.render import Highlight
 from wiggly.scene.build import build_with_groups
 from wiggly.scene.drive import secondary_of
 from wiggly.scene.groups import resolve_groups
+from wiggly.scene.schema import loop_cycle_problem
 from wiggly.scene.spec import (
     GEOMETRY_EXTENSIONS,
     MAX_TARGETS,
@@ -370,6 +371,9 @@ def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None 
         s = replace(s, output=replace(s.output, gltf_targets=gltf_targets))
     if fps is not None:
         s = replace(s, time=replace(s.time, fps=float(fps)))
+        cycle = loop_cycle_problem(s, f" (from --fps {float(fps):g})")
+        if cycle is not None:
+            raise WigglyInputError(f"{s.where()}: {cycle}")
     if warp is not None:
         s = replace(s, simulation=replace(s.simulation, warp=warp))
     if modes is not None:

@@ -331,6 +331,19 @@ def scene_from_dict(data: dict, where: str = "scene", source: Path | None = None
     return scene
 
 
+
+def loop_cycle_problem(scene, fps_from: str = "") -> str | None:
+    """What is wrong with a looped shot's frame rate, or None: a loop needs a whole number
+    of frames per cycle (its last frame is its first)."""
+    t0, t1 = scene.time_range()
+    cycle = (t1 - t0) * scene.time.fps
+    if not scene.time.loop or abs(cycle - round(cycle)) <= 1e-6 * max(1.0, cycle):
+        return None
+    return (f"time.loop = true needs a whole number of frames per cycle: {t1 - t0:g} s at "
+            f"{scene.time.fps:g} fps{fps_from} is {cycle:.4g} frames; use a duration of "
+            f"{max(1, round(cycle)) / scene.time.fps:.6g} s or fps = "
+            f"{max(1, round(cycle)) / (t1 - t0):.6g}")
+
 def _cross_check(scene: Scene, p: Problems) -> None:
     """Checks between keys: group names, key times in the shot's time range."""
     names = list(scene.groups)
@@ -356,12 +369,15 @@ def _cross_check(scene: Scene, p: Problems) -> None:
         p.add(f"the shot runs from {t0:g} s to the last keyframe at {t1:g} s, longer than "
               f"{MAX_DURATION:g} s (wiggly.limits.MAX_DURATION); check the keyframe times")
     frames = math.floor((t1 - t0) * scene.time.fps + 1e-9) + 1
-    cycle = (t1 - t0) * scene.time.fps
-    if scene.time.loop and abs(cycle - round(cycle)) > 1e-6 * max(1.0, cycle):
-        p.add(f"time.loop = true needs a whole number of frames per cycle: {t1 - t0:g} s at "
-              f"{scene.time.fps:g} fps is {cycle:.4g} frames; use a duration of "
-              f"{max(1, round(cycle)) / scene.time.fps:.6g} s or fps = "
-              f"{max(1, round(cycle)) / (t1 - t0):.6g}")
+    cycle = loop_cycle_problem(scene)
+    if cycle is not None:
+        p.add(cycle)
+    if scene.time.loop and not scene.simulation.fixed and scene.drive is None and not any(
+            kf.position is not None for kf in scene.keyframes):
+        p.add("time.loop = true, but no keyframe has a position, no group is fixed and "
+              "nothing drives the body: velocity keys do not say where it is, so the looped "
+              "motion is undetermined (a loop has no rest before it); key a group's position "
+              "(e.g. position = \"rest\"), or fix a group")
     if scene.time.loop and scene.simulation.preroll not in (None, 0.0):
         p.add(f"simulation.preroll = {show(scene.simulation.preroll)} does not apply to a "
               "looped shot (time.loop = true): a loop has no before; leave it out")

@@ -265,6 +265,16 @@ class SpacetimeProblem:
 
     def solve_linear(self, kfs: list[Keyframe], nodes: np.ndarray) -> np.ndarray:
         """The minimiser z of E + E_C (Theorem 1)."""
+        if self.loop and self.body.modes.n_rigid and not any(
+                kf.position is not None and kf.weights(self.body, self.duration)[0] > 0
+                for kf in kfs):
+            # velocity keys fix no place: the rigid modes' offsets are free (E is singular
+            # there, but rounding may still let the factorization through)
+            raise WigglyInputError(
+                "the keyframes leave the looped motion undetermined: a loop has no rest "
+                "before it, and velocity keys do not say where the body is, so position "
+                "keyframes must hold its position (e.g. a group at rest, a driven group, or a "
+                "fixed group)")
         ab, f = self.linear_system(kfs, nodes)
         try:
             return BandedCholesky(ab).solve(-f)
