@@ -657,3 +657,18 @@ def test_a_material_too_soft_for_the_body_is_noted(tmp_path, caplog):
     assert static_sag(stiff) == pytest.approx(0.05 * size, rel=0.1)
     _note_soft(load_scene(tmp_path / "stiff.toml"), stiff)
     assert not [r for r in caplog.records if "sag" in r.getMessage()]
+
+
+def test_a_key_turned_by_half_a_turn_or_more_is_warned_about(recwarn):
+    """A rigid key's rotation is a placement: 190 degrees is -170 and 360 is no turn, which
+    the scene says; under 180 nothing is said."""
+    base = ('format = 1\n[mesh]\npath = "m.obj"\n[time]\nend = 1.0\n[groups.g]\n'
+            'indices = [0]\n[[keyframes]]\ntime = 0.5\ngroup = "g"\n')
+    scene_from_dict(tomllib.loads(base + "position = { rotation = [0.0, 170.0, -90.0] }\n"))
+    assert not [w for w in recwarn if "short way" in str(w.message)]
+    for turn, wrapped in (("190.0", "-170.0"), ("360.0", "0.0"), ("-540.0", "-180.0")):
+        recwarn.clear()
+        scene_from_dict(tomllib.loads(base + f"position = {{ rotation = [0.0, {turn}, 0.0] }}\n"))
+        said = [str(w.message) for w in recwarn if "short way" in str(w.message)]
+        assert len(said) == 1 and f"keyframes[0].position.rotation = [0.0, {turn}, 0.0]" in \
+            said[0] and f"(here [0.0, {wrapped}, 0.0])" in said[0], said

@@ -36,6 +36,7 @@ from wiggly.scene.spec import (
     Nearest,
     OutputSpec,
     Rest,
+    Rigid,
     Scene,
     SimulationSpec,
     Sphere,
@@ -395,6 +396,15 @@ def _cross_check(scene: Scene, p: Problems) -> None:
                           f"{'s' if len(replaced) == 1 else ''} stiffness = "
                           f"{show(kf.stiffness)} (stiffness sets only the weights not given "
                           "explicitly); give one of them", stacklevel=4)
+        turn = kf.position.rotation if isinstance(kf.position, Rigid) else ()
+        if any(abs(a) >= 180.0 for a in turn):
+            wrapped = [(a + 180.0) % 360.0 - 180.0 for a in turn]
+            warnings.warn(
+                f"{p.where}: keyframes[{j}].position.rotation = {show(list(turn))}: a key is a "
+                "placement, so a turn of 180 degrees or more is taken the short way (here "
+                f"{show([round(a, 6) for a in wrapped])}) and a whole turn is no turn; to spin "
+                "further, key the turn in steps under 180 degrees (e.g. a key every 90)",
+                stacklevel=4)
     if not scene.simulation.fixed and scene.simulation.modes < RIGID_MODES:
         p.add(f"simulation.modes = {scene.simulation.modes} is fewer than the {RIGID_MODES} "
               "rigid modes of a free body (simulation.fixed holds no group), which the basis "
