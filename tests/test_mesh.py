@@ -822,3 +822,29 @@ def test_a_mesh_in_other_units_is_warned_about(scale, said):
         assert not notes
     else:
         assert len(notes) == 1 and said in notes[0] and notes[0].startswith("bar.vtu: ")
+
+
+def test_a_surface_turned_inside_out_is_flipped_with_a_warning(tmp_path):
+    """Every triangle facing inwards (a closed surface, so "consistently oriented"): the
+    model's surface faces outwards, as its outputs then do, and one warning says so; the
+    same sphere facing outwards is left alone."""
+    import trimesh
+
+    from wiggly.mesh import load_model
+
+    sphere = trimesh.creation.icosphere(2, 0.3)
+    sphere.export(tmp_path / "out.obj")
+    trimesh.Trimesh(sphere.vertices, sphere.faces[:, ::-1], process=False).export(
+        tmp_path / "in.obj")
+
+    def volume(model):
+        V, F = model.surface.vertices, model.surface.faces
+        return float(np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]]))) / 6
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        inward = load_model(str(tmp_path / "in.obj"), resolution=8, cache_dir=False)
+        outward = load_model(str(tmp_path / "out.obj"), resolution=8, cache_dir=False)
+    said = [str(w.message) for w in caught if "face inwards" in str(w.message)]
+    assert len(said) == 1 and "in.obj" in said[0]
+    assert volume(inward) == pytest.approx(volume(outward)) and volume(inward) > 0.1

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +85,7 @@ def build_model(
     """
     _warn_units(loaded.vertices, source)
     if isinstance(loaded, Surface):
+        loaded = _outward(loaded, source)
         tets, report, info = tetrahedralize_with_report(
             loaded, edge_length=edge_length, resolution=resolution, repair=repair,
             source=source, cache_dir=cache_dir, checked=checked)
@@ -116,6 +118,22 @@ def build_model(
         embedding.vertex_indices[loose] = extra.vertex_indices
     surface = Surface(tets.vertices, tets.boundary_faces(), groups=dict(tets.groups))
     return Model(surface, tets, embedding, source)
+
+
+def _outward(surface: Surface, source: str) -> Surface:
+    """The surface with its triangles facing outwards: when they enclose a negative volume
+    (every triangle turned inwards, as some exporters write), all are flipped, with a
+    warning, so that the outputs are not shown inside out by viewers that cull back faces.
+    File normals then go (they belonged to the inward triangles, or contradicted them)."""
+    V, F = surface.vertices, surface.faces
+    volume = float(np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]]))) / 6
+    if not volume < 0:
+        return surface
+    warnings.warn(
+        f"{source}: the surface's triangles face inwards (they enclose a volume of "
+        f"{volume:.3g} m^3); wiggly flipped them all, so that its outputs face outwards",
+        MeshRepairWarning, stacklevel=3)
+    return replace(surface, faces=np.ascontiguousarray(F[:, ::-1]), normals=None)
 
 
 #: Bodies whose bounding-box diagonal lies outside this range (m) are likely in other units.
