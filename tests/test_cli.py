@@ -421,3 +421,13 @@ def test_a_mesh_given_for_a_scene_and_a_missing_mesh_are_said_plainly(tmp_path, 
     assert main(["modes", str(tmp_path / "missing.obj")]) != 0
     err = capsys.readouterr().err
     assert f"{tmp_path / 'missing.obj'}: does not exist" in err and "scene:" not in err
+
+
+def test_modes_count_out_of_range_is_told_before_any_work(capsys):
+    """``wiggly modes -n``: above the limit a usage error; fewer than a free body's rigid
+    modes an error naming -n, both before tetrahedralizing."""
+    code, _, err = run_main(capsys, "modes", "builtin:bar", "-n", "600")
+    assert code == 2 and "-n/--modes: 600 must be an integer >= 1 and <= 500" in err
+    code, _, err = run_main(capsys, "modes", "builtin:bar", "-n", "3")
+    assert code == 1 and "-n/--modes 3: a free body has 6 rigid modes" in err
+    assert "tetrahedraliz" not in err and "simulation.modes" not in err

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wiggly.limits import MAX_MODES
 from wiggly.mesh import DEFAULT_RESOLUTION
 from wiggly.progress import say
 
@@ -39,7 +40,8 @@ AMPLITUDE = 0.2
 def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mesh", metavar="MESH",
                         help="mesh file, builtin:critter|plant|bar, or a scene file (.toml)")
-    parser.add_argument("-n", "--modes", type=_int_at_least(1), default=None, metavar="N",
+    parser.add_argument("-n", "--modes", type=_int_at_least(1, MAX_MODES), default=None,
+                        metavar="N",
                         help="number of modes, rigid ones included (default 20, or the "
                              "scene's)")
     size = parser.add_mutually_exclusive_group()
@@ -75,6 +77,7 @@ def run(args: argparse.Namespace) -> int:
         check_outputs,
         load_scene,
     )
+    from wiggly.scene.spec import RIGID_MODES
 
     if args.output is not None:
         out = Path(args.output)
@@ -95,6 +98,10 @@ def run(args: argparse.Namespace) -> int:
     material = MaterialSpec(args.young or m.young,
                             m.poisson if args.poisson is None else args.poisson,
                             args.density or m.density)
+    if args.modes is not None and args.modes <= RIGID_MODES and not scene.simulation.fixed:
+        raise WigglyInputError(
+            f"-n/--modes {args.modes}: a free body has {RIGID_MODES} rigid modes, which the "
+            f"basis must contain; use at least {RIGID_MODES + 1} to see elastic ones")
     sim = replace(scene.simulation, modes=args.modes or scene.simulation.modes)
     scene = replace(scene, mesh=mesh, material=material, simulation=sim)
     body, _ = build(scene)
@@ -187,14 +194,16 @@ def preview(path: Path, body, *, overwrite: bool = False) -> Path:
                         title="elastic modes, one per second", overwrite=overwrite)
 
 
-def _int_at_least(low: int):
+def _int_at_least(low: int, high: int | None = None):
     def parse(text: str) -> int:
         try:
             value = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-        if value < low:
-            raise argparse.ArgumentTypeError(f"{text} must be an integer >= {low}")
+        if value < low or (high is not None and value > high):
+            raise argparse.ArgumentTypeError(
+                f"{text} must be an integer >= {low}"
+                + (f" and <= {high} (wiggly.limits.MAX_MODES)" if high is not None else ""))
         return value
     return parse
 
