@@ -439,6 +439,54 @@ def test_a_file_changed_on_disk_after_a_crash_keeps_the_old_journal(tmp_path):
         s2.close()
 
 
+def test_a_file_changed_on_disk_after_an_autosave_is_not_overwritten(tmp_path):
+    """Edits autosaved but not saved, the editor stopped, then the scene file changed in
+    another program: it opens as it is on disk (not the autosave over it), the unsaved edits
+    are kept as a scene of their own, and a Save writes the disk's version, nothing of the
+    autosave. Before, the autosave was recovered over the changed file, said "the saved file
+    is unchanged", and a Save overwrote the other program's change without asking."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    s1 = Session(Sandbox([tmp_path]))
+    s1.open(path.name)
+    s1.edit({"op": "set", "section": "damping", "values": {"alpha": 0.7}})
+    s1.autosaver.flush()
+    s1.close()
+    assert autosave_path(path).is_file()
+    changed = path.read_text().replace("end = 1.0", "end = 1.5") + "# another program\n"
+    path.write_text(changed)
+    s2 = Session(Sandbox([tmp_path]))
+    try:
+        opened = s2.open(path.name)
+        assert s2.scene == load_scene(path) and s2.scene.damping.alpha != 0.7
+        notice = " ".join(opened["notices"])
+        assert "changed outside the editor after edits that were not saved" in notice, notice
+        assert "the saved file is unchanged" not in notice
+        kept = [p for p in tmp_path.iterdir() if p.name.startswith(f"{path.stem}.unsaved-")]
+        assert len(kept) == 1 and kept[0].name in notice
+        assert load_scene(kept[0]).damping.alpha == 0.7  # the edits, as a scene
+        assert not autosave_path(path).exists() and not s2.dirty
+        other = load_scene(path)
+        s2.save()  # writes the other program's scene (in the editor's own layout)
+        assert load_scene(path) == other and other.time.end == 1.5
+    finally:
+        s2.close()
+    # the same without a change on disk: the autosave is recovered
+    s3 = Session(Sandbox([tmp_path]))
+    try:
+        s3.open(path.name)
+        s3.edit({"op": "set", "section": "damping", "values": {"alpha": 0.9}})
+        s3.autosaver.flush()
+    finally:
+        s3.close()
+    s4 = Session(Sandbox([tmp_path]))
+    try:
+        opened = s4.open(path.name)
+        assert s4.scene.damping.alpha == 0.9 and s4.dirty
+        assert any("recovered unsaved edits" in n for n in opened["notices"])
+    finally:
+        s4.close()
+
+
 def test_a_journal_that_cannot_be_replayed_is_dropped_with_a_notice(tmp_path):
     path = bar_project(tmp_path, KEYS, warp=False)
     s1 = Session(Sandbox([tmp_path]))

@@ -5,7 +5,11 @@ coalesced (the newest state wins) and run in order with deletions (an undo back 
 scene removes the autosave, which must not come back).  Each write is atomic (a temporary file
 flushed to the disk, then renamed): a crash leaves the previous autosave or the new one, never
 a torn file.  The autosave may lag the undo journal (:mod:`wiggly.editor.history`), which is
-written before an edit is answered; the journal's tail is replayed over it on recovery."""
+written before an edit is answered; the journal's tail is replayed over it on recovery.
+
+Its first line names the scene file it edits as a digest of that file's bytes when the editor
+read or last saved it (:func:`autosave_base`): a file changed since by another program makes
+the autosave stale, and recovery then opens the file as it is on disk."""
 
 from __future__ import annotations
 
@@ -17,12 +21,25 @@ from pathlib import Path
 from wiggly.errors import WigglyInputError
 from wiggly.scene import Scene, scene_to_toml
 
-__all__ = ["Autosaver", "autosave_path", "write_durably"]
+__all__ = ["Autosaver", "autosave_base", "autosave_path", "write_durably"]
+
+_BASE = "# wiggly autosave of the scene file with sha256 "
 
 
 def autosave_path(scene_path: Path) -> Path:
     """Where edits of ``scene_path`` are autosaved: a hidden file beside it."""
     return scene_path.with_name(f".{scene_path.stem}.autosave.toml")
+
+
+def autosave_base(path: Path) -> str | None:
+    """The digest of the scene file an autosave was made from ("none": a scene never saved),
+    from its first line; None for an autosave without one (an older wiggly's)."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            first = f.readline().strip()
+    except (OSError, UnicodeDecodeError):
+        return None
+    return first[len(_BASE):] if first.startswith(_BASE) else None
 
 
 def write_durably(target: Path, text: str) -> None:
@@ -42,16 +59,17 @@ class Autosaver:
     def __init__(self, on_error: Callable[[str], None]):
         self._on_error = on_error
         self._cv = threading.Condition()
-        self._pending: dict[Path, Scene | None] = {}
+        self._pending: dict[Path, tuple[Scene, str | None] | None] = {}
         self._busy = False
         self._closed = False
         self._thread = threading.Thread(target=self._run, name="wiggly-autosave", daemon=True)
         self._thread.start()
 
-    def put(self, target: Path, scene: Scene | None) -> None:
-        """Autosave ``scene`` to ``target`` (None: remove the autosave)."""
+    def put(self, target: Path, scene: Scene | None, base: str | None = None) -> None:
+        """Autosave ``scene`` to ``target`` (None: remove the autosave), edited from the
+        scene file whose bytes have the digest ``base`` (None: no file yet)."""
         with self._cv:
-            self._pending[target] = scene
+            self._pending[target] = None if scene is None else (scene, base)
             self._cv.notify_all()
 
     def flush(self) -> None:
@@ -73,13 +91,14 @@ class Autosaver:
                 self._cv.wait_for(lambda: self._pending or self._closed)
                 if not self._pending:
                     return
-                target, scene = self._pending.popitem()
+                target, item = self._pending.popitem()
                 self._busy = True
             try:
-                if scene is None:
+                if item is None:
                     target.unlink(missing_ok=True)
                 else:
-                    write_durably(target, scene_to_toml(scene))
+                    scene, base = item
+                    write_durably(target, f"{_BASE}{base or 'none'}\n" + scene_to_toml(scene))
             except (OSError, WigglyInputError) as err:
                 self._on_error(f"autosave failed: {err}")
             finally:

@@ -81,7 +81,9 @@ class Sandbox:
                     dirnames[:] = []
                 for f in sorted(filenames):
                     p = here / f
-                    if p.suffix.lower() in suffixes and self.contains(p):
+                    # hidden files are the editor's own (autosaves, kept journals)
+                    if p.suffix.lower() in suffixes and not f.startswith(".") \
+                            and self.contains(p):
                         out.append(str(p) if root != self.home else self.relative(p))
                         if len(out) >= limit:
                             return out

@@ -21,8 +21,10 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 import secrets
 import threading
+import time
 import traceback
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -32,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from wiggly import limits
-from wiggly.editor.autosave import Autosaver, autosave_path
+from wiggly.editor.autosave import Autosaver, autosave_base, autosave_path
 from wiggly.editor.bus import EventBus
 from wiggly.editor.history import (
     DEFAULT_TAB,
@@ -235,6 +237,18 @@ class Session:
         file_scene = _load(real) if real.is_file() else None
         auto = autosave_path(real)
         auto_scene: Scene | None = None
+        base = autosave_base(auto) if auto.is_file() else None
+        if base is not None and base != (_stamp(real) or "none"):
+            # the file changed in another program after the edits: they must not overwrite
+            # that change unasked; the file opens as it is, the autosave is kept aside
+            kept = real.with_name(f"{real.stem}.unsaved-{time.strftime('%Y%m%d-%H%M%S')}.toml")
+            try:
+                os.replace(auto, kept)
+                where = f"; they are kept as the scene {kept.name} (Open shows it)"
+            except OSError:
+                where = ""
+            notices.append(f"{real.name} was changed outside the editor after edits that "
+                           f"were not saved: it opens as it is on disk, without them{where}")
         if auto.is_file():
             try:
                 auto_scene = _load(auto)
@@ -410,7 +424,7 @@ class Session:
             target = autosave_path(Path(state.scene.source))
             if self.sandbox.contains(target.parent):
                 # back to the saved scene (undo): an older autosave must not come back
-                self.autosaver.put(target, state.scene if self.dirty else None)
+                self.autosaver.put(target, state.scene if self.dirty else None, self._disk)
         if self.histories.write_error and self.histories.write_error != self._told:
             self.bus.publish("notice", level="warning", message=self.histories.write_error)
         self._told = self.histories.write_error
