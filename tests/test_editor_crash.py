@@ -487,6 +487,29 @@ def test_a_file_changed_on_disk_after_an_autosave_is_not_overwritten(tmp_path):
         s4.close()
 
 
+def test_a_group_edit_that_an_absolute_key_would_not_fit_is_refused(tmp_path):
+    """A group given another vertex count than its ``absolute`` key has rows: refused with
+    the scene's message, nothing changed (before, it was taken, the group showed 0 vertices
+    and Save wrote a file ``wiggly animate`` refuses)."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    session = Session(Sandbox([tmp_path]))
+    try:
+        session.open(path.name)
+        session.edit({"op": "set_group", "name": "g", "indices": [0, 1, 2]})
+        rows = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.0]]
+        session.edit({"op": "add_keyframe", "time": 0.5, "group": "g",
+                      "position": {"absolute": rows}})
+        before, version = session.scene, session.version
+        with pytest.raises(EditError) as err:
+            session.edit({"op": "set_group", "name": "g", "indices": [0, 1, 2, 3, 4]})
+        assert "position.absolute has 3 rows but group 'g' has 5 vertices" in str(err.value)
+        assert session.scene == before and session.version == version
+        session.edit({"op": "set_group", "name": "g", "indices": [4, 5, 6]})  # 3 still fit
+        assert session.scene.groups["g"] != before.groups["g"]
+    finally:
+        session.close()
+
+
 def test_a_journal_that_cannot_be_replayed_is_dropped_with_a_notice(tmp_path):
     path = bar_project(tmp_path, KEYS, warp=False)
     s1 = Session(Sandbox([tmp_path]))

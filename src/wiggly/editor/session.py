@@ -339,6 +339,7 @@ class Session:
             record = Record.between(old, new, _label(op, old, new))
             if record is None:
                 return {"version": self.version, "changed": False}
+            self._check_groups(old.scene, new.scene)
             # the solve starts while the journal line is flushed to the disk; the edit is
             # made (and told) only once it is there
             self.playback.request(new, self.version + 1, "final")
@@ -355,6 +356,22 @@ class Session:
             if added:
                 out["ids"], out["id"] = added, added[-1]
             return out
+
+    def _check_groups(self, old: Scene, new: Scene) -> None:
+        """Refuse an edit after which the groups no longer resolve on the mesh while they did
+        before (e.g. a group given another vertex count than an ``absolute`` key of it has
+        rows): the scene file would not read back in ``wiggly animate``."""
+        if (old.groups, old.keyframes) == (new.groups, new.keyframes):
+            return
+        model = self._model_if_ready(new)
+        try:
+            _display_groups(new, self.surface, model)
+        except WigglyInputError as err:
+            try:
+                _display_groups(old, self.surface, model)
+            except WigglyInputError:
+                return  # already unresolved: the edit may be the user's way out
+            raise EditError(str(err).splitlines()[0]) from None
 
     def preview(self, op: Any) -> dict:
         """Solve the state an edit would give, without logging it (linear: gizmo drags)."""
