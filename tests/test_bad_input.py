@@ -137,6 +137,18 @@ def test_more_modes_than_degrees_of_freedom(user, tripwires, capsys):
            "block.vtu's tet mesh (12 vertices, 3 each); use at most 36" in line
 
 
+def test_a_body_fixed_everywhere_is_told_so(user, tripwires, capsys):
+    """Every tet vertex fixed: the message names the fixed groups, not "use at most 0
+    modes, or a higher mesh.resolution" (neither helps)."""
+    folder, scene = user
+    V, T = box_mesh((2, 1, 1), (1.0, 0.5, 0.5))
+    meshio.write(folder / "block.vtu", meshio.Mesh(V - [0.5, 0.25, 0.25], [("tetra", T)]))
+    line = refused(capsys, folder, scene({"mesh.path": "block.vtu", "groups": EVERYWHERE,
+                                          "simulation.fixed": ["bottom"]}))
+    assert "shot.toml: simulation.fixed = ['bottom'] holds every vertex of block.vtu's tet " \
+           "mesh, so nothing can move" in line and "use at most 0" not in line
+
+
 def test_unwritable_folder_is_found_before_the_solve(user, tripwires, capsys):
     folder, scene = user
     if os.geteuid() == 0:  # root may write anywhere a permission allows: use a read-only fs

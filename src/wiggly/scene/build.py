@@ -90,6 +90,11 @@ def _check_modes_for_scene(scene: Scene, model, fixed_vertices) -> None:
     fixed = np.zeros((0,), np.int64) if fixed_vertices is None else fixed_vertices
     free = 3 * (n - len(fixed))
     modes, name = scene.simulation.modes, scene.mesh_file().name
+    if free == 0:
+        groups = ", ".join(repr(g) for g in scene.simulation.fixed)
+        raise input_error(scene.where(), [
+            f"simulation.fixed = [{groups}] holds every vertex of {name}'s tet mesh, so "
+            "nothing can move: fix fewer vertices (a base, the feet), and key the others"])
     if modes > free:
         held = f", {len(fixed)} of them fixed" if len(fixed) else ""
         raise input_error(scene.where(), [
