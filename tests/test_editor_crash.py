@@ -510,6 +510,26 @@ def test_a_group_edit_that_an_absolute_key_would_not_fit_is_refused(tmp_path):
         session.close()
 
 
+def test_editing_the_mesh_again_after_a_crash_brings_its_unsaved_scene_back(tmp_path):
+    """``wiggly edit bar.vtu``, edits, a crash before any save, then ``wiggly edit bar.vtu``
+    again: the unsaved bar.toml comes back with a notice, not an empty bar-2.toml."""
+    bar_project(tmp_path, warp=False)
+    s1 = Session(Sandbox([tmp_path]))
+    s1.open("bar.vtu")
+    s1.edit({"op": "set_group", "name": "tip", "indices": [78, 79, 80]}, tab="a")
+    s1.autosaver.flush()
+    end = s1.scene
+    s1.close()
+    s2 = Session(Sandbox([tmp_path]))
+    try:
+        opened = s2.open("bar.vtu")
+        assert opened["path"] == "bar.toml" and s2.scene == end
+        assert any("its scene bar.toml was never saved; its edits are back" in n
+                   for n in opened["notices"]), opened["notices"]
+    finally:
+        s2.close()
+
+
 def test_a_journal_that_cannot_be_replayed_is_dropped_with_a_notice(tmp_path):
     path = bar_project(tmp_path, KEYS, warp=False)
     s1 = Session(Sandbox([tmp_path]))
