@@ -672,3 +672,18 @@ def test_a_key_turned_by_half_a_turn_or_more_is_warned_about(recwarn):
         said = [str(w.message) for w in recwarn if "short way" in str(w.message)]
         assert len(said) == 1 and f"keyframes[0].position.rotation = [0.0, {turn}, 0.0]" in \
             said[0] and f"(here [0.0, {wrapped}, 0.0])" in said[0], said
+
+
+def test_a_shot_end_between_frames_is_warned_about(recwarn):
+    """An explicit end that is not on the frame grid: the outputs end at the last frame
+    before it, which the scene says; on the grid, or an end taken from the keys, nothing."""
+    base = 'format = 1\n[mesh]\npath = "m.obj"\n[time]\nstart = 1.0\nfps = 24\n'
+    scene_from_dict(tomllib.loads(base + "end = 2.0\n"))
+    scene_from_dict(tomllib.loads(
+        'format = 1\n[mesh]\npath = "m.obj"\n[time]\nfps = 24\n[groups.g]\nindices = [0]\n'
+        '[[keyframes]]\ntime = 1.2311\ngroup = "g"\nposition = "rest"\n'))
+    assert not [w for w in recwarn if "whole number of frames" in str(w.message)]
+    scene_from_dict(tomllib.loads(base + "end = 2.05\n"))
+    said = [str(w.message) for w in recwarn if "whole number of frames" in str(w.message)]
+    assert len(said) == 1 and "its last frame is at 2.04167 s" in said[0]
+    assert "use end = 2.04167 or 2.08333" in said[0]

@@ -247,7 +247,7 @@ def test_non_convergence_is_reported_honestly(free_bar):
     """A solve stopped early says so: converged is False, a warning gives the decrement."""
     keys = velocity_keys(free_bar)
     problem = SpacetimeProblem(free_bar, 0.0, 1.5)
-    with pytest.warns(WarpedSolveWarning, match="did not converge in 1 iterations"):
+    with pytest.warns(WarpedSolveWarning, match="did not converge in 1 iteration "):
         anim = problem.solve(keys, warped=True, options=SolveOptions(max_iterations=1))
     assert anim.info["converged"] is False and anim.info["iterations"] == 1
     assert anim.info["newton_decrement"] > 1e-8 * anim.info["objective"]

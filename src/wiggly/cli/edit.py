@@ -18,7 +18,8 @@ damping and gravity: every edit re-solves in the background and updates the play
 Saves the same scene format as `wiggly animate` reads; exports glb/USD/MP4.
 
 The editor reads and writes files only inside the directory of the file it was started on
-(or the current directory), plus any --root; edits are autosaved beside the scene
+(or, started without a file, the current directory), plus any --root (e.g. --root .. for a
+mesh in the folder above the scene); edits are autosaved beside the scene
 (.NAME.autosave.toml) with every browser tab's undo history (.NAME.history.jsonl), and both
 are recovered when the editor is started again."""
 EPILOG = """\

@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
 
     from wiggly.cli.animate import summary
-    from wiggly.errors import WigglyInputError
+    from wiggly.errors import WigglyInputError, counted
     from wiggly.progress import say
     from wiggly.scene import (
         PREVIEW_EXTENSIONS,
@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
         say(f"rendering {out}")
         render_preview(out, anim.times, anim.positions, anim.faces, output=spec, title=anim.name,
                        overwrite=overwrite, fps=args.fps)
-    print(f"{source}: {anim.n_frames} frames, {anim.n_vertices} vertices, "
+    print(f"{source}: {counted(anim.n_frames, 'frame')}, {anim.n_vertices} vertices, "
           f"[{anim.times[0]:g}, {anim.times[-1]:g}] s")
     print("wrote")
     for out in outputs:

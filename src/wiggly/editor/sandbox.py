@@ -52,7 +52,8 @@ class Sandbox:
         real = Path(os.path.realpath(p))
         if not any(real == r or real.is_relative_to(r) for r in self.roots):
             raise EditError(f"{path}: outside the directories this editor may use "
-                            f"({', '.join(map(str, self.roots))})", 403)
+                            f"({', '.join(map(str, self.roots))}; wiggly edit --root DIR "
+                            "adds one)", 403)
         if suffixes is not None and real.suffix.lower() not in suffixes:
             raise EditError(f"{path}: expected a file ending in {', '.join(suffixes)}")
         if must_exist and not real.is_file():

@@ -208,7 +208,9 @@ class Session:
             if not state.scene.mesh.path.startswith("builtin:") and \
                     not self.sandbox.contains(state.scene.mesh_file()):
                 raise EditError(f"{path}: its mesh {state.scene.mesh.path} is outside the "
-                                "directories this editor may use", 403)
+                                "directories this editor may use "
+                                f"({', '.join(map(str, self.sandbox.roots))}); start wiggly "
+                                "edit with --root and the mesh's folder to allow it", 403)
         assert state is not None
         scene = state.scene
         surface = _surface_of(scene)

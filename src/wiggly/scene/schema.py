@@ -373,6 +373,14 @@ def _cross_check(scene: Scene, p: Problems) -> None:
     cycle = loop_cycle_problem(scene)
     if cycle is not None:
         p.add(cycle)
+    steps = (t1 - t0) * scene.time.fps
+    if not scene.time.loop and (scene.time.end is not None or scene.time.duration is not None) \
+            and abs(steps - round(steps)) > 1e-6 * max(1.0, steps) and frames <= MAX_FRAMES:
+        last = t0 + (frames - 1) / scene.time.fps
+        warnings.warn(f"{p.where}: the shot [{t0:g}, {t1:g}] s is not a whole number of frames "
+                      f"at {scene.time.fps:g} fps: its last frame is at {last:.6g} s, and the "
+                      f"outputs end there; to end on a frame, use end = {last:.6g} or "
+                      f"{t0 + math.ceil(steps - 1e-9) / scene.time.fps:.6g}", stacklevel=4)
     if scene.time.loop and not scene.simulation.fixed and scene.drive is None and not any(
             kf.position is not None for kf in scene.keyframes):
         p.add("time.loop = true, but no keyframe has a position, no group is fixed and "

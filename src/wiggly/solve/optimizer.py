@@ -62,6 +62,7 @@ from typing import Protocol
 
 import numpy as np
 
+from wiggly.errors import counted
 from wiggly.solve.banded import BandedCholesky, band_matvec
 
 __all__ = ["SolveOptions", "SolveReport", "WarpedSolveWarning", "minimize"]
@@ -570,7 +571,7 @@ def warn_unconverged(report: SolveReport, level: str = "") -> None:
                  "no Newton decrement (the last Newton matrix was not positive definite: the "
                  "iterate is not near a minimum)")
     warnings.warn(
-        f"warped solve{level} did not converge in {report.iterations} iterations "
+        f"warped solve{level} did not converge in {counted(report.iterations, 'iteration')} "
         f"({report.stop}): objective {report.objective:.6g} (start "
         f"{report.objective_start:.6g}), {decrement}; the result is the best iterate",
         WarpedSolveWarning,
