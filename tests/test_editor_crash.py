@@ -510,9 +510,10 @@ def test_a_group_edit_that_an_absolute_key_would_not_fit_is_refused(tmp_path):
         session.close()
 
 
-def test_editing_the_mesh_again_after_a_crash_brings_its_unsaved_scene_back(tmp_path):
+def test_editing_the_mesh_again_after_a_crash_points_to_its_unsaved_scene(tmp_path):
     """``wiggly edit bar.vtu``, edits, a crash before any save, then ``wiggly edit bar.vtu``
-    again: the unsaved bar.toml comes back with a notice, not an empty bar-2.toml."""
+    again: a new scene (the old one may still be open in another editor), and a notice that
+    says where the unsaved edits are; opening that scene brings them back."""
     bar_project(tmp_path, warp=False)
     s1 = Session(Sandbox([tmp_path]))
     s1.open("bar.vtu")
@@ -523,9 +524,11 @@ def test_editing_the_mesh_again_after_a_crash_brings_its_unsaved_scene_back(tmp_
     s2 = Session(Sandbox([tmp_path]))
     try:
         opened = s2.open("bar.vtu")
-        assert opened["path"] == "bar.toml" and s2.scene == end
-        assert any("its scene bar.toml was never saved; its edits are back" in n
-                   for n in opened["notices"]), opened["notices"]
+        assert opened["path"] == "bar-2.toml" and not s2.scene.groups
+        assert any("already has a scene with unsaved edits, bar.toml" in n and
+                   "Open bar.toml" in n for n in opened["notices"]), opened["notices"]
+        s2.open("bar.toml")
+        assert s2.scene == end
     finally:
         s2.close()
 

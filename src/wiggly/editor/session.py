@@ -194,14 +194,18 @@ class Session:
             if real.suffix.lower() == SCENE_SUFFIX:
                 state, file_scene, histories = self._recover(path, real, notices)
             elif real.is_file():
-                # this mesh's never-saved scene has edits: recover it, not a new empty one
-                recovered = self._unsaved_of(real, notices)
-                if recovered is not None:
-                    state, file_scene, histories = recovered
-                else:
-                    scene = new_scene(real)
-                    histories = self._histories(scene.source)
-                    state, _ = histories.load(scene)
+                scene = new_scene(real)
+                histories = self._histories(scene.source)
+                state, _ = histories.load(scene)
+                # a never-saved scene of this mesh with edits (a crash, or another editor
+                # still at work on it): a new name, and the page says where the edits are
+                unsaved = real.with_name(f"{real.stem}{SCENE_SUFFIX}")
+                if scene.source != unsaved and not unsaved.exists() and (
+                        autosave_path(unsaved).exists() or history_path(unsaved).exists()):
+                    notices.append(
+                        f"{real.name} already has a scene with unsaved edits, {unsaved.name} "
+                        f"(never saved); this is a new one, {scene.source.name}: to go on "
+                        f"with those edits, Open {unsaved.name}")
             else:
                 raise EditError(f"{path}: no such file", 404)
             assert state is not None
@@ -229,25 +233,6 @@ class Session:
             self.version += 1
             self._changed(autosave=False)
         return {"path": self.sandbox.relative(scene.source), "notices": notices}
-
-    def _unsaved_of(self, mesh: Path, notices: list[str]):
-        """The recovered (state, file scene, histories) of ``mesh``'s scene ``NAME.toml`` when
-        it was never saved but has an autosave or journal of edits on this mesh (what a crash
-        leaves of ``wiggly edit NAME.obj``), with its notices added; else None."""
-        scene_path = mesh.with_name(f"{mesh.stem}{SCENE_SUFFIX}")
-        if scene_path.exists() or not (autosave_path(scene_path).exists()
-                                       or history_path(scene_path).exists()):
-            return None
-        said: list[str] = []
-        try:
-            recovered = self._recover(scene_path.name, scene_path, said)
-        except (EditError, WigglyInputError):
-            return None
-        if recovered[0].scene.mesh_file().resolve() != mesh.resolve():
-            return None
-        notices += [f"{mesh.name}: its scene {scene_path.name} was never saved; its edits "
-                    "are back", *said]
-        return recovered
 
     def _histories(self, source: Path | None) -> Histories:
         """The undo histories of a scene saved as ``source``, journaled beside it (not when
