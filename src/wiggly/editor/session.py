@@ -249,7 +249,8 @@ class Session:
         auto = autosave_path(real)
         auto_scene: Scene | None = None
         base = autosave_base(auto) if auto.is_file() else None
-        if base is not None and base != (_stamp(real) or "none"):
+        stale = base is not None and base != (_stamp(real) or "none")
+        if stale:
             # the file changed in another program after the edits: they must not overwrite
             # that change unasked; the file opens as it is, the autosave is kept aside
             kept = real.with_name(f"{real.stem}.unsaved-{time.strftime('%Y%m%d-%H%M%S')}.toml")
@@ -260,7 +261,7 @@ class Session:
                 where = ""
             notices.append(f"{real.name} was changed outside the editor after edits that "
                            f"were not saved: it opens as it is on disk, without them{where}")
-        if auto.is_file():
+        if auto.is_file() and not stale:
             try:
                 auto_scene = _load(auto)
                 auto_scene.source = real
