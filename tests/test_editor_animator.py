@@ -637,3 +637,32 @@ def test_a_held_drag_shows_its_warped_frames_before_the_release(chromium, tmp_pa
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_a_keyframe_field_left_empty_is_refused_not_zeroed(chromium, tmp_path):
+    """An emptied velocity component (or time) is not a number: the page says so and sends
+    nothing, where it used to send 0 for the velocity and "cannot be removed" for the time.
+    A number typed there is taken."""
+    server = serve(bar_project(tmp_path, warp=False))
+    try:
+        with editor_page(chromium, server.url) as (page, errors):
+            wait_final(page)
+            select_key(page, 0)
+            page.check("#key-vel-on")
+            page.wait_for_function("window.wiggly.S.desc.scene.keyframes[0].velocity")
+            page.fill("#key-vx", "0.25")
+            page.press("#key-vx", "Enter")
+            page.wait_for_function("window.wiggly.S.desc.scene.keyframes[0].velocity[0] === 0.25")
+            version = server.session.version
+            for field, what in (("#key-vx", "velocity"), ("#key-time", "time")):
+                page.fill(field, "")
+                page.press(field, "Enter")
+                page.wait_for_function(
+                    "!document.querySelector('#toast').hidden && document.querySelector("
+                    f"'#toast').textContent.includes('keyframe {what}: empty is not a number')")
+            assert server.session.version == version
+            assert server.session.scene.keyframes[0].velocity[0] == 0.25
+            assert page.input_value("#key-vx") != ""  # the scene's value again
+            assert not errors, errors
+    finally:
+        server.stop()

@@ -191,13 +191,16 @@ $('btn-pose-rest').onclick = () => { const k = currentKey(); if (k) restPose(k);
 $('btn-key-del').onclick = () => { const k = currentKey(); if (k) edit({ op: 'delete_keyframe', id: k.id }); };
 $('btn-play').onclick = togglePlay;
 $('btn-notices').onclick = () => { $('notices').hidden = true; };
-const keyField = (id, fn) => { $(id).onchange = () => { const k = currentKey(); if (k) edit({ op: 'update_keyframe', id: k.id, ...fn($(id)) }); }; };
-keyField('key-time', (el) => ({ time: parseFloat(el.value) }));
+// fn gives the keyframe's changed fields, or null for a value that is not one (then the
+// fields show the scene's values again and nothing is sent)
+const keyField = (id, fn) => { $(id).onchange = () => { const k = currentKey(); if (!k) return; const f = fn($(id)); if (f === null) { renderPanels(); return; } edit({ op: 'update_keyframe', id: k.id, ...f }); }; };
+const numberOf = (el, what) => { const v = parseFloat(el.value); if (Number.isFinite(v)) return v; toast(`keyframe ${what}: ${el.value === '' ? 'empty' : JSON.stringify(el.value)} is not a number`, true); return null; };
+keyField('key-time', (el) => { const t = numberOf(el, 'time'); return t === null ? null : { time: t }; });
 keyField('key-group', (el) => ({ group: el.value }));
-keyField('key-stiffness', (el) => ({ stiffness: el.value === '' ? null : parseFloat(el.value) }));
+keyField('key-stiffness', (el) => { if (el.value === '') return { stiffness: null }; const v = numberOf(el, 'stiffness'); return v === null ? null : { stiffness: v }; });
 keyField('key-name', (el) => ({ name: el.value || null }));
-const velocity = () => ($('key-vel-on').checked ? ['key-vx', 'key-vy', 'key-vz'].map((id) => parseFloat($(id).value) || 0) : null);
-for (const id of ['key-vel-on', 'key-vx', 'key-vy', 'key-vz']) keyField(id, () => ({ velocity: velocity() }));
+const velocity = () => { if (!$('key-vel-on').checked) return { velocity: null }; const v = ['key-vx', 'key-vy', 'key-vz'].map((id) => numberOf($(id), 'velocity')); return v.includes(null) ? null : { velocity: v }; };
+for (const id of ['key-vel-on', 'key-vx', 'key-vy', 'key-vz']) keyField(id, velocity);
 for (const el of document.querySelectorAll('[data-set]')) {
   el.onchange = () => {
     const [section, key, index] = el.dataset.set.split('.');
