@@ -878,3 +878,27 @@ def test_a_body_that_nothing_holds_gets_a_notice_once(project):
         assert len(notices) == 1 and "nothing holds it" in notices[0], notices
     finally:
         session.close()
+
+
+def test_the_solves_warnings_reach_the_page_once(project):
+    """A key whose vertices are all fixed cannot be met: ``wiggly animate`` warns on the
+    terminal, and the editor now says it in the page, once for the scene file (it only
+    reached the editor's terminal before)."""
+    (project / "held.toml").write_text(SCENE.replace('fixed = ["left"]',
+                                                     'fixed = ["left", "right"]'))
+    session = Session(Sandbox([project]))
+    q = session.bus.subscribe()
+    try:
+        session.open("held.toml")
+        wait_final(session, timeout=60.0)
+        session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.6}})
+        wait_final(session, timeout=60.0)
+        notices = []
+        while not q.empty():
+            e = q.get_nowait()
+            if e["type"] == "notice" and "held by the fixed vertices" in e["message"]:
+                notices.append(e)
+        assert len(notices) == 1 and notices[0]["level"] == "warning", notices
+        assert "cannot be met" in notices[0]["message"]
+    finally:
+        session.close()

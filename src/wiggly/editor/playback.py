@@ -27,6 +27,7 @@ from __future__ import annotations
 import threading
 import time
 import traceback
+import warnings
 from collections import OrderedDict
 from concurrent.futures import CancelledError
 from dataclasses import dataclass, field, replace
@@ -117,6 +118,7 @@ class Playback:
         self._lock = threading.Lock()
         self._seq = 0
         self._told_falling: set = set()  # scene files whose fall a notice explained
+        self._told: set = set()  # (scene file, warning) pairs the page was told of
         # the published frame sets by id (a counter), oldest first; not a cache (a page that
         # asks for a forgotten id gets a 404) and the newest final ones are never evicted
         self._frames: OrderedDict[int, FrameSet] = OrderedDict()
@@ -269,13 +271,27 @@ class Playback:
     def _solve(self, req: Request, box: Mailbox, problems) -> None:
         """Linear solve and linear playback (fast); then hand final requests of warped scenes
         to the refinement process."""
-        from wiggly.scene import keyframes_of, problem_of, scene_to_dict
-        from wiggly.scene.drive import secondary_of
-
         scene = req.state.scene
         body = self.physics.body(scene, abandon=lambda: box.pending() or self._stop.is_set())
         if body is None:
             return
+        # what the solve warns of (a key on fixed vertices, ...) is the user's to see in the
+        # page, as `wiggly animate` prints it: a notice, once per scene file and warning
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            self._solve_linear(req, box, problems, body, scene)
+        if req.kind == "final":
+            for w in said:
+                message = str(w.message)
+                if (scene.source, message) not in self._told:
+                    self._told.add((scene.source, message))
+                    self.bus.publish("notice", sticky=False, level="warning", message=message)
+
+    def _solve_linear(self, req: Request, box: Mailbox, problems, body, scene) -> None:
+        """:meth:`_solve` once the body is ready."""
+        from wiggly.scene import keyframes_of, problem_of, scene_to_dict
+        from wiggly.scene.drive import secondary_of
+
         groups = resolve_groups(scene, body.model)
         keys = keyframes_of(scene, body, groups)
         start, end = scene.time_range()
