@@ -265,7 +265,9 @@ def test_what_animators_also_do(blender_python, tmp_path):
     bake = seen["warned_bake"]
     assert bake["result"] == ["FINISHED"], bake
     assert "Warning: Object 'Bar': 1 keyframe missed by more than 5 %" in bake["printed"]
-    assert "1 warning(s) above" in bake["printed"]
+    relayed = [line for line in bake["printed"].splitlines()
+               if line.startswith("Warning: Object 'Bar': ")]  # wiggly's, not the add-on's
+    assert f"{len(relayed)} warning(s) above" in bake["printed"]  # 1 or 2, by the tet mesh
     assert "wiggly-blender-" not in bake["printed"]  # the add-on's temporary folder
     assert seen["shape_keys"] == ["Basis", "own", "wiggly.sag"]
     first, second, *exist = seen["bake_files"]  # an undo of the re-bake finds the first
