@@ -431,3 +431,18 @@ def test_modes_count_out_of_range_is_told_before_any_work(capsys):
     code, _, err = run_main(capsys, "modes", "builtin:bar", "-n", "3")
     assert code == 1 and "-n/--modes 3: a free body has 6 rigid modes" in err
     assert "tetrahedraliz" not in err and "simulation.modes" not in err
+
+
+def test_keys_missed_under_an_implausible_gravity_name_the_units(capsys, tmp_path):
+    """Gravity given in the wrong units (1e5 m/s^2): the missed-key warning names it as a
+    likely unit slip, not only "raise their stiffness", which would not help."""
+    data = copy.deepcopy(SCENE)
+    data["simulation"]["gravity"] = [0.0, -1e5, 0.0]
+    code, _, err = run_main(capsys, "animate", write_scene(tmp_path, data), "--linear",
+                            "-o", tmp_path / "b.npz")
+    assert code == 0, err
+    assert "missed by more than 5 %" in err
+    assert "simulation.gravity is 1e+05 m/s^2 (Earth's: 9.81): check the units" in err
+    code, _, err = run_main(capsys, "animate", write_scene(tmp_path, SCENE, "earth.toml"),
+                            "--linear", "-o", tmp_path / "e.npz")
+    assert code == 0 and "check the units" not in err

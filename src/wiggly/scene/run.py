@@ -218,6 +218,10 @@ def _note_soft(scene: Scene, body) -> None:
 
 #: A keyframe missed by more than this share of the body's size is warned about.
 MISSED = 0.05
+#: A velocity key that would carry its group this many body sizes over the shot, or a
+#: gravity above this (m/s^2), is named as a likely unit slip when keys are missed.
+IMPLAUSIBLE = 100.0
+IMPLAUSIBLE_GRAVITY = 1000.0
 
 
 def _warn_missed(scene: Scene, anim, body) -> None:
@@ -247,6 +251,19 @@ def _warn_missed(scene: Scene, anim, body) -> None:
     if not scene.simulation.warp:
         why = ("a linear solve (simulation.warp = false) cannot meet turned targets, it "
                "stretches them: turn warping on; or " + why)
+    # targets no body could follow: a unit slip, not a weight (raising it does not help)
+    fast = [(j, float(np.linalg.norm(kf.velocity))) for j, kf in enumerate(scene.keyframes)
+            if kf.velocity is not None
+            and float(np.linalg.norm(kf.velocity)) * (end - start) > IMPLAUSIBLE * size]
+    g = float(np.linalg.norm(scene.simulation.gravity))
+    if fast or g > IMPLAUSIBLE_GRAVITY:
+        slips = [f"keyframes[{j}].velocity is {v:.3g} m/s, which would carry the group "
+                 f"{v * (end - start) / size:.3g} times the body's size over the shot"
+                 for j, v in fast[:3]]
+        if g > IMPLAUSIBLE_GRAVITY:
+            slips.append(f"simulation.gravity is {g:.3g} m/s^2 (Earth's: 9.81)")
+        why = ("; ".join(slips) + ": check the units (m/s, m/s^2), since no body follows "
+               "such targets; otherwise " + why)
     if np.linalg.norm(scene.simulation.gravity) > 0 and end - start > 2.0:
         why += (f"; over a {end - start:g} s shot gravity can outweigh the keys (a key's weight "
                 "falls as the cube of the duration): if so, key the body more often, or "
