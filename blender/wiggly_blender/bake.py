@@ -18,13 +18,15 @@ from .shot import (
     BAKE_NAME,
     DEFORMING,
     DRIVER_STACK,
-    PLACEMENT_SAMPLES,
     SHAPE_PREFIX,
     Shot,
     ShotError,
     _replace,
     driver_modifiers,
+    evaluated_vertices,
     is_bake_key,
+    sampled_frames,
+    stack_alone,
 )
 
 #: an ID property on the shape keys of a mesh whose Basis a bake added (Remove Bake clears it)
@@ -211,7 +213,7 @@ def moving_modifiers(context, obj) -> list[str]:
     """The object's modifiers that move its vertices on top of shape keys, as the Mesh Cache
     bake would override them but a shape-key bake would not: those of its deforming stack
     (:func:`wiggly_blender.shot.driver_modifiers`) when that stack moves a vertex by more
-    than 1e-6 of the mesh's size at one of ``PLACEMENT_SAMPLES`` frames of the range, and
+    than 1e-6 of the mesh's size at one of the sampled frames of the range, and
     every deforming modifier after one that makes new geometry.  The caller restores the
     frame."""
     try:
@@ -222,39 +224,18 @@ def moving_modifiers(context, obj) -> list[str]:
     keep = [m for m in keep if m.show_viewport]
     if not keep:
         return []
-    V = len(obj.data.vertices)
-    rest = np.empty(3 * V)
+    rest = np.empty(3 * len(obj.data.vertices))
     obj.data.vertices.foreach_get("co", rest)
-    size = max(float(np.ptp(rest.reshape(-1, 3), axis=0).max()), 1e-300)
+    rest = rest.reshape(-1, 3)
+    size = max(float(np.ptp(rest, axis=0).max()), 1e-300)
     keys = obj.data.shape_keys
-    blocks = list(keys.key_blocks) if keys is not None else []
-    muted, shown = [k.mute for k in blocks], [m.show_viewport for m in off]
     scene = context.scene
-    fs, fe = scene.frame_start, scene.frame_end
     moved = False
-    try:
-        for k in blocks:
-            k.mute = True
-        for m in off:
-            m.show_viewport = False
-        for f in np.unique(np.linspace(fs, fe, PLACEMENT_SAMPLES).round().astype(int)):
-            scene.frame_set(int(f))
-            ev = obj.evaluated_get(context.evaluated_depsgraph_get())
-            mesh = ev.to_mesh()
-            try:
-                if len(mesh.vertices) != V:
-                    moved = True
-                else:
-                    co = np.empty(3 * V)
-                    mesh.vertices.foreach_get("co", co)
-                    moved = float(np.abs(co - rest).max()) > 1e-6 * size
-            finally:
-                ev.to_mesh_clear()
+    with stack_alone(obj, off, list(keys.key_blocks) if keys is not None else []):
+        for f in sampled_frames(scene.frame_start, scene.frame_end):
+            scene.frame_set(f)
+            co = evaluated_vertices(context, obj)
+            moved = co.shape != rest.shape or float(np.abs(co - rest).max()) > 1e-6 * size
             if moved:
                 break
-    finally:
-        for k, w in zip(blocks, muted, strict=True):
-            k.mute = w
-        for m, w in zip(off, shown, strict=True):
-            m.show_viewport = w
     return [m.name for m in keep] if moved else []

@@ -14,6 +14,8 @@ import json
 import math
 import os
 import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -240,8 +242,13 @@ def _single(value: float) -> float:
     return float(f"{value:.7g}")
 
 
-#: Frames of the range at which :func:`_placement_moves` compares the world placement.
+#: Frames of the range at which placements and modifier stacks are checked for motion.
 PLACEMENT_SAMPLES = 8
+
+
+def sampled_frames(fs: int, fe: int) -> list[int]:
+    """``PLACEMENT_SAMPLES`` frames spread over fs..fe, both ends included."""
+    return [int(f) for f in np.unique(np.linspace(fs, fe, PLACEMENT_SAMPLES).round())]
 
 
 def _placement_moves(scene, obj, world: np.ndarray, size: float, fs: int, fe: int
@@ -250,9 +257,8 @@ def _placement_moves(scene, obj, world: np.ndarray, size: float, fs: int, fe: in
     which the object's world matrix differs from ``world`` (its matrix at frame ``fs``) by
     more than 1e-6 of its size, or None: what the animated-transform and parent checks miss
     (constraints, drivers).  The caller restores the current frame."""
-    frames = np.unique(np.linspace(fs, fe, PLACEMENT_SAMPLES).round().astype(int))[1:]
-    for f in frames:
-        scene.frame_set(int(f))
+    for f in sampled_frames(fs, fe)[1:]:
+        scene.frame_set(f)
         m = _matrix(obj.matrix_world)
         if (np.abs(m[:3, :3] - world[:3, :3]).max() * size
                 + np.abs(m[:3, 3] - world[:3, 3]).max() > 1e-6 * max(size, 1e-300)):
@@ -325,8 +331,7 @@ def _handle_keys(context, item, at: str, name: str, X: np.ndarray, unit: float, 
     frames: dict[float, bool] = {}
     curves = list(fcurves_of(handle))
     placing = [c for c in curves if c.data_path.startswith(PLACEMENT_PATHS)]
-    if len(placing) < len(curves) and any(
-            c.data_path in ("scale", "delta_scale") for c in curves):
+    if any(c.data_path in ("scale", "delta_scale") for c in curves):
         warnings.append(f"{at}: the scale keys of handle '{handle.name}' were left out (only "
                         "its location and rotation key the group)")
     for curve in placing:
@@ -403,45 +408,57 @@ def driver_modifiers(obj) -> tuple[list, list]:
     return keep, off
 
 
+@contextmanager
+def stack_alone(obj, off: list, muted: list) -> Iterator[None]:
+    """``obj`` evaluated with the modifiers ``off`` turned off and the shape keys ``muted``
+    muted, as they were again afterwards."""
+    shown, was = [m.show_viewport for m in off], [k.mute for k in muted]
+    try:
+        for m in off:
+            m.show_viewport = False
+        for k in muted:
+            k.mute = True
+        yield
+    finally:
+        for m, w in zip(off, shown, strict=True):
+            m.show_viewport = w
+        for k, w in zip(muted, was, strict=True):
+            k.mute = w
+
+
+def evaluated_vertices(context, obj) -> np.ndarray:
+    """The object's evaluated mesh at the current frame: its vertices (n, 3), object-local
+    (n may differ from the mesh's own where modifiers make geometry)."""
+    evaluated = obj.evaluated_get(context.evaluated_depsgraph_get())
+    m = evaluated.to_mesh()
+    try:
+        co = np.empty(3 * len(m.vertices))
+        m.vertices.foreach_get("co", co)
+    finally:
+        evaluated.to_mesh_clear()
+    return co.reshape(-1, 3)
+
+
 def _driver(context, obj, driven: list[str], labels: dict, to_wiggly: np.ndarray, fs: int,
             fe: int) -> np.ndarray:
     """The object's evaluated animation at frames fs..fe, in wiggly's axes."""
     scene = context.scene
     _, off = driver_modifiers(obj)
-    was = [m.show_viewport for m in off]
     keys = obj.data.shape_keys
     ours = [k for k in keys.key_blocks if is_bake_key(k.name)] if keys else []
-    muted = [k.mute for k in ours]
     V = len(obj.data.vertices)
     out = np.empty((fe - fs + 1, V, 3))
-    try:
-        for m in off:
-            m.show_viewport = False
-        for k in ours:
-            k.mute = True
+    with stack_alone(obj, off, ours):
         for i, f in enumerate(range(fs, fe + 1)):
             scene.frame_set(f)
-            evaluated = obj.evaluated_get(context.evaluated_depsgraph_get())
-            m = evaluated.to_mesh()
-            try:
-                n = len(m.vertices)
-                if n != V:
-                    names = ", ".join(f"'{g}'" for g in (labels[d] for d in driven))
-                    raise ShotError(
-                        f"Object '{obj.name}', driven group {names}: its animation has {n} "
-                        f"vertices at frame {f} but the mesh has {V}; a driver must move the "
-                        "mesh's own vertices (a modifier or geometry nodes change their "
-                        "count)")
-                co = np.empty(3 * V)
-                m.vertices.foreach_get("co", co)
-            finally:
-                evaluated.to_mesh_clear()
-            out[i] = co.reshape(-1, 3) @ to_wiggly[:3, :3].T + to_wiggly[:3, 3]
-    finally:
-        for m, w in zip(off, was, strict=True):
-            m.show_viewport = w
-        for k, w in zip(ours, muted, strict=True):
-            k.mute = w
+            co = evaluated_vertices(context, obj)
+            if len(co) != V:
+                names = ", ".join(f"'{g}'" for g in (labels[d] for d in driven))
+                raise ShotError(
+                    f"Object '{obj.name}', driven group {names}: its animation has {len(co)} "
+                    f"vertices at frame {f} but the mesh has {V}; a driver must move the "
+                    "mesh's own vertices (a modifier or geometry nodes change their count)")
+            out[i] = co @ to_wiggly[:3, :3].T + to_wiggly[:3, 3]
     return out
 
 
