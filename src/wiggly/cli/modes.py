@@ -203,7 +203,7 @@ def _int_at_least(low: int, high: int | None = None):
         if value < low or (high is not None and value > high):
             raise argparse.ArgumentTypeError(
                 f"{text} must be an integer >= {low}"
-                + (f" and <= {high} (wiggly.limits.MAX_MODES)" if high is not None else ""))
+                + (f" and <= {high}" if high is not None else ""))
         return value
     return parse
 

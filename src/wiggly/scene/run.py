@@ -252,9 +252,9 @@ def _warn_missed(scene: Scene, anim, body) -> None:
         why = ("a linear solve (simulation.warp = false) cannot meet turned targets, it "
                "stretches them: turn warping on; or " + why)
     # targets no body could follow: a unit slip, not a weight (raising it does not help)
-    fast = [(j, float(np.linalg.norm(kf.velocity))) for j, kf in enumerate(scene.keyframes)
-            if kf.velocity is not None
-            and float(np.linalg.norm(kf.velocity)) * (end - start) > IMPLAUSIBLE * size]
+    speeds = [(j, float(np.linalg.norm(kf.velocity))) for j, kf in enumerate(scene.keyframes)
+              if kf.velocity is not None]
+    fast = [(j, v) for j, v in speeds if v * (end - start) > IMPLAUSIBLE * size]
     g = float(np.linalg.norm(scene.simulation.gravity))
     if fast or g > IMPLAUSIBLE_GRAVITY:
         slips = [f"keyframes[{j}].velocity is {v:.3g} m/s, which would carry the group "
@@ -264,7 +264,7 @@ def _warn_missed(scene: Scene, anim, body) -> None:
             slips.append(f"simulation.gravity is {g:.3g} m/s^2 (Earth's: 9.81)")
         why = ("; ".join(slips) + ": check the units (m/s, m/s^2), since no body follows "
                "such targets; otherwise " + why)
-    if np.linalg.norm(scene.simulation.gravity) > 0 and end - start > 2.0:
+    if g > 0 and end - start > 2.0:
         why += (f"; over a {end - start:g} s shot gravity can outweigh the keys (a key's weight "
                 "falls as the cube of the duration): if so, key the body more often, or "
                 "shorten it")

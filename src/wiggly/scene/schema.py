@@ -332,18 +332,25 @@ def scene_from_dict(data: dict, where: str = "scene", source: Path | None = None
     return scene
 
 
+def _frame_steps(scene) -> tuple[float, bool]:
+    """The shot's length in frame steps, and whether that is a whole number (to rounding)."""
+    t0, t1 = scene.time_range()
+    steps = (t1 - t0) * scene.time.fps
+    return steps, abs(steps - round(steps)) <= 1e-6 * max(1.0, steps)
+
 
 def loop_cycle_problem(scene, fps_from: str = "") -> str | None:
     """What is wrong with a looped shot's frame rate, or None: a loop needs a whole number
     of frames per cycle (its last frame is its first)."""
-    t0, t1 = scene.time_range()
-    cycle = (t1 - t0) * scene.time.fps
-    if not scene.time.loop or abs(cycle - round(cycle)) <= 1e-6 * max(1.0, cycle):
+    cycle, whole = _frame_steps(scene)
+    if not scene.time.loop or whole:
         return None
+    t0, t1 = scene.time_range()
     return (f"time.loop = true needs a whole number of frames per cycle: {t1 - t0:g} s at "
             f"{scene.time.fps:g} fps{fps_from} is {cycle:.4g} frames; use a duration of "
             f"{max(1, round(cycle)) / scene.time.fps:.6g} s or fps = "
             f"{max(1, round(cycle)) / (t1 - t0):.6g}")
+
 
 def _cross_check(scene: Scene, p: Problems) -> None:
     """Checks between keys: group names, key times in the shot's time range."""
@@ -373,9 +380,9 @@ def _cross_check(scene: Scene, p: Problems) -> None:
     cycle = loop_cycle_problem(scene)
     if cycle is not None:
         p.add(cycle)
-    steps = (t1 - t0) * scene.time.fps
+    steps, whole = _frame_steps(scene)
     if not scene.time.loop and (scene.time.end is not None or scene.time.duration is not None) \
-            and abs(steps - round(steps)) > 1e-6 * max(1.0, steps) and frames <= MAX_FRAMES:
+            and not whole and frames <= MAX_FRAMES:
         last = t0 + (frames - 1) / scene.time.fps
         warnings.warn(f"{p.where}: the shot [{t0:g}, {t1:g}] s is not a whole number of frames "
                       f"at {scene.time.fps:g} fps: its last frame is at {last:.6g} s, and the "

@@ -83,6 +83,13 @@ class TargetFit:
         return self.F + float(np.vdot(e, self.G)) + 0.5 * float(np.vdot(e, Ce)), Ce + self.G
 
 
+#: Why a loop's keyframes that hold nowhere are refused (velocity keys alone included).
+UNDETERMINED_LOOP = (
+    "the keyframes leave the looped motion undetermined: a loop has no rest before it, and "
+    "velocity keys do not say where the body is, so position keyframes must hold its "
+    "position (e.g. a group at rest, a driven group, or a fixed group)")
+
+
 class SpacetimeProblem:
     """E + E_C (Theorem 1) and E + E_WC (Theorem 2) of ``body`` over [start, end].
 
@@ -270,21 +277,13 @@ class SpacetimeProblem:
                 for kf in kfs):
             # velocity keys fix no place: the rigid modes' offsets are free (E is singular
             # there, but rounding may still let the factorization through)
-            raise WigglyInputError(
-                "the keyframes leave the looped motion undetermined: a loop has no rest "
-                "before it, and velocity keys do not say where the body is, so position "
-                "keyframes must hold its position (e.g. a group at rest, a driven group, or a "
-                "fixed group)")
+            raise WigglyInputError(UNDETERMINED_LOOP)
         ab, f = self.linear_system(kfs, nodes)
         try:
             return BandedCholesky(ab).solve(-f)
         except np.linalg.LinAlgError as err:
             if self.loop:
-                raise WigglyInputError(
-                    "the keyframes leave the looped motion undetermined: a loop has no rest "
-                    "before it, so keyframes must hold the body's position (e.g. a group at "
-                    "rest, or a driven group)"
-                ) from err
+                raise WigglyInputError(UNDETERMINED_LOOP) from err
             raise WigglyInputError(
                 "the keyframes leave the motion undetermined and preroll is 0; give keyframes "
                 "that fix the start (positions and velocities of the whole body) or a "
