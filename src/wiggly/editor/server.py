@@ -42,6 +42,7 @@ limits are refused with 413 before they are read, JSON nested deeper than
 
 from __future__ import annotations
 
+import dataclasses
 import ipaddress
 import json
 import mimetypes
@@ -57,8 +58,10 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
+import numpy as np
+
 from wiggly.editor.history import Histories
-from wiggly.editor.session import MESH_SUFFIXES, SCENE_SUFFIX, Session, dumps
+from wiggly.editor.session import MESH_SUFFIXES, SCENE_SUFFIX, Session
 from wiggly.editor.state import EditError
 from wiggly.errors import WigglyInputError
 
@@ -487,3 +490,19 @@ class EditorServer(ThreadingHTTPServer):
         if self.verbose:
             super().handle_error(request, client_address)
 
+
+def dumps(obj: Any) -> bytes:
+    """JSON for the page: numpy arrays and scalars, paths and dataclasses included."""
+    return json.dumps(obj, separators=(",", ":"), default=_default).encode()
+
+
+def _default(o: Any):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    if dataclasses.is_dataclass(o):
+        return dataclasses.asdict(o)
+    raise TypeError(f"cannot serialize {type(o).__name__}")

@@ -18,13 +18,9 @@ and the mesh when it meets a new one (a restarted server).  Exports solve the sc
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
-import json
-import os
 import secrets
 import threading
-import time
 import traceback
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -34,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from wiggly import limits
-from wiggly.editor.autosave import Autosaver, autosave_base, autosave_path
+from wiggly.editor.autosave import Autosaver, autosave_path, set_aside_if_stale
 from wiggly.editor.bus import EventBus
 from wiggly.editor.history import (
     DEFAULT_TAB,
@@ -248,19 +244,7 @@ class Session:
         file_scene = _load(real) if real.is_file() else None
         auto = autosave_path(real)
         auto_scene: Scene | None = None
-        base = autosave_base(auto) if auto.is_file() else None
-        stale = base is not None and base != (_stamp(real) or "none")
-        if stale:
-            # the file changed in another program after the edits: they must not overwrite
-            # that change unasked; the file opens as it is, the autosave is kept aside
-            kept = real.with_name(f"{real.stem}.unsaved-{time.strftime('%Y%m%d-%H%M%S')}.toml")
-            try:
-                os.replace(auto, kept)
-                where = f"; they are kept as the scene {kept.name} (Open shows it)"
-            except OSError:
-                where = ""
-            notices.append(f"{real.name} was changed outside the editor after edits that "
-                           f"were not saved: it opens as it is on disk, without them{where}")
+        stale = set_aside_if_stale(real, _stamp(real), notices)
         if auto.is_file() and not stale:
             try:
                 auto_scene = _load(auto)
@@ -686,19 +670,3 @@ def _display_groups(scene: Scene, surface, model) -> dict[str, np.ndarray]:
             idx = np.unique(idx)
         out[name] = np.asarray(idx, np.int64)
     return out
-
-
-def dumps(obj: Any) -> bytes:
-    return json.dumps(obj, separators=(",", ":"), default=_default).encode()
-
-
-def _default(o: Any):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    if dataclasses.is_dataclass(o):
-        return dataclasses.asdict(o)
-    raise TypeError(f"cannot serialize {type(o).__name__}")
