@@ -856,49 +856,40 @@ def test_fall_notice_is_physics():
     assert fall_notice(sink, times, (0.0, -9.81, 0.0), size) is None
 
 
-def test_a_body_that_nothing_holds_gets_a_notice_once(project):
-    """A free bar keyed at rest at t = 0 only, under gravity, falls off the view: the editor
-    says why once for the scene file, not again after the next edit."""
-    (project / "free.toml").write_text(
-        SCENE.replace('fixed = ["left"]\n', "").replace("end = 1.0", "end = 2.0")
-        .replace('position = { offset = [0.0, 0.05, 0.0] }', 'position = "rest"')
-        .replace("time = 0.5", "time = 0.0"))
+def notices_over_two_solves(project, name: str, text: str, about: str) -> list[dict]:
+    """Scene ``text`` saved as ``name``, opened, then edited once (two final solves): the
+    page's notices whose message contains ``about``."""
+    (project / name).write_text(text)
     session = Session(Sandbox([project]))
     q = session.bus.subscribe()
     try:
-        session.open("free.toml")
+        session.open(name)
         wait_final(session, timeout=60.0)
         session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.6}})
         wait_final(session, timeout=60.0)
-        notices = []
-        while not q.empty():
-            e = q.get_nowait()
-            if e["type"] == "notice" and "falls" in e["message"]:
-                notices.append(e["message"])
-        assert len(notices) == 1 and "nothing holds it" in notices[0], notices
     finally:
         session.close()
+    events = [q.get_nowait() for _ in range(q.qsize())]
+    return [e for e in events if e["type"] == "notice" and about in e["message"]]
+
+
+def test_a_body_that_nothing_holds_gets_a_notice_once(project):
+    """A free bar keyed at rest at t = 0 only, under gravity, falls off the view: the editor
+    says why once for the scene file, not again after the next edit."""
+    notices = notices_over_two_solves(
+        project, "free.toml",
+        SCENE.replace('fixed = ["left"]\n', "").replace("end = 1.0", "end = 2.0")
+        .replace('position = { offset = [0.0, 0.05, 0.0] }', 'position = "rest"')
+        .replace("time = 0.5", "time = 0.0"), "falls")
+    assert len(notices) == 1 and "nothing holds it" in notices[0]["message"], notices
 
 
 def test_the_solves_warnings_reach_the_page_once(project):
     """A key whose vertices are all fixed cannot be met: ``wiggly animate`` warns on the
     terminal, and the editor now says it in the page, once for the scene file (it only
     reached the editor's terminal before)."""
-    (project / "held.toml").write_text(SCENE.replace('fixed = ["left"]',
-                                                     'fixed = ["left", "right"]'))
-    session = Session(Sandbox([project]))
-    q = session.bus.subscribe()
-    try:
-        session.open("held.toml")
-        wait_final(session, timeout=60.0)
-        session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.6}})
-        wait_final(session, timeout=60.0)
-        notices = []
-        while not q.empty():
-            e = q.get_nowait()
-            if e["type"] == "notice" and "held by the fixed vertices" in e["message"]:
-                notices.append(e)
-        assert len(notices) == 1 and notices[0]["level"] == "warning", notices
-        assert "cannot be met" in notices[0]["message"]
-    finally:
-        session.close()
+    notices = notices_over_two_solves(
+        project, "held.toml", SCENE.replace('fixed = ["left"]', 'fixed = ["left", "right"]'),
+        "held by the fixed vertices")
+    assert len(notices) == 1 and notices[0]["level"] == "warning", notices
+    assert "cannot be met" in notices[0]["message"]
