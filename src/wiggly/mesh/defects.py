@@ -139,6 +139,11 @@ def diagonal(V: np.ndarray) -> float:
     return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) if len(V) else 0.0
 
 
+def enclosed_volume(V: np.ndarray, F: np.ndarray) -> float:
+    """The signed volume the triangles F enclose (m^3): positive when they face outwards."""
+    return float(np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]]))) / 6
+
+
 def weld(V: np.ndarray, tol: float) -> np.ndarray:
     """For each vertex, the smallest index of the vertices within ``tol`` of it (transitively)."""
     n = len(V)

@@ -13,6 +13,7 @@ from wiggly.mesh.data import Embedding, Model, Surface, TetMesh, embed, without_
 from wiggly.mesh.defects import (
     CheckedSurface,
     diagonal,
+    enclosed_volume,
 )
 from wiggly.mesh.filling import (
     FAR_OUTSIDE,
@@ -126,7 +127,7 @@ def _outward(surface: Surface, source: str) -> Surface:
     warning, so that the outputs are not shown inside out by viewers that cull back faces.
     File normals then go (they belonged to the inward triangles, or contradicted them)."""
     V, F = surface.vertices, surface.faces
-    volume = float(np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]]))) / 6
+    volume = enclosed_volume(V, F)
     if not volume < 0:
         return surface
     warnings.warn(

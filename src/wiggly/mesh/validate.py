@@ -104,7 +104,7 @@ def check_surface(surface: Surface, source: str = "surface") -> Surface:
     checked = checked_surface(surface, source)
     refuse_defects(checked.report, source)
     V, F = surface.vertices, surface.faces
-    volume = float(np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]]))) / 6
+    volume = mesh_checks.enclosed_volume(V, F)
     if volume >= 0:
         return surface
     return Surface(V, F[:, ::-1], surface.uvs, surface.normals, dict(surface.groups))
