@@ -361,13 +361,14 @@ class Session:
             return
         model = self._model_if_ready(new)
         try:
-            _display_groups(new, self.surface, model)
+            out = _display_groups(new, self.surface, model)
         except WigglyInputError as err:
             try:
                 _display_groups(old, self.surface, model)
             except WigglyInputError:
                 return  # already unresolved: the edit may be the user's way out
             raise EditError(str(err).splitlines()[0]) from None
+        self._groups_cache = ((dict(new.groups), new.mesh), out)  # groups() of the edit
 
     def preview(self, op: Any) -> dict:
         """Solve the state an edit would give, without logging it (linear: gizmo drags)."""
