@@ -31,6 +31,8 @@ from .shot import (
 
 #: an ID property on the shape keys of a mesh whose Basis a bake added (Remove Bake clears it)
 MADE_BASIS = "wiggly_made_basis"
+#: the end of every PC2 file name a bake writes
+_SUFFIX = "_wiggly.pc2"
 
 
 def read_result(path: Path, shot: Shot) -> np.ndarray:
@@ -95,7 +97,7 @@ def cache_name(name: str, blend: str) -> str:
     and .blend path, so that objects whose names differ only there ("My Obj", "My_Obj"), or
     only in case, or objects of two .blend files sharing a cache folder never share a file."""
     digest = hashlib.sha1(f"{blend}\0{name}".encode()).hexdigest()[:8]
-    return f"{re.sub(r'[^A-Za-z0-9_.-]', '_', name)}-{digest}_wiggly.pc2"
+    return f"{re.sub(r'[^A-Za-z0-9_.-]', '_', name)}-{digest}{_SUFFIX}"
 
 
 #: PC2 files of earlier bakes of an object kept in the cache folder, so that undoing a re-bake
@@ -104,21 +106,22 @@ BAKES_KEPT = 4
 
 
 def bake_file(base: Path, local: np.ndarray) -> Path:
-    """The PC2 file of one bake: the object's cache name (:func:`cache_name`) with a digest
-    of the baked positions, so that a re-bake with other settings writes a new file and an
-    undo finds the earlier one where its modifier points."""
+    """The PC2 file of one bake: the object's cache file ``base`` (:func:`cache_path`) with
+    a digest of the baked positions, so that a re-bake with other settings writes a new file
+    and an undo finds the earlier one where its modifier points."""
     digest = hashlib.sha1(np.ascontiguousarray(local, "<f4").tobytes()).hexdigest()[:8]
-    return base.with_name(base.name.replace("_wiggly.pc2", f"-{digest}_wiggly.pc2"))
+    return base.with_name(f"{base.name.removesuffix(_SUFFIX)}-{digest}{_SUFFIX}")
 
 
-def prune_bakes(path: Path) -> None:
-    """Delete all but the :data:`BAKES_KEPT` newest bakes of ``path``'s object."""
-    stem = path.name[: -len("-01234567_wiggly.pc2")]
-    mine = [p for p in path.parent.glob(f"{stem}-*_wiggly.pc2")
-            if re.fullmatch(re.escape(stem) + r"-[0-9a-f]{8}_wiggly\.pc2", p.name)]
+def prune_bakes(base: Path, current: Path) -> None:
+    """Delete all but the :data:`BAKES_KEPT` newest bakes (:func:`bake_file`) of the object
+    whose cache file is ``base``; never ``current``."""
+    stem = base.name.removesuffix(_SUFFIX)
+    mine = [p for p in base.parent.glob(f"{stem}-*{_SUFFIX}")
+            if re.fullmatch(re.escape(stem) + r"-[0-9a-f]{8}" + re.escape(_SUFFIX), p.name)]
     mine.sort(key=lambda p: p.stat().st_mtime, reverse=True)
     for old in mine[BAKES_KEPT:]:
-        if old != path:
+        if old != current:
             old.unlink(missing_ok=True)
 
 
@@ -127,9 +130,10 @@ def bake_mesh_cache(obj, shot: Shot, local: np.ndarray) -> Path:
     the mesh: after the driver's modifiers (a driven shot) or the modifiers that only deform,
     before any that make new geometry (so a Subdivision Surface below it still smooths the
     result)."""
-    path = bake_file(cache_path(obj), local)
+    base = cache_path(obj)
+    path = bake_file(base, local)
     write_pc2(path, local, shot.frame_start)
-    prune_bakes(path)
+    prune_bakes(base, path)
     remove_bake(obj)
     mod = obj.modifiers.new(BAKE_NAME, "MESH_CACHE")
     mod.cache_format = "PC2"
