@@ -286,7 +286,9 @@ def test_5_a_refused_value_is_explained_in_the_page(chromium, tmp_path):
             end = "[data-set='time.end']"
             page.fill(end, "1e6")
             page.press(end, "Enter")
-            page.wait_for_function("!document.querySelector('#toast').hidden")
+            # the toast that answers the edit (the soft bar's sag notice may come first)
+            page.wait_for_function("!document.querySelector('#toast').hidden && document."
+                                   "querySelector('#toast').textContent.includes('at most')")
             message = page.locator("#toast").text_content()
             assert f"at most {limits.MAX_DURATION:g} s" in message, message
             assert "shots may last at most" in _status(page)

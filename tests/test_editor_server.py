@@ -503,11 +503,17 @@ def test_autosave_recovery_after_a_crash(project):
     assert load_scene(project / "shot.toml") != edited
     auto = autosave_path(project / "shot.toml")
     assert auto.exists()
+    # ... while writing the autosave and the journal: their half-written temporaries stay
+    parts = [p.with_name(p.name + ".part") for p in (auto, project / ".shot.history.jsonl")]
+    for part in parts:
+        part.write_text("")
+        os.utime(part, (time.time() - 120, time.time() - 120))
 
     s2 = Session(Sandbox([project]))
     opened = s2.open("shot.toml")
     assert any("recovered" in n for n in opened["notices"])
     assert s2.scene == edited and s2.dirty
+    assert not any(part.exists() for part in parts)  # the restart removed them
     s2.save()
     assert not auto.exists() and load_scene(project / "shot.toml") == edited
     s2.close()
@@ -633,6 +639,54 @@ def test_drag_previews_keep_the_final_frames(server):
     restored = session.latest_frames()
     assert restored.seq == seq and restored.kind == "final"
     assert np.array_equal(restored.positions, final.positions)
+
+
+def test_a_page_gone_mid_drag_leaves_no_preview(server):
+    """A page reloaded, closed or crashed mid-drag sends no cancel: when its event stream
+    ends the server abandons its drag, so the other tabs show the scene's frames again.  A
+    cancel from another page leaves the drag alone."""
+    session = server.session
+    final = wait_final(session)
+    stream = socket.create_connection(("127.0.0.1", server.port), timeout=10)
+    stream.sendall(b"GET /api/events?page=pageA HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n")
+    assert b"text/event-stream" in stream.recv(65536)
+    op = {"op": "update_keyframe", "id": 0, "position": {"offset": [0, 0.2, 0]}}
+    st, d = call(server, "POST", "/api/preview", op, headers={"X-Wiggly-Page": "pageA"})
+    assert st == 200
+    deadline = time.time() + 10
+    while session.latest_frames().seq < d["seq"]:
+        assert time.time() < deadline
+        time.sleep(0.01)
+    assert session.latest_frames().kind == "drag"
+    st, other = call(server, "POST", "/api/preview/cancel", {}, headers={"X-Wiggly-Page": "pageB"})
+    assert st == 200 and other["seq"] is None and session.latest_frames().kind == "drag"
+    stream.close()  # the page is gone, mid-drag
+    deadline = time.time() + 5
+    while session.latest_frames().kind == "drag":
+        assert time.time() < deadline, "the abandoned drag's preview is still shown"
+        time.sleep(0.02)
+    assert np.array_equal(session.latest_frames().positions, final.positions)
+    st, bad = call(server, "POST", "/api/preview", op, headers={"X-Wiggly-Page": "no/slash"})
+    assert st == 400 and "page id" in bad["error"]
+
+
+def test_the_status_says_warped_refinement_runs(server):
+    """Between the linear frames and the warped refinement's first progress (which may load
+    the body first) the page is told that the refinement runs, not "solving (linear)"."""
+    session = server.session
+    wait_final(session)
+    events = session.bus.subscribe()
+    version = session.edit({"op": "update_keyframe", "id": 0,
+                            "position": {"offset": [0, 0.08, 0]}})["version"]
+    stages: list[str] = []
+    deadline = time.time() + 60
+    while "done" not in stages:
+        assert time.time() < deadline, stages
+        e = events.get(timeout=60)
+        if e["type"] == "solve" and e["version"] == version:
+            stages.append(e["stage"])
+    assert stages[0] == "linear" and stages[1] == "refining", stages
+    assert "refining" not in stages[2:] and stages[-1] == "done", stages
 
 
 def test_a_held_drag_gets_warped_frames(server):
@@ -893,3 +947,12 @@ def test_the_solves_warnings_reach_the_page_once(project):
         "held by the fixed vertices")
     assert len(notices) == 1 and notices[0]["level"] == "warning", notices
     assert "cannot be met" in notices[0]["message"]
+
+
+def test_a_material_too_soft_for_the_body_gets_a_notice_once(project):
+    """A held bar so soft that gravity alone bends it by more than a fifth of its size curls
+    in a way linear elasticity models poorly: the page says so, as `wiggly animate` notes it,
+    once for the scene file (it was said only on the command line before)."""
+    notices = notices_over_two_solves(
+        project, "soft.toml", SCENE.replace("young = 1e6", "young = 1e3"), "sag")
+    assert len(notices) == 1 and "Raise material.young (1000 Pa;" in notices[0]["message"]

@@ -728,3 +728,30 @@ def test_progress_names_the_users_file_not_the_temporary_one(tmp_path):
         with atomic_file(tmp_path / name) as tmp:
             assert tmp.name != name and shown_name(tmp) == name
     assert shown_name(tmp_path / ".hidden.glb") == ".hidden.glb"  # a user's own hidden file
+
+
+def test_a_killed_exports_leftovers_are_removed_by_the_next_export(tmp_path):
+    """A process killed mid-export leaves its hidden temporary outputs; the next output
+    written to that folder removes those of processes that no longer run, once they are an
+    hour old. A running process's temporaries, a user's own hidden files and an earlier
+    output moved aside during a commit (maybe the only copy) stay."""
+    import sys
+    import time
+
+    from wiggly.files import OutputSet
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True).stdout.strip()
+    names = {f".shot.wiggly-{dead}.k3x9_a2b.glb": False,  # removed
+             f".shot.wiggly-{dead}.young_ab.glb": True,  # too recent: it may still be written
+             f".shot.wiggly-{dead}.old-ab12cd34": True,  # a user's output moved aside
+             f".shot.wiggly-{os.getpid()}.live_abc.glb": True,  # a running process's
+             ".shot.k3x9_a2b.glb": True, ".my_notes.txt": True}  # the user's
+    for name in names:
+        (tmp_path / name).write_bytes(b"partial")
+        if "young" not in name:
+            os.utime(tmp_path / name, (time.time() - 7200, time.time() - 7200))
+    with OutputSet() as outputs:
+        outputs.stage(tmp_path / "shot.glb").write_bytes(b"glb")
+    kept = {p.name for p in tmp_path.iterdir()}
+    assert kept == {n for n, stays in names.items() if stays} | {"shot.glb"}

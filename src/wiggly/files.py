@@ -5,9 +5,74 @@ from __future__ import annotations
 import os
 import re
 import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+#: Temporary outputs are named ``.STEM.wiggly-PID.XXXXXXXX.EXT`` (PID: the writing process);
+#: those of a process that no longer runs and older than this (s) are removed by the next
+#: output written to the same folder (a killed export's leftovers).
+LEFTOVER_AGE = 3600.0
+_TEMPORARY = re.compile(r"\.(?P<stem>.+)\.wiggly-(?P<pid>\d+)\.(?P<old>old-)?[a-z0-9_]{8}"
+                        r"(?P<suffix>\.[^.]*)?")
+
+
+def _temporary(path: Path, old: bool = False) -> Path:
+    """A new empty temporary file next to ``path`` (see :data:`LEFTOVER_AGE`)."""
+    kind = "old-" if old else ""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.wiggly-{os.getpid()}."
+                               f"{kind}", suffix="" if old else path.suffix)
+    os.close(fd)
+    return Path(tmp)
+
+
+def _running(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError, OverflowError):
+        return True  # someone else's process, or cannot tell: keep its files
+    return True
+
+
+def remove_leftovers(folder: str | os.PathLike[str], age: float = LEFTOVER_AGE) -> list[Path]:
+    """Remove the temporary outputs in ``folder`` that a killed process left (its process no
+    longer runs and the file is older than ``age`` seconds); the removed paths.  A user's
+    earlier output moved aside during a commit (``old-``) is kept: it may be the only copy."""
+    removed = []
+    now = time.time()
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        m = _TEMPORARY.fullmatch(entry.name)
+        if m is None or m["old"] or _running(int(m["pid"])):
+            continue
+        try:
+            if entry.is_file(follow_symlinks=False) and \
+                    now - entry.stat(follow_symlinks=False).st_mtime > age:
+                os.unlink(entry.path)
+                removed.append(Path(entry.path))
+        except OSError:
+            continue
+    return removed
+
+
+def remove_stale(path: str | os.PathLike[str], age: float) -> bool:
+    """Remove ``path`` if it is a file last written more than ``age`` seconds ago (a write
+    cut short by a crash); whether it was removed."""
+    try:
+        if time.time() - os.stat(path).st_mtime > age:
+            os.unlink(path)
+            return True
+    except OSError:
+        pass
+    return False
 
 
 def fix_mode(path: str | os.PathLike[str]) -> None:
@@ -27,9 +92,7 @@ def atomic_file(path: str | os.PathLike[str], replace: bool = True) -> Iterator[
     :class:`FileExistsError` otherwise."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-    os.close(fd)
-    tmp = Path(tmp)
+    tmp = _temporary(path)
     try:
         yield tmp
         fix_mode(tmp)
@@ -50,9 +113,10 @@ def atomic_file(path: str | os.PathLike[str], replace: bool = True) -> Iterator[
 
 def shown_name(path: str | os.PathLike[str]) -> str:
     """The file name to show users for ``path``: the name a temporary file of
-    :func:`atomic_file` stands for (``.shot.k3x9_a2b.png`` is ``shot.png``), else its own."""
+    :func:`atomic_file` stands for (``.shot.wiggly-42.k3x9_a2b.png`` is ``shot.png``), else
+    its own."""
     name = Path(path).name
-    m = re.fullmatch(r"\.(?P<stem>.+)\.[a-z0-9_]{8}(?P<suffix>\.[^.]*)?", name)
+    m = _TEMPORARY.fullmatch(name)
     return m["stem"] + (m["suffix"] or "") if m else name
 
 
@@ -98,6 +162,7 @@ class OutputSet:
         self._staged: list[tuple[Path, Path]] = []
         self._remove: list[Path] = []
         self._created: list[Path] = []
+        self._swept: set[Path] = set()
 
     def stage(self, path: str | os.PathLike[str]) -> Path:
         """A new temporary file next to ``path`` that :meth:`commit` moves to ``path``."""
@@ -109,10 +174,12 @@ class OutputSet:
             parent = parent.parent
         path.parent.mkdir(parents=True, exist_ok=True)
         self._created += missing
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=path.suffix)
-        os.close(fd)
-        self._staged.append((Path(tmp), path))
-        return Path(tmp)
+        if path.parent not in self._swept:  # a killed export's leftovers, once per folder
+            self._swept.add(path.parent)
+            remove_leftovers(path.parent)
+        tmp = _temporary(path)
+        self._staged.append((tmp, path))
+        return tmp
 
     def remove_on_commit(self, path: str | os.PathLike[str]) -> None:
         """Delete ``path`` when the outputs are committed (stale frames of a sequence)."""
@@ -126,9 +193,7 @@ class OutputSet:
                 fix_mode(tmp)
                 aside = None
                 if path.exists() or path.is_symlink():
-                    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.old-")
-                    os.close(fd)
-                    aside = Path(name)
+                    aside = _temporary(path, old=True)
                     os.replace(path, aside)
                 moved.append((path, aside))
                 os.replace(tmp, path)

@@ -282,15 +282,19 @@ class Playback:
             self._solve_linear(req, box, problems, body, scene)
         if req.kind == "final":
             for w in said:
-                message = str(w.message)
-                if (scene.source, message) not in self._told:
-                    self._told.add((scene.source, message))
-                    self.bus.publish("notice", sticky=False, level="warning", message=message)
+                self._tell_once(scene, str(w.message))
+
+    def _tell_once(self, scene, message: str | None) -> None:
+        """A notice of ``message`` in the page, once per scene file."""
+        if message is not None and (scene.source, message) not in self._told:
+            self._told.add((scene.source, message))
+            self.bus.publish("notice", sticky=False, level="warning", message=message)
 
     def _solve_linear(self, req: Request, box: Mailbox, problems, body, scene) -> None:
         """:meth:`_solve` once the body is ready."""
         from wiggly.scene import keyframes_of, problem_of, scene_to_dict
         from wiggly.scene.drive import secondary_of
+        from wiggly.scene.run import soft_note
 
         groups = resolve_groups(scene, body.model)
         keys = keyframes_of(scene, body, groups)
@@ -319,6 +323,8 @@ class Playback:
                 "residual_max": residual_max(anim) if final else None}
         self._publish(FrameSet(0, req.seq, req.version, "linear", final, float(times[0]), fps,
                                positions, req.kind, info))
+        if req.kind == "final":
+            self._tell_once(scene, soft_note(scene, body))
         if req.kind == "final" and scene.source not in self._told_falling:
             rest = body.rest_positions()
             notice = fall_notice(positions, times, scene.simulation.gravity,
@@ -332,5 +338,10 @@ class Playback:
         elif warp and not (drag and scene.secondary_motion):
             # a drag's warped solve completes only while the gizmo holds still (newest wins)
             model = self.physics.model_future(scene).result()
+            # the linear frames are shown; until the refinement's first progress (it may
+            # load the body first) the page says what runs
+            self.bus.publish("solve", sticky=not drag, seq=req.seq, version=req.version,
+                             stage="refining", message="linear frames shown; refining warped",
+                             **info)
             self.refiner.solve(req.seq, req.version, scene_to_dict(scene), scene.source,
                                model_key(scene), model, req.kind)

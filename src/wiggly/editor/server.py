@@ -14,7 +14,8 @@ Endpoints (JSON bodies are objects; errors answer ``{"error": message}``)::
                                X-Wiggly-Frames header
     GET  /api/driver           the [drive] driver's keyed frames, binary float32 (F, n, 3);
                                their shot times and groups in the X-Wiggly-Driver header
-    GET  /api/events           Server-Sent Events: state, frames, solve, physics, export, notice
+    GET  /api/events           Server-Sent Events: state, frames, solve, physics, export,
+                               notice (?page=ID: when it ends, that page's drag is abandoned)
     GET  /api/files            scene and mesh files inside the sandbox
     POST /api/edit             an edit {"op": ...} (see wiggly.editor.state), logged:
                                answered once its undo journal line is on the disk (507 if
@@ -29,7 +30,9 @@ Endpoints (JSON bodies are objects; errors answer ``{"error": message}``)::
     PUT  /api/upload?name=F    a mesh file as the raw body, stored in <first root>/uploads/
 
 Edits, undo and redo belong to the tab named by the ``X-Wiggly-Tab`` header (each browser tab
-has its own undo history; requests without it share the tab "api").
+has its own undo history; requests without it share the tab "api").  A drag's previews
+belong to the page load named by ``X-Wiggly-Page`` (a reload is a new page): a page that is
+reloaded, closed or crashes mid-drag leaves no preview on the other tabs.
 
 Safety: binds to 127.0.0.1 unless told otherwise; answers only requests whose ``Host`` is the
 address it listens on (or localhost) when bound to a loopback address (DNS rebinding); refuses
@@ -49,6 +52,7 @@ import mimetypes
 import os
 import queue
 import re
+import select
 import socket
 import threading
 import traceback
@@ -60,7 +64,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-from wiggly.editor.history import Histories
+from wiggly.editor.history import TAB_ID, Histories
 from wiggly.editor.session import MESH_SUFFIXES, SCENE_SUFFIX, Session
 from wiggly.editor.state import EditError
 from wiggly.errors import WigglyInputError
@@ -72,9 +76,20 @@ MAX_JSON_DEPTH = 32  # nesting of arrays and objects (a scene needs 5)
 MAX_UPLOAD_BYTES = 64 * 2**20
 MAX_CONNECTIONS = 128
 HEARTBEAT_SECONDS = 10.0
+STREAM_POLL_SECONDS = 0.5  # how soon a closed event stream is noticed
 STATIC = Path(str(resources.files("wiggly.editor") / "static"))
 _TYPES = {".js": "text/javascript", ".html": "text/html", ".css": "text/css",
           ".txt": "text/plain", ".md": "text/plain", ".svg": "image/svg+xml"}
+
+
+def _peer_closed(conn: socket.socket) -> bool:
+    """Whether the client closed (or reset) ``conn``: an event stream's client sends nothing
+    after its request, so a readable socket is at its end."""
+    try:
+        readable, _, _ = select.select([conn], [], [], 0)
+        return bool(readable) and conn.recv(1, socket.MSG_PEEK) == b""
+    except (OSError, ValueError):
+        return True
 
 
 class _Handler(BaseHTTPRequestHandler):
@@ -175,6 +190,18 @@ class _Handler(BaseHTTPRequestHandler):
         """The browser tab of the request (its undo history)."""
         return Histories.tab_id(self.headers.get("X-Wiggly-Tab"))
 
+    @property
+    def page(self) -> str | None:
+        """The page load of the request (a reload is a new one): the ``X-Wiggly-Page``
+        header, or the event stream's ``page`` query parameter."""
+        query = parse_qs(urlsplit(self.path).query).get("page")
+        value = self.headers.get("X-Wiggly-Page") or (query[0] if query else None)
+        if value is None or value == "":
+            return None
+        if not TAB_ID.fullmatch(value):
+            raise EditError("the page id must be 1 to 64 letters, digits, '_' or '-'")
+        return value
+
     def _dispatch(self, table: dict) -> None:
         try:
             if not self._allowed():
@@ -264,7 +291,9 @@ class _Handler(BaseHTTPRequestHandler):
                     "builtin": ["builtin:critter", "builtin:plant", "builtin:bar"]})
 
     def get_events(self) -> None:
-        bus = self.server.session.bus
+        session = self.server.session
+        bus = session.bus
+        page = self.page
         if bus.n_subscribers >= self.server.max_streams:
             self._error(503, "too many open event streams")
             return
@@ -278,12 +307,18 @@ class _Handler(BaseHTTPRequestHandler):
             self.end_headers()
             self.wfile.write(b"retry: 1000\n\n")
             self.wfile.flush()
+            quiet = 0.0
             while not self.server.stopping.is_set():
                 try:
-                    event = q.get(timeout=HEARTBEAT_SECONDS)
+                    event = q.get(timeout=STREAM_POLL_SECONDS)
                 except queue.Empty:
-                    self.wfile.write(b": keep-alive\n\n")
-                    self.wfile.flush()
+                    if _peer_closed(self.connection):
+                        break
+                    quiet += STREAM_POLL_SECONDS
+                    if quiet >= HEARTBEAT_SECONDS:
+                        self.wfile.write(b": keep-alive\n\n")
+                        self.wfile.flush()
+                        quiet = 0.0
                     continue
                 self.wfile.write(b"data: " + dumps(event) + b"\n\n")
                 self.wfile.flush()
@@ -291,6 +326,8 @@ class _Handler(BaseHTTPRequestHandler):
             pass
         finally:
             bus.unsubscribe(q)
+            if page is not None:
+                session.page_closed(page)
 
     # --- POST -----------------------------------------------------------------------------
     def _post(self, fn) -> None:
@@ -304,10 +341,12 @@ class _Handler(BaseHTTPRequestHandler):
         self._post(lambda op: self.server.session.edit(op, tab))
 
     def post_preview(self) -> None:
-        self._post(self.server.session.preview)
+        page = self.page
+        self._post(lambda op: self.server.session.preview(op, page))
 
     def post_cancel_preview(self) -> None:
-        self._post(lambda _: self.server.session.cancel_preview())
+        page = self.page
+        self._post(lambda _: self.server.session.cancel_preview(page))
 
     def post_undo(self) -> None:
         tab = self.tab

@@ -54,6 +54,7 @@ from wiggly.editor.state import (
     state_to_json,
 )
 from wiggly.errors import WigglyInputError
+from wiggly.files import remove_stale
 from wiggly.progress import reporting
 from wiggly.scene import (
     BUILTIN_MODELS,
@@ -140,6 +141,7 @@ class Session:
         self._opened = 0  # how many scenes were opened (the browser reloads the mesh)
         self.notices: list[str] = []
         self._groups_cache: tuple[Any, dict] | None = None
+        self._dragging: str | None = None  # the page load whose drag preview is shown
         self._export_pool = ThreadPoolExecutor(1, thread_name_prefix="wiggly-export")
         self._stop = threading.Event()
         self._told: str | None = None  # the journal's write error the browsers were told
@@ -243,6 +245,8 @@ class Session:
         (None: never saved) and the histories."""
         file_scene = _load(real) if real.is_file() else None
         auto = autosave_path(real)
+        for written in (auto, history_path(real)):  # a write a crash cut short (a minute old:
+            remove_stale(written.with_name(written.name + ".part"), 60.0)  # not another's)
         auto_scene: Scene | None = None
         stale = set_aside_if_stale(real, _stamp(real), notices)
         if auto.is_file() and not stale:
@@ -370,17 +374,31 @@ class Session:
             raise EditError(str(err).splitlines()[0]) from None
         self._groups_cache = ((dict(new.groups), new.mesh), out)  # groups() of the edit
 
-    def preview(self, op: Any) -> dict:
-        """Solve the state an edit would give, without logging it (linear: gizmo drags)."""
+    def preview(self, op: Any, page: str | None = None) -> dict:
+        """Solve the state an edit would give, without logging it (linear: gizmo drags).
+        ``page`` names the page load that drags (see :meth:`page_closed`)."""
         with self._lock:
             state = apply_edit(self.state, self._expand(op), self._n_vertices(), self.diagonal)
+            self._dragging = page
             return {"seq": self.playback.request(state, self.version, "drag")}
 
-    def cancel_preview(self) -> dict:
-        """A gizmo drag was abandoned (Esc): every tab shows the scene's frames again."""
+    def cancel_preview(self, page: str | None = None) -> dict:
+        """A gizmo drag was abandoned (Esc): every tab shows the scene's frames again.  A
+        ``page`` that is not the one dragging last cancels nothing (``seq`` None): another
+        page's drag goes on."""
         with self._lock:
+            if page is not None and self._dragging not in (None, page):
+                return {"seq": None, "version": self.version}
+            self._dragging = None
             return {"seq": self.playback.restore(self.state, self.version),
                     "version": self.version}
+
+    def page_closed(self, page: str) -> None:
+        """The event stream of a page load ended (reloaded, closed or crashed): a drag it
+        left mid-way is abandoned, so the other tabs stop showing its preview."""
+        with self._lock:
+            if self._dragging == page:
+                self.cancel_preview(page)
 
     def undo(self, tab: str = DEFAULT_TAB) -> dict:
         return self._step(tab, undo=True)
@@ -429,8 +447,9 @@ class Session:
 
     def _changed(self, autosave: bool = True, solve: bool = True) -> None:
         """After a state change: solve (unless already asked), tell the browsers, autosave
-        (in the background)."""
+        (in the background).  A drag under way is over: its next preview starts another."""
         state = self.state
+        self._dragging = None
         self.bus.publish("state", version=self.version, dirty=self.dirty)
         if solve:
             self.playback.request(state, self.version, "final")

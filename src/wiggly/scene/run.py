@@ -160,7 +160,10 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     t = _time.perf_counter()
     body, keyframes, groups = build_with_groups(scene)
     timings["prepare"] = _time.perf_counter() - t
-    _note_soft(scene, body)
+    note = soft_note(scene, body)
+    if note is not None:
+        say(f"note: {note}")
+    _warn_unit_slips(scene, body)
     start, end = scene.time_range()
     say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
          f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s")
@@ -196,20 +199,21 @@ def static_sag(body) -> float | None:
     return float(np.sqrt((u**2).sum(axis=1)).max())
 
 
-def _note_soft(scene: Scene, body) -> None:
-    """A note on the log (a stage line; silent with ``-q``) when gravity alone would bend a
-    held body by more than ``SAG`` of its size: the material is too soft for the body's size
-    (a default material on a body of metres), and the sag would dominate the motion. Static
-    sag scales as 1 / Young's modulus, so the note says which modulus sags 5 %."""
+def soft_note(scene: Scene, body) -> str | None:
+    """Why the motion may look wrong when gravity alone would bend a held body by more than
+    ``SAG`` of its size: the material is too soft for the body's size (a default material on
+    a body of metres), and the sag would dominate the motion; None otherwise.  Static sag
+    scales as 1 / Young's modulus, so the note says which modulus sags 5 %.  The command
+    line logs it (a stage line; silent with ``-q``), the editor shows it once per scene."""
     sag = static_sag(body)
     size = diagonal(body.rest_positions())
     if sag is None or sag <= SAG * size:
-        return
+        return None
     young = scene.material.young
     own = ", and the groups' own" if any(g.young is not None for g in scene.groups.values()) \
         else ""
-    say(
-        f"note: under gravity alone the body would sag by {sag:.3g} m "
+    return (
+        f"under gravity alone the body would sag by {sag:.3g} m "
         f"({100 * sag / size:.0f} % of its size) where its fixed vertices hold it, more than "
         f"linear elasticity models well: the material is soft for a body of {size:.3g} m. "
         f"Raise material.young ({young:g} Pa{own}; {young * sag / (0.05 * size):.2g} Pa sags "
@@ -222,6 +226,32 @@ MISSED = 0.05
 #: gravity above this (m/s^2), is named as a likely unit slip when keys are missed.
 IMPLAUSIBLE = 100.0
 IMPLAUSIBLE_GRAVITY = 1000.0
+
+
+def unit_slips(scene: Scene, size: float) -> list[str]:
+    """The scene's velocity keys that would carry their group more than ``IMPLAUSIBLE`` body
+    sizes over the shot, and a gravity above ``IMPLAUSIBLE_GRAVITY``: likely unit slips (mm/s
+    given as m/s), which no body follows and a stiffer key does not help."""
+    start, end = scene.time_range()
+    speeds = [(j, float(np.linalg.norm(kf.velocity))) for j, kf in enumerate(scene.keyframes)
+              if kf.velocity is not None]
+    slips = [f"keyframes[{j}].velocity is {v:.3g} m/s, which would carry the group "
+             f"{v * (end - start) / size:.3g} times the body's size over the shot"
+             for j, v in speeds if v * (end - start) > IMPLAUSIBLE * size]
+    g = float(np.linalg.norm(scene.simulation.gravity))
+    if g > IMPLAUSIBLE_GRAVITY:
+        slips.append(f"simulation.gravity is {g:.3g} m/s^2 (Earth's: 9.81)")
+    return slips
+
+
+def _warn_unit_slips(scene: Scene, body) -> None:
+    """Before the solve (which grinds on such targets): one warning naming the likely unit
+    slips of :func:`unit_slips`."""
+    slips = unit_slips(scene, diagonal(body.rest_positions()))
+    if slips:
+        listed = "; ".join(slips[:3]) + (f"; and {len(slips) - 3} more" if len(slips) > 3 else "")
+        warnings.warn(f"{scene.where()}: {listed}: check the units (m/s, m/s^2); the solve "
+                      "will take long and miss such targets", stacklevel=2)
 
 
 def _warn_missed(scene: Scene, anim, body) -> None:
@@ -252,18 +282,10 @@ def _warn_missed(scene: Scene, anim, body) -> None:
         why = ("a linear solve (simulation.warp = false) cannot meet turned targets, it "
                "stretches them: turn warping on; or " + why)
     # targets no body could follow: a unit slip, not a weight (raising it does not help)
-    speeds = [(j, float(np.linalg.norm(kf.velocity))) for j, kf in enumerate(scene.keyframes)
-              if kf.velocity is not None]
-    fast = [(j, v) for j, v in speeds if v * (end - start) > IMPLAUSIBLE * size]
+    if unit_slips(scene, size):
+        why = ("check the units of the velocities or gravity named before the solve, since no "
+               "body follows such targets; otherwise " + why)
     g = float(np.linalg.norm(scene.simulation.gravity))
-    if fast or g > IMPLAUSIBLE_GRAVITY:
-        slips = [f"keyframes[{j}].velocity is {v:.3g} m/s, which would carry the group "
-                 f"{v * (end - start) / size:.3g} times the body's size over the shot"
-                 for j, v in fast[:3]]
-        if g > IMPLAUSIBLE_GRAVITY:
-            slips.append(f"simulation.gravity is {g:.3g} m/s^2 (Earth's: 9.81)")
-        why = ("; ".join(slips) + ": check the units (m/s, m/s^2), since no body follows "
-               "such targets; otherwise " + why)
     if g > 0 and end - start > 2.0:
         why += (f"; over a {end - start:g} s shot gravity can outweigh the keys (a key's weight "
                 "falls as the cube of the duration): if so, key the body more often, or "

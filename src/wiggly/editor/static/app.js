@@ -12,7 +12,7 @@
 //   views.js      front / side / top views, frame selected
 import * as THREE from 'three';
 import { $, S, api, hooks, act, edit, toast, setStatus, fmt, scene, range, fps, currentKey,
-  camera, controls, renderer, scene3, geometry, canvas, redraw, SOFTWARE_GL } from './core.js';
+  camera, controls, renderer, scene3, geometry, canvas, redraw, SOFTWARE_GL, PAGE } from './core.js';
 import { refreshState, offerFrames, setTime, togglePlay, step } from './playback.js';
 import { renderPanels, renderKeyPanel, selectGroup, selectKey, deleteGroup, openDialog, promptDialog,
   newGroupFromSelection, setGroupFromSelection, showNotices } from './panels.js';
@@ -95,7 +95,7 @@ window.wiggly = {                 // test and benchmark hooks (read-only use)
 // events from the server
 
 function connect() {
-  const es = new EventSource('/api/events');
+  const es = new EventSource(`/api/events?page=${PAGE}`);
   es.onmessage = (m) => {
     const e = JSON.parse(m.data);
     if (e.type === 'state') {
@@ -116,6 +116,7 @@ function onSolve(e) {
   const res = e.residual_max != null ? `, max keyframe residual ${fmt(e.residual_max * 1000)} mm` : '';
   if (e.stage === 'error') setStatus(e.message, 'err');
   else if (e.stage === 'linear') setStatus('solving… (linear)', 'busy');
+  else if (e.stage === 'refining') setStatus(`linear frames shown in ${fmt(e.seconds)} s; refining warped…`, 'busy');
   else if (e.stage === 'warped') setStatus(`solving… warped: ${e.iterations} Newton iterations${e.objective != null ? `, objective ${fmt(e.objective, 4)}` : ''}`, 'busy');
   else if (e.stage === 'done') setStatus(`${e.converged === undefined ? 'linear solve' : 'warped: ' + e.message} in ${fmt(e.seconds)} s${res}`, e.converged === false ? '' : 'ok');
 }
@@ -346,6 +347,9 @@ function adaptScale(dt) {
   else if (mean < 1 / 50 && quality.scale < 1) setScale(Math.min(1, quality.scale / 0.8));
 }
 window.addEventListener('resize', () => { resize(); drawDopesheet(); });
+// reloaded or closed mid-drag: the drag is abandoned (the server also notices the event
+// stream's end, for a crashed page)
+window.addEventListener('pagehide', () => { if (S.dragging) api.beacon('/api/preview/cancel'); });
 new ResizeObserver(() => { resize(); drawDopesheet(); }).observe($('view'));
 
 function tick(now) {

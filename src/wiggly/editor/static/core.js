@@ -16,17 +16,24 @@ export const TAB = (() => {
   }
   return t;
 })();
+// Each page load has its own id (a reload is a new page): the server abandons the drag of a
+// page whose event stream ends, so other tabs never keep showing its preview.
+export const PAGE = (crypto.randomUUID ? crypto.randomUUID() : `${Date.now()}-${Math.random()}`).replace(/[^A-Za-z0-9_-]/g, '').slice(0, 64);
 
 // ------------------------------------------------------------------------------------------
 // server access
 
 async function request(method, path, body) {
-  const init = { method, headers: { 'X-Wiggly-Tab': TAB } };
+  const init = { method, headers: { 'X-Wiggly-Tab': TAB, 'X-Wiggly-Page': PAGE } };
   if (body !== undefined) {
     init.headers['Content-Type'] = 'application/json';
     init.body = JSON.stringify(body);
   }
-  const res = await fetch(path, init);
+  let res;
+  try { res = await fetch(path, init); }
+  catch {  // no answer at all (fetch's own message is "Failed to fetch")
+    throw new Error('the editor server did not answer (stopped or restarting?): this change may not be made; the page shows the server\'s scene again when it is back');
+  }
   const text = await res.text();
   let data = {};
   try { data = text ? JSON.parse(text) : {}; } catch { data = { error: text }; }
@@ -36,6 +43,11 @@ async function request(method, path, body) {
 export const api = {
   get: (p) => request('GET', p),
   post: (p, b = {}) => request('POST', p, b),
+  // a request that outlives the page (sent from pagehide), fire and forget
+  beacon(p) {
+    fetch(p, { method: 'POST', keepalive: true, body: '{}', headers: {
+      'Content-Type': 'application/json', 'X-Wiggly-Tab': TAB, 'X-Wiggly-Page': PAGE } }).catch(() => {});
+  },
   async bin(p) {
     const res = await fetch(p);
     if (!res.ok) throw new Error(`${p}: ${res.status}`);
