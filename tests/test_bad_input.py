@@ -210,6 +210,29 @@ def test_what_cannot_be_filled(user, tripwires, capsys, content, expected):
     assert "bad.obj" in line and expected in line
 
 
+@pytest.mark.parametrize("name, damage, expected", [
+    ("cut.stl", "truncate", "the file is cut short: its binary STL header announces 320 "
+     "triangles (16084 bytes) but it has 5361 bytes"),
+    ("notes.glb", "text", "is not a binary glTF file (it does not start with 'glTF')"),
+    ("holes.obj", "index", "line 4: a face names vertex 98, but the file has 3 vertices"),
+])
+def test_a_damaged_mesh_file_is_named_for_what_is_wrong(user, tripwires, capsys, name,
+                                                         damage, expected):
+    """A mesh file cut short, a text file under a mesh's extension, an OBJ face naming a
+    vertex the file lacks: the message says which, not the reader library's words."""
+    folder, scene = user
+    if damage == "truncate":
+        data = trimesh.creation.icosphere(2).export(file_type="stl")
+        (folder / name).write_bytes(data[:len(data) // 3])
+    elif damage == "text":
+        (folder / name).write_text("these are my notes, not a mesh\n")
+    else:
+        (folder / name).write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 98\n")
+    line = refused(capsys, folder, scene({"mesh.path": name, "groups": EVERYWHERE}))
+    assert name in line and expected in line, line
+    assert "trimesh" not in line and "axis 0" not in line
+
+
 def test_compact_gltf_needs_a_linear_shot(user, tripwires, capsys):
     folder, scene = user
     line = refused(capsys, folder, scene({"output.gltf_targets": "modes"}))

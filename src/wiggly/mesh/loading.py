@@ -208,13 +208,15 @@ def _load_trimesh(path: Path, ext: str) -> Surface:
 
     source = str(path)
     try:
+        if ext == ".stl":
+            _check_stl_length(path)
         if ext == ".obj":
             return _obj_surface(path)
         loaded = trimesh.load(path, process=False)
     except WigglyInputError:
         raise
     except Exception as exc:  # trimesh raises many types for malformed files
-        raise WigglyInputError(f"{source}: could not read the file with trimesh: {exc}") from exc
+        raise WigglyInputError(_unreadable(path, ext, exc)) from exc
     if isinstance(loaded, trimesh.Scene):
         meshes = _scene_meshes(loaded)
     else:
@@ -265,6 +267,67 @@ def _warn_posed(path: Path, bind: list[tuple[slice, np.ndarray]], posed: np.ndar
             "affine motion), so the rest mesh is the posed mesh a viewer shows, bent as the "
             "pose bends it. For the undeformed mesh, export at the rest pose (Blender's glTF "
             "export: Data > Armature > Use Rest Position).", stacklevel=3)
+
+
+def _check_stl_length(path: Path) -> None:
+    """Refuse a binary STL shorter than its header says (cut short while copied or
+    downloaded): trimesh would read the triangles it finds, or none."""
+    size = path.stat().st_size
+    with open(path, "rb") as file:
+        head = file.read(84)
+    if len(head) < 84:
+        if not head.lstrip().lower().startswith(b"solid"):
+            raise WigglyInputError(f"{path}: is not an STL file: it has {size} bytes, fewer "
+                                   "than a binary STL's 84-byte header")
+        return
+    n = int.from_bytes(head[80:84], "little")
+    if size < 84 + 50 * n and not head.lstrip().lower().startswith(b"solid"):
+        raise WigglyInputError(
+            f"{path}: the file is cut short: its binary STL header announces {n} triangles "
+            f"({84 + 50 * n} bytes) but it has {size} bytes; copy or export it again")
+
+
+def _unreadable(path: Path, ext: str, exc: Exception) -> str:
+    """What to tell of a surface file trimesh could not read: the cause where the file shows
+    it (a .glb that is not binary glTF, an OBJ face naming a vertex the file lacks), else
+    the reader's own words."""
+    if ext == ".glb":
+        with open(path, "rb") as file:
+            magic = file.read(4)
+        if magic != b"glTF":
+            return (f"{path}: is not a binary glTF file (it does not start with 'glTF'); "
+                    "check its extension, or export it again as .glb")
+    if ext == ".obj":
+        bad = _obj_bad_index(path)
+        if bad is not None:
+            return f"{path}: {bad}"
+    kind = ext.lstrip(".").upper()
+    return (f"{path}: could not be read as {kind} ({type(exc).__name__}: {exc}); check that "
+            f"the file is complete and is {kind}, as its extension says")
+
+
+def _obj_bad_index(path: Path) -> str | None:
+    """The first OBJ face line that names a vertex the file does not have (1-based; negative
+    numbers count back from the last ``v`` line before the face), or None."""
+    with open(path, "rb") as file:
+        lines = file.read().splitlines()
+    total = sum(1 for raw in lines if raw.split()[:1] == [b"v"])
+    n = 0
+    for line_no, raw in enumerate(lines, 1):
+        words = raw.split()
+        if words[:1] == [b"v"]:
+            n += 1
+        elif words[:1] == [b"f"]:
+            for word in words[1:]:
+                try:
+                    i = int(word.split(b"/")[0])
+                except ValueError:
+                    return (f"line {line_no}: face corner {word.decode(errors='replace')!r} is "
+                            "not a vertex number")
+                if i == 0 or i > total or i < -n:
+                    return (f"line {line_no}: a face names vertex {i}, but the file has {total} "
+                            "vertices ('v' lines); the file is damaged or cut short")
+    return None
 
 
 _NO_TRIANGLES = (
