@@ -285,3 +285,7 @@ def test_what_animators_also_do(blender_python, tmp_path):
     assert "its modifiers 'Armature' move the vertices" in seen["keys_under_rig"]["result"][1]
     assert seen["edit_handle"]["result"] == ["FINISHED"]
     assert seen["edit_handle_off"] < 1e-6  # at the edited group's centre (0.5 m up)
+    # a second Add Handle leaves no orphaned Empty: it selects the group's handle
+    assert seen["second_handle"]["result"] == ["CANCELLED"]
+    assert seen["second_handle_new_objects"] == 0 and seen["second_handle_selected"]
+    assert "has its handle 'tip handle' already" in seen["second_handle"]["printed"]

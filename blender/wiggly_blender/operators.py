@@ -346,6 +346,16 @@ class WIGGLY_OT_add_handle(bpy.types.Operator):
         if vg is None:
             self.report({"ERROR"}, f"Object '{obj.name}' has no vertex group '{item.name}'")
             return {"CANCELLED"}
+        old = item.handle
+        if old is not None and context.scene.objects.get(old.name) is old:
+            # a second Empty would leave the first (maybe keyed) unused in the scene
+            if obj.mode != "EDIT":
+                for o in context.selected_objects:
+                    o.select_set(False)
+                old.select_set(True)
+            self.report({"INFO"}, f"Group '{item.name}' has its handle '{old.name}' already "
+                        "(selected); to make a new one, clear the group's Handle field first")
+            return {"CANCELLED"}
         if obj.mode == "EDIT":
             obj.update_from_editmode()  # the group where it is now, not before Edit Mode
         co = [obj.matrix_world @ v.co for v in obj.data.vertices

@@ -676,6 +676,10 @@ def case_sweep() -> None:
     centre = np.mean([list(obj.matrix_world @ obj.data.vertices[i].co) for i in idx], axis=0)
     report["edit_handle_off"] = float(np.abs(np.array(obj.wiggly.groups[0].handle.location)
                                              - centre).max())
+    empties = len(bpy.data.objects)  # Add Handle again: no second Empty
+    report["second_handle"] = run(bpy.ops.wiggly.add_handle)
+    report["second_handle_new_objects"] = len(bpy.data.objects) - empties
+    report["second_handle_selected"] = obj.wiggly.groups[0].handle.select_get()
 
 
 def panel_layout(obj) -> list:
