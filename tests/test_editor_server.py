@@ -15,6 +15,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 import pytest
+import trimesh
 
 from wiggly.editor import EditorServer, Sandbox, Session
 from wiggly.editor.bus import EventBus, Mailbox
@@ -277,6 +278,26 @@ def test_the_physics_parent_knows_which_models_its_child_holds(tmp_path):
         assert modes("b").r == 8  # sent again
     finally:
         preparer.close()
+
+
+def test_what_the_physics_process_warns_of_reaches_the_page(tmp_path):
+    """A mesh that fTetWild must repair (an open box) is meshed in the physics process; its
+    warning reaches the parent before the model (the page shows it as a notice) instead of
+    being printed raw on the editor's terminal."""
+    from wiggly.editor.physics import Preparer
+
+    box = trimesh.creation.box()
+    keep = ~np.isclose(box.vertices[box.faces][:, :, 1], 0.5).all(axis=1)
+    trimesh.Trimesh(box.vertices, box.faces[keep], process=False).export(tmp_path / "box.obj")
+    said: list[str] = []
+    preparer = Preparer(said.append)
+    try:
+        kind, model = preparer.call(("model", ("box",), str(tmp_path / "box.obj"), 8, None,
+                                     True), lambda _: None, lambda: False)
+    finally:
+        preparer.close()
+    assert kind == "model" and model.tets.n_tets > 0
+    assert len(said) == 1 and "the surface has 4 open edges" in said[0], said
 
 
 def test_mailbox_newest_wins():

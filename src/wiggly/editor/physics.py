@@ -13,7 +13,8 @@ parent sends ``("model", key, path, resolution, edge_length, repair)`` and ``("m
 model_key, model or None, scene_dict, source)``; the child answers ``("status", stage, message,
 fraction)`` while it works, then ``("model", model)``, ``("modes", body)`` (the scene's body
 from :func:`wiggly.scene.body_of`, without its damping and gravity) or ``("error", message,
-is_input_error)``.  The child keeps the :data:`MODELS_KEPT` models it used last (a
+is_input_error)``, after a ``("warning", message)`` for each warning the job raised (the page
+shows them as notices).  The child keeps the :data:`MODELS_KEPT` models it used last (a
 :class:`~wiggly.memo.Memo`, touched when a job succeeds), and the parent mirrors that memo
 with the same rule, so it sends a model only to a child that does not have it.
 """
@@ -26,6 +27,7 @@ import sys
 import threading
 import time
 import traceback
+import warnings
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
@@ -88,9 +90,6 @@ def with_dynamics(body, damping, gravity):
 def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested end to end)
     """The child's loop (started by :class:`Preparer`)."""
     inp, out = channel.child_ends()
-    from wiggly.mesh import load_model
-    from wiggly.scene import body_of, scene_from_dict
-
     models = Memo(MODELS_KEPT)  # touched on success only: the parent's mirror does the same
 
     def status(stage: str, message: str, fraction: float) -> None:
@@ -100,39 +99,54 @@ def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested e
         msg = channel.receive(inp)
         if msg is None:
             return
-        try:
-            if msg[0] == "model":
-                _, key, path, resolution, edge_length, repair = msg
-                name = os.path.basename(path)
-                status("mesh", f"reading and tetrahedralizing {name}", 0.1)
-                model = load_model(path, resolution=resolution, edge_length=edge_length,
-                                   repair=repair)
-                channel.send(out, ("model", model))
-                models.put(key, model)
-            else:
-                _, key, model, data, source = msg
-                if model is None:
-                    model = models.peek(key)
-                if model is None:
-                    raise RuntimeError("the physics process does not hold the model")
-                scene = scene_from_dict(data)
-                scene.source = source
-                status("modes", f"computing {scene.simulation.modes} modes of "
-                       f"{model.tets.n_tets} tets (E = {scene.material.young:g} Pa)", 0.4)
-                body = body_of(scene, model, resolve_groups(scene, model), dynamics=False)
-                channel.send(out, ("modes", body))
-                models.put(key, model)
-        except WigglyInputError as err:
-            channel.send(out, ("error", str(err), True))
-        except Exception as err:
-            traceback.print_exc()
-            channel.send(out, ("error", f"{type(err).__name__}: {err}", False))
+        # what the job warns of (a repaired mesh, ...) is the user's: told to the parent
+        # before the answer, and shown in the page, not printed raw on the editor's terminal
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            reply, keep = _child_job(msg, models, status)
+        for message in dict.fromkeys(str(w.message) for w in said):
+            channel.send(out, ("warning", message))
+        channel.send(out, reply)
+        if keep is not None:
+            models.put(*keep)
+
+
+def _child_job(msg: tuple, models: Memo, status) -> tuple[tuple, tuple | None]:  # pragma: no cover
+    """One job of :func:`child_main`: its answer (or error), and the model to keep."""
+    from wiggly.mesh import load_model
+    from wiggly.scene import body_of, scene_from_dict
+
+    try:
+        if msg[0] == "model":
+            _, key, path, resolution, edge_length, repair = msg
+            name = os.path.basename(path)
+            status("mesh", f"reading and tetrahedralizing {name}", 0.1)
+            model = load_model(path, resolution=resolution, edge_length=edge_length,
+                               repair=repair)
+            return ("model", model), (key, model)
+        _, key, model, data, source = msg
+        if model is None:
+            model = models.peek(key)
+        if model is None:
+            raise RuntimeError("the physics process does not hold the model")
+        scene = scene_from_dict(data)
+        scene.source = source
+        status("modes", f"computing {scene.simulation.modes} modes of "
+               f"{model.tets.n_tets} tets (E = {scene.material.young:g} Pa)", 0.4)
+        body = body_of(scene, model, resolve_groups(scene, model), dynamics=False)
+        return ("modes", body), (key, model)
+    except WigglyInputError as err:
+        return ("error", str(err), True), None
+    except Exception as err:
+        traceback.print_exc()
+        return ("error", f"{type(err).__name__}: {err}", False), None
 
 
 class Preparer:
     """The parent side of the child process: one job at a time (from the job thread)."""
 
-    def __init__(self):
+    def __init__(self, on_warning: Callable[[str], None] | None = None):
+        self.on_warning = on_warning  # what the child's jobs warn of
         self._proc: subprocess.Popen | None = None
         self._known = Memo(MODELS_KEPT)  # the model keys the running child holds (its mirror)
         self._lock = threading.Lock()
@@ -186,6 +200,10 @@ class Preparer:
             if reply[0] == "status":
                 on_status(reply[1:])
                 continue
+            if reply[0] == "warning":
+                if self.on_warning is not None:
+                    self.on_warning(reply[1])
+                continue
             if reply[0] == "error":
                 if reply[2]:
                     raise WigglyInputError(reply[1])
@@ -224,7 +242,8 @@ class Physics:
 
     def __init__(self, bus: EventBus):
         self.bus = bus
-        self.preparer = Preparer()
+        self.preparer = Preparer(lambda message: bus.publish(
+            "notice", sticky=False, level="warning", message=message))
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="wiggly-physics")
         self._lock = threading.RLock()
         # futures by model_key / modes_key, and bodies with dynamics by (modes_key, damping,
