@@ -298,6 +298,74 @@ def test_unwarp_of_gradient_fields_matches_the_svd_path():
     np.testing.assert_allclose(_linear_gradients(grad), expected, atol=1e-10)
 
 
+def test_unwarp_keeps_the_frames_turn_past_two_radians_and_half_a_turn():
+    """Tets of a body turned as a whole by 2.5-4.5 rad (as a character turning around), each
+    jittered by 0.15 rad: the polar rotation's vector is taken on the branch nearest the
+    frame's reference rotation, so the gradients warp back to F (exp([w]x) (I + S) = F),
+    the compiled pass equals the SVD path, and no equivalent vector lies nearer the
+    reference; a tet turned far
+    from the reference still keeps F - I.  (Before, any tet turned by more than 2 rad kept
+    F - I.)  Near a full turn rotation vectors have no branch near the reference (exp is
+    singular at 2 pi), which is the warp's own limit."""
+    from scipy.linalg import expm
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    axis = np.array([0.3, 0.9, -0.2]) / np.linalg.norm([0.3, 0.9, -0.2])
+    for turn in (2.5, np.pi - 1e-9, np.pi, 3.5, 4.5):
+        w0 = turn * axis
+        jitter = Rotation.from_rotvec(rng.normal(size=(60, 3)) * 0.15)
+        R = (Rotation.from_rotvec(w0) * jitter).as_matrix()
+        S = np.eye(3) + 0.05 * (lambda a: a + a.transpose(0, 2, 1))(rng.normal(size=(60, 3, 3)))
+        F = R @ S
+        A = unwarp_gradients(F, w0)
+        np.testing.assert_allclose(A, _unwarp_numpy(F, w0), atol=1e-8)
+        w = np.stack([A[:, 2, 1] - A[:, 1, 2], A[:, 0, 2] - A[:, 2, 0],
+                      A[:, 1, 0] - A[:, 0, 1]], 1) / 2
+        u = w / np.linalg.norm(w, axis=1, keepdims=True)
+        for k in (-1, 1):  # the equivalent vector nearest the reference
+            other = np.linalg.norm(w + 2 * np.pi * k * u - w0, axis=1)
+            assert (np.linalg.norm(w - w0, axis=1) <= other + 1e-9).all(), turn
+        for k in range(0, 60, 7):
+            W = np.array([[0, -w[k, 2], w[k, 1]], [w[k, 2], 0, -w[k, 0]],
+                          [-w[k, 1], w[k, 0], 0]])
+            sym = (A[k] + A[k].T) / 2
+            np.testing.assert_allclose(expm(W) @ (np.eye(3) + sym), F[k], atol=1e-8)
+    far = Rotation.from_rotvec([0.0, 2.5, 0.0]).as_matrix()[None]  # 2.5 rad from w0 = 0
+    np.testing.assert_allclose(unwarp_gradients(far), far - np.eye(3), atol=1e-12)
+
+
+@pytest.mark.parametrize("degrees", [140.0, 250.0])
+def test_a_driver_that_turns_the_body_around_is_followed(tmp_path, degrees):
+    """Secondary motion on a driver that turns the whole bar about its driven base by 140 or
+    250 degrees (eased in and out): the driven vertices follow the driver to a millimetre
+    (they strayed by half a metre when tets turned by more than 2 rad were not unwarped),
+    and the stiff bar's free tip stays near the turned bar (its inertial lag only)."""
+    import meshio
+    from scipy.spatial.transform import Rotation
+
+    V, T = box_mesh(SHAPE, SIZE)
+    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+    body = wiggly.prepare(str(tmp_path / "bar.vtu"), n_modes=12,
+                          material=Material(2e7, 0.3, 1000.0),
+                          damping=Damping(alpha=0.4, beta=0.002), gravity=(0.0, 0.0, 0.0),
+                          cache_dir=False)
+    X = body.surface.vertices
+    driven = np.flatnonzero(X[:, 0] < 0.12)
+    times = np.arange(61) / 60.0
+    base = X[driven].mean(axis=0)
+    turn = [Rotation.from_euler("z", degrees * (3 * t**2 - 2 * t**3), degrees=True)
+            for t in times]
+    poses = np.array([r.apply(X - base) + base for r in turn])
+    driver = Driver(times, poses, body.surface.faces, np.zeros((0, 2)), "turn.npz", "test")
+    anim = secondary_motion(body, driver, driven, start=0.0, end=1.0)
+    P = anim.positions(times)
+    assert np.linalg.norm(P[:, driven] - poses[:, driven], axis=2).max() < 1e-3
+    tip = np.flatnonzero(X[:, 0] > 0.55)
+    lag = np.linalg.norm(P[:, tip].mean(axis=1) - poses[:, tip].mean(axis=1), axis=1)
+    assert lag.max() < 0.1 * np.linalg.norm(np.ptp(X, axis=0)), lag.max()
+
+
 def test_bad_drivers_are_refused(bar, tmp_path):
     body, driven = bar
     X = body.surface.vertices

@@ -18,8 +18,9 @@ sparse keys of the user's own on the free parts::
 
 The older model keys the driven group at every driver frame with the paper's partial
 keyframes (eq. (6)) and minimises the spacetime energy of the whole body
-(:func:`driven_keyframes`, with :func:`enrich` adding the driver's shapes to the modes);
-there the free parts are carried nearly rigidly while the driver plays.
+(:func:`driven_keyframes`, with :func:`enrich` adding the driver's shapes to the modes, and
+:func:`driver_poses` starting the warped solve at the driver's whole poses); there the free
+parts are carried nearly rigidly while the driver plays.
 
 Readers (:func:`read_driver` picks one by extension), each giving frame times and the
 positions (F, n, 3) of the surface's n vertices in wiggly's axes (y up, metres):
@@ -40,7 +41,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from wiggly.drive.basis import enrich
+from wiggly.drive.basis import driver_poses, enrich
 from wiggly.drive.driver import (
     DRIVE_STIFFNESS,
     Driver,
@@ -53,7 +54,7 @@ from wiggly.errors import WigglyInputError
 from wiggly.progress import deprecated_progress
 
 __all__ = ["DRIVER_EXTENSIONS", "DRIVE_STIFFNESS", "Driver", "SecondaryMotion",
-           "driven_keyframes", "enrich", "following", "keyed_frames", "read_driver",
+           "driven_keyframes", "driver_poses", "enrich", "following", "keyed_frames", "read_driver",
            "secondary_motion"]
 
 #: Driver formats by file extension.

@@ -50,14 +50,15 @@ from numpy.typing import ArrayLike
 
 from wiggly.body import Body
 from wiggly.checks import vertex_indices
-from wiggly.drive.driver import Driver
+from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.drive.secondary import free_modes, held_vertices
 from wiggly.drive.unwarp import Unwarp
+from wiggly.keyframes import Keyframe
 from wiggly.linalg import factorize_spd
 from wiggly.modes import Modes
 from wiggly.progress import deprecated_progress, iterations
 
-__all__ = ["enrich", "least_energy_fields"]
+__all__ = ["driver_poses", "enrich", "least_energy_fields"]
 
 #: Extension penalty c relative to K's mean diagonal (per unit of E^T E): larger values fit
 #: the driver no closer (the surface has more vertices than the tets) but let poorly held
@@ -93,6 +94,42 @@ def _unwarp(body: Body, U: np.ndarray) -> np.ndarray:
     out = Unwarp(body.tets.vertices, body.tets.tets, mass)(U, bar)
     bar.close()
     return out
+
+
+#: At most this many driver frames give poses for a warped solve's start
+#: (:func:`driver_poses`), evenly spread over the keyed ones.
+START_FRAMES = 64
+
+
+def driver_poses(body: Body, driver: Driver, *, offset: float = 0.0,
+                 driver_range: tuple[float, float] | None = None, start: float | None = None,
+                 end: float | None = None, warped: bool = True) -> list[Keyframe]:
+    """The driver's whole poses at the frames :func:`~wiggly.drive.driven_keyframes` keys
+    (at most :data:`START_FRAMES` of them, evenly spread), as keyframes of every tet vertex
+    whose targets are the poses' least-energy tet fields (module doc, step 1), unwarped for
+    ``warped`` solves (step 2) so that their warp is the pose.
+
+    They start a warped solve of driven keys (``linear_start`` of
+    :meth:`wiggly.SpacetimeProblem.solve`): keys on a part alone, unwarped by their best-fit
+    rotation, start it far from them when the rest of the body is free (the warp turns a free
+    body about its mass centre, not about the keyed part), and a solve of a body hanging from
+    driven ears then crawled through hundreds of iterations."""
+    surface = body.surface
+    driver.check(surface.n_vertices, surface.faces, body.model.source or "of the body")
+    frames, times = keyed_frames(driver, offset=offset, driver_range=driver_range,
+                                 start=start, end=end)
+    if len(frames) > START_FRAMES:
+        pick = np.unique(np.linspace(0, len(frames) - 1, START_FRAMES).round().astype(int))
+        frames, times = frames[pick], times[pick]
+    U = least_energy_fields(body, np.arange(surface.n_vertices),
+                            driver.positions[frames] - surface.vertices)
+    if warped:
+        U = _unwarp(body, U)
+    X = body.rest_positions("tets")
+    every = np.arange(len(X))
+    return [Keyframe(float(t), every, X + U[:, j].reshape(-1, 3), on="tets",
+                     name=f"driver pose {k}")
+            for j, (k, t) in enumerate(zip(frames.tolist(), times.tolist(), strict=True))]
 
 
 def _free_modes(body: Body, vertices: np.ndarray, count: int) -> np.ndarray:

@@ -186,6 +186,8 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     exports and the CLI agree), reading the inbox after every iteration: a newer request
     abandons it, and a progress line goes out every ``PUSH_SECONDS``.  Its answers carry the
     request's ``kind``; a drag's solution, too, starts the next solve of the range."""
+    from wiggly.scene.drive import linear_start_of
+
     t0 = time.perf_counter()
     init = previous.peek(pkey)
     last_push = time.perf_counter()
@@ -208,6 +210,8 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
             anim = problem.solve(
                 keys, warped=True, warm_start=init.warm_start if init is not None else None,
                 options=SolveOptions(warn=False, callback=after_iteration),
+                linear_start=linear_start_of(scene, problem.body, keys) if init is None
+                else None,
             )
     except _Abandoned as stop:
         channel.send(out, ("abandoned", seq, version, {"iterations": stop.args[0]}))

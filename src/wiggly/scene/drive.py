@@ -13,6 +13,7 @@ from wiggly.drive import (
     DRIVE_STIFFNESS,
     Driver,
     driven_keyframes,
+    driver_poses,
     enrich,
     keyed_frames,
     read_driver,
@@ -27,7 +28,8 @@ from wiggly.scene.spec import Scene
 from wiggly.scene.validation import Problems, did_you_mean, show
 
 __all__ = ["check_drive", "check_drive_file", "check_driver_against", "driven_body",
-           "driven_keyframes_of", "driven_vertices", "scene_driver", "secondary_of"]
+           "driven_keyframes_of", "driven_vertices", "linear_start_of", "scene_driver",
+           "secondary_of"]
 
 _GLTF, _USD = (".glb", ".gltf"), (".usd", ".usda", ".usdc", ".usdz")
 
@@ -208,6 +210,22 @@ def driven_keyframes_of(scene: Scene, body, groups: dict[str, np.ndarray]) -> li
         f"{counted(len(keys), 'frame')} of {Path(drive.path).name} ({driver.kind})")
     return keys
 
+
+def linear_start_of(scene: Scene, body, keyframes: list[Keyframe]) -> list[Keyframe] | None:
+    """Where the warped solve of driven keys (``physics = "keys"``) starts: at the driver's
+    whole poses (:func:`wiggly.drive.driver_poses`) with the scene's own keys unwarped
+    (:func:`wiggly.solve.problem.unwarped`).  None (the solve's default start) otherwise, and
+    for a linear shot."""
+    from wiggly.solve.problem import unwarped
+
+    drive = scene.drive
+    if drive is None or scene.secondary_motion or not scene.simulation.warp:
+        return None
+    start, end = scene.time_range()
+    with activity("the driver's poses, to start the warped solve"):
+        poses = driver_poses(body, scene_driver(scene), offset=drive.offset,
+                             driver_range=drive.range, start=start, end=end)
+    return poses + unwarped([kf for kf in keyframes if kf.spec.get("kind") != "drive"], body)
 
 
 def secondary_of(scene: Scene, body, groups: dict[str, np.ndarray], keyframes: list[Keyframe]):

@@ -20,7 +20,7 @@ from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
 from wiggly.render import Highlight
 from wiggly.scene.build import build_with_groups
-from wiggly.scene.drive import secondary_of
+from wiggly.scene.drive import linear_start_of, secondary_of
 from wiggly.scene.groups import resolve_groups
 from wiggly.scene.schema import loop_cycle_problem
 from wiggly.scene.spec import (
@@ -119,7 +119,8 @@ def solve_scene(scene: Scene, body, keyframes, *, groups: dict[str, np.ndarray] 
     behind ``wiggly animate`` and the editor's exports.  A ``[drive]`` with ``physics =
     "secondary"`` solves for the free parts' motion on the driver
     (:func:`wiggly.scene.drive.secondary_of`; ``groups`` as resolved on ``body``'s mesh,
-    resolved again when not given)."""
+    resolved again when not given); with ``physics = "keys"`` the warped solve starts at the
+    driver's poses (:func:`wiggly.scene.drive.linear_start_of`)."""
     if scene.secondary_motion:
         if groups is None:
             groups = resolve_groups(scene, body.model)
@@ -127,7 +128,8 @@ def solve_scene(scene: Scene, body, keyframes, *, groups: dict[str, np.ndarray] 
     start, end = scene.time_range()
     try:
         return solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
-                     preroll=scene.simulation.preroll, loop=scene.time.loop)
+                     preroll=scene.simulation.preroll, loop=scene.time.loop,
+                     linear_start=linear_start_of(scene, body, keyframes))
     except WigglyInputError as err:  # the keyframes as a whole: said of the scene file
         if str(err).startswith(scene.where()):
             raise

@@ -52,6 +52,7 @@ def solve(
     preroll: float | None = None,
     loop: bool = False,
     options: SolveOptions | None = None,
+    linear_start: list[Keyframe] | None = None,
 ) -> Animation:
     """Animate ``body`` through the sparse ``keyframes``.
 
@@ -60,7 +61,8 @@ def solve(
     is [start, end] (``end = start + duration``; default: the last keyframe time, at least
     start + 1 s).  ``loop=True`` makes the motion periodic: its end is its start
     (positions and velocities), and the wiggly splines wrap around from the last node to the
-    first.
+    first.  ``linear_start``: keyframes whose linear solution starts the warped solve
+    (:meth:`SpacetimeProblem.solve`).
     """
     if end is None:
         if duration is None:
@@ -68,7 +70,7 @@ def solve(
             duration = max(float(last) - start, 1.0)
         end = start + float(duration)
     problem = SpacetimeProblem(body, start, end, preroll, loop=loop)
-    anim = problem.solve(keyframes, warped=warp, options=options)
+    anim = problem.solve(keyframes, warped=warp, options=options, linear_start=linear_start)
     extra = ""
     if warp:
         extra = (

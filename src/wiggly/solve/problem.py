@@ -299,14 +299,19 @@ class SpacetimeProblem:
         warped: bool = False,
         warm_start: WarmStart | None = None,
         options: SolveOptions | None = None,
+        linear_start: list[Keyframe] | None = None,
     ) -> Animation:
         """Minimise E + E_C (linear, Theorem 1) or E + E_WC (``warped``, Theorem 2).
 
         Both have the same unknowns.  The warped problem starts from ``warm_start`` (the
         :attr:`Animation.warm_start` of an earlier solve of this problem, also with edited
-        keyframes) or from the linear solution with unwarped targets, and is minimised by
+        keyframes) or from the linear solution of ``linear_start`` (keyframes whose linear
+        motion warps near the solution, each at the node nearest its time, e.g. a driver's
+        whole poses, :func:`wiggly.drive.driver_poses`; default: ``keyframes`` with unwarped
+        targets, :func:`unwarped`), and is minimised by
         :func:`wiggly.solve.levels.solve_warped` with ``options``
-        (:class:`wiggly.solve.optimizer.SolveOptions`).
+        (:class:`wiggly.solve.optimizer.SolveOptions`).  The start changes the path (and
+        may change which local minimum is reached), never the objective.
         """
         options = options or SolveOptions()
         t0 = time.perf_counter()
@@ -321,7 +326,9 @@ class SpacetimeProblem:
                 if warm_start is not None and warm_start.fits(nodes, size):
                     z, warm = warm_start.z.copy(), warm_start
                 else:
-                    z = self.solve_linear(unwarped(kfs, self.body), nodes)
+                    first = (unwarped(kfs, self.body) if linear_start is None else
+                             self.checked(linear_start))
+                    z = self.solve_linear(first, nodes)
                 info["warm_start"] = warm is not None
                 info["linear_seconds"] = time.perf_counter() - t0
                 z, report, new_warm = solve_warped(self, kfs, nodes, z, options, warm)
