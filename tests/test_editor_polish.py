@@ -358,3 +358,30 @@ def test_a_long_scene_name_keeps_the_header_one_row(chromium, tmp_path):
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_a_refused_group_name_keeps_the_rename_prompt(chromium, tmp_path):
+    """Renaming a group to a name taken already is refused with the server's message; the
+    prompt stays open with what was typed (it closed and lost it before), as a refused Save
+    as does; a free name then renames it and closes the prompt."""
+    server = serve(bar_project(tmp_path, warp=False))
+    try:
+        with editor_page(chromium, server.url) as (page, errors):
+            wait_final(page)
+            page.locator("#groups li[data-group='left'] .name").dblclick()
+            page.wait_for_selector("#modal:not([hidden])")
+            field = page.locator("#modal-body input")
+            field.fill("right")
+            page.locator("#modal-ok").click()
+            page.wait_for_function("!document.querySelector('#toast').hidden && document."
+                                   "querySelector('#toast').textContent.includes('exists')")
+            assert page.locator("#modal").is_visible() and field.input_value() == "right"
+            field.fill("base")
+            page.locator("#modal-ok").click()
+            page.wait_for_selector("#modal", state="hidden")
+            page.wait_for_selector("#groups li[data-group='base']")
+            groups = server.session.scene.groups
+            assert "base" in groups and "left" not in groups
+            assert not errors, errors
+    finally:
+        server.stop()

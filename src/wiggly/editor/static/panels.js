@@ -128,7 +128,8 @@ export function renderPanels() {
     label.className = 'name';
     label.textContent = `${name} (${(S.groupVerts[name] || []).length})`;
     label.title = 'click: select; Shift/Ctrl+click: select several (K keys them all); double-click: rename';
-    label.ondblclick = () => promptDialog(`Rename group ${name}`, name, (v) => edit({ op: 'rename_group', name, new_name: v }));
+    // a refused name keeps the prompt open with what was typed (as a refused Save as does)
+    label.ondblclick = () => promptDialog(`Rename group ${name}`, name, async (v) => (await edit({ op: 'rename_group', name, new_name: v })) !== null);
     const fixed = document.createElement('label');
     fixed.className = 'small'; fixed.title = 'hold these vertices at rest';
     const cb = document.createElement('input');
