@@ -977,3 +977,22 @@ def test_a_material_too_soft_for_the_body_gets_a_notice_once(project):
     notices = notices_over_two_solves(
         project, "soft.toml", SCENE.replace("young = 1e6", "young = 1e3"), "sag")
     assert len(notices) == 1 and "Raise material.young (1000 Pa;" in notices[0]["message"]
+
+
+def test_other_tabs_are_told_when_a_tab_opens_or_saves_as(server, project):
+    """Save as (or Open) in one tab switches the whole editor to that file: the other tabs
+    get a notice naming it (their title changed silently before); the tab that did it is
+    not told (its notice names it), and a plain Save tells nobody."""
+    events = server.session.bus.subscribe()
+    st, _ = call(server, "POST", "/api/save", {"path": "copy.toml"},
+                 headers={"X-Wiggly-Tab": "a"})
+    assert st == 200
+    st, _ = call(server, "POST", "/api/save", {}, headers={"X-Wiggly-Tab": "a"})
+    st, _ = call(server, "POST", "/api/open", {"path": "shot.toml"},
+                 headers={"X-Wiggly-Tab": "b"})
+    assert st == 200
+    notices = [e for e in (events.get_nowait() for _ in range(events.qsize()))
+               if e["type"] == "notice" and "from_tab" in e]  # (not the solves' notices)
+    assert [(e["from_tab"], e["message"]) for e in notices] == [
+        ("a", "another tab saved the scene as copy.toml: this tab edits that file now"),
+        ("b", "another tab opened shot.toml: this tab shows it now")], notices

@@ -357,12 +357,35 @@ class _Handler(BaseHTTPRequestHandler):
         self._post(lambda _: self.server.session.redo(tab))
 
     def post_open(self) -> None:
-        self._post(lambda b: self.server.session.open(_field(b, "path", str)))
+        tab = self.tab
+
+        def run(body: dict) -> dict:
+            out = self.server.session.open(_field(body, "path", str))
+            self._tell_other_tabs(tab, f"another tab opened {out['path']}: this tab shows it "
+                                       "now")
+            return out
+
+        self._post(run)
 
     def post_save(self) -> None:
-        self._post(lambda b: self.server.session.save(
-            _field(b, "path", str, required=False),
-            _field(b, "overwrite", bool, False, required=False)))
+        tab = self.tab
+
+        def run(body: dict) -> dict:
+            session = self.server.session
+            before = session.scene.source  # (no scene open: 409, as save says)
+            out = session.save(_field(body, "path", str, required=False),
+                               _field(body, "overwrite", bool, False, required=False))
+            if session.scene.source != before:
+                self._tell_other_tabs(tab, f"another tab saved the scene as {out['path']}: "
+                                           "this tab edits that file now")
+            return out
+
+        self._post(run)
+
+    def _tell_other_tabs(self, tab: str, message: str) -> None:
+        """A notice for every page but those of ``tab`` (which made the change itself)."""
+        self.server.session.bus.publish("notice", sticky=False, level="info", message=message,
+                                        from_tab=tab)
 
     def post_export(self) -> None:
         self._post(lambda b: self.server.session.export(_field(b, "paths", list),

@@ -12,7 +12,7 @@
 //   views.js      front / side / top views, frame selected
 import * as THREE from 'three';
 import { $, S, api, hooks, act, edit, toast, setStatus, fmt, scene, range, fps, currentKey,
-  camera, controls, renderer, scene3, geometry, canvas, redraw, SOFTWARE_GL, PAGE } from './core.js';
+  camera, controls, renderer, scene3, geometry, canvas, redraw, SOFTWARE_GL, PAGE, TAB } from './core.js';
 import { refreshState, offerFrames, setTime, togglePlay, step } from './playback.js';
 import { renderPanels, renderKeyPanel, selectGroup, selectKey, deleteGroup, openDialog, promptDialog,
   newGroupFromSelection, setGroupFromSelection, showNotices } from './panels.js';
@@ -105,7 +105,7 @@ function connect() {
     else if (e.type === 'solve') onSolve(e);
     else if (e.type === 'physics') onPhysics(e);
     else if (e.type === 'export') { setStatus(e.message, e.stage === 'error' ? 'err' : e.stage === 'done' ? 'ok' : 'busy'); if (e.stage !== 'running') toast(e.message, e.stage === 'error'); }
-    else if (e.type === 'notice') toast(e.message, e.level === 'error');
+    else if (e.type === 'notice' && e.from_tab !== TAB) toast(e.message, e.level === 'error');  // not of this tab's own open or save as
   };
   es.onerror = () => setStatus('connection to the editor server lost; retrying…', 'err');
   es.onopen = () => refreshState();
