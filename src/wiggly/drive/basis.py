@@ -159,7 +159,7 @@ def enrich(body: Body, driver: Driver, vertices: ArrayLike, *, warped: bool = Tr
     U = least_energy_fields(body, v, D)
     Phi, M, K = body.modes.vectors, body.M, body.K
     if U.shape[1] > _FRAMES:  # frames repeat themselves: keep those that span the others
-        U = U[:, _spanning(U - Phi @ (Phi.T @ (M @ U)), M, _FRAMES)]
+        U = U[:, np.sort(_spanning(U - Phi @ (Phi.T @ (M @ U)), M, _FRAMES))]  # in time order
     if warped:
         U = _unwarp(body, U)
     U -= Phi @ (Phi.T @ (M @ U))
