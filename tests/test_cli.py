@@ -423,6 +423,29 @@ def test_a_mesh_given_for_a_scene_and_a_missing_mesh_are_said_plainly(tmp_path, 
     assert f"{tmp_path / 'missing.obj'}: does not exist" in err and "scene:" not in err
 
 
+def test_an_existing_preview_is_refused_with_the_commands_own_remedy(capsys, tmp_path):
+    """``wiggly modes -o`` onto an existing file: refused before any work, with the remedy of
+    that command (``--overwrite``), not a scene file's ``[output]`` table it has none of."""
+    (tmp_path / "modes.png").write_bytes(b"mine")
+    code, _, err = run_main(capsys, "modes", "builtin:bar", "-o", tmp_path / "modes.png")
+    assert code == 1 and "modes.png exists; pass --overwrite to replace it" in err, err
+    assert "[output]" not in err and "tetrahedraliz" not in err
+    assert (tmp_path / "modes.png").read_bytes() == b"mine"
+
+
+def test_gltf_targets_modes_from_the_flag_names_the_flag(capsys, tmp_path):
+    """``--gltf-targets modes`` on a warped scene is refused naming the flag and --linear,
+    not a scene key ``output.gltf_targets`` the user did not write; with --linear it runs."""
+    scene = write_scene(tmp_path, SCENE)
+    code, _, err = run_main(capsys, "animate", scene, "-o", tmp_path / "a.glb",
+                            "--gltf-targets", "modes")
+    assert code == 1 and "--gltf-targets modes needs a linear shot" in err, err
+    assert "output.gltf_targets" not in err and "add --linear" in err
+    code, _, err = run_main(capsys, "animate", scene, "-o", tmp_path / "a.glb",
+                            "--gltf-targets", "modes", "--linear", "-q")
+    assert code == 0, err
+
+
 def test_modes_count_out_of_range_is_told_before_any_work(capsys):
     """``wiggly modes -n``: above the limit a usage error; fewer than a free body's rigid
     modes an error naming -n, both before tetrahedralizing."""

@@ -206,6 +206,15 @@ def test_contact_sheet_grid_size(offscreen, ball, tmp_path, title):
         assert img[:header].std() > 1  # the title text
 
 
+def test_a_one_frame_animation_gets_one_tile(offscreen, ball, tmp_path):
+    """A contact sheet of a single frame is one tile, not eight copies of it."""
+    times, P, F = ball
+    tile = (64, 48)
+    path = render_contact_sheet(tmp_path / "one.png", times[:1], P[:1], F, tile_size=tile)
+    img = np.asarray(Image.open(path).convert("RGB"))
+    assert img.shape == (tile[1] + 2 * render.SHEET_GAP, tile[0] + 2 * render.SHEET_GAP, 3)
+
+
 def test_diagnostics_plot(tmp_path):
     times = np.linspace(0, 2, 101)
     lam = np.concatenate([np.zeros(6), (2 * np.pi * np.array([1.5, 2.2, 4.0, 7.1])) ** 2])

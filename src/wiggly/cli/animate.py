@@ -53,12 +53,19 @@ def add_args(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from wiggly.errors import WigglyInputError
     from wiggly.scene import load_scene, with_overrides
     from wiggly.scene import run as run_scene
 
     scene = load_scene(args.scene)
     scene = with_overrides(scene, fps=args.fps, warp=False if args.linear else None,
                            frame_start=args.frame_start, gltf_targets=args.gltf_targets)
+    glb = any(str(p).lower().endswith(".glb") for p in (args.output or scene.output.paths))
+    if args.gltf_targets == "modes" and scene.simulation.warp and glb:  # the flag's request
+        raise WigglyInputError(
+            f"--gltf-targets modes needs a linear shot, and {args.scene} is warped: a warped "
+            "motion is no linear combination of modes; add --linear, or use --gltf-targets "
+            "frames")
     anim = run_scene(scene, outputs=args.output, overwrite=args.overwrite)
     print(summary(scene, anim))
     return 0

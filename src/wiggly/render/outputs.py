@@ -197,11 +197,12 @@ def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, co
                          overwrite: bool = False) -> Path:
     """A PNG grid of frames (each with its time label), row by row; return the path.
 
-    The frames are at ``n_frames`` evenly spaced times from the first to the last (or at the
-    times ``at``, e.g. the key times).  With ``N`` frames, ``c = min(columns, N)`` columns and
-    ``rows = ceil(N / c)``, the image is ``c * tile_w + (c + 1) * SHEET_GAP`` pixels wide and
-    ``rows * tile_h + (rows + 1) * SHEET_GAP`` (plus :data:`SHEET_HEADER` with a ``title``)
-    high.  Written atomically; an existing ``path`` is kept unless ``overwrite``.
+    The frames are at ``n_frames`` (at most the animation's own count) evenly spaced times
+    from the first to the last (or at the times ``at``, e.g. the key times).  With ``N``
+    frames, ``c = min(columns, N)`` columns and ``rows = ceil(N / c)``, the image is
+    ``c * tile_w + (c + 1) * SHEET_GAP`` pixels wide and ``rows * tile_h + (rows + 1) *
+    SHEET_GAP`` (plus :data:`SHEET_HEADER` with a ``title``) high.  Written atomically; an
+    existing ``path`` is kept unless ``overwrite``.
     """
     path = output_path(path, (".png",), overwrite)
     tw, th = pixel_size(tile_size, "tile_size")
@@ -209,7 +210,8 @@ def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, co
     if at is None:
         if not (isinstance(n_frames, int | np.integer) and n_frames >= 1):
             raise WigglyInputError(f"n_frames should be an integer >= 1; got {n_frames!r}")
-        sheet_times = np.linspace(times[0], times[-1], n_frames)
+        # no more tiles than the animation has frames (one frame: one tile, not 8 copies)
+        sheet_times = np.linspace(times[0], times[-1], min(n_frames, len(times)))
     else:
         sheet_times = np.atleast_1d(np.asarray(at, dtype=np.float64))
         if sheet_times.ndim != 1 or len(sheet_times) == 0 or not np.all(np.isfinite(sheet_times)):

@@ -43,11 +43,13 @@ def _output_paths(scene: Scene, outputs) -> list[Path]:
 
 
 def check_outputs(paths: list[Path], overwrite: bool, where: str = "outputs",
-                  labels: list[str] | None = None) -> None:
+                  labels: list[str] | None = None,
+                  replace_how: str = "pass --overwrite") -> None:
     """Every output has a known extension, none exists unless ``overwrite``, and each can be
     written: its folder exists or can be created (no path component is a file) and accepts
     new files.  ``labels`` name the outputs in messages (``output.paths[0] = "a.glb"``);
-    default: the paths.  Raises one :class:`WigglyInputError` listing every problem."""
+    default: the paths; ``replace_how`` says how to replace an existing one.  Raises one
+    :class:`WigglyInputError` listing every problem."""
 
     problems = []
     seen = set()
@@ -73,8 +75,7 @@ def check_outputs(paths: list[Path], overwrite: bool, where: str = "outputs",
                 first = path.with_name(f"{path.stem}_0000.obj")
                 existing = first if first.exists() else None
             if existing is not None:
-                problems.append(f"{label}: {existing} exists; pass --overwrite (or overwrite = "
-                                "true in [output]) to replace it")
+                problems.append(f"{label}: {existing} exists; {replace_how} to replace it")
     if problems:
         raise input_error(where, problems)
 
@@ -156,7 +157,8 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     paths = _output_paths(scene, outputs)
     labels = ([f"output.paths[{i}] = {show(p)}" for i, p in enumerate(scene.output.paths)]
               if outputs is None else [f"-o {o}" for o in outputs])
-    check_outputs(paths, overwrite, scene.where(), labels)
+    check_outputs(paths, overwrite, scene.where(), labels,
+                  "pass --overwrite (or overwrite = true in [output])")
     _check_gltf_targets(scene, paths)
     timings: dict[str, float] = {}
     t = _time.perf_counter()
