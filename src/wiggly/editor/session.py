@@ -22,7 +22,6 @@ import hashlib
 import secrets
 import threading
 import traceback
-import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -613,9 +612,11 @@ class Session:
                 return
             groups = resolve_groups(scene, body.model)
             keys = keyframes_of(scene, body, groups)
-            with warnings.catch_warnings():  # the library's solve, as `wiggly animate` runs it
-                warnings.simplefilter("ignore")
-                anim = solve_scene(scene, body, keys)
+            # the library's solve, as `wiggly animate` runs it; its warnings are not caught
+            # here: warnings.catch_warnings changes process-wide state, and a block of this
+            # thread overlapping the playback thread's would restore the other's wrongly
+            # (warnings then stayed ignored); the playback's solve shows the same ones
+            anim = solve_scene(scene, body, keys)
             write_outputs(scene, anim, paths, overwrite=overwrite,
                           highlights=keyframe_highlights(scene, body, anim.keyframes, groups))
             written = [_written(p) for p in paths]
