@@ -54,3 +54,21 @@ def test_prepare_leaves_the_callers_model_alone(body):
     model = dataclasses.replace(body.model, embedding=None)
     prepared = prepare(model, n_modes=8, cache_dir=False)
     assert model.embedding is None and prepared.model.embedding is not None
+
+
+def test_objects_print_as_short_summaries(body):
+    """At a prompt, a body, its model, modes, a keyframe and an animation print one line
+    each that says what they are (counts, time range, how solved), not their arrays."""
+    X = body.rest_positions()
+    key = Keyframe.rest(body, 0.0, np.arange(len(X)), still=True, name="start")
+    anim = solve(body, [key, Keyframe.offset(body, 1.0, [0, 1, 2], (0.0, 0.05, 0.0))],
+                 duration=1.0)
+    said = {"body": repr(body), "model": repr(body.model), "surface": repr(body.surface),
+            "tets": repr(body.tets), "modes": repr(body.modes), "key": repr(key),
+            "anim": repr(anim)}
+    for text in said.values():
+        assert "\n" not in text and len(text) < 200 and "array(" not in text, text
+    assert f"{body.tets.n_tets} tets" in said["body"] and f"{body.r}, " in said["modes"]
+    assert f"{len(X)} surface vertices, position and velocity" in said["key"]
+    assert "'start'" in said["key"] and "[0, 1] s, 2 keyframes" in said["anim"]
+    assert ("converged in" in said["anim"]) == anim.warped

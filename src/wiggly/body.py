@@ -137,6 +137,12 @@ class Body:
         return new
 
     # --- per-mode coefficients of the decoupled energy (Schulz et al. 2014, eq. (4)) -------
+    def __repr__(self) -> str:  # a summary: the meshes and matrices are attributes
+        fixed = f", {len(self.fixed_vertices)} fixed vertices" if len(self.fixed_vertices) else ""
+        return (f"Body({self.model.source}: {self.tets.n_tets} tets, "
+                f"{self.surface.n_vertices} surface vertices, {self.modes!r}, "
+                f"E = {self.material.young:g} Pa, {self.mass:.3g} kg{fixed})")
+
     @property
     def r(self) -> int:
         """Number of modes."""

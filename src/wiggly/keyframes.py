@@ -74,6 +74,15 @@ class Keyframe:
     # how the target was specified, kept for scene files and the editor
     spec: dict = field(default_factory=dict, repr=False)
 
+    def __repr__(self) -> str:  # a summary: the targets are attributes
+        what = [w for w, v in (("position", self.position), ("velocity", self.velocity))
+                if v is not None]
+        name = f", {self.name!r}" if self.name else ""
+        weights = (f"c_A = {self.c_A:g}, c_B = {self.c_B:g}" if self.c_A is not None or
+                   self.c_B is not None else f"stiffness {self.stiffness:g}")
+        return (f"Keyframe(t = {self.time:g} s, {len(np.atleast_1d(self.vertices))} {self.on} "
+                f"vertices, {' and '.join(what) or 'no target'}, {weights}{name})")
+
     # --- constructors for the target kinds ----------------------------------------------
     @classmethod
     def rest(

@@ -83,6 +83,11 @@ class Modes:
     n_rigid: int
     fixed_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
+    def __repr__(self) -> str:  # a summary: the arrays are attributes
+        f = self.frequencies_hz()[self.n_rigid:]
+        band = f", elastic {f[0]:.3g} to {f[-1]:.3g} Hz" if len(f) else ""
+        return f"Modes({self.r}, {self.n_rigid} rigid{band})"
+
     @property
     def r(self) -> int:
         """Number of modes."""

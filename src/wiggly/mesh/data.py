@@ -72,6 +72,9 @@ class TetMesh:
         self.tets = checks.array(self.tets, "TetMesh.tets", 4, np.int64)
         self.groups = _as_groups(self.groups)
 
+    def __repr__(self) -> str:  # a summary: the arrays are attributes
+        return f"TetMesh({self.n_vertices} vertices, {self.n_tets} tets)"
+
     @property
     def n_vertices(self) -> int:
         """Number of vertices ``n``."""
@@ -144,6 +147,10 @@ class Surface:
         if self.normals is not None:
             self.normals = checks.array(self.normals, "Surface.normals", 3, np.float64, rows=n)
         self.groups = _as_groups(self.groups)
+
+    def __repr__(self) -> str:
+        groups = f", groups {', '.join(self.groups)}" if self.groups else ""
+        return f"Surface({self.n_vertices} vertices, {self.n_faces} triangles{groups})"
 
     @property
     def n_vertices(self) -> int:
@@ -260,6 +267,10 @@ class Model:
     tets: TetMesh
     embedding: Embedding | None
     source: str
+
+    def __repr__(self) -> str:
+        surface = "" if self.surface is None else f", {self.surface.n_vertices} surface vertices"
+        return f"Model({self.source}: {self.tets.n_tets} tets{surface})"
 
 
 

@@ -59,6 +59,15 @@ class Animation:
     #: a cycle with no seam
     loop: bool = False
 
+    def __repr__(self) -> str:  # a summary: the splines and keyframes are attributes
+        how = "warped" if self.warped else "linear"
+        if self.warped and "iterations" in self.info:
+            done = "converged" if self.info.get("converged") else "not converged"
+            how += f", {done} in {self.info['iterations']} iterations"
+        loop = ", looped" if self.loop else ""
+        return (f"Animation({how}, [{self.nodes[0]:g}, {self.nodes[-1]:g}] s, "
+                f"{len(self.keyframes)} keyframes, {self.body.r} modes{loop})")
+
     @property
     def start(self) -> float:
         return float(self.nodes[0])
