@@ -755,3 +755,22 @@ def test_a_killed_exports_leftovers_are_removed_by_the_next_export(tmp_path):
         outputs.stage(tmp_path / "shot.glb").write_bytes(b"glb")
     kept = {p.name for p in tmp_path.iterdir()}
     assert kept == {n for n, stays in names.items() if stays} | {"shot.glb"}
+
+
+def test_a_solved_animation_is_written_from_python(tmp_path):
+    """write_animation takes a solved wiggly.Animation as it is (it failed with an
+    AttributeError before): sampled at ``fps`` on the body's surface, and read back the same
+    as the motion's own positions."""
+    import wiggly
+    from wiggly.keyframes import Keyframe
+
+    body = wiggly.prepare("builtin:bar", n_modes=8, resolution=6)
+    X = body.rest_positions()
+    keys = [Keyframe.rest(body, 0.0, np.arange(len(X)), still=True),
+            Keyframe.offset(body, 1.0, np.flatnonzero(X[:, 0] > 0.9), (0.0, 0.1, 0.0))]
+    anim = wiggly.solve(body, keys, duration=1.0, warp=False)
+    for name in ("bar.glb", "bar.npz"):
+        write_animation(tmp_path / name, anim, fps=20)
+        back = read_animation(tmp_path / name)
+        assert back.n_frames == 21 and back.n_vertices == len(X)
+        np.testing.assert_allclose(back.positions[-1], anim.positions([1.0])[0], atol=1e-5)

@@ -12,6 +12,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 def test_readme_python_example_runs(tmp_path, monkeypatch):
     monkeypatch.setenv("WIGGLY_CACHE_DIR", str(tmp_path))
+    monkeypatch.chdir(tmp_path)  # it writes jump.glb where it runs
     blocks = re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
     assert blocks, "README has no python example"
     namespace: dict = {}
@@ -28,6 +29,10 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
     assert rows[1]["position_rms"] < 0.025 and rows[4]["position_rms"] < 0.025
     X, feet = body.rest_positions(), namespace["feet"]
     assert np.linalg.norm(frames[-1][feet] - X[feet], axis=1).max() < 0.01
+    from wiggly.export import read_animation
+
+    written = read_animation(tmp_path / "jump.glb")  # the motion, as exported
+    np.testing.assert_allclose(written.positions[-1], frames[-1], atol=1e-5)
 
 
 def test_readme_is_a_short_overview_without_process_history():

@@ -245,3 +245,47 @@ def test_negative_damping_and_empty_range(bar):
         Damping(alpha=-1)
     with pytest.raises(WigglyInputError, match="empty"):
         solve(bar, [], warp=False, start=1.0, end=1.0)
+
+
+def test_python_api_mistakes_are_named(tmp_path_factory):
+    """What a newcomer gets wrong in Python: each is refused with a message naming the
+    argument, the value and what would be right (they were raw numpy or attribute errors, a
+    silent wrong mesh, or a crash deep in the solve)."""
+    import wiggly
+    from wiggly.body import Damping
+
+    body = make_body(tmp_path_factory, shape=(6, 2, 2), n_modes=8)
+    X = body.rest_positions()
+    key = Keyframe.rest(body, 0.0, np.arange(len(X)))
+    anim = solve(body, [key], duration=1.0, warp=False)
+    cases = {
+        "on typo": (lambda: body.rest_positions(on="Surface"), "on = 'Surface': use 'surface'"),
+        "on typo, positions": (lambda: anim.positions([0.5], on="tet"), "on = 'tet'"),
+        "on typo, keyframe": (lambda: Keyframe.rest(body, 0.0, [0, 1], on="bogus"),
+                              "on = 'bogus'"),
+        "one keyframe": (lambda: solve(body, key), "put it in a list: [key]"),
+        "a path": (lambda: solve("bar.obj", [key]), "body should be a wiggly.Body"),
+        "None key": (lambda: solve(body, [key, None]), "keyframes[1] is a NoneType"),
+        "long shot": (lambda: solve(body, [key], duration=1e6), "at most 3600 s"),
+        "damping number": (lambda: wiggly.prepare(body.model, damping=0.5),
+                           "damping should be a wiggly.Damping"),
+        "material dict": (lambda: wiggly.prepare(body.model, material={"young": 1e6}),
+                          "material should be a wiggly.Material"),
+        "dynamics number": (lambda: body.with_dynamics(damping=0.5),
+                            "damping should be a wiggly.Damping"),
+        "fps 0": (lambda: anim.frame_times(0), "fps should be a number > 0"),
+        "fps huge": (lambda: anim.frame_times(1e5), "more than 1000 frames per second"),
+        "one point for a group": (
+            lambda: solve(body, [Keyframe(0.5, np.arange(10), position=np.zeros(3))],
+                          duration=1.0, warp=False), "would pull them all to that point"),
+    }
+    for label, (call, says) in cases.items():
+        with pytest.raises(WigglyInputError) as err:
+            call()
+        assert says in str(err.value), (label, str(err.value))
+    assert body.with_dynamics(damping=Damping(0.1, 0.001)).damping.alpha == 0.1
+    with pytest.warns(UserWarning, match="in radians"):  # degrees given as radians
+        Keyframe.rigid(body, 1.0, [0, 1, 2], rotation=(0, 90, 0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # several turns in radians: no warning
+        Keyframe.rigid(body, 1.0, [0, 1, 2], rotation=(0, 0, 4 * np.pi + 0.3))

@@ -22,14 +22,14 @@ from wiggly.fem import Material
 from wiggly.keyframes import Keyframe
 from wiggly.mesh import Model, Surface, TetMesh, load_mesh, load_model, tetrahedralize
 from wiggly.modes import Modes, compute_modes
-from wiggly.solve import Animation, SpacetimeProblem, WarpedSolveWarning, solve
+from wiggly.solve import Animation, SolveOptions, SpacetimeProblem, WarpedSolveWarning, solve
 from wiggly.splines import energy_form, wiggly_basis
 from wiggly.warp import Warp
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "Animation", "Body", "Damping", "Keyframe", "Material", "Model", "Modes",
+    "Animation", "Body", "Damping", "Keyframe", "Material", "Model", "Modes", "SolveOptions",
     "SpacetimeProblem", "Surface", "TetMesh", "Warp", "WarpedSolveWarning", "WigglyInputError",
     "__version__", "compute_modes", "energy_form", "fixed_from_surface", "load_mesh",
     "load_model", "prepare", "solve", "tetrahedralize", "wiggly_basis",

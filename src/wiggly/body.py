@@ -23,6 +23,7 @@ from typing import Literal
 import numpy as np
 import scipy.sparse as sp
 
+from wiggly import checks
 from wiggly.checks import vertex_set
 from wiggly.errors import WigglyInputError, counted
 from wiggly.fem import DEFAULT_GRAVITY, Material, gravity_term, mass_matrix, stiffness_matrix
@@ -126,7 +127,8 @@ class Body:
         the same warp, coarse level and vertex groups (nothing is recomputed); the per-mode
         damping ``delta`` and the modal gravity follow the new values.  Returns ``self`` when
         nothing changes."""
-        damping = self.damping if damping is None else damping
+        damping = self.damping if damping is None else _checked(
+            damping, Damping, "damping", "Damping(alpha=0.5, beta=0.002)")
         g = self.gravity if gravity is None else _checked_gravity(gravity)
         if damping == self.damping and np.array_equal(g, self.gravity):
             return self
@@ -184,7 +186,7 @@ class Body:
 
     def rest_positions(self, on: Where = "surface") -> np.ndarray:
         """Rest vertex positions (n, 3) of the surface or the tet mesh."""
-        return self.surface.vertices if on == "surface" else self.tets.vertices
+        return self.surface.vertices if checks.where(on) == "surface" else self.tets.vertices
 
     def n_vertices(self, on: Where = "surface") -> int:
         return len(self.rest_positions(on))
@@ -197,7 +199,7 @@ class Body:
 
     def basis(self, on: Where = "surface") -> np.ndarray:
         """Mode shapes as displacement rows (3n, r) for the surface or the tet mesh."""
-        return self.surface_basis if on == "surface" else self.modes.vectors
+        return self.surface_basis if checks.where(on) == "surface" else self.modes.vectors
 
     def basis_rows(self, vertices: np.ndarray, on: Where = "surface") -> np.ndarray:
         """Rows of the mode basis for the xyz dofs of ``vertices``: shape (3k, r) (A_k Phi)."""
@@ -273,9 +275,11 @@ class Body:
         return self._groups.get((name, on, value_key(vertices)), compute)
 
     def vertex_masses(self, on: Where = "tets") -> np.ndarray:
-        """Lumped vertex masses (kg) of the tet mesh, or barycentrically spread to the surface."""
+        """Lumped vertex masses (kg) of the tet mesh, or interpolated to the surface vertices
+        (``on = "surface"``: each surface vertex gets the barycentric mean of its tet's vertex
+        masses per unit weight, so they do not sum to the body's mass)."""
         m = np.asarray(self.M.sum(axis=1)).ravel()[::3]
-        if on == "tets":
+        if checks.where(on) == "tets":
             return m
         B = self.model.embedding.matrix(self.tets.n_vertices)
         w = np.asarray(B.sum(axis=0)).ravel()
@@ -329,16 +333,24 @@ def prepare(
     ``fixed_vertices`` are tet-mesh vertex indices (see :func:`fixed_from_surface` to fix
     by surface vertices).  ``n_modes`` counts the rigid modes of a free body (6).
     ``young`` gives a Young's modulus per tet (Pa) in place of ``material.young``, e.g. a
-    softer tail (:func:`tets_of` selects a vertex group's tets).
+    softer tail (:func:`wiggly.body.tets_of` selects a vertex group's tets).  ``model`` is a
+    path, ``builtin:NAME`` or a :class:`~wiggly.mesh.Model`; a surface in memory becomes one
+    with :func:`wiggly.mesh.build_model`.
     """
+    material = _checked(material, Material, "material", "Material(young=2e5, poisson=0.45, "
+                        "density=1000.0)")
+    damping = _checked(damping, Damping, "damping", "Damping(alpha=0.5, beta=0.002)")
+    gravity = _checked_gravity(gravity)
     if not isinstance(model, Model):
+        if not isinstance(model, str | os.PathLike):
+            raise WigglyInputError(
+                f"model should be a mesh file's path, 'builtin:NAME' or a wiggly.mesh.Model; got "
+                f"a {type(model).__name__} (a surface in memory: wiggly.mesh.build_model(Surface("
+                "vertices, faces), name))")
         path = Path(model)
         model = load_model(
             path, resolution=resolution, edge_length=edge_length, cache_dir=cache_dir
         )
-    material = material or Material()
-    damping = damping or Damping()
-    gravity = _checked_gravity(gravity)
     V, T = model.tets.vertices, model.tets.tets
     fixed = vertex_set(fixed_vertices, len(V), "fixed vertices")
     say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")
@@ -350,6 +362,17 @@ def prepare(
     if model.embedding is None:  # a new model: the caller's is not changed
         model = replace(model, embedding=embed(model.surface.vertices, model.tets))
     return Body(model, material, damping, gravity, fixed, M, K, modes, lumped, cache_dir)
+
+
+def _checked(value, kind: type, name: str, example: str):
+    """``value`` if it is a ``kind`` (None: the default ``kind()``), else a clear refusal
+    (a bare number or a dict would fail much later, deep in the solve)."""
+    if value is None:
+        return kind()
+    if not isinstance(value, kind):
+        raise WigglyInputError(f"{name} should be a wiggly.{kind.__name__}, e.g. {example}; got "
+                               f"{checks.brief(value)}")
+    return value
 
 
 def _checked_gravity(gravity) -> np.ndarray:

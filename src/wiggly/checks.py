@@ -131,6 +131,15 @@ def vertex_set(vertices: ArrayLike | None, n: int, what: str = "fixed vertices")
     return np.unique(vertex_indices(vertices, n, "mesh", what, allow_empty=True))
 
 
+def where(on, name: str = "on") -> str:
+    """``on`` if it names a mesh of a body ("surface": the user's surface, "tets": the tet
+    mesh); any other value is refused (a typo must not silently mean the tet mesh)."""
+    if not (isinstance(on, str) and on in ("surface", "tets")):
+        raise WigglyInputError(f"{name} = {brief(on)}: use 'surface' (the user's surface) or "
+                               "'tets' (the tet mesh)")
+    return on
+
+
 def _raise(message: str) -> NoReturn:
     raise WigglyInputError(message)
 

@@ -34,10 +34,19 @@ DEFAULT_STIFFNESS = 1e6
 
 
 def _rotation(rotation: ArrayLike) -> np.ndarray:
-    """A 3x3 rotation from a matrix or a rotation vector (axis * angle in radians)."""
+    """A 3x3 rotation from a matrix or a rotation vector (axis * angle in radians); a vector
+    of whole numbers turning by more than a full turn, (0, 90, 0), is warned about: degrees
+    given as radians."""
     R = np.asarray(rotation, dtype=float)
     if R.shape == (3,):
         theta = float(np.linalg.norm(R))
+        if not np.isfinite(theta):
+            raise WigglyInputError(f"rotation = {R.tolist()} must be 3 finite numbers")
+        if theta > 2 * np.pi and np.all(R == np.round(R)):
+            warnings.warn(
+                f"rotation = {R.tolist()} turns by {theta:g} rad ({np.degrees(theta):g} deg): a "
+                "rotation vector is axis x angle in radians (scene files take Euler degrees); "
+                "a 90 degree turn about y is (0, np.radians(90), 0)", stacklevel=3)
         if theta == 0:
             return np.eye(3)
         k = R / theta
@@ -124,7 +133,10 @@ class Keyframe:
         **kw,
     ) -> Keyframe:
         """Rest vertices rotated by ``rotation`` about ``center`` (default: their centroid),
-        then translated: x = R (X - c) + c + translation."""
+        then translated: x = R (X - c) + c + translation.  ``rotation`` is a rotation vector
+        (axis x angle, in radians, at most a full turn: a 90 degree turn about y is
+        ``(0, np.radians(90), 0)``; scene files take Euler angles in degrees instead) or a
+        3x3 rotation matrix (e.g. ``scipy.spatial.transform.Rotation.as_matrix()``)."""
         on = kw.pop("on", "surface")
         v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
         X = body.rest_positions(on)[v]
@@ -154,6 +166,11 @@ class Keyframe:
         pos = vel = None
         if self.position is not None:
             pos = np.asarray(self.position, float)
+            if pos.shape == (3,) and len(v) > 1:  # one point for a group: not what it means
+                raise WigglyInputError(
+                    f"{what}: one position target {pos.tolist()} for {len(v)} vertices would "
+                    f"pull them all to that point; give ({len(v)}, 3) targets, one per vertex, "
+                    "or use Keyframe.offset(body, time, vertices, offset) to move the group")
             if pos.shape == (3,):
                 pos = np.broadcast_to(pos, (len(v), 3))
             if pos.shape != (len(v), 3):

@@ -90,7 +90,12 @@ from wiggly.export.animation import (
     SurfaceAnimation,
     vertex_normals,
 )
-from wiggly.export.formats import read_animation, stage_animation, write_animation
+from wiggly.export.formats import (
+    read_animation,
+    stage_animation,
+    surface_animation,
+    write_animation,
+)
 
 __all__ = [
     "FORMAT_VERSION",
@@ -99,6 +104,7 @@ __all__ = [
     "SurfaceAnimation",
     "read_animation",
     "stage_animation",
+    "surface_animation",
     "vertex_normals",
     "write_animation",
 ]

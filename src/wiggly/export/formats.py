@@ -24,10 +24,27 @@ from wiggly.files import OutputSet
 from wiggly.progress import deprecated_progress
 
 
+def surface_animation(anim, fps: float = 30.0, name: str = "wiggly",
+                      gltf_targets: str = "frames") -> SurfaceAnimation:
+    """The frames of a solved :class:`wiggly.Animation` on its body's surface, sampled at
+    ``fps`` over its time range, with the surface's faces, UVs, normals and rest positions
+    (and, for ``gltf_targets = "modes"``, the modes and their coordinates): what the
+    writers take."""
+    times = anim.frame_times(fps)
+    surf = anim.body.surface
+    data = SurfaceAnimation(times, anim.positions(times, dtype=np.float32), surf.faces,
+                            surf.uvs, surf.normals, name, rest=surf.vertices, loop=anim.loop)
+    if gltf_targets == "modes":
+        basis = anim.body.surface_basis  # (3p, r): positions = rest + basis q(t)
+        data.mode_shapes = basis.T.reshape(anim.body.r, -1, 3)
+        data.modal = anim.modal(times)[0]
+    return data
+
+
 @deprecated_progress
 def write_animation(
-    path, anim: SurfaceAnimation, *, overwrite: bool = False,
-    frame_start: int | None = None, gltf_targets: str = "frames",
+    path, anim, *, overwrite: bool = False,
+    frame_start: int | None = None, gltf_targets: str = "frames", fps: float = 30.0,
 ) -> Path:
     """Write ``anim`` to ``path`` in the format of its extension (:data:`SUPPORTED`).
 
@@ -36,8 +53,9 @@ def write_animation(
     path : str or Path
         Output file; for ``.obj`` the sequence's base name (``out/frame.obj`` writes
         ``out/frame_0000.obj``, ...).
-    anim : SurfaceAnimation
-        The animation; its arrays are validated first.
+    anim : SurfaceAnimation or wiggly.Animation
+        The frames; their arrays are validated first.  A solved :class:`wiggly.Animation` is
+        sampled at ``fps`` on its surface first (:func:`surface_animation`).
     overwrite : bool
         Replace existing output. For OBJ, any file named like a frame of the sequence blocks
         the write without it; with it, the frames are replaced, frames that wiggly wrote for
@@ -69,6 +87,8 @@ def write_animation(
     terminal, one line in a log.
     """
     path = Path(path)
+    if not isinstance(anim, SurfaceAnimation) and hasattr(anim, "frame_times"):
+        anim = surface_animation(anim, fps, path.stem, gltf_targets)
     with OutputSet() as outputs:
         stage_animation(outputs, path, anim, overwrite=overwrite,
                         frame_start=frame_start, gltf_targets=gltf_targets)

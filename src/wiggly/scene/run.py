@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 from wiggly import render
 from wiggly.drive import following
 from wiggly.errors import WigglyInputError, counted
-from wiggly.export import SurfaceAnimation, stage_animation
+from wiggly.export import stage_animation, surface_animation
 from wiggly.files import OutputSet, check_writable
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
@@ -33,7 +33,7 @@ from wiggly.scene.spec import (
     Scene,
 )
 from wiggly.scene.validation import input_error, show
-from wiggly.solve import SpacetimeProblem, solve
+from wiggly.solve import MISSED, SpacetimeProblem, solve
 
 
 def _output_paths(scene: Scene, outputs) -> list[Path]:
@@ -130,7 +130,8 @@ def solve_scene(scene: Scene, body, keyframes, *, groups: dict[str, np.ndarray] 
     try:
         return solve(body, keyframes, start=start, end=end, warp=scene.simulation.warp,
                      preroll=scene.simulation.preroll, loop=scene.time.loop,
-                     linear_start=linear_start_of(scene, body, keyframes))
+                     linear_start=linear_start_of(scene, body, keyframes),
+                     check_keys=False)  # run() says it of the scene's own keys
     except WigglyInputError as err:  # the keyframes as a whole: said of the scene file
         if str(err).startswith(scene.where()):
             raise
@@ -224,8 +225,6 @@ def soft_note(scene: Scene, body) -> str | None:
         "about 5 %), or lower simulation.gravity")
 
 
-#: A keyframe missed by more than this share of the body's size is warned about.
-MISSED = 0.05
 #: A velocity key that would carry its group this many body sizes over the shot, or a
 #: gravity above this (m/s^2), is named as a likely unit slip when keys are missed.
 IMPLAUSIBLE = 100.0
@@ -351,17 +350,12 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
         return []
     _check_gltf_targets(scene, paths)
     t = _time.perf_counter()
-    times = anim.frame_times(scene.time.fps)
-    say(f"sampling {counted(len(times), 'frame')} at {scene.time.fps:g} fps")
-    positions = anim.positions(times, dtype=np.float32)
-    surf = anim.body.surface
-    data = SurfaceAnimation(times, positions, surf.faces, surf.uvs, surf.normals,
-                            scene.mesh_file().stem, rest=surf.vertices, loop=anim.loop)
     targets = scene.output.gltf_targets or "frames"
-    if targets == "modes" and any(p.suffix.lower() == ".glb" for p in paths):
-        basis = anim.body.surface_basis  # (3p, r): positions = rest + basis q(t)
-        data.mode_shapes = basis.T.reshape(anim.body.r, -1, 3)
-        data.modal = anim.modal(times)[0]
+    modes = targets == "modes" and any(p.suffix.lower() == ".glb" for p in paths)
+    say(f"sampling {counted(len(anim.frame_times(scene.time.fps)), 'frame')} at "
+        f"{scene.time.fps:g} fps")
+    data = surface_animation(anim, scene.time.fps, scene.mesh_file().stem,
+                             "modes" if modes else "frames")
     timings["sample"] = _time.perf_counter() - t
     written = []
     with OutputSet() as outputs:
@@ -376,7 +370,7 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
                 if path.exists() and not overwrite:
                     raise WigglyInputError(f"{path} exists; pass --overwrite (or overwrite = "
                                            "true in [output]) to replace it")
-                render_preview(outputs.stage(path), times, positions, surf.faces,
+                render_preview(outputs.stage(path), data.times, data.positions, data.faces,
                                highlights=highlights, output=scene.output, title=scene.name,
                                overwrite=True)
             timings[f"write {path.name}"] = _time.perf_counter() - t

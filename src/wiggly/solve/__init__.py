@@ -17,16 +17,21 @@ Modules, in the order data flows:
 
 from __future__ import annotations
 
+import warnings
+
+import numpy as np
+
 from wiggly.body import Body
 from wiggly.keyframes import Keyframe
 from wiggly.progress import deprecated_progress, say
 from wiggly.solve.animation import Animation
 from wiggly.solve.levels import WarmStart
 from wiggly.solve.optimizer import SolveOptions, SolveReport, WarpedSolveWarning
-from wiggly.solve.problem import SpacetimeProblem
+from wiggly.solve.problem import SpacetimeProblem, keyframe_list
 from wiggly.solve.warped import WarpedObjective, WarpedPoint
 
 __all__ = [
+    "MISSED",
     "Animation",
     "SolveOptions",
     "SolveReport",
@@ -37,6 +42,7 @@ __all__ = [
     "WarpedSolveWarning",
     "iteration_count",
     "solve",
+    "warn_missed",
 ]
 
 
@@ -53,6 +59,7 @@ def solve(
     loop: bool = False,
     options: SolveOptions | None = None,
     linear_start: list[Keyframe] | None = None,
+    check_keys: bool = True,
 ) -> Animation:
     """Animate ``body`` through the sparse ``keyframes``.
 
@@ -62,8 +69,11 @@ def solve(
     start + 1 s).  ``loop=True`` makes the motion periodic: its end is its start
     (positions and velocities), and the wiggly splines wrap around from the last node to the
     first.  ``linear_start``: keyframes whose linear solution starts the warped solve
-    (:meth:`SpacetimeProblem.solve`).
+    (:meth:`SpacetimeProblem.solve`).  ``check_keys``: warn when the motion misses position
+    keys by more than :data:`MISSED` of the body's size (:meth:`Animation.constraint_residuals`
+    has them all; a scene file's run warns in its own words instead).
     """
+    keyframes = keyframe_list(keyframes)
     if end is None:
         if duration is None:
             last = max((kf.time for kf in keyframes), default=start)
@@ -79,7 +89,38 @@ def solve(
         )
     say(f"{'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
         f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}")
+    if check_keys:
+        warn_missed(anim)
     return anim
+
+
+#: Position keys missed by more than this share of the body's size are warned about.
+MISSED = 0.05
+
+
+def warn_missed(anim: Animation) -> None:
+    """One warning naming the keyframes whose position targets ``anim`` misses by more than
+    :data:`MISSED` of the body's size, with the likely causes."""
+    if not any(kf.position is not None for kf in anim.keyframes):
+        return
+    size = float(np.linalg.norm(np.ptp(anim.body.rest_positions(), axis=0)))
+    rows = anim.constraint_residuals()
+    missed = [(j, row["position_max"]) for j, row in enumerate(rows)
+              if row.get("position_max") is not None and row["position_max"] > MISSED * size]
+    if not missed:
+        return
+    listed = "; ".join(
+        f"keyframes[{j}]{f' ({anim.keyframes[j].name!r})' if anim.keyframes[j].name else ''} "
+        f"at t = {anim.keyframes[j].time:g} s by {miss:.3g} m, {100 * miss / size:.0f} %"
+        for j, miss in missed[:4]) + (f"; and {len(missed) - 4} more" if len(missed) > 4 else "")
+    linear = ("" if anim.warped else "a linear solve cannot meet turned targets (it stretches "
+              "them): solve with warp=True; or ")
+    warnings.warn(
+        f"{len(missed)} of {len(rows)} keyframes missed by more than {100 * MISSED:g} % of the "
+        f"body's size ({listed}): {linear}raise their stiffness (default 1e6), or check that "
+        "the targets can be reached (fixed vertices, contradictory keys, velocities in m/s, "
+        "gravity over a long shot); anim.constraint_residuals() lists every key",
+        stacklevel=3)
 
 
 def iteration_count(info: dict, kind: str = "Newton") -> str:

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
+from wiggly import checks, limits
 from wiggly.body import Body, Where
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
@@ -81,8 +82,18 @@ class Animation:
         return self.end - self.start
 
     def frame_times(self, fps: float = DEFAULT_FPS) -> np.ndarray:
-        """Frame times start, start + 1/fps, ... up to and including the end (if on the grid)."""
+        """Frame times start, start + 1/fps, ... up to and including the end (if on the grid);
+        ``fps`` in (0, :data:`wiggly.limits.MAX_FPS`], at most :data:`wiggly.limits.MAX_FRAMES`
+        frames."""
+        fps = checks.positive_number(fps, "fps", "frames per second")
+        if fps > limits.MAX_FPS:
+            raise WigglyInputError(f"fps = {fps:g} is more than {limits.MAX_FPS:g} frames per "
+                                   "second (wiggly.limits.MAX_FPS)")
         n = int(np.floor(self.duration * fps + 1e-9)) + 1
+        if n > limits.MAX_FRAMES:
+            raise WigglyInputError(
+                f"{self.duration:g} s at {fps:g} fps is {n} frames, more than "
+                f"{limits.MAX_FRAMES} (wiggly.limits.MAX_FRAMES): lower fps")
         return self.start + np.arange(n) / fps
 
     # --- modal trajectories ------------------------------------------------------------
@@ -123,6 +134,7 @@ class Animation:
         Theorem 2), computed on the tet mesh in batches of frames (one multi-RHS Poisson solve per
         batch) and carried to the surface by the barycentric embedding.
         """
+        checks.where(on)
         if not self.warped:
             q = self.modal(times, derivative)[derivative]
             B = self.body.basis(on)

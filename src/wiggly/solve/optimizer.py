@@ -79,7 +79,9 @@ class SolveOptions:
     tolerance : the Newton decrement must fall below ``tolerance * F`` (plus F's rounding
         level).
     distance_tolerance : and the distance bound (the final Newton step's largest vertex
-        move, widened by the measured contraction) below this fraction of the body's size.
+        move, widened by the measured contraction) below this fraction of the body's size;
+        not asked when the decrement is below F's rounding level (stop ``"round-off"``: F
+        cannot tell closer points apart; ``distance_bound`` then says how far that is).
     max_iterations : Newton iterations allowed per level: a budget, not a convergence test
         (a solve that spends it is reported unconverged).  Most scenes need 5-60; paths
         through long regions of negative curvature (a hop or a large turn of a soft, long-

@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
+from wiggly import limits
 from wiggly.body import Body, GroupSelection
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
@@ -107,10 +108,17 @@ class SpacetimeProblem:
         preroll: float | None = None,
         loop: bool = False,
     ) -> None:
+        if not isinstance(body, Body):
+            raise WigglyInputError(f"body should be a wiggly.Body (wiggly.prepare(mesh path)); "
+                                   f"got a {type(body).__name__}")
         if not (np.isfinite(start) and np.isfinite(end)) or end <= start:
             raise WigglyInputError(
                 f"the animation's time range [{start}, {end}] s is empty: end must be after start"
             )
+        if end - start > limits.MAX_DURATION:
+            raise WigglyInputError(
+                f"the animation's time range [{start:g}, {end:g}] s lasts {end - start:g} s: "
+                f"shots may last at most {limits.MAX_DURATION:g} s (wiggly.limits.MAX_DURATION)")
         if loop and preroll not in (None, 0, 0.0):
             raise WigglyInputError(
                 f"preroll = {preroll!r} s does not apply to a looped shot: a loop has no "
@@ -132,6 +140,7 @@ class SpacetimeProblem:
     # ------------------------------------------------------------------ keyframes
     def checked(self, keyframes: list[Keyframe]) -> list[Keyframe]:
         """Validated, normalized copies of ``keyframes`` (times clamped into the range)."""
+        keyframe_list(keyframes)
         out = []
         for j, kf in enumerate(keyframes):
             label = f"keyframe #{j}" + (f" ('{kf.name}')" if kf.name else "") + f" at t={kf.time}"
@@ -341,6 +350,19 @@ class SpacetimeProblem:
             self.body, nodes, values.copy(), velocities.copy(), kfs, energy.basis,
             warped=warped, info=info, warm_start=new_warm, loop=self.loop,
         )
+
+
+def keyframe_list(keyframes) -> list[Keyframe]:
+    """``keyframes`` as a list, refused unless it is a list (or tuple) of :class:`Keyframe`."""
+    if isinstance(keyframes, Keyframe) or not isinstance(keyframes, list | tuple):
+        hint = " (put it in a list: [key])" if isinstance(keyframes, Keyframe) else ""
+        raise WigglyInputError(f"keyframes should be a list of wiggly.Keyframe; got a "
+                               f"{type(keyframes).__name__}{hint}")
+    for j, kf in enumerate(keyframes):
+        if not isinstance(kf, Keyframe):
+            raise WigglyInputError(f"keyframes[{j}] is a {type(kf).__name__}, not a "
+                                   "wiggly.Keyframe")
+    return list(keyframes)
 
 
 def nearest_turn(w: np.ndarray, previous: np.ndarray) -> np.ndarray:
