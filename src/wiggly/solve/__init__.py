@@ -66,9 +66,13 @@ def solve(
     ``warp=True`` (default) solves E + E_WC on the rotation-strain-warped motion (Theorem 2)
     and plays back W(u(t)); ``warp=False`` is the linear solve of Theorem 1.  The time range
     is [start, end] (``end = start + duration``; default: the last keyframe time, at least
-    start + 1 s).  ``loop=True`` makes the motion periodic: its end is its start
-    (positions and velocities), and the wiggly splines wrap around from the last node to the
-    first.  ``linear_start``: keyframes whose linear solution starts the warped solve
+    start + 1 s; ``end`` wins over ``duration``).  ``preroll`` (s, default: the shot's
+    duration; 0: none): the energy also charges the motion's settling into its initial state
+    over this virtual interval before ``start``, which keeps the problem positive definite.
+    ``loop=True`` makes the motion periodic: its end is its start (positions and
+    velocities), and the wiggly splines wrap around from the last node to the first.
+    ``options``: the warped solve's tolerances and budget (:class:`wiggly.SolveOptions`).
+    ``linear_start``: keyframes whose linear solution starts the warped solve
     (:meth:`SpacetimeProblem.solve`).  ``check_keys``: warn when the motion misses position
     keys by more than :data:`MISSED` of the body's size (:meth:`Animation.constraint_residuals`
     has them all; a scene file's run warns in its own words instead).
