@@ -274,13 +274,16 @@ def test_python_api_mistakes_are_named(tmp_path_factory):
         "dynamics number": (lambda: body.with_dynamics(damping=0.5),
                             "damping should be a wiggly.Damping"),
         "fps 0": (lambda: anim.frame_times(0), "fps should be a number > 0"),
+        "no times": (lambda: anim.positions([]), "times should be a non-empty list"),
+        "NaN time": (lambda: anim.positions([np.nan]), "1 that are not finite numbers"),
         "fps huge": (lambda: anim.frame_times(1e5), "more than 1000 frames per second"),
         "one point for a group": (
             lambda: solve(body, [Keyframe(0.5, np.arange(10), position=np.zeros(3))],
                           duration=1.0, warp=False), "would pull them all to that point"),
     }
     for label, (call, says) in cases.items():
-        with pytest.raises(WigglyInputError) as err:
+        with pytest.raises(WigglyInputError) as err, warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)  # no numpy noise before the message
             call()
         assert says in str(err.value), (label, str(err.value))
     assert body.with_dynamics(damping=Damping(0.1, 0.001)).damping.alpha == 0.1

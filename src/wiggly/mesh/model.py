@@ -147,8 +147,8 @@ def _warn_units(vertices: np.ndarray, source: str) -> None:
     whose modes are a few mHz)."""
     size = diagonal(vertices)
     low, high = PLAUSIBLE_SIZE
-    if low <= size <= high or size == 0.0:
-        return
+    if low <= size <= high or size == 0.0 or not np.isfinite(size):
+        return  # (non-finite coordinates are refused with their own message)
     hint = ("millimetres or centimetres, scale it by 0.001 or 0.01" if size > high
             else "kilometres, scale it by 1000")
     warnings.warn(

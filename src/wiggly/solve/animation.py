@@ -105,10 +105,17 @@ class Animation:
         """
         t = np.atleast_1d(np.asarray(times, dtype=float))
         tol = 1e-9 * max(1.0, self.duration)
-        if np.any(~np.isfinite(t)) or np.any(t < self.start - tol) or np.any(t > self.end + tol):
+        if t.ndim != 1 or t.size == 0:
+            raise WigglyInputError(f"times should be a non-empty list of times (s); got shape "
+                                   f"{np.shape(times)}")
+        bad = int(np.sum(~np.isfinite(t)))
+        if bad:
+            raise WigglyInputError(f"times must lie in the animation's range [{self.start}, "
+                                   f"{self.end}] s; got {bad} that are not finite numbers")
+        if np.any(t < self.start - tol) or np.any(t > self.end + tol):
             raise WigglyInputError(
                 f"times must lie in the animation's range [{self.start}, {self.end}] s; got "
-                f"[{np.nanmin(t)}, {np.nanmax(t)}]"
+                f"[{t.min()}, {t.max()}]"
             )
         t = np.clip(t, self.start, self.end)
         m, r = len(self.nodes) - 1, self.body.r
