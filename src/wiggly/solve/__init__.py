@@ -22,6 +22,7 @@ import warnings
 import numpy as np
 
 from wiggly.body import Body
+from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.progress import deprecated_progress, say
 from wiggly.solve.animation import Animation
@@ -66,7 +67,7 @@ def solve(
     ``warp=True`` (default) solves E + E_WC on the rotation-strain-warped motion (Theorem 2)
     and plays back W(u(t)); ``warp=False`` is the linear solve of Theorem 1.  The time range
     is [start, end] (``end = start + duration``; default: the last keyframe time, at least
-    start + 1 s; ``end`` wins over ``duration``).  ``preroll`` (s, default: the shot's
+    start + 1 s; give ``duration`` or ``end``, not both).  ``preroll`` (s, default: the shot's
     duration; 0: none): the energy also charges the motion's settling into its initial state
     over this virtual interval before ``start``, which keeps the problem positive definite.
     ``loop=True`` makes the motion periodic: its end is its start (positions and
@@ -78,6 +79,11 @@ def solve(
     has them all; a scene file's run warns in its own words instead).
     """
     keyframes = keyframe_list(keyframes)
+    for name, flag in (("warp", warp), ("loop", loop), ("check_keys", check_keys)):
+        if not isinstance(flag, bool | np.bool_):
+            raise WigglyInputError(f"{name} should be True or False; got {flag!r}")
+    if duration is not None and end is not None:
+        raise WigglyInputError(f"give duration ({duration!r} s) or end ({end!r} s), not both")
     if end is None:
         if duration is None:
             last = max((kf.time for kf in keyframes), default=start)
