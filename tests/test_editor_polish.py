@@ -385,3 +385,20 @@ def test_a_refused_group_name_keeps_the_rename_prompt(chromium, tmp_path):
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_an_edit_the_stopped_server_cannot_answer_says_so(chromium, tmp_path):
+    """The server stops; an edit made in the page then says that the editor server did not
+    answer and the change may not be made (it said "Failed to fetch")."""
+    server = serve(bar_project(tmp_path, warp=False))
+    with editor_page(chromium, server.url) as (page, errors):
+        wait_final(page)
+        server.stop()
+        end = "[data-set='time.end']"
+        page.fill(end, "1.5")
+        page.press(end, "Enter")
+        page.wait_for_function("!document.querySelector('#toast').hidden && document."
+                               "querySelector('#toast').textContent.includes('did not answer')")
+        text = page.locator("#toast").text_content()
+        assert "Failed to fetch" not in text and "may not be made" in text, text
+        assert not errors, errors  # the failed request is handled, not an uncaught error
