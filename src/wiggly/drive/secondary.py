@@ -255,11 +255,13 @@ def _hermite_of(a: np.ndarray, h: np.ndarray) -> np.ndarray:
 class HeldWarp:
     """Warped playback that holds the driven group on the driver: the Poisson fit of the
     warped gradients of u = ubar + Psi q (Schulz et al. 2014, Theorem 2) with the tet
-    vertices that carry the driven group (``held``) prescribed to the rig's own warp W(ubar)
-    there, x = W_S(u) + Lift(W(ubar)_S).  W_S is the warp with ``held`` fixed at zero and
-    Lift the harmonic extension (L_ff y_f = -L_fS d_S) of the held values; with q = 0 this is
-    exactly W(ubar), so the driven group follows the driver as closely as the rig does, and
-    the free parts' warp cannot shift it through the warp's translation gauge."""
+    vertices that carry the driven group (``held``) prescribed to the driver's own
+    displacement d there (its extension into the tet mesh, not the warp of its unwarped
+    version), x = W_S(u) + Lift(d_S).  W_S is the warp with ``held`` fixed at zero and Lift
+    the harmonic extension (L_ff y_f = -L_fS d_S) of the held values.  So the driven group
+    follows the driver as closely as the linear solve does, also where the rig bends a joint
+    so sharply that W(ubar) is only near d (unwarping is a least-squares fit), and the free
+    parts' warp cannot shift it through the warp's translation gauge."""
 
     def __init__(self, body: Body, held: np.ndarray) -> None:
         tets = body.tets
@@ -281,16 +283,15 @@ class HeldWarp:
         out[:, ~self.held] = self._solve(rhs).reshape(-1, f, 3).transpose(1, 0, 2)
         return out
 
-    def apply(self, U: np.ndarray, Ubar: np.ndarray) -> np.ndarray:
-        """x (f, n, 3) for linear fields U and their rig parts Ubar (f, n, 3)."""
-        return self.warp.apply(U) + self._lift(self.body.warp.apply(Ubar))
+    def apply(self, U: np.ndarray, D: np.ndarray) -> np.ndarray:
+        """x (f, n, 3) for linear fields U and the driver's displacements D (f, n, 3; only
+        the held rows are read)."""
+        return self.warp.apply(U) + self._lift(D)
 
-    def jvp(self, U: np.ndarray, dU: np.ndarray, Ubar: np.ndarray,
-            dUbar: np.ndarray) -> np.ndarray:
-        """The time derivative of :meth:`apply` along dU, dUbar (f, n, 3)."""
-        rig = np.stack([self.body.warp.jvp(u, du) for u, du in zip(Ubar, dUbar, strict=True)])
+    def jvp(self, U: np.ndarray, dU: np.ndarray, dD: np.ndarray) -> np.ndarray:
+        """The time derivative of :meth:`apply` along dU and the driver's velocities dD."""
         own = np.stack([self.warp.jvp(u, du) for u, du in zip(U, dU, strict=True)])
-        return own + self._lift(rig)
+        return own + self._lift(dD)
 
 
 @dataclass(eq=False)
@@ -304,6 +305,9 @@ class SecondaryMotion(Animation):
     psi: np.ndarray = field(default=None, repr=False)
     particular: np.ndarray = field(default=None, repr=False)
     held_warp: HeldWarp | None = field(default=None, repr=False)
+    #: the driver's own displacement extended into the tet mesh (the linear rig; ``rig`` is
+    #: its unwarped version for warped motions): what the driven group is held on
+    driver_rig: FrameSpline = field(default=None, repr=False)
     #: (shot times, driver frame indices, driven surface vertices, driver): what
     #: :func:`wiggly.drive.following` measures
     driven_frames: tuple | None = field(default=None, repr=False)
@@ -342,6 +346,11 @@ class SecondaryMotion(Animation):
             U = U + self.modal(t, derivative)[derivative] @ self.psi.T
         return U.reshape(len(U), -1, 3)
 
+    def _driver(self, times: np.ndarray, derivative: int = 0) -> np.ndarray:
+        """The driver's displacement (or velocity) on the tet mesh, (F, n, 3)."""
+        D = self.driver_rig(np.atleast_1d(times), derivative)
+        return D.reshape(len(D), -1, 3)
+
     def displacements(self, times: ArrayLike, on: Where = "surface", derivative: int = 0,
                       dtype: type = np.float64) -> np.ndarray:
         """Displacements (or a time derivative), (F, n, 3): ubar + Psi q, or warped
@@ -359,11 +368,10 @@ class SecondaryMotion(Animation):
             if not self.warped:
                 W = self.linear_field(tt, derivative)
             elif derivative == 0:
-                W = self.held_warp.apply(self.linear_field(tt), self.linear_field(tt, 0, True))
+                W = self.held_warp.apply(self.linear_field(tt), self._driver(tt))
             else:
                 W = self.held_warp.jvp(self.linear_field(tt), self.linear_field(tt, 1),
-                                       self.linear_field(tt, 0, True),
-                                       self.linear_field(tt, 1, True))
+                                       self._driver(tt, 1))
             if on == "surface":
                 n = W.shape[1]
                 W = (E @ W.transpose(1, 0, 2).reshape(n, -1)).reshape(E.shape[0], -1, 3)
@@ -565,7 +573,7 @@ def secondary_motion(
             qk = z[2 * k * r:(2 * k + 1) * r]
             if warped:  # linearize the held warp at the current state of the node
                 u = ubar + (psi @ qk).reshape(n, 3)
-                Wu = held_warp.apply(u[None], ubar[None])[0]
+                Wu = held_warp.apply(u[None], linear_rig(t).reshape(1, n, 3))[0]
                 dW = held_warp.warp.jvp(np.repeat(u[None], r, axis=0),
                                         np.ascontiguousarray(psi.T.reshape(r, n, 3)))
                 J = np.stack([_field_rows(body, dW[j], kf.vertices, kf.on).ravel()
@@ -582,8 +590,8 @@ def secondary_motion(
             if kf.velocity is not None and c_B > 0:
                 vel = rig(t, 1)[0]
                 if warped:
-                    du = held_warp.jvp(u[None], vel.reshape(1, n, 3), ubar[None],
-                                       vel.reshape(1, n, 3))[0]
+                    du = held_warp.jvp(u[None], vel.reshape(1, n, 3),
+                                       linear_rig(t, 1).reshape(1, n, 3))[0]
                     vbase = _field_rows(body, du, kf.vertices, kf.on).ravel()
                 else:
                     vbase = _field_rows(body, vel.reshape(n, 3), kf.vertices, kf.on).ravel()
@@ -621,5 +629,5 @@ def secondary_motion(
     info["solve_seconds"] = _time.perf_counter() - t0
     return SecondaryMotion(body, nodes, values.copy(), velocities.copy(), kfs, basis,
                            warped=warped, info=info, loop=loop, rig=rig, psi=psi,
-                           particular=a, held_warp=held_warp,
+                           particular=a, held_warp=held_warp, driver_rig=linear_rig,
                            driven_frames=(times[:len(frames)], frames, v, driver))

@@ -314,11 +314,12 @@ def _warn_unfollowed(scene: Scene, report: dict | None, body) -> None:
     drive = scene.drive
     group = drive.group if isinstance(drive.group, str) else ", ".join(drive.group)
     if (drive.physics or "secondary") == "secondary":
-        why = ("the driven group is held on the driver's displacement from the rest mesh, "
-               "unwarped, and a displacement far from a rotation and stretch of each tet is "
-               "unwarped only approximately: check that mesh.path is the driver's mesh at its "
-               "rest pose (for glTF, the same file; for USD, an OBJ of the same object at "
-               "rest, with the same modifiers), not another scale or pose of it")
+        why = ("the driven group is held on the driver's displacement carried into the tet "
+               "mesh, which follows the surface only as finely as the tets do (parts thinner "
+               "than the tets, or separate parts that the tet mesh joins): raise "
+               "mesh.resolution; and check that mesh.path is the driver's mesh at its rest "
+               "pose (for glTF, the same file; for USD, an OBJ of the same object at rest, "
+               "with the same modifiers), not another scale or pose of it")
     else:
         why = ('physics = "keys" meets the driver only as closely as the modes can: keep '
                "drive.enrich on, raise simulation.modes or drive.stiffness, or use "
