@@ -95,6 +95,11 @@ class FrameSpline:
         if len(times) < 2:
             return cls(times, values, np.zeros_like(values))
         if loop:
+            # the last frame is the first again (secondary_frames); fields computed from it
+            # separately may differ from the first's in their last bits, which a periodic
+            # spline refuses
+            values = values.copy()
+            values[-1] = values[0]
             bc = "periodic"
         else:
             bc = ((1, 0.0) if hold_start else "not-a-knot", (1, 0.0) if hold_end else
