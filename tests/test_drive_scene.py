@@ -305,3 +305,20 @@ def test_driven_keys_start_at_the_drivers_poses(tmp_path):
     linear = importlib.import_module("wiggly.scene.spec")
     assert linear_start_of(linear.Scene(**{**vars(scene), "simulation": type(
         scene.simulation)(**{**vars(scene.simulation), "warp": False})}), body, keys) is None
+
+
+def test_the_output_frame_rate_does_not_retime_an_obj_sequence_driver(shot):
+    """An OBJ sequence without frame_rate is timed by [time] fps; --fps (the outputs' rate)
+    used to retime it too, so a 24 fps Blender sequence played 25 % faster under --fps 30.
+    The override now keeps the driver's timing; drivers that carry their times do not need
+    it (frame_rate applies to OBJ sequences only)."""
+    from wiggly.scene import with_overrides
+
+    folder, data = shot
+    write_animation(folder / "seq" / "walk.obj", read_animation(folder / "walk.npz"))
+    obj = load_scene(write(folder, {**data, "drive": {"path": "seq/walk.obj", "group": "driven"},
+                                    "time": {"end": 1.0, "fps": 24}}, "objseq.toml"))
+    faster = with_overrides(obj, fps=30)
+    assert faster.time.fps == 30 and faster.drive.frame_rate == 24
+    npz = with_overrides(load_scene(write(folder, data, "npz.toml")), fps=30)
+    assert npz.drive.frame_rate is None

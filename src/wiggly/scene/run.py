@@ -408,6 +408,11 @@ def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None 
     if gltf_targets is not None:
         s = replace(s, output=replace(s.output, gltf_targets=gltf_targets))
     if fps is not None:
+        if s.drive is not None and s.drive.frame_rate is None and \
+                Path(s.drive.path).suffix.lower() == ".obj":
+            # an OBJ sequence's frames are timed by the scene's fps unless frame_rate says
+            # otherwise: the output's rate must not retime the driver (and its physics)
+            s = replace(s, drive=replace(s.drive, frame_rate=s.time.fps))
         s = replace(s, time=replace(s.time, fps=float(fps)))
         cycle = loop_cycle_problem(s, f" (from --fps {float(fps):g})")
         if cycle is not None:
