@@ -322,3 +322,35 @@ def test_the_output_frame_rate_does_not_retime_an_obj_sequence_driver(shot):
     assert faster.time.fps == 30 and faster.drive.frame_rate == 24
     npz = with_overrides(load_scene(write(folder, data, "npz.toml")), fps=30)
     assert npz.drive.frame_rate is None
+
+
+def test_a_driven_body_too_soft_for_its_size_is_noted(shot):
+    """A secondary-motion shot holds the body by its driven group as fixed vertices hold it:
+    a material that gravity alone bends by more than a fifth of the size gets the same note,
+    naming the driven group; the sag is the free parts' static equilibrium (checked against
+    the full FEM static solve with the held tet vertices fixed)."""
+    import scipy.sparse.linalg as spla
+
+    from wiggly.drive.secondary import free_modes, held_vertices
+    from wiggly.scene.build import build_with_groups
+    from wiggly.scene.drive import driven_vertices
+    from wiggly.scene.run import soft_note, static_sag
+
+    folder, data = shot
+    soft = {**data, "material": {"young": 2e3, "poisson": 0.3, "density": 1000.0}}
+    scene = load_scene(write(folder, soft, "soft_drive.toml"))
+    body, _, groups = build_with_groups(scene)
+    note = soft_note(scene, body, groups)
+    assert note is not None and "where its driven group holds it" in note, note
+    held = held_vertices(body, driven_vertices(scene, groups))
+    sag = static_sag(body, free_modes(body, driven_vertices(scene, groups), 24))
+    free = np.setdiff1d(np.arange(3 * body.tets.n_vertices),
+                        (3 * held[:, None] + np.arange(3)).ravel())
+    u = spla.spsolve(body.K[free][:, free].tocsc(), -body.gravity_vector[free])
+    assert sag == pytest.approx(float(np.linalg.norm(u.reshape(-1, 3), axis=1).max()),
+                                rel=0.15)
+    stiff = load_scene(write(folder, {**data, "material": {"young": 1e8, "poisson": 0.3,
+                                                           "density": 1000.0}},
+                             "stiff_drive.toml"))
+    body, _, groups = build_with_groups(stiff)
+    assert soft_note(stiff, body, groups) is None

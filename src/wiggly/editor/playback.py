@@ -324,7 +324,7 @@ class Playback:
         self._publish(FrameSet(0, req.seq, req.version, "linear", final, float(times[0]), fps,
                                positions, req.kind, info))
         if req.kind == "final":
-            self._tell_once(scene, soft_note(scene, body))
+            self._tell_once(scene, soft_note(scene, body, groups))
         if req.kind == "final" and scene.source not in self._told_falling:
             rest = body.rest_positions()
             notice = fall_notice(positions, times, scene.simulation.gravity,

@@ -165,7 +165,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     t = _time.perf_counter()
     body, keyframes, groups = build_with_groups(scene)
     timings["prepare"] = _time.perf_counter() - t
-    note = soft_note(scene, body)
+    note = soft_note(scene, body, groups)
     if note is not None:
         say(f"note: {note}")
     _warn_unit_slips(scene, body)
@@ -193,24 +193,45 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
 SAG = 0.2
 
 
-def static_sag(body) -> float | None:
+def static_sag(body, modes: tuple[np.ndarray, np.ndarray] | None = None) -> float | None:
     """The largest displacement (m) of the body's static equilibrium under gravity in its
     modes, ``q_i = -g_i / lambda_i`` (eq. (4) at rest: the energy's minimiser without
-    keyframes), or None for a body with rigid modes (nothing holds it, so it falls)."""
-    if body.modes.n_rigid or not np.any(body.gravity):
+    keyframes), or None for a body with rigid modes (nothing holds it, so it falls).
+    ``modes`` (Psi, lambda): other modes to take, e.g. those of the free parts with a driven
+    group held."""
+    if not np.any(body.gravity):
         return None
-    q = -body.modal_gravity / body.modes.eigenvalues
-    u = (body.modes.vectors @ q).reshape(-1, 3)
+    if modes is None:
+        if body.modes.n_rigid:
+            return None
+        modes = (body.modes.vectors, body.modes.eigenvalues)
+    psi, lam = modes
+    if not len(lam) or np.any(lam <= 0):
+        return None
+    q = -(psi.T @ body.gravity_vector) / lam
+    u = (psi @ q).reshape(-1, 3)
     return float(np.sqrt((u**2).sum(axis=1)).max())
 
 
-def soft_note(scene: Scene, body) -> str | None:
+def soft_note(scene: Scene, body, groups: dict[str, np.ndarray] | None = None) -> str | None:
     """Why the motion may look wrong when gravity alone would bend a held body by more than
     ``SAG`` of its size: the material is too soft for the body's size (a default material on
-    a body of metres), and the sag would dominate the motion; None otherwise.  Static sag
+    a body of metres), and the sag would dominate the motion; None otherwise.  A body is
+    held by its fixed vertices, or by the driven group of a secondary-motion ``[drive]``
+    (``groups`` as resolved; the free parts' modes are the solve's own, cached).  Static sag
     scales as 1 / Young's modulus, so the note says which modulus sags 5 %.  The command
     line logs it (a stage line; silent with ``-q``), the editor shows it once per scene."""
-    sag = static_sag(body)
+    held_by = "its fixed vertices hold"
+    modes = None
+    if scene.secondary_motion and np.any(body.gravity):
+        from wiggly.drive.secondary import free_modes
+        from wiggly.scene.drive import driven_vertices
+
+        if groups is None:
+            groups = resolve_groups(scene, body.model)
+        modes = free_modes(body, driven_vertices(scene, groups), scene.drive.free_modes)
+        held_by = "its driven group holds"
+    sag = static_sag(body, modes)
     size = diagonal(body.rest_positions())
     if sag is None or sag <= SAG * size:
         return None
@@ -219,7 +240,7 @@ def soft_note(scene: Scene, body) -> str | None:
         else ""
     return (
         f"under gravity alone the body would sag by {sag:.3g} m "
-        f"({100 * sag / size:.0f} % of its size) where its fixed vertices hold it, more than "
+        f"({100 * sag / size:.0f} % of its size) where {held_by} it, more than "
         f"linear elasticity models well: the material is soft for a body of {size:.3g} m. "
         f"Raise material.young ({young:g} Pa{own}; {young * sag / (0.05 * size):.2g} Pa sags "
         "about 5 %), or lower simulation.gravity")
