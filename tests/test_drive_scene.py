@@ -354,3 +354,20 @@ def test_a_driven_body_too_soft_for_its_size_is_noted(shot):
                              "stiff_drive.toml"))
     body, _, groups = build_with_groups(stiff)
     assert soft_note(stiff, body, groups) is None
+
+
+def test_a_driver_at_another_scale_is_refused_before_the_solve(shot, capsys):
+    """A driver of the same surface in centimetres (100 times the mesh) used to run and write
+    garbage, said only after the solve as a stray of thousands of percent; it is refused
+    before meshing, naming both sizes."""
+    folder, data = shot
+    walk = read_animation(folder / "walk.npz")
+    write_animation(folder / "walk_cm.npz",
+                    SurfaceAnimation(walk.times, 100 * walk.positions, walk.faces),
+                    overwrite=True)
+    scene = write(folder, {**data, "drive": {"path": "walk_cm.npz", "group": "driven"}},
+                  "cm.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "cm.npz")]) == 1
+    err = capsys.readouterr().err
+    assert 'drive.path = "walk_cm.npz": its first pose is 100 times the size of bar.vtu' in err
+    assert not (folder / "cm.npz").exists()

@@ -39,7 +39,7 @@ def _load_model(scene: Scene):
     if isinstance(loaded, meshing.Surface):  # check what we can before tetrahedralizing
         p = Problems(where)
         resolve_group_arrays(scene, loaded.vertices, loaded.groups, None, None, p)
-        check_driver_against(scene, loaded.n_vertices, loaded.faces, f.name, p)
+        check_driver_against(scene, loaded.n_vertices, loaded.faces, f.name, p, loaded.vertices)
         p.raise_if_any()
         with activity(f"checking {f.name} ({counted(loaded.n_faces, 'triangle')})"):
             checked = meshing.checked_surface(loaded, str(f))
@@ -52,7 +52,8 @@ def _load_model(scene: Scene):
          f"({_time.perf_counter() - t:.1f} s)")
     if checked is None:  # a tet mesh: its surface is known now
         p = Problems(where)
-        check_driver_against(scene, model.surface.n_vertices, model.surface.faces, f.name, p)
+        check_driver_against(scene, model.surface.n_vertices, model.surface.faces, f.name, p,
+                             model.surface.vertices)
         p.raise_if_any()
     return model
 

@@ -23,6 +23,7 @@ from wiggly.drive.sequence import sequence_files
 from wiggly.errors import WigglyInputError, counted
 from wiggly.keyframes import Keyframe
 from wiggly.memo import Memo
+from wiggly.mesh.defects import diagonal
 from wiggly.progress import activity, say
 from wiggly.scene.spec import Scene
 from wiggly.scene.validation import Problems, did_you_mean, show
@@ -140,11 +141,16 @@ def scene_driver(scene: Scene) -> Driver:
     return driver
 
 
+#: A driver whose first pose is more than this many times larger (or smaller) than the mesh
+#: is in other units or at another scale.
+SCALE_MISMATCH = 5.0
+
+
 def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: str,
-                         p: Problems) -> None:
+                         p: Problems, rest: np.ndarray | None = None) -> None:
     """The driver animates the surface just read (``vertices`` vertices, triangles
-    ``faces``, file ``mesh``), and some of its frames fall in the shot: checked before
-    tetrahedralizing."""
+    ``faces``, file ``mesh``; ``rest`` its positions) at the same scale, and some of its
+    frames fall in the shot: checked before tetrahedralizing."""
     if scene.drive is None:
         return
     try:
@@ -155,6 +161,14 @@ def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: s
     why = driver.mismatch(vertices, faces, mesh)
     if why is not None:
         p.add(f"drive.path = {show(scene.drive.path)}: {why}")
+    elif rest is not None:
+        size, posed = diagonal(rest), diagonal(driver.positions[0])
+        ratio = posed / size if size > 0 else 1.0
+        if not 1.0 / SCALE_MISMATCH <= ratio <= SCALE_MISMATCH:
+            p.add(f"drive.path = {show(scene.drive.path)}: its first pose is {ratio:.3g} times "
+                  f"the size of {mesh} ({posed:.3g} m against {size:.3g} m): the driver and the "
+                  "mesh must be in the same units and scale (a driver in centimetres: export it "
+                  "in metres, or give the mesh the same scale)")
     if scene.time.end is None and scene.time.duration is None:
         return  # check_drive has said so
     start, end = scene.time_range()
