@@ -215,19 +215,35 @@ def test_what_cannot_be_filled(user, tripwires, capsys, content, expected):
      "triangles (16084 bytes) but it has 5361 bytes"),
     ("notes.glb", "text", "is not a binary glTF file (it does not start with 'glTF')"),
     ("holes.obj", "index", "line 4: a face names vertex 98, but the file has 3 vertices"),
+    ("web.glb", "compressed", "its geometry is compressed (EXT_meshopt_compression); export "
+     "it without compression"),
 ])
 def test_a_damaged_mesh_file_is_named_for_what_is_wrong(user, tripwires, capsys, name,
                                                          damage, expected):
     """A mesh file cut short, a text file under a mesh's extension, an OBJ face naming a
-    vertex the file lacks: the message says which, not the reader library's words."""
+    vertex the file lacks, a compressed glTF: the message says which, not the reader
+    library's words."""
     folder, scene = user
     if damage == "truncate":
         data = trimesh.creation.icosphere(2).export(file_type="stl")
         (folder / name).write_bytes(data[:len(data) // 3])
     elif damage == "text":
         (folder / name).write_text("these are my notes, not a mesh\n")
-    else:
+    elif damage == "index":
         (folder / name).write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 98\n")
+    else:  # a valid glb whose geometry needs a decoder (web models are compressed)
+        import json
+        import struct
+
+        data = trimesh.creation.icosphere(2).export(file_type="glb")
+        length = struct.unpack_from("<I", data, 12)[0]
+        doc = json.loads(data[20:20 + length])
+        doc["extensionsUsed"] = doc["extensionsRequired"] = ["EXT_meshopt_compression"]
+        doc["accessors"][0]["bufferView"] = 99  # its data in a view only a decoder makes
+        text = json.dumps(doc).encode()
+        text += b" " * (-len(text) % 4)
+        body = struct.pack("<II", len(text), 0x4E4F534A) + text + data[20 + length:]
+        (folder / name).write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body)
     line = refused(capsys, folder, scene({"mesh.path": name, "groups": EVERYWHERE}))
     assert name in line and expected in line, line
     assert "trimesh" not in line and "axis 0" not in line

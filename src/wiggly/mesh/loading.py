@@ -210,6 +210,11 @@ def _load_trimesh(path: Path, ext: str) -> Surface:
     try:
         if ext == ".stl":
             _check_stl_length(path)
+        if ext in (".glb", ".gltf"):  # compressed geometry trimesh cannot decode, named
+            from wiggly.drive.gltf_file import GltfFile
+
+            _check_glb_magic(path, ext)
+            GltfFile(path)
         if ext == ".obj":
             return _obj_surface(path)
         loaded = trimesh.load(path, process=False)
@@ -287,16 +292,20 @@ def _check_stl_length(path: Path) -> None:
             f"({84 + 50 * n} bytes) but it has {size} bytes; copy or export it again")
 
 
+def _check_glb_magic(path: Path, ext: str) -> None:
+    """Refuse a .glb that does not start with glTF's magic (a text file, another format)."""
+    if ext != ".glb":
+        return
+    with open(path, "rb") as file:
+        magic = file.read(4)
+    if magic != b"glTF":
+        raise WigglyInputError(f"{path}: is not a binary glTF file (it does not start with "
+                               "'glTF'); check its extension, or export it again as .glb")
+
+
 def _unreadable(path: Path, ext: str, exc: Exception) -> str:
     """What to tell of a surface file trimesh could not read: the cause where the file shows
-    it (a .glb that is not binary glTF, an OBJ face naming a vertex the file lacks), else
-    the reader's own words."""
-    if ext == ".glb":
-        with open(path, "rb") as file:
-            magic = file.read(4)
-        if magic != b"glTF":
-            return (f"{path}: is not a binary glTF file (it does not start with 'glTF'); "
-                    "check its extension, or export it again as .glb")
+    it (an OBJ face naming a vertex the file lacks), else the reader's own words."""
     if ext == ".obj":
         bad = _obj_bad_index(path)
         if bad is not None:
