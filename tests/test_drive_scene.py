@@ -3,6 +3,8 @@ tetrahedralizer runs), its checks and messages, and the enriched basis."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import tomli_w
@@ -70,6 +72,8 @@ def test_drive_scene_end_to_end(shot, capsys):
     assert main(["animate", str(path), "--overwrite", "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "drive      walk.npz:" in out and "moved by the driver over 21 frames" in out
+    # the free parts move in their own modes, which the summary reports (not the body's)
+    assert re.search(r"modes      \d+ of the free parts with the driven group held", out), out
     scene = load_scene(path)
     anim = run(scene, outputs=[])
     report = following(anim)

@@ -95,6 +95,10 @@ def summary(scene, anim) -> str:
         f"modes      {body.r} ({body.modes.n_rigid} rigid)"
         + (f", elastic {hz.min():.3g} to {hz.max():.3g} Hz" if len(hz) else ""),
     ]
+    if info.get("free_hz"):  # secondary motion moves the free parts in their own modes
+        low, high = info["free_hz"]
+        lines[-1] = (f"modes      {info['free_modes']} of the free parts with the driven group "
+                     f"held (drive.free_modes), {low:.3g} to {high:.3g} Hz")
     solve = f"{'warped' if anim.warped else 'linear'}, {info['solve_seconds']:.2f} s"
     if info.get("secondary"):
         solve += (f", secondary motion: {info['free_modes']} modes of the free parts on "

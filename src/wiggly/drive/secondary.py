@@ -561,7 +561,9 @@ def secondary_motion(
             continue
         c_A, c_B = kf.weights(body, duration)
         keys.append((kf, k, A, c_A, c_B))
+    hz = np.sqrt(np.maximum(lam, 0.0)) / (2 * np.pi)
     info: dict = {"secondary": True, "free_modes": r, "driver_frames": len(frames),
+                  "free_hz": [float(hz.min()), float(hz.max())] if r else [],
                   "unknowns": int(N - fixed.sum()), "warped": warped, "loop": loop,
                   "intensity": float(intensity),
                   "seconds": {"rig": rig_seconds, "free modes": modes_seconds}}
