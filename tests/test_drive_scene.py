@@ -375,3 +375,23 @@ def test_a_driver_at_another_scale_is_refused_before_the_solve(shot, capsys):
     err = capsys.readouterr().err
     assert 'drive.path = "walk_cm.npz": its first pose is 100 times the size of bar.vtu' in err
     assert not (folder / "cm.npz").exists()
+
+
+def test_a_clip_the_driver_lacks_is_blamed_on_drive_animation(tmp_path):
+    """A glTF clip name the file does not have is drive.animation's mistake: the message
+    names that key (it named drive.path) and lists the clips there are."""
+    import shutil
+    from pathlib import Path
+
+    from wiggly.errors import WigglyInputError
+    from wiggly.scene.drive import scene_driver
+
+    walk = Path(__file__).resolve().parents[1] / "examples" / "critter_walk.glb"
+    shutil.copy(walk, tmp_path / "walk.glb")
+    data = {"mesh": {"path": "walk.glb"}, "time": {"end": 1.0},
+            "groups": {"body": {"box": {"min": [-9, -9, -9], "max": [9, 9, 9]}}},
+            "drive": {"path": "walk.glb", "group": "body", "animation": "walking"}}
+    with pytest.raises(WigglyInputError) as err:
+        scene_driver(load_scene(write(tmp_path, data, "clip.toml")))
+    said = str(err.value)
+    assert 'drive.animation = "walking": ' in said and "its animations are: #0 'walk'" in said

@@ -134,8 +134,11 @@ def scene_driver(scene: Scene) -> Driver:
             driver = read_driver(path, animation=drive.animation, object=drive.object,
                                  frame_rate=rate)
     except WigglyInputError as err:
-        raise WigglyInputError(f"{scene.where()}: drive.path = {show(drive.path)}: "
-                               f"{err}") from None
+        # a clip the file lacks is drive.animation's mistake, not the file's
+        key_at_fault = (f"drive.animation = {show(drive.animation)}"
+                        if drive.animation is not None and "has no animation" in str(err)
+                        else f"drive.path = {show(drive.path)}")
+        raise WigglyInputError(f"{scene.where()}: {key_at_fault}: {err}") from None
     with _LOCK:
         _DRIVERS.put(key, driver)
     return driver
