@@ -395,3 +395,17 @@ def test_a_clip_the_driver_lacks_is_blamed_on_drive_animation(tmp_path):
         scene_driver(load_scene(write(tmp_path, data, "clip.toml")))
     said = str(err.value)
     assert 'drive.animation = "walking": ' in said and "its animations are: #0 'walk'" in said
+
+
+def test_a_driver_with_no_animation_says_so():
+    """A driver file with a single pose (a glTF without animations) is told as not animated,
+    not as "1 frame in the shot"."""
+    from wiggly.drive.driver import Driver
+    from wiggly.drive.secondary import secondary_frames
+    from wiggly.errors import WigglyInputError
+
+    V, T = box_mesh(SHAPE, SIZE)
+    still = Driver(np.array([0.0]), V[None], TetMesh(V, T).boundary_faces(), np.zeros((0, 2)),
+                   "still.glb", "test")
+    with pytest.raises(WigglyInputError, match=r"still\.glb is not animated"):
+        secondary_frames(still, start=0.0, end=1.0)

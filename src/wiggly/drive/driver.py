@@ -101,9 +101,11 @@ class Driver:
         n = self.n_vertices
         if n != vertices:
             hint = ""
-            if self.kind.startswith("glTF") and not surface.lower().endswith((".glb", ".gltf")):
-                hint = ("; glTF exporters split vertices at UV seams and sharp edges, so give "
-                        "the glTF file itself as the mesh too")
+            glb = (".glb", ".gltf")
+            if self.kind.startswith("glTF") != surface.lower().endswith(glb):
+                hint = ("; glTF exporters split vertices at UV seams and sharp edges, and USD "
+                        "and OBJ do not, so the same object has more vertices in glTF: give "
+                        "the mesh and the driver in the same format (the glTF file as both)")
             return (f"the driver {self.source} animates {counted(n, 'vertex')} but the surface "
                     f"{surface} has {counted(vertices, 'vertex')}; a driver must animate the "
                     f"same surface, with the same vertices in the same order (export both from "

@@ -446,6 +446,10 @@ def secondary_frames(
     frames, times = keyed_frames(driver, offset=offset, driver_range=driver_range,
                                  start=start, end=end)
     if len(frames) < 2:
+        if driver.n_frames == 1:
+            raise WigglyInputError(
+                f"the driver {driver.source} is not animated (it has a single pose): secondary "
+                "motion needs an animated driver (two frames or more)")
         raise WigglyInputError(
             f"the driver {driver.source} has {len(frames)} frame in the shot [{start:g}, "
             f"{end:g}] s: secondary motion needs an animated driver (two frames or more)")
