@@ -70,8 +70,8 @@ def remove_stale(path: str | os.PathLike[str], age: float) -> bool:
         if time.time() - os.stat(path).st_mtime > age:
             os.unlink(path)
             return True
-    except OSError:
-        pass
+    except OSError:  # gone already, or not ours to remove: left as it is
+        return False
     return False
 
 
