@@ -88,6 +88,15 @@ def wait_final(page, timeout: float = 60_000) -> dict:
     return page.evaluate("window.wiggly.S.frames.meta")
 
 
+def toast_saying(page, text: str) -> str:
+    """Wait until the toast shows with ``text`` in it (a notice that came first is passed
+    over); its whole text."""
+    page.wait_for_function(
+        "(t) => { const e = document.querySelector('#toast'); "
+        "return !e.hidden && e.textContent.includes(t); }", arg=text)
+    return page.locator("#toast").text_content()
+
+
 def next_frame(page, n: int = 1) -> None:
     """Let the page draw ``n`` animation frames (pacing real mouse moves)."""
     for _ in range(n):

@@ -22,6 +22,7 @@ from tests.editor_ui import (
     next_frame,
     post,
     select_key,
+    toast_saying,
     wait_final,
 )
 from wiggly.editor import serve
@@ -598,9 +599,7 @@ def test_undo_is_per_tab_and_survives_a_restart(chromium, tmp_path):
                 page.wait_for_function("window.wiggly.S.desc.scene.keyframes.find((k) => "
                                        f"k.id === 2).time === {value}")
             a.keyboard.press("Control+z")
-            a.wait_for_function("!document.querySelector('#toast').hidden && document."
-                                "querySelector('#toast').textContent.includes('cannot undo')")
-            assert "changed since" in a.locator("#toast").text_content()
+            assert "changed since" in toast_saying(a, "cannot undo")
             assert server.session.scene.keyframes[2].time == 0.35
             assert not a_errors and not b_errors, (a_errors, b_errors)
     finally:
@@ -657,9 +656,7 @@ def test_a_keyframe_field_left_empty_is_refused_not_zeroed(chromium, tmp_path):
             for field, what in (("#key-vx", "velocity"), ("#key-time", "time")):
                 page.fill(field, "")
                 page.press(field, "Enter")
-                page.wait_for_function(
-                    "!document.querySelector('#toast').hidden && document.querySelector("
-                    f"'#toast').textContent.includes('keyframe {what}: empty is not a number')")
+                toast_saying(page, f"keyframe {what}: empty is not a number")
             assert server.session.version == version
             assert server.session.scene.keyframes[0].velocity[0] == 0.25
             assert page.input_value("#key-vx") != ""  # the scene's value again

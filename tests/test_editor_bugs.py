@@ -22,6 +22,7 @@ from tests.editor_ui import (
     next_frame,
     post,
     select_key,
+    toast_saying,
     wait_final,
 )
 from wiggly import limits
@@ -287,9 +288,7 @@ def test_5_a_refused_value_is_explained_in_the_page(chromium, tmp_path):
             page.fill(end, "1e6")
             page.press(end, "Enter")
             # the toast that answers the edit (the soft bar's sag notice may come first)
-            page.wait_for_function("!document.querySelector('#toast').hidden && document."
-                                   "querySelector('#toast').textContent.includes('at most')")
-            message = page.locator("#toast").text_content()
+            message = toast_saying(page, "at most")
             assert f"at most {limits.MAX_DURATION:g} s" in message, message
             assert "shots may last at most" in _status(page)
             page.wait_for_function(f"document.querySelector(\"{end}\").value === '1'")

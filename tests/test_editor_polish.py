@@ -16,7 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.editor_ui import bar_project, editor_page, post, select_key, wait_final
+from tests.editor_ui import (
+    bar_project,
+    editor_page,
+    post,
+    select_key,
+    toast_saying,
+    wait_final,
+)
 from tests.test_editor_drive import drive_project
 from wiggly.editor import Sandbox, Session, serve
 from wiggly.editor.session import autosave_path
@@ -256,9 +263,7 @@ def test_messages_name_keyframes_and_read_well(chromium, bar, tmp_path):
         page.wait_for_function("window.wiggly.S.desc.scene.damping.alpha === 0.9")
         page.locator("#canvas").click(position={"x": 5, "y": 5})
         page.keyboard.press("Control+z")
-        page.wait_for_function("!document.querySelector('#toast').hidden && document."
-                               "querySelector('#toast').textContent.includes('cannot undo')")
-        text = page.locator("#toast").text_content()
+        text = toast_saying(page, "cannot undo")
         assert "the damping settings were changed since" in text, text
         assert "settings was" not in text
         check_layout(page, "messages", tmp_path)
@@ -373,8 +378,7 @@ def test_a_refused_group_name_keeps_the_rename_prompt(chromium, tmp_path):
             field = page.locator("#modal-body input")
             field.fill("right")
             page.locator("#modal-ok").click()
-            page.wait_for_function("!document.querySelector('#toast').hidden && document."
-                                   "querySelector('#toast').textContent.includes('exists')")
+            toast_saying(page, "exists")
             assert page.locator("#modal").is_visible() and field.input_value() == "right"
             field.fill("base")
             page.locator("#modal-ok").click()
@@ -397,8 +401,6 @@ def test_an_edit_the_stopped_server_cannot_answer_says_so(chromium, tmp_path):
         end = "[data-set='time.end']"
         page.fill(end, "1.5")
         page.press(end, "Enter")
-        page.wait_for_function("!document.querySelector('#toast').hidden && document."
-                               "querySelector('#toast').textContent.includes('did not answer')")
-        text = page.locator("#toast").text_content()
+        text = toast_saying(page, "did not answer")
         assert "Failed to fetch" not in text and "may not be made" in text, text
         assert not errors, errors  # the failed request is handled, not an uncaught error

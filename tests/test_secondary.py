@@ -44,22 +44,24 @@ def bob(t: np.ndarray, d: int = 0) -> np.ndarray:
     return out
 
 
-@pytest.fixture(scope="module")
-def bar(tmp_path_factory):
-    """A soft bar (a tet mesh, so no tetrahedralizer runs), no gravity; the base (x < 0.12)
-    is driven, the rest is free."""
+def bar_body(folder, young: float = 2e5):
+    """A bar of Young's modulus ``young`` (a tet mesh written to ``folder``, so no
+    tetrahedralizer runs), no gravity; the body and its base (x < 0.12), which is driven."""
     import meshio
 
-    folder = tmp_path_factory.mktemp("secondary")
     V, T = box_mesh(SHAPE, SIZE)
     meshio.write(folder / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
     body = wiggly.prepare(str(folder / "bar.vtu"), n_modes=12,
-                          material=Material(2e5, 0.3, 1000.0),
+                          material=Material(young, 0.3, 1000.0),
                           damping=Damping(alpha=0.4, beta=0.002), gravity=(0.0, 0.0, 0.0),
                           cache_dir=False)
-    X = body.surface.vertices
-    driven = np.flatnonzero(X[:, 0] < 0.12)
-    return body, driven
+    return body, np.flatnonzero(body.surface.vertices[:, 0] < 0.12)
+
+
+@pytest.fixture(scope="module")
+def bar(tmp_path_factory):
+    """A soft bar (2e5 Pa, no gravity); the base is driven, the rest is free."""
+    return bar_body(tmp_path_factory.mktemp("secondary"))
 
 
 def bob_driver(body, fps: float = 120.0) -> Driver:
@@ -341,17 +343,10 @@ def test_a_driver_that_turns_the_body_around_is_followed(tmp_path, degrees):
     250 degrees (eased in and out): the driven vertices follow the driver to a millimetre
     (they strayed by half a metre when tets turned by more than 2 rad were not unwarped),
     and the stiff bar's free tip stays near the turned bar (its inertial lag only)."""
-    import meshio
     from scipy.spatial.transform import Rotation
 
-    V, T = box_mesh(SHAPE, SIZE)
-    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
-    body = wiggly.prepare(str(tmp_path / "bar.vtu"), n_modes=12,
-                          material=Material(2e7, 0.3, 1000.0),
-                          damping=Damping(alpha=0.4, beta=0.002), gravity=(0.0, 0.0, 0.0),
-                          cache_dir=False)
+    body, driven = bar_body(tmp_path, young=2e7)
     X = body.surface.vertices
-    driven = np.flatnonzero(X[:, 0] < 0.12)
     times = np.arange(61) / 60.0
     base = X[driven].mean(axis=0)
     turn = [Rotation.from_euler("z", degrees * (3 * t**2 - 2 * t**3), degrees=True)
@@ -575,15 +570,9 @@ def test_a_joint_bent_sharply_inside_the_driven_group_is_followed_warped(tmp_pat
     leg folds): the warped secondary motion holds the driven group on the driver's own
     positions, so it follows as closely as the linear one (it strayed by centimetres when
     it was held on the warp of the unwarped rig, which only nears a sharp fold)."""
-    import meshio
     from scipy.spatial.transform import Rotation
 
-    V, T = box_mesh(SHAPE, SIZE)
-    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
-    body = wiggly.prepare(str(tmp_path / "bar.vtu"), n_modes=12,
-                          material=Material(2e5, 0.3, 1000.0),
-                          damping=Damping(alpha=0.4, beta=0.002), gravity=(0.0, 0.0, 0.0),
-                          cache_dir=False)
+    body, _ = bar_body(tmp_path)
     X = body.surface.vertices
     driven = np.flatnonzero(X[:, 0] < 0.36)
     knee = np.array([0.18, 0.03, 0.03])
