@@ -335,19 +335,19 @@ def test_a_driven_body_too_soft_for_its_size_is_noted(shot):
     the full FEM static solve with the held tet vertices fixed)."""
     import scipy.sparse.linalg as spla
 
-    from wiggly.drive.secondary import free_modes, held_vertices
-    from wiggly.scene.build import build_with_groups
+    from wiggly.drive.secondary import held_vertices
     from wiggly.scene.drive import driven_vertices
     from wiggly.scene.run import soft_note, static_sag
 
     folder, data = shot
     soft = {**data, "material": {"young": 2e3, "poisson": 0.3, "density": 1000.0}}
     scene = load_scene(write(folder, soft, "soft_drive.toml"))
-    body, _, groups = build_with_groups(scene)
-    note = soft_note(scene, body, groups)
+    anim = run(scene, outputs=[])  # the free parts' modes the solve used
+    body = anim.body
+    note = soft_note(scene, body, anim.held_modes)
     assert note is not None and "where its driven group holds it" in note, note
-    held = held_vertices(body, driven_vertices(scene, groups))
-    sag = static_sag(body, free_modes(body, driven_vertices(scene, groups), 24))
+    held = held_vertices(body, driven_vertices(scene, anim.info["scene"]["groups"]))
+    sag = static_sag(body, anim.held_modes)
     free = np.setdiff1d(np.arange(3 * body.tets.n_vertices),
                         (3 * held[:, None] + np.arange(3)).ravel())
     u = spla.spsolve(body.K[free][:, free].tocsc(), -body.gravity_vector[free])
@@ -356,8 +356,8 @@ def test_a_driven_body_too_soft_for_its_size_is_noted(shot):
     stiff = load_scene(write(folder, {**data, "material": {"young": 1e8, "poisson": 0.3,
                                                            "density": 1000.0}},
                              "stiff_drive.toml"))
-    body, _, groups = build_with_groups(stiff)
-    assert soft_note(stiff, body, groups) is None
+    anim = run(stiff, outputs=[])
+    assert soft_note(stiff, anim.body, anim.held_modes) is None
 
 
 def test_a_driver_at_another_scale_is_refused_before_the_solve(shot, capsys):

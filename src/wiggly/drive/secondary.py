@@ -308,6 +308,8 @@ class SecondaryMotion(Animation):
 
     rig: FrameSpline = field(default=None, repr=False)
     psi: np.ndarray = field(default=None, repr=False)
+    #: lambda of the free modes ``psi`` (their eigenvalues with the driven group held)
+    free_eigenvalues: np.ndarray = field(default=None, repr=False)
     particular: np.ndarray = field(default=None, repr=False)
     held_warp: HeldWarp | None = field(default=None, repr=False)
     #: the driver's own displacement extended into the tet mesh (the linear rig; ``rig`` is
@@ -350,6 +352,11 @@ class SecondaryMotion(Animation):
         if not rig_only:
             U = U + self.modal(t, derivative)[derivative] @ self.psi.T
         return U.reshape(len(U), -1, 3)
+
+    @property
+    def held_modes(self) -> tuple[np.ndarray, np.ndarray]:
+        """(Psi, lambda): the free parts' modes with the driven group held."""
+        return self.psi, self.free_eigenvalues
 
     def _driver(self, times: np.ndarray, derivative: int = 0) -> np.ndarray:
         """The driver's displacement (or velocity) on the tet mesh, (F, n, 3)."""
@@ -640,5 +647,6 @@ def secondary_motion(
     info["solve_seconds"] = _time.perf_counter() - t0
     return SecondaryMotion(body, nodes, values.copy(), velocities.copy(), kfs, basis,
                            warped=warped, info=info, loop=loop, rig=rig, psi=psi,
-                           particular=a, held_warp=held_warp, driver_rig=linear_rig,
+                           free_eigenvalues=lam, particular=a, held_warp=held_warp,
+                           driver_rig=linear_rig,
                            driven_frames=(times[:len(frames)], frames, v, driver))

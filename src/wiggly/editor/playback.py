@@ -324,7 +324,8 @@ class Playback:
         self._publish(FrameSet(0, req.seq, req.version, "linear", final, float(times[0]), fps,
                                positions, req.kind, info))
         if req.kind == "final":
-            self._tell_once(scene, soft_note(scene, body, groups))
+            self._tell_once(scene, soft_note(
+                scene, body, anim.held_modes if scene.secondary_motion else None))
         if req.kind == "final" and scene.source not in self._told_falling:
             rest = body.rest_positions()
             notice = fall_notice(positions, times, scene.simulation.gravity,

@@ -33,7 +33,7 @@ from wiggly.scene.spec import (
     Scene,
 )
 from wiggly.scene.validation import input_error, show
-from wiggly.solve import MISSED, SpacetimeProblem, solve
+from wiggly.solve import MISSED, SpacetimeProblem, missed_keys, solve
 
 
 def _output_paths(scene: Scene, outputs) -> list[Path]:
@@ -165,9 +165,6 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     t = _time.perf_counter()
     body, keyframes, groups = build_with_groups(scene)
     timings["prepare"] = _time.perf_counter() - t
-    note = soft_note(scene, body, groups)
-    if note is not None:
-        say(f"note: {note}")
     _warn_unit_slips(scene, body)
     start, end = scene.time_range()
     say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
@@ -175,7 +172,10 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     t = _time.perf_counter()
     anim = solve_scene(scene, body, keyframes, groups=groups)
     timings["solve"] = _time.perf_counter() - t
-    _warn_missed(scene, anim, body)
+    note = soft_note(scene, body, anim.held_modes if scene.secondary_motion else None)
+    if note is not None:
+        say(f"note: {note}")
+    _warn_missed(scene, anim)
     if scene.drive is not None:
         anim.info["drive"] = following(anim)
         say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"
@@ -213,25 +213,18 @@ def static_sag(body, modes: tuple[np.ndarray, np.ndarray] | None = None) -> floa
     return float(np.sqrt((u**2).sum(axis=1)).max())
 
 
-def soft_note(scene: Scene, body, groups: dict[str, np.ndarray] | None = None) -> str | None:
+def soft_note(scene: Scene, body,
+              held: tuple[np.ndarray, np.ndarray] | None = None) -> str | None:
     """Why the motion may look wrong when gravity alone would bend a held body by more than
     ``SAG`` of its size: the material is too soft for the body's size (a default material on
     a body of metres), and the sag would dominate the motion; None otherwise.  A body is
-    held by its fixed vertices, or by the driven group of a secondary-motion ``[drive]``
-    (``groups`` as resolved; the free parts' modes are the solve's own, cached).  Static sag
-    scales as 1 / Young's modulus, so the note says which modulus sags 5 %.  The command
-    line logs it (a stage line; silent with ``-q``), the editor shows it once per scene."""
-    held_by = "its fixed vertices hold"
-    modes = None
-    if scene.secondary_motion and np.any(body.gravity):
-        from wiggly.drive.secondary import free_modes
-        from wiggly.scene.drive import driven_vertices
-
-        if groups is None:
-            groups = resolve_groups(scene, body.model)
-        modes = free_modes(body, driven_vertices(scene, groups), scene.drive.free_modes)
-        held_by = "its driven group holds"
-    sag = static_sag(body, modes)
+    held by its fixed vertices, or by the driven group of a secondary-motion ``[drive]``:
+    ``held`` are then the free parts' modes (Psi, lambda) that the solve used
+    (:attr:`wiggly.drive.SecondaryMotion.held_modes`).  Static sag scales as 1 / Young's
+    modulus, so the note says which modulus sags 5 %.  The command line logs it (a stage
+    line; silent with ``-q``), the editor shows it once per scene."""
+    held_by = "its fixed vertices hold" if held is None else "its driven group holds"
+    sag = static_sag(body, held)
     size = diagonal(body.rest_positions())
     if sag is None or sag <= SAG * size:
         return None
@@ -278,7 +271,7 @@ def _warn_unit_slips(scene: Scene, body) -> None:
                       "will take long and miss such targets", stacklevel=2)
 
 
-def _warn_missed(scene: Scene, anim, body) -> None:
+def _warn_missed(scene: Scene, anim) -> None:
     """One warning naming the scene's own keyframes (not a driver's) whose targets the motion
     misses by more than ``MISSED`` of the body's size, with the likely causes: a shot long
     enough that gravity outweighs the keys' stiffness (a key's weight falls as the cube of
@@ -287,11 +280,8 @@ def _warn_missed(scene: Scene, anim, body) -> None:
     own = replace(anim, keyframes=anim.keyframes[:len(scene.keyframes)])
     if not own.keyframes:
         return
-    rows = own.constraint_residuals()
+    rows, missed, size = missed_keys(own)
     anim.info["keyframe_residuals"] = rows  # the summary prints these rows
-    size = diagonal(body.rest_positions())
-    missed = [(j, row["position_max"]) for j, row in enumerate(rows)
-              if row.get("position_max") is not None and row["position_max"] > MISSED * size]
     if not missed:
         return
     start, end = scene.time_range()

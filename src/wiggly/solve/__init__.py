@@ -24,6 +24,7 @@ import numpy as np
 from wiggly.body import Body
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
+from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
 from wiggly.solve.animation import Animation
 from wiggly.solve.levels import WarmStart
@@ -42,6 +43,7 @@ __all__ = [
     "WarpedPoint",
     "WarpedSolveWarning",
     "iteration_count",
+    "missed_keys",
     "solve",
     "warn_missed",
 ]
@@ -108,15 +110,23 @@ def solve(
 MISSED = 0.05
 
 
+def missed_keys(anim: Animation) -> tuple[list[dict], list[tuple[int, float]], float]:
+    """The keyframes' residual rows (:meth:`Animation.constraint_residuals`), the (index,
+    largest miss in m) of those missed by more than :data:`MISSED` of the body's size, and
+    that size (its bounding-box diagonal, m)."""
+    size = diagonal(anim.body.rest_positions())
+    rows = anim.constraint_residuals()
+    missed = [(j, row["position_max"]) for j, row in enumerate(rows)
+              if row.get("position_max") is not None and row["position_max"] > MISSED * size]
+    return rows, missed, size
+
+
 def warn_missed(anim: Animation) -> None:
     """One warning naming the keyframes whose position targets ``anim`` misses by more than
     :data:`MISSED` of the body's size, with the likely causes."""
     if not any(kf.position is not None for kf in anim.keyframes):
         return
-    size = float(np.linalg.norm(np.ptp(anim.body.rest_positions(), axis=0)))
-    rows = anim.constraint_residuals()
-    missed = [(j, row["position_max"]) for j, row in enumerate(rows)
-              if row.get("position_max") is not None and row["position_max"] > MISSED * size]
+    rows, missed, size = missed_keys(anim)
     if not missed:
         return
     listed = "; ".join(
