@@ -15,8 +15,11 @@ Each mesh gets four of twelve scene kinds in turn, so each kind runs on three me
 planted feet with the top turned (up to 180 degrees), velocity keyframes at the start, mid-shot
 and at the end, hops with turns of 0, 90 and 180 degrees, fixed feet, and every damping
 regime.  Each row gives the iterations (coarse + fine), the solve time, whether the
-stopping rule held and the final Newton decrement against its tolerance; the summary gives
-the median and maximum time and the issue's floors.
+stopping rule held and the final Newton decrement against its tolerance, and at the
+keyframe times how far the solution's linear states turn single tets (the warp wraps
+rotations past pi) and the share of tets its warped motion turns inside out
+(:meth:`wiggly.Animation.folds`); the summary gives the median and maximum time and the
+issue's floors.
 
 **Scaling.**  One scene (a bar bent by 90 degrees at one end with a velocity key mid-shot)
 on the same box surface embedded in tet meshes of about 5k, 20k and 80k tets (``--large``
@@ -51,7 +54,7 @@ from wiggly.errors import WigglyInputError
 from wiggly.fem import Material
 from wiggly.keyframes import Keyframe
 from wiggly.mesh import Model, load_model
-from wiggly.solve import SolveOptions, SpacetimeProblem
+from wiggly.solve import Animation, SolveOptions, SpacetimeProblem
 
 MODES = 30
 SOFT = Material(young=1e5)
@@ -212,14 +215,37 @@ class Clock:
         self.stamps.append(time.perf_counter())
 
 
-def timed_solve(body: Body, keys: list[Keyframe], end: float) -> tuple[dict, float, list]:
-    """A cold warped solve: its report, seconds and the iteration timestamps from its start."""
+def timed_solve(
+    body: Body, keys: list[Keyframe], end: float
+) -> tuple[dict, float, list, Animation]:
+    """A cold warped solve: its report, seconds, the iteration timestamps from its start,
+    and the motion."""
     clock = Clock()
     options = SolveOptions(callback=clock)
     t0 = time.perf_counter()
     anim = SpacetimeProblem(body, 0.0, end).solve(keys, warped=True, options=options)
     seconds = time.perf_counter() - t0
-    return anim.info, seconds, [s - t0 for s in clock.stamps]
+    return anim.info, seconds, [s - t0 for s in clock.stamps], anim
+
+
+def wound(body: Body, anim: Animation, keys: list[Keyframe]) -> tuple[float, float]:
+    """How far the solution's linear states turn single tets, at the keyframe times: the
+    largest share of tets (%) whose rotation vector (the skew part of the displacement
+    gradient, which the warp exponentiates) is longer than pi, and the longest one (rad).
+    Past pi the warp's rotation wraps around: W is periodic there, and its objective has
+    nearby minima and narrow, curved valleys."""
+    warp = body.fine_level.warp
+    q = anim.modal(sorted({k.time for k in keys}))[0]  # the linear states u = Phi q
+    U = (q @ body.basis("tets").T).reshape(len(q), -1, 3)
+    share, longest = 0.0, 0.0
+    for u in U:
+        A = (warp.gradient @ u).reshape(-1, 3, 3)  # rows d/dX_j, columns u_i
+        w = 0.5 * np.stack([A[:, 1, 2] - A[:, 2, 1], A[:, 2, 0] - A[:, 0, 2],
+                            A[:, 0, 1] - A[:, 1, 0]], axis=1)
+        angle = np.linalg.norm(w, axis=1)
+        share, longest = max(share, 100 * float(np.mean(angle > np.pi))), max(
+            longest, float(angle.max()))
+    return share, longest
 
 
 def iteration_counts(info: dict) -> tuple[int, int]:
@@ -235,7 +261,8 @@ def suite(args, folder: Path) -> None:
             model = mesh.make()
         except WigglyInputError as err:
             print(f"  {mesh.name}: refused: {err}", file=sys.stderr, flush=True)
-            rows.append([mesh.name, "-", "-", "(refused)", "-", "NO", "-", "-", "-", "-"])
+            rows.append([mesh.name, "-", "-", "(refused)", "-", "NO", "-", "-", "-", "-", "-",
+                         "-", "-"])
             total += 1
             continue
         kinds = [KINDS[(4 * i + j) % len(KINDS)] for j in range(1 if args.quick else 4)]
@@ -255,7 +282,9 @@ def suite(args, folder: Path) -> None:
                 _ = prepared[key].coarse_level, prepared[key].fine_level
             body = prepared[key]
             keys, end = keyframes(body, kind)
-            info, seconds, _ = timed_solve(body, keys, end)
+            info, seconds, _, anim = timed_solve(body, keys, end)
+            share, longest = wound(body, anim, keys)
+            folded = max(100 * row["share"] for row in anim.folds())
             coarse, fine = iteration_counts(info)
             ratio = info["newton_decrement"] / (options.tolerance * max(info["objective"], 1e-300))
             total += 1
@@ -266,14 +295,16 @@ def suite(args, folder: Path) -> None:
                          kind.name, f"{coarse} + {fine}",
                          "yes" if info["converged"] else "NO", seconds, ratio,
                          info["seconds"].get("newton", 0.0), info["seconds"].get("W", 0.0)
-                         + info["seconds"].get("vjp", 0.0)])
+                         + info["seconds"].get("vjp", 0.0), share, longest, folded])
             print(f"  {mesh.name} ({body.tets.n_tets} tets) / {kind.name}: {coarse} + {fine} "
                   f"iterations, {seconds:.2f} s, converged {info['converged']}",
                   file=sys.stderr, flush=True)
     print(table(
         "Warped solves of scenes as users write them (cold, 30 modes)",
         ["mesh", "tets", "coarse tets", "scene", "iterations (coarse + fine)", "converged", "s",
-         "decrement / (tol F)", "fine Newton matrices s", "fine W + vjp s"],
+         "decrement / (tol F)", "fine Newton matrices s", "fine W + vjp s",
+         "tets turned past pi, % (worst key time)", "longest tet rotation, rad",
+         "tets inside out in the warped motion, % (worst key time)"],
         rows,
     ))
     med, worst = statistics.median(times), max(times)
@@ -314,7 +345,7 @@ def scaling(args) -> None:
         _ = body.coarse_level, body.warp
         setup = time.perf_counter() - t0
         keys, end = bar_keys(body)
-        info, seconds, stamps = timed_solve(body, keys, end)
+        info, seconds, stamps, _ = timed_solve(body, keys, end)
         coarse, fine = iteration_counts(info)
         t_coarse = stamps[coarse - 1] if coarse else 0.0
         per_coarse = t_coarse / coarse if coarse else float("nan")

@@ -33,7 +33,7 @@ from wiggly.scene.spec import (
     Scene,
 )
 from wiggly.scene.validation import input_error, show
-from wiggly.solve import MISSED, SpacetimeProblem, missed_keys, solve
+from wiggly.solve import MISSED, SpacetimeProblem, missed_keys, solve, warn_folded
 
 
 def _output_paths(scene: Scene, outputs) -> list[Path]:
@@ -176,6 +176,8 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     if note is not None:
         say(f"note: {note}")
     _warn_missed(scene, anim)
+    if scene.simulation.warp and not scene.secondary_motion:
+        warn_folded(anim, f"{scene.where()}: the warped motion")
     if scene.drive is not None:
         anim.info["drive"] = following(anim)
         say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"

@@ -22,7 +22,7 @@ import warnings
 import numpy as np
 
 from wiggly.body import Body
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, counted
 from wiggly.keyframes import Keyframe
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
@@ -33,6 +33,7 @@ from wiggly.solve.problem import SpacetimeProblem, keyframe_list
 from wiggly.solve.warped import WarpedObjective, WarpedPoint
 
 __all__ = [
+    "FOLDED",
     "MISSED",
     "Animation",
     "SolveOptions",
@@ -45,6 +46,7 @@ __all__ = [
     "iteration_count",
     "missed_keys",
     "solve",
+    "warn_folded",
     "warn_missed",
 ]
 
@@ -103,6 +105,8 @@ def solve(
         f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}")
     if check_keys:
         warn_missed(anim)
+    if warp:
+        warn_folded(anim)
     return anim
 
 
@@ -141,6 +145,40 @@ def warn_missed(anim: Animation) -> None:
         "the targets can be reached (fixed vertices, contradictory keys, velocities in m/s, "
         "gravity over a long shot); anim.constraint_residuals() lists every key",
         stacklevel=3)
+
+
+#: Warped motions that turn more than this share of the tets inside out at a keyframe time
+#: are warned about.
+FOLDED = 1e-3
+
+
+def warn_folded(anim: Animation, where: str = "the warped motion") -> list[dict]:
+    """One warning when ``anim`` folds more than :data:`FOLDED` of the tets at a keyframe time
+    (:meth:`Animation.folds`), naming when, how many, where and by how many turns the linear
+    motion spins them; returns the rows of those times."""
+    rows = [row for row in anim.folds() if row["share"] > FOLDED]
+    if not rows:
+        return rows
+    worst = max(rows, key=lambda row: row["folded"])
+    centre = ", ".join(f"{c:.3g}" for c in worst["centre"])
+    others = (f" (and {counted(len(rows) - 1, 'other keyframe time')})" if len(rows) > 1
+              else "")
+    if worst["turns"] > 0.5:
+        why = (f"the linear motion spins them by up to {worst['turns']:.2g} turns; "
+               "rotation-strain warping turns each tet by its own rotation, and neighbours "
+               "whose rotations differ by more than about half a turn cannot be fitted "
+               "together, so the surface may crease there; such spins come from keys that "
+               "turn a large part of the body, borne by a few modes")
+    else:
+        why = (f"the linear motion turns them by at most {worst['turns']:.2g} turns, so the "
+               "keys squash or shear them through themselves: check for targets that pull "
+               "parts of the body through each other")
+    warnings.warn(
+        f"{where} turns {worst['folded']} tets ({100 * worst['share']:.2g} %) inside out at "
+        f"t = {worst['time']:g} s{others}, around ({centre}) m in the rest pose: {why}; "
+        "anim.folds() lists every keyframe time",
+        stacklevel=3)
+    return rows
 
 
 def iteration_count(info: dict, kind: str = "Newton") -> str:

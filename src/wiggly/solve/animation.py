@@ -23,10 +23,12 @@ from wiggly.splines import WigglyBasis, energy_form, evaluate
 if TYPE_CHECKING:
     from wiggly.solve.levels import WarmStart
 
-__all__ = ["DEFAULT_FPS", "Animation"]
+__all__ = ["DEFAULT_FPS", "FOLD_TIMES", "Animation"]
 
 # Frames per second of sampled motions unless asked otherwise.
 DEFAULT_FPS = 30.0
+# Animation.folds: at most this many keyframe times are checked by default.
+FOLD_TIMES = 32
 
 
 @dataclass(eq=False)
@@ -195,6 +197,49 @@ class Animation:
         x = _interval_data(self.values, self.velocities)
         form = energy_form(self.basis, np.tile(self.body.modal_gravity, len(self.nodes) - 1))
         return float(form(x).sum())
+
+    def folds(self, times: ArrayLike | None = None) -> list[dict]:
+        """Where the motion folds the body: per time, the tets that the played-back motion
+        turns inside out (det of the deformation gradient <= 0).
+
+        Default times: the keyframes' distinct times (at most :data:`FOLD_TIMES` of them,
+        evenly chosen).  Each dict has ``time``, ``folded`` (tets), ``share`` (of all tets),
+        and where there are any, ``centre`` (their rest-pose mass centre, m) and ``turns``:
+        the largest rotation the linear motion gives them (the length of the rotation vector
+        that the warp exponentiates, in turns).  Rotation-strain warping wraps rotations
+        past half a turn, so a linear motion that turns a small region by several turns
+        relative to its surroundings is warped into a crease there.
+        """
+        if times is None:
+            distinct = np.unique([kf.time for kf in self.keyframes])
+            if len(distinct) > FOLD_TIMES:
+                distinct = distinct[np.linspace(0, len(distinct) - 1, FOLD_TIMES).round()
+                                    .astype(int)]
+            times = distinct
+        times = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        body = self.body
+        G = body.fine_level.warp.gradient  # (3 m, n): row 3 t + j is d/dX_j on tet t
+        T, X = body.tets.tets, body.tets.vertices
+        volume = np.abs(np.linalg.det(X[T[:, 1:]] - X[T[:, :1]])) / 6.0
+        linear = self.modal(times)[0] @ body.basis("tets").T
+        out = []
+        for a in range(0, len(times), _PLAYBACK_BATCH):
+            part = times[a : a + _PLAYBACK_BATCH]
+            moved = self.displacements(part, on="tets")
+            for j, (t, w) in enumerate(zip(part, moved, strict=True)):
+                A = (G @ w).reshape(-1, 3, 3)  # A[t, j, i] = d w_i / d X_j
+                folded = np.linalg.det(A + np.eye(3)) <= 0.0
+                row = {"time": float(t), "folded": int(folded.sum()),
+                       "share": float(folded.mean())}
+                if folded.any():
+                    B = (G @ linear[a + j].reshape(-1, 3))[np.repeat(folded, 3)].reshape(-1, 3, 3)
+                    w_rot = 0.5 * (B - B.transpose(0, 2, 1))
+                    angle = np.sqrt(0.5 * (w_rot**2).sum(axis=(1, 2)))
+                    v = volume[folded]
+                    row["centre"] = (X[T[folded]].mean(axis=1) * v[:, None]).sum(0) / v.sum()
+                    row["turns"] = float(angle.max() / (2 * np.pi))
+                out.append(row)
+        return out
 
     def constraint_residuals(self) -> list[dict]:
         """Per keyframe: RMS and max distance (m) to the position targets, RMS velocity error.

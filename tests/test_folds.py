@@ -1,0 +1,115 @@
+"""Folds of a motion (Animation.folds) and the warning for warped motions that fold.
+
+The reference is independent of the warp's gradient operator: the signed volumes of the
+played-back tets, and per-tet rotations from their edge matrices."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import meshio
+import numpy as np
+import pytest
+
+import wiggly
+from wiggly.keyframes import Keyframe
+from wiggly.primitives import box_mesh
+from wiggly.solve import warn_folded
+
+
+@pytest.fixture(scope="module")
+def bar(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("folds")
+    V, T = box_mesh((12, 3, 3), (1.2, 0.3, 0.3))
+    meshio.write(folder / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+    return wiggly.prepare(str(folder / "bar.vtu"), n_modes=12, gravity=(0.0, 0.0, 0.0),
+                          cache_dir=False)
+
+
+def _push(body, dx):
+    """Rest at t = 0; at t = 1 the left end at rest and the right end moved by dx along the
+    bar (dx < -1.2 pushes it through the left end)."""
+    X = body.rest_positions()
+    left, right = np.flatnonzero(X[:, 0] < 0.15), np.flatnonzero(X[:, 0] > 1.05)
+    return [Keyframe.rest(body, 0.0, np.arange(len(X)), still=True),
+            Keyframe.rest(body, 1.0, left), Keyframe.offset(body, 1.0, right, (dx, 0.0, 0.0))]
+
+
+def _solve(body, keys, warp):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        anim = wiggly.solve(body, keys, duration=1.5, warp=warp, check_keys=False)
+    return anim, [str(w.message) for w in caught]
+
+
+def _inside_out(body, anim, t):
+    P = anim.positions([t], on="tets")[0][body.tets.tets]
+    return int((np.linalg.det(P[:, 1:] - P[:, :1]) <= 0).sum())
+
+
+@pytest.mark.parametrize("warp", [False, True])
+def test_folds_count_the_tets_the_motion_turns_inside_out(bar, warp):
+    anim, _ = _solve(bar, _push(bar, -1.8), warp)
+    rows = {row["time"]: row for row in anim.folds()}
+    assert rows[0.0]["folded"] == 0 and "centre" not in rows[0.0]
+    folded = _inside_out(bar, anim, 1.0)
+    assert folded > 0.3 * bar.tets.n_tets  # the push turns most of the bar inside out
+    assert rows[1.0]["folded"] == folded
+    assert rows[1.0]["share"] == pytest.approx(folded / bar.tets.n_tets)
+    assert 0.3 < rows[1.0]["centre"][0] < 0.9  # between the ends
+    mild, _ = _solve(bar, _push(bar, -0.6), warp)
+    assert [row["folded"] for row in mild.folds()] == [0, 0] == [
+        _inside_out(bar, mild, t) for t in (0.0, 1.0)]
+
+
+def test_a_warped_motion_that_folds_is_warned_about(bar):
+    _, messages = _solve(bar, _push(bar, -1.8), True)
+    folds = [m for m in messages if "inside out" in m]
+    assert len(folds) == 1 and "at t = 1 s" in folds[0] and "squash" in folds[0]
+    _, messages = _solve(bar, _push(bar, -0.6), True)
+    assert not [m for m in messages if "inside out" in m]
+    _, messages = _solve(bar, _push(bar, -1.8), False)  # linear motions: no such warning
+    assert not [m for m in messages if "inside out" in m]
+
+
+def _rotation_angles(body, U):
+    """Per tet, the length of the rotation vector of the linear displacement U (n, 3), from
+    the tets' edge matrices (A = dU dX^-1), not the warp's gradient operator."""
+    X, T = body.tets.vertices, body.tets.tets
+    dX = np.transpose(X[T[:, 1:]] - X[T[:, :1]], (0, 2, 1))
+    dU = np.transpose(U[T[:, 1:]] - U[T[:, :1]], (0, 2, 1))
+    A = dU @ np.linalg.inv(dX)
+    skew = 0.5 * (A - np.transpose(A, (0, 2, 1)))
+    return np.sqrt(0.5 * (skew**2).sum(axis=(1, 2)))
+
+
+def test_a_spun_region_is_reported_in_turns(bar):
+    """A linear state that twists the bar by many turns along its length: the warp creases
+    it, and ``turns`` is the folded tets' largest rotation."""
+    anim, _ = _solve(bar, _push(bar, -0.3), True)
+    modes = bar.basis("tets").reshape(-1, 3, bar.r)
+    X = bar.tets.vertices
+    twist = np.stack([np.zeros(len(X)), -(X[:, 2] - 0.15), X[:, 1] - 0.15], 1) * X[:, :1]
+    q = np.linalg.lstsq(modes.reshape(-1, bar.r), twist.ravel(), rcond=None)[0]
+    spun = None
+    for scale in (4, 8, 16, 32, 64):  # up to 64 rad per metre of twist rate
+        values = anim.values.copy()
+        values[np.flatnonzero(anim.nodes == 1.0)[0]] = scale * q
+        candidate = replace(anim, values=values)
+        row = next(r for r in candidate.folds() if r["time"] == 1.0)
+        if row["folded"]:
+            spun = (candidate, row, scale)
+            break
+    assert spun is not None, "no twist rate folded the bar"
+    candidate, row, scale = spun
+    U = (scale * q @ modes.reshape(-1, bar.r).T).reshape(-1, 3)
+    angle = _rotation_angles(bar, U)
+    assert row["folded"] == _inside_out(bar, candidate, 1.0)
+    # the folded tets are among the fastest-turning ones, and turns is their largest rotation
+    assert row["turns"] * 2 * np.pi <= angle.max() * (1 + 1e-9)
+    assert row["turns"] > 0.5
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        warn_folded(candidate)
+    assert any("spins them" in str(w.message) for w in caught)
