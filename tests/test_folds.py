@@ -40,6 +40,8 @@ def _solve(body, keys, warp):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         anim = wiggly.solve(body, keys, duration=1.5, warp=warp, check_keys=False)
+    # the warnings name this file's line (not wiggly.solve or its decorator)
+    assert all(w.filename == __file__ for w in caught if "inside out" in str(w.message))
     return anim, [str(w.message) for w in caught]
 
 

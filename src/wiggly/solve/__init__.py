@@ -103,10 +103,11 @@ def solve(
         )
     say(f"{'warped' if warp else 'linear'} solve: {anim.info['unknowns']} "
         f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}")
+    # the warnings name the caller's line: past warn_*, this function and its decorator
     if check_keys:
-        warn_missed(anim)
+        warn_missed(anim, stacklevel=4)
     if warp:
-        warn_folded(anim)
+        warn_folded(anim, stacklevel=4)
     return anim
 
 
@@ -125,9 +126,10 @@ def missed_keys(anim: Animation) -> tuple[list[dict], list[tuple[int, float]], f
     return rows, missed, size
 
 
-def warn_missed(anim: Animation) -> None:
+def warn_missed(anim: Animation, stacklevel: int = 2) -> None:
     """One warning naming the keyframes whose position targets ``anim`` misses by more than
-    :data:`MISSED` of the body's size, with the likely causes."""
+    :data:`MISSED` of the body's size, with the likely causes (attributed to the line
+    ``stacklevel`` frames up, as :func:`warnings.warn` counts them: 2 is the caller's)."""
     if not any(kf.position is not None for kf in anim.keyframes):
         return
     rows, missed, size = missed_keys(anim)
@@ -144,7 +146,7 @@ def warn_missed(anim: Animation) -> None:
         f"body's size ({listed}): {linear}raise their stiffness (default 1e6), or check that "
         "the targets can be reached (fixed vertices, contradictory keys, velocities in m/s, "
         "gravity over a long shot); anim.constraint_residuals() lists every key",
-        stacklevel=3)
+        stacklevel=stacklevel)
 
 
 #: Warped motions that turn more than this share of the tets inside out at a keyframe time
@@ -152,10 +154,13 @@ def warn_missed(anim: Animation) -> None:
 FOLDED = 1e-3
 
 
-def warn_folded(anim: Animation, where: str = "the warped motion") -> list[dict]:
+def warn_folded(
+    anim: Animation, where: str = "the warped motion", stacklevel: int = 2
+) -> list[dict]:
     """One warning when ``anim`` folds more than :data:`FOLDED` of the tets at a keyframe time
     (:meth:`Animation.folds`), naming when, how many, where and by how many turns the linear
-    motion spins them; returns the rows of those times."""
+    motion spins them (attributed as in :func:`warn_missed`); returns the rows of those
+    times."""
     rows = [row for row in anim.folds() if row["share"] > FOLDED]
     if not rows:
         return rows
@@ -177,7 +182,7 @@ def warn_folded(anim: Animation, where: str = "the warped motion") -> list[dict]
         f"{where} turns {worst['folded']} tets ({100 * worst['share']:.2g} %) inside out at "
         f"t = {worst['time']:g} s{others}, around ({centre}) m in the rest pose: {why}; "
         "anim.folds() lists every keyframe time",
-        stacklevel=3)
+        stacklevel=stacklevel)
     return rows
 
 
