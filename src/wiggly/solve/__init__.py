@@ -175,9 +175,11 @@ def warn_folded(
                "together, so the surface may crease there; such spins come from keys that "
                "turn a large part of the body, borne by a few modes")
     else:
-        why = (f"the linear motion turns them by at most {worst['turns']:.2g} turns, so the "
-               "keys squash or shear them through themselves: check for targets that pull "
-               "parts of the body through each other")
+        why = (f"the linear motion turns them by at most {worst['turns']:.2g} turns, so it "
+               "strains them through themselves: keys that ask a thin or soft part for a "
+               "large, fast deformation do this, and so do targets that pull parts of the "
+               "body through each other (linear FEM plus warping treats large strains "
+               "linearly)")
     warnings.warn(
         f"{where} turns {worst['folded']} tets ({100 * worst['share']:.2g} %) inside out at "
         f"t = {worst['time']:g} s{others}, around ({centre}) m in the rest pose: {why}; "
