@@ -774,3 +774,76 @@ def test_a_solved_animation_is_written_from_python(tmp_path):
         back = read_animation(tmp_path / name)
         assert back.n_frames == 21 and back.n_vertices == len(X)
         np.testing.assert_allclose(back.positions[-1], anim.positions([1.0])[0], atol=1e-5)
+
+
+def _foreign_glb(path, parts, times, weights, meshes=1):
+    """A glTF binary as other tools write it: one mesh of several triangle primitives, each
+    with its own morph targets, and one animation of the mesh's weights (LINEAR).  ``parts``:
+    (positions (n, 3), faces (k, 3), target deltas (t, n, 3)) per primitive."""
+    import pygltflib as gl
+
+    blob, views, accessors = bytearray(), [], []
+
+    def add(array, target=None, minmax=False):
+        array = np.ascontiguousarray(array)
+        while len(blob) % 4:
+            blob.append(0)
+        views.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=array.nbytes,
+                                   target=target))
+        blob.extend(array.tobytes())
+        kind = {1: gl.SCALAR, 3: gl.VEC3}[1 if array.ndim == 1 else array.shape[1]]
+        component = gl.UNSIGNED_INT if array.dtype == np.uint32 else gl.FLOAT
+        accessors.append(gl.Accessor(
+            bufferView=len(views) - 1, componentType=component, count=len(array), type=kind,
+            min=np.atleast_1d(array.min(axis=0)).tolist() if minmax else None,
+            max=np.atleast_1d(array.max(axis=0)).tolist() if minmax else None))
+        return len(accessors) - 1
+
+    primitives = []
+    for positions, faces, deltas in parts:
+        position = add(positions.astype(np.float32), gl.ARRAY_BUFFER, minmax=True)
+        indices = add(faces.astype(np.uint32).ravel(), gl.ELEMENT_ARRAY_BUFFER)
+        targets = [gl.Attributes(POSITION=add(d.astype(np.float32), gl.ARRAY_BUFFER,
+                                              minmax=True)) for d in deltas]
+        primitives.append(gl.Primitive(attributes=gl.Attributes(POSITION=position),
+                                       indices=indices, targets=targets))
+    t = add(np.asarray(times, np.float32), minmax=True)
+    w = add(np.asarray(weights, np.float32).ravel())
+    mesh_list = [gl.Mesh(name="foreign", primitives=primitives,
+                         weights=[0.0] * len(parts[0][2]))]
+    mesh_list += [gl.Mesh(name=f"extra{j}", primitives=primitives[:1]) for j in range(1, meshes)]
+    gltf = gl.GLTF2(
+        scene=0, scenes=[gl.Scene(nodes=list(range(meshes)))],
+        nodes=[gl.Node(mesh=j) for j in range(meshes)], meshes=mesh_list,
+        animations=[gl.Animation(
+            samplers=[gl.AnimationSampler(input=t, output=w, interpolation="LINEAR")],
+            channels=[gl.AnimationChannel(sampler=0, target=gl.AnimationChannelTarget(
+                node=0, path="weights"))])],
+        accessors=accessors, bufferViews=views, buffers=[gl.Buffer(byteLength=len(blob))])
+    gltf.set_binary_blob(bytes(blob))
+    gltf.save_binary(str(path))
+
+
+def test_a_foreign_glb_of_several_primitives_is_read_whole(tmp_path):
+    """``wiggly render`` of another tool's glTF read only its mesh's first primitive (2154 of
+    2952 vertices of a horse): every primitive is read, with its own morph targets."""
+    rng = np.random.default_rng(3)
+    tri = np.array([[0, 1, 2], [0, 2, 3]])
+    parts = [(rng.normal(size=(4, 3)), tri, rng.normal(size=(2, 4, 3))),
+             (rng.normal(size=(5, 3)), np.array([[0, 1, 2], [2, 3, 4]]),
+              rng.normal(size=(2, 5, 3)))]
+    times, weights = [0.0, 0.5, 1.0], [[0.0, 0.0], [0.3, 0.7], [1.0, 0.0]]
+    _foreign_glb(tmp_path / "foreign.glb", parts, times, weights)
+    anim = read_animation(tmp_path / "foreign.glb")
+    base = np.concatenate([p[0] for p in parts])
+    deltas = np.concatenate([p[2] for p in parts], axis=1)
+    expected = base + np.einsum("ft,tnc->fnc", np.asarray(weights), deltas)
+    assert anim.positions.shape == (3, 9, 3)
+    np.testing.assert_allclose(anim.positions, expected, atol=1e-5)
+    np.testing.assert_array_equal(anim.faces, np.concatenate([tri, np.array([[4, 5, 6],
+                                                                            [6, 7, 8]])]))
+    np.testing.assert_allclose(anim.times, times)
+    # a second mesh in the file is named as left out, not dropped silently
+    _foreign_glb(tmp_path / "two.glb", parts, times, weights, meshes=2)
+    with pytest.warns(UserWarning, match="only its first mesh .* left out: 1 other mesh"):
+        assert read_animation(tmp_path / "two.glb").positions.shape == (3, 9, 3)

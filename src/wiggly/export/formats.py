@@ -144,8 +144,10 @@ def read_animation(path) -> SurfaceAnimation:
     """Read an animation written by :func:`write_animation` (any format of :data:`SUPPORTED`).
 
     For ``.obj`` give the sequence's base name (``out/frame.obj`` reads ``out/frame_0000.obj``,
-    ...); a single OBJ file without sequence frames is read as one frame.  glTF node
-    transforms are ignored; a glTF file without morph targets is one frame.
+    ...); a single OBJ file without sequence frames is read as one frame.  A glTF file's
+    first mesh is read with all its primitives (another tool's file may hold more meshes:
+    they are left out, with a warning); node transforms are ignored, and a glTF file without
+    morph targets is one frame.
     """
     path = Path(path)
     ext = path.suffix.lower()

@@ -3,11 +3,12 @@ weights animation."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, counted
 from wiggly.export.animation import (
     FORMAT_VERSION,
     FrameNormals,
@@ -189,6 +190,26 @@ def _gl_accessor(gltf, blob: bytes, index: int) -> np.ndarray:
     return out
 
 
+def _read_primitive(gltf, blob: bytes, prim, path: Path, j: int) -> tuple:
+    """One triangle primitive: its positions, faces, uvs and normals (None when absent) and
+    its morph targets' position deltas (a list)."""
+    if prim.mode not in (None, _GL_TRIANGLES) or prim.attributes.POSITION is None:
+        raise WigglyInputError(f"cannot read {path}: primitive {j} of its mesh is not a "
+                               "triangle mesh with POSITION")
+    base = _gl_accessor(gltf, blob, prim.attributes.POSITION).astype(np.float32)
+    faces = (_gl_accessor(gltf, blob, prim.indices).reshape(-1, 3) if prim.indices is not None
+             else np.arange(len(base)).reshape(-1, 3)).astype(np.int64)
+    uvs = normals = None
+    if prim.attributes.TEXCOORD_0 is not None:
+        st = _gl_accessor(gltf, blob, prim.attributes.TEXCOORD_0).astype(np.float64)
+        uvs = np.column_stack([st[:, 0], 1.0 - st[:, 1]])
+    if prim.attributes.NORMAL is not None:
+        normals = _gl_accessor(gltf, blob, prim.attributes.NORMAL).astype(np.float64)
+    deltas = [_gl_accessor(gltf, blob, t["POSITION"] if isinstance(t, dict) else t.POSITION)
+              for t in prim.targets or []]
+    return base, faces, uvs, normals, deltas
+
+
 def read_glb(path: Path) -> SurfaceAnimation:
     gl = format_library("pygltflib", "pygltflib", ".glb")
 
@@ -200,23 +221,27 @@ def read_glb(path: Path) -> SurfaceAnimation:
     if not gltf.meshes or not gltf.meshes[0].primitives:
         raise WigglyInputError(f"cannot read {path}: the glTF file has no mesh")
     mesh_index = 0
-    prim = gltf.meshes[mesh_index].primitives[0]
-    if prim.mode not in (None, _GL_TRIANGLES) or prim.attributes.POSITION is None:
-        raise WigglyInputError(f"cannot read {path}: the first primitive is not a triangle "
-                               "mesh with POSITION")
-    base = _gl_accessor(gltf, blob, prim.attributes.POSITION).astype(np.float32)
-    n = len(base)
-    faces = (_gl_accessor(gltf, blob, prim.indices).reshape(-1, 3) if prim.indices is not None
-             else np.arange(n).reshape(-1, 3)).astype(np.int64)
-    uvs = normals = None
-    if prim.attributes.TEXCOORD_0 is not None:
-        st = _gl_accessor(gltf, blob, prim.attributes.TEXCOORD_0).astype(np.float64)
-        uvs = np.column_stack([st[:, 0], 1.0 - st[:, 1]])
-    if prim.attributes.NORMAL is not None:
-        normals = _gl_accessor(gltf, blob, prim.attributes.NORMAL).astype(np.float64)
-    targets = prim.targets or []
-    deltas = np.stack([_gl_accessor(gltf, blob, t["POSITION"] if isinstance(t, dict)
-                                    else t.POSITION) for t in targets]) if targets else None
+    if len(gltf.meshes) > 1:
+        warnings.warn(f"{path}: only its first mesh ({gltf.meshes[0].name or 'unnamed'}) is "
+                      f"read; left out: {counted(len(gltf.meshes) - 1, 'other mesh')}",
+                      stacklevel=3)
+    parts = [_read_primitive(gltf, blob, prim, path, j)
+             for j, prim in enumerate(gltf.meshes[mesh_index].primitives)]
+    offsets = np.cumsum([0] + [len(part[0]) for part in parts])
+    base = np.concatenate([part[0] for part in parts])
+    faces = np.concatenate([part[1] + o for part, o in zip(parts, offsets, strict=False)])
+    uvs = (np.concatenate([part[2] for part in parts])
+           if all(part[2] is not None for part in parts) else None)
+    normals = (np.concatenate([part[3] for part in parts])
+               if all(part[3] is not None for part in parts) else None)
+    counts = {len(part[4]) for part in parts}
+    if len(counts) > 1:
+        raise WigglyInputError(f"cannot read {path}: its mesh's primitives have different "
+                               f"numbers of morph targets ({sorted(counts)}); glTF asks the same "
+                               "number of every primitive")
+    targets = parts[0][4]
+    deltas = (np.concatenate([np.stack(part[4]) for part in parts], axis=1)
+              if targets else None)
     nodes = [i for i, node in enumerate(gltf.nodes) if node.mesh == mesh_index]
     sampler = extras = None
     for animation in gltf.animations:
