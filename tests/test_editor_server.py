@@ -979,6 +979,18 @@ def test_a_material_too_soft_for_the_body_gets_a_notice_once(project):
     assert len(notices) == 1 and "Raise material.young (1000 Pa;" in notices[0]["message"]
 
 
+def test_a_warped_motion_that_folds_gets_a_notice_once(project):
+    """Keys that push the bar's free end through its fixed one turn tets inside out in the
+    warped frames: the page says where and why (``wiggly animate`` warns), once while the
+    next edit keeps the fold."""
+    notices = notices_over_two_solves(
+        project, "folded.toml", SCENE.replace("[0.0, 0.05, 0.0]", "[-1.8, 0.0, 0.0]"),
+        "inside out")
+    assert len(notices) == 1 and notices[0]["level"] == "warning", notices
+    assert "at t = 0.5 s" in notices[0]["message"]
+    assert "anim.folds()" not in notices[0]["message"]  # the page has no Python
+
+
 def test_other_tabs_are_told_when_a_tab_opens_or_saves_as(server, project):
     """Save as (or Open) in one tab switches the whole editor to that file: the other tabs
     get a notice naming it (their title changed silently before); the tab that did it is

@@ -39,7 +39,7 @@ def _push(body, dx):
 def _solve(body, keys, warp):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        anim = wiggly.solve(body, keys, duration=1.5, warp=warp, check_keys=False)
+        anim = wiggly.solve(body, keys, duration=1.5, warp=warp)
     # the warnings name this file's line (not wiggly.solve or its decorator)
     assert all(w.filename == __file__ for w in caught if "inside out" in str(w.message))
     return anim, [str(w.message) for w in caught]
@@ -60,6 +60,9 @@ def test_folds_count_the_tets_the_motion_turns_inside_out(bar, warp):
     assert rows[1.0]["folded"] == folded
     assert rows[1.0]["share"] == pytest.approx(folded / bar.tets.n_tets)
     assert 0.3 < rows[1.0]["centre"][0] < 0.9  # between the ends
+    assert anim.folds([]) == []
+    without_keys = wiggly.solve(bar, [], duration=1.0, warp=warp)  # a body at rest
+    assert without_keys.folds() == []
     mild, _ = _solve(bar, _push(bar, -0.6), warp)
     assert [row["folded"] for row in mild.folds()] == [0, 0] == [
         _inside_out(bar, mild, t) for t in (0.0, 1.0)]
@@ -115,3 +118,45 @@ def test_a_spun_region_is_reported_in_turns(bar):
         warnings.simplefilter("always")
         warn_folded(candidate)
     assert any("spins them" in str(w.message) for w in caught)
+
+
+def test_wiggly_animate_warns_of_folds_in_its_own_words(tmp_path, capsys):
+    """The command line names the scene file and leaves out the Python pointer."""
+    from wiggly.cli import main
+
+    V, T = box_mesh((12, 3, 3), (1.2, 0.3, 0.3))
+    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+    (tmp_path / "push.toml").write_text("""\
+format = 1
+[mesh]
+path = "bar.vtu"
+[simulation]
+modes = 12
+gravity = [0, 0, 0]
+[time]
+end = 1.5
+[groups.left]
+box = { min = [-0.01, -1, -1], max = [0.15, 1, 1] }
+[groups.right]
+box = { min = [1.05, -1, -1], max = [1.3, 1, 1] }
+[[keyframes]]
+time = 0.0
+group = "left"
+position = "rest"
+[[keyframes]]
+time = 1.0
+group = "left"
+position = "rest"
+[[keyframes]]
+time = 1.0
+group = "right"
+position = { offset = [-1.8, 0.0, 0.0] }
+""")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["animate", str(tmp_path / "push.toml"), "-o",
+                     str(tmp_path / "push.npz")]) == 0
+    said = [str(w.message) for w in caught] + [capsys.readouterr().err]
+    folds = [m for m in said if "inside out" in m]
+    assert folds and "push.toml: the warped motion turns" in folds[0], said
+    assert "anim.folds()" not in folds[0]

@@ -118,6 +118,7 @@ class Playback:
         self._lock = threading.Lock()
         self._seq = 0
         self._told_falling: set = set()  # scene files whose fall a notice explained
+        self._folding = False  # the last final warped frames folded tets (a notice said so)
         self._told: set = set()  # (scene file, warning) pairs the page was told of
         # the published frame sets by id (a counter), oldest first; not a cache (a page that
         # asks for a forgotten id gets a 404) and the newest final ones are never evicted
@@ -219,6 +220,12 @@ class Playback:
             final, start, fps, positions, info = payload
             request = info.pop("request", "final")
             drag = request == "drag"  # a held drag's warped preview: never the final frames
+            folds = info.pop("folds", None)
+            if final and not drag:
+                # said when the motion starts to fold, not again while later edits keep it
+                if folds is not None and not self._folding:
+                    self.bus.publish("notice", sticky=False, level="warning", message=folds)
+                self._folding = folds is not None
             self._publish(FrameSet(0, seq, version, "warped", final and not drag, start, fps,
                                    positions, request, info))
             if final:

@@ -187,6 +187,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     abandons it, and a progress line goes out every ``PUSH_SECONDS``.  Its answers carry the
     request's ``kind``; a drag's solution, too, starts the next solve of the range."""
     from wiggly.scene.drive import linear_start_of
+    from wiggly.solve import fold_note
 
     t0 = time.perf_counter()
     init = previous.peek(pkey)
@@ -221,7 +222,9 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
             "converged": bool(anim.info.get("converged")),
             "objective": float(anim.info.get("objective", np.nan)),
             "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim),
-            "request": kind}
+            "request": kind,
+            # creases the user sees in the warped frames, explained (``wiggly animate`` warns)
+            "folds": fold_note(anim, api=False) if kind == "final" else None}
     fps = playback_fps(scene.time.fps, problem.start, problem.end,
                        problem.body.surface.n_vertices)
     times = anim.frame_times(fps)

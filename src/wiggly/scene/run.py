@@ -177,7 +177,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
         say(f"note: {note}")
     _warn_missed(scene, anim)
     if scene.simulation.warp and not scene.secondary_motion:
-        warn_folded(anim, f"{scene.where()}: the warped motion")
+        warn_folded(anim, f"{scene.where()}: the warped motion", api=False)
     if scene.drive is not None:
         anim.info["drive"] = following(anim)
         say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"

@@ -43,6 +43,7 @@ __all__ = [
     "WarpedObjective",
     "WarpedPoint",
     "WarpedSolveWarning",
+    "fold_note",
     "iteration_count",
     "missed_keys",
     "solve",
@@ -80,7 +81,8 @@ def solve(
     ``linear_start``: keyframes whose linear solution starts the warped solve
     (:meth:`SpacetimeProblem.solve`).  ``check_keys``: warn when the motion misses position
     keys by more than :data:`MISSED` of the body's size (:meth:`Animation.constraint_residuals`
-    has them all; a scene file's run warns in its own words instead).
+    has them all), or when a warped motion turns more than :data:`FOLDED` of the tets inside
+    out (:meth:`Animation.folds`); a scene file's run warns in its own words instead.
     """
     keyframes = keyframe_list(keyframes)
     for name, flag in (("warp", warp), ("loop", loop), ("check_keys", check_keys)):
@@ -106,8 +108,8 @@ def solve(
     # the warnings name the caller's line: past warn_*, this function and its decorator
     if check_keys:
         warn_missed(anim, stacklevel=4)
-    if warp:
-        warn_folded(anim, stacklevel=4)
+        if warp:
+            warn_folded(anim, stacklevel=4)
     return anim
 
 
@@ -154,16 +156,13 @@ def warn_missed(anim: Animation, stacklevel: int = 2) -> None:
 FOLDED = 1e-3
 
 
-def warn_folded(
-    anim: Animation, where: str = "the warped motion", stacklevel: int = 2
-) -> list[dict]:
-    """One warning when ``anim`` folds more than :data:`FOLDED` of the tets at a keyframe time
-    (:meth:`Animation.folds`), naming when, how many, where and by how many turns the linear
-    motion spins them (attributed as in :func:`warn_missed`); returns the rows of those
-    times."""
+def fold_note(anim: Animation, where: str = "the warped motion", api: bool = True) -> str | None:
+    """What :func:`warn_folded` says of ``anim`` (None when it folds no more than
+    :data:`FOLDED` of the tets at any keyframe time); ``api=False`` leaves out the pointer
+    to :meth:`Animation.folds` (for the command line and the editor)."""
     rows = [row for row in anim.folds() if row["share"] > FOLDED]
     if not rows:
-        return rows
+        return None
     worst = max(rows, key=lambda row: row["folded"])
     centre = ", ".join(f"{c:.3g}" for c in worst["centre"])
     others = (f" (and {counted(len(rows) - 1, 'other keyframe time')})" if len(rows) > 1
@@ -180,12 +179,21 @@ def warn_folded(
                "large, fast deformation do this, and so do targets that pull parts of the "
                "body through each other (linear FEM plus warping treats large strains "
                "linearly)")
-    warnings.warn(
-        f"{where} turns {worst['folded']} tets ({100 * worst['share']:.2g} %) inside out at "
-        f"t = {worst['time']:g} s{others}, around ({centre}) m in the rest pose: {why}; "
-        "anim.folds() lists every keyframe time",
-        stacklevel=stacklevel)
-    return rows
+    return (f"{where} turns {worst['folded']} tets ({100 * worst['share']:.2g} %) inside out "
+            f"at t = {worst['time']:g} s{others}, around ({centre}) m in the rest pose: {why}"
+            + ("; anim.folds() lists every keyframe time" if api else ""))
+
+
+def warn_folded(
+    anim: Animation, where: str = "the warped motion", stacklevel: int = 2, api: bool = True
+) -> str | None:
+    """One warning when ``anim`` folds more than :data:`FOLDED` of the tets at a keyframe time
+    (:meth:`Animation.folds`), naming when, how many, where and by how many turns the linear
+    motion spins them (attributed as in :func:`warn_missed`); returns its text."""
+    note = fold_note(anim, where, api)
+    if note is not None:
+        warnings.warn(note, stacklevel=stacklevel)
+    return note
 
 
 def iteration_count(info: dict, kind: str = "Newton") -> str:

@@ -217,6 +217,8 @@ class Animation:
                                     .astype(int)]
             times = distinct
         times = np.atleast_1d(np.asarray(times, dtype=np.float64))
+        if times.size == 0:  # no keyframes, or no times asked
+            return []
         body = self.body
         G = body.fine_level.warp.gradient  # (3 m, n): row 3 t + j is d/dX_j on tet t
         T, X = body.tets.tets, body.tets.vertices
