@@ -304,7 +304,7 @@ def suite(args, folder: Path) -> None:
         ["mesh", "tets", "coarse tets", "scene", "iterations (coarse + fine)", "converged", "s",
          "decrement / (tol F)", "fine Newton matrices s", "fine W + vjp s",
          "tets turned past pi, % (worst key time)", "longest tet rotation, rad",
-         "tets inside out in the warped motion, % (worst key time)"],
+         "tets inside out in the warped motion, % (worst time checked)"],
         rows,
     ))
     med, worst = statistics.median(times), max(times)

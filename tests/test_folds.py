@@ -60,18 +60,25 @@ def test_folds_count_the_tets_the_motion_turns_inside_out(bar, warp):
     assert rows[1.0]["folded"] == folded
     assert rows[1.0]["share"] == pytest.approx(folded / bar.tets.n_tets)
     assert 0.3 < rows[1.0]["centre"][0] < 0.9  # between the ends
+    # frames between the keys are checked too (a crease there shows in the playback)
+    between = [row for row in rows.values() if row["folded"] and row["time"] not in (0.0, 1.0)]
+    assert between
+    assert all(row["folded"] == _inside_out(bar, anim, row["time"]) for row in between[:3])
     assert anim.folds([]) == []
     without_keys = wiggly.solve(bar, [], duration=1.0, warp=warp)  # a body at rest
     assert without_keys.folds() == []
     mild, _ = _solve(bar, _push(bar, -0.6), warp)
-    assert [row["folded"] for row in mild.folds()] == [0, 0] == [
-        _inside_out(bar, mild, t) for t in (0.0, 1.0)]
+    rows = mild.folds()  # the frames at 30 fps and the keys' times
+    assert [row["time"] for row in rows] == pytest.approx(np.arange(46) / 30)
+    assert [row["folded"] for row in rows] == [0] * 46 == [
+        _inside_out(bar, mild, t) for t in (row["time"] for row in rows)]
 
 
 def test_a_warped_motion_that_folds_is_warned_about(bar):
     _, messages = _solve(bar, _push(bar, -1.8), True)
     folds = [m for m in messages if "inside out" in m]
-    assert len(folds) == 1 and "at t = 1 s" in folds[0] and "strains them" in folds[0]
+    assert len(folds) == 1 and "at t = 1 s (folded at" in folds[0], folds
+    assert "squashed or sheared inside out" in folds[0]
     _, messages = _solve(bar, _push(bar, -0.6), True)
     assert not [m for m in messages if "inside out" in m]
     _, messages = _solve(bar, _push(bar, -1.8), False)  # linear motions: no such warning

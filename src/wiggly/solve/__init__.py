@@ -22,7 +22,7 @@ import warnings
 import numpy as np
 
 from wiggly.body import Body
-from wiggly.errors import WigglyInputError, counted
+from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
@@ -158,30 +158,36 @@ FOLDED = 1e-3
 
 def fold_note(anim: Animation, where: str = "the warped motion", api: bool = True) -> str | None:
     """What :func:`warn_folded` says of ``anim`` (None when it folds no more than
-    :data:`FOLDED` of the tets at any keyframe time); ``api=False`` leaves out the pointer
-    to :meth:`Animation.folds` (for the command line and the editor)."""
-    rows = [row for row in anim.folds() if row["share"] > FOLDED]
+    :data:`FOLDED` of the tets at any time :meth:`Animation.folds` checks); ``api=False``
+    leaves out the pointer to :meth:`Animation.folds` (for the command line and the editor)."""
+    checked = anim.folds()
+    rows = [row for row in checked if row["share"] > FOLDED]
     if not rows:
         return None
     worst = max(rows, key=lambda row: row["folded"])
-    centre = ", ".join(f"{c:.3g}" for c in worst["centre"])
-    others = (f" (and {counted(len(rows) - 1, 'other keyframe time')})" if len(rows) > 1
-              else "")
+    digits = max(0, 3 - int(np.floor(np.log10(max(diagonal(anim.body.rest_positions()),
+                                                    1e-12)))))
+    centre = ", ".join(f"{c:.{digits}f}" for c in worst["centre"])
+    span = (f" (folded at {len(rows)} of the {len(checked)} times checked, t = "
+            f"{rows[0]['time']:.3g}-{rows[-1]['time']:.3g} s)" if len(rows) > 1 else "")
     if worst["turns"] > 0.5:
-        why = (f"the linear motion spins them by up to {worst['turns']:.2g} turns; "
-               "rotation-strain warping turns each tet by its own rotation, and neighbours "
-               "whose rotations differ by more than about half a turn cannot be fitted "
-               "together, so the surface may crease there; such spins come from keys that "
-               "turn a large part of the body, borne by a few modes")
+        why = (f"the linear motion spins them by up to {worst['turns']:.2g} turns, and "
+               "rotation-strain warping, which turns each tet by its own rotation, cannot fit "
+               "neighbours whose rotations differ by more than about half a turn; such spins "
+               "come from large motions borne by a few modes: keys that turn a large part of "
+               "the body, or a soft or large body held by a small group and collapsing under "
+               "its weight")
     else:
-        why = (f"the linear motion turns them by at most {worst['turns']:.2g} turns, so it "
-               "strains them through themselves: keys that ask a thin or soft part for a "
-               "large, fast deformation do this, and so do targets that pull parts of the "
-               "body through each other (linear FEM plus warping treats large strains "
-               "linearly)")
+        why = (f"the linear motion turns them by at most {worst['turns']:.2g} turns, so they "
+               "are squashed or sheared inside out: a soft or large body held by a small group "
+               "and collapsing under its weight, a thin part asked for a large, fast "
+               "deformation, or targets that pull parts of the body through each other "
+               "(linear FEM plus warping treats large strains linearly)")
     return (f"{where} turns {worst['folded']} tets ({100 * worst['share']:.2g} %) inside out "
-            f"at t = {worst['time']:g} s{others}, around ({centre}) m in the rest pose: {why}"
-            + ("; anim.folds() lists every keyframe time" if api else ""))
+            f"at t = {worst['time']:.3g} s{span}, around ({centre}) m in the rest pose, so the "
+            f"surface may crease there: {why}. Keying more of the body near the fold, or a "
+            "stiffer material, may help" + ("; anim.folds() lists every time checked"
+                                           if api else ""))
 
 
 def warn_folded(

@@ -27,8 +27,8 @@ __all__ = ["DEFAULT_FPS", "FOLD_TIMES", "Animation"]
 
 # Frames per second of sampled motions unless asked otherwise.
 DEFAULT_FPS = 30.0
-# Animation.folds: at most this many keyframe times are checked by default.
-FOLD_TIMES = 32
+# Animation.folds checks at most this many frames by default (besides the keyframes' times).
+FOLD_TIMES = 150
 
 
 @dataclass(eq=False)
@@ -202,20 +202,21 @@ class Animation:
         """Where the motion folds the body: per time, the tets that the played-back motion
         turns inside out (det of the deformation gradient <= 0).
 
-        Default times: the keyframes' distinct times (at most :data:`FOLD_TIMES` of them,
-        evenly chosen).  Each dict has ``time``, ``folded`` (tets), ``share`` (of all tets),
-        and where there are any, ``centre`` (their rest-pose mass centre, m) and ``turns``:
-        the largest rotation the linear motion gives them (the length of the rotation vector
-        that the warp exponentiates, in turns).  Rotation-strain warping wraps rotations
-        past half a turn, so a linear motion that turns a small region by several turns
-        relative to its surroundings is warped into a crease there.
+        Default times: the frames at :data:`DEFAULT_FPS` and the keyframes' times (at most
+        :data:`FOLD_TIMES` frames, evenly chosen, besides the keyframes' times).  Each dict
+        has ``time``, ``folded`` (tets), ``share`` (of all tets), and where there are any,
+        ``centre`` (their rest-pose mass centre, m) and ``turns``: the largest rotation the
+        linear motion gives them (the length of the rotation vector that the warp
+        exponentiates, in turns).  Rotation-strain warping turns each tet by its own
+        rotation, so a linear motion that spins a small region by several turns against its
+        surroundings is warped into a crease there.
         """
         if times is None:
-            distinct = np.unique([kf.time for kf in self.keyframes])
-            if len(distinct) > FOLD_TIMES:
-                distinct = distinct[np.linspace(0, len(distinct) - 1, FOLD_TIMES).round()
-                                    .astype(int)]
-            times = distinct
+            frames = self.frame_times(DEFAULT_FPS)
+            if len(frames) > FOLD_TIMES:
+                frames = frames[np.linspace(0, len(frames) - 1, FOLD_TIMES).round().astype(int)]
+            keys = [kf.time for kf in self.keyframes]
+            times = np.unique(np.concatenate([frames, keys])) if keys else np.zeros(0)
         times = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if times.size == 0:  # no keyframes, or no times asked
             return []
