@@ -991,6 +991,26 @@ def test_a_warped_motion_that_folds_gets_a_notice_once(project):
     assert "anim.folds()" not in notices[0]["message"]  # the page has no Python
 
 
+def test_each_scene_file_that_folds_gets_its_own_notice(project):
+    """Two files whose motions fold, opened one after the other: a notice for each (the
+    second was taken for the first one's lasting fold)."""
+    folded = SCENE.replace("[0.0, 0.05, 0.0]", "[-1.8, 0.0, 0.0]")
+    (project / "a.toml").write_text(folded)
+    (project / "b.toml").write_text(folded.replace("time = 0.5", "time = 0.6"))
+    session = Session(Sandbox([project]))
+    q = session.bus.subscribe()
+    try:
+        for name in ("a.toml", "b.toml"):
+            session.open(name)
+            wait_final(session, timeout=60.0)
+    finally:
+        session.close()
+    events = [q.get_nowait() for _ in range(q.qsize())]
+    notices = [e["message"] for e in events if e["type"] == "notice" and "inside out" in
+               e["message"]]
+    assert len(notices) == 2 and "at t = 0.6 s" in notices[1], notices
+
+
 def test_other_tabs_are_told_when_a_tab_opens_or_saves_as(server, project):
     """Save as (or Open) in one tab switches the whole editor to that file: the other tabs
     get a notice naming it (their title changed silently before); the tab that did it is
