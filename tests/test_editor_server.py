@@ -989,6 +989,7 @@ def test_a_warped_motion_that_folds_gets_a_notice_once(project):
     assert len(notices) == 1 and notices[0]["level"] == "warning", notices
     assert "at t = 0.5 s" in notices[0]["message"]
     assert "anim.folds()" not in notices[0]["message"]  # the page has no Python
+    assert "(the nearest group is '" in notices[0]["message"]
 
 
 def test_each_scene_file_that_folds_gets_its_own_notice(project):

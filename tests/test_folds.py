@@ -146,6 +146,11 @@ end = 1.5
 box = { min = [-0.01, -1, -1], max = [0.15, 1, 1] }
 [groups.right]
 box = { min = [1.05, -1, -1], max = [1.3, 1, 1] }
+[groups.middle]
+box = { min = [0.55, -1, -1], max = [0.65, 1, 1] }
+on = "tets"
+[groups.beside]
+box = { min = [0.3, -1, -1], max = [0.9, 1, 1] }
 [[keyframes]]
 time = 0.0
 group = "left"
@@ -167,3 +172,5 @@ position = { offset = [-1.8, 0.0, 0.0] }
     folds = [m for m in said if "inside out" in m]
     assert folds and "push.toml: the warped motion turns" in folds[0], said
     assert "anim.folds()" not in folds[0]
+    # the nearest group is named: a surface group over the folded middle, not the tets group
+    assert "in the rest pose (the nearest group is 'beside', " in folds[0], folds[0]

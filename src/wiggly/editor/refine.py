@@ -104,6 +104,7 @@ def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested e
         resolve_groups,
         scene_from_dict,
     )
+    from wiggly.scene.run import surface_groups
 
     inbox = _Inbox(inp)
     models = Memo(MODELS_KEPT)  # as sent, oldest out: the parent's Refiner keeps the same
@@ -146,7 +147,8 @@ def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested e
             if problem is None:  # a new time range (the oldest kept one leaves)
                 problem = problem_of(scene, body)
             problems.put(pkey, problem)
-            _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox, kind)
+            _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox, kind,
+                    surface_groups(scene, groups))
         except WigglyInputError as err:
             channel.send(out, ("error", seq, version, str(err)))
         except BrokenPipeError:  # the editor is gone (stopped or killed): nobody to tell
@@ -181,7 +183,7 @@ class _Abandoned(Exception):
 
 
 def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
-            kind="final"):  # pragma: no cover - runs in the subprocess
+            kind="final", groups=None):  # pragma: no cover - runs in the subprocess
     """One warped solve, as ``wiggly animate`` runs it (the same options: the editor's
     exports and the CLI agree), reading the inbox after every iteration: a newer request
     abandons it, and a progress line goes out every ``PUSH_SECONDS``.  Its answers carry the
@@ -224,7 +226,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
             "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim),
             "request": kind,
             # creases the user sees in the warped frames, explained (``wiggly animate`` warns)
-            "folds": fold_note(anim, api=False) if kind == "final" else None}
+            "folds": fold_note(anim, api=False, groups=groups) if kind == "final" else None}
     fps = playback_fps(scene.time.fps, problem.start, problem.end,
                        problem.body.surface.n_vertices)
     times = anim.frame_times(fps)

@@ -107,6 +107,11 @@ def keyframe_highlights(scene: Scene, body, keyframes, groups: dict[str, np.ndar
     return out
 
 
+def surface_groups(scene: Scene, groups: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The resolved ``groups`` that index surface vertices (not tet-mesh ones)."""
+    return {name: v for name, v in groups.items() if scene.groups[name].on != "tets"}
+
+
 def problem_of(scene: Scene, body) -> SpacetimeProblem:
     """The scene's spacetime problem on ``body``: its time range, pre-roll and loop (the
     editor keeps it to re-solve after each edit)."""
@@ -177,7 +182,8 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
         say(f"note: {note}")
     _warn_missed(scene, anim)
     if scene.simulation.warp and not scene.secondary_motion:
-        warn_folded(anim, f"{scene.where()}: the warped motion", api=False)
+        warn_folded(anim, f"{scene.where()}: the warped motion", api=False,
+                    groups=surface_groups(scene, groups))
     if scene.drive is not None:
         anim.info["drive"] = following(anim)
         say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"

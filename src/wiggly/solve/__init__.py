@@ -156,10 +156,17 @@ def warn_missed(anim: Animation, stacklevel: int = 2) -> None:
 FOLDED = 1e-3
 
 
-def fold_note(anim: Animation, where: str = "the warped motion", api: bool = True) -> str | None:
+def fold_note(
+    anim: Animation,
+    where: str = "the warped motion",
+    api: bool = True,
+    groups: dict[str, np.ndarray] | None = None,
+) -> str | None:
     """What :func:`warn_folded` says of ``anim`` (None when it folds no more than
     :data:`FOLDED` of the tets at any time :meth:`Animation.folds` checks); ``api=False``
-    leaves out the pointer to :meth:`Animation.folds` (for the command line and the editor)."""
+    leaves out the pointer to :meth:`Animation.folds` (for the command line and the editor);
+    ``groups`` (name: surface vertex indices, a scene's groups) names the group nearest the
+    fold."""
     checked = anim.folds()
     rows = [row for row in checked if row["share"] > FOLDED]
     if not rows:
@@ -168,6 +175,13 @@ def fold_note(anim: Animation, where: str = "the warped motion", api: bool = Tru
     digits = max(0, 3 - int(np.floor(np.log10(max(diagonal(anim.body.rest_positions()),
                                                     1e-12)))))
     centre = ", ".join(f"{c:.{digits}f}" for c in worst["centre"])
+    rest = anim.body.rest_positions()
+    gaps = {name: float(np.linalg.norm(rest[v] - worst["centre"], axis=1).min())
+            for name, v in (groups or {}).items() if len(v)}
+    nearest = ""
+    if gaps:
+        name = min(gaps, key=gaps.get)
+        nearest = f" (the nearest group is {name!r}, {gaps[name]:.{digits}f} m from it)"
     span = (f" (folded at {len(rows)} of the {len(checked)} times checked, t = "
             f"{rows[0]['time']:.3g}-{rows[-1]['time']:.3g} s)" if len(rows) > 1 else "")
     if worst["turns"] > 0.5:
@@ -184,19 +198,25 @@ def fold_note(anim: Animation, where: str = "the warped motion", api: bool = Tru
                "deformation, or targets that pull parts of the body through each other "
                "(linear FEM plus warping treats large strains linearly)")
     return (f"{where} turns {worst['folded']} tets ({100 * worst['share']:.2g} %) inside out "
-            f"at t = {worst['time']:.3g} s{span}, around ({centre}) m in the rest pose, so the "
+            f"at t = {worst['time']:.3g} s{span}, around ({centre}) m in the rest pose{nearest}, "
+            "so the "
             f"surface may crease there: {why}. Keying more of the body near the fold, or a "
             "stiffer material, may help" + ("; anim.folds() lists every time checked"
                                            if api else ""))
 
 
 def warn_folded(
-    anim: Animation, where: str = "the warped motion", stacklevel: int = 2, api: bool = True
+    anim: Animation,
+    where: str = "the warped motion",
+    stacklevel: int = 2,
+    api: bool = True,
+    groups: dict[str, np.ndarray] | None = None,
 ) -> str | None:
     """One warning when ``anim`` folds more than :data:`FOLDED` of the tets at a keyframe time
-    (:meth:`Animation.folds`), naming when, how many, where and by how many turns the linear
-    motion spins them (attributed as in :func:`warn_missed`); returns its text."""
-    note = fold_note(anim, where, api)
+    (:meth:`Animation.folds`), naming when, how many, where (and the nearest of ``groups``)
+    and by how many turns the linear motion spins them (attributed as in
+    :func:`warn_missed`); returns its text."""
+    note = fold_note(anim, where, api, groups)
     if note is not None:
         warnings.warn(note, stacklevel=stacklevel)
     return note
