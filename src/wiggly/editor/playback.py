@@ -118,10 +118,8 @@ class Playback:
         self._lock = threading.Lock()
         self._seq = 0
         self._told_falling: set = set()  # scene files whose fall a notice explained
-        # the scene file whose final warped frames folded tets (a notice said so), and the
-        # file of the newest final request (whose refinement answers next)
+        # the scene file whose final warped frames folded tets (a notice said so)
         self._folding: object = None
-        self._final_source: object = None
         self._told: set = set()  # (scene file, warning) pairs the page was told of
         # the published frame sets by id (a counter), oldest first; not a cache (a page that
         # asks for a forgotten id gets a 404) and the newest final ones are never evicted
@@ -223,10 +221,9 @@ class Playback:
             final, start, fps, positions, info = payload
             request = info.pop("request", "final")
             drag = request == "drag"  # a held drag's warped preview: never the final frames
-            folds = info.pop("folds", None)
+            folds, source = info.pop("folds", None), info.pop("source", None)
             if final and not drag:
                 # said when a file's motion starts to fold, not again while its edits keep it
-                source = self._final_source
                 if folds is not None and self._folding != source:
                     self.bus.publish("notice", sticky=False, level="warning", message=folds)
                 self._folding = source if folds is not None else None
@@ -283,8 +280,6 @@ class Playback:
         """Linear solve and linear playback (fast); then hand final requests of warped scenes
         to the refinement process."""
         scene = req.state.scene
-        if req.kind == "final":
-            self._final_source = scene.source
         body = self.physics.body(scene, abandon=lambda: box.pending() or self._stop.is_set())
         if body is None:
             return

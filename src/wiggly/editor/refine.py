@@ -226,7 +226,8 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
             "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim),
             "request": kind,
             # creases the user sees in the warped frames, explained (``wiggly animate`` warns)
-            "folds": fold_note(anim, api=False, groups=groups) if kind == "final" else None}
+            "folds": fold_note(anim, api=False, groups=groups) if kind == "final" else None,
+            "source": scene.source}
     fps = playback_fps(scene.time.fps, problem.start, problem.end,
                        problem.body.surface.n_vertices)
     times = anim.frame_times(fps)
