@@ -16,6 +16,7 @@ import wiggly
 from wiggly.keyframes import Keyframe
 from wiggly.primitives import box_mesh
 from wiggly.solve import warn_folded
+from wiggly.solve.animation import FOLD_TIMES
 
 
 @pytest.fixture(scope="module")
@@ -65,6 +66,11 @@ def test_folds_count_the_tets_the_motion_turns_inside_out(bar, warp):
     assert between
     assert all(row["folded"] == _inside_out(bar, anim, row["time"]) for row in between[:3])
     assert anim.folds([]) == []
+    # a driver keys every frame: at most FOLD_TIMES of the frames and of the key times
+    many = replace(anim, keyframes=[replace(anim.keyframes[2], time=float(t))
+                                    for t in np.linspace(0.0, 1.5, 400)])
+    checked = [row["time"] for row in replace(many, body=bar).folds()]
+    assert len(checked) <= 2 * FOLD_TIMES and checked[0] == 0.0 and checked[-1] == 1.5
     without_keys = wiggly.solve(bar, [], duration=1.0, warp=warp)  # a body at rest
     assert without_keys.folds() == []
     mild, _ = _solve(bar, _push(bar, -0.6), warp)

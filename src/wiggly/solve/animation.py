@@ -27,7 +27,7 @@ __all__ = ["DEFAULT_FPS", "FOLD_TIMES", "Animation"]
 
 # Frames per second of sampled motions unless asked otherwise.
 DEFAULT_FPS = 30.0
-# Animation.folds checks at most this many frames by default (besides the keyframes' times).
+# Animation.folds checks at most this many frames, and as many keyframe times, by default.
 FOLD_TIMES = 150
 
 
@@ -203,7 +203,7 @@ class Animation:
         turns inside out (det of the deformation gradient <= 0).
 
         Default times: the frames at :data:`DEFAULT_FPS` and the keyframes' times (at most
-        :data:`FOLD_TIMES` frames, evenly chosen, besides the keyframes' times).  Each dict
+        :data:`FOLD_TIMES` of each, evenly chosen: a driver keys every frame).  Each dict
         has ``time``, ``folded`` (tets), ``share`` (of all tets), and where there are any,
         ``centre`` (their rest-pose mass centre, m) and ``turns``: the largest rotation the
         linear motion gives them (the length of the rotation vector that the warp
@@ -212,11 +212,11 @@ class Animation:
         surroundings is warped into a crease there.
         """
         if times is None:
-            frames = self.frame_times(DEFAULT_FPS)
-            if len(frames) > FOLD_TIMES:
-                frames = frames[np.linspace(0, len(frames) - 1, FOLD_TIMES).round().astype(int)]
-            keys = [kf.time for kf in self.keyframes]
-            times = np.unique(np.concatenate([frames, keys])) if keys else np.zeros(0)
+            keys = np.unique([kf.time for kf in self.keyframes])
+            times = np.zeros(0)
+            if keys.size:
+                times = np.unique(np.concatenate([_evenly(self.frame_times(DEFAULT_FPS)),
+                                                  _evenly(keys)]))
         times = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if times.size == 0:  # no keyframes, or no times asked
             return []
@@ -269,6 +269,13 @@ class Animation:
                         else:
                             out[j].update(velocity_rms=rms)
         return out
+
+
+def _evenly(times: np.ndarray) -> np.ndarray:
+    """At most :data:`FOLD_TIMES` of the sorted ``times``, evenly chosen (the ends kept)."""
+    if len(times) <= FOLD_TIMES:
+        return times
+    return times[np.linspace(0, len(times) - 1, FOLD_TIMES).round().astype(int)]
 
 
 def _interval_data(values: np.ndarray, velocities: np.ndarray) -> np.ndarray:
