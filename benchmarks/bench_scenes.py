@@ -55,6 +55,7 @@ from wiggly.fem import Material
 from wiggly.keyframes import Keyframe
 from wiggly.mesh import Model, load_model
 from wiggly.solve import Animation, SolveOptions, SpacetimeProblem
+from wiggly.solve.animation import rotation_angles
 
 MODES = 30
 SOFT = Material(young=1e5)
@@ -234,15 +235,10 @@ def wound(body: Body, anim: Animation, keys: list[Keyframe]) -> tuple[float, flo
     gradient, which the warp exponentiates) is longer than pi, and the longest one (rad).
     Past pi the warp's rotation wraps around: W is periodic there, and its objective has
     nearby minima and narrow, curved valleys."""
-    warp = body.fine_level.warp
     q = anim.modal(sorted({k.time for k in keys}))[0]  # the linear states u = Phi q
-    U = (q @ body.basis("tets").T).reshape(len(q), -1, 3)
     share, longest = 0.0, 0.0
-    for u in U:
-        A = (warp.gradient @ u).reshape(-1, 3, 3)  # rows d/dX_j, columns u_i
-        w = 0.5 * np.stack([A[:, 1, 2] - A[:, 2, 1], A[:, 2, 0] - A[:, 0, 2],
-                            A[:, 0, 1] - A[:, 1, 0]], axis=1)
-        angle = np.linalg.norm(w, axis=1)
+    for u in (q @ body.basis("tets").T).reshape(len(q), -1, 3):
+        angle = rotation_angles(body.fine_level.warp.gradient, u)
         share, longest = max(share, 100 * float(np.mean(angle > np.pi))), max(
             longest, float(angle.max()))
     return share, longest

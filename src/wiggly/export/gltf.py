@@ -229,7 +229,7 @@ def read_glb(path: Path) -> SurfaceAnimation:
              for j, prim in enumerate(gltf.meshes[mesh_index].primitives)]
     offsets = np.cumsum([0] + [len(part[0]) for part in parts])
     base = np.concatenate([part[0] for part in parts])
-    faces = np.concatenate([part[1] + o for part, o in zip(parts, offsets, strict=False)])
+    faces = np.concatenate([part[1] + o for part, o in zip(parts, offsets[:-1], strict=True)])
     uvs = (np.concatenate([part[2] for part in parts])
            if all(part[2] is not None for part in parts) else None)
     normals = (np.concatenate([part[3] for part in parts])

@@ -172,10 +172,9 @@ def fold_note(
     if not rows:
         return None
     worst = max(rows, key=lambda row: row["folded"])
-    digits = max(0, 3 - int(np.floor(np.log10(max(diagonal(anim.body.rest_positions()),
-                                                    1e-12)))))
-    centre = ", ".join(f"{c:.{digits}f}" for c in worst["centre"])
     rest = anim.body.rest_positions()
+    digits = max(0, 3 - int(np.floor(np.log10(max(diagonal(rest), 1e-12)))))
+    centre = ", ".join(f"{c:.{digits}f}" for c in worst["centre"])
     gaps = {name: float(np.linalg.norm(rest[v] - worst["centre"], axis=1).min())
             for name, v in (groups or {}).items() if len(v)}
     nearest = ""

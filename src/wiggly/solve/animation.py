@@ -23,7 +23,7 @@ from wiggly.splines import WigglyBasis, energy_form, evaluate
 if TYPE_CHECKING:
     from wiggly.solve.levels import WarmStart
 
-__all__ = ["DEFAULT_FPS", "FOLD_TIMES", "Animation"]
+__all__ = ["DEFAULT_FPS", "FOLD_TIMES", "Animation", "rotation_angles"]
 
 # Frames per second of sampled motions unless asked otherwise.
 DEFAULT_FPS = 30.0
@@ -221,26 +221,24 @@ class Animation:
         if times.size == 0:  # no keyframes, or no times asked
             return []
         body = self.body
-        G = body.fine_level.warp.gradient  # (3 m, n): row 3 t + j is d/dX_j on tet t
+        warp = body.fine_level.warp
         T, X = body.tets.tets, body.tets.vertices
-        volume = np.abs(np.linalg.det(X[T[:, 1:]] - X[T[:, :1]])) / 6.0
-        linear = self.modal(times)[0] @ body.basis("tets").T
+        q = self.modal(times)[0]  # the linear states, made into displacements where folded
         out = []
         for a in range(0, len(times), _PLAYBACK_BATCH):
             part = times[a : a + _PLAYBACK_BATCH]
             moved = self.displacements(part, on="tets")
             for j, (t, w) in enumerate(zip(part, moved, strict=True)):
-                A = (G @ w).reshape(-1, 3, 3)  # A[t, j, i] = d w_i / d X_j
+                A = (warp.gradient @ w).reshape(-1, 3, 3)  # A[t, j, i] = d w_i / d X_j
                 folded = np.linalg.det(A + np.eye(3)) <= 0.0
                 row = {"time": float(t), "folded": int(folded.sum()),
                        "share": float(folded.mean())}
                 if folded.any():
-                    B = (G @ linear[a + j].reshape(-1, 3))[np.repeat(folded, 3)].reshape(-1, 3, 3)
-                    w_rot = 0.5 * (B - B.transpose(0, 2, 1))
-                    angle = np.sqrt(0.5 * (w_rot**2).sum(axis=(1, 2)))
-                    v = volume[folded]
+                    u = (q[a + j] @ body.basis("tets").T).reshape(-1, 3)
+                    v = warp.volumes[folded]
                     row["centre"] = (X[T[folded]].mean(axis=1) * v[:, None]).sum(0) / v.sum()
-                    row["turns"] = float(angle.max() / (2 * np.pi))
+                    row["turns"] = float(rotation_angles(warp.gradient, u)[folded].max()
+                                         / (2 * np.pi))
                 out.append(row)
         return out
 
@@ -269,6 +267,15 @@ class Animation:
                         else:
                             out[j].update(velocity_rms=rms)
         return out
+
+
+def rotation_angles(gradient, U: np.ndarray) -> np.ndarray:
+    """Per tet, the length (rad) of the rotation vector of the linear displacement U (n, 3):
+    the axial vector of the skew part of its gradient, which the warp exponentiates.
+    ``gradient``: the warp's scalar P1 gradient operator (3 m, n)."""
+    A = (gradient @ U).reshape(-1, 3, 3)
+    skew = 0.5 * (A - A.transpose(0, 2, 1))
+    return np.sqrt(0.5 * (skew**2).sum(axis=(1, 2)))
 
 
 def _evenly(times: np.ndarray) -> np.ndarray:
