@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
 
+from wiggly import Damping
 from wiggly.errors import WigglyInputError
 from wiggly.fem import Material
 from wiggly.framebased import solve_framebased
@@ -209,6 +210,24 @@ def test_unknown_vertex_index(bar):
         solve(bar, [Keyframe(0.5, [1, n + 5], np.zeros((2, 3)))], warp=False, end=1.0)
     with pytest.raises(WigglyInputError, match="vertex index -1"):
         Keyframe.rest(bar, 0.0, [-1])
+
+
+def test_a_keyframe_built_on_another_body_is_refused(bar, cantilever, tmp_path_factory):
+    """Keyframe.rest / offset / rigid read targets from the body they are given; solving them
+    on a body whose rest shape differs at those vertices is a mistake, named; the same rest
+    shape (another damping, fixed vertices) is the same body."""
+    longer = make_body(tmp_path_factory, size=(1.5, 0.1, 0.1))
+    tip = np.flatnonzero(bar.rest_positions()[:, 0] > 1 - 1e-9)
+    for kf in (Keyframe.rest(longer, 0.5, tip), Keyframe.offset(longer, 0.5, tip, (0, 0.1, 0)),
+               Keyframe.rigid(longer, 0.5, tip, (0, 0, 0.3))):
+        with pytest.raises(WigglyInputError, match=r"built on another body: its surface vertex "
+                           r"\d+ rests 0.5 m from"):
+            solve(bar, [kf], warp=False, end=1.0)
+    same = [Keyframe.rest(cantilever, 0.5, tip), Keyframe.rigid(bar, 0.5, tip, (0, 0, 0.3))]
+    anim = solve(bar.with_dynamics(damping=Damping(0.1, 0.001)), same, warp=False, end=1.0)
+    assert np.abs(anim.positions([0.5])[0][tip] - same[0].position).max() < 0.05
+    # absolute targets belong to no body
+    solve(bar, [Keyframe(0.5, tip, longer.rest_positions()[tip])], warp=False, end=1.0)
 
 
 def test_nan_target(bar):

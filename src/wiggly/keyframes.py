@@ -82,6 +82,9 @@ class Keyframe:
     name: str = ""
     # how the target was specified, kept for scene files and the editor
     spec: dict = field(default_factory=dict, repr=False)
+    # the rest positions of ``vertices`` on the body the constructors below read them from:
+    # a keyframe built on one body and solved on another is refused (:meth:`checked`)
+    built_on: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def __repr__(self) -> str:  # a summary: the targets are attributes
         what = [w for w, v in (("position", self.position), ("velocity", self.velocity))
@@ -102,7 +105,7 @@ class Keyframe:
         v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
         X = body.rest_positions(on)[v]
         vel = np.zeros(3) if still else kw.pop("velocity", None)
-        return cls(time, v, X.copy(), vel, on, spec={"kind": "rest"}, **kw)
+        return cls(time, v, X.copy(), vel, on, spec={"kind": "rest"}, built_on=X.copy(), **kw)
 
     @classmethod
     def offset(
@@ -112,12 +115,14 @@ class Keyframe:
         on = kw.pop("on", "surface")
         v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
         d = np.broadcast_to(np.asarray(offset, float), (len(v), 3))
+        X = body.rest_positions(on)[v]
         return cls(
             time,
             v,
-            body.rest_positions(on)[v] + d,
+            X + d,
             on=on,
             spec={"kind": "offset", "offset": np.asarray(offset, float)},
+            built_on=X.copy(),
             **kw,
         )
 
@@ -149,7 +154,7 @@ class Keyframe:
             "translation": np.asarray(translation, float),
             "center": c,
         }
-        return cls(time, v, x, on=on, spec=spec, **kw)
+        return cls(time, v, x, on=on, spec=spec, built_on=X.copy(), **kw)
 
     # --- validation and weights ----------------------------------------------------------
     def checked(self, body: Body, t0: float, t1: float, label: str = "") -> Keyframe:
@@ -163,6 +168,7 @@ class Keyframe:
         if self.on not in ("surface", "tets"):
             raise WigglyInputError(f"{what}: on = {self.on!r}; use 'surface' or 'tets'")
         v = vertex_indices(self.vertices, body.n_vertices(self.on), self.on, what)
+        _check_same_body(body, what, v, self.on, self.built_on)
         pos = vel = None
         if self.position is not None:
             pos = np.asarray(self.position, float)
@@ -210,6 +216,28 @@ class Keyframe:
         return float(c_A), float(c_B)
 
 
+
+
+def _check_same_body(body: Body, what: str, v: np.ndarray, on: Where,
+                     built_on: np.ndarray | None) -> None:
+    """Refuse a keyframe whose constructor read its targets from another body: its vertices'
+    rest positions there (``built_on``) are not this body's (the same surface meshed again is
+    the same body for surface keyframes)."""
+    if built_on is None:
+        return
+    here = body.rest_positions(on)[v]
+    size = float(np.ptp(body.rest_positions(on), axis=0).max())
+    gap = np.linalg.norm(np.asarray(built_on, float).reshape(here.shape) - here, axis=1) \
+        if np.size(built_on) == here.size else None
+    if gap is not None and gap.max() <= 1e-9 * max(size, 1e-300):
+        return
+    where = "" if gap is None else (
+        f": its {on} vertex {int(v[int(gap.argmax())])} rests {gap.max():.3g} m from where "
+        "this body's does")
+    raise WigglyInputError(
+        f"{what} was built on another body{where}, so its targets come from that body's rest "
+        f"shape. Build it with this body (Keyframe.rest / offset / rigid(body, ...)), or give "
+        "absolute targets with Keyframe(time, vertices, position=...).")
 
 
 def _warn_if_held(body: Body, what: str, v: np.ndarray, on: str, pos: np.ndarray | None,
