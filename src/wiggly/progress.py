@@ -30,7 +30,7 @@ from typing import TypeVar
 from tqdm import tqdm
 
 __all__ = [
-    "Counter", "activity", "bar", "deprecated_progress", "frames", "iterations", "log",
+    "Activity", "Counter", "activity", "bar", "deprecated_progress", "frames", "iterations", "log",
     "on_terminal", "reporting", "say", "shown",
 ]
 
@@ -116,38 +116,72 @@ def say(message: str, enabled: bool = True, logger: logging.Logger = log) -> Non
         logger.info(message)
 
 
+class Activity:
+    """The handle :func:`activity` gives: ``live`` when a line is drawn on a terminal, and
+    :meth:`note` to show what the blocking call is doing now (e.g. fTetWild's pass)."""
+
+    def __init__(self, desc: str = "", line: tqdm | None = None) -> None:
+        self.desc, self.line, self.text = desc, line, ""
+        self.t0 = time.perf_counter()
+
+    @property
+    def live(self) -> bool:
+        return self.line is not None
+
+    def note(self, text: str) -> None:
+        self.text = text  # the ticker draws it
+
+    def draw(self) -> None:
+        """Redraw the line: the description, the elapsed time and the note, the description
+        shortened so that the time and the note fit the terminal's width."""
+        if self.line is None:
+            return
+        elapsed = tqdm.format_interval(time.perf_counter() - self.t0)
+        tail = f": {elapsed}, {self.text}" if self.text else f": {elapsed} elapsed"
+        try:
+            width = os.get_terminal_size(sys.stderr.fileno()).columns or 80
+        except (AttributeError, ValueError, OSError):
+            width = shutil.get_terminal_size().columns
+        room = max(width - 1 - len(tail), 20)
+        desc = self.desc if len(self.desc) <= room else self.desc[:room - 3] + "..."
+        self.line.set_description_str(desc + tail, refresh=True)
+
+
 @contextmanager
-def _ticking(desc: str) -> Iterator[None]:
-    line = bar(total=None, desc=f"[wiggly] {desc}", bar_format="{desc}: {elapsed} elapsed",
-               leave=True)
+def _ticking(desc: str) -> Iterator[Activity]:
+    line = bar(total=None, bar_format="{desc}", leave=True)
+    handle = Activity(f"[wiggly] {desc}", line)
+    handle.draw()
     stop = threading.Event()
 
     def tick() -> None:
         while not stop.wait(0.25):
-            line.refresh()
+            handle.draw()
 
     thread = threading.Thread(target=tick, daemon=True)
     thread.start()
     try:
-        yield
+        yield handle
     finally:
         stop.set()
         thread.join()
+        handle.note("")
+        handle.draw()
         line.close()
 
 
 @contextmanager
-def activity(desc: str, enabled: bool = True) -> Iterator[None]:
+def activity(desc: str, enabled: bool = True) -> Iterator[Activity]:
     """While a blocking call (e.g. fTetWild) runs: a live elapsed-time line on a terminal, or
     one INFO line before it starts (when stages are :func:`shown` and ``enabled``)."""
     if not (enabled and shown()):
-        yield
+        yield Activity()
     elif on_terminal():
-        with _ticking(desc):
-            yield
+        with _ticking(desc) as handle:
+            yield handle
     else:
         log.info(desc)
-        yield
+        yield Activity()
 
 
 class Counter:

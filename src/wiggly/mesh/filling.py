@@ -19,6 +19,7 @@ from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, default_cache_dir
 from wiggly.limits import MAX_RESOLUTION, MAX_TETS
 from wiggly.mesh import defects as mesh_checks
+from wiggly.mesh import tetwild_child
 from wiggly.mesh.data import (
     DEFAULT_RESOLUTION,
     ENVELOPE_PER_EDGE,
@@ -41,6 +42,11 @@ from wiggly.progress import activity, deprecated_progress, reporting
 
 _CWD_LOCK = threading.Lock()
 _TET_CACHE_VERSION = b"wiggly-tets-2"
+# fTetWild's mesh optimization: at most this many passes, ending early once the worst tet's
+# conformal AMIPS energy is below STOP_ENERGY (its defaults; a regular tet has 3)
+OPTIMIZATION_PASSES = 80
+STOP_ENERGY = 10.0
+
 
 
 def _tet_cache(V: np.ndarray, F: np.ndarray, edge_length: float, envelope: float,
@@ -296,16 +302,18 @@ def tetrahedralize_with_report(
     if tv is None:
         what = (f"{counted(len(F), 'triangle')} simplified from {report.n_faces}"
                 if simple is not None else counted(len(F), "triangle"))
+        options = {"edge_length_abs": float(h), "epsilon": envelope,
+                   "stop_energy": STOP_ENERGY, "num_opt_iter": OPTIMIZATION_PASSES}
         with activity(f"tetrahedralizing {source} (fTetWild: {what}, about "
-                      f"{_round(estimate)} tets)"), _scratch_cwd():
-            tv, tt = pytetwild.tetrahedralize(
-                np.ascontiguousarray(V),
-                np.ascontiguousarray(F, dtype=np.int32),
-                edge_length_abs=float(h),
-                epsilon=envelope,
-                quiet=True,
-                loglevel=6,
-            )
+                      f"{_round(estimate)} tets)") as line:
+            if line.live and tetwild_child.can_run_child():  # the line ticks, with stages
+                tv, tt = tetwild_child.tetrahedralize_in_child(
+                    V, F, options, tetwild_child.Log(line, OPTIMIZATION_PASSES, STOP_ENERGY))
+            else:
+                with _scratch_cwd():
+                    tv, tt = pytetwild.tetrahedralize(
+                        np.ascontiguousarray(V), np.ascontiguousarray(F, dtype=np.int32),
+                        quiet=True, loglevel=6, **options)
         if cached is not None and len(tt):
             try:  # first writer wins: every process then meshes this surface the same way
                 with atomic_file(cached, replace=False) as tmp, open(tmp, "wb") as f:

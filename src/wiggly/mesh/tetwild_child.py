@@ -1,0 +1,126 @@
+"""fTetWild in a child process, so that its progress can be shown while it runs.
+
+pytetwild holds the interpreter lock for its whole call (1-120 s on the surfaces users
+bring), so no thread of the calling process runs meanwhile: a live stage line would freeze
+at its first second and look hung.  Where a live line is drawn (:func:`wiggly.progress.
+activity` on a terminal), :func:`tetrahedralize_in_child` runs the same call in a child
+Python process instead: the parent's line ticks, and fTetWild's own log (its stdout, line by
+line) names the stage and the optimization's pass (:class:`Log`).  The child works in a
+private temporary directory, where fTetWild also writes its debug file.  The answer is the
+one the same call gives in-process; fTetWild is randomized either way.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from wiggly.progress import Activity, log
+
+__all__ = ["Log", "can_run_child", "tetrahedralize_in_child"]
+
+
+class Log:
+    """Reads fTetWild's log lines into the stage line's note: which stage runs, and during
+    the optimization its pass and its worst tet's energy (conformal AMIPS; a regular tet has
+    3).  On a messy surface the passes, about a second each on 14k tets, are where the
+    minutes go."""
+
+    def __init__(self, line: Activity, passes: int, stop_energy: float) -> None:
+        self.line, self.passes, self.stop_energy = line, passes, stop_energy
+        self.energy: float | None = None
+
+    def __call__(self, text: str) -> None:
+        if text.startswith("Tetrahedralization performed"):
+            self.line.note("inserting the surface")
+        elif text.startswith("max_energy = "):
+            try:
+                self.energy = float(text.split("=")[1])
+            except ValueError:
+                log.debug("unexpected fTetWild line %r", text)
+        elif text.startswith("////") and " pass " in text:
+            k = text.split("pass")[1].strip(" /")
+            worst = f", worst {self.energy:.3g}" if self.energy is not None else ""
+            if k.isdigit():
+                self.line.note(f"shaping tets {int(k) + 1}/{self.passes}{worst} (stop < "
+                               f"{self.stop_energy:g})")
+        elif "postprocessing" in text:
+            self.line.note("finishing")
+
+
+def can_run_child() -> bool:
+    """Whether ``sys.executable`` is a Python that can start this module (not, e.g., a
+    Blender binary that embeds the interpreter)."""
+    name = Path(sys.executable or "").name.lower()
+    return name.startswith("python") or name.startswith("pypy")
+
+
+def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
+                            on_line: Callable[[str], None]) -> tuple[np.ndarray, np.ndarray]:
+    """``pytetwild.tetrahedralize(V, F, **options)`` in a child process, its log lines handed
+    to ``on_line`` as they come.  Ctrl+C (or any exception here) ends the child."""
+    with tempfile.TemporaryDirectory(prefix="wiggly-ftetwild-") as tmp:
+        inp, out = Path(tmp, "surface.npz"), Path(tmp, "tets.npz")
+        np.savez(inp, vertices=np.ascontiguousarray(V, np.float64),
+                 faces=np.ascontiguousarray(F, np.int32), **{
+                     k: np.asarray(v) for k, v in options.items()})
+        child = subprocess.Popen(
+            [sys.executable, "-c", _CHILD, str(inp), str(out)],
+            cwd=tmp, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        errors: list[bytes] = []
+        drain = threading.Thread(target=lambda: errors.append(child.stderr.read()), daemon=True)
+        drain.start()
+        try:
+            for raw in child.stdout:
+                on_line(raw.decode("utf-8", "replace").rstrip("\n"))
+            code = child.wait()
+        finally:
+            if child.poll() is None:
+                child.kill()
+                child.wait()
+            child.stdout.close()
+            drain.join()
+            child.stderr.close()
+        if code != 0 or not out.exists():
+            tail = b"".join(errors).decode("utf-8", "replace").strip().splitlines()[-5:]
+            raise RuntimeError(f"fTetWild's process ended with code {code}: "
+                               + " / ".join(tail))
+        with np.load(out) as data:
+            return data["vertices"], data["tets"]
+
+
+# The child's program: numpy and pytetwild only (importing wiggly would double its start-up).
+# C stdio's stdout is made line-buffered before any output (glibc's and macOS's symbols;
+# elsewhere the lines come in bursts), so that the parent sees each line as it is written.
+_CHILD = """
+import ctypes, os, sys
+try:
+    libc = ctypes.CDLL(None)
+    for symbol in ("stdout", "__stdoutp"):
+        try:
+            libc.setvbuf(ctypes.c_void_p.in_dll(libc, symbol), None, 1, 0)
+            break
+        except ValueError:
+            pass
+except (OSError, AttributeError):
+    pass
+import numpy as np
+import pytetwild
+inp, out = sys.argv[1:3]
+with np.load(inp) as data:
+    V, F = data["vertices"], data["faces"]
+    options = {k: data[k].item() for k in data.files if k not in ("vertices", "faces")}
+tv, tt = pytetwild.tetrahedralize(V, F, quiet=False, loglevel=6, **options)
+sys.stdout.flush()
+with open(out + ".part", "wb") as f:
+    np.savez(f, vertices=np.asarray(tv), tets=np.asarray(tt))
+os.replace(out + ".part", out)
+"""

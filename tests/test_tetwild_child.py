@@ -1,0 +1,83 @@
+"""fTetWild's progress: its stage line keeps ticking and names the optimization's pass.
+
+pytetwild holds the interpreter lock for its whole call, so on a terminal fTetWild runs in
+a child process (``wiggly.mesh.tetwild_child``) and the parent draws the line meanwhile.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import trimesh
+
+import wiggly.progress as progress
+from wiggly.mesh import Surface, tetrahedralize
+from wiggly.mesh.tetwild_child import Log, tetrahedralize_in_child
+from wiggly.progress import Activity
+
+
+def sphere() -> tuple[np.ndarray, np.ndarray]:
+    s = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    return np.asarray(s.vertices), np.asarray(s.faces)
+
+
+def tet_volume(V: np.ndarray, T: np.ndarray) -> float:
+    e = V[T[:, 1:]] - V[T[:, :1]]
+    return float(np.abs(np.linalg.det(e)).sum() / 6)
+
+
+def test_the_log_names_the_stage_and_the_pass():
+    line = Activity()
+    notes = []
+    line.note = notes.append
+    log = Log(line, 80, 10.0)
+    for text in ["Loading mesh...", "Tetrahedralization performed.", "max_energy = 292870",
+                 "//////////////// pass 0 ////////////////", "max_energy = 21.6238",
+                 "//////////////// pass 11 ////////////////", "max_energy = oops",
+                 "//////////////// postprocessing ////////////////"]:
+        log(text)
+    assert notes == ["inserting the surface", "shaping tets 1/80, worst 2.93e+05 (stop < 10)",
+                     "shaping tets 12/80, worst 21.6 (stop < 10)", "finishing"]
+
+
+def test_the_child_gives_the_tets_and_its_log():
+    V, F = sphere()
+    lines = []
+    tv, tt = tetrahedralize_in_child(V, F, {"edge_length_abs": 0.08, "epsilon": 1e-3}, lines.append)
+    tt = np.asarray(tt).reshape(-1, 4)
+    assert len(tt) > 500
+    # the solid it fills is the ball (the icosphere's volume, within fTetWild's envelope)
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.5).volume
+    assert abs(tet_volume(np.asarray(tv), tt) - ball) < 0.01 * ball
+    assert any(line.startswith("//////////////// pass 0") for line in lines)
+    assert any(line.startswith("max_energy = ") for line in lines)
+
+
+def test_a_failing_child_is_an_error_not_a_hang():
+    V, F = sphere()
+    with pytest.raises(RuntimeError, match="fTetWild's process ended with code"):
+        tetrahedralize_in_child(V, F, {"no_such_option": 1.0}, lambda _: None)
+
+
+def test_the_stage_line_ticks_while_ftetwild_runs(monkeypatch):
+    """On a terminal the line is redrawn every quarter second through the whole call and
+    shows the pass; in-process (the lock held) it was drawn only before and after."""
+    draws: list[tuple[float, str]] = []
+
+    def draw(self):
+        draws.append((time.perf_counter(), self.text))
+
+    monkeypatch.setattr(progress, "on_terminal", lambda: True)
+    monkeypatch.setattr(Activity, "draw", draw)
+    V, F = sphere()
+    t0 = time.perf_counter()
+    with progress.reporting(True):
+        mesh = tetrahedralize(Surface(V, F), resolution=30, cache_dir=False)
+    t1 = time.perf_counter()
+    assert mesh.n_tets > 1000
+    stamps = np.array([t0] + [t for t, _ in draws if t0 <= t <= t1] + [t1])
+    # never long without a redraw (in-process, the whole fTetWild call went without one)
+    assert t1 - t0 > 1.0 and np.diff(stamps).max() < max(1.0, 0.5 * (t1 - t0))
+    assert any(text.startswith("shaping tets ") for _, text in draws)
