@@ -133,13 +133,7 @@ def test_a_spun_region_is_reported_in_turns(bar):
     assert any("spins them" in str(w.message) for w in caught)
 
 
-def test_wiggly_animate_warns_of_folds_in_its_own_words(tmp_path, capsys):
-    """The command line names the scene file and leaves out the Python pointer."""
-    from wiggly.cli import main
-
-    V, T = box_mesh((12, 3, 3), (1.2, 0.3, 0.3))
-    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
-    (tmp_path / "push.toml").write_text("""\
+PUSH_SCENE = """\
 format = 1
 [mesh]
 path = "bar.vtu"
@@ -168,8 +162,23 @@ position = "rest"
 [[keyframes]]
 time = 1.0
 group = "right"
-position = { offset = [-1.8, 0.0, 0.0] }
-""")
+position = { offset = [DX, 0.0, 0.0] }
+"""
+
+
+def _push_scene(folder, dx: float = -1.8):
+    """The pushed bar as a scene file (``dx`` as in :func:`_push`)."""
+    V, T = box_mesh((12, 3, 3), (1.2, 0.3, 0.3))
+    meshio.write(folder / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+    (folder / "push.toml").write_text(PUSH_SCENE.replace("DX", repr(dx)))
+    return folder / "push.toml"
+
+
+def test_wiggly_animate_warns_of_folds_in_its_own_words(tmp_path, capsys):
+    """The command line names the scene file and leaves out the Python pointer."""
+    from wiggly.cli import main
+
+    _push_scene(tmp_path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         assert main(["animate", str(tmp_path / "push.toml"), "-o",
@@ -180,3 +189,75 @@ position = { offset = [-1.8, 0.0, 0.0] }
     assert "anim.folds()" not in folds[0]
     # the nearest group is named: a surface group over the folded middle, not the tets group
     assert "in the rest pose (the nearest group is 'beside', " in folds[0], folds[0]
+
+
+def test_fold_highlights_cover_the_folding_frames_and_the_surface_there(bar):
+    """Highlights over the frames that fold more than FOLDED of the tets (counted here from
+    the played-back tets' signed volumes; frames less than two highlight windows apart make
+    one span), over the surface the folded tets carry."""
+    from wiggly.render.setup import HIGHLIGHT_WINDOW
+    from wiggly.scene.run import FOLD_COLOR, fold_highlights
+    from wiggly.solve import FOLDED
+
+    anim, _ = _solve(bar, _push(bar, -1.8), warp=True)
+    times = anim.frame_times(30.0)
+    P = anim.positions(times, on="tets")[:, bar.tets.tets]
+    inside_out = np.linalg.det(P[:, :, 1:] - P[:, :, :1]) <= 0  # (frames, tets)
+    folding = inside_out.mean(axis=1) > FOLDED
+    assert folding.any() and not folding.all()
+    highlights = fold_highlights(anim, times)
+    assert highlights and all(h.color == FOLD_COLOR for h in highlights)
+    covered = np.zeros(len(times), bool)
+    for h in highlights:
+        span = (times >= h.time) & (times <= h.until)
+        first, last = np.flatnonzero(span)[[0, -1]]
+        assert folding[first] and folding[last]  # a span starts and ends at folding frames
+        folded_at = times[folding & span]  # and has no gap of two windows without one
+        assert np.diff(folded_at, prepend=h.time).max() < 2 * HIGHLIGHT_WINDOW
+        covered |= span
+        folded = np.flatnonzero(inside_out[span & folding].any(axis=0))
+        carried = np.isin(bar.model.embedding.tet_index, folded)
+        assert set(np.flatnonzero(carried)) <= set(h.vertices)  # its surface is shown ...
+        # ... and every vertex shown lies within a tet's size of a tet folded in the span
+        centres = bar.tets.vertices[bar.tets.tets[folded]].mean(axis=1)
+        gap = np.linalg.norm(bar.surface.vertices[h.vertices][:, None] - centres[None], axis=2)
+        assert gap.min(axis=1).max() < 0.2
+        assert h.label.startswith("folded: ")
+    assert covered[folding].all()  # no folding frame is left out
+    mild, _ = _solve(bar, _push(bar, -0.3), warp=True)
+    assert fold_highlights(mild, times) == []
+
+
+def test_a_preview_shows_where_the_motion_folds(tmp_path):
+    """`wiggly render` of a folding scene colours the fold in its contact sheet; the same
+    scene pushed mildly shows no such colour."""
+    from PIL import Image
+
+    from wiggly import render
+    from wiggly.cli import main
+
+    try:
+        render.check_offscreen()
+    except render.RenderingError as err:
+        pytest.skip(f"offscreen OpenGL rendering is not available: {err}")
+
+    def fold_pixels(dx):
+        folder = tmp_path / f"dx{dx}"
+        folder.mkdir()
+        scene = _push_scene(folder, dx)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            assert main(["render", str(scene), "-o", str(folder / "sheet.png"), "-q"]) == 0
+        img = np.asarray(Image.open(folder / "sheet.png").convert("RGB")).astype(int)
+        # the body's part of each of the 8 tiles (480 x 270 below a 40-pixel title, 6-pixel
+        # gaps): the labels below it name the fold in its colour too
+        body = np.zeros(img.shape[:2], bool)
+        for row in range(2):
+            for col in range(4):
+                y, x = 40 + 6 + row * (270 + 6), 6 + col * (480 + 6)
+                body[y + 30 : y + 200, x : x + 480] = True
+        r, g, b = (img[..., k][body] for k in range(3))
+        return int(np.sum((r - g > 50) & (b - g > 30)))  # FOLD_COLOR's hue, shaded
+
+    assert fold_pixels(-1.8) > 200
+    assert fold_pixels(-0.3) == 0

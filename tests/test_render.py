@@ -24,6 +24,7 @@ from wiggly.render import (
     render_video,
     video_frame_times,
 )
+from wiggly.render.setup import checked_highlights
 
 SIZE = (192, 108)
 
@@ -119,6 +120,16 @@ def test_highlight_weight_is_a_smoothstep():
     assert hl.weight(1.0 + 0.25 * 0.25) == pytest.approx(hl.weight(1.0 - 0.25 * 0.25))
     s = np.linspace(1.0, 1.3, 31)
     assert np.all(np.diff([hl.weight(t) for t in s]) <= 0)  # fades out monotonically
+
+
+def test_a_span_highlight_is_full_from_time_until_and_fades_outside():
+    hl = Highlight(np.array([0]), time=1.0, window=0.25, until=2.0)
+    assert hl.weight(1.0) == hl.weight(1.5) == hl.weight(2.0) == 1.0
+    assert hl.weight(0.75) == hl.weight(2.25) == 0.0
+    assert hl.weight(2.125) == pytest.approx(0.5) == hl.weight(0.875)
+    with pytest.raises(WigglyInputError, match=r"highlights\[0\]: until = 0.5 s comes before "
+                       r"time = 1 s"):
+        checked_highlights([Highlight(np.array([0]), time=1.0, until=0.5)], 4)
 
 
 def test_targets_drawn_only_around_key_time(offscreen, ball):

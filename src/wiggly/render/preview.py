@@ -324,7 +324,10 @@ class Preview:
             actor = text((margin, margin), valign="bottom",
                          color=tuple(0.8 * np.asarray(hl.color)), bold=True)
             name = hl.label or f"keyframe {k + 1}"
-            actor.SetInput(f"{name}  (key t = {hl.time:.2f} s)" if hl.label is not None else "")
+            when = (f"key t = {hl.time:.2f} s" if hl.until is None else
+                    f"t = {hl.time:.2f} s" if hl.until == hl.time else
+                    f"t = {hl.time:.2f}-{hl.until:.2f} s")
+            actor.SetInput(f"{name}  ({when})" if hl.label is not None else "")
             actor.SetVisibility(False)
             self._key_labels.append(actor)
         self._label_rows = (margin, round(1.3 * font))  # first row, row height

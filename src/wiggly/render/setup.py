@@ -63,7 +63,7 @@ class RenderingError(RuntimeError):
 
 @dataclass
 class Highlight:
-    """A keyframed vertex group, highlighted around its key time.
+    """A keyframed vertex group, highlighted around its key time (or over a span of time).
 
     Attributes
     ----------
@@ -81,6 +81,9 @@ class Highlight:
         Target positions, drawn as small spheres while highlighted.
     window : float
         Half-width of the highlight in seconds.
+    until : float or None
+        The end of a span from ``time``: fully highlighted from ``time`` to ``until``, fading
+        over ``window`` on either side (e.g. the frames where a motion folds).
     """
 
     vertices: np.ndarray
@@ -89,10 +92,14 @@ class Highlight:
     label: str | None = ""
     targets: np.ndarray | None = None
     window: float = HIGHLIGHT_WINDOW
+    until: float | None = None
 
     def weight(self, t: float) -> float:
-        """Blend weight of the highlight color at time ``t``: smoothstep, 1 at the key time."""
-        s = min(max(1.0 - abs(t - self.time) / self.window, 0.0), 1.0)
+        """Blend weight of the highlight color at time ``t``: smoothstep, 1 at the key time
+        (or between ``time`` and ``until``)."""
+        end = self.time if self.until is None else self.until
+        gap = max(self.time - t, t - end, 0.0)
+        s = min(max(1.0 - gap / self.window, 0.0), 1.0)
         return s * s * (3.0 - 2.0 * s)
 
 
@@ -189,6 +196,12 @@ def checked_highlights(highlights: Sequence[Highlight], n: int) -> list[Highligh
         color = unit_color(h.color, f"{where}: color")
         time = finite_number(h.time, f"{where}: time")
         window = positive_number(h.window, f"{where}: window", "s")
+        until = None
+        if h.until is not None:
+            until = finite_number(h.until, f"{where}: until")
+            if until < time:
+                raise WigglyInputError(f"{where}: until = {until:g} s comes before time = "
+                                       f"{time:g} s")
         targets = None
         if h.targets is not None:
             targets = array(h.targets, f"{where}: targets", 3)
@@ -196,7 +209,7 @@ def checked_highlights(highlights: Sequence[Highlight], n: int) -> list[Highligh
             if len(bad):
                 raise WigglyInputError(f"{where}: targets should be finite; target {bad[0]} is "
                                        f"{targets[bad[0]].tolist()}")
-        out.append(Highlight(v, time, color, h.label, targets, window))
+        out.append(Highlight(v, time, color, h.label, targets, window, until))
     return out
 
 

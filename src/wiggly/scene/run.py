@@ -19,6 +19,7 @@ from wiggly.files import OutputSet, check_writable
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
 from wiggly.render import Highlight
+from wiggly.render.setup import HIGHLIGHT_WINDOW
 from wiggly.scene.build import build_with_groups
 from wiggly.scene.drive import linear_start_of, secondary_of
 from wiggly.scene.groups import resolve_groups
@@ -33,7 +34,7 @@ from wiggly.scene.spec import (
     Scene,
 )
 from wiggly.scene.validation import input_error, show
-from wiggly.solve import MISSED, SpacetimeProblem, missed_keys, solve, warn_folded
+from wiggly.solve import FOLDED, MISSED, SpacetimeProblem, missed_keys, solve, warn_folded
 
 
 def _output_paths(scene: Scene, outputs) -> list[Path]:
@@ -104,6 +105,44 @@ def keyframe_highlights(scene: Scene, body, keyframes, groups: dict[str, np.ndar
             targets = kf.position[pick.astype(np.int64)]
         out.append(Highlight(np.asarray(verts, np.int64), kf.time, _hex_rgb(colors[spec.group]),
                              spec.label, targets))
+    return out
+
+
+#: The colour of the surface where a warped motion folds, in previews.
+FOLD_COLOR = (0.8, 0.0, 0.55)
+
+
+def fold_highlights(anim, times) -> list:
+    """:class:`wiggly.render.Highlight` of the surface where ``anim`` folds more than
+    :data:`wiggly.solve.FOLDED` of its tets (:meth:`~wiggly.Animation.folds` at ``times``,
+    the frames a preview shows): one for each span of such frames (frames less than two
+    highlight windows apart make one span, since their highlights would overlap anyway),
+    over the surface vertices that folded tets carry and those nearest to folded tets inside
+    the body, labelled with the most tets folded at a frame of the span."""
+    times = np.asarray(times, dtype=np.float64)
+    rows = [row for row in anim.folds(times) if row["share"] > FOLDED]
+    if not rows:
+        return []
+    body = anim.body
+    carrier = body.model.embedding.tet_index
+    centres = body.tets.vertices[body.tets.tets].mean(axis=1)
+    tree = cKDTree(body.surface.vertices)
+    spans: list[list[dict]] = []
+    for row in rows:
+        if spans and row["time"] - spans[-1][-1]["time"] < 2 * HIGHLIGHT_WINDOW:
+            spans[-1].append(row)
+        else:
+            spans.append([row])
+    out = []
+    for span in spans:
+        tets = np.unique(np.concatenate([row["tets"] for row in span]))
+        nearest = tree.query(centres[tets])[1]
+        vertices = np.union1d(np.flatnonzero(np.isin(carrier, tets)), nearest)
+        worst = max(span, key=lambda row: row["folded"])
+        label = (f"folded: {'up to ' if len(span) > 1 else ''}{worst['folded']} tets "
+                 f"({100 * worst['share']:.2g} %) turned inside out")
+        out.append(Highlight(vertices.astype(np.int64), span[0]["time"], FOLD_COLOR, label,
+                             until=span[-1]["time"]))  # fading in and out as keys do
     return out
 
 
@@ -181,16 +220,18 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     if note is not None:
         say(f"note: {note}")
     _warn_missed(scene, anim)
+    highlights = keyframe_highlights(scene, body, anim.keyframes, groups)
     if scene.simulation.warp and not scene.secondary_motion:
-        warn_folded(anim, f"{scene.where()}: the warped motion", api=False,
-                    groups=surface_groups(scene, groups))
+        folding = warn_folded(anim, f"{scene.where()}: the warped motion", api=False,
+                              groups=surface_groups(scene, groups))
+        if folding is not None and any(p.suffix.lower() in PREVIEW_EXTENSIONS for p in paths):
+            highlights += fold_highlights(anim, anim.frame_times(scene.time.fps))
     if scene.drive is not None:
         anim.info["drive"] = following(anim)
         say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"
              f" mm (rms {1e3 * anim.info['drive']['rms']:.3g} mm)")
         _warn_unfollowed(scene, anim.info["drive"], body)
-    written = write_outputs(scene, anim, paths, overwrite=overwrite,
-                            highlights=keyframe_highlights(scene, body, anim.keyframes, groups),
+    written = write_outputs(scene, anim, paths, overwrite=overwrite, highlights=highlights,
                             timings=timings)
     anim.info["scene"] = {"outputs": written, "seconds": timings, "groups": groups}
     return anim

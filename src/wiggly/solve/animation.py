@@ -205,9 +205,9 @@ class Animation:
         Default times: the frames at :data:`DEFAULT_FPS` and the keyframes' times (at most
         :data:`FOLD_TIMES` of each, evenly chosen: a driver keys every frame).  Each dict
         has ``time``, ``folded`` (tets), ``share`` (of all tets), and where there are any,
-        ``centre`` (their rest-pose mass centre, m) and ``turns``: the largest rotation the
-        linear motion gives them (the length of the rotation vector that the warp
-        exponentiates, in turns).  Rotation-strain warping turns each tet by its own
+        ``tets`` (their indices), ``centre`` (their rest-pose mass centre, m) and ``turns``:
+        the largest rotation the linear motion gives them (the length of the rotation vector
+        that the warp exponentiates, in turns).  Rotation-strain warping turns each tet by its own
         rotation, so a linear motion that spins a small region by several turns against its
         surroundings is warped into a crease there.
         """
@@ -234,6 +234,7 @@ class Animation:
                 row = {"time": float(t), "folded": int(folded.sum()),
                        "share": float(folded.mean())}
                 if folded.any():
+                    row["tets"] = np.flatnonzero(folded)
                     u = (q[a + j] @ body.basis("tets").T).reshape(-1, 3)
                     v = warp.volumes[folded]
                     row["centre"] = (X[T[folded]].mean(axis=1) * v[:, None]).sum(0) / v.sum()
