@@ -224,8 +224,10 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     if scene.simulation.warp and not scene.secondary_motion:
         folding = warn_folded(anim, f"{scene.where()}: the warped motion", api=False,
                               groups=surface_groups(scene, groups))
-        if folding is not None and any(p.suffix.lower() in PREVIEW_EXTENSIONS for p in paths):
+        previews = [p.name for p in paths if p.suffix.lower() in PREVIEW_EXTENSIONS]
+        if folding is not None and previews:
             highlights += fold_highlights(anim, anim.frame_times(scene.time.fps))
+            say(f"the previews ({', '.join(previews)}) colour the folded surface magenta")
     if scene.drive is not None:
         anim.info["drive"] = following(anim)
         say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"
