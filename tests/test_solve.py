@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import itertools
 import warnings
+from dataclasses import replace
 
+import meshio
 import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
 
-from wiggly import Damping
+from wiggly import Damping, load_model, prepare
 from wiggly.errors import WigglyInputError
 from wiggly.fem import Material
 from wiggly.framebased import solve_framebased
 from wiggly.keyframes import Keyframe
+from wiggly.primitives import box_mesh
 from wiggly.solve import solve
 
 from .conftest import make_body
@@ -228,6 +231,24 @@ def test_a_keyframe_built_on_another_body_is_refused(bar, cantilever, tmp_path_f
     assert np.abs(anim.positions([0.5])[0][tip] - same[0].position).max() < 0.05
     # absolute targets belong to no body
     solve(bar, [Keyframe(0.5, tip, longer.rest_positions()[tip])], warp=False, end=1.0)
+    # the same bar read from float32 coordinates (rounded by about 1e-9 m) is the same body
+    V, T = box_mesh((10, 2, 2), (1.0, 0.1, 0.1))
+    path = tmp_path_factory.mktemp("f32") / "bar.vtu"
+    meshio.write(path, meshio.Mesh(V.astype(np.float32), [("tetra", T)]))
+    rounded = prepare(load_model(path), n_modes=10, cache_dir=False)
+    assert 0 < np.abs(rounded.rest_positions() - bar.rest_positions()).max() < 1e-7
+    solve(rounded, [Keyframe.rest(bar, 0.5, tip)], warp=False, end=1.0)
+    # a keyframe whose vertices were changed after it was built is still of its body
+    moved = replace(Keyframe.rest(bar, 0.5, tip), vertices=tip[:4],
+                    position=bar.rest_positions()[tip[:4]])
+    solve(bar, [moved], warp=False, end=1.0)
+    # a vertex the body does not have: named as another body's
+    bigger = make_body(tmp_path_factory, shape=(20, 2, 2), size=(2.0, 0.1, 0.1))
+    far = Keyframe.rest(bigger, 0.5, [bigger.n_vertices() - 1])
+    with pytest.raises(WigglyInputError, match=rf"built on another body: it was made with "
+                       rf"surface vertex {bigger.n_vertices() - 1}, and this body has "
+                       rf"{bar.n_vertices()} surface vertices"):
+        solve(bar, [far], warp=False, end=1.0)
 
 
 def test_nan_target(bar):

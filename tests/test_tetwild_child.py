@@ -6,7 +6,12 @@ a child process (``wiggly.mesh.tetwild_child``) and the parent draws the line me
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -38,7 +43,9 @@ def test_the_log_names_the_stage_and_the_pass():
                  "//////////////// pass 11 ////////////////", "max_energy = oops",
                  "//////////////// postprocessing ////////////////"]:
         log(text)
-    assert notes == ["inserting the surface", "shaping tets 1/80, worst 2.93e+05 (stop < 10)",
+    assert notes == ["inserting the surface", "shaping tets 1/80, worst 2.93e05 (stop < 10)",
+                     "shaping tets 1/80, worst 21.6 (stop < 10)",  # the worst tet now
+                     "shaping tets 12/80, worst 21.6 (stop < 10)",
                      "shaping tets 12/80, worst 21.6 (stop < 10)", "finishing"]
 
 
@@ -59,6 +66,51 @@ def test_a_failing_child_is_an_error_not_a_hang():
     V, F = sphere()
     with pytest.raises(RuntimeError, match="fTetWild's process ended with code"):
         tetrahedralize_in_child(V, F, {"no_such_option": 1.0}, lambda _: None)
+
+
+PARENT = """
+import sys, os, numpy as np, trimesh
+from wiggly.mesh.tetwild_child import tetrahedralize_in_child
+s = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
+def line(text):
+    if not os.path.exists(sys.argv[1]):
+        with open(sys.argv[1], "w") as f:
+            f.write(str(os.getpid()))
+tetrahedralize_in_child(np.asarray(s.vertices), np.asarray(s.faces),
+                        {"edge_length_abs": 0.01, "epsilon": 1e-3}, line)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGKILL])
+def test_the_child_ends_with_its_parent(tmp_path, signum):
+    """A parent ended by SIGTERM (kill PID) or SIGKILL leaves no fTetWild process running;
+    SIGTERM also removes the temporary folder."""
+    started = tmp_path / "started"
+    before = set(Path(tempfile.gettempdir()).glob("wiggly-ftetwild-*"))
+    parent = subprocess.Popen([sys.executable, "-c", PARENT, str(started)])
+    try:
+        deadline = time.monotonic() + 60
+        while not started.exists() and time.monotonic() < deadline and parent.poll() is None:
+            time.sleep(0.05)
+        assert started.exists(), "fTetWild's child never wrote a line"
+        children = [int(p) for p in Path(f"/proc/{parent.pid}/task/{parent.pid}/children")
+                    .read_text().split()]
+        assert children
+        parent.send_signal(signum)
+        parent.wait(timeout=30)
+        deadline = time.monotonic() + 10
+        while any(Path(f"/proc/{c}").exists() for c in children) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        alive = [c for c in children if Path(f"/proc/{c}").exists()
+                 and Path(f"/proc/{c}/stat").read_text().split()[2] != "Z"]
+        assert not alive
+        if signum == signal.SIGTERM:
+            assert set(Path(tempfile.gettempdir()).glob("wiggly-ftetwild-*")) <= before
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
 
 
 def test_the_stage_line_ticks_while_ftetwild_runs(monkeypatch):

@@ -82,9 +82,10 @@ class Keyframe:
     name: str = ""
     # how the target was specified, kept for scene files and the editor
     spec: dict = field(default_factory=dict, repr=False)
-    # the rest positions of ``vertices`` on the body the constructors below read them from:
+    # (vertices, their rest positions) on the body the constructors below read targets from:
     # a keyframe built on one body and solved on another is refused (:meth:`checked`)
-    built_on: np.ndarray | None = field(default=None, repr=False, compare=False)
+    built_on: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False,
+                                                           compare=False)
 
     def __repr__(self) -> str:  # a summary: the targets are attributes
         what = [w for w, v in (("position", self.position), ("velocity", self.velocity))
@@ -105,7 +106,8 @@ class Keyframe:
         v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
         X = body.rest_positions(on)[v]
         vel = np.zeros(3) if still else kw.pop("velocity", None)
-        return cls(time, v, X.copy(), vel, on, spec={"kind": "rest"}, built_on=X.copy(), **kw)
+        return cls(time, v, X.copy(), vel, on, spec={"kind": "rest"},
+                   built_on=(v.copy(), X.copy()), **kw)
 
     @classmethod
     def offset(
@@ -122,7 +124,7 @@ class Keyframe:
             X + d,
             on=on,
             spec={"kind": "offset", "offset": np.asarray(offset, float)},
-            built_on=X.copy(),
+            built_on=(v.copy(), X.copy()),
             **kw,
         )
 
@@ -154,7 +156,7 @@ class Keyframe:
             "translation": np.asarray(translation, float),
             "center": c,
         }
-        return cls(time, v, x, on=on, spec=spec, built_on=X.copy(), **kw)
+        return cls(time, v, x, on=on, spec=spec, built_on=(v.copy(), X.copy()), **kw)
 
     # --- validation and weights ----------------------------------------------------------
     def checked(self, body: Body, t0: float, t1: float, label: str = "") -> Keyframe:
@@ -167,8 +169,8 @@ class Keyframe:
             )
         if self.on not in ("surface", "tets"):
             raise WigglyInputError(f"{what}: on = {self.on!r}; use 'surface' or 'tets'")
+        _check_same_body(body, what, self.on, self.built_on)
         v = vertex_indices(self.vertices, body.n_vertices(self.on), self.on, what)
-        _check_same_body(body, what, v, self.on, self.built_on)
         pos = vel = None
         if self.position is not None:
             pos = np.asarray(self.position, float)
@@ -218,26 +220,35 @@ class Keyframe:
 
 
 
-def _check_same_body(body: Body, what: str, v: np.ndarray, on: Where,
-                     built_on: np.ndarray | None) -> None:
-    """Refuse a keyframe whose constructor read its targets from another body: its vertices'
-    rest positions there (``built_on``) are not this body's (the same surface meshed again is
-    the same body for surface keyframes)."""
-    if built_on is None:
+def _check_same_body(body: Body, what: str, on: Where,
+                     built_on: tuple[np.ndarray, np.ndarray] | None) -> None:
+    """Refuse a keyframe whose constructor read its targets from another body: the vertices
+    it was built with do not rest where they did there (within 1e-6 of the body's size, so
+    the same surface read from a float32 file is the same body; so is the same surface
+    meshed again, for surface keyframes)."""
+    if built_on is None or on not in ("surface", "tets"):
         return
-    here = body.rest_positions(on)[v]
-    size = float(np.ptp(body.rest_positions(on), axis=0).max())
-    gap = np.linalg.norm(np.asarray(built_on, float).reshape(here.shape) - here, axis=1) \
-        if np.size(built_on) == here.size else None
-    if gap is not None and gap.max() <= 1e-9 * max(size, 1e-300):
+    built, rest = built_on
+    mesh = "surface" if on == "surface" else "tet-mesh"
+    again = (" (meshing a surface again renumbers its tet-mesh vertices: key the surface, "
+             "on = 'surface')" if on == "tets" else "")
+    n = body.n_vertices(on)
+    advice = (f"Build it with this body (Keyframe.rest / offset / rigid(body, ...)), or give "
+              f"absolute targets with Keyframe(time, vertices, position=...){again}.")
+    if len(built) and int(built.max()) >= n:
+        raise WigglyInputError(
+            f"{what} was built on another body: it was made with {mesh} vertex "
+            f"{int(built.max())}, and this body has {n} {mesh} vertices. " + advice)
+    all_rest = body.rest_positions(on)
+    gap = np.linalg.norm(np.asarray(rest, float) - all_rest[built], axis=1)
+    size = float(np.ptp(all_rest, axis=0).max())
+    if not len(gap) or gap.max() <= 1e-6 * size:
         return
-    where = "" if gap is None else (
-        f": its {on} vertex {int(v[int(gap.argmax())])} rests {gap.max():.3g} m from where "
-        "this body's does")
+    worst = int(gap.argmax())
     raise WigglyInputError(
-        f"{what} was built on another body{where}, so its targets come from that body's rest "
-        f"shape. Build it with this body (Keyframe.rest / offset / rigid(body, ...)), or give "
-        "absolute targets with Keyframe(time, vertices, position=...).")
+        f"{what} was built on another body: its {mesh} vertex {int(built[worst])} rests "
+        f"{gap[worst]:.3g} m from where this body's does, so its targets come from that "
+        "body's rest shape. " + advice)
 
 
 def _warn_if_held(body: Body, what: str, v: np.ndarray, on: str, pos: np.ndarray | None,

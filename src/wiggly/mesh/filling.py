@@ -304,7 +304,8 @@ def tetrahedralize_with_report(
                 if simple is not None else counted(len(F), "triangle"))
         options = {"edge_length_abs": float(h), "epsilon": envelope,
                    "stop_energy": STOP_ENERGY, "num_opt_iter": OPTIMIZATION_PASSES}
-        with activity(f"tetrahedralizing {source} (fTetWild: {what}, about "
+        name = os.path.basename(source) or source  # as the checking line names it
+        with activity(f"tetrahedralizing {name} (fTetWild: {what}, about "
                       f"{_round(estimate)} tets)") as line:
             if line.live and tetwild_child.can_run_child():  # the line ticks, with stages
                 tv, tt = tetwild_child.tetrahedralize_in_child(

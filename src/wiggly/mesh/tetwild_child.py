@@ -13,11 +13,13 @@ one the same call gives in-process; fTetWild is randomized either way.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import tempfile
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +38,7 @@ class Log:
     def __init__(self, line: Activity, passes: int, stop_energy: float) -> None:
         self.line, self.passes, self.stop_energy = line, passes, stop_energy
         self.energy: float | None = None
+        self.k: int | None = None  # the optimization's pass, from 1
 
     def __call__(self, text: str) -> None:
         if text.startswith("Tetrahedralization performed"):
@@ -45,14 +48,23 @@ class Log:
                 self.energy = float(text.split("=")[1])
             except ValueError:
                 log.debug("unexpected fTetWild line %r", text)
+            self._passes()
         elif text.startswith("////") and " pass " in text:
             k = text.split("pass")[1].strip(" /")
-            worst = f", worst {self.energy:.3g}" if self.energy is not None else ""
             if k.isdigit():
-                self.line.note(f"shaping tets {int(k) + 1}/{self.passes}{worst} (stop < "
-                               f"{self.stop_energy:g})")
+                self.k = int(k) + 1
+                self._passes()
         elif "postprocessing" in text:
+            self.k = None
             self.line.note("finishing")
+
+    def _passes(self) -> None:
+        """The note during the optimization: its pass and the worst tet's energy now."""
+        if self.k is None:
+            return
+        worst = "" if self.energy is None else f", worst {self.energy:.3g}".replace("e+", "e")
+        self.line.note(f"shaping tets {self.k}/{self.passes}{worst} (stop < "
+                       f"{self.stop_energy:g})")
 
 
 def can_run_child() -> bool:
@@ -72,23 +84,24 @@ def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
                  faces=np.ascontiguousarray(F, np.int32), **{
                      k: np.asarray(v) for k, v in options.items()})
         child = subprocess.Popen(
-            [sys.executable, "-c", _CHILD, str(inp), str(out)],
+            [sys.executable, "-c", _CHILD, str(inp), str(out), str(os.getpid())],
             cwd=tmp, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
             env={**os.environ, "PYTHONUNBUFFERED": "1"})
         errors: list[bytes] = []
         drain = threading.Thread(target=lambda: errors.append(child.stderr.read()), daemon=True)
         drain.start()
-        try:
-            for raw in child.stdout:
-                on_line(raw.decode("utf-8", "replace").rstrip("\n"))
-            code = child.wait()
-        finally:
-            if child.poll() is None:
-                child.kill()
-                child.wait()
-            child.stdout.close()
-            drain.join()
-            child.stderr.close()
+        with _terminate_as_exit():
+            try:
+                for raw in child.stdout:
+                    on_line(raw.decode("utf-8", "replace").rstrip("\n"))
+                code = child.wait()
+            finally:
+                if child.poll() is None:
+                    child.kill()
+                    child.wait()
+                child.stdout.close()
+                drain.join()
+                child.stderr.close()
         if code != 0 or not out.exists():
             tail = b"".join(errors).decode("utf-8", "replace").strip().splitlines()[-5:]
             raise RuntimeError(f"fTetWild's process ended with code {code}: "
@@ -97,13 +110,38 @@ def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
             return data["vertices"], data["tets"]
 
 
+@contextmanager
+def _terminate_as_exit() -> Iterator[None]:
+    """In the main thread, a SIGTERM while the child runs (``kill PID``, a process manager)
+    raises SystemExit instead of ending the process at once, so that the child is killed and
+    the temporary folder removed (the child also dies with its parent on Linux).  A handler
+    the program set itself is left alone."""
+    main = threading.current_thread() is threading.main_thread()
+    if not main or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+
+    def stop(signum, frame):
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 # The child's program: numpy and pytetwild only (importing wiggly would double its start-up).
 # C stdio's stdout is made line-buffered before any output (glibc's and macOS's symbols;
 # elsewhere the lines come in bursts), so that the parent sees each line as it is written.
 _CHILD = """
-import ctypes, os, sys
+import ctypes, os, signal, sys
 try:
     libc = ctypes.CDLL(None)
+    if sys.platform.startswith("linux"):  # killed with the parent, however it ends
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+        if os.getppid() != int(sys.argv[3]):
+            sys.exit(1)
     for symbol in ("stdout", "__stdoutp"):
         try:
             libc.setvbuf(ctypes.c_void_p.in_dll(libc, symbol), None, 1, 0)
