@@ -214,3 +214,38 @@ def test_drive_settings_need_a_drive(tmp_path):
         apply_edit(state, {"op": "set", "section": "drive", "values": {"intensity": 2.0}})
     with pytest.raises(EditError):
         apply_edit(state, {"op": "set_group_young", "name": "tip", "young": -5})
+
+
+def test_the_page_tints_where_the_warped_motion_folds(chromium, tmp_path):
+    """The bar's free end pushed through its fixed one: the final warped frames carry the
+    spans and surface vertices where tets turn inside out, and the page tints those vertices
+    magenta over their span (as previews do), and nothing away from it."""
+    from tests.editor_ui import bar_project
+
+    path = bar_project(tmp_path)
+    path.write_text(path.read_text().replace("[0.0, 0.05, 0.0]", "[-1.8, 0.0, 0.0]"))
+    server = serve(path)
+    base, fold = np.array([0.70, 0.74, 0.80]), np.array([0.8, 0.0, 0.55])
+    try:
+        with editor_page(chromium, server.url) as (page, errors):
+            spans = wait_final(page).get("fold_spans")
+            assert spans, "no fold spans in the final frames"
+            span = max(spans, key=lambda s: len(s["vertices"]))
+            inside = np.asarray(span["vertices"])
+            page.evaluate(f"window.wiggly.setTime({(span['from'] + span['until']) / 2})")
+            color = np.asarray(page.evaluate("window.wiggly.shownColors()")).reshape(-1, 3)
+            tinted = base + 0.9 * (fold - base)
+            assert np.abs(color[inside] - tinted).max() < 1e-3
+            others = np.setdiff1d(np.arange(len(color)), np.concatenate(
+                [s["vertices"] for s in spans]))
+            assert (np.linalg.norm(color[others] - tinted, axis=1) > 0.2).all()
+            # away from every span (by more than the 0.25 s fade) nothing is magenta
+            far = [t for t in np.linspace(0.0, 1.0, 41)
+                   if all(t < s["from"] - 0.26 or t > s["until"] + 0.26 for s in spans)]
+            assert far, spans
+            page.evaluate(f"window.wiggly.setTime({far[0]})")
+            color = np.asarray(page.evaluate("window.wiggly.shownColors()")).reshape(-1, 3)
+            assert (np.linalg.norm(color - tinted, axis=1) > 0.2).all()
+            assert not errors, errors
+    finally:
+        server.stop()

@@ -229,13 +229,14 @@ class Playback:
                 self._folding = source if folds is not None else None
             self._publish(FrameSet(0, seq, version, "warped", final and not drag, start, fps,
                                    positions, request, info))
+            said = {k: v for k, v in info.items() if k != "fold_spans"}  # the frames' own
             if final:
                 self.bus.publish("solve", sticky=not drag, seq=seq, version=version,
-                                 stage="done", message=done_message(info), **info)
+                                 stage="done", message=done_message(said), **said)
             else:
                 self.bus.publish("solve", sticky=not drag, seq=seq, version=version,
                                  stage="warped",
-                                 message=f"warped solve: {info['iterations']} iterations", **info)
+                                 message=f"warped solve: {info['iterations']} iterations", **said)
         elif kind == "progress":
             info = payload[0]
             drag = info.pop("request", "final") == "drag"

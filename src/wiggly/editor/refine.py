@@ -189,6 +189,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     abandons it, and a progress line goes out every ``PUSH_SECONDS``.  Its answers carry the
     request's ``kind``; a drag's solution, too, starts the next solve of the range."""
     from wiggly.scene.drive import linear_start_of
+    from wiggly.scene.run import fold_highlights
     from wiggly.solve import fold_note
 
     t0 = time.perf_counter()
@@ -231,6 +232,9 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     fps = playback_fps(scene.time.fps, problem.start, problem.end,
                        problem.body.surface.n_vertices)
     times = anim.frame_times(fps)
+    if info["folds"] is not None:  # and where: the page tints them as previews do
+        info["fold_spans"] = [{"from": h.time, "until": h.until, "vertices": h.vertices.tolist()}
+                              for h in fold_highlights(anim, times)]
     positions = anim.positions(times, dtype=np.float32)
     channel.send(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
 

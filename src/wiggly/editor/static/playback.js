@@ -5,6 +5,7 @@ import { $, S, api, hooks, geometry, scene, range, groupColor, setStatus, redraw
 
 const BASE = new THREE.Color(0.70, 0.74, 0.80);
 const SELECTED = new THREE.Color(1.0, 0.86, 0.25);
+const FOLD = new THREE.Color(0.8, 0.0, 0.55);  // where the warped motion folds, as in previews
 const KEY_WINDOW = 0.25;       // s: a keyframed group is highlighted this close to its key time
 const STAGE_RANK = { linear: 0, warped: 1 };
 
@@ -199,7 +200,10 @@ export function updateColors(force = true) {
     const w = Math.max(0, 1 - Math.abs(S.t - k.time) / KEY_WINDOW);
     weights[k.group] = Math.max(weights[k.group] || 0, 0.18 + 0.82 * w);
   }
-  const key = JSON.stringify(weights);
+  // the surface over tets the warped frames turn inside out, over the spans where they do
+  const spans = (S.frames && S.frames.meta.fold_spans) || [];
+  const folds = spans.map(sp => Math.max(0, 1 - Math.max(sp.from - S.t, S.t - sp.until, 0) / KEY_WINDOW));
+  const key = JSON.stringify([weights, S.frames ? S.frames.meta.id : null, folds]);
   if (!force && key === colorsKey) return;
   colorsKey = key;
   for (let i = 0; i < S.n; i++) { c[3 * i] = BASE.r; c[3 * i + 1] = BASE.g; c[3 * i + 2] = BASE.b; }
@@ -213,6 +217,14 @@ export function updateColors(force = true) {
       c[3 * i + 2] = BASE.b + (tint.b - BASE.b) * w;
     }
   }
+  spans.forEach((sp, k) => {
+    const w = 0.9 * folds[k];
+    if (w > 0) for (const i of sp.vertices) {
+      c[3 * i] = BASE.r + (FOLD.r - BASE.r) * w;
+      c[3 * i + 1] = BASE.g + (FOLD.g - BASE.g) * w;
+      c[3 * i + 2] = BASE.b + (FOLD.b - BASE.b) * w;
+    }
+  });
   for (let i = 0; i < S.n; i++) {
     if (S.selection[i]) { c[3 * i] = SELECTED.r; c[3 * i + 1] = SELECTED.g; c[3 * i + 2] = SELECTED.b; }
   }
