@@ -147,9 +147,9 @@ try:
             libc.setvbuf(ctypes.c_void_p.in_dll(libc, symbol), None, 1, 0)
             break
         except ValueError:
-            pass
+            pass  # not this C library's name for stdout: try the next
 except (OSError, AttributeError):
-    pass
+    pass  # no C library to tune: the lines come in bursts
 import numpy as np
 import pytetwild
 inp, out = sys.argv[1:3]
