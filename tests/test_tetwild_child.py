@@ -133,3 +133,19 @@ def test_the_stage_line_ticks_while_ftetwild_runs(monkeypatch):
     # never long without a redraw (in-process, the whole fTetWild call went without one)
     assert t1 - t0 > 1.0 and np.diff(stamps).max() < max(1.0, 0.5 * (t1 - t0))
     assert any(text.startswith("shaping tets ") for _, text in draws)
+
+
+def test_off_a_terminal_the_log_gets_the_passes_now_and_then(monkeypatch, caplog):
+    """Piped (a log, the Blender add-on's status), fTetWild's stage goes to the log every
+    NOTE_EVERY seconds while it runs, not only once before it starts."""
+    monkeypatch.setattr(progress, "on_terminal", lambda: False)
+    monkeypatch.setattr(progress, "NOTE_EVERY", 0.2)
+    V, F = sphere()
+    with progress.reporting(True), caplog.at_level("INFO", logger="wiggly"):
+        tetrahedralize(Surface(V, F), resolution=30, cache_dir=False)
+    lines = [r.getMessage() for r in caplog.records]
+    assert any(m.startswith("tetrahedralizing surface (fTetWild:") and "tets)" in m[-6:]
+               for m in lines), lines
+    passes = [m for m in lines if ": shaping tets " in m]
+    assert passes and all(m.startswith("tetrahedralizing surface") and m.endswith(" s)")
+                          for m in passes), lines

@@ -116,13 +116,19 @@ def say(message: str, enabled: bool = True, logger: logging.Logger = log) -> Non
         logger.info(message)
 
 
-class Activity:
-    """The handle :func:`activity` gives: ``live`` when a line is drawn on a terminal, and
-    :meth:`note` to show what the blocking call is doing now (e.g. fTetWild's pass)."""
+#: Off a terminal, an activity's notes reach the log at most this often (s).
+NOTE_EVERY = 10.0
 
-    def __init__(self, desc: str = "", line: tqdm | None = None) -> None:
-        self.desc, self.line, self.text = desc, line, ""
-        self.t0 = time.perf_counter()
+
+class Activity:
+    """The handle :func:`activity` gives: ``live`` when a line is drawn on a terminal,
+    ``logged`` when stages go to the log instead, and :meth:`note` to say what the blocking
+    call is doing now (e.g. fTetWild's pass): on the live line, or in the log at most every
+    :data:`NOTE_EVERY` seconds."""
+
+    def __init__(self, desc: str = "", line: tqdm | None = None, logged: bool = False) -> None:
+        self.desc, self.line, self.text, self.logged = desc, line, "", logged
+        self.t0 = self.said = time.perf_counter()
 
     @property
     def live(self) -> bool:
@@ -130,6 +136,10 @@ class Activity:
 
     def note(self, text: str) -> None:
         self.text = text  # the ticker draws it
+        now = time.perf_counter()
+        if self.logged and text and now - self.said >= NOTE_EVERY:
+            self.said = now
+            log.info(f"{self.desc}: {text} ({now - self.t0:.0f} s)")
 
     def draw(self) -> None:
         """Redraw the line: the description, the elapsed time and the note, the description
@@ -181,7 +191,7 @@ def activity(desc: str, enabled: bool = True) -> Iterator[Activity]:
             yield handle
     else:
         log.info(desc)
-        yield Activity()
+        yield Activity(desc, logged=True)
 
 
 class Counter:

@@ -307,7 +307,9 @@ def tetrahedralize_with_report(
         name = os.path.basename(source) or source  # as the checking line names it
         with activity(f"tetrahedralizing {name} (fTetWild: {what}, about "
                       f"{_round(estimate)} tets)") as line:
-            if line.live and tetwild_child.can_run_child():  # the line ticks, with stages
+            # in a child, the line ticks (the call holds the interpreter lock) and its log
+            # names the stages, on the line or every NOTE_EVERY seconds in the log
+            if (line.live or line.logged) and tetwild_child.can_run_child():
                 tv, tt = tetwild_child.tetrahedralize_in_child(
                     V, F, options, tetwild_child.Log(line, OPTIMIZATION_PASSES, STOP_ENERGY))
             else:
