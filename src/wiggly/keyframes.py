@@ -226,7 +226,7 @@ def _check_same_body(body: Body, what: str, on: Where,
     it was built with do not rest where they did there (within 1e-6 of the body's size, so
     the same surface read from a float32 file is the same body; so is the same surface
     meshed again, for surface keyframes)."""
-    if built_on is None or on not in ("surface", "tets"):
+    if built_on is None:
         return
     built, rest = built_on
     mesh = "surface" if on == "surface" else "tet-mesh"

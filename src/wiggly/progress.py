@@ -95,14 +95,20 @@ def on_terminal() -> bool:
         return False
 
 
+def _stderr_columns() -> int | None:
+    """The width of the terminal on stderr (0 for a pseudo-terminal whose size was never set),
+    or None when stderr is no terminal."""
+    try:
+        return os.get_terminal_size(sys.stderr.fileno()).columns
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
 def bar(**options) -> tqdm:
     """A tqdm bar on stderr.  A terminal that reports 0 columns (a pseudo-terminal whose size
     was never set, as some container and CI runners give) would get empty lines from tqdm:
     there the bar takes ``$COLUMNS`` x ``$LINES``, or 80 x 24."""
-    try:
-        columns = os.get_terminal_size(sys.stderr.fileno()).columns
-    except (AttributeError, ValueError, OSError):
-        columns = None
+    columns = _stderr_columns()
     if columns == 0:
         size = shutil.get_terminal_size()  # $COLUMNS and $LINES, or 80 x 24
         options.update(ncols=size.columns, nrows=size.lines, dynamic_ncols=False)
@@ -148,10 +154,7 @@ class Activity:
             return
         elapsed = tqdm.format_interval(time.perf_counter() - self.t0)
         tail = f": {elapsed}, {self.text}" if self.text else f": {elapsed} elapsed"
-        try:
-            width = os.get_terminal_size(sys.stderr.fileno()).columns or 80
-        except (AttributeError, ValueError, OSError):
-            width = shutil.get_terminal_size().columns
+        width = _stderr_columns() or shutil.get_terminal_size().columns  # as bar() does
         room = max(width - 1 - len(tail), 20)
         desc = self.desc if len(self.desc) <= room else self.desc[:room - 3] + "..."
         self.line.set_description_str(desc + tail, refresh=True)

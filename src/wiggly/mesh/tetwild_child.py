@@ -2,10 +2,11 @@
 
 pytetwild holds the interpreter lock for its whole call (1-120 s on the surfaces users
 bring), so no thread of the calling process runs meanwhile: a live stage line would freeze
-at its first second and look hung.  Where a live line is drawn (:func:`wiggly.progress.
-activity` on a terminal), :func:`tetrahedralize_in_child` runs the same call in a child
-Python process instead: the parent's line ticks, and fTetWild's own log (its stdout, line by
-line) names the stage and the optimization's pass (:class:`Log`).  The child works in a
+at its first second and look hung.  Where stages are reported (:func:`wiggly.progress.
+activity`: a live line on a terminal, or the log), :func:`tetrahedralize_in_child` runs the
+same call in a child Python process instead: the parent's line ticks, and fTetWild's own log
+(its stdout, line by line) names the stage and the optimization's pass (:class:`Log`), on the
+line or in the log every :data:`wiggly.progress.NOTE_EVERY` seconds.  The child works in a
 private temporary directory, where fTetWild also writes its debug file.  The answer is the
 one the same call gives in-process; fTetWild is randomized either way.
 """

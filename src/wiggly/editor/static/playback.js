@@ -206,25 +206,19 @@ export function updateColors(force = true) {
   const key = JSON.stringify([weights, S.frames ? S.frames.meta.id : null, folds]);
   if (!force && key === colorsKey) return;
   colorsKey = key;
+  const blend = (idx, color, w) => {  // the vertices idx, from grey towards color by w
+    for (const i of idx) {
+      c[3 * i] = BASE.r + (color.r - BASE.r) * w;
+      c[3 * i + 1] = BASE.g + (color.g - BASE.g) * w;
+      c[3 * i + 2] = BASE.b + (color.b - BASE.b) * w;
+    }
+  };
   for (let i = 0; i < S.n; i++) { c[3 * i] = BASE.r; c[3 * i + 1] = BASE.g; c[3 * i + 2] = BASE.b; }
   for (const [name, w] of Object.entries(weights)) {
     const idx = S.groupVerts[name];
-    if (!idx) continue;
-    tint.set(groupColor(name));
-    for (const i of idx) {
-      c[3 * i] = BASE.r + (tint.r - BASE.r) * w;
-      c[3 * i + 1] = BASE.g + (tint.g - BASE.g) * w;
-      c[3 * i + 2] = BASE.b + (tint.b - BASE.b) * w;
-    }
+    if (idx) blend(idx, tint.set(groupColor(name)), w);
   }
-  spans.forEach((sp, k) => {
-    const w = 0.9 * folds[k];
-    if (w > 0) for (const i of sp.vertices) {
-      c[3 * i] = BASE.r + (FOLD.r - BASE.r) * w;
-      c[3 * i + 1] = BASE.g + (FOLD.g - BASE.g) * w;
-      c[3 * i + 2] = BASE.b + (FOLD.b - BASE.b) * w;
-    }
-  });
+  spans.forEach((sp, k) => { if (folds[k] > 0) blend(sp.vertices, FOLD, 0.9 * folds[k]); });
   for (let i = 0; i < S.n; i++) {
     if (S.selection[i]) { c[3 * i] = SELECTED.r; c[3 * i + 1] = SELECTED.g; c[3 * i + 2] = SELECTED.b; }
   }
