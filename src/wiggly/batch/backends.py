@@ -104,7 +104,9 @@ class LocalPool:
         try:
             self._pool.submit(os.getpid).result()
         except BrokenProcessPool as err:
-            self._pool.shutdown(wait=False, cancel_futures=True)
+            # wait for the dead workers, so that their last words on stderr come before the
+            # caller's error and not after it
+            self._pool.shutdown(wait=True, cancel_futures=True)
             raise WigglyInputError(_unstartable(err)) from None
 
     def describe(self) -> str:
