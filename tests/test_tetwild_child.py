@@ -149,3 +149,20 @@ def test_off_a_terminal_the_log_gets_the_passes_now_and_then(monkeypatch, caplog
     passes = [m for m in lines if ": shaping tets " in m]
     assert passes and all(m.startswith("tetrahedralizing surface") and m.endswith(" s)")
                           for m in passes), lines
+
+
+@pytest.mark.parametrize("width", [100, 80, 72, 60, 50, 44])
+def test_the_line_fits_the_terminal_and_cuts_the_note_after_a_word(width):
+    """The stage line fits the terminal: the description shortens first, then the note ends
+    after a whole word with "...", never inside one."""
+    desc = "[wiggly] tetrahedralizing a_long_model_name.glb (fTetWild, resolution 49)"
+    note = "shaping tets 38/80, worst 18.9 (stop < 10)"
+    line = progress.fit_line(desc, "01:12", note, width - 1)
+    assert len(line) <= width - 1, line
+    shown = line.split(": 01:12", 1)[1].removeprefix(", ")
+    if shown.endswith("..."):
+        kept = shown[:-3]
+        assert note.startswith(kept) and note[len(kept)] in " ,", (kept, note)
+    else:
+        assert shown == note
+    assert line.startswith(desc[:progress.MIN_DESC - 3])

@@ -148,16 +148,34 @@ class Activity:
             log.info(f"{self.desc}: {text} ({now - self.t0:.0f} s)")
 
     def draw(self) -> None:
-        """Redraw the line: the description, the elapsed time and the note, the description
-        shortened so that the time and the note fit the terminal's width."""
+        """Redraw the line: the description, the elapsed time and the note, fitted to the
+        terminal's width (:func:`fit_line`)."""
         if self.line is None:
             return
         elapsed = tqdm.format_interval(time.perf_counter() - self.t0)
-        tail = f": {elapsed}, {self.text}" if self.text else f": {elapsed} elapsed"
         width = _stderr_columns() or shutil.get_terminal_size().columns  # as bar() does
-        room = max(width - 1 - len(tail), 20)
-        desc = self.desc if len(self.desc) <= room else self.desc[:room - 3] + "..."
-        self.line.set_description_str(desc + tail, refresh=True)
+        self.line.set_description_str(fit_line(self.desc, elapsed, self.text, width - 1),
+                                      refresh=True)
+
+
+#: A shortened description keeps at least this many characters.
+MIN_DESC = 20
+
+
+def fit_line(desc: str, elapsed: str, note: str, room: int) -> str:
+    """``desc: elapsed, note`` (``desc: elapsed elapsed`` without a note) in at most ``room``
+    characters where it can be: the description is shortened first (to ``MIN_DESC``
+    characters, ending in "..."), then the note is cut after a whole word ("...") or left
+    out."""
+    tail = f", {note}" if note else " elapsed"
+    excess = len(desc) + len(elapsed) + 2 + len(tail) - room
+    if excess > 0 and len(desc) > MIN_DESC:
+        desc = desc[:max(len(desc) - excess, MIN_DESC) - 3] + "..."
+        excess = len(desc) + len(elapsed) + 2 + len(tail) - room
+    if excess > 0 and note:
+        words = tail[: max(len(tail) - excess - 3, 0) + 1].rsplit(" ", 1)[0].rstrip(" ,:;")
+        tail = words + "..." if words else ""
+    return f"{desc}: {elapsed}{tail}"
 
 
 @contextmanager
