@@ -166,3 +166,25 @@ def test_the_line_fits_the_terminal_and_cuts_the_note_after_a_word(width):
     else:
         assert shown == note
     assert line.startswith(desc[:progress.MIN_DESC - 3])
+
+
+def test_off_a_terminal_long_loops_log_their_count_now_and_then(monkeypatch, caplog):
+    """Piped, a solver's iteration counter and a loop over frames log how far they are every
+    NOTE_EVERY seconds while they run (a long warped solve in a log does not look hung),
+    then one closing line."""
+    monkeypatch.setattr(progress, "on_terminal", lambda: False)
+    monkeypatch.setattr(progress, "NOTE_EVERY", 0.05)
+    with progress.reporting(True), caplog.at_level("INFO", logger="wiggly"):
+        with progress.iterations("warped solve (Newton)") as bar:
+            for k in range(4):
+                time.sleep(0.06)
+                bar.update(1)
+                bar.set_postfix_str(f"objective {k}")
+        for _ in progress.frames(range(3), 3, "rendering"):
+            time.sleep(0.06)
+    lines = [r.getMessage() for r in caplog.records]
+    during = [m for m in lines if m.startswith("warped solve (Newton): ") and "so far" in m]
+    assert len(during) >= 3 and during[0].startswith("warped solve (Newton): 1 it so far"), lines
+    assert any(m.startswith("warped solve (Newton): 4 it, objective 3 (") for m in lines), lines
+    assert any(m.startswith("rendering: 1 frame so far") for m in lines), lines
+    assert lines[-1].startswith("rendering: 3 frames ("), lines

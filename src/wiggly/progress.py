@@ -215,16 +215,28 @@ def activity(desc: str, enabled: bool = True) -> Iterator[Activity]:
         yield Activity(desc, logged=True)
 
 
+def _counted(n: int, unit: str) -> str:
+    return f"{n} {unit if n == 1 or unit == 'it' else unit + 's'}"
+
+
 class Counter:
-    """What :func:`iterations` gives off a terminal: counts like a tqdm bar and logs one line
-    with the count and the last status when it closes."""
+    """What :func:`iterations` gives off a terminal: counts like a tqdm bar, logs the count
+    and the last status at most every :data:`NOTE_EVERY` seconds while it runs (a long solve
+    piped to a log does not look hung), and one line when it closes."""
 
     def __init__(self, desc: str, unit: str, enabled: bool) -> None:
         self.desc, self.unit, self.enabled = desc, unit, enabled
         self.n, self.postfix, self.t0 = 0, "", time.perf_counter()
+        self.said = self.t0
 
     def update(self, n: int = 1) -> None:
         self.n += n
+        now = time.perf_counter()
+        if self.enabled and now - self.said >= NOTE_EVERY:
+            self.said = now
+            status = f", {self.postfix}" if self.postfix else ""
+            log.info(f"{self.desc}: {_counted(self.n, self.unit)} so far{status} "
+                     f"({now - self.t0:.0f} s)")
 
     def set_postfix_str(self, text: str = "", refresh: bool = True) -> None:
         self.postfix = text
@@ -235,8 +247,7 @@ class Counter:
     def close(self) -> None:
         if self.enabled:
             status = f", {self.postfix}" if self.postfix else ""
-            unit = self.unit if self.n == 1 or self.unit == "it" else self.unit + "s"
-            log.info(f"{self.desc}: {self.n} {unit}{status} "
+            log.info(f"{self.desc}: {_counted(self.n, self.unit)}{status} "
                      f"({time.perf_counter() - self.t0:.1f} s)")
             self.enabled = False
 
@@ -269,7 +280,13 @@ def frames(items: Iterable, total: int | None, desc: str, enabled: bool = True,
 
 
 def _logged(items: Iterable, desc: str, unit: str) -> Iterator:
+    """``items``, logging the count at most every :data:`NOTE_EVERY` seconds and when done."""
     t0, n = time.perf_counter(), 0
-    for n, item in enumerate(items, 1):  # noqa: B007 (n counts what was yielded)
+    said = t0
+    for n, item in enumerate(items, 1):
         yield item
-    log.info(f"{desc}: {n} {unit}{'' if n == 1 else 's'} ({time.perf_counter() - t0:.1f} s)")
+        now = time.perf_counter()
+        if now - said >= NOTE_EVERY:
+            said = now
+            log.info(f"{desc}: {_counted(n, unit)} so far ({now - t0:.0f} s)")
+    log.info(f"{desc}: {_counted(n, unit)} ({time.perf_counter() - t0:.1f} s)")
