@@ -457,16 +457,22 @@ def test_modes_count_out_of_range_is_told_before_any_work(capsys):
 
 
 def test_keys_missed_under_an_implausible_gravity_name_the_units(capsys, tmp_path):
-    """Gravity given in the wrong units (1e5 m/s^2) is named as a likely unit slip before
-    the solve (which grinds on such targets), and the missed-key warning points to it, not
-    only to "raise their stiffness", which would not help."""
+    """Gravity given in the wrong units (981, Earth's in cm/s^2) is named as a likely unit
+    slip before the solve (which grinds on such targets), and the missed-key warning points
+    to it, not only to "raise their stiffness", which would not help."""
     data = copy.deepcopy(SCENE)
-    data["simulation"]["gravity"] = [0.0, -1e5, 0.0]
+    data["simulation"]["gravity"] = [0.0, -981.0, 0.0]
     code, _, err = run_main(capsys, "animate", write_scene(tmp_path, data), "--linear",
                             "-o", tmp_path / "b.npz")
     assert code == 0, err
-    said = err.index("simulation.gravity is 1e+05 m/s^2 (Earth's: 9.81): check the units")
-    assert said < err.index("spacetime solve") < err.index("missed by more than 5 %")
+    said = err.index("simulation.gravity is 981 m/s^2, 100 times Earth's 9.81 (981 would be "
+                     "Earth's in cm/s^2): check the units")
+    assert said < err.index("spacetime solve")
+    data["simulation"]["gravity"] = [0.0, -1e5, 0.0]  # mm/s^2: the keys are missed too
+    code, _, err = run_main(capsys, "animate", write_scene(tmp_path, data, "mm.toml"),
+                            "--linear", "-o", tmp_path / "m.npz")
+    said = err.index("simulation.gravity is 1e+05 m/s^2")
+    assert code == 0 and said < err.index("spacetime solve") < err.index("missed by more than 5 %")
     assert "check the units of the velocities or gravity named before the solve" in err
     data = copy.deepcopy(SCENE)
     data["keyframes"][0]["velocity"] = [1e6, 0.0, 0.0]  # mm/s given as m/s

@@ -291,9 +291,10 @@ def soft_note(scene: Scene, body,
 
 
 #: A velocity key that would carry its group this many body sizes over the shot, or a
-#: gravity above this (m/s^2), is named as a likely unit slip when keys are missed.
+#: gravity above IMPLAUSIBLE_GRAVITY (m/s^2, about 10 g: a cm/s^2 slip gives 981), is named as
+#: a likely unit slip before the solve.
 IMPLAUSIBLE = 100.0
-IMPLAUSIBLE_GRAVITY = 1000.0
+IMPLAUSIBLE_GRAVITY = 100.0
 
 
 def unit_slips(scene: Scene, size: float) -> list[str]:
@@ -308,7 +309,8 @@ def unit_slips(scene: Scene, size: float) -> list[str]:
              for j, v in speeds if v * (end - start) > IMPLAUSIBLE * size]
     g = float(np.linalg.norm(scene.simulation.gravity))
     if g > IMPLAUSIBLE_GRAVITY:
-        slips.append(f"simulation.gravity is {g:.3g} m/s^2 (Earth's: 9.81)")
+        slips.append(f"simulation.gravity is {g:.3g} m/s^2, {g / 9.81:.3g} times Earth's "
+                     "9.81 (981 would be Earth's in cm/s^2)")
     return slips
 
 
