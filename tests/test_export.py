@@ -847,3 +847,32 @@ def test_a_foreign_glb_of_several_primitives_is_read_whole(tmp_path):
     _foreign_glb(tmp_path / "two.glb", parts, times, weights, meshes=2)
     with pytest.warns(UserWarning, match="only its first mesh .* left out: 1 other mesh"):
         assert read_animation(tmp_path / "two.glb").positions.shape == (3, 9, 3)
+
+
+def test_a_terminated_run_leaves_no_temporary_outputs(tmp_path):
+    """SIGTERM (``timeout``, a scheduler, ``kill``) while outputs are being written ends the
+    command as Ctrl+C does: exit code 143, "wiggly: terminated", and the staged files are
+    removed, where the default action would leave them (tens of MB) in the user's folder."""
+    import signal
+    import subprocess
+    import sys
+
+    program = f"""
+import os, signal, sys
+import wiggly.cli as cli
+from wiggly.files import OutputSet
+
+def run(args):
+    with OutputSet() as outputs:
+        outputs.stage({str(tmp_path / "shot.mp4")!r}).write_bytes(b"x" * 1000)
+        os.kill(os.getpid(), signal.SIGTERM)
+        raise AssertionError("SIGTERM did not end the run")
+
+cli.animate.run = run
+sys.exit(cli.main(["animate", "builtin:bar"]))
+"""
+    done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
+                          timeout=120, cwd=tmp_path)
+    assert done.returncode == 128 + signal.SIGTERM, done.stderr
+    assert "wiggly: terminated" in done.stderr and "Traceback" not in done.stderr, done.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == [], list(tmp_path.iterdir())

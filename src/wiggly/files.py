@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -231,3 +233,24 @@ class OutputSet:
             self.commit()
         else:
             self.abort()
+
+
+@contextmanager
+def terminate_as_exit() -> Iterator[None]:
+    """In the main thread, a SIGTERM (``kill PID``, ``timeout``, a process manager) raises
+    SystemExit(143) instead of ending the process at once, so that temporary outputs are
+    removed and child processes (fTetWild's) killed as on Ctrl+C.  A handler the program set
+    itself is left alone."""
+    main = threading.current_thread() is threading.main_thread()
+    if not main or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        yield
+        return
+
+    def stop(signum, frame):
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)

@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 import traceback
 import warnings
 
 from wiggly.cli import animate, batch, demo, edit, modes, render, schema
 from wiggly.errors import WigglyInputError
+from wiggly.files import terminate_as_exit
 from wiggly.progress import reporting
 
 __all__ = ["main"]
@@ -129,7 +131,13 @@ def main(argv: list[str] | None = None) -> int:
     with warnings.catch_warnings(), reporting(logger.isEnabledFor(logging.INFO)):
         warnings.showwarning = _show_warning
         try:
-            return int(args.run(args) or 0)
+            with terminate_as_exit():  # temporary outputs are removed as on Ctrl+C
+                return int(args.run(args) or 0)
+        except SystemExit as exit_:
+            if exit_.code != 128 + signal.SIGTERM:
+                raise
+            print("wiggly: terminated", file=sys.stderr)
+            return exit_.code
         except (WigglyInputError, RenderingError) as err:
             _error(str(err))
         except OSError as err:  # missing file, permissions, disk full

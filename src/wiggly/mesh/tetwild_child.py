@@ -14,17 +14,16 @@ one the same call gives in-process; fTetWild is randomized either way.
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import tempfile
 import threading
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from wiggly.files import terminate_as_exit
 from wiggly.progress import Activity, log
 
 __all__ = ["Log", "can_run_child", "tetrahedralize_in_child"]
@@ -91,7 +90,7 @@ def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
         errors: list[bytes] = []
         drain = threading.Thread(target=lambda: errors.append(child.stderr.read()), daemon=True)
         drain.start()
-        with _terminate_as_exit():
+        with terminate_as_exit():
             try:
                 for raw in child.stdout:
                     on_line(raw.decode("utf-8", "replace").rstrip("\n"))
@@ -111,25 +110,6 @@ def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
             return data["vertices"], data["tets"]
 
 
-@contextmanager
-def _terminate_as_exit() -> Iterator[None]:
-    """In the main thread, a SIGTERM while the child runs (``kill PID``, a process manager)
-    raises SystemExit instead of ending the process at once, so that the child is killed and
-    the temporary folder removed (the child also dies with its parent on Linux).  A handler
-    the program set itself is left alone."""
-    main = threading.current_thread() is threading.main_thread()
-    if not main or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        yield
-        return
-
-    def stop(signum, frame):
-        raise SystemExit(128 + signum)
-
-    signal.signal(signal.SIGTERM, stop)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 # The child's program: numpy and pytetwild only (importing wiggly would double its start-up).
