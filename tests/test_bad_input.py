@@ -255,6 +255,14 @@ def test_compact_gltf_needs_a_linear_shot(user, tripwires, capsys):
     assert 'shot.toml: output.gltf_targets = "modes" needs a linear shot' in line
 
 
+def test_a_negative_gltf_frame_start_is_refused_before_anything_is_computed(
+        user, tripwires, capsys):
+    folder, scene = user
+    line = refused(capsys, folder, scene({"output.frame_start": -5}))
+    assert "shot.toml: output.frame_start (or --frame-start) = -5 would give negative glTF " \
+           "times" in line and "frame_start >= 0" in line, line
+
+
 def test_an_imperfect_surface_is_accepted_with_one_warning(user, capsys):
     folder, scene = user
     box = trimesh.creation.box()

@@ -395,12 +395,24 @@ def _warn_unfollowed(scene: Scene, report: dict | None, body) -> None:
 
 
 def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
-    if scene.output.gltf_targets == "modes" and scene.simulation.warp and \
-            any(p.suffix.lower() == ".glb" for p in paths):
-        raise input_error(scene.where(), [
+    """What a glTF output asks of ``[output]``, checked before anything is computed: morph
+    targets per mode need a linear shot, and glTF times cannot be negative."""
+    if not any(p.suffix.lower() == ".glb" for p in paths):
+        return
+    problems = []
+    if scene.output.gltf_targets == "modes" and scene.simulation.warp:
+        problems.append(
             'output.gltf_targets = "modes" needs a linear shot: a warped motion is no linear '
             "combination of modes; set simulation.warp = false (or pass --linear), or use "
-            '"frames"'])
+            '"frames"')
+    start = scene.output.frame_start
+    if start is not None and start < 0:
+        problems.append(
+            f"output.frame_start (or --frame-start) = {start} would give negative glTF times, "
+            "which glTF forbids: use frame_start >= 0 with a .glb output (USD takes negative "
+            "frames)")
+    if problems:
+        raise input_error(scene.where(), problems)
 
 
 @deprecated_progress
