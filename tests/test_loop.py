@@ -149,6 +149,26 @@ paths = ["out/loop.glb", "out/loop.usda"]
     assert np.abs(glb.positions[5] - glb.positions[0]).max() > 0.05
 
 
+def test_a_looped_scenes_previews_show_the_seam_once(tmp_path, monkeypatch):
+    """A looping .gif/.mp4 plays its frames round and round, so a looped scene's previews
+    leave out the seam frame (it repeats the first), as USD does: 10 frames per 1 s cycle at
+    10 fps, not 11."""
+    import importlib
+
+    from wiggly.scene import load_scene
+
+    scene_run = importlib.import_module("wiggly.scene.run")  # the module, not run()
+
+    test_a_looped_scene_exports_cycles_without_a_seam(tmp_path)  # writes loop.toml
+    shown = {}
+    monkeypatch.setattr(scene_run, "render_preview", lambda path, times, positions, faces,
+                        **_: shown.setdefault(path.suffix, (len(times), positions)))
+    scene_run.run(load_scene(tmp_path / "loop.toml"),
+                  outputs=[str(tmp_path / "p.gif"), str(tmp_path / "p.npz")], overwrite=True)
+    count, positions = shown[".gif"]
+    assert count == 10 and np.abs(positions[-1] - positions[0]).max() > 1e-3
+
+
 def test_a_looped_scene_needs_whole_frames_per_cycle(tmp_path):
     from wiggly.scene import scene_from_dict
 

@@ -75,15 +75,17 @@ def run(args: argparse.Namespace) -> int:
         raise WigglyInputError(f"{source}: not a scene (.toml) or an animation "
                                f"({', '.join(ANIMATION_EXTENSIONS)})")
     from wiggly.export import read_animation
+    from wiggly.export.animation import without_seam
 
     overwrite = bool(args.overwrite)
     check_outputs(outputs, overwrite)
     anim = read_animation(source)
+    shown = without_seam(anim)  # a looping video shows the seam's pose once
     spec = OutputSpec(camera=args.camera or "three_quarter")
     for out in outputs:
         say(f"rendering {out}")
-        render_preview(out, anim.times, anim.positions, anim.faces, output=spec, title=anim.name,
-                       overwrite=overwrite, fps=args.fps)
+        render_preview(out, shown.times, shown.positions, shown.faces, output=spec,
+                       title=anim.name, overwrite=overwrite, fps=args.fps)
     print(f"{source}: {counted(anim.n_frames, 'frame')}, {anim.n_vertices} vertices, "
           f"[{anim.times[0]:g}, {anim.times[-1]:g}] s")
     print("wrote")

@@ -15,6 +15,7 @@ from wiggly import render
 from wiggly.drive import following
 from wiggly.errors import WigglyInputError, counted
 from wiggly.export import stage_animation, surface_animation
+from wiggly.export.animation import without_seam
 from wiggly.files import OutputSet, check_writable
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
@@ -447,7 +448,8 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
                 if path.exists() and not overwrite:
                     raise WigglyInputError(f"{path} exists; pass --overwrite (or overwrite = "
                                            "true in [output]) to replace it")
-                render_preview(outputs.stage(path), data.times, data.positions, data.faces,
+                shown = without_seam(data)  # a looping video shows the seam's pose once
+                render_preview(outputs.stage(path), shown.times, shown.positions, shown.faces,
                                highlights=highlights, output=scene.output, title=scene.name,
                                overwrite=True)
             timings[f"write {path.name}"] = _time.perf_counter() - t
