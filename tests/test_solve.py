@@ -205,6 +205,19 @@ def test_a_keyframe_on_fixed_vertices_only_warns(cantilever):
               end=1.0)
 
 
+def test_a_held_keyframe_warns_also_when_its_rows_are_round_off(cantilever, monkeypatch):
+    """Surface points between fixed vertices get mode rows of round-off (1e-17), not exact
+    zeros: a velocity key there is held all the same, and warned about."""
+    X = cantilever.rest_positions("tets")
+    held = np.flatnonzero(X[:, 0] < 1e-9)
+    rows = type(cantilever).basis_rows
+    monkeypatch.setattr(type(cantilever), "basis_rows",
+                        lambda self, v, on="surface": rows(self, v, on) + 1e-17)
+    with pytest.warns(UserWarning, match="held by the fixed vertices"):
+        solve(cantilever, [Keyframe(0.5, held, on="tets", velocity=(0.0, 2.0, 0))], warp=False,
+              end=1.0)
+
+
 def test_unknown_vertex_index(bar):
     n = bar.n_vertices()
     with pytest.raises(

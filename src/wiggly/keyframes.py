@@ -256,8 +256,12 @@ def _warn_if_held(body: Body, what: str, v: np.ndarray, on: str, pos: np.ndarray
     """Warn when every vertex of a keyframe is held by the body's fixed vertices (the modes
     vanish there) and its target is not the rest pose: it cannot be met, nor move anything."""
     fixed = body.fixed_vertices
-    if fixed is None or not len(fixed) or np.any(body.basis_rows(v, on)):
-        return  # modes are exactly 0 on fixed vertices, and on surface points between them
+    if fixed is None or not len(fixed):
+        return
+    # modes vanish on fixed vertices, and on surface points between them up to round-off
+    # (barycentric weights of 1e-17 on a free vertex)
+    if np.abs(body.basis_rows(v, on)).max(initial=0.0) > 1e-9 * np.abs(body.basis(on)).max():
+        return
     rest = body.rest_positions(on)[v]
     size = float(np.ptp(body.rest_positions(on), axis=0).max())
     away = pos is not None and np.abs(pos - rest).max(initial=0.0) > 1e-9 * size
