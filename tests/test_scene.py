@@ -410,6 +410,27 @@ def test_all_problems_reported_at_once(tmp_path):
         "material.young", "damping.alpha", "keyframes[0].time"]
 
 
+@pytest.mark.parametrize("text, says", [
+    ("format = 1\n[[keyframes]]\ntime = 0.0\n[keyframes]\ntime = 1.0\n",
+     "Cannot declare keyframes twice (at line 4, column 11); [keyframes] and [[keyframes]] "
+     "cannot both appear: a list of tables is written [[keyframes]] before each entry"),
+    ("format = 1\n[time]\nend = 1.0\n[time]\nfps = 10\n",
+     "Cannot declare time twice (at line 4, column 6); [time] appears twice"),
+    ("format = 1\n[time]\nend = 1.0\nend = 2.0\n",
+     "Cannot overwrite a value (at line 4, column 10); 'end' is given twice in its table"),
+    ('{"format": 1, "time": {"end": 1.0}}\n', "not TOML (this looks like JSON)"),
+])
+def test_toml_mistakes_are_named_in_a_users_words(tmp_path, text, says):
+    """tomllib's complaints name keys as dotted names, not Python tuples, say which key is
+    given twice, how a list of tables is written, and that JSON is not TOML."""
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    with pytest.raises(WigglyInputError) as caught:
+        load_scene(bad)
+    assert str(caught.value).startswith(f"{bad}: ") and says in str(caught.value), caught.value
+    assert "('" not in str(caught.value)
+
+
 def test_file_errors(tmp_path):
     with pytest.raises(WigglyInputError, match=r"missing.toml: no such scene file"):
         load_scene(tmp_path / "missing.toml")

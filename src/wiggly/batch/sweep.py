@@ -15,7 +15,6 @@ import copy
 import math
 import os
 import re
-import tomllib
 import zlib
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -28,6 +27,7 @@ from wiggly.errors import WigglyInputError
 from wiggly.limits import MAX_SHOTS
 from wiggly.scene import Scene, scene_from_dict, scene_to_dict
 from wiggly.scene.schema import OUTPUT_PATTERN, SCENE_FORMAT
+from wiggly.scene.schema import read_toml as read_valid_toml
 from wiggly.scene.spec import OUTPUT_EXTENSIONS
 from wiggly.scene.validation import (
     Array,
@@ -429,12 +429,7 @@ def read_toml(path: Path) -> dict:
     if not path.is_file():
         raise WigglyInputError(f"{path}: no such file" if not path.exists() else
                                f"{path}: is not a file")
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as err:
-        raise WigglyInputError(f"{path}: not a text file (UTF-8): {err}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise WigglyInputError(f"{path}: not valid TOML: {err}") from None
+    return read_valid_toml(path)
 
 
 def sweep_from_dict(data: dict, where: str, source: Path) -> Sweep:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import tomllib
 import warnings
 from pathlib import Path
@@ -309,13 +310,45 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         raise WigglyInputError(
             f"{path}: is a mesh, not a scene file (.toml); write a scene that names it as "
             f"mesh.path (docs/scene-format.md), or open it in the editor: wiggly edit {path}")
+    return scene_from_dict(read_toml(path), where=str(path), source=path.resolve())
+
+
+def read_toml(path: Path) -> dict:
+    """A TOML file's content; an unreadable or invalid one raises :class:`WigglyInputError`
+    saying what is wrong where (:func:`toml_message`)."""
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError as err:
         raise WigglyInputError(f"{path}: not a text file (UTF-8): {err}") from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
-        raise WigglyInputError(f"{path}: not valid TOML: {err}") from None
-    return scene_from_dict(data, where=str(path), source=path.resolve())
+        raise WigglyInputError(f"{path}: {toml_message(err, text)}") from None
+
+
+def toml_message(err: tomllib.TOMLDecodeError, text: str) -> str:
+    """tomllib's complaint in a user's words: keys as dotted names (not Python tuples), the
+    key given twice named, a hint for a table declared both ways, and JSON recognized."""
+    message = re.sub(r"\(((?:'[^']*',? ?)+)\)",
+                     lambda m: ".".join(re.findall(r"'([^']*)'", m.group(1))), str(err))
+    if text.lstrip().startswith("{"):
+        return ("not TOML (this looks like JSON): scene and sweep files are TOML, with "
+                f"[tables] and key = value lines (docs/scene-format.md); {message}")
+    hint = ""
+    declared = re.match(r"Cannot declare (\S+) twice", message)
+    line = re.search(r"at line (\d+)", message)
+    if declared:
+        name = declared.group(1)
+        hint = (f"; [{name}] and [[{name}]] cannot both appear: a list of tables is written "
+                f"[[{name}]] before each entry" if f"[[{name}]]" in text.replace(" ", "") else
+                f"; [{name}] appears twice: give its keys in one table")
+    elif message.startswith("Cannot overwrite a value") and line:
+        row = text.splitlines()[int(line.group(1)) - 1] if int(line.group(1)) <= len(
+            text.splitlines()) else ""
+        key = row.split("=", 1)[0].strip()
+        if key:
+            hint = f"; {key!r} is given twice in its table"
+    return f"not valid TOML: {message}{hint}"
 
 
 def scene_from_dict(data: dict, where: str = "scene", source: Path | None = None) -> Scene:
