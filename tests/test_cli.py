@@ -92,6 +92,17 @@ def test_schema_command(capsys):
 # animate
 
 
+def test_an_obj_sequence_is_named_by_its_frame_files(capsys, tmp_path):
+    """``-o out/bar.obj`` writes out/bar_0000.obj, ...: the summary names those, not bar.obj
+    (which may be another file: the input mesh)."""
+    scene = write_scene(tmp_path, SCENE)
+    code, out, err = run_main(capsys, "animate", scene, "--linear", "-o", tmp_path / "o/bar.obj")
+    assert code == 0, err
+    first = (tmp_path / "o" / "bar_0000.obj").resolve()
+    assert f"wrote\n  {first} ... bar_0010.obj (11 frames)" in out, out
+    assert not (tmp_path / "o" / "bar.obj").exists()
+
+
 def test_animate(capsys, tmp_path):
     scene = write_scene(tmp_path, SCENE)
     code, out, err = run_main(capsys, "animate", scene)

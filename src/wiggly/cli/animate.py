@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -138,7 +139,22 @@ def summary(scene, anim) -> str:
     outputs = info.get("scene", {}).get("outputs", [])
     if outputs:
         lines.append("wrote")
-        lines += [f"  {Path(p).resolve()}" for p in outputs]
+        lines += [f"  {_written(Path(p).resolve())}" for p in outputs]
     else:
         lines.append("wrote      nothing: list files in [output] paths or pass -o FILE")
     return "\n".join(lines)
+
+
+def _written(path: Path) -> str:
+    """An output as the summary names it: an OBJ sequence by its first and last frame files
+    (``out/frame.obj`` writes ``out/frame_0000.obj``, ...), not by its base name, which may
+    be another file (the input mesh)."""
+    if path.suffix.lower() != ".obj":
+        return str(path)
+    frame = re.compile(rf"{re.escape(path.stem)}_\d{{4,}}\.obj")
+    frames = sorted(p for p in path.parent.glob(f"{path.stem}_*.obj") if frame.fullmatch(p.name))
+    if not frames:
+        return str(path)
+    from wiggly.errors import counted
+
+    return f"{frames[0]} ... {frames[-1].name} ({counted(len(frames), 'frame')})"
