@@ -29,6 +29,8 @@ from typing import TypeVar
 
 from tqdm import tqdm
 
+from wiggly.errors import counted
+
 __all__ = [
     "Activity", "Counter", "activity", "bar", "deprecated_progress", "frames", "iterations", "log",
     "on_terminal", "reporting", "say", "shown",
@@ -216,7 +218,8 @@ def activity(desc: str, enabled: bool = True) -> Iterator[Activity]:
 
 
 def _counted(n: int, unit: str) -> str:
-    return f"{n} {unit if n == 1 or unit == 'it' else unit + 's'}"
+    """``n`` and the unit in the right number, tqdm's "it" unchanged."""
+    return counted(n, unit, "it" if unit == "it" else None)
 
 
 class Counter:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -151,10 +150,11 @@ def _written(path: Path) -> str:
     be another file (the input mesh)."""
     if path.suffix.lower() != ".obj":
         return str(path)
-    frame = re.compile(rf"{re.escape(path.stem)}_\d{{4,}}\.obj")
-    frames = sorted(p for p in path.parent.glob(f"{path.stem}_*.obj") if frame.fullmatch(p.name))
-    if not frames:
-        return str(path)
     from wiggly.errors import counted
+    from wiggly.export.obj import existing_frames
 
-    return f"{frames[0]} ... {frames[-1].name} ({counted(len(frames), 'frame')})"
+    found = existing_frames(path)
+    if not found:
+        return str(path)
+    first, last = found[min(found)], found[max(found)]
+    return f"{first} ... {last.name} ({counted(len(found), 'frame')})"

@@ -27,7 +27,7 @@ def frame_names(path: Path, F: int) -> list[Path]:
     return [path.with_name(f"{path.stem}_{k:0{width}d}{path.suffix}") for k in range(F)]
 
 
-def _obj_existing_frames(path: Path) -> dict[int, Path]:
+def existing_frames(path: Path) -> dict[int, Path]:
     """Files of the sequence ``path`` already on disk, by frame index."""
     if not path.parent.is_dir():
         return {}
@@ -58,7 +58,7 @@ def stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *
                         overwrite: bool) -> None:
     F = anim.n_frames
     names = frame_names(path, F)
-    existing = _obj_existing_frames(path)
+    existing = existing_frames(path)
     if existing and not overwrite:
         first = existing[min(existing)]
         raise WigglyInputError(
@@ -161,7 +161,7 @@ def _read_obj_frame(file: Path) -> tuple[bytes, np.ndarray]:
 
 
 def read_obj_sequence(path: Path) -> SurfaceAnimation:
-    frames = _obj_existing_frames(path)
+    frames = existing_frames(path)
     if frames:
         missing = sorted(set(range(max(frames) + 1)) - set(frames))
         if missing:

@@ -110,8 +110,6 @@ def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
             return data["vertices"], data["tets"]
 
 
-
-
 # The child's program: numpy and pytetwild only (importing wiggly would double its start-up).
 # C stdio's stdout is made line-buffered before any output (glibc's and macOS's symbols;
 # elsewhere the lines come in bursts), so that the parent sees each line as it is written.
