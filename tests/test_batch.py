@@ -117,6 +117,27 @@ def test_sweep_on_worker_processes(tmp_path, monkeypatch):
     assert all(f'src="{r["thumbnail"]}"' in page for r in records)
 
 
+def test_obj_sequence_listed_by_its_frame_files(tmp_path, monkeypatch, caplog):
+    """A shot's OBJ sequence is named by the files it wrote, in the records and the contact
+    sheet's links (``bar.obj`` itself does not exist); the log's counts add up."""
+    import wiggly.progress
+
+    sweep = {"base": "shot.toml", "grid": {"damping.alpha": [0.5]},
+             "output": {"paths": ["bar.obj"]}}
+    out = tmp_path / "out"
+    monkeypatch.setattr(wiggly.progress, "NOTE_EVERY", 0.0)  # log every count
+    with caplog.at_level("INFO", logger="wiggly"):
+        (record,) = run(write_sweep(tmp_path, sweep), out, workers=1)
+    counts = [m for m in caplog.messages if m.startswith("batch: 1 shot so far")]
+    assert counts and counts[0].startswith("batch: 1 shot so far, done 1, failed 0, running 0"), \
+        caplog.messages
+    assert record["status"] == "done", record["error"]
+    frames = [f"sweep-0000/bar_{k:04d}.obj" for k in range(11)]  # 1 s at 10 fps
+    assert record["outputs"] == frames and all((out / f).is_file() for f in frames)
+    page = (out / "contact-sheet.html").read_text()
+    assert '<a href="sweep-0000/bar_0000.obj">bar.obj, 11 frames</a>' in page
+
+
 def test_shared_body_warm_starts_damping_and_gravity(tmp_path):
     """One worker, one body, four problems (damping x gravity), two random pulls each: the
     second shot of each problem starts from the first's solution, and every shot equals its

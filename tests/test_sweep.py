@@ -246,6 +246,9 @@ ERRORS = [
     (with_(output={"paths": ["thumb.png"]}), "is a name the batch uses itself"),
     (with_(output={"paths": ["a.mov"]}), 'output.paths[0] = "a.mov" must be a file name '
                                          "ending in .glb"),
+    (with_(grid={}, random=None, samples=None), "the sweep varies nothing: give the "
+                                                "parameters to vary in [grid]"),
+    (with_(output={"dir": "shot.toml"}), 'output.dir = "shot.toml": '),
     (with_(grid={"material.young": [1.0] * 400}, samples=300),
      "the sweep makes 120000 shots (400 grid points x 300 samples), more than 100000"),
 ]
@@ -267,9 +270,10 @@ def test_all_problems_at_once_and_base_errors(tmp_path):
         load_sweep(write(tmp_path, data))
     assert len(str(err.value).splitlines()) == 3
     bad_scene = {**SCENE, "material": {"yuong": 1.0}}
-    with pytest.raises(WigglyInputError) as err:
-        load_sweep(write(tmp_path, SWEEP, bad_scene))
+    with pytest.raises(WigglyInputError) as err:  # with the sweep's own problems
+        load_sweep(write(tmp_path, with_(seed=-1), bad_scene))
     text = str(err.value)
+    assert "sweep.toml: seed = -1 must be an integer >= 0" in text
     assert 'sweep.toml: base = "shot.toml": the base scene is not valid' in text
     assert "shot.toml: unknown key 'yuong' in [material]; did you mean 'young'?" in text
 

@@ -444,7 +444,7 @@ class _Driver:
             (staging / name).write_bytes(data)
         (staging / "scene.toml").write_text(scene_to_toml(saved_scene(shot)), encoding="utf-8")
         record["folder"] = shot.name
-        record["outputs"] = [f"{shot.name}/{o}" for o in shot.outputs]
+        record["outputs"] = [f"{shot.name}/{o}" for o in _output_files(staging, shot.outputs)]
         record["thumbnail"] = f"{shot.name}/{THUMBNAIL}" if (staging / THUMBNAIL).is_file() \
             else None
         record["thumbnail_request"] = self.request["thumbnail_time"]
@@ -470,8 +470,8 @@ class _Driver:
         self.counts["done" if record["status"] == "done" else "failed"] += 1
         if record["status"] != "done":
             self._say_failed(record)
+        self._status(0)  # before the count: a log line shows both (Counter.update)
         self.bar.update(1)
-        self._status(0)
         if not self.live and record["status"] == "done":
             say(f"{record['shot']} done ({self.bar.n} of {self.total})")
         for w in record.get("warnings") or ():
@@ -501,6 +501,18 @@ class _Driver:
         if preparing:
             text += f", preparing {counted(preparing, 'body', 'bodies')}"
         self.bar.set_postfix_str(text, refresh=True)
+
+
+def _output_files(folder: Path, outputs) -> list[str]:
+    """The files a shot's ``outputs`` wrote into ``folder``: an OBJ sequence ``a.obj`` by its
+    frame files ``a_0000.obj``, ... (no file ``a.obj`` exists)."""
+    from wiggly.export.obj import existing_frames
+
+    names = []
+    for o in outputs:
+        frames = existing_frames(folder / o) if o.lower().endswith(".obj") else {}
+        names += [frames[k].name for k in sorted(frames)] or [o]
+    return names
 
 
 def _name(item) -> str:

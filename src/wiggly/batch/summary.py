@@ -9,6 +9,7 @@ import html
 import io
 import json
 import math
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -139,7 +140,8 @@ def _write_html(out: Path, records: list[dict], varied: list[str]) -> None:
                      + ("" if r.get("converged", True) else ", <b>not converged</b>"))
             rms = r.get("keyframe_position_rms")
             lines.append(solve + (f", keys &le; {1e3 * rms:.3g} mm" if rms is not None else ""))
-            links = [f'<a href="{esc(o)}">{esc(Path(o).name)}</a>' for o in r.get("outputs", [])]
+            links = [f'<a href="{esc(o)}">{esc(label)}</a>'
+                     for o, label in _output_links(r.get("outputs", []))]
             links.append(f'<a href="{esc(r["folder"])}/scene.toml">scene</a>')
             lines.append(" ".join(links))
             img = (f'<img src="{esc(r["thumbnail"])}" alt="{esc(r["shot"])}" loading="lazy">'
@@ -158,6 +160,26 @@ def _write_html(out: Path, records: list[dict], varied: list[str]) -> None:
             "</div></body></html>\n")
     with atomic_file(out / "contact-sheet.html") as tmp:
         tmp.write_text(page, encoding="utf-8")
+
+
+def _output_links(outputs: list[str]) -> list[tuple[str, str]]:
+    """(href, label) per output of a shot; an OBJ sequence's frame files are one link to its
+    first frame, labelled "a.obj, 300 frames"."""
+    links: list[tuple[str, str]] = []
+    frames: dict[str, list[int]] = {}  # a sequence's name: [its link's index, frame count]
+    for o in outputs:
+        m = re.fullmatch(r"(.*)_\d+(\.obj)", Path(o).name, re.IGNORECASE)
+        if m is None:
+            links.append((o, Path(o).name))
+            continue
+        name = m.group(1) + m.group(2)
+        if name not in frames:
+            frames[name] = [len(links), 0]
+            links.append((o, name))
+        frames[name][1] += 1
+    for name, (j, count) in frames.items():
+        links[j] = (links[j][0], f"{name}, {count} frame{'s' if count != 1 else ''}")
+    return links
 
 
 def _write_png(out: Path, records: list[dict], varied: list[str]) -> None:

@@ -41,7 +41,6 @@ from wiggly.scene.validation import (
     String,
     Table,
     Vector,
-    input_error,
     show,
     unknown_key,
 )
@@ -439,14 +438,22 @@ def sweep_from_dict(data: dict, where: str, source: Path) -> Sweep:
     from wiggly.scene import load_scene
 
     p = Problems(where)
-    d = p.parse(_SWEEP, data)
-    base_path = (source.parent / Path(d["base"]).expanduser()).resolve()
     try:
-        base = load_scene(base_path)
-    except WigglyInputError as err:
-        raise input_error(where, [f"base = {show(d['base'])}: the base scene is not valid:\n{err}"]
-                     if base_path.is_file() else
-                     [f"base = {show(d['base'])}: no such scene file ({base_path})"]) from None
+        d = _SWEEP.parse(data, "", p)
+    except Bad:  # the file's own problems, said with the base scene's (below)
+        d = None
+    name = data.get("base") if d is None else d["base"]
+    base = None
+    if isinstance(name, str):
+        base_path = (source.parent / Path(name).expanduser()).resolve()
+        try:
+            base = load_scene(base_path)
+        except WigglyInputError as err:
+            p.add(f"base = {show(name)}: the base scene is not valid:\n{err}"
+                  if base_path.is_file() else
+                  f"base = {show(name)}: no such scene file ({base_path})")
+    p.raise_if_any()
+    assert d is not None and base is not None  # else the file's problems were raised
     base_dict = scene_to_dict(base)
     params: dict[str, Param] = {}
     grid, random = d.get("grid", {}), d.get("random", {})
@@ -475,6 +482,10 @@ def sweep_from_dict(data: dict, where: str, source: Path) -> Sweep:
     if not random and samples not in (None, 1):
         p.add(f"samples = {samples} would repeat identical shots: without [random] every "
               "sample is the same; remove samples or add a [random] table")
+    if not grid and not random:
+        p.add("the sweep varies nothing: give the parameters to vary in [grid] (e.g. "
+              '"material.young" = [1e5, 3e5]) or [random]; to run the base scene alone, use '
+              "wiggly animate")
     samples = samples or 1
     n_grid = math.prod(len(v) for v in grid.values())
     if n_grid * samples > MAX_SHOTS:
@@ -490,8 +501,11 @@ def sweep_from_dict(data: dict, where: str, source: Path) -> Sweep:
                        "folder" if Path(name).name != name else
                        f"is a name the batch uses itself ({', '.join(RESERVED_NAMES)})")
                 p.add(f"output.paths[{j}] = {show(name)} {why}")
-    p.raise_if_any()
     out_dir = (source.parent / Path(out["dir"]).expanduser()) if "dir" in out else None
+    if out_dir is not None and out_dir.exists() and not out_dir.is_dir():
+        p.add(f"output.dir = {show(out['dir'])}: {out_dir} is a file; give a folder for the "
+              "batch's outputs")
+    p.raise_if_any()
     return Sweep(source, base, d.get("name", source.stem), int(d.get("seed", 0)), samples,
                  {k: list(v) for k, v in grid.items()}, dists, params, outputs, out_dir)
 
