@@ -251,16 +251,22 @@ def _check_same_body(body: Body, what: str, on: Where,
         "body's rest shape. " + advice)
 
 
+def held(body: Body, v: np.ndarray, on: str) -> bool:
+    """Whether the body's fixed vertices hold every vertex ``v`` (on ``on``): the modes
+    vanish there (on surface points between fixed vertices, up to round-off: barycentric
+    weights of 1e-17 on a free vertex)."""
+    fixed = body.fixed_vertices
+    if fixed is None or not len(fixed):
+        return False
+    return bool(np.abs(body.basis_rows(v, on)).max(initial=0.0)
+                <= 1e-9 * np.abs(body.basis(on)).max())
+
+
 def _warn_if_held(body: Body, what: str, v: np.ndarray, on: str, pos: np.ndarray | None,
                   vel: np.ndarray | None) -> None:
     """Warn when every vertex of a keyframe is held by the body's fixed vertices (the modes
     vanish there) and its target is not the rest pose: it cannot be met, nor move anything."""
-    fixed = body.fixed_vertices
-    if fixed is None or not len(fixed):
-        return
-    # modes vanish on fixed vertices, and on surface points between them up to round-off
-    # (barycentric weights of 1e-17 on a free vertex)
-    if np.abs(body.basis_rows(v, on)).max(initial=0.0) > 1e-9 * np.abs(body.basis(on)).max():
+    if not held(body, v, on):
         return
     rest = body.rest_positions(on)[v]
     size = float(np.ptp(body.rest_positions(on), axis=0).max())

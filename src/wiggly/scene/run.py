@@ -35,7 +35,7 @@ from wiggly.scene.spec import (
     Scene,
 )
 from wiggly.scene.validation import input_error, show
-from wiggly.solve import FOLDED, MISSED, SpacetimeProblem, missed_keys, solve, warn_folded
+from wiggly.solve import FOLDED, SpacetimeProblem, missed_by, missed_keys, solve, warn_folded
 
 
 def _output_paths(scene: Scene, outputs) -> list[Path]:
@@ -340,8 +340,7 @@ def _warn_missed(scene: Scene, anim) -> None:
         return
     start, end = scene.time_range()
     listed = "; ".join(f"keyframes[{j}] (group {scene.keyframes[j].group!r}, t = "
-                       f"{scene.keyframes[j].time:g} s) by {miss:.3g} m, "
-                       f"{100 * miss / size:.0f} %" for j, miss in missed[:4])
+                       f"{scene.keyframes[j].time:g} s) by {how}" for j, how in missed[:4])
     more = f"; and {len(missed) - 4} more" if len(missed) > 4 else ""
     explicit = any(scene.keyframes[j].c_A is not None for j, _ in missed)
     why = ("raise their stiffness (the default is 1e6; e.g. 1e9)"
@@ -358,8 +357,8 @@ def _warn_missed(scene: Scene, anim) -> None:
         why += (f"; over a {end - start:g} s shot gravity can outweigh the keys (a key's weight "
                 "falls as the cube of the duration): if so, key the body more often, or "
                 "shorten it")
-    warnings.warn(f"{scene.where()}: {counted(len(missed), 'keyframe')} missed by more than "
-                  f"{100 * MISSED:g} % of the body's size ({listed}{more}): {why}; also check "
+    warnings.warn(f"{scene.where()}: {counted(len(missed), 'keyframe')} {missed_by(missed)} "
+                  f"({listed}{more}): {why}; also check "
                   "that the targets can be reached (fixed vertices, contradictory keys, heavy "
                   "damping)", stacklevel=2)
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from wiggly.body import Body
 from wiggly.errors import WigglyInputError
-from wiggly.keyframes import Keyframe
+from wiggly.keyframes import Keyframe, held
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
 from wiggly.solve.animation import Animation
@@ -45,6 +45,7 @@ __all__ = [
     "WarpedSolveWarning",
     "fold_note",
     "iteration_count",
+    "missed_by",
     "missed_keys",
     "solve",
     "warn_folded",
@@ -113,42 +114,70 @@ def solve(
     return anim
 
 
-#: Position keys missed by more than this share of the body's size are warned about.
+#: Position keys missed by more than this share of the body's size are warned about; velocity
+#: keys missed by more than this share of their RMS speed or of the body's size per the shot's
+#: duration, whichever is larger (a still key: the drift that would move the body so far).
 MISSED = 0.05
 
 
-def missed_keys(anim: Animation) -> tuple[list[dict], list[tuple[int, float]], float]:
-    """The keyframes' residual rows (:meth:`Animation.constraint_residuals`), the (index,
-    largest miss in m) of those missed by more than :data:`MISSED` of the body's size, and
-    that size (its bounding-box diagonal, m)."""
+def missed_keys(anim: Animation) -> tuple[list[dict], list[tuple[int, str]], float]:
+    """The keyframes' residual rows (:meth:`Animation.constraint_residuals`), the (index, how
+    far, as "0.12 m, 12 %" or "velocity 0.3 m/s, 40 % of its speed") of those missed by more
+    than :data:`MISSED` (keys held by fixed vertices, warned about when checked, are not
+    listed), and the body's size (its bounding-box diagonal, m)."""
     size = diagonal(anim.body.rest_positions())
+    duration = float(anim.nodes[-1] - anim.nodes[0])
     rows = anim.constraint_residuals()
-    missed = [(j, row["position_max"]) for j, row in enumerate(rows)
-              if row.get("position_max") is not None and row["position_max"] > MISSED * size]
+    missed = []
+    for j, (row, kf) in enumerate(zip(rows, anim.keyframes, strict=True)):
+        if held(anim.body, kf.vertices, kf.on):  # said when it was checked: nothing moves it
+            continue
+        miss = row.get("position_max")
+        if miss is not None and miss > MISSED * size:
+            missed.append((j, f"{miss:.3g} m, {100 * miss / size:.0f} %"))
+            continue
+        miss = row.get("velocity_rms")
+        if miss is None:
+            continue
+        speed = float(np.sqrt(np.mean(np.sum(np.asarray(kf.velocity) ** 2, axis=-1))))
+        scale = max(speed, size / duration)
+        if miss > MISSED * scale:
+            of = ("its speed" if speed >= size / duration else
+                  f"{scale:.3g} m/s, the body's size per the shot's duration")
+            missed.append((j, f"velocity {miss:.3g} m/s, {100 * miss / scale:.0f} % of {of}"))
     return rows, missed, size
 
 
+def missed_by(missed: list[tuple[int, str]]) -> str:
+    """"missed by more than 5 % of the body's size" (and "or their velocity by 5 % of its
+    speed" when velocity keys are among ``missed``)."""
+    text = f"missed by more than {100 * MISSED:g} % of the body's size"
+    if any(how.startswith("velocity") for _, how in missed):
+        text += f" or their velocity by {100 * MISSED:g} % of its speed"
+    return text
+
+
 def warn_missed(anim: Animation, stacklevel: int = 2) -> None:
-    """One warning naming the keyframes whose position targets ``anim`` misses by more than
-    :data:`MISSED` of the body's size, with the likely causes (attributed to the line
-    ``stacklevel`` frames up, as :func:`warnings.warn` counts them: 2 is the caller's)."""
-    if not any(kf.position is not None for kf in anim.keyframes):
+    """One warning naming the keyframes whose targets ``anim`` misses by more than
+    :data:`MISSED`, with the likely causes (attributed to the line ``stacklevel`` frames up, as
+    :func:`warnings.warn` counts them: 2 is the caller's)."""
+    if not anim.keyframes:
         return
-    rows, missed, size = missed_keys(anim)
+    rows, missed, _ = missed_keys(anim)
     if not missed:
         return
     listed = "; ".join(
         f"keyframes[{j}]{f' ({anim.keyframes[j].name!r})' if anim.keyframes[j].name else ''} "
-        f"at t = {anim.keyframes[j].time:g} s by {miss:.3g} m, {100 * miss / size:.0f} %"
-        for j, miss in missed[:4]) + (f"; and {len(missed) - 4} more" if len(missed) > 4 else "")
-    linear = ("" if anim.warped else "a linear solve cannot meet turned targets (it stretches "
-              "them): solve with warp=True; or ")
+        f"at t = {anim.keyframes[j].time:g} s by {how}"
+        for j, how in missed[:4]) + (f"; and {len(missed) - 4} more" if len(missed) > 4 else "")
+    positions = any(not how.startswith("velocity") for _, how in missed)
+    linear = ("" if anim.warped or not positions else "a linear solve cannot meet turned "
+              "targets (it stretches them): solve with warp=True; or ")
     warnings.warn(
-        f"{len(missed)} of {len(rows)} keyframes missed by more than {100 * MISSED:g} % of the "
-        f"body's size ({listed}): {linear}raise their stiffness (default 1e6), or check that "
-        "the targets can be reached (fixed vertices, contradictory keys, velocities in m/s, "
-        "gravity over a long shot); anim.constraint_residuals() lists every key",
-        stacklevel=stacklevel)
+        f"{len(missed)} of {len(rows)} keyframes {missed_by(missed)} ({listed}): {linear}raise "
+        "their stiffness (default 1e6), or check that the targets can be reached (fixed "
+        "vertices, contradictory keys, velocities in m/s, gravity over a long shot); "
+        "anim.constraint_residuals() lists every key", stacklevel=stacklevel)
 
 
 #: Warped motions that turn more than this share of the tets inside out at a keyframe time
