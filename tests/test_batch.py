@@ -526,3 +526,70 @@ def test_contact_sheet_captions_wrap_instead_of_cutting_values():
     assert all(font.getlength(line) <= width for line in lines)
     many = {f"k{i}": 1000.0 + i for i in range(60)}
     assert len(_caption_lines(many, list(many), font, width)) == CAPTION_LINES
+
+
+def _descendants(pid: int) -> set[int]:
+    """Live processes below ``pid`` (from /proc)."""
+    parents = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if fields[0] != "Z":  # zombies are already gone
+            parents[int(entry.name)] = int(fields[1])
+    found, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        children = {c for c, pp in parents.items() if pp == p}
+        todo += sorted(children - found)
+        found |= children
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
+def test_workers_end_with_a_batch_killed_outright(tmp_path):
+    """SIGKILL of the batch's process (an out-of-memory kill, kill -9) cannot stop its
+    workers: they notice their parent is gone and exit within seconds instead of finishing
+    their shots, holding their memory."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    sweep = write_sweep(tmp_path, {**SWEEP, "grid": {"damping.alpha": [0.5, 1.0, 2.0, 4.0]}})
+    script = tmp_path / "batch_script.py"
+    script.write_text("import wiggly.batch\n"
+                      'if __name__ == "__main__":\n'
+                      f"    wiggly.batch.run([{str(sweep)!r}], {str(tmp_path / 'out')!r}, "
+                      "workers=2)\n")
+    driver = subprocess.Popen([sys.executable, str(script)], cwd=tmp_path,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        workers: set[int] = set()
+        while time.monotonic() < deadline and not (tmp_path / "out" / ".staging").is_dir():
+            time.sleep(0.1)  # until a shot runs (its staging folder)
+        workers = _descendants(driver.pid)
+        assert len(workers) >= 3, workers  # the fork server and two workers
+    finally:
+        driver.send_signal(signal.SIGKILL)
+        driver.wait()
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and any(Path(f"/proc/{w}").exists() and
+                                              "Z" not in _state(w) for w in workers):
+        time.sleep(0.2)
+    left = [w for w in workers if Path(f"/proc/{w}").exists() and "Z" not in _state(w)]
+    for w in left:  # do not leave them to the next tests
+        os.kill(w, signal.SIGKILL)
+    assert not left, f"{len(left)} worker processes outlived the batch"
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return "Z"

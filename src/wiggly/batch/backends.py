@@ -91,7 +91,7 @@ class LocalPool:
     def __init__(self, workers: int, render_checked: bool) -> None:
         self.slots = workers
         cache = default_cache_dir()
-        self._args = (render_checked, str(cache))
+        self._args = (render_checked, str(cache), os.getpid())  # workers end with the batch
         self._start()
         self.bodies = cache / "batch" / "bodies"
 

@@ -75,14 +75,24 @@ class ShotJob:
     warm_start: bool = True
 
 
-def init_process(render_checked: bool = False, cache_dir: str | None = None) -> None:
+#: How often (s) a local worker checks that the batch's process still runs.
+DRIVER_CHECK = 1.0
+
+
+def init_process(render_checked: bool = False, cache_dir: str | None = None,
+                 driver: int | None = None) -> None:
     """Set up a worker process: one thread for BLAS, OpenMP and numba (there is a process per
     core), also for libraries loaded before (Ray's workers); skip the offscreen-rendering
     probe when the driver has run it; use the caller's cache directory ``cache_dir`` (local
     workers: they are forked from a server process started earlier, whose environment may be
-    older than the caller's; the bodies they pickle there must use that directory's tets)."""
+    older than the caller's; the bodies they pickle there must use that directory's tets);
+    exit when the process ``driver`` (local workers: the batch's) has ended, so that a batch
+    killed outright (SIGKILL, an out-of-memory kill) leaves no worker behind, still solving
+    and holding its memory (the pool's fork server lives as long as its workers do)."""
     if cache_dir is not None:
         os.environ["WIGGLY_CACHE_DIR"] = cache_dir
+    if driver is not None:
+        _exit_with(driver)
     # load the BLAS and OpenMP libraries of a solve now, to limit them all
     import scipy.linalg
     import scipy.sparse.linalg
@@ -101,6 +111,34 @@ def init_process(render_checked: bool = False, cache_dir: str | None = None) -> 
         pass
     if render_checked:
         os.environ["WIGGLY_RENDER_PROBE"] = "0"
+
+
+def _exit_with(pid: int) -> None:
+    """Exit this process once process ``pid`` has ended, checking every
+    :data:`DRIVER_CHECK` seconds on a daemon thread."""
+    import threading
+
+    def watch() -> None:
+        while _runs(pid):
+            time.sleep(DRIVER_CHECK)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="wiggly-driver-watch", daemon=True).start()
+
+
+def _runs(pid: int) -> bool:
+    """Whether process ``pid`` runs (not ended, nor a zombie not yet reaped, where /proc
+    tells)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # pragma: no cover - another user's process of that number
+        return True
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):  # no /proc (macOS): the signal found it
+        return True
 
 
 def _failure(err: BaseException) -> dict:
