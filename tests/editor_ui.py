@@ -42,6 +42,11 @@ group = "right"
 position = {{ offset = [0.0, 0.05, 0.0] }}
 {extra}"""
 
+# How long (ms) to wait for the editor's first frames: its physics child runs at nice +5, and
+# the suite's other worker keeps both cores busy (fTetWild, Blender, batch workers), where
+# meshing and modes of the bar took up to about a minute; a wait, not a speed requirement.
+LOADED = 150_000
+
 
 def bar_project(folder: Path, extra: str = "", name: str = "shot.toml",
                 warp: bool = True) -> Path:
@@ -68,7 +73,7 @@ def editor_page(chromium, url: str, width: int = 1280, height: int = 800, mesh: 
         # rest of the suite loads both cores
         page.goto(url, timeout=90_000)
         page.wait_for_function("window.wiggly && window.wiggly.ready" +
-                               (" && window.wiggly.S.n > 0" if mesh else ""), timeout=60_000)
+                               (" && window.wiggly.S.n > 0" if mesh else ""), timeout=LOADED)
         yield page, errors
     except Exception:
         print("status:", page.locator("#status-text").text_content(),
@@ -78,7 +83,7 @@ def editor_page(chromium, url: str, width: int = 1280, height: int = 800, mesh: 
         context.close()
 
 
-def wait_final(page, timeout: float = 60_000) -> dict:
+def wait_final(page, timeout: float = LOADED) -> dict:
     """Wait until the page shows final frames of the current scene version; their meta."""
     page.wait_for_function(
         """() => { const S = window.wiggly.S, m = S.frames && S.frames.meta;
