@@ -494,3 +494,17 @@ def test_keys_missed_under_an_implausible_gravity_name_the_units(capsys, tmp_pat
     code, _, err = run_main(capsys, "animate", write_scene(tmp_path, SCENE, "earth.toml"),
                             "--linear", "-o", tmp_path / "e.npz")
     assert code == 0 and "check the units" not in err
+
+
+def test_the_solves_warnings_name_the_scene_file(capsys, tmp_path):
+    """A key whose vertices the fixed group holds cannot be met: the library names the key,
+    `wiggly animate` also the scene file, as it does for the scene's other warnings."""
+    scene = ('format = 1\n[mesh]\npath = "builtin:bar"\n[simulation]\nmodes = 8\n'
+             'warp = false\nfixed = ["left"]\n[time]\nend = 1.0\nfps = 4\n'
+             '[groups.left]\nbox = { min = [-1, -1, -1], max = [0.1, 1, 1] }\n'
+             '[[keyframes]]\ntime = 0.5\ngroup = "left"\nposition = { offset = [0, 0.1, 0] }\n')
+    (tmp_path / "held.toml").write_text(scene)
+    assert main(["animate", str(tmp_path / "held.toml"), "-o", str(tmp_path / "held.npz")]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if "held by the fixed" in line]
+    assert len(lines) == 1 and lines[0].startswith(f"wiggly: warning: {tmp_path / 'held.toml'}: "
+                                                   "keyframe #0 ('left') at t=0.5: all "), lines

@@ -215,7 +215,10 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
          f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s")
     t = _time.perf_counter()
-    anim = solve_scene(scene, body, keyframes, groups=groups)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        anim = solve_scene(scene, body, keyframes, groups=groups)
+    _said_of(scene, said)
     timings["solve"] = _time.perf_counter() - t
     note = soft_note(scene, body, anim.held_modes if scene.secondary_motion else None)
     if note is not None:
@@ -323,6 +326,16 @@ def _warn_unit_slips(scene: Scene, body) -> None:
         listed = "; ".join(slips[:3]) + (f"; and {len(slips) - 3} more" if len(slips) > 3 else "")
         warnings.warn(f"{scene.where()}: {listed}: check the units (m/s, m/s^2); the solve "
                       "will take long and miss such targets", stacklevel=2)
+
+
+def _said_of(scene: Scene, said: list) -> None:
+    """The solve's warnings again (each once, in its category), said of the scene file as the
+    scene's other warnings are (a held key, an unconverged solve: the library names the key
+    or the solve, not the file)."""
+    where = scene.where()
+    for message, category in dict.fromkeys((str(w.message), w.category) for w in said):
+        warnings.warn(message if message.startswith(f"{where}: ") else f"{where}: {message}",
+                      category, stacklevel=3)
 
 
 def _warn_missed(scene: Scene, anim) -> None:
