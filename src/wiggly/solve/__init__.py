@@ -81,9 +81,10 @@ def solve(
     ``options``: the warped solve's tolerances and budget (:class:`wiggly.SolveOptions`).
     ``linear_start``: keyframes whose linear solution starts the warped solve
     (:meth:`SpacetimeProblem.solve`).  ``check_keys``: warn when the motion misses position
-    keys by more than :data:`MISSED` of the body's size (:meth:`Animation.constraint_residuals`
-    has them all), or when a warped motion turns more than :data:`FOLDED` of the tets inside
-    out (:meth:`Animation.folds`); a scene file's run warns in its own words instead.
+    keys by more than :data:`MISSED` of the body's size or velocity keys by more than
+    :data:`MISSED` of their speed (:meth:`Animation.constraint_residuals` has them all), or
+    when a warped motion turns more than :data:`FOLDED` of the tets inside out
+    (:meth:`Animation.folds`); a scene file's run warns in its own words instead.
     """
     keyframes = keyframe_list(keyframes)
     for name, flag in (("warp", warp), ("loop", loop), ("check_keys", check_keys)):
