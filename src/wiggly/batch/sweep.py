@@ -453,7 +453,8 @@ def sweep_from_dict(data: dict, where: str, source: Path) -> Sweep:
                   if base_path.is_file() else
                   f"base = {show(name)}: no such scene file ({base_path})")
     p.raise_if_any()
-    assert d is not None and base is not None  # else the file's problems were raised
+    if d is None or base is None:  # pragma: no cover - their problems were raised above
+        raise WigglyInputError(f"{where}: the sweep file could not be read")
     base_dict = scene_to_dict(base)
     params: dict[str, Param] = {}
     grid, random = d.get("grid", {}), d.get("random", {})
