@@ -9,13 +9,13 @@ import html
 import io
 import json
 import math
-import re
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from wiggly.errors import counted
 from wiggly.files import atomic_file
 from wiggly.progress import say
 
@@ -165,20 +165,21 @@ def _write_html(out: Path, records: list[dict], varied: list[str]) -> None:
 def _output_links(outputs: list[str]) -> list[tuple[str, str]]:
     """(href, label) per output of a shot; an OBJ sequence's frame files are one link to its
     first frame, labelled "a.obj, 300 frames"."""
+    from wiggly.export.obj import sequence_of
+
     links: list[tuple[str, str]] = []
     frames: dict[str, list[int]] = {}  # a sequence's name: [its link's index, frame count]
     for o in outputs:
-        m = re.fullmatch(r"(.*)_\d+(\.obj)", Path(o).name, re.IGNORECASE)
-        if m is None:
+        name = sequence_of(Path(o).name)
+        if name is None:
             links.append((o, Path(o).name))
             continue
-        name = m.group(1) + m.group(2)
         if name not in frames:
             frames[name] = [len(links), 0]
             links.append((o, name))
         frames[name][1] += 1
     for name, (j, count) in frames.items():
-        links[j] = (links[j][0], f"{name}, {count} frame{'s' if count != 1 else ''}")
+        links[j] = (links[j][0], f"{name}, {counted(count, 'frame')}")
     return links
 
 

@@ -27,6 +27,13 @@ def frame_names(path: Path, F: int) -> list[Path]:
     return [path.with_name(f"{path.stem}_{k:0{width}d}{path.suffix}") for k in range(F)]
 
 
+def sequence_of(name: str) -> str | None:
+    """The name of the OBJ sequence whose frame file is named ``name`` (``a_0007.obj`` ->
+    ``a.obj``, as :func:`frame_names` names them), None for another name."""
+    m = re.fullmatch(r"(.+)_\d+(\.obj)", name, re.IGNORECASE)
+    return None if m is None else m.group(1) + m.group(2)
+
+
 def existing_frames(path: Path) -> dict[int, Path]:
     """Files of the sequence ``path`` already on disk, by frame index."""
     if not path.parent.is_dir():

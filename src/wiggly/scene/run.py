@@ -352,10 +352,10 @@ def _warn_missed(scene: Scene, anim) -> None:
     if not missed:
         return
     start, end = scene.time_range()
-    listed = "; ".join(f"keyframes[{j}] (group {scene.keyframes[j].group!r}, t = "
-                       f"{scene.keyframes[j].time:g} s) by {how}" for j, how in missed[:4])
+    listed = "; ".join(f"keyframes[{m.index}] (group {scene.keyframes[m.index].group!r}, t = "
+                       f"{scene.keyframes[m.index].time:g} s) by {m.how}" for m in missed[:4])
     more = f"; and {len(missed) - 4} more" if len(missed) > 4 else ""
-    explicit = any(scene.keyframes[j].c_A is not None for j, _ in missed)
+    explicit = any(scene.keyframes[m.index].c_A is not None for m in missed)
     why = ("raise their stiffness (the default is 1e6; e.g. 1e9)"
            + (", or their c_A, which replaces it where given" if explicit else ""))
     if not scene.simulation.warp:

@@ -18,6 +18,7 @@ Modules, in the order data flows:
 from __future__ import annotations
 
 import warnings
+from typing import NamedTuple
 
 import numpy as np
 
@@ -36,6 +37,7 @@ __all__ = [
     "FOLDED",
     "MISSED",
     "Animation",
+    "Miss",
     "SolveOptions",
     "SolveReport",
     "SpacetimeProblem",
@@ -121,39 +123,50 @@ def solve(
 MISSED = 0.05
 
 
-def missed_keys(anim: Animation) -> tuple[list[dict], list[tuple[int, str]], float]:
-    """The keyframes' residual rows (:meth:`Animation.constraint_residuals`), the (index, how
-    far, as "0.12 m, 12 %" or "velocity 0.3 m/s, 40 % of its speed") of those missed by more
-    than :data:`MISSED` (keys held by fixed vertices, warned about when checked, are not
-    listed), and the body's size (its bounding-box diagonal, m)."""
+class Miss(NamedTuple):
+    """A keyframe :func:`missed_keys` names: its index, whether its velocity (not its
+    position) was missed, and how far ("0.12 m, 12 %" or "velocity 0.3 m/s, 40 % of its
+    speed")."""
+
+    index: int
+    velocity: bool
+    how: str
+
+
+def missed_keys(anim: Animation) -> tuple[list[dict], list[Miss], float]:
+    """The keyframes' residual rows (:meth:`Animation.constraint_residuals`), the
+    :class:`Miss` of each one missed by more than :data:`MISSED` (keys held by fixed
+    vertices, warned about when checked, are not listed), and the body's size (its
+    bounding-box diagonal, m)."""
     size = diagonal(anim.body.rest_positions())
     duration = float(anim.nodes[-1] - anim.nodes[0])
     rows = anim.constraint_residuals()
     missed = []
     for j, (row, kf) in enumerate(zip(rows, anim.keyframes, strict=True)):
-        if held(anim.body, kf.vertices, kf.on):  # said when it was checked: nothing moves it
-            continue
         miss = row.get("position_max")
         if miss is not None and miss > MISSED * size:
-            missed.append((j, f"{miss:.3g} m, {100 * miss / size:.0f} %"))
-            continue
-        miss = row.get("velocity_rms")
-        if miss is None:
-            continue
-        speed = float(np.sqrt(np.mean(np.sum(np.asarray(kf.velocity) ** 2, axis=-1))))
-        scale = max(speed, size / duration)
-        if miss > MISSED * scale:
+            found = Miss(j, False, f"{miss:.3g} m, {100 * miss / size:.0f} %")
+        else:
+            miss = row.get("velocity_rms")
+            if miss is None:
+                continue
+            speed = float(np.sqrt(np.mean(np.sum(np.asarray(kf.velocity) ** 2, axis=-1))))
+            scale = max(speed, size / duration)
+            if miss <= MISSED * scale:
+                continue
             of = ("its speed" if speed >= size / duration else
                   f"{scale:.3g} m/s, the body's size per the shot's duration")
-            missed.append((j, f"velocity {miss:.3g} m/s, {100 * miss / scale:.0f} % of {of}"))
+            found = Miss(j, True, f"velocity {miss:.3g} m/s, {100 * miss / scale:.0f} % of {of}")
+        if not held(anim.body, kf.vertices, kf.on):  # said when it was checked: nothing moves it
+            missed.append(found)
     return rows, missed, size
 
 
-def missed_by(missed: list[tuple[int, str]]) -> str:
+def missed_by(missed: list[Miss]) -> str:
     """"missed by more than 5 % of the body's size" (and "or their velocity by 5 % of its
     speed" when velocity keys are among ``missed``)."""
     text = f"missed by more than {100 * MISSED:g} % of the body's size"
-    if any(how.startswith("velocity") for _, how in missed):
+    if any(m.velocity for m in missed):
         text += f" or their velocity by {100 * MISSED:g} % of its speed"
     return text
 
@@ -168,10 +181,11 @@ def warn_missed(anim: Animation, stacklevel: int = 2) -> None:
     if not missed:
         return
     listed = "; ".join(
-        f"keyframes[{j}]{f' ({anim.keyframes[j].name!r})' if anim.keyframes[j].name else ''} "
-        f"at t = {anim.keyframes[j].time:g} s by {how}"
-        for j, how in missed[:4]) + (f"; and {len(missed) - 4} more" if len(missed) > 4 else "")
-    positions = any(not how.startswith("velocity") for _, how in missed)
+        f"keyframes[{m.index}]"
+        f"{f' ({anim.keyframes[m.index].name!r})' if anim.keyframes[m.index].name else ''} "
+        f"at t = {anim.keyframes[m.index].time:g} s by {m.how}"
+        for m in missed[:4]) + (f"; and {len(missed) - 4} more" if len(missed) > 4 else "")
+    positions = not all(m.velocity for m in missed)
     linear = ("" if anim.warped or not positions else "a linear solve cannot meet turned "
               "targets (it stretches them): solve with warp=True; or ")
     warnings.warn(
