@@ -112,7 +112,7 @@ class Body:
     lumped: bool = False
     cache_dir: str | os.PathLike[str] | Literal[False] | None = field(default=None, repr=False)
     # vertex groups seen on the warp levels, kept by value (vertex indices) for every solve
-    _groups: Memo = field(default_factory=lambda: Memo(limit=256), repr=False)
+    _groups: Memo = field(default_factory=lambda: Memo(limit=512), repr=False)
 
     # derived data that does not depend on damping or gravity (shared by with_dynamics)
     _STATIC = ("mass", "surface_basis", "warp", "fine_level", "coarse_level", "surface_embedding")
@@ -273,6 +273,49 @@ class Body:
             return GroupSelection(S)
 
         return self._groups.get((name, on, value_key(vertices)), compute)
+
+    def group_rest(self, vertices: np.ndarray, on: Where = "surface") -> np.ndarray:
+        """Rest positions (s, 3) of a vertex group (read-only; kept per group)."""
+        vertices = np.asarray(vertices, np.int64)
+
+        def compute() -> np.ndarray:
+            X = np.array(self.rest_positions(on)[vertices])
+            X.flags.writeable = False
+            return X
+
+        return self._groups.get(("rest", checks.where(on), value_key(vertices)), compute)
+
+    def modal_gram(self, vertices: np.ndarray, on: Where = "surface") -> np.ndarray:
+        """``Phi^T (C kron I_3) Phi`` (r, r) of a vertex group, C its Gram on the tet mesh
+        (the linear keyframe term's matrix, Schulz et al. eq. (4)); kept per group."""
+        vertices = np.asarray(vertices, np.int64)
+
+        def compute() -> np.ndarray:
+            C = self.group(self.fine_level, vertices, on).C
+            Phi = self.modes.vectors.reshape(-1, 3, self.r)
+            return sum(Phi[:, c].T @ (C @ Phi[:, c]) for c in range(3))
+
+        return self._groups.get(("modal gram", on, value_key(vertices)), compute)
+
+    def model_error(
+        self, level: WarpLevel, vertices: np.ndarray, on: Where = "surface"
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A vertex group's terms of a coarse ``level``'s interpolation error of the modes,
+        ``E = Phi - P R Phi`` (:attr:`WarpLevel.basis_error`): ``K2 = P^T C E`` (n_c, 3, r)
+        and ``K3 = E^T C E`` (r, r), C the group's Gram on the tet mesh (the coarse Newton
+        model's correction, :mod:`wiggly.solve.warped`); kept per level and group."""
+        vertices = np.asarray(vertices, np.int64)
+        name = "fine" if level.exact else "coarse"
+
+        def compute() -> tuple[np.ndarray, np.ndarray]:
+            E, P = level.basis_error, level.transfer.lift
+            C = self.group(self.fine_level, vertices, on).C
+            CE = np.stack([C @ E[:, c] for c in range(3)], axis=1)
+            K2 = np.stack([P.T @ CE[:, c] for c in range(3)], axis=1)
+            K3 = E.reshape(-1, self.r).T @ CE.reshape(-1, self.r)
+            return K2, 0.5 * (K3 + K3.T)
+
+        return self._groups.get(("model error", name, on, value_key(vertices)), compute)
 
     def vertex_masses(self, on: Where = "tets") -> np.ndarray:
         """Lumped vertex masses (kg) of the tet mesh, or interpolated to the surface vertices

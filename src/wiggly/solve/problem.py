@@ -234,14 +234,8 @@ class SpacetimeProblem:
 
     def modal_gram(self, vertices: np.ndarray, on: str) -> np.ndarray:
         """``Phi^T A_k^T A_k Phi`` (r, r) of a group: ``sum_c Phi_c^T C Phi_c`` over the
-        coordinates, C the group's Gram on the tet mesh."""
-
-        def compute() -> np.ndarray:
-            C = self.selection(self.body.fine_level, vertices, on).C
-            Phi = self.body.modes.vectors.reshape(-1, 3, self.body.r)
-            return sum(Phi[:, c].T @ (C @ Phi[:, c]) for c in range(3))
-
-        return self.memo.get(("modal gram", on, value_key(vertices)), compute)
+        coordinates, C the group's Gram on the tet mesh (kept by the body)."""
+        return self.body.modal_gram(vertices, on)
 
     def projected(self, vertices: np.ndarray, on: str, target: np.ndarray) -> np.ndarray:
         """``Phi^T A_k^T target`` (r,) for per-vertex vectors ``target`` (s, 3)."""
@@ -255,7 +249,7 @@ class SpacetimeProblem:
 
     def offsets(self, kf: Keyframe) -> np.ndarray:
         """A keyframe's position targets minus rest, (s, 3)."""
-        return kf.position - self.body.rest_positions(kf.on)[kf.vertices]
+        return kf.position - self.body.group_rest(kf.vertices, kf.on)
 
     # ----------------------------------------------------------------- linear
     def linear_system(

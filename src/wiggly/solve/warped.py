@@ -37,7 +37,6 @@ import numpy as np
 import scipy.sparse as sp
 
 from wiggly.keyframes import Keyframe
-from wiggly.memo import value_key
 from wiggly.solve.banded import add_blocks, band_matvec
 from wiggly.solve.blocks import NewtonBlocks, NodeDerivatives
 from wiggly.solve.nodes import node_index
@@ -179,7 +178,7 @@ class WarpedObjective:
         """Per active node, ``sum c_A C_k`` and ``sum c_B C_k`` over its position and
         velocity keyframes, C_k the Gram of keyframe k's selection on ``model``'s level, and
         for a coarse model the same sums of the terms of its interpolation error
-        (:meth:`_error_terms`)."""
+        (:meth:`wiggly.body.Body.model_error`)."""
         grams: dict[int, list] = {k: [None, None, None, None] for k in self.active}
         coarse = model is not self.level
         for j, terms in enumerate((self.positions, self.velocities)):
@@ -188,32 +187,13 @@ class WarpedObjective:
                 old = grams[t.node][j]
                 grams[t.node][j] = C if old is None else old + C
                 if coarse:
-                    K2, K3 = self._error_terms(model, t.vertices, t.on)
+                    K2, K3 = self.problem.body.model_error(model, t.vertices, t.on)
                     old = grams[t.node][2 + j]
                     new = (t.w**2 * K2, t.w**2 * K3)
                     grams[t.node][2 + j] = (
                         new if old is None else (old[0] + new[0], old[1] + new[1])
                     )
         return {k: tuple(v) for k, v in grams.items()}
-
-    def _error_terms(
-        self, model: WarpLevel, vertices: np.ndarray, on: str
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """A group's terms of the coarse model's interpolation error of the modes, ``E = Phi -
-        P R Phi`` (:attr:`WarpLevel.basis_error`): ``K2 = P^T C E`` (n_c, 3, r) and ``K3 =
-        E^T C E`` (r, r), C the group's fine Gram, so that ``(P J + E)^T C (P J + E) = J^T
-        C_c J + J^T K2 + K2^T J + K3`` (module doc)."""
-        problem, r = self.problem, self.r
-
-        def compute() -> tuple[np.ndarray, np.ndarray]:
-            E, P = model.basis_error, model.transfer.lift
-            C = problem.selection(problem.body.fine_level, vertices, on).C
-            CE = np.stack([C @ E[:, c] for c in range(3)], axis=1)
-            K2 = np.stack([P.T @ CE[:, c] for c in range(3)], axis=1)
-            K3 = E.reshape(-1, r).T @ CE.reshape(-1, r)
-            return K2, 0.5 * (K3 + K3.T)
-
-        return problem.memo.get(("model error", on, value_key(vertices)), compute)
 
     # -------------------------------------------------------------- evaluation
     def _states(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
