@@ -191,8 +191,12 @@ def test_3_an_open_tab_follows_a_restarted_server(chromium, tmp_path):
             st, _ = post(server.url, "api/edit", {"op": "set", "section": "material",
                                                   "values": {"young": 3e6}})
             assert st == 200
-            page.wait_for_function(f"window.wiggly.S.instance === '{server.session.instance}'",
-                                   timeout=30_000)
+            # the page meets the new process by its frames or its state, whichever comes
+            # first; until its state arrives, the old state and the old final frames still
+            # agree with each other, so wait for the new state before the final frames
+            page.wait_for_function(
+                f"window.wiggly.S.desc && window.wiggly.S.desc.instance === "
+                f"'{server.session.instance}'", timeout=30_000)
             meta = wait_final(page)
             assert meta["instance"] == server.session.instance
             assert meta["id"] == latest_final(server.url)[1]["id"]
