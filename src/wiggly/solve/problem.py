@@ -94,10 +94,11 @@ UNDETERMINED_LOOP = (
 class SpacetimeProblem:
     """E + E_C (Theorem 1) and E + E_WC (Theorem 2) of ``body`` over [start, end].
 
-    The problem owns a :class:`~wiggly.solve.memo.Memo` of what an edit leaves unchanged:
-    the energy of a node set, the selections and Grams of vertex groups, the projections of
-    keyframe targets.  Its keys are values (node times, vertex indices, targets), so the same
-    problem serves every edit of a shot.
+    The problem owns a :class:`~wiggly.memo.Memo` of what an edit leaves unchanged: the
+    energy of a node set, the fits and projections of keyframe targets.  Its keys are values
+    (node times, vertex indices, targets), so the same problem serves every edit of a shot.
+    What depends on the body and a vertex group only (selections, Grams, modal Grams, the
+    coarse model's error terms) the body keeps, for every problem on it.
     """
 
     def __init__(
