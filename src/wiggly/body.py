@@ -274,17 +274,6 @@ class Body:
 
         return self._groups.get((name, on, value_key(vertices)), compute)
 
-    def group_rest(self, vertices: np.ndarray, on: Where = "surface") -> np.ndarray:
-        """Rest positions (s, 3) of a vertex group (read-only; kept per group)."""
-        vertices = np.asarray(vertices, np.int64)
-
-        def compute() -> np.ndarray:
-            X = np.array(self.rest_positions(on)[vertices])
-            X.flags.writeable = False
-            return X
-
-        return self._groups.get(("rest", checks.where(on), value_key(vertices)), compute)
-
     def modal_gram(self, vertices: np.ndarray, on: Where = "surface") -> np.ndarray:
         """``Phi^T (C kron I_3) Phi`` (r, r) of a vertex group, C its Gram on the tet mesh
         (the linear keyframe term's matrix, Schulz et al. eq. (4)); kept per group."""

@@ -233,11 +233,6 @@ class SpacetimeProblem:
                 made[keys[j]] = TargetFit(sel.C, Xa, Ga, float(F[a]))
         return [self.memo.get(key, lambda key=key: made[key]) for key in keys]
 
-    def modal_gram(self, vertices: np.ndarray, on: str) -> np.ndarray:
-        """``Phi^T A_k^T A_k Phi`` (r, r) of a group: ``sum_c Phi_c^T C Phi_c`` over the
-        coordinates, C the group's Gram on the tet mesh (kept by the body)."""
-        return self.body.modal_gram(vertices, on)
-
     def projected(self, vertices: np.ndarray, on: str, target: np.ndarray) -> np.ndarray:
         """``Phi^T A_k^T target`` (r,) for per-vertex vectors ``target`` (s, 3)."""
 
@@ -250,7 +245,7 @@ class SpacetimeProblem:
 
     def offsets(self, kf: Keyframe) -> np.ndarray:
         """A keyframe's position targets minus rest, (s, 3)."""
-        return kf.position - self.body.group_rest(kf.vertices, kf.on)
+        return kf.position - self.body.rest_positions(kf.on)[kf.vertices]
 
     # ----------------------------------------------------------------- linear
     def linear_system(
@@ -266,11 +261,11 @@ class SpacetimeProblem:
             c_A, c_B = kf.weights(self.body, self.duration)
             if kf.position is not None and c_A > 0:
                 blk = layout.indices(k)
-                add_block(ab, blk, c_A * self.modal_gram(kf.vertices, kf.on))
+                add_block(ab, blk, c_A * self.body.modal_gram(kf.vertices, kf.on))
                 f[blk] -= c_A * self.projected(kf.vertices, kf.on, self.offsets(kf))
             if kf.velocity is not None and c_B > 0:
                 blk = layout.indices(k, velocity=True)
-                add_block(ab, blk, c_B * self.modal_gram(kf.vertices, kf.on))
+                add_block(ab, blk, c_B * self.body.modal_gram(kf.vertices, kf.on))
                 f[blk] -= c_B * self.projected(kf.vertices, kf.on, kf.velocity)
         return ab, f
 
