@@ -612,3 +612,25 @@ def test_keys_missed_by_a_python_solve_are_warned_about(free_bar, recwarn):
         solve(free_bar, keys, end=1.0, warp=True)
         solve(free_bar, keys, end=1.0, warp=False, check_keys=False)
     assert not [w for w in quiet if "missed by more than" in str(w.message)]
+
+
+def test_warped_playback_runs_blas_on_one_thread(free_bar, monkeypatch):
+    """Idle OpenBLAS workers spin after each product and take the cores from the warp's
+    compiled passes (1.6x slower playback on 2 cores): playback limits BLAS to one thread."""
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    anim = solve(free_bar, turn_keys(free_bar, 90.0), end=1.5, warp=True)
+    warp, seen = free_bar.warp, []
+
+    def blas_threads() -> list[int]:
+        return [p["num_threads"] for p in threadpoolctl.threadpool_info()
+                if p["user_api"] == "blas"]
+
+    apply = warp.apply
+    monkeypatch.setattr(warp, "apply", lambda U: (seen.extend(blas_threads()), apply(U))[1])
+    with threadpoolctl.threadpool_limits(limits=2, user_api="blas"):
+        outside = blas_threads()
+        if not outside or max(outside) < 2:
+            pytest.skip(f"BLAS does not run on 2 threads here ({outside})")
+        anim.positions([0.3, 0.9])
+        assert blas_threads() == outside
+    assert seen and set(seen) == {1}

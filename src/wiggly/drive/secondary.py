@@ -53,7 +53,7 @@ from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.drive.unwarp import Unwarp
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
-from wiggly.linalg import factorize_spd
+from wiggly.linalg import factorize_spd, one_blas_thread
 from wiggly.modes import compute_modes
 from wiggly.progress import deprecated_progress, reporting
 from wiggly.solve.animation import Animation
@@ -363,6 +363,7 @@ class SecondaryMotion(Animation):
         D = self.driver_rig(np.atleast_1d(times), derivative)
         return D.reshape(len(D), -1, 3)
 
+    @one_blas_thread
     def displacements(self, times: ArrayLike, on: Where = "surface", derivative: int = 0,
                       dtype: type = np.float64) -> np.ndarray:
         """Displacements (or a time derivative), (F, n, 3): ubar + Psi q, or warped
@@ -475,6 +476,7 @@ def secondary_frames(
 
 
 @deprecated_progress
+@one_blas_thread
 def secondary_motion(
     body: Body,
     driver: Driver,

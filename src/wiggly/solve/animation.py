@@ -18,6 +18,7 @@ from wiggly import checks, limits
 from wiggly.body import Body, Where
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
+from wiggly.linalg import one_blas_thread
 from wiggly.splines import WigglyBasis, energy_form, evaluate
 
 if TYPE_CHECKING:
@@ -134,6 +135,7 @@ class Animation:
         return out.reshape(n_derivatives + 1, len(t), r)
 
     # --- vertex trajectories -------------------------------------------------------------
+    @one_blas_thread
     def displacements(
         self, times: ArrayLike, on: Where = "surface", derivative: int = 0, dtype: type = np.float64
     ) -> np.ndarray:
