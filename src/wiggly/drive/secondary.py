@@ -53,7 +53,7 @@ from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.drive.unwarp import Unwarp
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
-from wiggly.linalg import factorize_spd, one_blas_thread
+from wiggly.linalg import blas_single_thread, factorize_spd, one_blas_thread
 from wiggly.modes import compute_modes
 from wiggly.progress import deprecated_progress, reporting
 from wiggly.solve.animation import Animation
@@ -363,11 +363,17 @@ class SecondaryMotion(Animation):
         D = self.driver_rig(np.atleast_1d(times), derivative)
         return D.reshape(len(D), -1, 3)
 
-    @one_blas_thread
     def displacements(self, times: ArrayLike, on: Where = "surface", derivative: int = 0,
                       dtype: type = np.float64) -> np.ndarray:
         """Displacements (or a time derivative), (F, n, 3): ubar + Psi q, or warped
         W(ubar + Psi q) and DW(u) u' (module doc)."""
+        if self.warped:  # the warp's compiled passes need the cores (linear playback does not)
+            with blas_single_thread():
+                return self._displacements(times, on, derivative, dtype)
+        return self._displacements(times, on, derivative, dtype)
+
+    def _displacements(self, times: ArrayLike, on: Where, derivative: int,
+                       dtype: type) -> np.ndarray:
         times = np.atleast_1d(np.asarray(times, float))
         body = self.body
         if self.warped and derivative > 1:

@@ -135,7 +135,6 @@ class Animation:
         return out.reshape(n_derivatives + 1, len(t), r)
 
     # --- vertex trajectories -------------------------------------------------------------
-    @one_blas_thread
     def displacements(
         self, times: ArrayLike, on: Where = "surface", derivative: int = 0, dtype: type = np.float64
     ) -> np.ndarray:
@@ -156,6 +155,11 @@ class Animation:
                 "accelerations are available for linear motion (warp=False) only; for the "
                 "warped motion sample positions densely and differentiate numerically"
             )
+        return self._warped(times, on, derivative, dtype)
+
+    @one_blas_thread  # the warp's compiled passes need the cores (linear playback does not)
+    def _warped(self, times: ArrayLike, on: Where, derivative: int, dtype: type) -> np.ndarray:
+        """W(u(t)) or DW(u(t)) u'(t) on ``on``, in batches of frames."""
         q = self.modal(times, derivative)
         body = self.body
         n = body.tets.n_vertices
