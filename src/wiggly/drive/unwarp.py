@@ -36,7 +36,7 @@ import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
 from wiggly.fem import tet_gradients
-from wiggly.linalg import factorize_spd
+from wiggly.linalg import det3, factorize_spd
 from wiggly.progress import activity
 
 __all__ = ["MAX_ANGLE", "MIN_DET", "Unwarp", "compile_kernels", "frame_rotations",
@@ -98,7 +98,7 @@ def _unwarp_numpy(Fd: np.ndarray, w0: np.ndarray | None = None) -> np.ndarray:
     A[..., 1, 2] -= w[..., 0]
     A[..., 2, 0] -= w[..., 1]
     A[..., 2, 1] += w[..., 0]
-    bad = (np.linalg.det(Fd) < MIN_DET) | (turned > MAX_ANGLE)
+    bad = (det3(Fd) < MIN_DET) | (turned > MAX_ANGLE)
     A[bad] = Fd[bad] - eye
     return A
 

@@ -18,7 +18,7 @@ from wiggly import checks, limits
 from wiggly.body import Body, Where
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
-from wiggly.linalg import one_blas_thread
+from wiggly.linalg import det3, one_blas_thread
 from wiggly.splines import WigglyBasis, energy_form, evaluate
 
 if TYPE_CHECKING:
@@ -236,7 +236,7 @@ class Animation:
             moved = self.displacements(part, on="tets")
             for j, (t, w) in enumerate(zip(part, moved, strict=True)):
                 A = (warp.gradient @ w).reshape(-1, 3, 3)  # A[t, j, i] = d w_i / d X_j
-                folded = np.linalg.det(A + np.eye(3)) <= 0.0
+                folded = det3(A + np.eye(3)) <= 0.0
                 row = {"time": float(t), "folded": int(folded.sum()),
                        "share": float(folded.mean())}
                 if folded.any():
