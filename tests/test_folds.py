@@ -78,6 +78,13 @@ def test_folds_count_the_tets_the_motion_turns_inside_out(bar, warp):
     assert between
     assert all(row["folded"] == _inside_out(bar, anim, row["time"]) for row in between[:3])
     assert anim.folds([]) == []
+    # frames played back already (the editor's): the same rows, without a second playback
+    times = anim.frame_times(10.0)
+    shown = anim.folds(times, displacements=anim.displacements(times, on="tets"))
+    assert [row["folded"] for row in shown] == [row["folded"] for row in anim.folds(times)]
+    assert sum(row["folded"] for row in shown) > 0
+    with pytest.raises(ValueError, match="tet-mesh displacements at 16 times"):
+        anim.folds(times, displacements=anim.displacements(times[:3], on="tets"))
     # a driver keys every frame: at most FOLD_TIMES of the frames and of the key times
     many = replace(anim, keyframes=[replace(anim.keyframes[2], time=float(t))
                                     for t in np.linspace(0.0, 1.5, 400)])

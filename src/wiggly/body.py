@@ -247,6 +247,14 @@ class Body:
         """(p, n) barycentric interpolation from tet vertices to surface vertices."""
         return self.model.embedding.matrix(self.tets.n_vertices)
 
+    def to_surface(self, U: np.ndarray) -> np.ndarray:
+        """Tet-vertex fields ``U`` (F, n, 3) carried to the surface vertices by the
+        barycentric embedding: (F, p, 3), in ``U``'s dtype."""
+        F, n, _ = U.shape
+        E = self.surface_embedding
+        out = E @ U.transpose(1, 0, 2).reshape(n, -1)
+        return out.reshape(E.shape[0], F, 3).transpose(1, 0, 2).astype(U.dtype, copy=False)
+
     def scalar_selection(self, vertices: np.ndarray, on: Where = "surface") -> sp.csr_matrix:
         """Sparse (k, n) map from tet-mesh vertex values to those of ``vertices``."""
         vertices = np.asarray(vertices, np.int64)

@@ -145,9 +145,7 @@ def mode_shapes(body, modes, phase) -> np.ndarray:
         u = Phi[:, i].reshape(n, 3)
         U[k] = s * AMPLITUDE * diag / max(np.abs(u).max(), 1e-300) * u
     W = np.concatenate([body.warp.apply(U[k:k + 64]) for k in range(0, len(U), 64)])
-    E = body.surface_embedding
-    out = np.stack([E @ w for w in W])
-    return out + body.surface.vertices
+    return body.to_surface(W) + body.surface.vertices
 
 
 def preview(path: Path, body, *, overwrite: bool = False) -> Path:

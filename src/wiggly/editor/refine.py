@@ -221,21 +221,25 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
         channel.send(out, ("abandoned", seq, version, {"iterations": stop.args[0]}))
         return
     previous.put(pkey, anim)
+    body = problem.body
+    fps = playback_fps(scene.time.fps, problem.start, problem.end, body.surface.n_vertices)
+    times = anim.frame_times(fps)
+    # one warped playback on the tet mesh: the frames shown, and the folds in them
+    moved = anim.displacements(times, on="tets")
+    # creases the user sees in the warped frames, explained (``wiggly animate`` warns)
+    checked = anim.folds(times, displacements=moved) if kind == "final" else None
     info = {"iterations": int(anim.info.get("iterations", 0)),
             "converged": bool(anim.info.get("converged")),
             "objective": float(anim.info.get("objective", np.nan)),
             "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim),
             "request": kind,
-            # creases the user sees in the warped frames, explained (``wiggly animate`` warns)
-            "folds": fold_note(anim, api=False, groups=groups) if kind == "final" else None,
+            "folds": None if checked is None
+            else fold_note(anim, api=False, groups=groups, checked=checked),
             "source": scene.source}
-    fps = playback_fps(scene.time.fps, problem.start, problem.end,
-                       problem.body.surface.n_vertices)
-    times = anim.frame_times(fps)
     if info["folds"] is not None:  # and where: the page tints them as previews do
         info["fold_spans"] = [{"from": h.time, "until": h.until, "vertices": h.vertices.tolist()}
-                              for h in fold_highlights(anim, times)]
-    positions = anim.positions(times, dtype=np.float32)
+                              for h in fold_highlights(anim, times, checked)]
+    positions = (body.to_surface(moved) + body.rest_positions()).astype(np.float32)
     channel.send(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
 
 

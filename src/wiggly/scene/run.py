@@ -113,15 +113,16 @@ def keyframe_highlights(scene: Scene, body, keyframes, groups: dict[str, np.ndar
 FOLD_COLOR = (0.8, 0.0, 0.55)
 
 
-def fold_highlights(anim, times) -> list:
+def fold_highlights(anim, times, checked: list[dict] | None = None) -> list:
     """:class:`wiggly.render.Highlight` of the surface where ``anim`` folds more than
     :data:`wiggly.solve.FOLDED` of its tets (:meth:`~wiggly.Animation.folds` at ``times``,
-    the frames a preview shows): one for each span of such frames (frames less than two
-    highlight windows apart make one span, since their highlights would overlap anyway),
-    over the surface vertices that folded tets carry and those nearest to folded tets inside
-    the body, labelled with the most tets folded at a frame of the span."""
-    times = np.asarray(times, dtype=np.float64)
-    rows = [row for row in anim.folds(times) if row["share"] > FOLDED]
+    the frames a preview shows, or its rows there, ``checked``): one for each span of such
+    frames (frames less than two highlight windows apart make one span, since their
+    highlights would overlap anyway), over the surface vertices that folded tets carry and
+    those nearest to folded tets inside the body, labelled with the most tets folded at a
+    frame of the span."""
+    checked = anim.folds(np.asarray(times, dtype=np.float64)) if checked is None else checked
+    rows = [row for row in checked if row["share"] > FOLDED]
     if not rows:
         return []
     body = anim.body

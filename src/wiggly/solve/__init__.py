@@ -205,13 +205,16 @@ def fold_note(
     where: str = "the warped motion",
     api: bool = True,
     groups: dict[str, np.ndarray] | None = None,
+    checked: list[dict] | None = None,
 ) -> str | None:
     """What :func:`warn_folded` says of ``anim`` (None when it folds no more than
     :data:`FOLDED` of the tets at any time :meth:`Animation.folds` checks); ``api=False``
     leaves out the pointer to :meth:`Animation.folds` (for the command line and the editor);
     ``groups`` (name: surface vertex indices, a scene's groups) names the group nearest the
-    fold."""
-    checked = anim.folds()
+    fold; ``checked``: the rows of :meth:`Animation.folds` at other times than its default
+    ones (the frames the editor shows), if computed already."""
+    if checked is None:
+        checked = anim.folds()
     rows = [row for row in checked if row["share"] > FOLDED]
     if not rows:
         return None

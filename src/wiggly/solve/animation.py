@@ -174,11 +174,7 @@ class Animation:
             else:
                 dU = (q[1, sl] @ Phi.T).reshape(-1, n, 3)
                 W = np.stack([body.warp.jvp(u, du) for u, du in zip(U, dU, strict=True)])
-            if on == "surface":
-                E = body.surface_embedding
-                W = (E @ W.transpose(1, 0, 2).reshape(n, -1)).reshape(E.shape[0], -1, 3)
-                W = W.transpose(1, 0, 2)
-            out[sl] = W
+            out[sl] = body.to_surface(W) if on == "surface" else W
         return out
 
     def positions(
@@ -204,7 +200,9 @@ class Animation:
         form = energy_form(self.basis, np.tile(self.body.modal_gravity, len(self.nodes) - 1))
         return float(form(x).sum())
 
-    def folds(self, times: ArrayLike | None = None) -> list[dict]:
+    def folds(
+        self, times: ArrayLike | None = None, displacements: np.ndarray | None = None
+    ) -> list[dict]:
         """Where the motion folds the body: per time, the tets that the played-back motion
         turns inside out (det of the deformation gradient <= 0).
 
@@ -216,6 +214,10 @@ class Animation:
         that the warp exponentiates, in turns).  Rotation-strain warping turns each tet by its own
         rotation, so a linear motion that spins a small region by several turns against its
         surroundings is warped into a crease there.
+
+        ``displacements``: this motion's tet-mesh displacements at ``times``
+        (``displacements(times, on="tets")``), when the caller has played them back already
+        (the editor shows the same frames).
         """
         if times is None:
             keys = np.unique([kf.time for kf in self.keyframes])
@@ -227,13 +229,19 @@ class Animation:
         if times.size == 0:  # no keyframes, or no times asked
             return []
         body = self.body
+        if displacements is not None and displacements.shape != (
+            len(times), body.tets.n_vertices, 3
+        ):
+            raise ValueError(f"displacements of shape {displacements.shape} are not this "
+                             f"motion's tet-mesh displacements at {len(times)} times")
         warp = body.fine_level.warp
         T, X = body.tets.tets, body.tets.vertices
         q = self.modal(times)[0]  # the linear states, made into displacements where folded
         out = []
         for a in range(0, len(times), _PLAYBACK_BATCH):
             part = times[a : a + _PLAYBACK_BATCH]
-            moved = self.displacements(part, on="tets")
+            moved = (self.displacements(part, on="tets") if displacements is None
+                     else displacements[a : a + _PLAYBACK_BATCH])
             for j, (t, w) in enumerate(zip(part, moved, strict=True)):
                 A = (warp.gradient @ w).reshape(-1, 3, 3)  # A[t, j, i] = d w_i / d X_j
                 folded = det3(A + np.eye(3)) <= 0.0
