@@ -253,6 +253,26 @@ def test_compiled_kernels_equal_the_vectorized_numpy_path(jittered, fixed):
     assert rel(compiled_[7], numpy_[7]) < 1e-6
 
 
+@pytest.mark.parametrize("kernels", ["numba", "numpy"])
+def test_inverted_tets_are_those_of_negative_signed_volume(jittered, kernels):
+    """Warp.inverted against the signed volumes of the displaced tets (their edge matrices,
+    not the warp's gradients), on fields that turn some tets inside out and leave others."""
+    if kernels == "numba" and not compiled.AVAILABLE:
+        pytest.skip("numba not installed")
+    V, T = jittered
+    warp = Warp(V, T, kernels=kernels)
+    U = np.stack([random_displacement(V, s, seed=30 + i) for i, s in enumerate([0.0, 0.3, 1.0])])
+    U[0, :, 0] = -2.0 * V[:, 0]  # a mirror: every tet inside out
+    P = (V + U)[:, T]  # (f, m, 4, 3)
+    signed = np.linalg.det(np.swapaxes(P[:, :, 1:] - P[:, :, :1], -1, -2))
+    expected = signed <= 0.0
+    got = warp.inverted(U)
+    assert got.shape == (3, len(T)) and got.dtype == bool
+    assert got[0].all() and not expected[1].any() and 0 < expected[2].sum() < len(T)
+    np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(warp.inverted(U[2]), expected[2:])
+
+
 def test_components_get_their_own_gauge():
     """Two disjoint boxes: one clamped (Dirichlet), one free (mean gauge), plus a loose vertex."""
     V1, T1 = box_mesh((2, 2, 2))

@@ -52,6 +52,7 @@ __all__ = [
     "AVAILABLE",
     "chunks",
     "field_gradients",
+    "inverted",
     "jacobians_rhs",
     "jvp_rhs",
     "target_rhs",
@@ -337,6 +338,22 @@ def vjp_rhs(U, Z, index, tets, grads, vol, out, chunks):
                     scatter(dA, 1.0, tets, grads, t, o)
 
 
+
+
+@pjit
+def inverted(U, tets, grads, out):
+    """``out[s, t] = det(I + A) <= 0``, ``A`` the gradient of the displacements ``U[s]`` on
+    tet ``t``: the tets that the fields U (f, n, 3) turn inside out; ``out`` (f, m) bool."""
+    f, m = U.shape[0], tets.shape[0]
+    for b in prange((m + _TET_BLOCK - 1) // _TET_BLOCK):
+        A = np.empty(9)
+        for t in range(b * _TET_BLOCK, min(m, (b + 1) * _TET_BLOCK)):
+            for s in range(f):
+                gradient(U[s], tets, grads, t, A)
+                a, e, i = 1.0 + A[0], 1.0 + A[4], 1.0 + A[8]
+                det = (a * (e * i - A[5] * A[7]) - A[1] * (A[3] * i - A[5] * A[6])
+                       + A[2] * (A[3] * A[7] - e * A[6]))
+                out[s, t] = det <= 0.0
 
 
 @pjit

@@ -16,6 +16,8 @@ fields from :meth:`field_gradients`):
     ``out[s] += G^T dA_s`` with ``dA_s`` the cotangent of ``Vol G Z[:, index[s]]``;
 ``jacobians(U, GB)`` / ``second_derivatives(U, V, GB, step)``
     ``G^T Vol dH(G U[s]; GB[d])`` and ``G^T Vol D^2H(G U[s])[GB[d], G V[s]]``, (f, r, n, 3);
+``inverted(U)``
+    per field and tet, whether ``det(I + G U[s]) <= 0`` (the tet turned inside out), (f, m);
 ``curvature_fields(GB)``
     the fields in the form :meth:`curvature` takes them (computed once per modal basis);
 ``curvature(u, z, zv, v, fields, step, step3)``
@@ -67,6 +69,11 @@ class NumbaKernels:
 
     def field_gradients(self, B: np.ndarray) -> np.ndarray:
         return compiled.field_gradients(np.ascontiguousarray(B), self.tets, self.grads)
+
+    def inverted(self, U: np.ndarray) -> np.ndarray:
+        out = np.empty((len(U), self.m), dtype=np.bool_)
+        compiled.inverted(np.ascontiguousarray(U), self.tets, self.grads, out)
+        return out
 
     def jacobians(self, U: np.ndarray, GB: np.ndarray) -> np.ndarray:
         out = np.zeros((len(U), GB.shape[0], self.n, 3))
@@ -153,6 +160,7 @@ def compile_all() -> None:
     compiled.jvp_rhs(U, U, tets, grads, vol, out, 1)
     compiled.vjp_rhs(U, U.transpose(1, 0, 2).copy(), np.arange(2), tets, grads, vol, out, 1)
     GB = compiled.field_gradients(U, tets, grads)
+    compiled.inverted(U, tets, grads, np.empty((2, 1), dtype=np.bool_))
     compiled.jacobians_rhs(U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
     compiled_second.second_derivatives_rhs(U, U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
     C = np.zeros((2, 1, 9))
@@ -163,7 +171,7 @@ def compile_all() -> None:
 
 def _entry_points() -> list:
     return [compiled.target_rhs, compiled.jvp_rhs, compiled.vjp_rhs, compiled.field_gradients,
-            compiled.jacobians_rhs, compiled_second.second_derivatives_rhs,
+            compiled.inverted, compiled.jacobians_rhs, compiled_second.second_derivatives_rhs,
             compiled_second.curvature_products]
 
 

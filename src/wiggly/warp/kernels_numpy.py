@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from wiggly.linalg import det3
 from wiggly.warp.tetmath import cotangent_block, linearization, tangent_block, target_block
 
 # Frames per chunk are chosen so that one component field holds at most this many entries.
@@ -69,6 +70,11 @@ class NumpyKernels:
         return [slice(s, min(f, s + size)) for s in range(0, f, size)]
 
     # --------------------------------------------------------------- passes
+    def inverted(self, U: np.ndarray) -> np.ndarray:
+        """Per field and tet, whether ``det(I + G U[s]) <= 0``: (f, m) bool."""
+        A = np.moveaxis(self._grad(U), (0, 1), (-2, -1))  # (f, m, 3, 3)
+        return det3(A + np.eye(3)) <= 0.0
+
     def target(self, U: np.ndarray) -> np.ndarray:
         """``G^T Vol H(G U[s])`` for every frame: (f, n, 3)."""
         out = np.empty_like(U)

@@ -182,6 +182,12 @@ class Warp:
 
     __call__ = apply
 
+    def inverted(self, U: np.ndarray) -> np.ndarray:
+        """Per frame and tet, whether the displacements U (f, n, 3) turn the tet inside out
+        (``det(I + grad u) <= 0``): (f, m) bool."""
+        Uf, _ = self._frames(U, "U")
+        return self.kernels.inverted(Uf)
+
     def jvp(self, U: np.ndarray, dU: np.ndarray) -> np.ndarray:
         """Directional derivative ``DW(u)[du]`` (analytic), for (n, 3) or (f, n, 3)."""
         Uf, batched = self._frames(U, "U")
