@@ -29,6 +29,7 @@ import logging
 import os
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -55,6 +56,10 @@ DENSE_MAX_DOFS = 3000
 """Problems with at most this many free dofs are solved densely by ``method="auto"``."""
 SHIFT_FRACTION = 1e-8
 """sigma = -SHIFT_FRACTION * median(diag K / diag M) over free dofs (K - sigma M is SPD)."""
+CHILD_DOFS = 30_000
+"""From this many free dofs on, the sparse eigensolve runs in a child process
+(:mod:`wiggly.modes_child`: its factorization takes seconds to minutes and holds the
+interpreter lock; below, the child's start-up of about a second would dominate)."""
 ZERO_FLOOR = 1e-12
 """An elastic eigenvalue below ZERO_FLOOR * median(diag K / diag M) counts as zero."""
 ZERO_RELATIVE = 1e-8
@@ -144,9 +149,9 @@ class _Progress:
         if self.enabled:
             self.bar = iterations(desc, unit="solve")
 
-    def tick(self) -> None:
+    def tick(self, n: int = 1) -> None:
         if self.bar is not None:
-            self.bar.update(1)
+            self.bar.update(n)
 
     def stop_counter(self) -> int:
         count = 0
@@ -295,6 +300,31 @@ def _candidates_dense(
     return lam, X
 
 
+def shift_invert(
+    Kf: sp.csr_matrix,
+    Mf: sp.csr_matrix,
+    k: int,
+    sigma: float,
+    backend: str | None,
+    factored: Callable[[str], None],
+    solved: Callable[[], None],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The k eigenpairs of ``Kf x = lam Mf x`` nearest ``sigma``: Lanczos (``eigsh``) on
+    ``(Kf - sigma Mf)^-1 Mf`` with a sparse Cholesky factor; ``factored(backend name)`` is
+    called once the factor exists, ``solved()`` after each of its solves."""
+    nf = Kf.shape[0]
+    solver = factorize_spd((Kf - sigma * Mf).tocsr(), backend=backend)
+    factored(solver.backend)
+
+    def matvec(x: np.ndarray) -> np.ndarray:
+        solved()
+        return solver(np.ravel(x))
+
+    OPinv = spla.LinearOperator((nf, nf), matvec=matvec, dtype=np.float64)
+    v0 = np.random.default_rng(0).standard_normal(nf)
+    return spla.eigsh(Kf, k=k, M=Mf, sigma=sigma, which="LM", OPinv=OPinv, v0=v0)
+
+
 def _candidates_sparse(
     Kf: sp.csr_matrix,
     Mf: sp.csr_matrix,
@@ -304,19 +334,20 @@ def _candidates_sparse(
     progress: _Progress,
 ) -> tuple[np.ndarray, np.ndarray]:
     nf = Kf.shape[0]
+    if nf >= CHILD_DOFS:
+        from wiggly.mesh.tetwild_child import can_run_child
+        from wiggly.modes_child import eigsh_in_child
+
+        if can_run_child():  # stoppable, with a live line
+            return eigsh_in_child(Kf, Mf, k, sigma, backend, progress)
     progress.say(f"factorizing K - sigma M ({nf} dofs, sigma = {sigma:.3g})")
-    solver = factorize_spd((Kf - sigma * Mf).tocsr(), backend=backend)
-    progress.say(f"factorized with {solver.backend}; eigsh for {k} eigenpairs")
 
-    def matvec(x: np.ndarray) -> np.ndarray:
-        progress.tick()
-        return solver(np.ravel(x))
+    def factored(name: str) -> None:
+        progress.say(f"factorized with {name}; eigsh for {k} eigenpairs")
+        progress.start_counter("eigsh shift-invert solves")
 
-    OPinv = spla.LinearOperator((nf, nf), matvec=matvec, dtype=np.float64)
-    v0 = np.random.default_rng(0).standard_normal(nf)
-    progress.start_counter("eigsh shift-invert solves")
     try:
-        lam, X = spla.eigsh(Kf, k=k, M=Mf, sigma=sigma, which="LM", OPinv=OPinv, v0=v0)
+        lam, X = shift_invert(Kf, Mf, k, sigma, backend, factored, progress.tick)
     finally:
         count = progress.stop_counter()
     progress.say(f"eigsh done ({count} solves)" if count else "eigsh done")

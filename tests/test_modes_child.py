@@ -1,0 +1,131 @@
+"""The modes' eigensolve in a child process (``wiggly.modes_child``): the same modes as
+in-process, a failed factorization reported as in-process, a live line while the child
+factorizes, and Ctrl+C or ``kill PID`` end the run at once (cholespy's factorization holds
+the interpreter lock: in-process, they waited for it, minutes on large bodies)."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import wiggly.modes as modes
+import wiggly.progress as progress
+from wiggly.fem import mass_matrix, stiffness_matrix
+from wiggly.modes_child import eigsh_in_child
+from wiggly.primitives import box_mesh
+from wiggly.progress import Activity
+
+
+@pytest.fixture(scope="module")
+def bar():
+    V, T = box_mesh((12, 7, 5), (1.2, 0.7, 0.45))  # unequal sides: no repeated eigenvalues
+    return V, stiffness_matrix(V, T, 1e6, 0.45), mass_matrix(V, T, 1000.0)
+
+
+def test_the_child_finds_the_modes_of_the_process(bar, monkeypatch):
+    V, K, M = bar
+    monkeypatch.setattr(modes, "DENSE_MAX_DOFS", 0)
+    here = modes.compute_modes(K, M, 16, vertices=V, cache_dir=False)
+    monkeypatch.setattr(modes, "CHILD_DOFS", 0)
+    started = []
+    real = subprocess.Popen
+    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: started.append(a) or real(*a, **k))
+    child = modes.compute_modes(K, M, 16, vertices=V, cache_dir=False)
+    assert started and "wiggly.modes_child" in started[0][0][2]
+    np.testing.assert_allclose(child.eigenvalues, here.eigenvalues, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(child.vectors, here.vectors, rtol=0, atol=1e-10)
+
+
+class _Progress:
+    def __init__(self):
+        self.said, self.ticks = [], 0
+
+    def say(self, text):
+        self.said.append(text)
+
+    def start_counter(self, desc):
+        pass
+
+    def tick(self, n=1):
+        self.ticks += n
+
+    def stop_counter(self):
+        return self.ticks
+
+
+def test_a_failed_factorization_is_a_linalg_error_as_in_process():
+    n = 50
+    K, M = -sp.identity(n, format="csr"), sp.identity(n, format="csr")
+    with pytest.raises(np.linalg.LinAlgError, match="not positive definite"):
+        eigsh_in_child(K, M, 4, 0.1, "cholespy", _Progress())
+
+
+def test_a_live_line_while_the_child_factorizes_then_its_solves_counted(bar, monkeypatch):
+    """On a terminal the factorization gets a live stage line (the parent keeps the lock:
+    it ticks), then the child's shift-invert solves are counted."""
+    _, K, M = bar
+    draws: list[str] = []
+    monkeypatch.setattr(progress, "on_terminal", lambda: True)
+    monkeypatch.setattr(Activity, "draw", lambda self: draws.append(self.desc))
+    report = _Progress()
+    with progress.reporting(True):
+        lam, X = eigsh_in_child(sp.csr_matrix(K), sp.csr_matrix(M), 12, -1.0, None, report)
+    assert lam.shape == (12,) and X.shape == (K.shape[0], 12)
+    assert any("factorizing K - sigma M" in text for text in draws) and report.ticks > 12
+    assert any("factorized with" in text for text in report.said)
+
+
+PARENT = """
+import sys, logging
+import numpy as np
+logging.basicConfig(level=logging.INFO, stream=sys.stdout, format="%(message)s")
+import wiggly.modes as modes
+from wiggly.primitives import box_mesh
+from wiggly.fem import stiffness_matrix, mass_matrix
+V, T = box_mesh((22, 22, 22), (1.0, 0.9, 0.8))  # 36.5k dofs: a factorization of seconds
+K, M = stiffness_matrix(V, T, 1e6, 0.45), mass_matrix(V, T, 1000.0)
+print("assembled", flush=True)
+modes.compute_modes(K, M, 20, vertices=V, cache_dir=False)
+print("finished", flush=True)
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_ctrl_c_and_kill_end_the_factorization_at_once(signum):
+    """The run ends within seconds of the signal, mid-factorization, and leaves no child."""
+    parent = subprocess.Popen([sys.executable, "-c", PARENT], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        for line in parent.stdout:
+            if "in a child process" in line:
+                break
+        else:
+            pytest.fail("the factorization did not start in a child: " + parent.stderr.read())
+        time.sleep(1.0)  # well inside the factorization (about 10 s on 2 cores)
+        children = [int(p) for p in Path(f"/proc/{parent.pid}/task/{parent.pid}/children")
+                    .read_text().split()]
+        assert children
+        sent = time.monotonic()
+        parent.send_signal(signum)
+        parent.wait(timeout=30)
+        assert time.monotonic() - sent < 3.0
+        assert parent.returncode != 0
+        deadline = time.monotonic() + 10
+        while any(Path(f"/proc/{c}").exists() for c in children) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        alive = [c for c in children if Path(f"/proc/{c}").exists()
+                 and Path(f"/proc/{c}/stat").read_text().split()[2] != "Z"]
+        assert not alive
+        assert "finished" not in parent.stdout.read()
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
