@@ -37,6 +37,16 @@ def offscreen() -> str:
         pytest.skip(f"offscreen OpenGL rendering is not available on this machine: {e}")
 
 
+def test_a_module_in_the_working_folder_does_not_break_the_probe(offscreen, tmp_path,
+                                                                  monkeypatch):
+    """A user's ``random.py`` (a module name VTK's imports use) in the folder wiggly runs
+    from: the probe's ``python -c`` child would import it first and fail, and the error
+    blamed OpenGL. Children run with ``-P`` (no working folder on their import path)."""
+    (tmp_path / "random.py").write_text("raise ImportError('the user random.py was imported')\n")
+    monkeypatch.chdir(tmp_path)
+    assert render.setup.check_offscreen.__wrapped__() == offscreen
+
+
 @pytest.fixture(scope="module")
 def ball():
     """An icosphere (r = 0.5, 1280 faces) that travels 1.5 m along x and squashes, 21 frames."""

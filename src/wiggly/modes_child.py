@@ -45,7 +45,7 @@ def eigsh_in_child(Kf: sp.csr_matrix, Mf: sp.csr_matrix, k: int, sigma: float,
                  M_data=Mf.data, M_indices=Mf.indices, M_indptr=Mf.indptr,
                  n=nf, k=k, sigma=sigma, backend=backend or "")
         child = subprocess.Popen(
-            [sys.executable, "-c", "from wiggly.modes_child import child_main; child_main()",
+            [sys.executable, "-P", "-c", "from wiggly.modes_child import child_main; child_main()",
              str(inp), str(out), str(os.getpid())],
             cwd=tmp, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
             env={**os.environ, "PYTHONUNBUFFERED": "1"})

@@ -159,7 +159,7 @@ class Preparer:
             if self._closed or (self._proc is not None and self._proc.poll() is None):
                 return
             self._proc = subprocess.Popen(
-                [sys.executable, "-c", _NICE.format(CHILD_NICENESS) +
+                [sys.executable, "-P", "-c", _NICE.format(CHILD_NICENESS) +
                  "from wiggly.editor.physics import child_main; child_main()"],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, close_fds=True)
             self._known.clear()

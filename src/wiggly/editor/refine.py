@@ -261,7 +261,8 @@ class Refiner:
 
     def __init__(self, on_result):
         self._proc = subprocess.Popen(
-            [sys.executable, "-c", "from wiggly.editor.refine import child_main; child_main()"],
+            [sys.executable, "-P", "-c",
+             "from wiggly.editor.refine import child_main; child_main()"],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0, close_fds=True)
         self._lock = threading.Lock()
         self._sent_models = Memo(MODELS_KEPT)  # what the child holds: put on send, as there

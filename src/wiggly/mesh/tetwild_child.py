@@ -84,7 +84,7 @@ def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
                  faces=np.ascontiguousarray(F, np.int32), **{
                      k: np.asarray(v) for k, v in options.items()})
         child = subprocess.Popen(
-            [sys.executable, "-c", _CHILD, str(inp), str(out), str(os.getpid())],
+            [sys.executable, "-P", "-c", _CHILD, str(inp), str(out), str(os.getpid())],
             cwd=tmp, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
             env={**os.environ, "PYTHONUNBUFFERED": "1"})
         errors: list[bytes] = []

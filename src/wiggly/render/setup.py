@@ -153,7 +153,7 @@ def check_offscreen(timeout: float = 60.0) -> str:
     """
     configure_headless()
     try:
-        out = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True,
+        out = subprocess.run([sys.executable, "-P", "-c", _PROBE], capture_output=True, text=True,
                              timeout=timeout, env=os.environ.copy())
     except subprocess.TimeoutExpired as e:
         raise RenderingError(
@@ -164,9 +164,13 @@ def check_offscreen(timeout: float = 60.0) -> str:
                for line in out.stderr.splitlines() if line.strip()][-3:]
         status = (f"crashed with signal {-out.returncode}" if out.returncode < 0 else
                   f"exit code {out.returncode}, output {out.stdout.strip()!r}")
+        # VTK's Python modules themselves missing or broken (not a system OpenGL library)
+        broken = re.search(r"No module named 'vtk|cannot import name .* from 'vtk", out.stderr)
+        fixes = ("Fix: reinstall VTK in this Python environment (pip install "
+                 "--force-reinstall vtk)." if broken else _FIXES)
         raise RenderingError(
             f"offscreen OpenGL rendering does not work here (probe {status}; VTK says: "
-            f"{' / '.join(log) or 'nothing'}). {_FIXES}")
+            f"{' / '.join(log) or 'nothing'}). {fixes}")
     return out.stdout.strip()
 
 
