@@ -702,3 +702,18 @@ def test_a_shot_end_between_frames_is_warned_about(recwarn):
     said = [str(w.message) for w in recwarn if "whole number of frames" in str(w.message)]
     assert len(said) == 1 and "its last frame is at 2.04167 s" in said[0]
     assert "use end = 2.04167 or 2.08333" in said[0]
+
+
+def test_an_fps_from_the_command_line_is_checked_for_whole_frames_too(recwarn):
+    """``--fps`` (with_overrides) that puts the shot's end between frames says so, as the
+    same fps written in the file does, naming the option; a whole number of frames, nothing."""
+    from wiggly.scene.run import with_overrides
+
+    scene = scene_from_dict(tomllib.loads(
+        'format = 1\n[mesh]\npath = "m.obj"\n[time]\nend = 2.5\nfps = 30\n'))
+    with_overrides(scene, fps=24.0)
+    assert not [w for w in recwarn if "whole number of frames" in str(w.message)]
+    with_overrides(scene, fps=17.0)
+    said = [str(w.message) for w in recwarn if "whole number of frames" in str(w.message)]
+    assert len(said) == 1 and "at 17 fps (from --fps 17)" in said[0], said
+    assert "its last frame is at 2.47059 s" in said[0]

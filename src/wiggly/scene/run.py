@@ -24,7 +24,7 @@ from wiggly.render.setup import HIGHLIGHT_WINDOW
 from wiggly.scene.build import build_with_groups
 from wiggly.scene.drive import linear_start_of, secondary_of
 from wiggly.scene.groups import resolve_groups
-from wiggly.scene.schema import loop_cycle_problem
+from wiggly.scene.schema import loop_cycle_problem, partial_frame_note
 from wiggly.scene.spec import (
     GEOMETRY_EXTENSIONS,
     MAX_TARGETS,
@@ -508,6 +508,9 @@ def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None 
         cycle = loop_cycle_problem(s, f" (from --fps {float(fps):g})")
         if cycle is not None:
             raise WigglyInputError(f"{s.where()}: {cycle}")
+        note = partial_frame_note(s, f" (from --fps {float(fps):g})")
+        if note is not None:  # as the file's own fps is checked when it is read
+            warnings.warn(f"{s.where()}: {note}", stacklevel=2)
     if warp is not None:
         s = replace(s, simulation=replace(s.simulation, warp=warp))
     if modes is not None:

@@ -385,6 +385,21 @@ def loop_cycle_problem(scene, fps_from: str = "") -> str | None:
             f"{max(1, round(cycle)) / (t1 - t0):.6g}")
 
 
+def partial_frame_note(scene, fps_from: str = "") -> str | None:
+    """What to say of a shot whose set length is not a whole number of frames (the outputs
+    end on the last whole frame), or None; ``fps_from`` names where the fps came from."""
+    steps, whole = _frame_steps(scene)
+    if scene.time.loop or (scene.time.end is None and scene.time.duration is None) or whole:
+        return None
+    t0, t1 = scene.time_range()
+    fps = scene.time.fps
+    last = t0 + math.floor(steps + 1e-9) / fps
+    return (f"the shot [{t0:g}, {t1:g}] s is not a whole number of frames at {fps:g} "
+            f"fps{fps_from}: its last frame is at {last:.6g} s, and the outputs end there; "
+            f"to end on a frame, use end = {last:.6g} or "
+            f"{t0 + math.ceil(steps - 1e-9) / fps:.6g}")
+
+
 def _cross_check(scene: Scene, p: Problems) -> None:
     """Checks between keys: group names, key times in the shot's time range."""
     names = list(scene.groups)
@@ -413,14 +428,10 @@ def _cross_check(scene: Scene, p: Problems) -> None:
     cycle = loop_cycle_problem(scene)
     if cycle is not None:
         p.add(cycle)
-    steps, whole = _frame_steps(scene)
-    if not scene.time.loop and (scene.time.end is not None or scene.time.duration is not None) \
-            and not whole and frames <= MAX_FRAMES:
-        last = t0 + (frames - 1) / scene.time.fps
-        warnings.warn(f"{p.where}: the shot [{t0:g}, {t1:g}] s is not a whole number of frames "
-                      f"at {scene.time.fps:g} fps: its last frame is at {last:.6g} s, and the "
-                      f"outputs end there; to end on a frame, use end = {last:.6g} or "
-                      f"{t0 + math.ceil(steps - 1e-9) / scene.time.fps:.6g}", stacklevel=4)
+    if frames <= MAX_FRAMES:
+        note = partial_frame_note(scene)
+        if note is not None:
+            warnings.warn(f"{p.where}: {note}", stacklevel=4)
     if scene.time.loop and not scene.simulation.fixed and scene.drive is None and not any(
             kf.position is not None for kf in scene.keyframes):
         p.add("time.loop = true, but no keyframe has a position, no group is fixed and "
