@@ -206,8 +206,23 @@ def test_repair_false_speaks_the_scene_file(user, tripwires, capsys):
 def test_what_cannot_be_filled(user, tripwires, capsys, content, expected):
     folder, scene = user
     (folder / "bad.obj").write_text(content)
-    line = refused(capsys, folder, scene({"mesh.path": "bad.obj", "groups": EVERYWHERE}))
+    shot = scene({"mesh.path": "bad.obj", "groups": EVERYWHERE})
+    line = refused(capsys, folder, shot)
     assert "bad.obj" in line and expected in line
+    # in the scene's terms, as an unreadable file is: the file, its key and value
+    assert line.startswith(f"wiggly: error: {shot.name}: mesh.path = \"bad.obj\": "), line
+
+
+def test_a_long_mesh_path_keeps_its_file_name_in_messages(user, tripwires, capsys):
+    folder, scene = user
+    deep = folder / ("a_rather_long_folder_name_" * 3) / "and_deeper"
+    deep.mkdir(parents=True)
+    (deep / "flat_sheet.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\n"
+                                         "f 2 4 3\n")
+    path = str(deep.relative_to(folder) / "flat_sheet.obj")
+    line = refused(capsys, folder, scene({"mesh.path": path, "groups": EVERYWHERE}))
+    key = line.split("mesh.path = ", 1)[1].split('": ', 1)[0]
+    assert len(key) < len(path) and " ... " in key and key.endswith("flat_sheet.obj"), line
 
 
 @pytest.mark.parametrize("name, damage, expected", [

@@ -42,12 +42,19 @@ def _load_model(scene: Scene):
         check_driver_against(scene, loaded.n_vertices, loaded.faces, f.name, p, loaded.vertices)
         p.raise_if_any()
         with activity(f"checking {f.name} ({counted(loaded.n_faces, 'triangle')})"):
-            checked = meshing.checked_surface(loaded, str(f))
+            try:  # a surface that is read but cannot be a body (flat, no area)
+                checked = meshing.checked_surface(loaded, str(f))
+            except WigglyInputError as err:
+                raise WigglyInputError(
+                    f"{where}: mesh.path = {show(scene.mesh.path)}: {err}") from None
         _check_surface_for_scene(scene, checked.report, f.name)
     t = _time.perf_counter()
-    model = meshing.build_model(loaded, str(f), resolution=scene.mesh.resolution,
-                                edge_length=scene.mesh.edge_length, repair=scene.mesh.repair,
-                                checked=checked)
+    try:
+        model = meshing.build_model(loaded, str(f), resolution=scene.mesh.resolution,
+                                    edge_length=scene.mesh.edge_length,
+                                    repair=scene.mesh.repair, checked=checked)
+    except WigglyInputError as err:  # e.g. fTetWild found no solid at this edge length
+        raise WigglyInputError(f"{where}: mesh.path = {show(scene.mesh.path)}: {err}") from None
     say(f"{counted(model.tets.n_tets, 'tet')}, {counted(model.tets.n_vertices, 'vertex')} "
          f"({_time.perf_counter() - t:.1f} s)")
     if checked is None:  # a tet mesh: its surface is known now

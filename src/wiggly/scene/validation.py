@@ -78,7 +78,12 @@ def show(value: Any, limit: int = 60) -> str:
              if value else "{}")
     else:
         s = str(value)
-    return s if len(s) <= limit else s[: limit - 4] + " ..."
+    if len(s) <= limit:
+        return s
+    if isinstance(value, str):  # keep the end too: a long path's file name
+        head = limit // 3
+        return s[:head] + " ... " + s[len(s) - (limit - head - 5):]
+    return s[: limit - 4] + " ..."
 
 
 def _num(x: float) -> str:
