@@ -531,7 +531,10 @@ def _compute_modes(
                 f"the body has {n_zero} more zero-energy {'mode' if n_zero == 1 else 'modes'} "
                 f"than its {n_rigid} rigid "
                 "motions: it has disconnected parts (or parts joined only at a vertex or an "
-                "edge, or parts free to move despite the fixed vertices)"
+                "edge, or parts free to move despite the fixed vertices); mesh it as one "
+                "connected body (join the parts in a modelling tool, or mesh it at a higher "
+                "resolution so that thin joints get tets of their own), or fix vertices on "
+                "each loose part"
             )
         lam_el, Phi_el = lam[:k_el], Phi[:, :k_el]
 

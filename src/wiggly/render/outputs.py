@@ -4,6 +4,7 @@ plots."""
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -112,7 +113,9 @@ def render_video(path, times, positions, faces, *, highlights: Sequence[Highligh
     gif = path.suffix.lower() == ".gif"
     if gif:
         anti_aliasing = anti_aliasing and GIF_MAX_SIDE / max(w, h) > 0.67
-    else:
+    elif w % 2 or h % 2:
+        warnings.warn(f"{path.name}: an H.264 video needs an even width and height: the "
+                      f"size {w} x {h} is written as {w - w % 2} x {h - h % 2}", stacklevel=2)
         w, h = w - w % 2, h - h % 2
     with Preview(times, positions, faces, highlights=highlights, size=(w, h), up=up,
                  ground=ground, camera=camera, title=title,
