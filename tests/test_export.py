@@ -397,6 +397,21 @@ def test_obj_sequence_read_with_meshio(tmp_path):
     assert f"# time {float(anim.times[2])!r}" in text and "\no ball\n" in text
 
 
+def test_one_frame_of_an_obj_sequence_read_alone_says_so(tmp_path, recwarn):
+    """``out/frame_0002.obj`` is read as the one frame it is, with a word that
+    ``out/frame.obj`` plays the whole sequence; a single OBJ of that name pattern, silently."""
+    write_animation(tmp_path / "frame.obj", sphere_animation(F=5))
+    with pytest.warns(UserWarning, match=r"frame_0002.obj is one frame of the OBJ sequence "
+                      r"frame.obj \(5 frames in .*\): read as one frame; give .*frame.obj"):
+        assert read_animation(tmp_path / "frame_0002.obj").n_frames == 1
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    (alone / "part_0001.obj").write_bytes((tmp_path / "frame_0002.obj").read_bytes())
+    recwarn.clear()
+    assert read_animation(alone / "part_0001.obj").n_frames == 1
+    assert not [w for w in recwarn if "one frame of" in str(w.message)]
+
+
 def test_obj_float32_positions_are_exact(tmp_path):
     """9 significant digits reproduce float32 values bit for bit."""
     anim = sphere_animation(F=2, dtype=np.float32)

@@ -178,6 +178,12 @@ def read_obj_sequence(path: Path) -> SurfaceAnimation:
         files = [frames[k] for k in range(len(frames))]
     elif path.is_file():
         files = [path]
+        m = re.fullmatch(r"(.+)_(\d+)", path.stem)
+        sequence = path.with_name(m.group(1) + path.suffix) if m else None
+        if sequence is not None and len(existing_frames(sequence)) > 1:
+            warnings.warn(f"{path.name} is one frame of the OBJ sequence {sequence.name} "
+                          f"({len(existing_frames(sequence))} frames in {path.parent}): read as "
+                          f"one frame; give {sequence} for the whole sequence", stacklevel=2)
     else:
         raise WigglyInputError(
             f"cannot read {path}: no file and no OBJ sequence {path.stem}_0000{path.suffix} in "
