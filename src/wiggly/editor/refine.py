@@ -221,6 +221,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
         channel.send(out, ("abandoned", seq, version, {"iterations": stop.args[0]}))
         return
     previous.put(pkey, anim)
+    solved = time.perf_counter() - t0
     body = problem.body
     fps = playback_fps(scene.time.fps, problem.start, problem.end, body.surface.n_vertices)
     times = anim.frame_times(fps)
@@ -231,7 +232,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     info = {"iterations": int(anim.info.get("iterations", 0)),
             "converged": bool(anim.info.get("converged")),
             "objective": float(anim.info.get("objective", np.nan)),
-            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim),
+            "seconds": solved, "residual_max": residual_max(anim),
             "request": kind,
             "folds": None if checked is None
             else fold_note(anim, api=False, groups=groups, checked=checked),
