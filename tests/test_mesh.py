@@ -805,10 +805,12 @@ def test_a_surface_with_a_small_loose_piece_animates_with_one_warning(tmp_path):
     assert b.modes.n_rigid == 6
 
 
-@pytest.mark.parametrize(("scale", "said"), [(1.0, None), (1000.0, "0.001 or 0.01"),
-                                              (1e-4, "by 1000")])
+@pytest.mark.parametrize(("scale", "said"), [(1.0, None), (10.0, None),
+                                              (1000.0, "0.001 or 0.01"),
+                                              (40.0, "0.001 or 0.01"), (1e-4, "by 1000")])
 def test_a_mesh_in_other_units_is_warned_about(scale, said):
-    """A 1.2 m bar read as given, in millimetres (a 1.2 km body) and 0.1 mm long: only the
+    """A 1.2 m bar read as given, 12 m long (a large body), in millimetres (a 1.2 km body),
+    48 units long (a 48 mm part modelled in millimetres), and 0.1 mm long: only the
     implausible sizes warn, with the scale that would make metres of them."""
     from wiggly.mesh.model import build_model
     from wiggly.primitives import box_mesh

@@ -137,8 +137,11 @@ def _outward(surface: Surface, source: str) -> Surface:
     return replace(surface, faces=np.ascontiguousarray(F[:, ::-1]), normals=None)
 
 
-#: Bodies whose bounding-box diagonal lies outside this range (m) are likely in other units.
-PLAUSIBLE_SIZE = (1e-3, 100.0)
+#: Bodies whose bounding-box diagonal lies outside this range (m) are likely in other units
+#: (props modelled in centimetres or millimetres are tens of "metres" across: a 50 cm block
+#: read as 50 m, a 42 mm gear as 42 m; a body larger than 20 m is rare and is told how to
+#: keep it).
+PLAUSIBLE_SIZE = (1e-3, 20.0)
 
 
 def _warn_units(vertices: np.ndarray, source: str) -> None:
@@ -154,4 +157,5 @@ def _warn_units(vertices: np.ndarray, source: str) -> None:
     warnings.warn(
         f"{source}: the mesh is {size:.3g} m across; wiggly reads its coordinates as metres "
         f"(SI units throughout). If the file is in {hint} before using it (Blender: set the "
-        "object's scale and apply it, or the exporter's Scale)", stacklevel=3)
+        "object's scale and apply it, or the exporter's Scale); if the body is that large, "
+        "nothing needs doing", stacklevel=3)
