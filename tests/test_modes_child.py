@@ -9,7 +9,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +16,7 @@ import scipy.sparse as sp
 
 import wiggly.modes as modes
 import wiggly.progress as progress
+from tests.processes import assert_ended, children_of
 from wiggly.fem import mass_matrix, stiffness_matrix
 from wiggly.modes_child import eigsh_in_child
 from wiggly.primitives import box_mesh
@@ -110,20 +110,14 @@ def test_ctrl_c_and_kill_end_the_factorization_at_once(signum):
         else:
             pytest.fail("the factorization did not start in a child: " + parent.stderr.read())
         time.sleep(1.0)  # well inside the factorization (about 10 s on 2 cores)
-        children = [int(p) for p in Path(f"/proc/{parent.pid}/task/{parent.pid}/children")
-                    .read_text().split()]
+        children = children_of(parent.pid)
         assert children
         sent = time.monotonic()
         parent.send_signal(signum)
         parent.wait(timeout=30)
         assert time.monotonic() - sent < 3.0
         assert parent.returncode != 0
-        deadline = time.monotonic() + 10
-        while any(Path(f"/proc/{c}").exists() for c in children) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        alive = [c for c in children if Path(f"/proc/{c}").exists()
-                 and Path(f"/proc/{c}/stat").read_text().split()[2] != "Z"]
-        assert not alive
+        assert_ended(children)
         assert "finished" not in parent.stdout.read()
     finally:
         if parent.poll() is None:

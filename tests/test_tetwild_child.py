@@ -18,6 +18,7 @@ import pytest
 import trimesh
 
 import wiggly.progress as progress
+from tests.processes import assert_ended, children_of
 from wiggly.mesh import Surface, tetrahedralize
 from wiggly.mesh.tetwild_child import Log, tetrahedralize_in_child
 from wiggly.progress import Activity
@@ -94,17 +95,11 @@ def test_the_child_ends_with_its_parent(tmp_path, signum):
         while not started.exists() and time.monotonic() < deadline and parent.poll() is None:
             time.sleep(0.05)
         assert started.exists(), "fTetWild's child never wrote a line"
-        children = [int(p) for p in Path(f"/proc/{parent.pid}/task/{parent.pid}/children")
-                    .read_text().split()]
+        children = children_of(parent.pid)
         assert children
         parent.send_signal(signum)
         parent.wait(timeout=30)
-        deadline = time.monotonic() + 10
-        while any(Path(f"/proc/{c}").exists() for c in children) and time.monotonic() < deadline:
-            time.sleep(0.05)
-        alive = [c for c in children if Path(f"/proc/{c}").exists()
-                 and Path(f"/proc/{c}/stat").read_text().split()[2] != "Z"]
-        assert not alive
+        assert_ended(children)
         if signum == signal.SIGTERM:
             assert set(Path(tempfile.gettempdir()).glob("wiggly-ftetwild-*")) <= before
     finally:

@@ -335,7 +335,7 @@ def _candidates_sparse(
 ) -> tuple[np.ndarray, np.ndarray]:
     nf = Kf.shape[0]
     if nf >= CHILD_DOFS:
-        from wiggly.mesh.tetwild_child import can_run_child
+        from wiggly.child import can_run_child
         from wiggly.modes_child import eigsh_in_child
 
         if can_run_child():  # stoppable, with a live line

@@ -14,16 +14,14 @@ The answer is the one the same call gives in-process.
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 import tempfile
-import threading
 from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
 
-from wiggly.files import terminate_as_exit
+from wiggly.child import python_child
 from wiggly.progress import activity
 
 __all__ = ["child_main", "eigsh_in_child"]
@@ -44,55 +42,39 @@ def eigsh_in_child(Kf: sp.csr_matrix, Mf: sp.csr_matrix, k: int, sigma: float,
         np.savez(inp, K_data=Kf.data, K_indices=Kf.indices, K_indptr=Kf.indptr,
                  M_data=Mf.data, M_indices=Mf.indices, M_indptr=Mf.indptr,
                  n=nf, k=k, sigma=sigma, backend=backend or "")
-        child = subprocess.Popen(
-            [sys.executable, "-P", "-c", "from wiggly.modes_child import child_main; child_main()",
-             str(inp), str(out), str(os.getpid())],
-            cwd=tmp, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        errors: list[bytes] = []
-        drain = threading.Thread(target=lambda: errors.append(child.stderr.read()), daemon=True)
-        drain.start()
-        failure, solves = None, 0
-        with terminate_as_exit():
-            try:
-                lines = (raw.decode("utf-8", "replace").strip() for raw in child.stdout)
-                progress.say(f"factorizing K - sigma M ({nf} dofs, sigma = {sigma:.3g}) in a "
-                             "child process")
-                text = ""
-                with activity(f"factorizing K - sigma M for the modes ({nf} dofs; minutes "
-                              "from about 100k)"):
+        failure = None
+        with python_child("from wiggly.modes_child import child_main; child_main()",
+                          [str(inp), str(out), str(os.getpid())], tmp) as child:
+            lines = (text.strip() for text in child.lines())
+            progress.say(f"factorizing K - sigma M ({nf} dofs, sigma = {sigma:.3g}) in a "
+                         "child process")
+            text = ""
+            with activity(f"factorizing K - sigma M for the modes ({nf} dofs; minutes from "
+                          "about 100k)"):
+                for text in lines:
+                    if text.startswith(("factorized ", "error ")):
+                        break
+            if text.startswith("error "):
+                failure = text[len("error "):]
+            elif text.startswith("factorized "):
+                progress.say(f"factorized with {text.split()[1]}; eigsh for {k} eigenpairs")
+                progress.start_counter("eigsh shift-invert solves")
+                solves = 0
+                try:
                     for text in lines:
-                        if text.startswith(("factorized ", "error ")):
-                            break
-                if text.startswith("error "):
-                    failure = text[len("error "):]
-                elif text.startswith("factorized "):
-                    progress.say(f"factorized with {text.split()[1]}; eigsh for {k} "
-                                 "eigenpairs")
-                    progress.start_counter("eigsh shift-invert solves")
-                    try:
-                        for text in lines:
-                            if text.startswith("solves "):
-                                done = int(text.split()[1])
-                                progress.tick(done - solves)
-                                solves = done
-                    finally:
-                        count = progress.stop_counter()
-                    progress.say(f"eigsh done ({count} solves)" if count else "eigsh done")
-                code = child.wait()
-            finally:
-                if child.poll() is None:
-                    child.kill()
-                    child.wait()
-                child.stdout.close()
-                drain.join()
-                child.stderr.close()
+                        if text.startswith("solves "):
+                            done = int(text.split()[1])
+                            progress.tick(done - solves)
+                            solves = done
+                finally:
+                    count = progress.stop_counter()
+                progress.say(f"eigsh done ({count} solves)" if count else "eigsh done")
+            code = child.wait()
         if failure is not None:
             raise np.linalg.LinAlgError(failure)
         if code != 0 or not out.exists():
-            tail = b"".join(errors).decode("utf-8", "replace").strip().splitlines()[-5:]
             raise RuntimeError(f"the modes' eigensolve process ended with code {code}: "
-                               + " / ".join(tail))
+                               + child.error_tail())
         with np.load(out) as data:
             return data["lam"], data["X"]
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wiggly.child import can_run_child
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, default_cache_dir
 from wiggly.limits import MAX_RESOLUTION, MAX_TETS
@@ -309,7 +310,7 @@ def tetrahedralize_with_report(
                       f"{_round(estimate)} tets)") as line:
             # in a child, the line ticks (the call holds the interpreter lock) and its log
             # names the stages, on the line or every NOTE_EVERY seconds in the log
-            if (line.live or line.logged) and tetwild_child.can_run_child():
+            if (line.live or line.logged) and can_run_child():
                 tv, tt = tetwild_child.tetrahedralize_in_child(
                     V, F, options, tetwild_child.Log(line, OPTIMIZATION_PASSES, STOP_ENERGY))
             else:

@@ -14,19 +14,16 @@ one the same call gives in-process; fTetWild is randomized either way.
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 import tempfile
-import threading
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from wiggly.files import terminate_as_exit
+from wiggly.child import python_child
 from wiggly.progress import Activity, log
 
-__all__ = ["Log", "can_run_child", "tetrahedralize_in_child"]
+__all__ = ["Log", "tetrahedralize_in_child"]
 
 
 class Log:
@@ -67,13 +64,6 @@ class Log:
                        f"{self.stop_energy:g})")
 
 
-def can_run_child() -> bool:
-    """Whether ``sys.executable`` is a Python that can start this module (not, e.g., a
-    Blender binary that embeds the interpreter)."""
-    name = Path(sys.executable or "").name.lower()
-    return name.startswith("python") or name.startswith("pypy")
-
-
 def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
                             on_line: Callable[[str], None]) -> tuple[np.ndarray, np.ndarray]:
     """``pytetwild.tetrahedralize(V, F, **options)`` in a child process, its log lines handed
@@ -83,29 +73,13 @@ def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
         np.savez(inp, vertices=np.ascontiguousarray(V, np.float64),
                  faces=np.ascontiguousarray(F, np.int32), **{
                      k: np.asarray(v) for k, v in options.items()})
-        child = subprocess.Popen(
-            [sys.executable, "-P", "-c", _CHILD, str(inp), str(out), str(os.getpid())],
-            cwd=tmp, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        errors: list[bytes] = []
-        drain = threading.Thread(target=lambda: errors.append(child.stderr.read()), daemon=True)
-        drain.start()
-        with terminate_as_exit():
-            try:
-                for raw in child.stdout:
-                    on_line(raw.decode("utf-8", "replace").rstrip("\n"))
-                code = child.wait()
-            finally:
-                if child.poll() is None:
-                    child.kill()
-                    child.wait()
-                child.stdout.close()
-                drain.join()
-                child.stderr.close()
+        with python_child(_CHILD, [str(inp), str(out), str(os.getpid())], tmp) as child:
+            for text in child.lines():
+                on_line(text)
+            code = child.wait()
         if code != 0 or not out.exists():
-            tail = b"".join(errors).decode("utf-8", "replace").strip().splitlines()[-5:]
             raise RuntimeError(f"fTetWild's process ended with code {code}: "
-                               + " / ".join(tail))
+                               + child.error_tail())
         with np.load(out) as data:
             return data["vertices"], data["tets"]
 
