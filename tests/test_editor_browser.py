@@ -98,6 +98,10 @@ def test_edit_pose_play_save_reproduces(chromium, tmp_path):
                 keys = server.session.scene.keyframes
                 assert [k.time for k in keys] == [0.0, 1.0]
                 _wait_final(page)
+                # the new key is selected once its edit is answered, which a loaded machine may
+                # deliver after the state and the frames: pose it, not the first key
+                page.wait_for_function("(() => { const ks = window.wiggly.S.desc.scene.keyframes;"
+                                       " return window.wiggly.S.selectedKey === ks[1].id; })()")
 
                 # 3. pose the second keyframe: drag the gizmo's Y arrow up
                 page.keyboard.press("w")
