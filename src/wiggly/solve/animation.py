@@ -232,8 +232,10 @@ class Animation:
         if displacements is not None and displacements.shape != (
             len(times), body.tets.n_vertices, 3
         ):
-            raise ValueError(f"displacements of shape {displacements.shape} are not this "
-                             f"motion's tet-mesh displacements at {len(times)} times")
+            raise WigglyInputError(
+                f"displacements of shape {displacements.shape} are not this motion's tet-mesh "
+                f"displacements at {len(times)} times: give displacements(times, on='tets'), "
+                f"shape ({len(times)}, {body.tets.n_vertices}, 3)")
         warp = body.fine_level.warp
         T, X = body.tets.tets, body.tets.vertices
         q = self.modal(times)[0]  # the linear states, made into displacements where folded
