@@ -254,6 +254,12 @@ $('btn-help').onclick = () => toast([
 // ------------------------------------------------------------------------------------------
 // keyboard
 
+// Run fn once a key being added (K) is answered and selected: W right after K poses the new
+// key even when the state and frames showed it before the edit's answer came back.
+function afterKeying(fn) {
+  if (S.keying) S.keying.then(fn, fn); else fn();
+}
+
 window.addEventListener('keyup', dragKeyUp);
 window.addEventListener('keydown', (e) => {
   if (dragKey(e)) { e.preventDefault(); return; }
@@ -297,9 +303,9 @@ window.addEventListener('keydown', (e) => {
         case 'l': setTool('lasso'); break;
         case 'g': newGroupFromSelection(); break;
         case 'k': keySelectedGroups(); break;
-        case 'w': startPosing('translate'); break;
-        case 'e': startPosing('rotate'); break;
-        case 'v': startPosing('velocity'); break;
+        case 'w': afterKeying(() => startPosing('translate')); break;
+        case 'e': afterKeying(() => startPosing('rotate')); break;
+        case 'v': afterKeying(() => startPosing('velocity')); break;
         case 'o': setView('onion', !S.view.onion); break;
         case 'p': setView('paths', !S.view.paths); break;
         case 'd': setView('driver', !S.view.driver); break;

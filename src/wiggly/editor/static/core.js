@@ -77,6 +77,7 @@ export const S = {
   clipboard: null,       // copied keyframes {keys: [...], t0}
   groupVerts: {},        // name -> Int32Array
   driver: null,          // the [drive] driver's keyed frames {meta: {times, groups, ...}, data}
+  keying: null,          // a key being added (K): its edit's promise, until it is answered
   posing: null,          // {id, mode, center}
   dragging: false,
   xform: null,           // the running gizmo drag: axis, typed value, start pose

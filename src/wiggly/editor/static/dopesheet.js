@@ -316,10 +316,16 @@ export async function keySelectedGroups() {
   if (!names.length) { toast('select a group first (click it in the list or the dope sheet)', true); return; }
   const t = snapTime(S.t);
   const ops = names.map((group) => ({ op: 'add_keyframe', time: t, group, position: 'current' }));
-  const r = await edit(ops.length === 1 ? ops[0] : { op: 'batch', ops, label: `key ${names.length} groups` });
-  if (r && r.ids) {
-    S.keys = new Set(r.ids);
-    await hooks.refreshState();
-    hooks.selectKey(r.ids[r.ids.length - 1], false, { keep: true });
-  }
+  // the new key is selected when the edit is answered, which may come after its state and
+  // frames: posing (W, E, V) meanwhile waits for it (S.keying), not poses the last key
+  const keying = (async () => {
+    const r = await edit(ops.length === 1 ? ops[0] : { op: 'batch', ops, label: `key ${names.length} groups` });
+    if (r && r.ids) {
+      S.keys = new Set(r.ids);
+      await hooks.refreshState();
+      hooks.selectKey(r.ids[r.ids.length - 1], false, { keep: true });
+    }
+  })();
+  S.keying = keying;
+  try { await keying; } finally { if (S.keying === keying) S.keying = null; }
 }
