@@ -180,10 +180,11 @@ def read_obj_sequence(path: Path) -> SurfaceAnimation:
         files = [path]
         m = re.fullmatch(r"(.+)_(\d+)", path.stem)
         sequence = path.with_name(m.group(1) + path.suffix) if m else None
-        if sequence is not None and len(existing_frames(sequence)) > 1:
+        count = len(existing_frames(sequence)) if sequence is not None else 0
+        if count > 1:
             warnings.warn(f"{path.name} is one frame of the OBJ sequence {sequence.name} "
-                          f"({len(existing_frames(sequence))} frames in {path.parent}): read as "
-                          f"one frame; give {sequence} for the whole sequence", stacklevel=2)
+                          f"({count} frames in {path.parent}): read as one frame; give "
+                          f"{sequence} for the whole sequence", stacklevel=2)
     else:
         raise WigglyInputError(
             f"cannot read {path}: no file and no OBJ sequence {path.stem}_0000{path.suffix} in "
