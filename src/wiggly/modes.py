@@ -334,20 +334,21 @@ def _candidates_sparse(
     progress: _Progress,
 ) -> tuple[np.ndarray, np.ndarray]:
     nf = Kf.shape[0]
+    solve, where = shift_invert, ""
     if nf >= CHILD_DOFS:
         from wiggly.child import can_run_child
         from wiggly.modes_child import eigsh_in_child
 
-        if can_run_child():  # stoppable, with a live line
-            return eigsh_in_child(Kf, Mf, k, sigma, backend, progress)
-    progress.say(f"factorizing K - sigma M ({nf} dofs, sigma = {sigma:.3g})")
+        if can_run_child():  # stoppable, with a live line while it factorizes
+            solve, where = eigsh_in_child, " in a child process"
+    progress.say(f"factorizing K - sigma M ({nf} dofs, sigma = {sigma:.3g}){where}")
 
     def factored(name: str) -> None:
         progress.say(f"factorized with {name}; eigsh for {k} eigenpairs")
         progress.start_counter("eigsh shift-invert solves")
 
     try:
-        lam, X = shift_invert(Kf, Mf, k, sigma, backend, factored, progress.tick)
+        lam, X = solve(Kf, Mf, k, sigma, backend, factored, progress.tick)
     finally:
         count = progress.stop_counter()
     progress.say(f"eigsh done ({count} solves)" if count else "eigsh done")

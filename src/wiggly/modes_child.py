@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -31,11 +32,13 @@ SOLVES_EVERY = 5
 
 
 def eigsh_in_child(Kf: sp.csr_matrix, Mf: sp.csr_matrix, k: int, sigma: float,
-                   backend: str | None, progress) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`wiggly.modes.shift_invert` of ``(Kf, Mf, k, sigma, backend)`` in a child
-    process, reporting to the modes' ``progress``: a live line while the child factorizes,
-    then the count of its solves.  A failed factorization raises ``np.linalg.LinAlgError`` as
-    in-process; Ctrl+C, SIGTERM or any exception here ends the child."""
+                   backend: str | None, factored: Callable[[str], None],
+                   solved: Callable[[], None]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`wiggly.modes.shift_invert` with the same arguments, in a child process: a live
+    line while the child factorizes, then ``factored(backend name)`` and ``solved()`` for
+    each solve as the child reports them.  A failed factorization raises
+    ``np.linalg.LinAlgError`` as in-process; Ctrl+C, SIGTERM or any exception here ends the
+    child."""
     nf = Kf.shape[0]
     with tempfile.TemporaryDirectory(prefix="wiggly-modes-") as tmp:
         inp, out = Path(tmp, "problem.npz"), Path(tmp, "modes.npz")
@@ -46,8 +49,6 @@ def eigsh_in_child(Kf: sp.csr_matrix, Mf: sp.csr_matrix, k: int, sigma: float,
         with python_child("from wiggly.modes_child import child_main; child_main()",
                           [str(inp), str(out), str(os.getpid())], tmp) as child:
             lines = (text.strip() for text in child.lines())
-            progress.say(f"factorizing K - sigma M ({nf} dofs, sigma = {sigma:.3g}) in a "
-                         "child process")
             text = ""
             with activity(f"factorizing K - sigma M for the modes ({nf} dofs; minutes from "
                           "about 100k)"):
@@ -57,18 +58,14 @@ def eigsh_in_child(Kf: sp.csr_matrix, Mf: sp.csr_matrix, k: int, sigma: float,
             if text.startswith("error "):
                 failure = text[len("error "):]
             elif text.startswith("factorized "):
-                progress.say(f"factorized with {text.split()[1]}; eigsh for {k} eigenpairs")
-                progress.start_counter("eigsh shift-invert solves")
+                factored(text.split()[1])
                 solves = 0
-                try:
-                    for text in lines:
-                        if text.startswith("solves "):
-                            done = int(text.split()[1])
-                            progress.tick(done - solves)
-                            solves = done
-                finally:
-                    count = progress.stop_counter()
-                progress.say(f"eigsh done ({count} solves)" if count else "eigsh done")
+                for text in lines:
+                    if text.startswith("solves "):
+                        done = int(text.split()[1])
+                        for _ in range(done - solves):
+                            solved()
+                        solves = done
             code = child.wait()
         if failure is not None:
             raise np.linalg.LinAlgError(failure)
