@@ -5,7 +5,8 @@ Usage: ``PYTHONPATH=src python benchmarks/bench_warp.py [cells_per_axis ...]``
 of: Warp construction, the factorization of its Laplacian alone, batched apply
 per frame (100 frames in one call; also in process CPU time, which is steadier on
 a shared machine; and with the vectorized numpy path instead of the compiled kernels, with
-the ratio), a single-frame apply, and the Jacobian against r = 40 basis fields.
+the ratio), a single-frame apply, the adjoint (vjp) per frame of a batch, and 40
+directional derivatives (jvp) at one frame: a Jacobian against 40 basis fields.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import scipy.sparse as sp
 
 from wiggly.linalg import factorize_spd
 from wiggly.primitives import box_mesh
-from wiggly.warp import Warp, tet_gradient_operator
+from wiggly.warp import Warp
 
 RUNS = 5
 FRAMES = 100
@@ -40,17 +41,16 @@ def median_seconds(
 def bench(cells: int) -> dict[str, float]:
     V, T = box_mesh((cells, cells, cells))
     rng = np.random.default_rng(0)
-    G, vol = tet_gradient_operator(V, T)
-    laplacian = sp.csr_matrix(G.T @ sp.diags(np.repeat(vol, 3)) @ G)[1:, 1:]
     warp = Warp(V, T)
+    numpy_warp = Warp(V, T, kernels="numpy")  # the vectorized numpy path, for the ratio
+    laplacian = sp.csr_matrix(warp.laplacian)[1:, 1:]  # the gauge's one eliminated vertex
     U = 0.2 * rng.standard_normal((FRAMES, *V.shape))
-    basis = rng.standard_normal((len(V), 3, MODES))
+    Y = rng.standard_normal((FRAMES, *V.shape))
+    dU = rng.standard_normal((MODES, *V.shape))  # MODES directions at one frame
+    at = np.repeat(U[:1], MODES, axis=0)
     warp.apply(U[:2])  # warm up
     batched = median_seconds(lambda: warp.apply(U)) / FRAMES
-    compiled = warp.compiled
-    warp.compiled = False  # the vectorized numpy path, for the ratio
-    numpy_batched = median_seconds(lambda: warp.apply(U), runs=3) / FRAMES
-    warp.compiled = compiled
+    numpy_batched = median_seconds(lambda: numpy_warp.apply(U), runs=3) / FRAMES
     return {
         "verts": len(V),
         "tets": len(T),
@@ -64,7 +64,8 @@ def bench(cells: int) -> dict[str, float]:
         * median_seconds(lambda: warp.apply(U), clock=time.process_time)
         / FRAMES,
         "apply 1 frame ms": 1e3 * median_seconds(lambda: warp.apply(U[0])),
-        f"jacobian r={MODES} ms": 1e3 * median_seconds(lambda: warp.jacobian(U[0], basis)),
+        "vjp ms/frame": 1e3 * median_seconds(lambda: warp.vjp(U, Y)) / FRAMES,
+        f"jvp x{MODES} ms": 1e3 * median_seconds(lambda: warp.jvp(at, dU)),
     }
 
 

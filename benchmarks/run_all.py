@@ -7,18 +7,19 @@ import sys
 
 sys.path.insert(0, os.path.dirname(__file__))
 
+import bench_batch
 import bench_core
+import bench_editor
 import bench_warped
 
-if __name__ == "__main__":
-    quick = "--quick" in sys.argv
-    args = ["--quick"] if quick else []
+
+def main(argv: list[str] | None = None) -> None:
+    args = ["--quick"] if "--quick" in (sys.argv[1:] if argv is None else argv) else []
     bench_core.main(args)
     bench_warped.main(args)
-    import bench_batch
-
     bench_batch.main(args)
-    if os.path.exists(os.path.join(os.path.dirname(__file__), "bench_editor.py")):
-        import bench_editor
+    bench_editor.main(args)
 
-        bench_editor.main(args)
+
+if __name__ == "__main__":
+    main()
