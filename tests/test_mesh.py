@@ -138,6 +138,18 @@ def test_out_of_range_index_is_reported():
     assert "outside 0..7" in message and "tet 4" in message and "8" in message
 
 
+def test_a_tet_mesh_given_as_arrays_is_checked_before_its_model_is_built():
+    """build_model of a TetMesh with an index past its vertices, or with no tets, names the
+    source and the fault (it raised IndexError while placing the surface)."""
+    from wiggly.mesh import build_model
+
+    V, T = box_tets(1, 1, 1)
+    with pytest.raises(WigglyInputError, match=r"mine: 1 tet uses vertex indices outside 0..7"):
+        build_model(TetMesh(V, np.vstack([T, [[0, 1, 2, 99]]])), "mine")
+    with pytest.raises(WigglyInputError, match="mine: the mesh has no tetrahedra"):
+        build_model(TetMesh(V, np.zeros((0, 4), dtype=np.int64)), "mine")
+
+
 def test_wrong_shape_is_reported():
     with pytest.raises(WigglyInputError, match=r"should have shape \(n, 4\); shape is \(2, 3\)"):
         TetMesh(np.zeros((4, 3)), np.zeros((2, 3), dtype=int))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import itertools
 import re
 import warnings
@@ -183,6 +184,38 @@ def test_solver_vectorized_sampling_matches_pointwise(bar):
 
 
 # --- bad input ---------------------------------------------------------------------------
+def test_one_frame_written_in_single_precision_is_one_node(bar):
+    """A key at t = 0.1 and another at float32(0.1) (1.5e-9 s later: the same frame from a
+    tool that writes single precision) share a node and are both met, instead of leaving an
+    interval of nanoseconds that no factorization survives; keys a frame apart stay apart."""
+    X = bar.rest_positions()
+    tip, root = np.flatnonzero(X[:, 0] > 0.99), np.flatnonzero(X[:, 0] < 0.01)
+    t32 = float(np.float32(0.1))
+    assert t32 != 0.1
+    keys = [Keyframe.offset(bar, 0.1, tip, (0.0, 0.1, 0.0)), Keyframe.rest(bar, t32, root)]
+    anim = solve(bar, keys, warp=False, end=1.0)
+    assert len(anim.nodes) == 3  # start, the shared node, end
+    assert max(r["position_max"] for r in anim.constraint_residuals()) < 5e-3
+    frame = solve(bar, [keys[0], Keyframe.rest(bar, 0.1 + 1 / 240, root)], warp=False, end=1.0)
+    assert len(frame.nodes) == 4
+
+
+def test_keys_too_close_to_solve_are_named_not_blamed_on_preroll(bar, monkeypatch):
+    """When keys a hair apart leave a numerically singular system (merging switched off here),
+    the message names the keys and their times, not a pre-roll of 0 that was never given."""
+    for module in ("wiggly.solve.problem", "wiggly.solve.nodes"):
+        monkeypatch.setattr(importlib.import_module(module), "merge_tolerance",
+                            lambda start, end: 0.0)
+    tip = np.flatnonzero(bar.rest_positions()[:, 0] > 0.99)
+    keys = [Keyframe.offset(bar, 0.5, tip, (0.0, 0.2, 0.0), name="a"),
+            Keyframe.offset(bar, 0.5 + 1e-9, tip, (0.0, 0.2, 0.0), name="b")]
+    with pytest.raises(WigglyInputError) as err:
+        solve(bar, keys, warp=False, end=1.0)
+    text = str(err.value)
+    assert "#0 ('a'), #1 ('b') at t = 0.5 s and 0.500000001 s are 1e-09 s apart" in text, text
+    assert "preroll" not in text, text
+
+
 def test_keyframe_outside_time_range(bar):
     with pytest.raises(WigglyInputError, match=r"time 3.0 is outside .*\[0.0, 2.0\]"):
         solve(bar, [Keyframe.rest(bar, 3.0, [0])], warp=False, end=2.0)
@@ -229,6 +262,33 @@ def test_missed_velocity_keys_are_warned_about(bar):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         solve(bar, [Keyframe.rest(bar, 0.0, allv, still=True), up], warp=False, end=1.0)
+
+
+def test_keys_a_stiff_material_resists_are_warned_about(tmp_path_factory):
+    """A key whose target lies away from rest and is missed by most of that offset is named,
+    even when the miss is far below 5 % of the body's size: the tip of a clamped 1 m bar keyed
+    30 mm up barely moves at Young's modulus 1e11 (the default stiffness weighs the key against
+    the mass, not the material); at 1e5 it is met and nothing is said."""
+    V, _ = box_mesh((10, 2, 2), (1.0, 0.1, 0.1))
+    clamp = np.flatnonzero(V[:, 0] < 1e-9)
+    for young, warned in ((1e11, True), (1e5, False)):
+        body = make_body(tmp_path_factory, fixed=clamp, young=young, gravity=(0, 0, 0))
+        tip = np.flatnonzero(body.rest_positions()[:, 0] > 0.99)
+        key = Keyframe.offset(body, 0.5, tip, (0.0, 0.03, 0.0), name="tip")
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            anim = solve(body, [key], warp=False, end=1.0)
+        moved = anim.positions([0.5])[0, tip, 1].mean() - body.rest_positions()[tip, 1].mean()
+        texts = [str(w.message) for w in said if "missed by more than" in str(w.message)]
+        if warned:
+            assert moved < 0.015  # most of the 30 mm offset missed, well under 5 % of 1 m
+            (text,) = texts
+            assert "or 50 % of their offset from rest" in text, text
+            assert re.search(r"keyframes\[0\] \('tip'\) at t = 0.5 s by 0.0\d* m, "
+                             r"\d+ % of its 0.03 m offset from rest", text), text
+            assert "Young's modulus" in text and "warp=True" not in text, text
+        else:
+            assert abs(moved - 0.03) < 0.003 and not texts, texts
 
 
 def test_a_held_keyframe_warns_also_when_its_rows_are_round_off(cantilever, monkeypatch):
@@ -363,6 +423,37 @@ def test_python_api_mistakes_are_named(tmp_path_factory):
         "one point for a group": (
             lambda: solve(body, [Keyframe(0.5, np.arange(10), position=np.zeros(3))],
                           duration=1.0, warp=False), "would pull them all to that point"),
+        "offsets of the wrong shape": (
+            lambda: Keyframe.offset(body, 0.5, [0, 1], np.zeros((3, 3))),
+            "offset has shape (3, 3); expected (3,) or (2, 3), one per vertex"),
+        "translation of two numbers": (
+            lambda: Keyframe.rigid(body, 0.5, [0, 1], translation=(1.0, 2.0)),
+            "translation has shape (2,); expected (3,)"),
+        "still and a velocity": (
+            lambda: Keyframe.rest(body, 0.0, [0], still=True, velocity=(1.0, 0, 0)),
+            "give still=True (zero velocity) or a velocity, not both"),
+        "time as text": (lambda: Keyframe.rest(body, "soon", [0]),
+                         "time should be a number of seconds; got 'soon'"),
+        "time in a list": (lambda: Keyframe.rest(body, [0.5], [0]),
+                           "time should be a number of seconds; got [0.5]"),
+        "NaN keyframe time": (lambda: solve(body, [Keyframe.rest(body, np.nan, [0])]),
+                              "time = nan s; it must be a finite number"),
+        "targets as text": (
+            lambda: solve(body, [Keyframe(0.5, [0], position=[["a", "b", "c"]])],
+                          duration=1.0, warp=False),
+            "position targets should be numbers (metres)"),
+        "derivative -1": (lambda: anim.displacements([0.5], derivative=-1),
+                          "derivative should be an integer in [0, 3]; got -1"),
+        "derivative 1.5": (lambda: anim.displacements([0.5], derivative=1.5),
+                           "derivative should be an integer in [0, 3]; got 1.5"),
+        "side": (lambda: anim.modal([0.5], 1, side="middle"),
+                 "side should be 'left' or 'right'; got 'middle'"),
+        "integer dtype": (lambda: anim.positions([0.5], dtype=np.int32),
+                          "dtype should be a floating type"),
+        "every vertex fixed": (
+            lambda: wiggly.prepare(body.model, n_modes=5, cache_dir=False,
+                                   fixed_vertices=np.arange(body.tets.n_vertices)),
+            "every vertex is fixed: no degrees of freedom are left to move"),
     }
     for label, (call, says) in cases.items():
         with pytest.raises(WigglyInputError) as err, warnings.catch_warnings():

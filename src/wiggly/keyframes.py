@@ -15,7 +15,9 @@ Weights.  ``E_C = 1/2 sum_k c_A |A_k u - a_k|^2 + c_B |B_k u' - b_k|^2`` (Schulz
 eq. (6)).  Unless given explicitly, c_A and c_B are set from a dimensionless ``stiffness`` s as
 c_A = s m / (k T^3) and c_B = s m / (k T), with m the body's mass, k the number of selected
 vertices and T the animation's duration: the units of the spacetime energy, so the same
-``stiffness`` pulls equally hard whatever the size, mass or duration.
+``stiffness`` pulls equally hard whatever the size, mass or duration.  Not whatever the
+material: a stiffer body resists a key more (its elastic energy grows with the square of
+its modes' eigenvalues), so keys on stiff bodies need a higher ``stiffness``.
 """
 
 from __future__ import annotations
@@ -87,6 +89,15 @@ class Keyframe:
     built_on: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False,
                                                            compare=False)
 
+    def __post_init__(self) -> None:
+        t = self.time
+        if isinstance(t, bool) or not isinstance(t, int | float | np.integer | np.floating):
+            raise WigglyInputError(f"keyframe{f' {self.name!r}' if self.name else ''}: time "
+                                   f"should be a number of seconds; got {t!r}")
+        if not np.isfinite(t):
+            raise WigglyInputError(f"keyframe{f' {self.name!r}' if self.name else ''}: time "
+                                   f"= {t!r} s; it must be a finite number")
+
     def __repr__(self) -> str:  # a summary: the targets are attributes
         what = [w for w, v in (("position", self.position), ("velocity", self.velocity))
                 if v is not None]
@@ -105,7 +116,11 @@ class Keyframe:
         on = kw.pop("on", "surface")
         v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
         X = body.rest_positions(on)[v]
+        if still and kw.get("velocity") is not None:
+            raise WigglyInputError("Keyframe.rest: give still=True (zero velocity) or a "
+                                   "velocity, not both")
         vel = np.zeros(3) if still else kw.pop("velocity", None)
+        kw.pop("velocity", None)
         return cls(time, v, X.copy(), vel, on, spec={"kind": "rest"},
                    built_on=(v.copy(), X.copy()), **kw)
 
@@ -116,7 +131,7 @@ class Keyframe:
         """Vertices displaced from rest by ``offset`` ((3,) or (k, 3) metres)."""
         on = kw.pop("on", "surface")
         v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
-        d = np.broadcast_to(np.asarray(offset, float), (len(v), 3))
+        d = _vector_or_rows(offset, len(v), "Keyframe.offset: offset")
         X = body.rest_positions(on)[v]
         return cls(
             time,
@@ -148,8 +163,9 @@ class Keyframe:
         v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
         X = body.rest_positions(on)[v]
         R = _rotation(rotation)
-        c = X.mean(axis=0) if center is None else np.asarray(center, float)
-        x = (X - c) @ R.T + c + np.asarray(translation, float)
+        c = (X.mean(axis=0) if center is None
+             else _vector_or_rows(center, 0, "Keyframe.rigid: center"))
+        x = (X - c) @ R.T + c + _vector_or_rows(translation, 0, "Keyframe.rigid: translation")
         spec = {
             "kind": "rigid",
             "rotation": np.asarray(rotation, float),
@@ -173,7 +189,7 @@ class Keyframe:
         v = vertex_indices(self.vertices, body.n_vertices(self.on), self.on, what)
         pos = vel = None
         if self.position is not None:
-            pos = np.asarray(self.position, float)
+            pos = _numbers(self.position, f"{what}: position targets")
             if pos.shape == (3,) and len(v) > 1:  # one point for a group: not what it means
                 raise WigglyInputError(
                     f"{what}: one position target {pos.tolist()} for {len(v)} vertices would "
@@ -218,6 +234,26 @@ class Keyframe:
         return float(c_A), float(c_B)
 
 
+
+
+def _numbers(value: ArrayLike, what: str) -> np.ndarray:
+    """``value`` as a float64 array, or a WigglyInputError naming it."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise WigglyInputError(f"{what} should be numbers (metres); got {value!r:.80}") from err
+
+
+def _vector_or_rows(value: ArrayLike, k: int, what: str) -> np.ndarray:
+    """A (3,) vector, or with ``k`` > 0 also (k, 3) rows, as float64; (3,) is broadcast to
+    (k, 3) when k > 0."""
+    d = _numbers(value, what)
+    if d.shape == (3,):
+        return np.broadcast_to(d, (k, 3)) if k else d
+    if k and d.shape == (k, 3):
+        return d
+    rows = f" or ({k}, 3), one per vertex" if k else ""
+    raise WigglyInputError(f"{what} has shape {d.shape}; expected (3,){rows}")
 
 
 def _check_same_body(body: Body, what: str, on: Where,

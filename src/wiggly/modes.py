@@ -429,6 +429,9 @@ def compute_modes(
             f"r (number of modes) should be at most {MAX_MODES} (wiggly.limits.MAX_MODES, as in "
             f"scene files); got {r}"
         )
+    if nf == 0:
+        raise WigglyInputError(
+            "every vertex is fixed: no degrees of freedom are left to move (fix fewer vertices)")
     if r < 1 or r > nf:
         raise WigglyInputError(
             f"r (number of modes) should be in [1, {nf}] (the number of free dofs); got {r}"

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wiggly.checks import mesh_arrays
 from wiggly.mesh.data import Embedding, Model, Surface, TetMesh, embed, without_small_pieces
 from wiggly.mesh.defects import (
     CheckedSurface,
@@ -102,6 +103,7 @@ def build_model(
                                       dropped, share),
                           MeshRepairWarning, stacklevel=2)
         return Model(loaded, tets, embedding, source)
+    mesh_arrays(loaded.vertices, loaded.tets, source)  # indices in range, tets present
     tets = loaded
     n, m = tets.n_vertices, tets.n_tets
     tet_of = np.full(n, -1, dtype=np.int64)

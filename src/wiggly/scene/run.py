@@ -341,7 +341,8 @@ def _said_of(scene: Scene, said: list) -> None:
 
 def _warn_missed(scene: Scene, anim) -> None:
     """One warning naming the scene's own keyframes (not a driver's) whose targets the motion
-    misses by more than ``MISSED`` of the body's size, with the likely causes: a shot long
+    misses by more than ``MISSED`` of the body's size (or by most of their offset from rest,
+    :func:`wiggly.solve.missed_keys`), with the likely causes: a shot long
     enough that gravity outweighs the keys' stiffness (a key's weight falls as the cube of
     the duration, gravity's work grows with it), a soft stiffness, or targets nothing can
     reach (contradictory keys, fixed vertices, heavy damping)."""
@@ -358,7 +359,9 @@ def _warn_missed(scene: Scene, anim) -> None:
     more = f"; and {len(missed) - 4} more" if len(missed) > 4 else ""
     explicit = any(scene.keyframes[m.index].c_A is not None for m in missed)
     why = ("raise their stiffness (the default is 1e6; e.g. 1e9)"
-           + (", or their c_A, which replaces it where given" if explicit else ""))
+           + (", or their c_A, which replaces it where given" if explicit else "")
+           + (" (a stiff material resists keys: the default weighs a key against the body's "
+              "mass, not its Young's modulus)" if any("offset" in m.how for m in missed) else ""))
     if not scene.simulation.warp:
         why = ("a linear solve (simulation.warp = false) cannot meet turned targets, it "
                "stretches them: turn warping on; or " + why)

@@ -121,6 +121,12 @@ def solve(
 #: keys missed by more than this share of their RMS speed or of the body's size per the shot's
 #: duration, whichever is larger (a still key: the drift that would move the body so far).
 MISSED = 0.05
+#: Position keys whose targets lie more than :data:`MISSED_FLOOR` of the body's size from rest
+#: are also warned about when the motion misses them by more than this share of that offset:
+#: a stiff material resists a key of the default stiffness, and a 10 mm key on a stiff 20 cm
+#: beam would otherwise be missed whole without a word.
+MISSED_OFFSET = 0.5
+MISSED_FLOOR = 0.01
 
 
 class Miss(NamedTuple):
@@ -144,8 +150,12 @@ def missed_keys(anim: Animation) -> tuple[list[dict], list[Miss], float]:
     missed = []
     for j, (row, kf) in enumerate(zip(rows, anim.keyframes, strict=True)):
         miss = row.get("position_max")
+        offset = _offset(anim.body, kf) if miss is not None else 0.0
         if miss is not None and miss > MISSED * size:
             found = Miss(j, False, f"{miss:.3g} m, {100 * miss / size:.0f} %")
+        elif offset > MISSED_FLOOR * size and miss > MISSED_OFFSET * offset:
+            found = Miss(j, False, f"{miss:.3g} m, {100 * miss / offset:.0f} % of its "
+                                   f"{offset:.3g} m offset from rest")
         else:
             miss = row.get("velocity_rms")
             if miss is None:
@@ -162,10 +172,18 @@ def missed_keys(anim: Animation) -> tuple[list[dict], list[Miss], float]:
     return rows, missed, size
 
 
+def _offset(body, kf) -> float:
+    """The largest distance (m) of a keyframe's position targets from their rest positions."""
+    rest = body.rest_positions(kf.on)[kf.vertices]
+    return float(np.sqrt(((np.asarray(kf.position) - rest) ** 2).sum(axis=-1)).max(initial=0.0))
+
+
 def missed_by(missed: list[Miss]) -> str:
     """"missed by more than 5 % of the body's size" (and "or their velocity by 5 % of its
     speed" when velocity keys are among ``missed``)."""
     text = f"missed by more than {100 * MISSED:g} % of the body's size"
+    if any("offset" in m.how for m in missed):
+        text += f" or {100 * MISSED_OFFSET:g} % of their offset from rest"
     if any(m.velocity for m in missed):
         text += f" or their velocity by {100 * MISSED:g} % of its speed"
     return text
@@ -185,12 +203,14 @@ def warn_missed(anim: Animation, stacklevel: int = 2) -> None:
         f"{f' ({anim.keyframes[m.index].name!r})' if anim.keyframes[m.index].name else ''} "
         f"at t = {anim.keyframes[m.index].time:g} s by {m.how}"
         for m in missed[:4]) + (f"; and {len(missed) - 4} more" if len(missed) > 4 else "")
-    positions = not all(m.velocity for m in missed)
+    positions = not all(m.velocity or "offset" in m.how for m in missed)  # far, or turned
     linear = ("" if anim.warped or not positions else "a linear solve cannot meet turned "
               "targets (it stretches them): solve with warp=True; or ")
+    stiff = (" (a stiff material resists keys: the default weighs a key against the body's "
+             "mass, not its Young's modulus)" if any("offset" in m.how for m in missed) else "")
     warnings.warn(
         f"{len(missed)} of {len(rows)} keyframes {missed_by(missed)} ({listed}): {linear}raise "
-        "their stiffness (default 1e6), or check that the targets can be reached (fixed "
+        f"their stiffness (default 1e6){stiff}, or check that the targets can be reached (fixed "
         "vertices, contradictory keys, velocities in m/s, gravity over a long shot); "
         "anim.constraint_residuals() lists every key", stacklevel=stacklevel)
 

@@ -106,6 +106,9 @@ class Animation:
         At a node the spline of the interval to the ``side`` of it is used (the one-sided
         limits differ in derivatives of order 2 or 3, Theorem 1).
         """
+        if side not in ("left", "right"):
+            raise WigglyInputError(f"side should be 'left' or 'right'; got {side!r}")
+        _order(n_derivatives, "n_derivatives", 3)
         t = np.atleast_1d(np.asarray(times, dtype=float))
         tol = 1e-9 * max(1.0, self.duration)
         if t.ndim != 1 or t.size == 0:
@@ -145,6 +148,10 @@ class Animation:
         batch) and carried to the surface by the barycentric embedding.
         """
         checks.where(on)
+        _order(derivative, "derivative", 3)
+        if not np.issubdtype(np.dtype(dtype), np.floating):
+            raise WigglyInputError(f"dtype should be a floating type (np.float64 or np.float32); "
+                                   f"got {np.dtype(dtype).name}, which would truncate metres")
         if not self.warped:
             q = self.modal(times, derivative)[derivative]
             B = self.body.basis(on)
@@ -308,3 +315,9 @@ def _interval_data(values: np.ndarray, velocities: np.ndarray) -> np.ndarray:
 
 
 _PLAYBACK_BATCH = 64
+
+
+def _order(k, name: str, highest: int) -> None:
+    """Refuse a derivative order that is not an integer in [0, highest]."""
+    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 0 <= k <= highest:
+        raise WigglyInputError(f"{name} should be an integer in [0, {highest}]; got {k!r}")

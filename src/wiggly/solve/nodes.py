@@ -1,21 +1,29 @@
 """The nodes of a shot: the times where the wiggly splines join (Theorem 1).
 
 Nodes are the shot's start and end and every keyframe time; keyframe times closer than
-1e-9 of the duration share a node.
+:func:`merge_tolerance` (1e-5 of the duration, or float32 rounding of the times) share
+a node: the same frame written by another tool in single precision is one node, not an
+interval of nanoseconds whose spline energy (growing as 1/h^3) no factorization survives.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["NodeLayout", "node_index", "node_times"]
+__all__ = ["NodeLayout", "merge_tolerance", "node_index", "node_times"]
+
+
+def merge_tolerance(start: float, end: float) -> float:
+    """Keyframe times closer than this (s) share a node: 1e-5 of the duration, or four float32
+    rounding steps of the shot's latest time, whichever is larger."""
+    return max(1e-5 * (end - start), 2.5e-7 * max(abs(start), abs(end)))
 
 
 def node_times(start: float, end: float, times: list[float]) -> np.ndarray:
-    """Sorted node times: ``start``, ``end`` and ``times`` (merged within 1e-9 T)."""
-    duration = end - start
+    """Sorted node times: ``start``, ``end`` and ``times`` (merged within
+    :func:`merge_tolerance`; a time merged with the end becomes the end)."""
     t = np.sort(np.r_[start, end, times])
-    keep = np.r_[True, np.diff(t) > 1e-9 * duration]
+    keep = np.r_[True, np.diff(t) > merge_tolerance(start, end)]
     t = t[keep]
     t[-1] = end
     return t

@@ -36,7 +36,7 @@ from wiggly.progress import deprecated_progress
 from wiggly.solve.animation import Animation
 from wiggly.solve.banded import BandedCholesky, add_block, add_blocks
 from wiggly.solve.levels import WarmStart, solve_warped
-from wiggly.solve.nodes import NodeLayout, node_index, node_times
+from wiggly.solve.nodes import NodeLayout, merge_tolerance, node_index, node_times
 from wiggly.solve.optimizer import SolveOptions
 from wiggly.splines import WigglyBasis, energy_form, equilibrium, wiggly_basis
 from wiggly.warp import WarpLevel
@@ -85,6 +85,11 @@ class TargetFit:
 
 
 #: Why a loop's keyframes that hold nowhere are refused (velocity keys alone included).
+#: Node intervals shorter than this share of the duration are named when the linear system
+#: cannot be factorized; keyframe weights above HEAVIEST (stiffness units) likewise.
+SHORTEST = 1e-4
+HEAVIEST = 1e14
+
 UNDETERMINED_LOOP = (
     "the keyframes leave the looped motion undetermined: a loop has no rest before it, and "
     "velocity keys do not say where the body is, so position keyframes must hold its "
@@ -281,13 +286,41 @@ class SpacetimeProblem:
         try:
             return BandedCholesky(ab).solve(-f)
         except np.linalg.LinAlgError as err:
-            if self.loop:
-                raise WigglyInputError(UNDETERMINED_LOOP) from err
-            raise WigglyInputError(
-                "the keyframes leave the motion undetermined and preroll is 0; give keyframes "
-                "that fix the start (positions and velocities of the whole body) or a "
-                "preroll > 0"
-            ) from err
+            raise WigglyInputError(self._singular(kfs, nodes)) from err
+
+    def _singular(self, kfs: list[Keyframe], nodes: np.ndarray) -> str:
+        """Why the linear system of E + E_C could not be factorized, as far as can be told:
+        keyframe times a hair apart, weights beyond double precision, or nothing fixing the
+        start (a loop, or no pre-roll)."""
+        h = np.diff(nodes)
+        j = int(np.argmin(h))
+        if h[j] < SHORTEST * self.duration:
+            a, b = float(nodes[j]), float(nodes[j + 1])
+            tol = merge_tolerance(self.start, self.end)
+            near = [f"#{i} ('{kf.name}')" if kf.name else f"#{i}"
+                    for i, kf in enumerate(kfs) if min(abs(kf.time - a), abs(kf.time - b)) <= tol]
+            return (
+                f"keyframes {', '.join(near) or '(the shot start or end)'} at t = {a!r} s and "
+                f"{b!r} s are {b - a:.3g} s apart: the spline between them is numerically "
+                f"singular; give them the same time, or move them at least "
+                f"{SHORTEST * self.duration:.3g} s apart")
+        weights = [max(kf.weights(self.body, self.duration)) for kf in kfs]
+        if weights and max(weights) > HEAVIEST * self.body.mass / self.duration**3:
+            i = int(np.argmax(weights))
+            kf = kfs[i]
+            explicit = ", or its c_A / c_B" if kf.c_A is not None or kf.c_B is not None else ""
+            return (
+                f"keyframe #{i}{f' ({kf.name!r})' if kf.name else ''} weighs too much for "
+                f"double precision (stiffness {kf.stiffness:g}{explicit}): the linear system is "
+                "numerically singular; use a stiffness of at most 1e12 (the default is 1e6)")
+        if self.loop:
+            return UNDETERMINED_LOOP
+        if self.preroll == 0:
+            return ("the keyframes leave the motion undetermined and preroll is 0; give "
+                    "keyframes that fix the start (positions and velocities of the whole body) or "
+                    "a preroll > 0")
+        return ("the linear system of the keyframes is numerically singular (preroll "
+                f"{self.preroll:g} s); check for contradictory or extreme keyframes")
 
     # ----------------------------------------------------------------- solve
     @deprecated_progress
