@@ -149,6 +149,21 @@ paths = ["out/loop.glb", "out/loop.usda"]
     assert np.abs(glb.positions[5] - glb.positions[0]).max() > 0.05
 
 
+def test_a_looped_animation_written_from_python_needs_whole_frames_per_cycle(bar, tmp_path):
+    """write_animation of a 1.2 s loop at 25 fps (30 frames a cycle; the clip ends on the
+    cycle's end) writes it; at 24 fps (28.8 frames
+    a cycle, whose seam would jump by a part of a frame) it is refused, naming both numbers
+    and a frame rate that fits, and nothing is written."""
+    from wiggly.export import read_animation, write_animation
+
+    anim = solve(bar, keys_of(bar), end=END, warp=False, loop=True)
+    written = read_animation(write_animation(tmp_path / "fits.glb", anim, fps=25))
+    assert written.loop and written.n_frames == 31 and written.times[-1] == pytest.approx(END)
+    with pytest.raises(WigglyInputError, match=r"1.2 s at 24 fps is 28.8 frames.*fps = 24.1667"):
+        write_animation(tmp_path / "jumps.glb", anim, fps=24)
+    assert not (tmp_path / "jumps.glb").exists()
+
+
 def test_a_looped_scenes_previews_show_the_seam_once(tmp_path, monkeypatch):
     """A looping .gif/.mp4 plays its frames round and round, so a looped scene's previews
     leave out the seam frame (it repeats the first), as USD does: 10 frames per 1 s cycle at

@@ -30,6 +30,15 @@ def surface_animation(anim, fps: float = 30.0, name: str = "wiggly",
     ``fps`` over its time range, with the surface's faces, UVs, normals and rest positions
     (and, for ``gltf_targets = "modes"``, the modes and their coordinates): what the
     writers take."""
+    if anim.loop:  # its last frame is its first: a cycle of a whole number of frames
+        cycle = (anim.end - anim.start) * fps
+        if abs(cycle - round(cycle)) > 1e-6 * max(1.0, cycle):
+            n = max(1, round(cycle))
+            raise WigglyInputError(
+                f"a looped animation needs a whole number of frames per cycle: "
+                f"{anim.end - anim.start:g} s at {fps:g} fps is {cycle:.4g} frames, and its "
+                f"seam would jump; use fps = {n / (anim.end - anim.start):.6g} (or a cycle of "
+                f"{n / fps:.6g} s)")
     times = anim.frame_times(fps)
     surf = anim.body.surface
     data = SurfaceAnimation(times, anim.positions(times, dtype=np.float32), surf.faces,
