@@ -200,7 +200,7 @@ def write_glb(path: Path, doc: dict, arrays: list[tuple[np.ndarray, str, bool]])
 
 def test_gltf_morph_targets_under_a_moving_parent(tmp_path):
     """Base + w1 D1 + w2 D2 with LINEAR weights (not one-hot), the mesh node under a parent
-    whose translation is animated: both evaluated at every key time."""
+    whose translation is animated: both evaluated at every key time and between the keys."""
     D1 = np.zeros_like(CUBE)
     D1[:, 1] = CUBE[:, 0]  # shear
     D2 = 0.1 * CUBE  # grow
@@ -223,9 +223,14 @@ def test_gltf_morph_targets_under_a_moving_parent(tmp_path):
         (keys, "SCALAR", False), (W.ravel(), "SCALAR", False), (T, "VEC3", False)])
     d = read_driver(path, animation="wobble")
     assert d.kind == "glTF morph targets"
-    np.testing.assert_allclose(d.times, keys)
-    for k in range(3):
-        expected = 2.0 * (CUBE + W[k, 0] * D1 + W[k, 1] * D2) + T[k]
+    # keys half a second apart: frames at the keys and at 30 per second between them, each
+    # the LINEAR interpolation of the keys (a spline through the keys alone strays from it)
+    assert np.all(np.isin(keys, d.times.astype(np.float32)))
+    np.testing.assert_allclose(np.diff(d.times), 1 / 30, rtol=1e-6)
+    for k, t in enumerate(d.times):
+        w = [np.interp(t, keys, W[:, j]) for j in range(2)]
+        shift = [np.interp(t, keys, T[:, j]) for j in range(3)]
+        expected = 2.0 * (CUBE + w[0] * D1 + w[1] * D2) + shift
         np.testing.assert_allclose(d.positions[k], expected, atol=1e-6)
     with pytest.raises(WigglyInputError, match=r"no animation named 'walk'.*'wobble'"):
         read_driver(path, animation="walk")
@@ -277,7 +282,9 @@ def test_gltf_skin_matches_a_hand_computed_blend(tmp_path):
         (child_rot, "VEC4", False), (cubic.reshape(-1, 3), "VEC3", False)])
     d = read_driver(path)
     assert d.kind == "glTF skin"
-    np.testing.assert_allclose(d.times, [0.0, 0.4, 0.5, 1.0], atol=1e-7)
+    # every key time, and frames in between (keys 0.1-0.5 s apart), each checked below
+    assert np.all(np.isin(np.float32([0.0, 0.4, 0.5, 1.0]), d.times.astype(np.float32)))
+    assert np.diff(d.times).max() <= 1.5 / 30 and len(d.times) > 4
     w = wb / 255.0
     for t, x in zip(d.times, d.positions, strict=True):
         # root: angle linear in t between keys; translation: the cubic Hermite segment
@@ -464,7 +471,7 @@ def test_two_animations_play_together(tmp_path):
         (np.array([0.0, 0.5, 1.0], np.float32), "SCALAR", False),
         (np.array([0.0, 1.0, 0.0], np.float32), "SCALAR", False)])
     d = read_driver(path, animation=["walk", "breathe"])
-    np.testing.assert_allclose(d.times, [0.0, 0.5, 1.0])
+    assert np.all(np.isin([0.0, 0.5, 1.0], d.times))
     for t, w, x in ((0.0, 0.0, 0.0), (0.5, 1.0, 0.5), (1.0, 0.0, 1.0)):
         k = int(np.argmin(np.abs(d.times - t)))
         np.testing.assert_allclose(d.positions[k], CUBE + w * D + [x, 0, 0], atol=1e-6)

@@ -14,7 +14,9 @@ specification defines them (sections 3.7 "Concepts: Geometry" and 3.11 "Animatio
   spline of (in-tangent, value, out-tangent) triples with tangents scaled by the key interval
   (rotations normalized after).  Before the first key the first value holds, after the last
   the last.  The driver's frames are the key times of every channel of the animation (of
-  every animation, when several play together).
+  every animation, when several play together), with frames filled in at about
+  ``SAMPLE_RATE`` per second where keys lie further apart, so that the motion between sparse
+  keys is the interpolation's.
 * **Morph targets** (3.7.2.2): POSITION + sum_i w_i delta_i, with w the node's animated
   ``weights`` (else the node's, else the mesh's default weights, else 0).
 * **Skins** (3.7.3): joint matrix j = global(joint j) * inverseBindMatrix j (identity when
@@ -26,6 +28,7 @@ specification defines them (sections 3.7 "Concepts: Geometry" and 3.11 "Animatio
 
 from __future__ import annotations
 
+import itertools
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -211,12 +214,25 @@ def _animation_channels(f: GltfFile, anim: dict, name: str) -> list[_Channel]:
     return out
 
 
+#: Key times further apart than 1.5 / SAMPLE_RATE s get frames in between, about this many a
+#: second: a driver keyed sparsely (LINEAR keys every half second) moves as its interpolation
+#: says between keys, which the spline through the keys alone would not follow (a swing keyed
+#: every 0.5 s strayed 0.3 m from it).  Drivers baked per frame (24 fps and up) keep their frames.
+SAMPLE_RATE = 30.0
+
+
 def _frame_times(channels: list[_Channel]) -> np.ndarray:
-    """The union of the channels' key times (merged within 1e-6 s), or [0] with none."""
+    """The union of the channels' key times (merged within 1e-6 s), with evenly spaced frames
+    filled into gaps longer than ``1.5 / SAMPLE_RATE``; [0] with no channel."""
     if not channels:
         return np.zeros(1)
     t = np.unique(np.concatenate([c.keys for c in channels]))
-    return t[np.r_[True, np.diff(t) > 1e-6]]
+    t = t[np.r_[True, np.diff(t) > 1e-6]]
+    filled = [t[:1]]
+    for a, b in itertools.pairwise(t):
+        n = max(1, round((b - a) * SAMPLE_RATE)) if b - a > 1.5 / SAMPLE_RATE else 1
+        filled.append(np.linspace(a, b, n + 1)[1:])
+    return np.concatenate(filled)
 
 
 def _local_transforms(f: GltfFile, channels: list[_Channel], times: np.ndarray
