@@ -212,6 +212,31 @@ def test_driven_group_follows_and_warp_is_second_order(bar):
     assert 3.5 < gaps[0] / gaps[1] < 4.5, gaps
 
 
+def test_a_folding_secondary_motion_is_found_and_warned_about(tmp_path):
+    """A soft bar (5e3 Pa) whose base is bobbed 10 cm at 3 Hz folds its free part: folds()
+    finds it at its default times (a secondary motion has no keyframes of its own), names the
+    turns of the motion's own linear field (ubar + Psi q, not Phi q of the body's modes), and
+    warn_folded says so; the stiff bar of the other tests folds nothing."""
+    from wiggly.solve import warn_folded
+    from wiggly.solve.animation import rotation_angles
+
+    body, driven = bar_body(tmp_path, young=5e3)
+    X = body.surface.vertices
+    times = np.arange(121) / 120
+    drv = Driver(times, X[None] + 5.0 * bob(times)[:, None, :], body.surface.faces,
+                 np.zeros((0, 2)), "bob.npz", "test")
+    anim = secondary_motion(body, drv, driven, start=0.0, end=T_END, warped=True)
+    rows = anim.folds()
+    worst = max(rows, key=lambda row: row["share"])
+    assert len(rows) == 31 and worst["share"] > 0.01
+    u = anim.linear_field([worst["time"]])[0]
+    angles = rotation_angles(body.fine_level.warp.gradient, u)
+    assert worst["turns"] == pytest.approx(angles[worst["tets"]].max() / (2 * np.pi))
+    assert anim.folds([worst["time"]])[0]["folded"] == worst["folded"]
+    with pytest.warns(UserWarning, match=r"tets \(.*%\) inside out.*a lower drive"):
+        warn_folded(anim, remedy="a lower drive.intensity may help")
+
+
 def test_intensity_scales_the_swing_not_the_timing(bar):
     body, driven = bar
     drv = bob_driver(body, 30.0)

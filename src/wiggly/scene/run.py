@@ -226,9 +226,12 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
         say(f"note: {note}")
     _warn_missed(scene, anim)
     highlights = keyframe_highlights(scene, body, anim.keyframes, groups)
-    if scene.simulation.warp and not scene.secondary_motion:
+    if scene.simulation.warp:
+        remedy = ("A stiffer material, heavier damping, a larger driven group or a lower "
+                  "drive.intensity may help" if scene.secondary_motion else
+                  "Keying more of the body near the fold, or a stiffer material, may help")
         folding = warn_folded(anim, f"{scene.where()}: the warped motion", api=False,
-                              groups=surface_groups(scene, groups))
+                              groups=surface_groups(scene, groups), remedy=remedy)
         previews = [p.name for p in paths if p.suffix.lower() in PREVIEW_EXTENSIONS]
         if folding is not None and previews:
             highlights += fold_highlights(anim, anim.frame_times(scene.time.fps))

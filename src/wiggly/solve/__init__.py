@@ -226,6 +226,7 @@ def fold_note(
     api: bool = True,
     groups: dict[str, np.ndarray] | None = None,
     checked: list[dict] | None = None,
+    remedy: str = "Keying more of the body near the fold, or a stiffer material, may help",
 ) -> str | None:
     """What :func:`warn_folded` says of ``anim`` (None when it folds no more than
     :data:`FOLDED` of the tets at any time :meth:`Animation.folds` checks); ``api=False``
@@ -266,9 +267,8 @@ def fold_note(
     return (f"{where} turns {worst['folded']} tets ({100 * worst['share']:.2g} %) inside out "
             f"at t = {worst['time']:.3g} s{span}, around ({centre}) m in the rest pose{nearest}, "
             "so the "
-            f"surface may crease there: {why}. Keying more of the body near the fold, or a "
-            "stiffer material, may help" + ("; anim.folds() lists every time checked"
-                                           if api else ""))
+            f"surface may crease there: {why}. {remedy}"
+            + ("; anim.folds() lists every time checked" if api else ""))
 
 
 def warn_folded(
@@ -277,12 +277,13 @@ def warn_folded(
     stacklevel: int = 2,
     api: bool = True,
     groups: dict[str, np.ndarray] | None = None,
+    **kw,
 ) -> str | None:
     """One warning when ``anim`` folds more than :data:`FOLDED` of the tets at a keyframe time
     (:meth:`Animation.folds`), naming when, how many, where (and the nearest of ``groups``)
     and by how many turns the linear motion spins them (attributed as in
-    :func:`warn_missed`); returns its text."""
-    note = fold_note(anim, where, api, groups)
+    :func:`warn_missed`); returns its text.  ``kw``: :func:`fold_note`'s ``remedy``."""
+    note = fold_note(anim, where, api, groups, **kw)
     if note is not None:
         warnings.warn(note, stacklevel=stacklevel)
     return note

@@ -137,6 +137,12 @@ class Animation:
         out = evaluate(self.basis.take(idx), data, g, np.repeat(tau, r), n_derivatives)
         return out.reshape(n_derivatives + 1, len(t), r)
 
+    def linear_field(self, times: ArrayLike, derivative: int = 0) -> np.ndarray:
+        """The linear motion ``Phi q(t)`` (or a time derivative) on the tet mesh, (F, n, 3):
+        what the warp turns into the played-back motion (Schulz et al. 2014, Theorem 2)."""
+        q = self.modal(times, derivative)[derivative]
+        return (q @ self.body.basis("tets").T).reshape(len(q), -1, 3)
+
     # --- vertex trajectories -------------------------------------------------------------
     def displacements(
         self, times: ArrayLike, on: Where = "surface", derivative: int = 0, dtype: type = np.float64
@@ -228,12 +234,10 @@ class Animation:
         """
         if times is None:
             keys = np.unique([kf.time for kf in self.keyframes])
-            times = np.zeros(0)
-            if keys.size:
-                times = np.unique(np.concatenate([_evenly(self.frame_times(DEFAULT_FPS)),
-                                                  _evenly(keys)]))
+            times = np.unique(np.concatenate([_evenly(self.frame_times(DEFAULT_FPS)),
+                                              _evenly(keys)]))
         times = np.atleast_1d(np.asarray(times, dtype=np.float64))
-        if times.size == 0:  # no keyframes, or no times asked
+        if times.size == 0:  # no times asked
             return []
         body = self.body
         if displacements is not None and displacements.shape != (
@@ -245,18 +249,17 @@ class Animation:
                 f"shape ({len(times)}, {body.tets.n_vertices}, 3)")
         warp = body.fine_level.warp
         T, X = body.tets.tets, body.tets.vertices
-        q = self.modal(times)[0]  # the linear states, made into displacements where folded
         out = []
         for a in range(0, len(times), _PLAYBACK_BATCH):
             part = times[a : a + _PLAYBACK_BATCH]
             moved = (self.displacements(part, on="tets") if displacements is None
                      else displacements[a : a + _PLAYBACK_BATCH])
-            for j, (t, folded) in enumerate(zip(part, warp.inverted(moved), strict=True)):
+            for t, folded in zip(part, warp.inverted(moved), strict=True):
                 row = {"time": float(t), "folded": int(folded.sum()),
                        "share": float(folded.mean())}
                 if folded.any():
                     row["tets"] = np.flatnonzero(folded)
-                    u = (q[a + j] @ body.basis("tets").T).reshape(-1, 3)
+                    u = self.linear_field([t])[0]
                     v = warp.volumes[folded]
                     row["centre"] = (X[T[folded]].mean(axis=1) * v[:, None]).sum(0) / v.sum()
                     row["turns"] = float(rotation_angles(warp.gradient, u)[folded].max()
