@@ -180,7 +180,22 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
                                   "frame 1 to frame",),
         "shared mesh": ("Object 'Bar': its mesh 'Bar' is shared with 1 other object(s)",
                         "bake as Mesh Cache"),
+        "unwritable cache folder": ("Object 'Tail': cannot write into the cache folder "
+                                    "/sys/kernel",),
+        "unwritable export folder": ("cannot write into the folder /sys/kernel",),
+        "no result": ("the wiggly command finished but wrote no result",),
+        "scale-only keys": ("its handle 'left end.001 handle' has no keyframes in frames 1-13",
+                            "its scale keys do not count"),
+        "deleted handle": ("its handle 'left end.001 handle' is in no scene (deleted?)",),
     }
+    mirrored = errors.pop("mirrored export")
+    assert mirrored["result"][0] == "FINISHED", mirrored
+    # the mirrored object's rest surface faces outwards in wiggly's world (no flip warning)
+    from wiggly.mesh import load_mesh
+    from wiggly.mesh.defects import enclosed_volume
+
+    rest = load_mesh(tmp_path / "mirrored_rest.obj")
+    assert enclosed_volume(rest.vertices, rest.faces) > 0
     assert sorted(errors) == sorted(expected)
     for label, parts in expected.items():
         seen = errors[label]

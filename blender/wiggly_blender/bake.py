@@ -8,6 +8,7 @@ from __future__ import annotations
 import hashlib
 import re
 import struct
+import tempfile
 from pathlib import Path
 
 import bpy
@@ -37,8 +38,14 @@ _SUFFIX = "_wiggly.pc2"
 
 def read_result(path: Path, shot: Shot) -> np.ndarray:
     """Positions (F, V, 3) of wiggly's npz result on the shot's frames, object-local."""
-    with np.load(path, allow_pickle=False) as data:
-        times, positions = data["times"], data["positions"].astype(np.float64)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            times, positions = data["times"], data["positions"].astype(np.float64)
+    except (OSError, KeyError, ValueError) as e:
+        what = "wrote no result" if not path.exists() else f"wrote an unreadable result ({e})"
+        raise ShotError(f"the wiggly command finished but {what}: check that the wiggly "
+                        "command in Edit > Preferences > Add-ons > wiggly is wiggly's own "
+                        "(e.g. .venv/bin/wiggly) and of this add-on's version") from None
     frames = shot.frame_start + np.rint(times * shot.fps).astype(np.int64)
     if not np.array_equal(frames, shot.frames) or positions.shape[1] != len(shot.rest):
         raise ShotError(f"wiggly's result {path} has frames {frames[0]}-{frames[-1]} and "
@@ -85,9 +92,10 @@ def cache_path(obj) -> Path:
     directory = Path(bpy.path.abspath(folder))
     try:
         directory.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=directory).close()  # can files be written there?
     except OSError as e:
-        raise ShotError(f"Object '{obj.name}': cannot make the cache folder {directory}: "
-                        f"{e.strerror}") from None
+        raise ShotError(f"Object '{obj.name}': cannot write into the cache folder "
+                        f"{directory}: {e.strerror}; pick another Cache folder") from None
     return directory / cache_name(obj.name, bpy.data.filepath)
 
 

@@ -124,6 +124,10 @@ class WIGGLY_OT_bake(bpy.types.Operator):
         except ShotError as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
+        except OSError as e:  # a cache file that could not be written after all
+            self.report({"ERROR"}, f"Object '{self.obj.name}': cannot write "
+                        f"{e.filename or 'the bake'}: {e.strerror}")
+            return {"CANCELLED"}
         finally:
             said = self.solve.warnings()
             self.solve.cleanup()
@@ -228,6 +232,9 @@ class WIGGLY_OT_export_scene(bpy.types.Operator, ExportHelper):
             files = write_shot(shot, path, overwrite=self.overwrite)
         except ShotError as e:
             self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        except OSError as e:
+            self.report({"ERROR"}, f"cannot write {e.filename or path}: {e.strerror}")
             return {"CANCELLED"}
         _report_warnings(self, shot)
         self.report({"INFO"}, f"Wrote {files['scene']} (run it with: wiggly animate "

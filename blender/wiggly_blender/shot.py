@@ -14,6 +14,7 @@ import json
 import math
 import os
 import re
+import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -168,8 +169,11 @@ def gather(context, obj) -> Shot:
         to_wiggly = np.eye(4)
         to_wiggly[:3, :3] = unit * Y_UP @ world[:3, :3]
         to_wiggly[:3, 3] = unit * Y_UP @ world[:3, 3]
-        if abs(np.linalg.det(to_wiggly[:3, :3])) < 1e-12:
+        det = np.linalg.det(to_wiggly[:3, :3])
+        if abs(det) < 1e-12:
             raise ShotError(f"{where} has a zero scale")
+        if det < 0:  # mirrored by a negative scale: the world's triangles wind the other way
+            tris = tris[:, ::-1].copy()
         co = np.empty(3 * V)
         mesh.vertices.foreach_get("co", co)
         rest = co.reshape(-1, 3) @ to_wiggly[:3, :3].T + to_wiggly[:3, 3]
@@ -326,12 +330,16 @@ def _handle_keys(context, item, at: str, name: str, X: np.ndarray, unit: float, 
     handle = item.handle
     if handle is None:
         raise ShotError(f"{at}: the role Handle needs an Empty: Add Handle, or pick one")
+    if not handle.users_collection:  # deleted (X): an orphan the group still points at
+        raise ShotError(f"{at}: its handle '{handle.name}' is in no scene (deleted?): Add "
+                        "Handle, or pick one")
     if not animated_by_blender(context, handle):
         raise ShotError(f"{at}: " + not_evaluated(f"its handle '{handle.name}'"))
     frames: dict[float, bool] = {}
     curves = list(fcurves_of(handle))
     placing = [c for c in curves if c.data_path.startswith(PLACEMENT_PATHS)]
-    if any(c.data_path in ("scale", "delta_scale") for c in curves):
+    scaled = any(c.data_path in ("scale", "delta_scale") for c in curves)
+    if scaled:
         warnings.append(f"{at}: the scale keys of handle '{handle.name}' were left out (only "
                         "its location and rotation key the group)")
     for curve in placing:
@@ -347,9 +355,11 @@ def _handle_keys(context, item, at: str, name: str, X: np.ndarray, unit: float, 
                    f"{', '.join(f'{f:g}' for f in sorted(frames)[:5])}"
                    f"{', ...' if len(frames) > 5 else ''}, lie outside the range)"
                    if frames else "")
+        only_scale = " (its scale keys do not count: scale plays no role)" if (
+            scaled and not frames) else ""
         raise ShotError(f"{at}: its handle '{handle.name}' has no keyframes in frames "
-                        f"{fs}-{fe}{outside}; key its location/rotation (I over the "
-                        "viewport), or set the group's role to Fixed")
+                        f"{fs}-{fe}{outside}{only_scale}; key its location/rotation (I over "
+                        "the viewport), or set the group's role to Fixed")
     R0, l0 = _rigid(_rest_matrix(item))
     center = X.mean(axis=0)
     keys = []
@@ -544,6 +554,10 @@ def write_shot(shot: Shot, toml: Path, overwrite: bool = False) -> dict[str, Pat
                                               else [])
     if not toml.parent.is_dir():
         raise ShotError(f"the folder {toml.parent} does not exist")
+    try:  # before the first file: a folder that takes none leaves nothing behind
+        tempfile.TemporaryFile(dir=toml.parent).close()
+    except OSError as e:
+        raise ShotError(f"cannot write into the folder {toml.parent}: {e.strerror}") from None
     existing = [str(p) for p in mine if p.exists()]
     if existing and not overwrite:
         raise ShotError(f"{', '.join(existing)} already exist; tick Overwrite to replace them")

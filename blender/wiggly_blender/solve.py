@@ -32,6 +32,11 @@ def wiggly_command(command: str) -> str:
     return found
 
 
+#: seconds wiggly gets to end on Esc before it is killed (its outputs are written atomically,
+#: so a kill leaves no half-written file; the add-on removes its temporary folder)
+GRACE = 0.5
+
+
 class Solve:
     """One ``wiggly animate`` run on ``shot`` in a temporary folder."""
 
@@ -109,14 +114,16 @@ class Solve:
         return self._plain(message)
 
     def cancel(self) -> None:
-        """Stop wiggly (and the programs it runs) at once."""
+        """Stop wiggly (and the programs it runs) at once: SIGTERM, and SIGKILL after
+        :data:`GRACE` s (a terminate becomes a Python exit in wiggly, which waits for the native
+        call it is in, e.g. a mesh check of seconds, while Blender's interface waits here)."""
         if self.process is not None and self.process.poll() is None:
             if os.name == "posix":
                 os.killpg(self.process.pid, signal.SIGTERM)
             else:
                 self.process.terminate()
             try:
-                self.process.wait(timeout=5)
+                self.process.wait(timeout=GRACE)
             except subprocess.TimeoutExpired:
                 if os.name == "posix":
                     os.killpg(self.process.pid, signal.SIGKILL)

@@ -11,6 +11,7 @@ import io
 import json
 import math
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -29,6 +30,8 @@ from wiggly_blender import bake, shot  # noqa: E402
 case, out, command, workdir = sys.argv[1:5]
 options = json.loads(Path(sys.argv[5]).read_text()) if len(sys.argv) > 5 else {}
 workdir = Path(workdir)
+#: a folder that exists and takes no file, whoever runs the tests (root included)
+UNWRITABLE = "/sys/kernel"
 report: dict = {}
 
 
@@ -258,6 +261,16 @@ def case_errors() -> None:
     handle = obj.wiggly.groups[0].handle
     handle.animation_data_clear()
     attempt("unkeyed handle")
+    handle.keyframe_insert("scale", frame=5)
+    attempt("scale-only keys")
+    for collection in list(handle.users_collection):  # X in the viewport: an orphan
+        collection.objects.unlink(handle)
+    attempt("deleted handle")
+    fresh(24, 1.0, (1, 13))
+    obj = handles_scene("MESH_CACHE")
+    obj.scale = (-1.0, 1.0, 1.0)  # mirrored: its world triangles wind the other way
+    out["mirrored export"] = run(bpy.ops.wiggly.export_scene,
+                                 filepath=str(workdir / "mirrored.toml"))
     fresh(24, 1.0, (1, 13))
     obj, _ = armature_bar()
     use_group(obj, "body", "DRIVEN")
@@ -288,7 +301,15 @@ def case_errors() -> None:
     obj.wiggly.cache_dir = "//wiggly/"  # the .blend is not saved
     obj.wiggly.resolution = 10
     attempt("unsaved blend")
+    obj.wiggly.cache_dir = UNWRITABLE  # a folder that exists and takes no file
+    attempt("unwritable cache folder")
+    out["unwritable export folder"] = run(bpy.ops.wiggly.export_scene,
+                                          filepath=f"{UNWRITABLE}/shot.toml")
     obj.wiggly.cache_dir = str(workdir / "cache")
+    prefs = bpy.context.preferences.addons["wiggly_blender"].preferences
+    prefs.command = shutil.which("true")  # a command that exits 0 and writes nothing
+    attempt("no result")
+    prefs.command = command
     obj.location.x += 0.1
     obj.keyframe_insert("location", frame=1)
     attempt("animated transform")
