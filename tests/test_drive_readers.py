@@ -81,6 +81,31 @@ def test_obj_sequence_driver_reads_back_the_sequence(tmp_path, style):
     d.check(8, TRIS, "cube")
 
 
+def test_an_obj_sequence_with_missing_or_broken_frames_says_which(tmp_path):
+    """Frames 3-4 missing from walk_0001..0005.obj: read, with a warning naming them (the
+    driver is interpolated across); a NaN in walk_0005.obj: refused naming that file and the
+    vertex (1-based, as in the file), not an index into the frames read."""
+    _, P = sequence()
+    for k in (1, 2, 5):
+        write_obj(tmp_path / f"walk_{k:04d}.obj", P[k - 1], QUADS)
+    with pytest.warns(UserWarning, match=r"no files for frames 3-4: the driver is interpolated"):
+        d = read_driver(tmp_path / "walk_0001.obj", frame_rate=24)
+    np.testing.assert_allclose(d.times, np.array([1, 2, 5]) / 24)
+    broken = P[4].copy()
+    broken[2, 1] = np.nan
+    write_obj(tmp_path / "walk_0005.obj", broken, QUADS)
+    with pytest.raises(WigglyInputError, match=r"walk_0005.obj puts vertex 3 at \[.*nan"):
+        read_driver(tmp_path / "walk_0001.obj", frame_rate=24)
+
+
+def test_a_driver_frame_that_is_not_finite_is_named_by_its_time():
+    times, P = sequence()
+    P[4, 6, 0] = np.inf
+    with pytest.raises(WigglyInputError, match=r"the frame at t = 0.166667 s \(frame 5 of 5\) "
+                                               r"puts vertex 6"):
+        Driver(times, P, TRIS, np.zeros((0, 2)), "mine.npz", "test")
+
+
 def test_usd_points_driver_converts_axes_units_and_transforms(tmp_path):
     """A Z-up stage in centimetres with time-sampled points and an animated parent
     transform: world space, then y up ((x, y, z) -> (x, z, -y)) and metres."""

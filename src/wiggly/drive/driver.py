@@ -74,7 +74,8 @@ class Driver:
         bad = np.argwhere(~np.isfinite(positions))
         if bad.size:
             k, v, _ = bad[0]
-            raise WigglyInputError(f"{where}: frame {k} puts vertex {v} at "
+            raise WigglyInputError(f"{where}: the frame at t = {times[k]:g} s (frame {k + 1} of "
+                                   f"{len(times)}) puts vertex {v} at "
                                    f"{positions[k, v].tolist()}; positions must be finite")
         object.__setattr__(self, "times", times)
         object.__setattr__(self, "positions", positions)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import itertools
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -102,6 +103,11 @@ def read_obj_sequence(path: Path, *, frame_rate: float | None = None) -> Driver:
     for k, (_, file) in enumerate(bar):
         data = file.read_bytes()
         P = _floats(file, _V.findall(data))
+        bad = np.argwhere(~np.isfinite(P))
+        if bad.size:
+            raise WigglyInputError(
+                f"cannot read the OBJ sequence {path}: {file.name} puts vertex {bad[0, 0] + 1} "
+                f"at {P[bad[0, 0]].tolist()}; positions must be finite")
         if k == 0:
             polys = _polygons(file, data, len(P))
         elif len(P) != len(positions[0]):
@@ -118,7 +124,16 @@ def read_obj_sequence(path: Path, *, frame_rate: float | None = None) -> Driver:
             f"the OBJ sequence {path} gives frame numbers but no times: give its frame rate "
             "(drive.frame_rate in a scene, frame_rate= in Python)")
     else:
-        times = np.array([number for number, _ in files], np.float64) / frame_rate
+        numbers = np.array([number for number, _ in files], np.int64)
+        times = numbers / float(frame_rate)
+        gaps = [(a + 1, b - 1) for a, b in itertools.pairwise(numbers) if b - a > 1]
+        if gaps:
+            listed = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in gaps[:4])
+            warnings.warn(
+                f"the OBJ sequence {path} has no files for frames {listed}"
+                f"{' and more' if len(gaps) > 4 else ''}: the driver is interpolated across "
+                "them (as a smooth curve, which a jerk or a cut there would not be)",
+                stacklevel=2)
     counts = np.array([len(p) for p in polys], np.int64)
     faces, _ = fan_triangles(counts, np.concatenate(polys) if polys else np.zeros(0, np.int64))
     return Driver(times, np.stack(positions), faces, polygon_edges(polys), str(path),
