@@ -188,6 +188,9 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
                             "its scale keys do not count"),
         "deleted handle": ("its handle 'left end.001 handle' is in no scene (deleted?)",),
     }
+    faint = [w for w in errors.pop("faint weights") if "weights below 0.1" in w]
+    assert len(faint) == 1 and "Object 'Bar', group 'middle':" in faint[0], faint
+    assert "takes every vertex of weight above 0 in full" in faint[0], faint
     mirrored = errors.pop("mirrored export")
     assert mirrored["result"][0] == "FINISHED", mirrored
     # the mirrored object's rest surface faces outwards in wiggly's world (no flip warning)

@@ -118,14 +118,22 @@ def _rigid(m) -> tuple[np.ndarray, np.ndarray]:
     return _matrix(rot.to_matrix()), np.array(loc, dtype=np.float64)
 
 
-def _members(mesh, indices: set[int]) -> dict[int, np.ndarray]:
-    """The vertices (weight above 0) of each vertex group in ``indices``, in one pass."""
+#: a group whose members (weight above 0) include more than FAINT_SHARE with weights below
+#: FAINT is warned about: a weight-painted falloff keys its faint fringe as fully as its core
+FAINT, FAINT_SHARE = 0.1, 0.2
+
+
+def _members(mesh, indices: set[int]) -> tuple[dict[int, np.ndarray], dict[int, int]]:
+    """The vertices (weight above 0) of each vertex group in ``indices``, and how many of
+    them have a weight below :data:`FAINT`, in one pass."""
     out: dict[int, list[int]] = {i: [] for i in indices}
+    faint = dict.fromkeys(indices, 0)
     for v in mesh.vertices:
         for g in v.groups:
             if g.group in out and g.weight > 0:
                 out[g.group].append(v.index)
-    return {i: np.array(idx, np.int64) for i, idx in out.items()}
+                faint[g.group] += g.weight < FAINT
+    return {i: np.array(idx, np.int64) for i, idx in out.items()}, faint
 
 
 def gather(context, obj) -> Shot:
@@ -189,8 +197,8 @@ def gather(context, obj) -> Shot:
         if not len(s.groups):
             raise ShotError(f"{where} has no vertex groups in the Wiggly panel: add the vertex "
                             "groups to key, fix or drive (+ under Wiggly > Groups)")
-        members = _members(mesh, {g.index for g in obj.vertex_groups
-                                  if any(item.name == g.name for item in s.groups)})
+        members, faint = _members(mesh, {g.index for g in obj.vertex_groups
+                                         if any(item.name == g.name for item in s.groups)})
         for item in s.groups:
             vg = obj.vertex_groups.get(item.name)
             at = f"{where}, group '{item.name}'"
@@ -202,6 +210,12 @@ def gather(context, obj) -> Shot:
             if not len(idx):
                 raise ShotError(f"{at}: the vertex group has no vertices (assign some with a "
                                 "weight above 0 in Edit Mode)")
+            if faint[vg.index] > FAINT_SHARE * len(idx):
+                warnings.append(
+                    f"{at}: {faint[vg.index]} of its {len(idx)} vertices have weights below "
+                    f"{FAINT:g}, and wiggly takes every vertex of weight above 0 in full "
+                    "(weights are not blended): if the faint ones should stay free, remove them "
+                    "from the group (Weights > Clean in Weight Paint mode)")
             name = scene_name(item.name, taken)
             groups[name], labels[name] = idx, item.name
             if item.role == "FIXED":

@@ -268,6 +268,9 @@ def case_errors() -> None:
     attempt("deleted handle")
     fresh(24, 1.0, (1, 13))
     obj = handles_scene("MESH_CACHE")
+    middle = obj.vertex_groups["middle"]  # a painted falloff: a faint fringe around the ring
+    middle.add([v.index for v in obj.data.vertices if 0.3 < v.co.x < 0.45], 0.02, "REPLACE")
+    out["faint weights"] = shot.gather(bpy.context, obj).warnings
     obj.scale = (-1.0, 1.0, 1.0)  # mirrored: its world triangles wind the other way
     out["mirrored export"] = run(bpy.ops.wiggly.export_scene,
                                  filepath=str(workdir / "mirrored.toml"))
