@@ -12,6 +12,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -235,6 +237,40 @@ def test_a_folding_secondary_motion_is_found_and_warned_about(tmp_path):
     assert anim.folds([worst["time"]])[0]["folded"] == worst["folded"]
     with pytest.warns(UserWarning, match=r"tets \(.*%\) inside out.*a lower drive"):
         warn_folded(anim, remedy="a lower drive.intensity may help")
+
+
+def test_free_parts_flung_beyond_the_body_are_measured_and_warned_about(tmp_path):
+    """following() reports how far the free vertices swing from the driver's own pose of them:
+    a soft bar (5e3 Pa) bobbed 2 cm at 3 Hz swings them by under a tenth of its size; bobbed
+    30 cm, linearly, by more than its size, which a scene run warns about (with warping as
+    the first remedy of a linear shot)."""
+    from types import SimpleNamespace
+
+    from wiggly.drive import following
+    from wiggly.mesh.defects import diagonal
+    from wiggly.scene.run import _warn_strayed
+
+    body, driven = bar_body(tmp_path, young=5e3)
+    X = body.surface.vertices
+    size = diagonal(X)
+    times = np.arange(121) / 120
+    reports = []
+    for scale in (1.0, 15.0):
+        drv = Driver(times, X[None] + scale * bob(times)[:, None, :], body.surface.faces,
+                     np.zeros((0, 2)), "bob.npz", "test")
+        anim = secondary_motion(body, drv, driven, start=0.0, end=T_END, warped=False)
+        reports.append(following(anim))
+        free = np.setdiff1d(np.arange(len(X)), driven)
+        swing = np.linalg.norm(anim.positions(drv.times)[:, free] - drv.positions[:, free], axis=2)
+        assert reports[-1]["free_max"] == pytest.approx(swing.max())
+    assert reports[0]["free_max"] < 0.1 * size < size < reports[1]["free_max"]
+    scene = SimpleNamespace(where=lambda: "shot.toml", simulation=SimpleNamespace(warp=False))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_strayed(scene, reports[0], body)
+    with pytest.warns(UserWarning, match=r"shot.toml: the free parts swing up to .* times the "
+                                         r"body's size.*turn warping on"):
+        _warn_strayed(scene, reports[1], body)
 
 
 def test_intensity_scales_the_swing_not_the_timing(bar):

@@ -250,15 +250,23 @@ def following(anim) -> dict | None:
     """How closely the driven vertices of a solved animation follow their targets at the
     driven keys (``spec["kind"] == "drive"``): ``{"frames", "vertices", "max", "rms",
     "worst_time"}`` (distances in metres), or None without driven keys.  One batched
-    playback at all the key times."""
+    playback at all the key times.  A secondary motion also reports how far its free
+    vertices swing from the driver's own pose of them: ``"free_max"`` and
+    ``"free_worst_time"``."""
     driven = getattr(anim, "driven_frames", None)
     if driven is not None:  # a secondary motion: the driver owns the driven group
         times, frames, vertices, driver = driven
-        positions = anim.positions(times)[:, vertices]
-        d = np.linalg.norm(positions - driver.positions[frames][:, vertices], axis=2)
-        return {"frames": len(times), "vertices": len(vertices), "max": float(d.max()),
-                "rms": float(np.sqrt(np.mean(d**2))),
-                "worst_time": float(times[int(d.max(axis=1).argmax())])}
+        positions = anim.positions(times)
+        gaps = np.linalg.norm(positions - driver.positions[frames], axis=2)
+        d = gaps[:, vertices]
+        free = np.delete(gaps, vertices, axis=1)
+        out = {"frames": len(times), "vertices": len(vertices), "max": float(d.max()),
+               "rms": float(np.sqrt(np.mean(d**2))),
+               "worst_time": float(times[int(d.max(axis=1).argmax())])}
+        if free.size:
+            out["free_max"] = float(free.max())
+            out["free_worst_time"] = float(times[int(free.max(axis=1).argmax())])
+        return out
     keys = [k for k in anim.keyframes if k.spec.get("kind") == "drive" and
             k.position is not None]
     if not keys:

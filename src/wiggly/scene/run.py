@@ -241,6 +241,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
         say(f"the driven vertices follow the driver within {1e3 * anim.info['drive']['max']:.3g}"
              f" mm (rms {1e3 * anim.info['drive']['rms']:.3g} mm)")
         _warn_unfollowed(scene, anim.info["drive"], body)
+        _warn_strayed(scene, anim.info["drive"], body)
     written = write_outputs(scene, anim, paths, overwrite=overwrite, highlights=highlights,
                             timings=timings)
     anim.info["scene"] = {"outputs": written, "seconds": timings, "groups": groups}
@@ -385,6 +386,31 @@ def _warn_missed(scene: Scene, anim) -> None:
 
 #: Driven vertices further than this share of the body's size from the driver are warned about.
 UNFOLLOWED = 0.01
+
+
+#: Free parts of a secondary motion further than this share of the body's size from the
+#: driver's own pose of them are warned about.
+STRAYED = 1.0
+
+
+def _warn_strayed(scene: Scene, report: dict | None, body) -> None:
+    """One warning when a secondary motion's free parts swing further than ``STRAYED`` of the
+    body's size from where the driver poses them: a driver faster or harder than the body can
+    follow (linear FEM turns large rotations into growth; warped, they fold)."""
+    if not report or "free_max" not in report:
+        return
+    size = diagonal(body.rest_positions())
+    if report["free_max"] <= STRAYED * size:
+        return
+    linear = ("" if scene.simulation.warp else
+              "turn warping on (simulation.warp = true: a linear motion grows where it turns), "
+              "or ")
+    warnings.warn(
+        f"{scene.where()}: the free parts swing up to {report['free_max']:.3g} m from the "
+        f"driver's pose of them (at t = {report['free_worst_time']:g} s), "
+        f"{report['free_max'] / size:.2g} times the body's size: the driver moves faster or "
+        f"harder than this body can follow; {linear}stiffen the material, add damping, or "
+        "lower drive.intensity", stacklevel=2)
 
 
 def _warn_unfollowed(scene: Scene, report: dict | None, body) -> None:
