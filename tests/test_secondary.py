@@ -273,6 +273,25 @@ def test_free_parts_flung_beyond_the_body_are_measured_and_warned_about(tmp_path
         _warn_strayed(scene, reports[1], body)
 
 
+def test_a_driver_that_jumps_between_two_frames_is_warned_about(bar):
+    """A driver holding still, then moved 30 cm between two frames (a cut), is named with the
+    jump's size and time; the smooth bob of the other tests is not."""
+    body, driven = bar
+    X = body.surface.vertices
+    times = np.arange(31) / 30
+    jump = np.where(times[:, None] > 0.5, [0.3, 0.0, 0.0], [0.0, 0.0, 0.0])
+    cut = Driver(times, X[None] + jump[:, None, :], body.surface.faces, np.zeros((0, 2)),
+                 "cut.npz", "test")
+    with pytest.warns(UserWarning, match=r"the driver cut.npz jumps: its driven vertices move "
+                                         r"0.3 m between t = 0.5 and 0.533333 s \(most of its "
+                                         r"frames hold still\)"):
+        secondary_motion(body, cut, driven, start=0.0, end=T_END, warped=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        secondary_motion(body, bob_driver(body, 30.0), driven, start=0.0, end=T_END,
+                         warped=False)
+
+
 def test_intensity_scales_the_swing_not_the_timing(bar):
     body, driven = bar
     drv = bob_driver(body, 30.0)

@@ -481,6 +481,38 @@ def secondary_frames(
     return frames, times
 
 
+#: A driver step between two frames is called a cut when its driven vertices move further
+#: than CUT_STEPS times the median step and more than CUT_SIZE of the body's size.
+CUT_STEPS, CUT_SIZE = 8.0, 0.05
+
+
+def _warn_cuts(driver: Driver, frames: np.ndarray, times: np.ndarray, driven: np.ndarray,
+               body: Body) -> None:
+    """Warn when the driver jumps between two frames (a cut, a teleport): the C2 spline
+    through the frames (:class:`FrameSpline`) swings before and after such a jump, and the
+    body then moves before the driver does."""
+    if len(frames) < 3:
+        return
+    P = driver.positions[frames][:, driven]
+    step = np.linalg.norm(np.diff(P, axis=0), axis=2).max(axis=1)
+    X = body.surface.vertices
+    size = float(np.linalg.norm(X.max(axis=0) - X.min(axis=0)))
+    cuts = np.flatnonzero((step > CUT_STEPS * np.median(step)) & (step > CUT_SIZE * size))
+    if not len(cuts):
+        return
+    k = int(cuts[np.argmax(step[cuts])])
+    typical = float(np.median(step))
+    than = (f"{step[k] / typical:.0f} times a typical frame's move" if typical > 1e-9 * size
+            else "most of its frames hold still")
+    more = f", and at {len(cuts) - 1} more steps" if len(cuts) > 1 else ""
+    warnings.warn(
+        f"the driver {driver.source} jumps: its driven vertices move {step[k]:.3g} m between "
+        f"t = {times[k]:g} and {times[k + 1]:g} s ({than}){more}; the smooth curve through "
+        "its frames swings before and after such a jump, so the body moves before the driver "
+        "does: end the shot at the cut (drive.range, or time.end), or animate the move over "
+        "several frames", stacklevel=3)
+
+
 @deprecated_progress
 @one_blas_thread
 def secondary_motion(
@@ -518,6 +550,7 @@ def secondary_motion(
     v = vertex_indices(driven, surface.n_vertices, "surface", "driven group")
     frames, times = secondary_frames(driver, start=start, end=end, loop=loop, offset=offset,
                                      driver_range=driver_range)
+    _warn_cuts(driver, frames, times, v, body)
     duration = end - start
     tol = 1e-9 * duration
     # the rig: the driver extended into the tet mesh (unwarped for warped playback)
