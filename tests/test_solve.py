@@ -216,6 +216,30 @@ def test_keys_too_close_to_solve_are_named_not_blamed_on_preroll(bar, monkeypatc
     assert "preroll" not in text, text
 
 
+def test_a_singular_linear_system_is_explained_by_its_likely_cause(bar, monkeypatch):
+    """When the factorization fails (forced here), the message names what can cause it: a
+    key weighted beyond double precision, no pre-roll with a start left open, or else the
+    pre-roll that was given, not a pre-roll of 0 that was not."""
+    problem = importlib.import_module("wiggly.solve.problem")
+
+    class Singular:
+        def __init__(self, ab):
+            raise np.linalg.LinAlgError("not positive definite")
+
+    monkeypatch.setattr(problem, "BandedCholesky", Singular)
+    tip = np.flatnonzero(bar.rest_positions()[:, 0] > 0.99)
+    heavy = Keyframe.offset(bar, 0.5, tip, (0.0, 0.1, 0.0), stiffness=1e16, name="heavy")
+    plain = Keyframe.offset(bar, 0.5, tip, (0.0, 0.1, 0.0))
+    for keys, preroll, says in (
+        ([plain, heavy], None, "keyframe #1 ('heavy') weighs too much for double precision "
+                               "(stiffness 1e+16)"),
+        ([plain], 0.0, "undetermined and preroll is 0"),
+        ([plain], None, "numerically singular (preroll 1 s)"),
+    ):
+        with pytest.raises(WigglyInputError, match=re.escape(says)):
+            solve(bar, keys, warp=False, end=1.0, preroll=preroll)
+
+
 def test_keyframe_outside_time_range(bar):
     with pytest.raises(WigglyInputError, match=r"time 3.0 is outside .*\[0.0, 2.0\]"):
         solve(bar, [Keyframe.rest(bar, 3.0, [0])], warp=False, end=2.0)

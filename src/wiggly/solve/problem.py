@@ -84,12 +84,12 @@ class TargetFit:
         return self.F + float(np.vdot(e, self.G)) + 0.5 * float(np.vdot(e, Ce)), Ce + self.G
 
 
-#: Why a loop's keyframes that hold nowhere are refused (velocity keys alone included).
 #: Node intervals shorter than this share of the duration are named when the linear system
 #: cannot be factorized; keyframe weights above HEAVIEST (stiffness units) likewise.
 SHORTEST = 1e-4
 HEAVIEST = 1e14
 
+#: Why a loop's keyframes that hold nowhere are refused (velocity keys alone included).
 UNDETERMINED_LOOP = (
     "the keyframes leave the looped motion undetermined: a loop has no rest before it, and "
     "velocity keys do not say where the body is, so position keyframes must hold its "
@@ -304,8 +304,10 @@ class SpacetimeProblem:
                 f"{b!r} s are {b - a:.3g} s apart: the spline between them is numerically "
                 f"singular; give them the same time, or move them at least "
                 f"{SHORTEST * self.duration:.3g} s apart")
-        weights = [max(kf.weights(self.body, self.duration)) for kf in kfs]
-        if weights and max(weights) > HEAVIEST * self.body.mass / self.duration**3:
+        T, m = self.duration, self.body.mass
+        weights = [max(c_A * T**3, c_B * T) * max(len(kf.vertices), 1) / m  # as stiffness
+                   for kf in kfs for c_A, c_B in [kf.weights(self.body, T)]]
+        if weights and max(weights) > HEAVIEST:
             i = int(np.argmax(weights))
             kf = kfs[i]
             explicit = ", or its c_A / c_B" if kf.c_A is not None or kf.c_B is not None else ""
