@@ -170,7 +170,7 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
         "driver vertex count": ("Object 'Tail', driven group 'body': its animation has",
                                 "vertices at frame 1 but the mesh has"),
         "no wiggly command": ("the wiggly command", "was not found", "Preferences"),
-        "wiggly refuses": ("wiggly could not solve the shot of 'Tail'", "modes"),
+        "wiggly refuses": ("wiggly could not solve the shot of 'Tail'", "Modes = 500"),
         "unsaved blend": ("Object 'Tail': the cache folder //wiggly/ is relative to the "
                           ".blend file",),
         "no groups": ("Add a vertex group to the Wiggly group list first",),
@@ -188,6 +188,10 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
                             "its scale keys do not count"),
         "deleted handle": ("its handle 'left end.001 handle' is in no scene (deleted?)",),
     }
+    assert errors.pop("plain") == [
+        "the mesh is 52 m across",
+        "1 keyframe missed (key 1 (group 'tip', t = 0.5 s) by 3 mm): raise Young's modulus, or "
+        "lower the scene's Gravity; Resolution"]
     faint = [w for w in errors.pop("faint weights") if "weights below 0.1" in w]
     assert len(faint) == 1 and "Object 'Bar', group 'middle':" in faint[0], faint
     assert "takes every vertex of weight above 0 in full" in faint[0], faint

@@ -32,6 +32,21 @@ def wiggly_command(command: str) -> str:
     return found
 
 
+#: scene-file settings (regular expressions) as the Wiggly panel names them, for wiggly's
+#: messages shown in Blender
+PANEL_NAMES = (
+    (r"\bmaterial\.young\b", "Young's modulus"),
+    (r"\bmaterial\.poisson\b", "Poisson ratio"),
+    (r"\bmaterial\.density\b", "Density"),
+    (r"\bsimulation\.modes\b", "Modes"),
+    (r"\bsimulation\.gravity\b", "the scene's Gravity"),
+    (r"\bsimulation\.warp\b", "Warp"),
+    (r"\bmesh\.resolution\b", "Resolution"),
+    (r"\bdrive\.stiffness\b", "Drive stiffness"),
+    (r"\bdrive\.intensity\b", "the drive's intensity (drive.intensity of an exported scene)"),
+    (r"\bkeyframes\[(\d+)\]", r"key \1"),
+)
+
 #: seconds wiggly gets to end on Esc before it is killed (its outputs are written atomically,
 #: so a kill leaves no half-written file; the add-on removes its temporary folder)
 GRACE = 0.5
@@ -77,14 +92,18 @@ class Solve:
         return self._plain(lines[-1]) if lines else "starting"
 
     def _plain(self, text: str) -> str:
-        """wiggly's text without the add-on's own temporary folder and files: the report
-        names the object instead."""
+        """wiggly's text without the add-on's own temporary folder and files (the report
+        names the object instead), and with the scene file's setting names as the panel
+        shows them (:data:`PANEL_NAMES`)."""
         mesh = self.files["mesh"].name
         for internal in (f'mesh.path = "{mesh}": ', f"mesh.path = '{mesh}': ",
-                         f"{self.files['scene']}: ", f"{self.files['scene'].name}: "):
+                         f"{self.files['scene']}: ", f"{self.files['scene'].name}: ",
+                         f"{self.folder}{os.sep}{mesh}: ", f"{mesh}: "):
             text = text.replace(internal, "")
         for name in (f"{self.folder}{os.sep}{mesh}", mesh):
             text = text.replace(name, "the mesh")
+        for key, label in PANEL_NAMES:
+            text = re.sub(key, label, text)
         return text.replace(f"{self.folder}{os.sep}", "")
 
     def warnings(self) -> list[str]:

@@ -271,6 +271,13 @@ def case_errors() -> None:
     middle = obj.vertex_groups["middle"]  # a painted falloff: a faint fringe around the ring
     middle.add([v.index for v in obj.data.vertices if 0.3 < v.co.x < 0.45], 0.02, "REPLACE")
     out["faint weights"] = shot.gather(bpy.context, obj).warnings
+    probe = object.__new__(wiggly_blender.solve.Solve)  # how wiggly's messages are shown
+    probe.folder = workdir / "tmp"
+    probe.files = {"mesh": probe.folder / "shot_rest.obj", "scene": probe.folder / "shot.toml"}
+    out["plain"] = [probe._plain(text) for text in (
+        f"{probe.folder}/shot_rest.obj: the mesh is 52 m across",
+        "shot.toml: 1 keyframe missed (keyframes[1] (group 'tip', t = 0.5 s) by 3 mm): raise "
+        "material.young, or lower simulation.gravity; mesh.resolution")]
     obj.scale = (-1.0, 1.0, 1.0)  # mirrored: its world triangles wind the other way
     out["mirrored export"] = run(bpy.ops.wiggly.export_scene,
                                  filepath=str(workdir / "mirrored.toml"))
