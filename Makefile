@@ -3,27 +3,36 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN     = $(VENV)/bin
 STAMP   = $(VENV)/.installed
+TESTED  = $(VENV)/.installed-test
 
 .PHONY: demo test venv kernels system-render-deps system-test-deps blender blender-addon cholmod bench lint docs clean
 
 $(STAMP): pyproject.toml
+	@echo "[make] installing wiggly into $(VENV) (a minute or two the first time)"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[test]"
+	$(BIN)/python -m pip install --quiet -e .
 	touch $(STAMP)
+
+## The test tools (pytest, ruff, Playwright, Ray, ...) on top of the core install.
+$(TESTED): $(STAMP)
+	@echo "[make] installing the test tools into $(VENV)"
+	$(BIN)/python -m pip install --quiet -e ".[test]"
+	touch $(TESTED)
 
 venv: $(STAMP)
 
-## Compile the warp's numba kernels into their on-disk cache (~20 s once; 1 s when cached).
+## Compile the warp's numba kernels into their on-disk cache (20-60 s once; 1 s when cached).
 kernels: $(STAMP)
+	@echo "[make] warp kernels: compiling into numba's cache (20-60 s the first time)"
 	@$(BIN)/python -c "import time; t = time.perf_counter(); \
 	  from wiggly.warp.kernels import compile_all; compile_all(); \
 	  from wiggly.drive.unwarp import compile_kernels; compile_kernels(); \
 	  print(f'[wiggly] warp kernels ready ({time.perf_counter() - t:.1f} s)')"
 
-## Animate the bundled critter and say where the results are.
+## Animate the bundled critter and say where the results are (again: its own files replaced).
 demo: $(STAMP) kernels system-render-deps
-	$(BIN)/wiggly demo
+	$(BIN)/wiggly demo --overwrite
 
 ## Offscreen rendering (previews) uses EGL with Mesa's software rasterizer.  Installed with
 ## apt-get when missing and running as root; otherwise wiggly explains what to install.
@@ -37,7 +46,7 @@ system-render-deps:
 	fi
 
 ## Lint and run the test suite (installs what the tests need).
-test: $(STAMP) kernels system-render-deps system-test-deps blender
+test: $(TESTED) kernels system-render-deps system-test-deps blender
 	$(BIN)/ruff check src tests benchmarks scripts blender
 	$(BIN)/python -m pytest -q -n 2 -p no:cacheprovider
 
@@ -89,7 +98,7 @@ cholmod: $(STAMP)
 	else echo "[make] CHOLMOD needs root for libsuitesparse-dev; wiggly uses cholespy"; fi
 
 ## Benchmarks of the issues' performance targets (prints tables).
-bench: $(STAMP) cholmod
+bench: $(TESTED) cholmod
 	$(BIN)/python benchmarks/run_all.py
 
 ## The documentation site (Sphinx, MyST, furo: the `docs` extra) into docs/_build/html;
@@ -100,7 +109,7 @@ docs: $(STAMP)
 	$(BIN)/python -m sphinx -W --keep-going -q -b html docs docs/_build/html
 	@echo "[make] docs: docs/_build/html/index.html"
 
-lint: $(STAMP)
+lint: $(TESTED)
 	$(BIN)/ruff check src tests benchmarks scripts blender
 
 clean:

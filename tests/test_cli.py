@@ -272,8 +272,11 @@ def test_demo(capsys, tmp_path):
         assert f"  {path}\n" in out
     assert sorted(p.name for p in (tmp_path / "demo").iterdir()) == sorted(names)
     assert seconds < 60
+    assert "Next: `source " in out and "bin/activate` puts the wiggly command" in out
     code, _, err = run_main(capsys, "demo", "-o", tmp_path / "demo", "-q")
-    assert code == 1 and "exists; pass --overwrite" in err
+    assert code == 1 and "holds a demo's results already (critter.glb, critter.mp4, " in err
+    assert "pass --overwrite to make them again, or -o another folder" in err
+    assert "demo.toml" not in err  # the package's own scene file is not the user's business
 
 
 # ----------------------------------------------------------------------------------------------

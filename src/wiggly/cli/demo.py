@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 HELP = "animate the bundled demo (the critter crouches, jumps and lands)"
@@ -40,12 +41,22 @@ def demo_scene_path() -> Path:
 
 def run(args: argparse.Namespace) -> int:
     from wiggly.cli.animate import summary
+    from wiggly.errors import WigglyInputError
     from wiggly.scene import load_scene
     from wiggly.scene import run as run_scene
 
     scene = load_scene(demo_scene_path())
     directory = Path(args.output).expanduser()
     outputs = [directory / Path(p).name for p in scene.output.paths]
+    there = [p for p in outputs if p.exists()]
+    if there and not args.overwrite:  # said in the demo's terms, before anything is computed
+        raise WigglyInputError(
+            f"{directory}{'/' if directory.is_dir() else ''} holds a demo's results already "
+            f"({', '.join(p.name for p in there)}): pass --overwrite to make them again, or -o "
+            "another folder")
     anim = run_scene(scene, outputs=outputs, overwrite=args.overwrite)
     print(summary(scene, anim))
+    print(f"\nNext: `source {Path(sys.prefix) / 'bin' / 'activate'}` puts the wiggly command "
+          f"({Path(sys.argv[0]).resolve()}) on this shell's PATH; docs/getting-started.md goes "
+          "on from there.")
     return 0

@@ -114,9 +114,12 @@ def stage_animation(
     path = Path(path)
     ext = path.suffix.lower()
     if ext not in SUPPORTED:
+        preview = (" (previews: wiggly.render.render_video for .mp4 and .gif, "
+                   "wiggly.render.render_contact_sheet for .png)"
+                   if ext in (".mp4", ".gif", ".png") else "")
         raise WigglyInputError(
             f"cannot write {path}: unknown extension {path.suffix!r}; "
-            f"supported: {', '.join(SUPPORTED)}"
+            f"supported: {', '.join(SUPPORTED)}{preview}"
         )
     anim = checked_animation(anim, f"cannot write {path}")
     if gltf_targets not in GLTF_TARGETS:
