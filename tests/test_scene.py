@@ -254,6 +254,59 @@ def test_save_refuses_existing_and_is_atomic(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["copy.toml", "shot.toml"]
 
 
+def test_saving_over_a_scene_file_keeps_its_comments_and_layout(tmp_path):
+    """Saving an edited scene over its commented file (what the editor's Save does) keeps the
+    comments, the order and the formatting of what did not change, changes what did, adds
+    no defaults the file left out, and loads back as exactly the edited scene."""
+    from dataclasses import replace
+
+    text = """# my shot: notes the author keeps
+format = 1
+
+[mesh]
+path = "builtin:critter"   # the bundled one, for now
+resolution = 14
+
+[material]
+young = 3e5     # soft rubber
+
+[time]
+end = 2.0
+fps = 24
+
+[groups.feet]
+box = { min = [-1, -1, -1], max = [1, 0.06, 1] }   # below the ankles
+
+[[keyframes]]   # planted
+time = 0.0
+group = "feet"
+position = "rest"
+
+[[keyframes]]   # planted again
+time = 1.5
+group = "feet"
+position = "rest"
+"""
+    path = tmp_path / "shot.toml"
+    path.write_text(text)
+    scene = load_scene(path)
+    edited = replace(scene, material=replace(scene.material, young=5e5),
+                     keyframes=[*scene.keyframes[:1], replace(scene.keyframes[1], time=1.25)])
+    save_scene(edited, path, overwrite=True)
+    saved = path.read_text()
+    for kept in ("# my shot: notes the author keeps", "# the bundled one, for now",
+                 "# below the ankles", "# planted\n", "# planted again", "fps = 24\n"):
+        assert kept in saved, (kept, saved)
+    assert "young = 500000.0" in saved and "time = 1.25" in saved and "poisson" not in saved
+    assert saved.index("[mesh]") < saved.index("[material]") < saved.index("[time]")
+    assert load_scene(path) == edited
+    # an edit that removes a group and its key, and adds another: still exact
+    fewer = replace(edited, keyframes=edited.keyframes[:1],
+                    groups={**edited.groups, "head": GroupSpec(Sphere((0.45, 0.3, 0.0), 0.1))})
+    save_scene(fewer, path, overwrite=True)
+    assert load_scene(path) == fewer and "# my shot: notes the author keeps" in path.read_text()
+
+
 def test_save_refuses_invalid_scene(tmp_path):
     scene = load_scene(write(tmp_path, BASE))
     scene.keyframes.append(KeyframeSpec(0.5, "nope", Rest()))

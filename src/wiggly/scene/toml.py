@@ -151,7 +151,7 @@ def _toml_lines(table: dict, header: str) -> list[str]:
 
 
 def scene_to_toml(scene: Scene) -> str:
-    """The scene as TOML text (comments of the original file are not kept)."""
+    """The scene as fresh TOML text (:func:`merged_toml` keeps an existing file's comments)."""
     d = scene_to_dict(scene)
     lines = [f"# wiggly scene (format {FORMAT}); see docs/scene-format.md",
              f"format = {d['format']}"]
@@ -168,14 +168,71 @@ def scene_to_toml(scene: Scene) -> str:
     return "\n".join(lines) + "\n"
 
 
+def merged_toml(scene: Scene, original: str) -> str | None:
+    """The TOML text ``original`` (a scene file) updated to ``scene`` with tomlkit, keeping its
+    comments, layout and formatting wherever a key keeps its value: changed values are
+    replaced, keys the scene dropped are removed, and keys it adds are appended to their table
+    (not the defaults the original left out).  None when ``original`` is no scene or the
+    update does not load back as exactly ``scene`` (the caller then writes it afresh)."""
+    import tomlkit
+
+    try:
+        doc = tomlkit.parse(original)
+        before = scene_to_dict(scene_from_dict(tomllib.loads(original), where="original"))
+    except (tomlkit.exceptions.TOMLKitError, tomllib.TOMLDecodeError, WigglyInputError):
+        return None
+    try:
+        _merge(doc, scene_to_dict(scene), before)
+        text = tomlkit.dumps(doc)
+        again = scene_from_dict(tomllib.loads(text), where="merged")
+    except (tomlkit.exceptions.TOMLKitError, tomllib.TOMLDecodeError, WigglyInputError,
+            TypeError, ValueError):
+        return None
+    return text if again == scene else None
+
+
+def _merge(table, new: dict, before: dict) -> None:
+    """Update the tomlkit ``table`` in place to ``new`` (a :func:`scene_to_dict` level), with
+    ``before`` the same level of the scene the table held."""
+    for key in [k for k in table if k not in new]:
+        del table[key]
+    for key, value in new.items():
+        if key in table:
+            old = table[key]
+            mine = old.unwrap() if hasattr(old, "unwrap") else old
+            if mine == value:
+                continue  # unchanged: its formatting and comments stay
+            if isinstance(value, dict) and hasattr(old, "items"):
+                _merge(old, value, before.get(key, {}) if isinstance(before, dict) else {})
+                continue
+            if (isinstance(value, list) and value and all(isinstance(v, dict) for v in value)
+                    and isinstance(old, list) and len(old) == len(value)
+                    and all(hasattr(o, "items") for o in old)):
+                was = before.get(key) if isinstance(before, dict) else None
+                for j, (o, v) in enumerate(zip(old, value, strict=True)):
+                    _merge(o, v, was[j] if isinstance(was, list) and j < len(was) else {})
+                continue
+            table[key] = value
+        elif not (isinstance(before, dict) and before.get(key) == value):
+            table[key] = value  # new, not a default the original left out
+
+
 def save_scene(scene: Scene, path: str | os.PathLike[str], overwrite: bool = False) -> Path:
     """Check ``scene`` and write it as TOML, atomically; ``load_scene`` gives it back exactly.
 
     Paths are written as they are in the scene (relative paths are relative to the directory
-    of the file written).  An existing file is an error unless ``overwrite``.
+    of the file written).  An existing file is an error unless ``overwrite``; overwriting a
+    scene file keeps its comments and layout where keys keep their values
+    (:func:`merged_toml`).
     """
     path = Path(path)
     text = scene_to_toml(scene)
+    if overwrite and path.is_file():
+        try:
+            original = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError):
+            original = None
+        text = (merged_toml(scene, original) if original is not None else None) or text
     again = scene_from_dict(tomllib.loads(text), where=str(path))  # validates, too
     if again != scene:  # pragma: no cover - a bug in the writer
         raise AssertionError(f"scene does not survive the TOML round trip: {scene} != {again}")
