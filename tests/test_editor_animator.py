@@ -663,3 +663,30 @@ def test_a_keyframe_field_left_empty_is_refused_not_zeroed(chromium, tmp_path):
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_escape_in_a_field_cancels_what_was_typed(chromium, tmp_path):
+    """Escape puts a field back as it was when it got the focus and sends nothing (it used to
+    commit the half-typed value, as Enter does); Enter commits."""
+    server = serve(bar_project(tmp_path, warp=False))
+    try:
+        with editor_page(chromium, server.url) as (page, errors):
+            wait_final(page)
+            field = '[data-set="material.density"]'
+            before = page.input_value(field)
+            version = server.session.version
+            page.click(field)
+            page.fill(field, "5")
+            page.press(field, "Escape")
+            page.wait_for_timeout(500)  # an edit, if one were sent, is answered well within
+            assert server.session.version == version
+            assert server.session.scene.material.density == float(before)
+            assert page.input_value(field) == before
+            page.click(field)
+            page.fill(field, "900")
+            page.press(field, "Enter")
+            page.wait_for_function("window.wiggly.S.desc.scene.material.density === 900")
+            assert server.session.scene.material.density == 900
+            assert not errors, errors
+    finally:
+        server.stop()

@@ -28,6 +28,7 @@ from tests.test_editor_drive import drive_project
 from wiggly.editor import Sandbox, Session, serve
 from wiggly.editor.session import autosave_path
 from wiggly.editor.state import EditError
+from wiggly.scene import load_scene
 
 pytestmark = pytest.mark.browser
 
@@ -312,7 +313,9 @@ def test_save_asks_before_overwriting_a_change_made_on_disk(chromium, tmp_path):
     try:
         with editor_page(chromium, server.url, *SIZES[0]) as (page, errors):
             wait_final(page)
-            theirs = path.read_text() + "# changed in another program\n"
+            theirs = (path.read_text().replace("young = 1e6", "young = 3e6")
+                      + "# changed in another program\n")
+            assert theirs.count("young = 3e6") == 1
             path.write_text(theirs)
             asked = []
 
@@ -336,8 +339,11 @@ def test_save_asks_before_overwriting_a_change_made_on_disk(chromium, tmp_path):
             assert path.read_text() == theirs
             page.once("dialog", lambda d: answer(d, True))
             page.keyboard.press("Control+s")
-            until(lambda: "another program" not in path.read_text(), "the save")
+            until(lambda: path.read_text() != theirs, "the save")
             assert len(asked) == 2
+            # the editor's scene, in the file's own layout (its comments kept)
+            assert load_scene(path) == server.session.scene
+            assert server.session.scene.material.young == 1e6
             assert not errors, errors
     finally:
         server.stop()

@@ -100,8 +100,8 @@ def fall_notice(positions: np.ndarray, times: np.ndarray, gravity, size: float) 
     if drop <= FALL_SIZES * size:
         return None
     return (f"the body falls {drop:.2g} m by t = {float(times[k]):.3g} s ({drop / size:.0f} "
-            "times its size): gravity pulls it and nothing holds it; fix a group (Physics: "
-            "fixed), key it where it should be, or set gravity to 0")
+            "times its size): gravity pulls it and nothing holds it; fix a group (the "
+            "fixed box of its row in Groups), key it where it should be, or set gravity to 0")
 
 
 def done_message(info: dict) -> str:
@@ -222,11 +222,15 @@ class Playback:
             request = info.pop("request", "final")
             drag = request == "drag"  # a held drag's warped preview: never the final frames
             folds, source = info.pop("folds", None), info.pop("source", None)
+            missed = info.pop("missed", None)
             if final and not drag:
                 # said when a file's motion starts to fold, not again while its edits keep it
                 if folds is not None and self._folding != source:
                     self.bus.publish("notice", sticky=False, level="warning", message=folds)
                 self._folding = source if folds is not None else None
+                if missed is not None and (source, missed) not in self._told:
+                    self._told.add((source, missed))  # keys the final motion misses
+                    self.bus.publish("notice", sticky=False, level="warning", message=missed)
             self._publish(FrameSet(0, seq, version, "warped", final and not drag, start, fps,
                                    positions, request, info))
             said = {k: v for k, v in info.items() if k != "fold_spans"}  # the frames' own

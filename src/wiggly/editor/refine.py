@@ -189,7 +189,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     abandons it, and a progress line goes out every ``PUSH_SECONDS``.  Its answers carry the
     request's ``kind``; a drag's solution, too, starts the next solve of the range."""
     from wiggly.scene.drive import linear_start_of
-    from wiggly.scene.run import fold_highlights
+    from wiggly.scene.run import _warn_missed, fold_highlights
     from wiggly.solve import fold_note
 
     t0 = time.perf_counter()
@@ -229,6 +229,12 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     moved = anim.displacements(times, on="tets")
     # creases the user sees in the warped frames, explained (``wiggly animate`` warns)
     checked = anim.folds(times, displacements=moved) if kind == "final" else None
+    missed = None  # keys the final motion misses, as ``wiggly animate`` warns of them
+    if kind == "final":
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            _warn_missed(scene, anim)  # also keeps the residual rows in anim.info
+        missed = next((str(w.message) for w in said), None)
     info = {"iterations": int(anim.info.get("iterations", 0)),
             "converged": bool(anim.info.get("converged")),
             "objective": float(anim.info.get("objective", np.nan)),
@@ -236,7 +242,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
             "request": kind,
             "folds": None if checked is None
             else fold_note(anim, api=False, groups=groups, checked=checked),
-            "source": scene.source}
+            "missed": missed, "source": scene.source}
     if info["folds"] is not None:  # and where: the page tints them as previews do
         info["fold_spans"] = [{"from": h.time, "until": h.until, "vertices": h.vertices.tolist()}
                               for h in fold_highlights(anim, times, checked)]
@@ -245,9 +251,10 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
 
 
 def residual_max(anim) -> float | None:
-    """Largest distance (m) of a keyframed vertex to its target, over all keyframes."""
+    """Largest distance (m) of a keyframed vertex to its target, over all keyframes (the
+    rows a missed-key check kept in ``anim.info``, if it ran)."""
     try:
-        rows = anim.constraint_residuals()
+        rows = anim.info.get("keyframe_residuals") or anim.constraint_residuals()
     except Exception:
         return None
     vals = [r["position_max"] for r in rows if "position_max" in r]

@@ -261,6 +261,13 @@ function afterKeying(fn) {
 }
 
 window.addEventListener('keyup', dragKeyUp);
+// a field's value when it got the focus, for Escape to put back
+document.addEventListener('focusin', (e) => {
+  const el = e.target;
+  if (['INPUT', 'SELECT', 'TEXTAREA'].includes(el.tagName) && el.type !== 'checkbox') {
+    el.dataset.before = el.value;
+  }
+});
 window.addEventListener('keydown', (e) => {
   if (dragKey(e)) { e.preventDefault(); return; }
   const typing = ['INPUT', 'SELECT', 'TEXTAREA'].includes(document.activeElement.tagName) && document.activeElement.type !== 'checkbox';
@@ -269,7 +276,11 @@ window.addEventListener('keydown', (e) => {
   if (mod && k === 's') { e.preventDefault(); save(); return; }
   if (!$('modal').hidden) { if (e.key === 'Escape') $('modal-cancel').click(); return; }
   if (typing && (e.key === 'Enter' || e.key === 'Escape') && document.activeElement.id !== 'group-name') {
-    document.activeElement.blur();   // commit the field, give the keys back to the shortcuts
+    const field = document.activeElement;
+    // Escape cancels what was typed (its value as it was when focused: no change event);
+    // Enter commits it; either gives the keys back to the shortcuts
+    if (e.key === 'Escape' && field.dataset.before !== undefined) field.value = field.dataset.before;
+    field.blur();
     canvas.focus();
     return;
   }
