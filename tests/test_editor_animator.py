@@ -690,3 +690,20 @@ def test_escape_in_a_field_cancels_what_was_typed(chromium, tmp_path):
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_undo_with_nothing_to_undo_says_so(chromium, tmp_path):
+    """Ctrl+Z in a tab with no edits of its own says so in the status line (it did nothing
+    visible: each tab undoes its own edits)."""
+    server = serve(bar_project(tmp_path, warp=False))
+    try:
+        with editor_page(chromium, server.url) as (page, errors):
+            wait_final(page)
+            page.locator("#canvas").click(position={"x": 5, "y": 5})
+            page.keyboard.press("Control+z")
+            page.wait_for_function(
+                "document.getElementById('status-text').textContent.startsWith("
+                "'nothing to undo in this tab')")
+            assert not errors, errors
+    finally:
+        server.stop()

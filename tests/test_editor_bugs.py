@@ -136,8 +136,8 @@ def test_2_escape_during_a_drag_leaves_nothing_behind(chromium, tmp_path):
 
 
 def test_2_keyframe_deleted_by_another_tab_during_a_drag(chromium, tmp_path):
-    """Another tab deletes the dragged keyframe: the drag ends, and this tab shows the final
-    frames of the scene without it."""
+    """Another tab deletes the dragged keyframe: the drag ends, this tab says why, and it
+    shows the final frames of the scene without it."""
     server = serve(bar_project(tmp_path))
     try:
         with editor_page(chromium, server.url) as (page, errors):
@@ -147,6 +147,8 @@ def test_2_keyframe_deleted_by_another_tab_during_a_drag(chromium, tmp_path):
             assert st == 200 and r["changed"]
             page.wait_for_function("!window.wiggly.S.dragging && "
                                    "window.wiggly.S.desc.scene.keyframes.length === 0")
+            toast_saying(page, "the keyframe being posed was deleted in another tab: the "
+                               "move was not applied")  # not dropped without a word
             page.mouse.up()
             wait_final(page)
             # the linear frames come first, then the warped refinement: wait for the last

@@ -152,8 +152,11 @@ async function save() {
   if (r) { toast(`saved ${r.path}`); setStatus(`saved ${r.path}`, 'ok'); }
 }
 async function undoRedo(which) {
-  try { await api.post(`/api/${which}`); }
-  catch (err) { toast(err.message, true); setStatus(err.message.split('\n')[0], 'err'); refreshState(); }
+  try {
+    const r = await api.post(`/api/${which}`);
+    // each tab undoes its own edits: say so rather than do nothing visible
+    if (r && r.changed === false) setStatus(`nothing to ${which} in this tab (each tab ${which}s its own edits)`);
+  } catch (err) { toast(err.message, true); setStatus(err.message.split('\n')[0], 'err'); refreshState(); }
 }
 $('btn-open').onclick = openDialog;
 $('btn-save').onclick = save;

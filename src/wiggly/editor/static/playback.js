@@ -1,7 +1,7 @@
 // Loading the mesh, the state and the frames the server solves; time, playback (preview
 // range, speed) and the body's colours.
 import * as THREE from 'three';
-import { $, S, api, hooks, geometry, scene, range, groupColor, setStatus, redraw } from './core.js';
+import { $, S, api, hooks, geometry, scene, range, groupColor, setStatus, redraw, toast } from './core.js';
 
 const BASE = new THREE.Color(0.70, 0.74, 0.80);
 const SELECTED = new THREE.Color(1.0, 0.86, 0.25);
@@ -69,7 +69,15 @@ export async function refreshState() {
       for (const g of [...S.groups]) if (!(g in d.scene.groups)) S.groups.delete(g);
       const ids = new Set(d.scene.keyframes.map((k) => k.id));
       for (const id of [...S.keys]) if (!ids.has(id)) S.keys.delete(id);
-      if (S.selectedKey !== null && !ids.has(S.selectedKey)) hooks.selectKey(null);
+      if (S.selectedKey !== null && !ids.has(S.selectedKey)) {
+        // deleted elsewhere (another tab) while this one posed it: the move is dropped, said
+        if (S.dragging) {
+          const gone = 'the keyframe being posed was deleted in another tab: the move was not applied';
+          toast(gone, true);
+          setStatus(gone, 'err');
+        }
+        hooks.selectKey(null);
+      }
       hooks.renderPanels();
       hooks.syncDriver();
       hooks.showNotices(d);
