@@ -474,6 +474,8 @@ def test_python_api_mistakes_are_named(tmp_path_factory):
                  "side should be 'left' or 'right'; got 'middle'"),
         "integer dtype": (lambda: anim.positions([0.5], dtype=np.int32),
                           "dtype should be a floating type"),
+        "2-D indices": (lambda: Keyframe.offset(body, 0.5, [[0, 1], [2, 3]], (0, 0.1, 0)),
+                        "vertex indices should be a flat list; got an array of shape (2, 2)"),
         "every vertex fixed": (
             lambda: wiggly.prepare(body.model, n_modes=5, cache_dir=False,
                                    fixed_vertices=np.arange(body.tets.n_vertices)),

@@ -106,6 +106,10 @@ def vertex_indices(
         if v.shape != (n,):
             raise WigglyInputError(f"{what}: vertex mask has {v.size} entries; the {on} has {n}")
         v = np.flatnonzero(v)
+    if v.ndim > 1:  # e.g. triangles or pairs: a list of indices was meant, or was it?
+        raise WigglyInputError(
+            f"{what}: vertex indices should be a flat list; got an array of shape {v.shape} "
+            "(flatten it, e.g. np.unique(faces), if every vertex in it is meant)")
     if v.size == 0 and not allow_empty:
         raise WigglyInputError(f"{what}: selects no vertices")
     if v.size and not np.issubdtype(v.dtype, np.integer):
