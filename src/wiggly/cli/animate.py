@@ -111,8 +111,10 @@ def summary(scene, anim) -> str:
     seconds = info.get("scene", {}).get("seconds", {})
     if seconds:
         write = sum(v for k, v in seconds.items() if k.startswith(("write", "sample")))
-        lines.append(f"time       mesh and modes {seconds.get('prepare', 0):.1f} s, solve "
-                     f"{seconds.get('solve', 0):.1f} s, outputs {write:.1f} s, total "
+        compiled = (f"compiling the warp's kernels (once) {seconds['compile']:.1f} s, "
+                    if "compile" in seconds else "")
+        lines.append(f"time       mesh and modes {seconds.get('prepare', 0):.1f} s, {compiled}"
+                     f"solve {seconds.get('solve', 0):.1f} s, outputs {write:.1f} s, total "
                      f"{sum(seconds.values()):.1f} s")
     lines.append(f"shot       [{anim.start:g}, {anim.end:g}] s at {scene.time.fps:g} fps")
     rows = anim.info.get("keyframe_residuals")  # scene.run's, of the scene's own keyframes
