@@ -123,3 +123,22 @@ def test_stage_lines_in_a_log_and_no_progress_bar(tmp_path, cache, capsys, caplo
     assert "\r" not in err
     assert "[wiggly] cubes done (1 of 1)" in err
     assert "[wiggly] batch: 1 shot, done 1, failed 0, running 0" in err
+
+
+def test_an_unreachable_ray_cluster_is_said_in_wiggly_terms(monkeypatch):
+    """Ray's own message speaks of its --address flag and RAY_ADDRESS: the error adds how to
+    start or name a cluster in wiggly's options."""
+    ray = pytest.importorskip("ray")
+    from wiggly.batch.backends import RayCluster
+    from wiggly.errors import WigglyInputError
+
+    def refuse(**_):
+        raise ConnectionError("Could not find any running Ray instance. Please specify the one "
+                              "to connect to by setting `--address` flag")
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", refuse)
+    with pytest.raises(WigglyInputError, match=r"--ray-address auto: cannot start or reach a "
+                                               r"Ray cluster \(Could not find.*\); start one on "
+                                               r"this machine with `ray start --head`"):
+        RayCluster("auto", render_checked=True)

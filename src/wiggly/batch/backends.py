@@ -194,8 +194,13 @@ class RayCluster:
                          logging_level=logging.WARNING)
             except (ConnectionError, ValueError, RuntimeError) as err:
                 where = f"--ray-address {address}" if address else "--ray"
-                raise WigglyInputError(f"{where}: cannot start or reach a Ray cluster: "
-                                       f"{err}") from None
+                # Ray's own text speaks of its --address flag and RAY_ADDRESS: say ours
+                hint = ("; start one on this machine with `ray start --head`, give its address "
+                        "(--ray-address host:6379), or use --ray alone for a cluster of this "
+                        "machine's cores" if address else "")
+                first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+                raise WigglyInputError(f"{where}: cannot start or reach a Ray cluster "
+                                       f"({first}){hint}") from None
             self.started = True
         self.slots = max(1, int(ray.cluster_resources().get("CPU", 1)))
         options = {"num_cpus": 1, "max_retries": 1}
