@@ -707,3 +707,29 @@ def test_undo_with_nothing_to_undo_says_so(chromium, tmp_path):
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_the_export_dialog_offers_the_last_paths_again(chromium, tmp_path):
+    """Export a second time: the dialog offers the paths exported last, not the defaults."""
+    path = bar_project(tmp_path, warp=False)
+    server = serve(path)
+    try:
+        with editor_page(chromium, server.url) as (page, errors):
+            wait_final(page)
+            page.click("#btn-export")
+            field = page.locator("#modal-body input")
+            assert ".glb" in field.input_value()  # the first time: the defaults
+            field.fill("renders/take1.npz")
+            page.click("#modal-ok")
+            page.wait_for_function("document.getElementById('modal').hidden")
+            for _ in range(300):  # the export runs in the background
+                if (path.parent / "renders" / "take1.npz").exists():
+                    break
+                page.wait_for_timeout(100)
+            assert (path.parent / "renders" / "take1.npz").exists()
+            page.click("#btn-export")
+            assert page.locator("#modal-body input").input_value() == "renders/take1.npz"
+            page.click("#modal-cancel")
+            assert not errors, errors
+    finally:
+        server.stop()

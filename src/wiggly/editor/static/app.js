@@ -165,10 +165,12 @@ $('btn-saveas').onclick = () => promptDialog('Save scene as (.toml)', S.desc.pat
   if (r) { toast(`saved ${r.path}`); setStatus(`saved ${r.path}`, 'ok'); }
   return !!r;
 });
+const lastExport = {};  // scene name -> the paths last exported (the dialog offers them again)
 $('btn-export').onclick = () => {
   const n = scene().name;
-  promptDialog('Export (comma-separated: .glb .usd .usda .usdc .npz .obj .mp4 .gif .png)', `out/${n}.glb, out/${n}.mp4`, async (v) => {
+  promptDialog('Export (comma-separated: .glb .usd .usda .usdc .npz .obj .mp4 .gif .png)', lastExport[n] || `out/${n}.glb, out/${n}.mp4`, async (v) => {
     const paths = v.split(',').map((s) => s.trim()).filter(Boolean);
+    lastExport[n] = paths.join(', ');
     let r = null;
     try { r = await api.post('/api/export', { paths, overwrite: false }); } catch (err) {
       if (err.status !== 409) { toast(err.message, true); setStatus(err.message.split('\n')[0], 'err'); return false; }
