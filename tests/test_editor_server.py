@@ -916,6 +916,31 @@ def test_export_asks_before_overwriting_and_names_an_obj_sequence(server, projec
     assert st == 200
 
 
+def test_an_export_overtaken_by_an_edit_says_it_has_the_earlier_scene(server, project):
+    """An edit made while an export runs is not in the files: the export's message says so
+    (it said only "exported ..."); an export left alone says nothing of the kind."""
+    q = server.session.bus.subscribe()
+
+    def export_and_wait(edit_meanwhile: bool) -> str:
+        st, r = call(server, "POST", "/api/export", {"paths": ["takes/shot.npz"],
+                                                     "overwrite": True})
+        assert st == 200, r
+        if edit_meanwhile:
+            server.session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.9}})
+        deadline = time.time() + 60
+        while time.time() < deadline:
+            try:
+                e = q.get(timeout=1.0)
+            except Exception:
+                continue
+            if e["type"] == "export" and e["stage"] != "running":
+                return e["message"]
+        raise AssertionError("no export answer")
+
+    assert "edits made since are not in it" not in export_and_wait(False)
+    assert "edits made since are not in it" in export_and_wait(True)
+
+
 def test_fall_notice_is_physics():
     """The notice measures the centroid's sink along gravity against the body's size: a free
     fall 1/2 g t^2 over 2 s (19.6 m for a 1 m body) is told, with its figures; a drop of

@@ -598,9 +598,10 @@ class Session:
     def _export(self, state: EditorState, version: int, paths: list[Path], overwrite: bool):
         """Solve the scene as ``wiggly animate`` does (same body) and write ``paths``."""
         with reporting(False):  # the page shows the export; the terminal stays quiet
-            self._solve_and_write(state, paths, overwrite)
+            self._solve_and_write(state, paths, overwrite, version)
 
-    def _solve_and_write(self, state: EditorState, paths: list[Path], overwrite: bool):
+    def _solve_and_write(self, state: EditorState, paths: list[Path], overwrite: bool,
+                         version: int | None = None):
         scene = state.scene
         names = [p.name for p in paths]
         self.bus.publish("export", stage="running", message=f"exporting {', '.join(names)}")
@@ -620,7 +621,12 @@ class Session:
             write_outputs(scene, anim, paths, overwrite=overwrite,
                           highlights=keyframe_highlights(scene, body, anim.keyframes, groups))
             written = [_written(p) for p in paths]
-            self.bus.publish("export", stage="done", message=f"exported {', '.join(written)}",
+            # an edit made while it ran is not in it: say so, rather than seem current
+            later = version is not None and self.version != version
+            since = (" (the scene as it was when the export started: edits made since are not "
+                     "in it; export again to include them)" if later else "")
+            self.bus.publish("export", stage="done",
+                             message=f"exported {', '.join(written)}{since}",
                              paths=[self.sandbox.relative(p) for p in paths])
         except Exception as err:
             if not isinstance(err, WigglyInputError):
