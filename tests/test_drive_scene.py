@@ -13,6 +13,7 @@ from scipy.spatial.transform import Rotation
 import wiggly
 from wiggly.cli import main
 from wiggly.drive import driven_keyframes, enrich, following, read_driver
+from wiggly.errors import WigglyInputError
 from wiggly.export import SurfaceAnimation, read_animation, write_animation
 from wiggly.mesh import TetMesh
 from wiggly.primitives import box_mesh
@@ -87,6 +88,29 @@ def test_drive_scene_end_to_end(shot, capsys):
     assert lag.max() > 20 * report["max"]  # free: it moves on its own
     written = read_animation(folder / "out" / "bar.npz")
     np.testing.assert_allclose(written.positions, anim.positions(written.times), atol=1e-6)
+
+
+def test_per_mode_gltf_targets_of_secondary_motion_are_refused_first(shot, capsys):
+    """gltf_targets = "modes" cannot hold a secondary motion (the driver's poses plus the free
+    modes): refused before anything is computed, in the scene's terms (it crashed after the
+    solve with a mismatch of internal array shapes); from Python too."""
+    import copy
+
+    folder, data = shot
+    data = copy.deepcopy(data)
+    data["simulation"]["warp"] = False
+    data["output"] = {"paths": ["out/modes.glb"], "gltf_targets": "modes"}
+    path = write(folder, data, "modes.toml")
+    assert main(["animate", str(path), "--quiet"]) == 1
+    err = capsys.readouterr().err
+    assert 'output.gltf_targets = "modes" cannot hold secondary motion' in err, err
+    assert "tetrahedraliz" not in err and not (folder / "out" / "modes.glb").exists()
+    data["output"] = {"paths": []}
+    anim = run(load_scene(write(folder, data, "modes.toml")), outputs=[])
+    from wiggly.export import write_animation as write_file
+
+    with pytest.raises(WigglyInputError, match='"modes" cannot hold secondary motion'):
+        write_file(folder / "out" / "py.glb", anim, gltf_targets="modes")
 
 
 def test_driven_keyframes_api_and_range(shot):

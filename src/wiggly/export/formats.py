@@ -44,6 +44,11 @@ def surface_animation(anim, fps: float = 30.0, name: str = "wiggly",
     data = SurfaceAnimation(times, anim.positions(times, dtype=np.float32), surf.faces,
                             surf.uvs, surf.normals, name, rest=surf.vertices, loop=anim.loop)
     if gltf_targets == "modes":
+        if getattr(anim, "driven_frames", None) is not None:
+            raise WigglyInputError(
+                'gltf_targets = "modes" cannot hold secondary motion: its frames are the '
+                "driver's poses plus the free parts' modes, not the rest pose plus the body's "
+                'modes; use "frames"')
         basis = anim.body.surface_basis  # (3p, r): positions = rest + basis q(t)
         data.mode_shapes = basis.T.reshape(anim.body.r, -1, 3)
         data.modal = anim.modal(times)[0]

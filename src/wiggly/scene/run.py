@@ -457,6 +457,11 @@ def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
             'output.gltf_targets = "modes" needs a linear shot: a warped motion is no linear '
             "combination of modes; set simulation.warp = false (or pass --linear), or use "
             '"frames"')
+    elif scene.output.gltf_targets == "modes" and scene.secondary_motion:
+        problems.append(
+            'output.gltf_targets = "modes" cannot hold secondary motion: its frames are the '
+            "driver's poses plus the free parts' modes, not the rest pose plus the body's "
+            'modes; use "frames"')
     start = scene.output.frame_start
     if start is not None and start < 0:
         problems.append(
