@@ -100,6 +100,7 @@ def skin_weights(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     top = np.argsort(-W, axis=1)[:, :4]
     weights = np.take_along_axis(W, top, axis=1)
     weights /= weights.sum(axis=1, keepdims=True)
+    top[weights == 0.0] = 0  # unused slots name joint 0 (the glTF validator warns otherwise)
     return top.astype(np.uint8), weights.astype(np.float32)
 
 

@@ -32,7 +32,9 @@ def test_driver_is_what_the_script_makes(tmp_path):
 
 def test_driver_is_a_valid_periodic_walk_of_the_critter(gltf_validator):  # noqa: F811
     report = gltf_validator([DRIVER])[0]
-    assert report["issues"]["numErrors"] == 0, report["issues"]
+    # no warnings either (joint slots of zero weight named other joints: 7123 of them)
+    assert report["issues"]["numErrors"] == report["issues"]["numWarnings"] == 0, \
+        report["issues"]
     d = read_driver(DRIVER, animation="walk")
     critter = load_mesh(resolve_builtin("builtin:critter"))
     d.check(critter.n_vertices, critter.faces, "critter.obj")
