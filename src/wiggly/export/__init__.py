@@ -68,8 +68,9 @@ Formats
 
 Per-frame normals are recomputed from each frame (area-weighted vertex normals).  When the
 animation has rest normals (e.g. smooth normals across a UV seam), frame k's normal is the
-rest normal rotated by the smallest rotation taking the recomputed frame-0 normal to the
-recomputed frame-k normal, so frame 0 shows the file's normals exactly.
+rest normal rotated by the smallest rotation taking the normal recomputed on the rest pose
+(frame 0 when no rest pose is given) to the recomputed frame-k normal, so the rest pose
+shows the file's normals exactly.
 
 Every write is all or nothing: data goes to temporary files in the output's directory and
 is moved into place only when every file is complete (:class:`wiggly.files.OutputSet`;
