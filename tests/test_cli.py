@@ -157,7 +157,8 @@ def test_a_first_run_tells_the_kernels_compile_apart_from_the_solve(capsys, tmp_
     monkeypatch.setattr(scene_run, "ensure_compiled", lambda: _time.sleep(0.6))
     code, out, err = run_main(capsys, "animate", write_scene(tmp_path, SCENE), "-q")
     assert code == 0, err
-    assert re.search(r"compiling the warp's kernels \(once\) 0\.[67] s, solve", out), out
+    took = re.search(r"compiling the warp's kernels \(once\) (\d+\.\d) s, solve", out)
+    assert took and float(took.group(1)) >= 0.6, out  # its own figure (a loaded machine: more)
     monkeypatch.setattr(scene_run, "ensure_compiled", lambda: None)
     code, out, err = run_main(capsys, "animate", write_scene(tmp_path, SCENE), "-q",
                               "--overwrite")
