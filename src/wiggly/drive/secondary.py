@@ -54,6 +54,7 @@ from wiggly.drive.unwarp import Unwarp
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread, factorize_spd, one_blas_thread
+from wiggly.mesh.defects import diagonal
 from wiggly.modes import compute_modes
 from wiggly.progress import deprecated_progress, reporting
 from wiggly.solve.animation import Animation
@@ -495,13 +496,11 @@ def _warn_cuts(driver: Driver, frames: np.ndarray, times: np.ndarray, driven: np
         return
     P = driver.positions[frames][:, driven]
     step = np.linalg.norm(np.diff(P, axis=0), axis=2).max(axis=1)
-    X = body.surface.vertices
-    size = float(np.linalg.norm(X.max(axis=0) - X.min(axis=0)))
-    cuts = np.flatnonzero((step > CUT_STEPS * np.median(step)) & (step > CUT_SIZE * size))
+    size, typical = diagonal(body.surface.vertices), float(np.median(step))
+    cuts = np.flatnonzero((step > CUT_STEPS * typical) & (step > CUT_SIZE * size))
     if not len(cuts):
         return
     k = int(cuts[np.argmax(step[cuts])])
-    typical = float(np.median(step))
     than = (f"{step[k] / typical:.0f} times a typical frame's move" if typical > 1e-9 * size
             else "most of its frames hold still")
     more = f", and at {len(cuts) - 1} more steps" if len(cuts) > 1 else ""

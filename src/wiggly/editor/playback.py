@@ -228,9 +228,7 @@ class Playback:
                 if folds is not None and self._folding != source:
                     self.bus.publish("notice", sticky=False, level="warning", message=folds)
                 self._folding = source if folds is not None else None
-                if missed is not None and (source, missed) not in self._told:
-                    self._told.add((source, missed))  # keys the final motion misses
-                    self.bus.publish("notice", sticky=False, level="warning", message=missed)
+                self._notice_once(source, missed)  # keys the final motion misses
             self._publish(FrameSet(0, seq, version, "warped", final and not drag, start, fps,
                                    positions, request, info))
             said = {k: v for k, v in info.items() if k != "fold_spans"}  # the frames' own
@@ -298,9 +296,13 @@ class Playback:
                 self._tell_once(scene, str(w.message))
 
     def _tell_once(self, scene, message: str | None) -> None:
-        """A notice of ``message`` in the page, once per scene file."""
-        if message is not None and (scene.source, message) not in self._told:
-            self._told.add((scene.source, message))
+        """A notice of ``message`` in the page, once per scene file (the linear solve's)."""
+        self._notice_once(scene.source, message)
+
+    def _notice_once(self, source, message: str | None) -> None:
+        """A notice of ``message`` in the page, once per scene file ``source``."""
+        if message is not None and (source, message) not in self._told:
+            self._told.add((source, message))
             self.bus.publish("notice", sticky=False, level="warning", message=message)
 
     def _solve_linear(self, req: Request, box: Mailbox, problems, body, scene) -> None:

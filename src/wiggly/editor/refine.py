@@ -189,7 +189,7 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     abandons it, and a progress line goes out every ``PUSH_SECONDS``.  Its answers carry the
     request's ``kind``; a drag's solution, too, starts the next solve of the range."""
     from wiggly.scene.drive import linear_start_of
-    from wiggly.scene.run import _warn_missed, fold_highlights
+    from wiggly.scene.run import fold_highlights, missed_note
     from wiggly.solve import fold_note
 
     t0 = time.perf_counter()
@@ -229,12 +229,9 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     moved = anim.displacements(times, on="tets")
     # creases the user sees in the warped frames, explained (``wiggly animate`` warns)
     checked = anim.folds(times, displacements=moved) if kind == "final" else None
-    missed = None  # keys the final motion misses, as ``wiggly animate`` warns of them
-    if kind == "final":
-        with warnings.catch_warnings(record=True) as said:
-            warnings.simplefilter("always")
-            _warn_missed(scene, anim)  # also keeps the residual rows in anim.info
-        missed = next((str(w.message) for w in said), None)
+    # keys the final motion misses, as ``wiggly animate`` warns of them (the residual rows
+    # are kept in anim.info for residual_max)
+    missed = missed_note(scene, anim) if kind == "final" else None
     info = {"iterations": int(anim.info.get("iterations", 0)),
             "converged": bool(anim.info.get("converged")),
             "objective": float(anim.info.get("objective", np.nan)),

@@ -13,6 +13,7 @@ from wiggly.export.animation import (
     SurfaceAnimation,
     checked_animation,
     frame_codes,
+    frame_steps,
     gltf_times,
     without_seam,
 )
@@ -31,8 +32,8 @@ def surface_animation(anim, fps: float = 30.0, name: str = "wiggly",
     (and, for ``gltf_targets = "modes"``, the modes and their coordinates): what the
     writers take."""
     if anim.loop:  # its last frame is its first: a cycle of a whole number of frames
-        cycle = (anim.end - anim.start) * fps
-        if abs(cycle - round(cycle)) > 1e-6 * max(1.0, cycle):
+        cycle, whole = frame_steps(anim.end - anim.start, fps)
+        if not whole:
             n = max(1, round(cycle))
             raise WigglyInputError(
                 f"a looped animation needs a whole number of frames per cycle: "

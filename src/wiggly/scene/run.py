@@ -350,19 +350,28 @@ def _said_of(scene: Scene, said: list) -> None:
 
 
 def _warn_missed(scene: Scene, anim) -> None:
-    """One warning naming the scene's own keyframes (not a driver's) whose targets the motion
+    """Warn what :func:`missed_note` says of ``anim``, if anything."""
+    note = missed_note(scene, anim)
+    if note is not None:
+        warnings.warn(note, stacklevel=2)
+
+
+def missed_note(scene: Scene, anim) -> str | None:
+    """The warning naming the scene's own keyframes (not a driver's) whose targets the motion
     misses by more than ``MISSED`` of the body's size (or by most of their offset from rest,
     :func:`wiggly.solve.missed_keys`), with the likely causes: a shot long
     enough that gravity outweighs the keys' stiffness (a key's weight falls as the cube of
     the duration, gravity's work grows with it), a soft stiffness, or targets nothing can
-    reach (contradictory keys, fixed vertices, heavy damping)."""
+    reach (contradictory keys, fixed vertices, heavy damping); None when none is missed.
+    The residual rows are kept in ``anim.info["keyframe_residuals"]`` (the summary prints
+    them)."""
     own = replace(anim, keyframes=anim.keyframes[:len(scene.keyframes)])
     if not own.keyframes:
-        return
+        return None
     rows, missed, size = missed_keys(own)
-    anim.info["keyframe_residuals"] = rows  # the summary prints these rows
+    anim.info["keyframe_residuals"] = rows
     if not missed:
-        return
+        return None
     start, end = scene.time_range()
     listed = "; ".join(f"keyframes[{m.index}] (group {scene.keyframes[m.index].group!r}, t = "
                        f"{scene.keyframes[m.index].time:g} s) by {m.how}" for m in missed[:4])
@@ -384,10 +393,9 @@ def _warn_missed(scene: Scene, anim) -> None:
         why += (f"; over a {end - start:g} s shot gravity can outweigh the keys (a key's weight "
                 "falls as the cube of the duration): if so, key the body more often, or "
                 "shorten it")
-    warnings.warn(f"{scene.where()}: {counted(len(missed), 'keyframe')} {missed_by(missed)} "
-                  f"({listed}{more}): {why}; also check "
-                  "that the targets can be reached (fixed vertices, contradictory keys, heavy "
-                  "damping)", stacklevel=2)
+    return (f"{scene.where()}: {counted(len(missed), 'keyframe')} {missed_by(missed)} "
+            f"({listed}{more}): {why}; also check that the targets can be reached (fixed "
+            "vertices, contradictory keys, heavy damping)")
 
 
 #: Driven vertices further than this share of the body's size from the driver are warned about.

@@ -14,6 +14,7 @@ from pathlib import Path
 from wiggly.drive import DRIVER_EXTENSIONS
 from wiggly.errors import WigglyInputError
 from wiggly.export import GLTF_TARGETS
+from wiggly.export.animation import frame_steps
 from wiggly.fem import DENSITY_RANGE, YOUNG_RANGE
 from wiggly.limits import MAX_DURATION, MAX_FPS, MAX_FRAMES, MAX_MODES, MAX_RESOLUTION
 from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION, SURFACE_EXTENSIONS, VOLUME_EXTENSIONS
@@ -368,8 +369,7 @@ def scene_from_dict(data: dict, where: str = "scene", source: Path | None = None
 def _frame_steps(scene) -> tuple[float, bool]:
     """The shot's length in frame steps, and whether that is a whole number (to rounding)."""
     t0, t1 = scene.time_range()
-    steps = (t1 - t0) * scene.time.fps
-    return steps, abs(steps - round(steps)) <= 1e-6 * max(1.0, steps)
+    return frame_steps(t1 - t0, scene.time.fps)
 
 
 def loop_cycle_problem(scene, fps_from: str = "") -> str | None:
