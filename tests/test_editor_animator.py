@@ -638,98 +638,88 @@ def test_a_held_drag_shows_its_warped_frames_before_the_release(chromium, tmp_pa
         server.stop()
 
 
-def test_a_keyframe_field_left_empty_is_refused_not_zeroed(chromium, tmp_path):
-    """An emptied velocity component (or time) is not a number: the page says so and sends
-    nothing, where it used to send 0 for the velocity and "cannot be removed" for the time.
-    A number typed there is taken."""
-    server = serve(bar_project(tmp_path, warp=False))
-    try:
-        with editor_page(chromium, server.url) as (page, errors):
-            wait_final(page)
-            select_key(page, 0)
-            page.check("#key-vel-on")
-            page.wait_for_function("window.wiggly.S.desc.scene.keyframes[0].velocity")
-            page.fill("#key-vx", "0.25")
-            page.press("#key-vx", "Enter")
-            page.wait_for_function("window.wiggly.S.desc.scene.keyframes[0].velocity[0] === 0.25")
-            version = server.session.version
-            for field, what in (("#key-vx", "velocity"), ("#key-time", "time")):
-                page.fill(field, "")
-                page.press(field, "Enter")
-                toast_saying(page, f"keyframe {what}: empty is not a number")
-            assert server.session.version == version
-            assert server.session.scene.keyframes[0].velocity[0] == 0.25
-            assert page.input_value("#key-vx") != ""  # the scene's value again
-            assert not errors, errors
-    finally:
-        server.stop()
-
-
-def test_escape_in_a_field_cancels_what_was_typed(chromium, tmp_path):
-    """Escape puts a field back as it was when it got the focus and sends nothing (it used to
-    commit the half-typed value, as Enter does); Enter commits."""
-    server = serve(bar_project(tmp_path, warp=False))
-    try:
-        with editor_page(chromium, server.url) as (page, errors):
-            wait_final(page)
-            field = '[data-set="material.density"]'
-            before = page.input_value(field)
-            version = server.session.version
-            page.click(field)
-            page.fill(field, "5")
-            page.press(field, "Escape")
-            page.wait_for_timeout(500)  # an edit, if one were sent, is answered well within
-            assert server.session.version == version
-            assert server.session.scene.material.density == float(before)
-            assert page.input_value(field) == before
-            page.click(field)
-            page.fill(field, "900")
-            page.press(field, "Enter")
-            page.wait_for_function("window.wiggly.S.desc.scene.material.density === 900")
-            assert server.session.scene.material.density == 900
-            assert not errors, errors
-    finally:
-        server.stop()
-
-
-def test_undo_with_nothing_to_undo_says_so(chromium, tmp_path):
-    """Ctrl+Z in a tab with no edits of its own says so in the status line (it did nothing
-    visible: each tab undoes its own edits)."""
-    server = serve(bar_project(tmp_path, warp=False))
-    try:
-        with editor_page(chromium, server.url) as (page, errors):
-            wait_final(page)
-            page.locator("#canvas").click(position={"x": 5, "y": 5})
-            page.keyboard.press("Control+z")
-            page.wait_for_function(
-                "document.getElementById('status-text').textContent.startsWith("
-                "'nothing to undo in this tab')")
-            assert not errors, errors
-    finally:
-        server.stop()
-
-
-def test_the_export_dialog_offers_the_last_paths_again(chromium, tmp_path):
-    """Export a second time: the dialog offers the paths exported last, not the defaults."""
+@pytest.fixture
+def bar_editor(chromium, tmp_path):
+    """The bar with its one keyframe, linear, open in a page showing its final frames; yields
+    (server, page, scene path) and checks the page raised no errors."""
     path = bar_project(tmp_path, warp=False)
     server = serve(path)
     try:
         with editor_page(chromium, server.url) as (page, errors):
             wait_final(page)
-            page.click("#btn-export")
-            field = page.locator("#modal-body input")
-            assert ".glb" in field.input_value()  # the first time: the defaults
-            field.fill("renders/take1.npz")
-            page.click("#modal-ok")
-            page.wait_for_function("document.getElementById('modal').hidden")
-            for _ in range(300):  # the export runs in the background
-                if (path.parent / "renders" / "take1.npz").exists():
-                    break
-                page.wait_for_timeout(100)
-            assert (path.parent / "renders" / "take1.npz").exists()
-            page.click("#btn-export")
-            assert page.locator("#modal-body input").input_value() == "renders/take1.npz"
-            page.click("#modal-cancel")
+            yield server, page, path
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_a_keyframe_field_left_empty_is_refused_not_zeroed(bar_editor):
+    """An emptied velocity component (or time) is not a number: the page says so and sends
+    nothing, where it used to send 0 for the velocity and "cannot be removed" for the time.
+    A number typed there is taken."""
+    server, page, _ = bar_editor
+    select_key(page, 0)
+    page.check("#key-vel-on")
+    page.wait_for_function("window.wiggly.S.desc.scene.keyframes[0].velocity")
+    page.fill("#key-vx", "0.25")
+    page.press("#key-vx", "Enter")
+    page.wait_for_function("window.wiggly.S.desc.scene.keyframes[0].velocity[0] === 0.25")
+    version = server.session.version
+    for field, what in (("#key-vx", "velocity"), ("#key-time", "time")):
+        page.fill(field, "")
+        page.press(field, "Enter")
+        toast_saying(page, f"keyframe {what}: empty is not a number")
+    assert server.session.version == version
+    assert server.session.scene.keyframes[0].velocity[0] == 0.25
+    assert page.input_value("#key-vx") != ""  # the scene's value again
+
+
+def test_escape_in_a_field_cancels_what_was_typed(bar_editor):
+    """Escape puts a field back as it was when it got the focus and sends nothing (it used to
+    commit the half-typed value, as Enter does); Enter commits."""
+    server, page, _ = bar_editor
+    field = '[data-set="material.density"]'
+    before = page.input_value(field)
+    version = server.session.version
+    page.click(field)
+    page.fill(field, "5")
+    page.press(field, "Escape")
+    page.wait_for_timeout(500)  # an edit, if one were sent, is answered well within
+    assert server.session.version == version
+    assert server.session.scene.material.density == float(before)
+    assert page.input_value(field) == before
+    page.click(field)
+    page.fill(field, "900")
+    page.press(field, "Enter")
+    page.wait_for_function("window.wiggly.S.desc.scene.material.density === 900")
+    assert server.session.scene.material.density == 900
+
+
+def test_undo_with_nothing_to_undo_says_so(bar_editor):
+    """Ctrl+Z in a tab with no edits of its own says so in the status line (it did nothing
+    visible: each tab undoes its own edits)."""
+    _, page, _ = bar_editor
+    page.locator("#canvas").click(position={"x": 5, "y": 5})
+    page.keyboard.press("Control+z")
+    page.wait_for_function(
+        "document.getElementById('status-text').textContent.startsWith("
+        "'nothing to undo in this tab')")
+
+
+def test_the_export_dialog_offers_the_last_paths_again(bar_editor):
+    """Export a second time: the dialog offers the paths exported last, not the defaults."""
+    _, page, path = bar_editor
+    page.click("#btn-export")
+    field = page.locator("#modal-body input")
+    assert ".glb" in field.input_value()  # the first time: the defaults
+    field.fill("renders/take1.npz")
+    page.click("#modal-ok")
+    page.wait_for_function("document.getElementById('modal').hidden")
+    for _ in range(300):  # the export runs in the background
+        if (path.parent / "renders" / "take1.npz").exists():
+            break
+        page.wait_for_timeout(100)
+    assert (path.parent / "renders" / "take1.npz").exists()
+    page.click("#btn-export")
+    assert page.locator("#modal-body input").input_value() == "renders/take1.npz"
+    page.click("#modal-cancel")
