@@ -8,7 +8,6 @@ from __future__ import annotations
 import hashlib
 import re
 import struct
-import tempfile
 from pathlib import Path
 
 import bpy
@@ -28,6 +27,7 @@ from .shot import (
     is_bake_key,
     sampled_frames,
     stack_alone,
+    unwritable,
 )
 
 #: an ID property on the shape keys of a mesh whose Basis a bake added (Remove Bake clears it)
@@ -92,10 +92,13 @@ def cache_path(obj) -> Path:
     directory = Path(bpy.path.abspath(folder))
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        tempfile.TemporaryFile(dir=directory).close()  # can files be written there?
     except OSError as e:
+        why = e.strerror
+    else:
+        why = unwritable(directory)
+    if why is not None:
         raise ShotError(f"Object '{obj.name}': cannot write into the cache folder "
-                        f"{directory}: {e.strerror}; pick another Cache folder") from None
+                        f"{directory}: {why}; pick another Cache folder")
     return directory / cache_name(obj.name, bpy.data.filepath)
 
 

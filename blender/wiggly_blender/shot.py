@@ -560,6 +560,15 @@ def shot_files(toml: Path) -> dict[str, Path]:
             "output": toml.with_name(f"{stem}_wiggly.glb")}
 
 
+def unwritable(folder: Path) -> str | None:
+    """Why no file can be written into the existing ``folder`` (its OS error), or None."""
+    try:
+        tempfile.TemporaryFile(dir=folder).close()
+    except OSError as e:
+        return e.strerror or str(e)
+    return None
+
+
 def write_shot(shot: Shot, toml: Path, overwrite: bool = False) -> dict[str, Path]:
     """Write the scene file ``toml``, its rest mesh (OBJ) and driver (wiggly npz) beside it;
     an existing file is an error unless ``overwrite``."""
@@ -568,10 +577,9 @@ def write_shot(shot: Shot, toml: Path, overwrite: bool = False) -> dict[str, Pat
                                               else [])
     if not toml.parent.is_dir():
         raise ShotError(f"the folder {toml.parent} does not exist")
-    try:  # before the first file: a folder that takes none leaves nothing behind
-        tempfile.TemporaryFile(dir=toml.parent).close()
-    except OSError as e:
-        raise ShotError(f"cannot write into the folder {toml.parent}: {e.strerror}") from None
+    why = unwritable(toml.parent)  # before the first file: a refusal leaves nothing behind
+    if why is not None:
+        raise ShotError(f"cannot write into the folder {toml.parent}: {why}")
     existing = [str(p) for p in mine if p.exists()]
     if existing and not overwrite:
         raise ShotError(f"{', '.join(existing)} already exist; tick Overwrite to replace them")
