@@ -621,7 +621,7 @@ def test_reading_missing_files_says_so(tmp_path):
         read_animation(tmp_path / "frame.obj")
 
 
-@pytest.mark.parametrize("ext", [".obj", ".usda"])
+@pytest.mark.parametrize("ext", [".obj", ".usda", ".glb"])
 def test_progress_bar_on_a_terminal_one_line_in_a_log(tmp_path, capsys, caplog, monkeypatch,
                                                       ext):
     monkeypatch.setattr("wiggly.progress.on_terminal", lambda: True)
@@ -633,7 +633,7 @@ def test_progress_bar_on_a_terminal_one_line_in_a_log(tmp_path, capsys, caplog, 
     with caplog.at_level(logging.INFO, logger="wiggly"):
         write_animation(tmp_path / f"a{ext}", sphere_animation(F=4), overwrite=True)
     assert capsys.readouterr().err == ""  # no bar in a log: one line on the logger
-    assert [r.getMessage().split(": ")[-1].split(" (")[0] for r in caplog.records] == ["4 frames"]
+    assert [r.getMessage().split(" (")[0] for r in caplog.records] == [f"a{ext}: 4 frames"]
     monkeypatch.setattr("wiggly.progress.on_terminal", lambda: True)
     write_animation(tmp_path / f"a{ext}", sphere_animation(F=4), overwrite=True)
     assert capsys.readouterr().err == ""  # a quiet library: the logger is not at INFO

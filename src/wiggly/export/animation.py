@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 
@@ -240,7 +241,7 @@ def format_library(module: str, package: str, ext: str):
         raise ImportError(f"{ext} files need the package {package}: pip install {package}") from e
 
 
-def frame_progress(iterable, total: int, what: str):
+def frame_progress(iterable, total: int, what: str | os.PathLike[str]):
     """``iterable`` with the frames written counted as :mod:`wiggly.progress` says, named
     after the user's file ``what`` (not its hidden temporary file)."""
     return frames(iterable, total, shown_name(what))

@@ -45,7 +45,7 @@ def write_glb(path: Path, anim: SurfaceAnimation, *,
     else:
         dP = P - base_p
         dN = np.empty_like(dP)
-        for k in frame_progress(range(F), F, "normals"):
+        for k in frame_progress(range(F), F, path):
             dN[k] = frame_normals(anim.positions[k]).astype(np.float32) - base_n
         weights = np.eye(F, dtype=np.float32)  # keyframe k: weight 1 on target k
         names = [f"frame_{k:04d}" for k in range(F)]

@@ -85,7 +85,7 @@ def stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *
     face_block = ((face_row * len(f)) % tuple(face_values.ravel().tolist())).encode()
     header = f"# wiggly frame {{k}} of {F}\n# time {{t!r}}\no {anim.name}\n"
 
-    for k in frame_progress(range(F), F, "OBJ"):
+    for k in frame_progress(range(F), F, path):
         data = b"".join([
             header.format(k=k, t=float(anim.times[k])).encode(),
             _format_obj_block("v", anim.positions[k], POSITION_FORMAT),

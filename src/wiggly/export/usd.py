@@ -56,7 +56,7 @@ def write_usd(path: Path, anim: SurfaceAnimation, *,
         normals = mesh.CreateNormalsAttr()
         mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
         frame_normals = FrameNormals(anim)
-    for k in frame_progress(range(anim.n_frames), anim.n_frames, "USD"):
+    for k in frame_progress(range(anim.n_frames), anim.n_frames, path):
         t = Usd.TimeCode(float(codes[k]))
         p = anim.positions[k].astype(np.float32)
         points.Set(Vt.Vec3fArray.FromNumpy(p), t)
