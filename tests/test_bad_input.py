@@ -294,3 +294,29 @@ def test_an_imperfect_surface_is_accepted_with_one_warning(user, capsys):
     warnings = [w for w in warnings if w not in missed]
     assert len(warnings) == 1 and "box.obj: the surface has 4 open edges;" in warnings[0]
     assert (folder / "out" / "shot.glb").is_file()
+
+
+@pytest.mark.parametrize("start, frame_start, named", [
+    (0.05, None, ["shot.glb", "shot.usda"]),  # frame 0.5: both land between frames
+    (-0.05, None, ["shot.usda"]),  # glTF shifts a negative start to 0
+    (0.05, 1, []),  # frame_start puts frame k on 1 + k
+    (0.1, None, []),  # frame 1
+])
+def test_a_shot_starting_between_frames_is_warned_about(user, capsys, start, frame_start,
+                                                        named):
+    _, scene = user
+    path = scene({"time.start": start, "time.end": start + 1.0, "keyframes": [
+        {"time": start, "group": "bottom", "position": "rest"},
+        {"time": start + 1.0, "group": "top", "position": {"offset": [0.0, 0.05, 0.0]}}],
+        "output.paths": ["out/shot.glb", "out/shot.usda"], "output.frame_start": frame_start,
+        "mesh.resolution": 8, "simulation.modes": 8, "simulation.warp": False})
+    code = main(["animate", str(path), "-q"])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    between = [line for line in err.splitlines() if "between the timeline's frames" in line]
+    if not named:
+        assert between == []
+    else:
+        assert len(between) == 1, err
+        assert f"frames of {', '.join(named)} land" in between[0], between[0]
+        assert f"frame {10 * start:g} at 10 fps" in between[0] and "frame_start" in between[0]

@@ -480,6 +480,24 @@ def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
         raise input_error(scene.where(), problems)
 
 
+def _warn_between_frames(scene: Scene, start: float, paths: list[Path]) -> None:
+    """Warn when the shot's own time puts glTF/USD frames between the timeline's frames: a
+    shot starting at -0.25 s at 30 fps has USD time codes -7.5, -6.5, ... (glTF shifts a
+    negative start to 0, a positive one keeps it)."""
+    fps = scene.time.fps
+    frame = start * fps
+    if scene.output.frame_start is not None or abs(frame - round(frame)) <= 1e-6:
+        return
+    late = [p.name for p in paths if p.suffix.lower() in (".usd", ".usda", ".usdc")
+            or (p.suffix.lower() == ".glb" and start > 0)]
+    if late:
+        warnings.warn(
+            f"{scene.where()}: the shot starts at {start:g} s, frame {frame:g} at {fps:g} fps, "
+            f"so the frames of {', '.join(late)} land between the timeline's frames (an "
+            "application showing whole frames blends or skips them); set output.frame_start "
+            "(or --frame-start; Blender: 1) to put frame k on frame_start + k", stacklevel=3)
+
+
 @deprecated_progress
 def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
                   highlights=(), timings: dict | None = None) -> list[Path]:
@@ -491,6 +509,7 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
     if not paths:
         return []
     _check_gltf_targets(scene, paths)
+    _warn_between_frames(scene, anim.frame_times(scene.time.fps)[0], paths)
     t = _time.perf_counter()
     targets = scene.output.gltf_targets or "frames"
     modes = targets == "modes" and any(p.suffix.lower() == ".glb" for p in paths)
