@@ -6,6 +6,7 @@ import copy
 import json
 import math
 import os
+import shutil
 import tomllib
 from pathlib import Path
 
@@ -494,6 +495,17 @@ def test_file_errors(tmp_path):
     data = mutate("mesh.path", "nothere.obj")
     with pytest.raises(WigglyInputError, match=r'mesh.path = "nothere.obj": no such file'):
         load_scene(write(tmp_path, data))
+
+
+def test_a_windows_path_is_told_to_use_slashes(tmp_path):
+    (tmp_path / "meshes").mkdir()
+    shutil.copy(builtin_model("bar"), tmp_path / "meshes" / "bar.obj")
+    with pytest.raises(WigglyInputError) as err:
+        load_scene(write(tmp_path, mutate("mesh.path", "meshes\\bar.obj")))
+    assert 'separate folders with "/" on every system ("meshes/bar.obj" exists)' in str(err.value)
+    with pytest.raises(WigglyInputError) as err:
+        load_scene(write(tmp_path, mutate("mesh.path", "other\\bar.obj")))
+    assert str(err.value).endswith('separate folders with "/" on every system'), err.value
 
 
 def test_defaults_and_time_range(tmp_path):

@@ -26,7 +26,7 @@ from wiggly.memo import Memo
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import activity, say
 from wiggly.scene.spec import Scene
-from wiggly.scene.validation import Problems, did_you_mean, show
+from wiggly.scene.validation import Problems, did_you_mean, missing_file, show
 
 __all__ = ["check_drive", "check_drive_file", "check_driver_against", "driven_body",
            "driven_keyframes_of", "driven_vertices", "linear_start_of", "scene_driver",
@@ -91,8 +91,7 @@ def check_drive_file(scene: Scene, p: Problems) -> None:
             p.add(f"drive.path = {show(drive.path)}: no OBJ sequence there (no numbered file "
                   f"such as {path.stem.rstrip('#_')}_0001.obj in {path.parent})")
     elif not path.is_file():
-        p.add(f"drive.path = {show(drive.path)}: "
-              f"{'is a directory' if path.is_dir() else 'no such file'} ({path})")
+        p.add(missing_file("drive.path", drive.path, path))
 
 
 # ----------------------------------------------------------------------------------------------

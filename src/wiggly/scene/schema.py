@@ -57,6 +57,7 @@ from wiggly.scene.validation import (
     Table,
     Vector,
     did_you_mean,
+    missing_file,
     show,
 )
 
@@ -477,5 +478,4 @@ def _check_files(scene: Scene, p: Problems) -> None:
         return
     f = scene.mesh_file()
     if not f.is_file():
-        p.add(f"mesh.path = {show(scene.mesh.path)}: "
-              f"{'is a directory' if f.is_dir() else 'no such file'} ({f})")
+        p.add(missing_file("mesh.path", scene.mesh.path, f))

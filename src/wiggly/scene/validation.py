@@ -9,6 +9,7 @@ import math
 import re
 from abc import ABC, abstractmethod
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from wiggly.errors import WigglyInputError
@@ -60,6 +61,18 @@ def did_you_mean(name: str, names) -> str:
     """`` (did you mean 'x'?)`` for the closest of ``names`` to a misspelt ``name``, or ""."""
     close = difflib.get_close_matches(name, list(names), n=1, cutoff=0.6)
     return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def missing_file(field: str, text: str, found: Path) -> str:
+    """What to say of a path ``text`` given at ``field`` that resolved to ``found``, which is
+    not a file; a Windows path (backslashes) is told to use "/", which works everywhere."""
+    why = "is a directory" if found.is_dir() else "no such file"
+    hint = ""
+    if "\\" in text:
+        hint = '; scene files separate folders with "/" on every system'
+        if Path(str(found).replace("\\", "/")).exists():
+            hint += f" ({show(text.replace(chr(92), '/'))} exists)"
+    return f"{field} = {show(text)}: {why} ({found}){hint}"
 
 
 def show(value: Any, limit: int = 60) -> str:
