@@ -60,7 +60,7 @@ SETTABLE = {
     "material": ("young", "poisson", "density"),
     "damping": ("alpha", "beta"),
     "simulation": ("gravity", "modes", "warp", "lumped_mass", "preroll"),
-    "time": ("start", "end", "duration", "fps"),
+    "time": ("start", "end", "duration", "fps", "loop"),
     "mesh": ("resolution", "edge_length", "repair"),
     "output": ("paths", "overwrite", "size", "camera"),
     "drive": ("intensity", "free_modes", "physics"),
