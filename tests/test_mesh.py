@@ -862,3 +862,24 @@ def test_a_surface_turned_inside_out_is_flipped_with_a_warning(tmp_path):
     said = [str(w.message) for w in caught if "face inwards" in str(w.message)]
     assert len(said) == 1 and "in.obj" in said[0]
     assert volume(inward) == pytest.approx(volume(outward)) and volume(inward) > 0.1
+
+
+def test_load_mesh_scale_multiplies_the_coordinates_only(tmp_path):
+    """``scale`` (metres per unit) multiplies the vertices; faces, UVs and normals stay; a
+    scale that is no positive number is refused by name; a Model is not rescaled."""
+    import trimesh
+
+    from wiggly.mesh import load_mesh
+
+    sphere = trimesh.creation.icosphere(2, radius=30.0)  # 30 cm, in centimetres
+    sphere.export(tmp_path / "ball.obj", include_normals=True)
+    plain, scaled = load_mesh(tmp_path / "ball.obj"), load_mesh(tmp_path / "ball.obj", 0.01)
+    assert np.allclose(scaled.vertices, 0.01 * plain.vertices, rtol=1e-15, atol=0)
+    assert np.array_equal(scaled.faces, plain.faces)
+    assert plain.normals is not None and np.array_equal(scaled.normals, plain.normals)
+    for bad in (0, -1.0, float("nan"), "cm"):
+        with pytest.raises(WigglyInputError, match="scale should be a number > 0"):
+            load_mesh(tmp_path / "ball.obj", bad)
+    model = load_model(tmp_path / "ball.obj", resolution=6, scale=0.01, cache_dir=False)
+    with pytest.raises(WigglyInputError, match=r"scale = 0\.01 applies to a mesh file"):
+        wiggly.prepare(model, scale=0.01)

@@ -782,3 +782,38 @@ def test_an_fps_from_the_command_line_is_checked_for_whole_frames_too(recwarn):
     said = [str(w.message) for w in recwarn if "whole number of frames" in str(w.message)]
     assert len(said) == 1 and "at 17 fps (from --fps 17)" in said[0], said
     assert "its last frame is at 2.47059 s" in said[0]
+
+
+def test_a_mesh_in_centimetres_with_mesh_scale_is_the_same_body(tmp_path, recwarn):
+    """``mesh.scale = 0.01`` reads a file in centimetres as metres: the same tet bar written
+    in metres and in centimetres gives the same vertices, groups and eigenfrequencies (an
+    independent check that the scale is applied before the FEM: frequencies of an elastic
+    bar scale as 1 / length), and the centimetre file read without it is warned about with
+    the remedy."""
+    import warnings
+
+    from wiggly.scene.build import build_with_groups
+
+    V, T = box_mesh((8, 2, 2), (1.0, 0.1, 0.1))
+    meshio.write(tmp_path / "bar_m.vtu", meshio.Mesh(V, [("tetra", T)]))
+    meshio.write(tmp_path / "bar_cm.vtu", meshio.Mesh(100.0 * V, [("tetra", T)]))
+    data = {k: v for k, v in BASE.items() if k != "keyframes"}
+    metres, _, g1 = build_with_groups(load_scene(write(tmp_path, {
+        **data, "mesh": {"path": "bar_m.vtu"}}, "m.toml")))
+    scaled, _, g2 = build_with_groups(load_scene(write(tmp_path, {
+        **data, "mesh": {"path": "bar_cm.vtu", "scale": 0.01}}, "cm.toml")))
+    assert np.allclose(scaled.tets.vertices, metres.tets.vertices, rtol=0, atol=1e-12)
+    assert {k: list(v) for k, v in g1.items()} == {k: list(v) for k, v in g2.items()}
+    assert np.allclose(scaled.modes.eigenvalues, metres.modes.eigenvalues, rtol=1e-8)
+    assert not [w for w in recwarn if "reads its coordinates as metres" in str(w.message)]
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        load_model(tmp_path / "bar_cm.vtu")
+    said = [str(w.message) for w in seen if "reads its coordinates as metres" in str(w.message)]
+    assert len(said) == 1 and "a scene file's mesh.scale" in said[0], said
+
+
+@pytest.mark.parametrize("value", [0, -0.01, "cm", 1e7])
+def test_a_mesh_scale_that_is_no_scale_is_refused(tmp_path, value):
+    with pytest.raises(WigglyInputError, match=r"mesh.scale = .* must be a number in \(0, "):
+        load_scene(write(tmp_path, mutate("mesh.scale", value)))

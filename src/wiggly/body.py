@@ -367,6 +367,7 @@ def prepare(
     resolution: int | None = None,
     edge_length: float | None = None,
     young: np.ndarray | None = None,
+    scale: float = 1.0,
 ) -> Body:
     """Load (if a path), assemble M and K, compute ``n_modes`` eigenmodes (cached on disk).
 
@@ -375,7 +376,8 @@ def prepare(
     ``young`` gives a Young's modulus per tet (Pa) in place of ``material.young``, e.g. a
     softer tail (:func:`wiggly.body.tets_of` selects a vertex group's tets).  ``model`` is a
     path, ``builtin:NAME`` or a :class:`~wiggly.mesh.Model`; a surface in memory becomes one
-    with :func:`wiggly.mesh.build_model`.
+    with :func:`wiggly.mesh.build_model`.  ``scale`` is the file's metres per unit (0.01 for
+    a file in centimetres; a path only).
     """
     material = _checked(material, Material, "material", "Material(young=2e5, poisson=0.45, "
                         "density=1000.0)")
@@ -389,8 +391,11 @@ def prepare(
                 "vertices, faces), name))")
         path = Path(model)
         model = load_model(
-            path, resolution=resolution, edge_length=edge_length, cache_dir=cache_dir
-        )
+            path, resolution=resolution, edge_length=edge_length, cache_dir=cache_dir,
+            scale=scale)
+    elif scale != 1.0:
+        raise WigglyInputError(f"scale = {scale!r} applies to a mesh file; a Model is used as "
+                               "it is (scale its surface before wiggly.mesh.build_model)")
     V, T = model.tets.vertices, model.tets.tets
     fixed = vertex_set(fixed_vertices, len(V), "fixed vertices")
     say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")

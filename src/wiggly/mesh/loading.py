@@ -42,7 +42,7 @@ def resolve_builtin(path: str | Path) -> Path:
     return Path(str(resources.files("wiggly") / "data" / f"{name}.obj"))
 
 
-def load_mesh(path: str | Path) -> TetMesh | Surface:
+def load_mesh(path: str | Path, scale: float = 1.0) -> TetMesh | Surface:
     """Read a tetrahedral mesh or a triangle surface from a file.
 
     Surface formats (``.obj .ply .stl .off .glb .gltf``) are read with
@@ -81,6 +81,9 @@ def load_mesh(path: str | Path) -> TetMesh | Surface:
     ----------
     path : str or Path
         The file.
+    scale : float
+        Metres per unit of the file: its coordinates are multiplied by it (0.01 for a file
+        in centimetres, 0.001 for millimetres; wiggly's units are SI).
 
     Returns
     -------
@@ -93,7 +96,14 @@ def load_mesh(path: str | Path) -> TetMesh | Surface:
         triangles, other volume cells (hexahedra, quadratic tets), NaN or
         infinite coordinates, indices out of range, degenerate tets.
     """
-    path = resolve_builtin(path)
+    scale = checks.positive_number(scale, "scale", "metres per unit of the file")
+    loaded = _load_mesh(resolve_builtin(path))
+    if scale != 1.0:
+        loaded.vertices = loaded.vertices * scale  # uniform: normals and orientation stay
+    return loaded
+
+
+def _load_mesh(path: Path) -> TetMesh | Surface:
     source = str(path)
     ext = _extension(path)
     if not path.is_file():

@@ -39,6 +39,7 @@ def load_model(
     resolution: int | None = None,
     repair: bool | None = True,
     cache_dir: str | os.PathLike[str] | bool | None = None,
+    scale: float = 1.0,
 ) -> Model:
     """Load a model, tetrahedralize it if it is a surface and embed the surface.
 
@@ -50,12 +51,14 @@ def load_model(
         Surface or tet mesh file (see :func:`load_mesh`).
     edge_length, resolution, repair
         Passed to :func:`tetrahedralize` for a surface; ignored for a tet mesh.
+    scale : float
+        Metres per unit of the file (:func:`load_mesh`): 0.01 for centimetres.
 
     Returns
     -------
     Model
     """
-    return build_model(load_mesh(path), str(path), edge_length=edge_length,
+    return build_model(load_mesh(path, scale), str(path), edge_length=edge_length,
                        resolution=resolution, repair=repair, cache_dir=cache_dir)
 
 
@@ -158,6 +161,7 @@ def _warn_units(vertices: np.ndarray, source: str) -> None:
             else "kilometres, scale it by 1000")
     warnings.warn(
         f"{source}: the mesh is {size:.3g} m across; wiggly reads its coordinates as metres "
-        f"(SI units throughout). If the file is in {hint} before using it (Blender: set the "
-        "object's scale and apply it, or the exporter's Scale); if the body is that large, "
-        "nothing needs doing", stacklevel=3)
+        f"(SI units throughout). If the file is in {hint} (a scene file's mesh.scale, the "
+        "scale= of wiggly.prepare and load_model; or in Blender, the object's applied scale "
+        "or the exporter's Scale); if the body is that large, nothing needs doing",
+        stacklevel=3)

@@ -169,8 +169,8 @@ def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: s
         if not 1.0 / SCALE_MISMATCH <= ratio <= SCALE_MISMATCH:
             p.add(f"drive.path = {show(scene.drive.path)}: its first pose is {ratio:.3g} times "
                   f"the size of {mesh} ({posed:.3g} m against {size:.3g} m): the driver and the "
-                  "mesh must be in the same units and scale (a driver in centimetres: export it "
-                  "in metres, or give the mesh the same scale)")
+                  "mesh must be in the same units and scale (a driver is read as it is, the "
+                  "mesh after mesh.scale: export the driver in metres)")
     if scene.time.end is None and scene.time.duration is None:
         return  # check_drive has said so
     start, end = scene.time_range()

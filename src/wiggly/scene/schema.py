@@ -219,7 +219,12 @@ SCENE_FORMAT = Table(
                                     f"{DEFAULT_RESOLUTION})"),
           "edge_length": Number(unit="m", **_POSITIVE, doc="target tet edge length (m)"),
           "repair": Bool(doc="accept open, non-manifold or self-intersecting surfaces and "
-                              "let fTetWild fill them (default true; false refuses them)")},
+                              "let fTetWild fill them (default true; false refuses them)"),
+          "scale": Number(gt=0.0, le=1e6,
+                          doc="metres per unit of the mesh file: its coordinates are "
+                              "multiplied by it when read (0.01 for centimetres, 0.001 for "
+                              "millimetres; default 1); everything else in the scene is in "
+                              "metres, on the scaled mesh")},
          required=("path",), exclusive=(("resolution", "edge_length"),),
          make=lambda d: MeshSpec(**d), doc="the model"),
      "material": Table(

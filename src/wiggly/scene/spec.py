@@ -62,6 +62,12 @@ class MeshSpec:
     resolution: int | None = None
     edge_length: float | None = None
     repair: bool | None = None  # None: true (accept imperfect surfaces, with a warning)
+    scale: float | None = None  # metres per unit of the file; None: 1
+
+    @property
+    def metres_per_unit(self) -> float:
+        """What the file's coordinates are multiplied by (``scale``, default 1)."""
+        return 1.0 if self.scale is None else self.scale
 
 
 @dataclass(frozen=True)
