@@ -593,3 +593,34 @@ def _state(pid: int) -> str:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
     except OSError:
         return "Z"
+
+
+def test_a_shot_keeps_what_wiggly_animate_would_warn_about(tmp_path, monkeypatch, recwarn):
+    """The checks of a solved motion (keys missed, folds) and the scene's own warnings reach
+    each shot's record, its summary row and the contact sheet, named by the sweep's shot, as
+    ``wiggly animate`` of the shot's scene says them; a clean shot has none."""
+    monkeypatch.setenv("WIGGLY_CACHE_DIR", str(tmp_path / "cache"))
+    scene = copy.deepcopy(SCENE)
+    scene["time"]["end"] = 1.05  # not a whole number of frames at 10 fps: the scene's warning
+    sweep = {"base": "shot.toml", "grid": {"keyframes[pulled].stiffness": [1e6, 1e-3]},
+             "output": {"paths": ["bar.npz"]}}
+    out = tmp_path / "out"
+    records = run(write_sweep(tmp_path, sweep, scene), out, workers=1)
+    assert [r["status"] for r in records] == ["done"] * 2, [r["error"] for r in records]
+    kept, soft = records
+    assert all("not a whole number of frames" in " ".join(r["warnings"]) for r in records)
+    missed = [w for w in soft["warnings"] if "missed by more than" in w]
+    assert missed and "sweep.toml shot 1: 1 keyframe missed" in missed[0], soft["warnings"]
+    assert not [w for w in kept["warnings"] if "missed by more than" in w], kept["warnings"]
+    alone = recwarn_messages(recwarn, lambda: solved_alone(out / soft["folder"]))
+    assert any("missed by more than" in w for w in alone)  # what wiggly animate says
+    rows = list(csv.DictReader((out / "summary.csv").open()))
+    assert [int(r["warnings"]) for r in rows] == [len(r["warnings"]) for r in records]
+    page = (out / "contact-sheet.html").read_text()
+    assert page.count('<details class="warn">') == 2 and "missed by more than" in page
+
+
+def recwarn_messages(recwarn, call) -> list[str]:
+    recwarn.clear()
+    call()
+    return [str(w.message) for w in recwarn]

@@ -257,7 +257,7 @@ def _read_result(folder: Path) -> dict | None:
 def _base_record(s: Shot) -> dict:
     return {"shot": s.name, "status": "", "error": None, "origin": s.origin, "seed": s.seed,
             "sample": s.sample, "parameters": s.parameters(), "key": s.key or None,
-            "body": s.body_key[:12] or None, "resumed": False}
+            "body": s.body_key[:12] or None, "resumed": False, "warnings": list(s.warnings)}
 
 
 def _failed(s: Shot, error: str) -> dict:
@@ -283,6 +283,7 @@ class _Driver:
         self.in_flight: dict[Any, tuple[str, Any]] = {}
         self.suspects: set[str] = set()  # in flight when a worker died: rerun one at a time
         self.warned: set[str] = set()
+        self.body_warnings: dict[str, list[str]] = {}  # by body key: for its shots' records
 
     def run(self, shots: list[Shot], todo: list[Shot]) -> None:
         done = sum(r["status"] == "done" for r in self.records.values())
@@ -327,7 +328,8 @@ class _Driver:
             source = b.cached_body(key)
             if source is not None:
                 self.sources[key] = source
-                for w in b.kept_warnings(key):  # said again, as `wiggly animate` does
+                self.body_warnings[key] = b.kept_warnings(key)
+                for w in self.body_warnings[key]:  # said again, as `wiggly animate` does
                     self._warn(f"{body_scene(group[0].scene).where()}: {w}")
                 self.bodies.append({"body": key[:12], "shots": len(group), "cached": True,
                                     "prepare_seconds": 0.0})
@@ -412,6 +414,7 @@ class _Driver:
         self.bodies.append({"body": job.key[:12], "shots": len(shots), "cached": False,
                             **{k: v for k, v in info.items() if k != "traceback"}})
         self.backend.keep_warnings(job.key, info.get("warnings", []))
+        self.body_warnings[job.key] = list(info.get("warnings", []))
         for w in info.get("warnings", ()):
             self._warn(f"{job.scene.where()}: {w}")
         if info.get("status") != "done":
@@ -423,10 +426,13 @@ class _Driver:
 
     def _shot_done(self, shot: Shot, result: dict) -> None:
         record = {**_base_record(shot), **{k: v for k, v in result.items() if k != "files"}}
+        own = list(result.get("warnings") or ())  # the solve's and the writers' (said below)
+        record["warnings"] = list(dict.fromkeys(
+            [*shot.warnings, *self.body_warnings.get(shot.body_key, ()), *own]))
         staging = self.out / STAGING / shot.name
         if result.get("status") != "done":
             shutil.rmtree(staging, ignore_errors=True)
-            self._record(shot, record)
+            self._record(shot, record, own)
             return
         try:
             t = time.perf_counter()
@@ -435,7 +441,7 @@ class _Driver:
         except OSError as err:
             shutil.rmtree(staging, ignore_errors=True)
             record.update(status="failed", error=f"could not write its folder: {err}")
-        self._record(shot, record)
+        self._record(shot, record, own)
 
     def _commit(self, shot: Shot, staging: Path, record: dict, files: dict | None) -> None:
         """Move the shot's complete folder into place (one rename: never half-written)."""
@@ -465,7 +471,9 @@ class _Driver:
         if aside is not None:
             shutil.rmtree(aside, ignore_errors=True)
 
-    def _record(self, shot: Shot, record: dict) -> None:
+    def _record(self, shot: Shot, record: dict, said: Sequence[str] = ()) -> None:
+        """Count ``record`` in and show it; ``said``: its warnings not said before (those of
+        its scene and body are said when read and prepared)."""
         self.records[shot.name] = record
         self.counts["done" if record["status"] == "done" else "failed"] += 1
         if record["status"] != "done":
@@ -474,7 +482,7 @@ class _Driver:
         self.bar.update(1)
         if not self.live and record["status"] == "done":
             say(f"{record['shot']} done ({self.bar.n} of {self.total})")
-        for w in record.get("warnings") or ():
+        for w in said:
             self._warn(f"{record['shot']}: {w}")
 
     def _warn(self, message: str) -> None:

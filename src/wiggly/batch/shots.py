@@ -7,7 +7,9 @@ import hashlib
 import json
 import os
 import re
-from collections.abc import Iterable, Sequence
+import warnings
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -50,6 +52,7 @@ class Shot:
     sample: int | None = None
     key: str = ""
     body_key: str = ""
+    warnings: list[str] = field(default_factory=list)  # said when its scene was read
 
     def parameters(self) -> dict[str, Any]:
         """The standard parameters of the shot's scene, then the sweep's."""
@@ -96,11 +99,13 @@ def collect(inputs: Sequence, write: Sequence[str] | None = None) -> tuple[list[
                 shots += _sweep_shots(sweep, write)
             else:
                 try:
-                    scene = scene_from_dict(data, where=str(path), source=path.resolve())
+                    with _said() as said:
+                        scene = scene_from_dict(data, where=str(path), source=path.resolve())
                 except WigglyInputError as err:
                     shots.append(Shot(_clean(path.stem), str(path), None, str(err)))
                     continue
                 shots.append(_scene_shot(scene, path.stem, str(path), write))
+                shots[-1].warnings = said
         if len(shots) > MAX_SHOTS:
             raise WigglyInputError(f"the inputs make more than {MAX_SHOTS} shots "
                                    "(wiggly.limits.MAX_SHOTS); split the batch")
@@ -139,10 +144,25 @@ def _sweep_shot(sweep: Sweep, i: int, width: int, names: tuple[str, ...]) -> Sho
     shot = Shot(_clean(f"{sweep.name}-{i:0{width}d}"), origin, None, params=values,
                 outputs=names, seed=sweep.seed, sample=sample)
     try:
-        shot.scene = sweep.scene(values, f"{origin} ({_describe(values)})")
+        with _said() as shot.warnings:
+            shot.scene = sweep.scene(values, f"{origin} ({_describe(values)})", origin)
     except WigglyInputError as err:
         shot.error = str(err)
     return shot
+
+
+@contextmanager
+def _said() -> Iterator[list[str]]:
+    """The warnings of the block, each once, kept for the shot's record and said again (the
+    console shows them as ``wiggly animate`` does)."""
+    kept: list[str] = []
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield kept
+    for w in caught:
+        if str(w.message) not in kept:
+            kept.append(str(w.message))
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def _describe(values: dict) -> str:

@@ -74,7 +74,8 @@ def write_summary(out: Path, records: list[dict], meta: dict) -> None:
     with atomic_file(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(jsonable(doc), indent=1) + "\n", encoding="utf-8")
     params = list(dict.fromkeys(k for r in records for k in r.get("parameters", {})))
-    header = ["shot", "status", "error", "seed", "sample", *params, *METRICS, *PATHS, *TRAILING]
+    header = ["shot", "status", "error", "warnings", "seed", "sample", *params, *METRICS,
+              *PATHS, *TRAILING]
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(header)
@@ -82,6 +83,7 @@ def write_summary(out: Path, records: list[dict], meta: dict) -> None:
         p = r.get("parameters", {})
         w.writerow([_cell(r.get("shot")), _cell(r.get("status")),
                     _cell((r.get("error") or "").replace("\n", " | ") or None),
+                    _cell(len(r.get("warnings") or ())),  # their text: summary.json
                     _cell(r.get("seed")), _cell(r.get("sample")),
                     *(_cell(p.get(k)) for k in params),
                     *(_cell(r.get(k)) for k in (*METRICS, *PATHS, *TRAILING))])
@@ -125,6 +127,7 @@ figure.failed { border-color: #d62728; background: #fff4f4 }
 figure img, figure .none { width: 240px; height: 180px; display: block; background: #eee }
 figcaption { font-size: 12px; line-height: 1.35; word-break: break-word }
 .name { font-weight: 600 } .error { color: #b00; white-space: pre-wrap } a { color: #1f77b4 }
+.warn summary { color: #a65f00; cursor: pointer } .warn ul { margin: 2px 0; padding-left: 16px }
 """
 
 
@@ -144,6 +147,11 @@ def _write_html(out: Path, records: list[dict], varied: list[str]) -> None:
                      for o, label in _output_links(r.get("outputs", []))]
             links.append(f'<a href="{esc(r["folder"])}/scene.toml">scene</a>')
             lines.append(" ".join(links))
+            if r.get("warnings"):
+                said = "".join(f"<li>{esc(w)}</li>" for w in r["warnings"])
+                lines.append(f'<details class="warn"><summary>'
+                             f'{esc(counted(len(r["warnings"]), "warning"))}</summary>'
+                             f"<ul>{said}</ul></details>")
             img = (f'<img src="{esc(r["thumbnail"])}" alt="{esc(r["shot"])}" loading="lazy">'
                    if r.get("thumbnail") else '<div class="none"></div>')
         else:
@@ -213,6 +221,10 @@ def _write_png(out: Path, records: list[dict], varied: list[str]) -> None:
             if r["status"] != "done":
                 draw.text((x + 8, y + 8), r["status"], fill=(180, 0, 0), font=font)
         draw.text((x + 2, y + th + 3), r["shot"], fill=(30, 30, 30), font=font)
+        if r["status"] == "done" and r.get("warnings"):
+            said = counted(len(r["warnings"]), "warning")
+            draw.text((x + tw - 2 - font.getlength(said), y + th + 3), said,
+                      fill=(166, 95, 0), font=font)
         for j, line in enumerate(captions[k]):
             draw.text((x + 2, y + th + 17 + LINE * j), line, fill=(90, 90, 90), font=font)
     with atomic_file(out / "contact-sheet.png") as tmp:

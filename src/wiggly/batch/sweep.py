@@ -16,7 +16,7 @@ import math
 import os
 import re
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -394,12 +394,14 @@ class Sweep:
     def _base_dict(self) -> dict:
         return scene_to_dict(self.base)
 
-    def scene(self, values: dict[str, Any], label: str) -> Scene:
-        """The base scene with ``values`` set, checked (raises :class:`WigglyInputError`)."""
+    def scene(self, values: dict[str, Any], label: str, name: str | None = None) -> Scene:
+        """The base scene with ``values`` set, checked (raises :class:`WigglyInputError`,
+        naming ``label``); ``name`` names it in later messages (:meth:`Scene.where`)."""
         d = copy.deepcopy(self._base_dict)
         for path, value in values.items():
             apply_param(d, self.params[path], value)
-        return scene_from_dict(d, where=label, source=self.base.source)
+        scene = scene_from_dict(d, where=label, source=self.base.source)
+        return scene if name is None else replace(scene, label=name)
 
 
 def _unravel(g: int, sizes: list[int]) -> list[int]:

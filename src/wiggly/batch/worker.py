@@ -283,14 +283,9 @@ def _sees(marker: str, token: str) -> bool:
 
 def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
     from wiggly.body import Damping
-    from wiggly.scene import (
-        keyframe_highlights,
-        keyframes_of,
-        problem_of,
-        resolve_groups,
-        write_outputs,
-    )
+    from wiggly.scene import keyframes_of, problem_of, resolve_groups, write_outputs
     from wiggly.scene.drive import secondary_of
+    from wiggly.scene.run import check_motion
 
     scene = job.scene
     warped = scene.simulation.warp
@@ -309,6 +304,7 @@ def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
     groups = resolve_groups(scene, body.model)
     keyframes = keyframes_of(scene, body, groups)
     secondary = scene.secondary_motion
+    paths = [folder / name for name in job.outputs]
     t = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -317,7 +313,8 @@ def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
         else:
             anim = problem.solve(keyframes, warped=warped,
                                  warm_start=entry[1] if job.warm_start else None)
-    solve_seconds = time.perf_counter() - t
+        solve_seconds = time.perf_counter() - t
+        highlights = check_motion(scene, body, anim, groups, paths)  # as wiggly animate does
     if warped and not secondary:
         entry[1] = anim.warm_start
     info = anim.info
@@ -331,25 +328,25 @@ def _solve_and_write(job: ShotJob, load, identity: str, folder: Path) -> dict:
         "keyframe_position_rms": _worst(rows, "position_rms"),
         "keyframe_position_max": _worst(rows, "position_max"),
         "keyframe_velocity_rms": _worst(rows, "velocity_rms"),
-        "keyframes": rows, "warnings": sorted({str(w.message) for w in caught}),
+        "keyframes": rows,
     }
     if scene.drive is not None:  # how closely the driven groups followed the driver
-        from wiggly.drive import following
-
-        record["drive"] = following(anim)
+        record["drive"] = anim.info["drive"]
         if record["drive"]:
             record["drive_max"] = record["drive"]["max"]
             record["drive_rms"] = record["drive"]["rms"]
-    t = time.perf_counter()
-    folder.mkdir(parents=True, exist_ok=True)
-    paths = [folder / name for name in job.outputs]
-    write_outputs(scene, anim, paths, overwrite=True,
-                  highlights=keyframe_highlights(scene, body, anim.keyframes, groups))
-    record["output_seconds"] = time.perf_counter() - t
-    t = time.perf_counter()
-    if job.thumbnail:
-        record["thumbnail_time"] = _thumbnail(folder / THUMBNAIL, scene, anim, job.thumbnail_time)
-    record["thumbnail_seconds"] = time.perf_counter() - t
+    with warnings.catch_warnings(record=True) as written:
+        warnings.simplefilter("always")
+        t = time.perf_counter()
+        folder.mkdir(parents=True, exist_ok=True)
+        write_outputs(scene, anim, paths, overwrite=True, highlights=highlights)
+        record["output_seconds"] = time.perf_counter() - t
+        t = time.perf_counter()
+        if job.thumbnail:
+            record["thumbnail_time"] = _thumbnail(folder / THUMBNAIL, scene, anim,
+                                                  job.thumbnail_time)
+        record["thumbnail_seconds"] = time.perf_counter() - t
+    record["warnings"] = list(dict.fromkeys(str(w.message) for w in [*caught, *written]))
     return record
 
 
@@ -371,6 +368,11 @@ def _thumbnail(path: Path, scene, anim, at: float | None) -> float:
         rest = anim.body.surface.vertices
         d = X - rest - (X.mean(axis=1, keepdims=True) - rest.mean(axis=0))
         at = float(times[int(np.argmax(np.sqrt((d ** 2).sum(axis=2).mean(axis=1))))])
+    elif not times[0] - 1e-9 <= at <= times[-1] + 1e-9:
+        shown = float(times[0] if at < times[0] else times[-1])
+        warnings.warn(f"the thumbnail time {at:g} s (--thumbnail-time) lies outside the shot's "
+                      f"frames [{times[0]:g}, {times[-1]:g}] s: its thumbnail shows the frame at "
+                      f"{shown:g} s", stacklevel=2)
     at = min(max(at, float(times[0])), float(times[-1]))
     camera = scene.output.camera if isinstance(scene.output.camera, str) else \
         tuple(scene.output.camera)

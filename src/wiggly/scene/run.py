@@ -230,6 +230,20 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     note = soft_note(scene, body, anim.held_modes if scene.secondary_motion else None)
     if note is not None:
         say(f"note: {note}")
+    highlights = check_motion(scene, body, anim, groups, paths)
+    written = write_outputs(scene, anim, paths, overwrite=overwrite, highlights=highlights,
+                            timings=timings)
+    anim.info["scene"] = {"outputs": written, "seconds": timings, "groups": groups}
+    return anim
+
+
+def check_motion(scene: Scene, body, anim, groups: dict[str, np.ndarray],
+                 paths: list[Path]) -> list:
+    """The checks of a solved motion that ``wiggly animate`` and ``wiggly batch`` both make,
+    as warnings: keys missed, a warped surface folded, driven vertices that do not follow
+    their driver (``anim.info["drive"]``, :func:`wiggly.drive.following`) or free parts flung
+    away.  Returns the previews' highlights (the keyed groups, and folds in magenta when
+    ``paths`` hold a preview)."""
     _warn_missed(scene, anim)
     highlights = keyframe_highlights(scene, body, anim.keyframes, groups)
     if scene.simulation.warp:
@@ -248,10 +262,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
              f" mm (rms {1e3 * anim.info['drive']['rms']:.3g} mm)")
         _warn_unfollowed(scene, anim.info["drive"], body)
         _warn_strayed(scene, anim.info["drive"], body)
-    written = write_outputs(scene, anim, paths, overwrite=overwrite, highlights=highlights,
-                            timings=timings)
-    anim.info["scene"] = {"outputs": written, "seconds": timings, "groups": groups}
-    return anim
+    return highlights
 
 
 #: A body held by fixed vertices whose static sag under gravity exceeds this share of its

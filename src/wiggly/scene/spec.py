@@ -333,6 +333,8 @@ class Scene:
     drive: DriveSpec | None = None
     format: int = FORMAT
     source: Path | None = field(default=None, compare=False)
+    #: how messages name a scene that is not its file (a sweep's shot); None: its file
+    label: str | None = field(default=None, compare=False)
 
     @property
     def base_dir(self) -> Path:
@@ -347,7 +349,10 @@ class Scene:
         return Path(self.mesh.path.removeprefix("builtin:")).stem
 
     def where(self) -> str:
-        """How messages name this scene: its file (relative to the cwd if inside), or "scene"."""
+        """How messages name this scene: its label, its file (relative to the cwd if
+        inside), or "scene"."""
+        if self.label is not None:
+            return self.label
         if self.source is None:
             return "scene"
         try:
