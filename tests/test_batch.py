@@ -180,6 +180,38 @@ def test_resume_and_changed_shots(tmp_path):
     assert [r["parameters"]["damping.alpha"] for r in records] == [0.5, 2.0] * 2
 
 
+def test_a_rerun_redoes_broken_shots_and_never_deletes_a_users_files(tmp_path):
+    """A shot done before whose output was deleted or rewritten runs again; a folder where a
+    shot goes that wiggly did not write, or a shot folder holding a user's file, is refused
+    even with overwrite, and nothing of it is touched."""
+    out = tmp_path / "out"
+    sweep = write_sweep(tmp_path, {**SWEEP, "samples": 1})
+    run(sweep, out, workers=1, contact_sheet=False)
+    (out / "sweep-0000" / "bar.npz").unlink()
+    (out / "sweep-0001" / "bar.npz").write_bytes(b"not what wiggly wrote")
+    records = run(sweep, out, workers=1, contact_sheet=False)
+    assert [r["resumed"] for r in records] == [False, False]
+    assert read_animation(out / "sweep-0001" / "bar.npz").n_frames == 11
+    # a stranger's folder where a new shot goes
+    (out / "sweep-0002").mkdir()
+    (out / "sweep-0002" / "keep.txt").write_text("mine")
+    grown = write_sweep(tmp_path, {**SWEEP, "samples": 2})
+    for overwrite in (False, True):
+        with pytest.raises(WigglyInputError, match=r"1 folder where shots go that wiggly did "
+                                                   r"not write \(sweep-0002: no result.json\)"):
+            run(grown, out, contact_sheet=False, overwrite=overwrite)
+    assert (out / "sweep-0002" / "keep.txt").read_text() == "mine"
+    (out / "sweep-0002" / "keep.txt").unlink()
+    (out / "sweep-0002").rmdir()
+    # a note in a shot folder that a changed sweep would replace
+    (out / "sweep-0001" / "notes.txt").write_text("take 2 looks best")
+    changed = write_sweep(tmp_path, {**SWEEP, "samples": 1, "grid": {"damping.alpha": [0.5, 2]}})
+    with pytest.raises(WigglyInputError, match=r"hold files wiggly did not write "
+                                               r"\(sweep-0001 \(notes.txt\)\)"):
+        run(changed, out, contact_sheet=False, overwrite=True)
+    assert (out / "sweep-0001" / "notes.txt").read_text() == "take 2 looks best"
+
+
 def test_failures_are_isolated(tmp_path, capsys):
     shots = tmp_path / "shots"
     shots.mkdir()

@@ -207,12 +207,13 @@ def _still_there(path: Path, lock) -> bool:
 
 def _scan(out: Path, shots: list[Shot], overwrite: bool, request: dict):
     """Records of the shots done before (skipped), the shots to run, and the names whose
-    folders may be replaced.  A folder holding another shot is an error unless
-    ``overwrite``."""
+    folders may be replaced.  A shot done before runs again when its files are missing or
+    changed; a folder holding another shot is an error unless ``overwrite``; a folder that
+    holds no shot, or files wiggly did not write, is never replaced."""
     records: dict[str, dict] = {}
     todo: list[Shot] = []
     replace: set[str] = set()
-    changed = []
+    changed, strangers, foreign, others = [], [], [], []
     for s in shots:
         folder = out / s.name
         if s.scene is None:
@@ -222,28 +223,76 @@ def _scan(out: Path, shots: list[Shot], overwrite: bool, request: dict):
             todo.append(s)
             continue
         old = _read_result(folder)
-        if old is not None and old.get("key") == s.key and old.get("status") == "done":
+        if old is None:
+            strangers.append(s.name)
+            continue
+        if old.get("key") == s.key and old.get("status") == "done":
+            broken = _broken(folder, old)
             wants = request["contact_sheet"] and (
                 not (folder / THUMBNAIL).is_file() or
                 old.get("thumbnail_request") != request["thumbnail_time"])
-            if not wants:
+            if broken is None and not wants:
                 records[s.name] = {**old, "resumed": True}
                 continue
-            replace.add(s.name)  # the same shot, now with a thumbnail
-        elif overwrite:
-            replace.add(s.name)
-        else:
+            if broken is not None:
+                say(f"{s.name}: {broken}; it runs again")
+        elif not overwrite:
             changed.append(s.name)
             continue
+        else:
+            others.append(s.name)
+        extra = sorted(set(os.listdir(folder)) - _written(old))
+        if extra:
+            foreign.append(f"{s.name} ({', '.join(extra[:3])}{', ...' if len(extra) > 3 else ''})")
+            continue
+        replace.add(s.name)  # another shot, or this one again (broken, or a thumbnail asked)
         todo.append(s)
+    problems = []
+    if strangers:
+        problems.append(f"{out} holds {counted(len(strangers), 'folder')} where shots go that "
+                        f"wiggly did not write ({_listed(strangers)}: no {RESULT}); move them "
+                        "away or give another folder (-o): --overwrite replaces only shot "
+                        "folders")
+    if foreign:
+        problems.append(f"shot folders of {out} hold files wiggly did not write "
+                        f"({_listed(foreign)}), which replacing them would delete: move "
+                        "those files away first")
     if changed:
-        listing = ", ".join(changed[:5]) + (f" and {len(changed) - 5} more"
-                                            if len(changed) > 5 else "")
-        raise WigglyInputError(
-            f"{out} holds {counted(len(changed), 'shot folder')} of other shots ({listing}): "
-            "their scene, mesh or outputs changed since they were written. Pass --overwrite "
-            "(overwrite=True) to replace them, or give another folder (-o)")
+        problems.append(
+            f"{out} holds {counted(len(changed), 'shot folder')} of other shots "
+            f"({_listed(changed)}): their scene, mesh or outputs changed since they were "
+            "written. Pass --overwrite (overwrite=True) to replace them, or give another "
+            "folder (-o)")
+    if problems:
+        raise WigglyInputError("; ".join(problems))
+    if others:
+        say(f"replacing {counted(len(others), 'shot folder')} of other shots (--overwrite): "
+            f"{_listed(others)}")
     return records, todo, replace
+
+
+def _listed(names: list[str]) -> str:
+    return ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+
+
+def _written(record: dict) -> set[str]:
+    """The names of the files wiggly wrote into a shot's folder (:meth:`_Driver._commit`)."""
+    names = {Path(o).name for o in record.get("outputs") or ()} | {"scene.toml", RESULT}
+    return names | ({THUMBNAIL} if record.get("thumbnail") else set())
+
+
+def _broken(folder: Path, record: dict) -> str | None:
+    """Why the files of a shot done before are no longer what it wrote (one missing, or
+    their sizes changed), or None."""
+    total = 0
+    for name in sorted(_written(record) - {RESULT}):
+        try:
+            total += (folder / name).stat().st_size
+        except OSError:
+            return f"{name} is missing"
+    if record.get("output_bytes") not in (None, total):
+        return "its files changed since they were written"
+    return None
 
 
 def _read_result(folder: Path) -> dict | None:
