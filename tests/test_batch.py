@@ -656,3 +656,20 @@ def recwarn_messages(recwarn, call) -> list[str]:
     recwarn.clear()
     call()
     return [str(w.message) for w in recwarn]
+
+
+def test_a_cache_or_disk_that_cannot_be_written_is_not_called_a_bug(tmp_path, monkeypatch):
+    """An unwritable cache directory is refused before any worker starts, naming the folder
+    and WIGGLY_CACHE_DIR; a full disk during a shot is the machine's failure, not a bug."""
+    import errno
+
+    from wiggly.batch.worker import _failure
+
+    blocker = tmp_path / "cache"
+    blocker.write_text("a file where the cache directory should be")
+    monkeypatch.setenv("WIGGLY_CACHE_DIR", str(blocker))
+    with pytest.raises(WigglyInputError, match=r"cache directory.*cannot be written.*set "
+                                               r"WIGGLY_CACHE_DIR to a folder that can"):
+        run(write_sweep(tmp_path / "sweep"), tmp_path / "out", workers=1)
+    said = _failure(OSError(errno.ENOSPC, "No space left on device"))["error"]
+    assert "the disk is full" in said and "bug" not in said, said

@@ -21,7 +21,7 @@ from typing import Any
 
 from wiggly.batch import worker
 from wiggly.errors import WigglyInputError
-from wiggly.files import atomic_file, default_cache_dir
+from wiggly.files import atomic_file, check_writable, default_cache_dir
 
 RAY_EXTRA = 'Ray is not installed; install it with pip install "wiggly[ray]" (or pip install ray)'
 
@@ -91,9 +91,15 @@ class LocalPool:
     def __init__(self, workers: int, render_checked: bool) -> None:
         self.slots = workers
         cache = default_cache_dir()
+        self.bodies = cache / "batch" / "bodies"
+        why = check_writable(self.bodies / "probe")
+        if why is not None:
+            raise WigglyInputError(
+                f"wiggly batch keeps the bodies it prepares in its cache directory, and "
+                f"{self.bodies} cannot be written ({why}); set WIGGLY_CACHE_DIR to a folder "
+                "that can")
         self._args = (render_checked, str(cache), os.getpid())  # workers end with the batch
         self._start()
-        self.bodies = cache / "batch" / "bodies"
 
     def _start(self) -> None:
         """A new pool whose workers are known to start: each first imports the calling

@@ -12,6 +12,7 @@ bad shot never stops the others.
 
 from __future__ import annotations
 
+import errno
 import os
 import pickle
 import shutil
@@ -146,6 +147,10 @@ def _failure(err: BaseException) -> dict:
 
     if isinstance(err, WigglyInputError | RenderingError):
         return {"status": "failed", "error": str(err), "traceback": None}
+    if isinstance(err, OSError):  # the machine's, not wiggly's: a full disk, a lost mount
+        full = " (the disk is full)" if err.errno == errno.ENOSPC else ""
+        return {"status": "failed", "error": f"a file could not be read or written{full}: "
+                f"{err}", "traceback": None}
     return {"status": "failed", "error": f"internal error (a bug): {type(err).__name__}: {err}",
             "traceback": traceback.format_exc()}
 
