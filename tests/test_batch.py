@@ -115,6 +115,9 @@ def test_sweep_on_worker_processes(tmp_path, monkeypatch):
         assert sheet.size == (4 * 240 + 5 * 6, 180 + 34 + 2 * 6)
     page = (out / "contact-sheet.html").read_text()
     assert all(f'src="{r["thumbnail"]}"' in page for r in records)
+    # a batch without sheets leaves none of an earlier one to contradict its summary
+    run(write_sweep(tmp_path), out, contact_sheet=False)
+    assert not (out / "contact-sheet.html").exists() and not (out / "contact-sheet.png").exists()
 
 
 def test_obj_sequence_listed_by_its_frame_files(tmp_path, monkeypatch, caplog):
@@ -128,8 +131,9 @@ def test_obj_sequence_listed_by_its_frame_files(tmp_path, monkeypatch, caplog):
     monkeypatch.setattr(wiggly.progress, "NOTE_EVERY", 0.0)  # log every count
     with caplog.at_level("INFO", logger="wiggly"):
         (record,) = run(write_sweep(tmp_path, sweep), out, workers=1)
-    counts = [m for m in caplog.messages if m.startswith("batch: 1 shot so far")]
-    assert counts and counts[0].startswith("batch: 1 shot so far, done 1, failed 0, running 0"), \
+    counts = [m for m in caplog.messages if m.startswith("batch: 1 of 1 shot so far")]
+    assert counts and counts[0].startswith("batch: 1 of 1 shot so far, done 1, failed 0, "
+                                           "running 0"), \
         caplog.messages
     assert record["status"] == "done", record["error"]
     frames = [f"sweep-0000/bar_{k:04d}.obj" for k in range(11)]  # 1 s at 10 fps
@@ -463,11 +467,14 @@ def test_scene_files_of_the_same_name(tmp_path):
         (tmp_path / d).mkdir()
         (tmp_path / d / "shot.toml").write_text(tomli_w.dumps(copy.deepcopy(SCENE)))
     shots, _ = collect([tmp_path / "a" / "shot.toml", tmp_path / "b" / "shot.toml"])
-    assert [s.name for s in shots] == ["a-shot", "b-shot"]
+    assert [s.name for s in shots] == ["shot", "b-shot"]  # a file added later renames none
     assert shots[0].outputs == ("bar.npz",)
+    with pytest.warns(UserWarning, match=r"shot\.toml is given more than once; it runs once"):
+        shots, _ = collect([tmp_path / "a" / "shot.toml", tmp_path / "a" / "shot.toml"])
+    assert [s.name for s in shots] == ["shot"]
     scene = load_scene(tmp_path / "a" / "shot.toml")  # Scene objects, and --write
     shots, _ = collect([scene, scene], write=["x.glb", "x.gif"])
-    assert [s.name for s in shots] == ["a-shot", "a-shot-2"]
+    assert [s.name for s in shots] == ["shot", "a-shot"]
     assert all(s.scene == scene and s.outputs == ("x.glb", "x.gif") for s in shots)
     with pytest.raises(WigglyInputError, match=r"--write: 'out/x\.glb' has folders"):
         collect([scene], write=["out/x.glb"])

@@ -122,7 +122,7 @@ def test_stage_lines_in_a_log_and_no_progress_bar(tmp_path, cache, capsys, caplo
     assert code == 0
     assert "\r" not in err
     assert "[wiggly] cubes done (1 of 1)" in err
-    assert "[wiggly] batch: 1 shot, done 1, failed 0, running 0" in err
+    assert "[wiggly] batch: 1 of 1 shot, done 1, failed 0, running 0" in err
 
 
 def test_an_unreachable_ray_cluster_is_said_in_wiggly_terms(monkeypatch):
@@ -142,3 +142,31 @@ def test_an_unreachable_ray_cluster_is_said_in_wiggly_terms(monkeypatch):
                                                r"Ray cluster \(Could not find.*\); start one on "
                                                r"this machine with `ray start --head`"):
         RayCluster("auto", render_checked=True)
+
+
+def test_console_mistakes_and_an_interruption_are_said_plainly(tmp_path, cache, capsys):
+    """A folder given as input, --write none beside file names: usage errors naming what to
+    give; an interrupted batch says what is done and that the same command runs the rest
+    (from its own summary, never an earlier batch's)."""
+    import json
+    import os
+    import time
+
+    from wiggly.cli.batch import interrupted
+
+    scene = write_scene(tmp_path / "shots")
+    assert main(["batch", str(tmp_path / "shots")]) == 2
+    err = capsys.readouterr().err
+    assert "shots: is a folder; give the scene files in it" in err and "*.toml" in err, err
+    assert main(["batch", str(scene), "--write", "a.npz", "--write", "none"]) == 2
+    assert "--write none (no outputs, only the summary) cannot go with other names (a.npz)" \
+        in capsys.readouterr().err
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text(json.dumps(
+        {"totals": {"shots": 12, "done": 2, "not_run": 10}}))
+    said = interrupted(out, time.time() - 60)
+    assert "2 of 12 shots done, 10 not run" in said and "the same command runs the rest" in said
+    os.utime(out / "summary.json", (0, 0))  # an earlier batch's summary: not its counts
+    said = interrupted(out, time.time() - 60)
+    assert "of 12" not in said and "the same command runs the rest" in said

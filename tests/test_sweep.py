@@ -249,7 +249,10 @@ ERRORS = [
     (with_(grid={}, random=None, samples=None), "the sweep varies nothing: give the "
                                                 "parameters to vary in [grid]"),
     (with_(output={"dir": "shot.toml"}), 'output.dir = "shot.toml": '),
-    (with_(grid={"material.young": [1.0] * 400}, samples=300),
+    (with_(grid__material_DOT_young=[1e5, 2e5, 1e5]),
+     'grid."material.young"[2] = 100000.0 repeats grid."material.young"[0]: it would make '
+     "identical shots"),
+    (with_(grid={"material.young": [float(k) for k in range(1, 401)]}, samples=300),
      "the sweep makes 120000 shots (400 grid points x 300 samples), more than 100000"),
 ]
 

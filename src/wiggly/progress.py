@@ -227,10 +227,15 @@ class Counter:
     and the last status at most every :data:`NOTE_EVERY` seconds while it runs (a long solve
     piped to a log does not look hung), and one line when it closes."""
 
-    def __init__(self, desc: str, unit: str, enabled: bool) -> None:
-        self.desc, self.unit, self.enabled = desc, unit, enabled
+    def __init__(self, desc: str, unit: str, enabled: bool, total: int | None = None) -> None:
+        self.desc, self.unit, self.enabled, self.total = desc, unit, enabled, total
         self.n, self.postfix, self.t0 = 0, "", time.perf_counter()
         self.said = self.t0
+
+    def _count(self) -> str:
+        if self.total is None:
+            return _counted(self.n, self.unit)
+        return f"{self.n} of {_counted(self.total, self.unit)}"
 
     def update(self, n: int = 1) -> None:
         self.n += n
@@ -238,7 +243,7 @@ class Counter:
         if self.enabled and now - self.said >= NOTE_EVERY:
             self.said = now
             status = f", {self.postfix}" if self.postfix else ""
-            log.info(f"{self.desc}: {_counted(self.n, self.unit)} so far{status} "
+            log.info(f"{self.desc}: {self._count()} so far{status} "
                      f"({now - self.t0:.0f} s)")
 
     def set_postfix_str(self, text: str = "", refresh: bool = True) -> None:
@@ -250,7 +255,7 @@ class Counter:
     def close(self) -> None:
         if self.enabled:
             status = f", {self.postfix}" if self.postfix else ""
-            log.info(f"{self.desc}: {_counted(self.n, self.unit)}{status} "
+            log.info(f"{self.desc}: {self._count()}{status} "
                      f"({time.perf_counter() - self.t0:.1f} s)")
             self.enabled = False
 

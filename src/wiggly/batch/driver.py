@@ -138,6 +138,9 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
             if contact_sheet:
                 with activity("writing the contact sheets", len(ordered) > 100):
                     summary_files.write_contact_sheets(out, ordered)
+            else:  # an earlier batch's sheets would contradict this summary
+                for name in summary_files.SHEETS:
+                    (out / name).unlink(missing_ok=True)
     return ordered
 
 
@@ -343,7 +346,7 @@ class _Driver:
             self.bar = bar(total=len(shots), initial=done + failed, desc="[wiggly] batch",
                            unit="shot", dynamic_ncols=True)
         else:  # in a log: a line per shot, and the counts at the end
-            self.bar = Counter("batch", "shot", self.shown)
+            self.bar = Counter("batch", "shot", self.shown, total=len(shots))
             self.bar.n = done + failed
         self.counts = {"done": done, "failed": failed}
         for r in self.records.values():
@@ -528,9 +531,9 @@ class _Driver:
         if record["status"] != "done":
             self._say_failed(record)
         self._status(0)  # before the count: a log line shows both (Counter.update)
-        self.bar.update(1)
         if not self.live and record["status"] == "done":
-            say(f"{record['shot']} done ({self.bar.n} of {self.total})")
+            say(f"{record['shot']} done ({self.bar.n + 1} of {self.total})")
+        self.bar.update(1)
         for w in said:
             self._warn(f"{record['shot']}: {w}")
 

@@ -80,7 +80,13 @@ def collect(inputs: Sequence, write: Sequence[str] | None = None) -> tuple[list[
             raise WigglyInputError(problem)
     shots: list[Shot] = []
     sweeps: list[Sweep] = []
+    given: set[Path] = set()
     for item in inputs:
+        if isinstance(item, str | os.PathLike):
+            if Path(item).resolve() in given:
+                warnings.warn(f"{item} is given more than once; it runs once", stacklevel=2)
+                continue
+            given.add(Path(item).resolve())
         if isinstance(item, Sweep):
             sweeps.append(item)
             shots += _sweep_shots(item, write)
@@ -194,13 +200,14 @@ def _clean(name: str) -> str:
 
 
 def _unique_names(shots: list[Shot]) -> None:
-    """Give scene files of the same name their folder's name as a prefix, then numbers."""
+    """Give scene files of the same name as an earlier one their folder's name as a prefix,
+    then numbers."""
     by_name: dict[str, list[Shot]] = {}
     for s in shots:
         by_name.setdefault(s.name, []).append(s)
     for name, same in by_name.items():
-        if len(same) > 1:
-            for s in same:
+        if len(same) > 1:  # the first keeps its name: adding a file renames no shot done
+            for s in same[1:]:
                 parent = Path(s.origin).parent.name if s.scene is None or s.scene.source is None \
                     else s.scene.source.parent.name
                 if parent and not s.params:

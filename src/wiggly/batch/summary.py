@@ -20,6 +20,8 @@ from wiggly.files import atomic_file
 from wiggly.progress import say
 
 SUMMARY_FORMAT = 1
+#: The contact sheets' files in a batch's folder.
+SHEETS = ("contact-sheet.html", "contact-sheet.png")
 #: Shots shown in the PNG contact sheet (the HTML one shows all).
 MAX_SHEET_TILES = 400
 SHEET_COLUMNS = 6

@@ -12,6 +12,7 @@ the scene validator's message.
 from __future__ import annotations
 
 import copy
+import json
 import math
 import os
 import re
@@ -474,6 +475,14 @@ def sweep_from_dict(data: dict, where: str, source: Path) -> Sweep:
         if key in params:
             for j, v in enumerate(values):
                 _check_value(params[key], v, f'grid."{key}"[{j}]', p)
+        seen: dict[str, int] = {}
+        for j, v in enumerate(values):
+            text = json.dumps(v, sort_keys=True)
+            if text in seen:
+                p.add(f'grid."{key}"[{j}] = {show(v)} repeats grid."{key}"[{seen[text]}]: it '
+                      "would make identical shots; give each value once")
+                break
+            seen[text] = j
     dists = {}
     for key, table in random.items():
         if key in params and key not in grid:

@@ -5,7 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from pathlib import Path
+
+from wiggly.errors import counted
 
 HELP = "run many shots: scene files or a sweep, locally or on a Ray cluster"
 DESCRIPTION = """\
@@ -80,12 +83,23 @@ def run(args: argparse.Namespace) -> int:
         print("wiggly batch: error: -j counts local processes; a Ray cluster uses its CPUs: "
               "give -j or --ray-address, not both", file=sys.stderr)
         return 2
+    folders = [i for i in args.inputs if Path(i).is_dir()]
+    if folders:
+        print(f"wiggly batch: error: {', '.join(folders)}: "
+              f"{'is a folder' if len(folders) == 1 else 'are folders'}; give the scene files "
+              f"in it ({Path(folders[0], '*.toml')}) or a sweep file", file=sys.stderr)
+        return 2
     if not any(Path(i).is_file() for i in args.inputs):  # typos: before any folder is made
         print(f"wiggly batch: error: no such file: {', '.join(args.inputs)} (give scene "
               "files (.toml) or a sweep file; of several, a missing one is a failed shot)",
               file=sys.stderr)
         return 2
     if args.write is not None and any(w.lower() == "none" for w in args.write):
+        if len(args.write) > 1:
+            print("wiggly batch: error: --write none (no outputs, only the summary) cannot go "
+                  f"with other names ({', '.join(w for w in args.write if w.lower() != 'none')})"
+                  "; give one or the other", file=sys.stderr)
+            return 2
         args.write = []
     if args.dry_run:
         return _dry_run(args)
@@ -93,10 +107,15 @@ def run(args: argparse.Namespace) -> int:
 
     out = _out_dir(args)
     ray = args.ray_address or args.ray or None
-    records = run_batch(args.inputs, out, workers=args.workers, ray=ray,
-                        write=args.write, overwrite=args.overwrite,
-                        contact_sheet=not args.no_sheet, thumbnail_time=args.thumbnail_time,
-                        warm_start=not args.cold)
+    started = time.time()
+    try:
+        records = run_batch(args.inputs, out, workers=args.workers, ray=ray,
+                            write=args.write, overwrite=args.overwrite,
+                            contact_sheet=not args.no_sheet,
+                            thumbnail_time=args.thumbnail_time, warm_start=not args.cold)
+    except KeyboardInterrupt:
+        print(interrupted(out, started), file=sys.stderr)
+        raise
     print(report(records, out, args))
     return 0 if all(r["status"] == "done" for r in records) else 1
 
@@ -106,7 +125,7 @@ def report(records: list[dict], out: Path, args: argparse.Namespace) -> str:
     done = [r for r in records if r["status"] == "done"]
     resumed = sum(bool(r.get("resumed")) for r in done)
     failed = [r for r in records if r["status"] != "done"]
-    lines = [f"{len(records)} shots: {len(done)} done"
+    lines = [f"{counted(len(records), 'shot')}: {len(done)} done"
              + (f" ({resumed} in an earlier run)" if resumed else "")
              + (f", {len(failed)} failed" if failed else "")]
     for r in failed:
@@ -117,6 +136,23 @@ def report(records: list[dict], out: Path, args: argparse.Namespace) -> str:
     if not args.no_sheet:
         lines.append(f"sheet      {Path(out, 'contact-sheet.html').resolve()}")
     return "\n".join(lines)
+
+
+def interrupted(out: Path, started: float) -> str:
+    """What an interrupted batch left: the counts of its summary (written on Ctrl+C once
+    its shots run; not an earlier batch's, from before ``started``), and that running it
+    again finishes it."""
+    summary = Path(out, "summary.json")
+    try:
+        if summary.stat().st_mtime < started:
+            raise ValueError("an earlier batch's summary")
+        totals = json.loads(summary.read_text("utf-8"))["totals"]
+        counts = (f"{totals['done']} of {counted(totals['shots'], 'shot')} done, "
+                  f"{totals['not_run']} not run; summary {Path(out, 'summary.csv').resolve()}; ")
+    except (OSError, ValueError, KeyError, TypeError):
+        counts = ""
+    return (f"wiggly batch: interrupted: {counts}the shots done are kept in {out}, and the "
+            "same command runs the rest")
 
 
 def _out_dir(args: argparse.Namespace) -> Path:
