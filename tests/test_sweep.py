@@ -279,6 +279,13 @@ def test_all_problems_at_once_and_base_errors(tmp_path):
     assert "sweep.toml: seed = -1 must be an integer >= 0" in text
     assert 'sweep.toml: base = "shot.toml": the base scene is not valid' in text
     assert "shot.toml: unknown key 'yuong' in [material]; did you mean 'young'?" in text
+    inner = write(tmp_path, with_())  # a sweep whose base is that sweep file
+    (tmp_path / "outer.toml").write_text(tomli_w.dumps(with_(base=inner.name)))
+    with pytest.raises(WigglyInputError) as err:
+        load_sweep(tmp_path / "outer.toml")
+    assert str(err.value).splitlines() == [
+        f'{tmp_path / "outer.toml"}: base = "sweep.toml" is a sweep file; a sweep\'s base is a '
+        "scene file (give that sweep's own base, and its [grid] and [random] here)"]
 
 
 def test_documented_sweep(tmp_path):

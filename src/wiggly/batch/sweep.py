@@ -413,6 +413,13 @@ def _unravel(g: int, sizes: list[int]) -> list[int]:
     return out[::-1]
 
 
+def _is_sweep_file(path: Path) -> bool:
+    try:
+        return is_sweep(read_toml(path))
+    except WigglyInputError:
+        return False
+
+
 def is_sweep(data: dict) -> bool:
     """A TOML document is a sweep when it names a base scene."""
     return "base" in data
@@ -452,9 +459,13 @@ def sweep_from_dict(data: dict, where: str, source: Path) -> Sweep:
         try:
             base = load_scene(base_path)
         except WigglyInputError as err:
-            p.add(f"base = {show(name)}: the base scene is not valid:\n{err}"
-                  if base_path.is_file() else
-                  f"base = {show(name)}: no such scene file ({base_path})")
+            if _is_sweep_file(base_path):
+                p.add(f"base = {show(name)} is a sweep file; a sweep's base is a scene file "
+                      "(give that sweep's own base, and its [grid] and [random] here)")
+            else:
+                p.add(f"base = {show(name)}: the base scene is not valid:\n{err}"
+                      if base_path.is_file() else
+                      f"base = {show(name)}: no such scene file ({base_path})")
     p.raise_if_any()
     if d is None or base is None:  # pragma: no cover - their problems were raised above
         raise WigglyInputError(f"{where}: the sweep file could not be read")
