@@ -281,11 +281,25 @@ def test_folder_is_checked_first(tmp_path, capsys):
     assert not nowhere.exists()  # a lone typo makes no output folder
 
 
-def test_dry_run_and_schema(tmp_path, capsys):
-    code = main(["batch", str(write_sweep(tmp_path)), "--dry-run"])
+def test_dry_run_and_schema(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("WIGGLY_CACHE_DIR", str(tmp_path / "cache"))
+    sweep, folder = write_sweep(tmp_path), tmp_path / "batch"
+    code = main(["batch", str(sweep), "-o", str(folder), "--dry-run"])
     out = capsys.readouterr().out
-    assert code == 0 and out.count("sweep-000") == 4 and out.endswith("4 shots\n")
+    assert code == 0 and out.count("sweep-000") == 4
+    assert out.endswith(f"4 shots into {folder}\n"), out
     assert "damping.alpha = 4.0" in out
+    # what a run would find in the batch's folder: a shot done, another one, a stranger
+    other = {**SWEEP, "samples": 1, "grid": {"damping.alpha": [0.5, 2.0]}}
+    run(write_sweep(tmp_path / "earlier", other), folder, contact_sheet=False)
+    (folder / "sweep-0003").mkdir()
+    assert main(["batch", str(sweep), "-o", str(folder), "--dry-run"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].endswith("[done in an earlier run]") and not lines[2].endswith("]"), lines
+    assert lines[1].endswith("[its folder holds another shot: replaced only with "
+                             "--overwrite]"), lines
+    assert lines[3].endswith("holds no shot (no result.json): refused]"), lines
+    assert lines[4].endswith("4 shots into " + str(folder) + ", 1 done in an earlier run")
     assert main(["batch", "--schema"]) == 0
     assert json.loads(capsys.readouterr().out)["title"] == "wiggly sweep"
     assert main(["batch"]) == 2

@@ -225,7 +225,7 @@ def _scan(out: Path, shots: list[Shot], overwrite: bool, request: dict):
         if not folder.exists():
             todo.append(s)
             continue
-        old = _read_result(folder)
+        old = read_result(folder)
         if old is None:
             strangers.append(s.name)
             continue
@@ -298,7 +298,7 @@ def _broken(folder: Path, record: dict) -> str | None:
     return None
 
 
-def _read_result(folder: Path) -> dict | None:
+def read_result(folder: Path) -> dict | None:
     try:
         data = json.loads((folder / RESULT).read_text(encoding="utf-8"))
     except (OSError, ValueError):

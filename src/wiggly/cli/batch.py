@@ -176,18 +176,37 @@ def _out_dir(args: argparse.Namespace) -> Path:
 
 
 def _dry_run(args: argparse.Namespace) -> int:
-    from wiggly.batch.shots import collect
+    """List the shots, each with every problem of its scene and what its folder in the
+    batch's folder holds (done before, another shot, or files wiggly did not write)."""
+    from wiggly.batch.driver import RESULT, read_result
+    from wiggly.batch.shots import Digests, collect, keyed
 
     shots, _ = collect(args.inputs, args.write)
-    bad = 0
+    out = _out_dir(args)
+    keyed([s for s in shots if s.scene is not None], Digests())
+    bad, done = 0, 0
     for s in shots:
         if s.scene is None:
             bad += 1
-            print(f"{s.name}: invalid: {(s.error or '').splitlines()[0]}")
-        else:
-            values = ", ".join(f"{k} = {json.dumps(v)}" for k, v in s.params.items())
-            print(f"{s.name}: {values or s.origin}")
-    print(f"{len(shots)} shots" + (f", {bad} invalid" if bad else ""))
+            lines = (s.error or "").splitlines() or [""]
+            print(f"{s.name}: invalid: {lines[0]}")
+            for line in lines[1:]:
+                print(f"    {line}")
+            continue
+        values = ", ".join(f"{k} = {json.dumps(v)}" for k, v in s.params.items())
+        folder = Path(out, s.name)
+        state = ""
+        if folder.exists():
+            old = read_result(folder)
+            if old is None:
+                state = f" [{folder} holds no shot (no {RESULT}): refused]"
+            elif old.get("key") == s.key and old.get("status") == "done":
+                state, done = " [done in an earlier run]", done + 1
+            else:
+                state = " [its folder holds another shot: replaced only with --overwrite]"
+        print(f"{s.name}: {values or s.origin}{state}")
+    print(f"{counted(len(shots), 'shot')} into {out}" + (f", {bad} invalid" if bad else "")
+          + (f", {done} done in an earlier run" if done else ""))
     return 1 if bad else 0
 
 
