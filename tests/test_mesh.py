@@ -883,3 +883,23 @@ def test_load_mesh_scale_multiplies_the_coordinates_only(tmp_path):
     model = load_model(tmp_path / "ball.obj", resolution=6, scale=0.01, cache_dir=False)
     with pytest.raises(WigglyInputError, match=r"scale = 0\.01 applies to a mesh file"):
         wiggly.prepare(model, scale=0.01)
+
+
+def test_a_surface_far_from_the_origin_keeps_its_orientation():
+    """The enclosed volume of a box 2e5 m from the origin: summed about the origin, rounding
+    gave -0.042 m^3 for +0.030, and the surface was flipped inside out with a warning."""
+    import warnings
+
+    import trimesh
+
+    from wiggly.mesh import Surface
+    from wiggly.mesh.defects import enclosed_volume
+    from wiggly.mesh.model import _outward
+
+    box = trimesh.creation.box((0.3, 0.4, 0.25))
+    V, F = np.asarray(box.vertices) + np.array([1e5, 2e5, -3e4]), np.asarray(box.faces)
+    assert enclosed_volume(V, F) == pytest.approx(0.03, rel=1e-9)
+    assert enclosed_volume(V, F[:, ::-1]) == pytest.approx(-0.03, rel=1e-9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert np.array_equal(_outward(Surface(V, F), "far.obj").faces, F)  # no flip, no warning

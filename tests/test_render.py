@@ -339,3 +339,22 @@ def test_bad_output_paths(tmp_path, ball):
 
 def test_probe_reports_the_backend(offscreen):
     assert "RenderWindow" in offscreen
+
+
+def test_a_body_far_from_the_origin_renders_as_it_does_at_the_origin():
+    """A body 2e4 m from the origin (a map's coordinates) was a blank picture (VTK draws in
+    float32): the scene is drawn about the frames' centre, so the picture is the same as at
+    the origin, for a preset camera and for an explicit pose moved with the body."""
+    sphere = trimesh.creation.icosphere(3, radius=0.5)
+    V, F = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    X = np.stack([V, V + np.array([0.0, 0.1, 0.0])]).astype(np.float32)
+    t = np.array([0.0, 1.0])
+    off = np.array([1e4, 2e4, -3e3])
+    far = (X + off).astype(np.float32)
+    near = render_frame(t, X, F, at=0.5).astype(int)
+    assert np.abs(near - render_frame(t, far, F, at=0.5)).mean() < 0.5
+    pose = ((3.0, 2.0, 3.0), (0.0, 0.0, 0.0))
+    posed = render_frame(t, X, F, at=0.5, camera=pose).astype(int)
+    moved = (tuple(np.add(pose[0], off)), tuple(off))
+    assert np.abs(posed - render_frame(t, far, F, at=0.5, camera=moved)).mean() < 0.5
+    assert np.abs(posed - near).mean() > 5  # the poses differ: the check can tell pictures apart

@@ -140,8 +140,15 @@ def diagonal(V: np.ndarray) -> float:
 
 
 def enclosed_volume(V: np.ndarray, F: np.ndarray) -> float:
-    """The signed volume the triangles F enclose (m^3): positive when they face outwards."""
-    return float(np.einsum("ij,ij->", V[F[:, 0]], np.cross(V[F[:, 1]], V[F[:, 2]]))) / 6
+    """The signed volume the triangles F enclose (m^3): positive when they face outwards.
+    Summed about the centre of the triangles' bounding box: about the origin, a body far
+    from it (1e5 m away) would sum products of its absolute coordinates, and rounding would
+    swamp its volume, even its sign."""
+    if len(F) == 0:
+        return 0.0
+    used = V[np.unique(F)]
+    X = V - 0.5 * (used.min(axis=0) + used.max(axis=0))
+    return float(np.einsum("ij,ij->", X[F[:, 0]], np.cross(X[F[:, 1]], X[F[:, 2]]))) / 6
 
 
 def weld(V: np.ndarray, tol: float) -> np.ndarray:

@@ -84,6 +84,21 @@ def _nice(x: float) -> float:
     return (5 if m >= 5 else 2 if m >= 2 else 1) * 10.0**e
 
 
+def _shifted_pose(camera, origin: np.ndarray):
+    """An explicit pose (position, focal_point[, view_up]) in the frame centred on
+    ``origin`` (:attr:`Preview.origin`); names and angles as they are."""
+    if isinstance(camera, str) or camera is None:
+        return camera
+    try:
+        cam = np.array(camera, dtype=np.float64)
+    except (TypeError, ValueError):
+        return camera
+    if cam.shape not in ((2, 3), (3, 3)):
+        return camera
+    cam[:2] -= origin
+    return cam
+
+
 def _camera_pose(camera, lo, hi, frame, aspect: float, view_angle: float):
     """(position, focal_point, view_up) for a preset name, (azimuth, elevation) or explicit pose."""
     right, up, front = frame
@@ -165,7 +180,12 @@ class Preview:
     def __init__(self, times, positions, faces, *, highlights: Sequence[Highlight] = (),
                  size=(960, 540), up=(0.0, 1.0, 0.0), ground: bool = True, camera=None,
                  title: str | None = None, anti_aliasing: bool = True):
-        self.times, self.positions, self.faces = preview_arrays(times, positions, faces)
+        self.times, positions, self.faces = preview_arrays(times, positions, faces)
+        # the scene about the centre of the frames' bounding box: VTK draws in float32, and a
+        # body 1e4 m from the origin (a map's coordinates) vanished in its rounding
+        self.origin = 0.5 * (positions.min(axis=(0, 1)) + positions.max(axis=(0, 1)))
+        self.positions = positions - self.origin.astype(positions.dtype)
+        camera = _shifted_pose(camera, self.origin)
         n = self.positions.shape[1]
         self.highlights = checked_highlights(highlights, n)
         self.size = pixel_size(size)
@@ -334,7 +354,8 @@ class Preview:
 
     # --- per frame ------------------------------------------------------------------------
     def positions_at(self, t: float) -> np.ndarray:
-        """Vertex positions at time ``t``: linear between frames, clamped to the time range."""
+        """Vertex positions at time ``t`` relative to :attr:`origin`: linear between frames,
+        clamped to the time range."""
         times, X = self.times, self.positions
         if len(times) == 1 or t <= times[0]:
             return X[0]
