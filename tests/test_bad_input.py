@@ -105,7 +105,7 @@ def refused(capsys, folder: Path, scene: Path, *options) -> str:
 def test_resolution_typo_is_refused_by_the_bound(user, tripwires, capsys):
     folder, scene = user
     line = refused(capsys, folder, scene({"mesh.resolution": 100000}))
-    assert "shot.toml: mesh.resolution = 100000 must be an integer in [1, 200]" in line
+    assert "shot.toml: mesh.resolution = 100000 must be an integer in [2, 200]" in line
 
 
 def test_resolution_too_fine_for_the_tet_budget(user, tripwires, capsys):

@@ -490,6 +490,22 @@ def test_modes_count_out_of_range_is_told_before_any_work(capsys):
     assert "tetrahedraliz" not in err and "simulation.modes" not in err
 
 
+def test_modes_speaks_in_its_options_and_refuses_runaway_coarseness(capsys, tmp_path):
+    """``wiggly modes`` says its own options (not scene keys, not "scene:"); a tet edge longer
+    than half the body (fTetWild ran for over 10 minutes on one of seven diagonals) and
+    resolution 1 are refused before any meshing; a folder is called a folder."""
+    code, _, err = run_main(capsys, "modes", "builtin:bar", "--resolution", "200")
+    assert code == 1 and "builtin:bar: --resolution 200 would make about" in err, err
+    assert "use --resolution <= " in err and "mesh." not in err and "scene:" not in err
+    code, _, err = run_main(capsys, "modes", "builtin:bar", "--edge-length", "10")
+    assert code == 1 and "--edge-length 10 m is longer than 1/2 of the body's" in err, err
+    assert "tetrahedraliz" not in err
+    code, _, err = run_main(capsys, "modes", "builtin:bar", "--resolution", "1")
+    assert code == 2 and "--resolution: 1 must be an integer >= 2" in err
+    code, _, err = run_main(capsys, "modes", tmp_path)
+    assert code == 1 and f"{tmp_path}: is a folder" in err
+
+
 def test_keys_missed_under_an_implausible_gravity_name_the_units(capsys, tmp_path):
     """Gravity given in the wrong units (981, Earth's in cm/s^2) is named as a likely unit
     slip before the solve (which grinds on such targets), and the missed-key warning points

@@ -504,8 +504,13 @@ def test_tetrahedralize_rejects_bad_options():
         tetrahedralize(Surface(V, F), edge_length=-1.0)
     with pytest.raises(WigglyInputError, match="4 open edges"):
         tetrahedralize(Surface(V, F[2:]), repair=False)
-    with pytest.raises(WigglyInputError, match=r"resolution must be an integer in \[1, 200\]"):
+    with pytest.raises(WigglyInputError, match=r"resolution must be an integer in \[2, 200\]"):
         tetrahedralize(Surface(V, F), resolution=100000)
+    with pytest.raises(WigglyInputError, match=r"resolution must be an integer in \[2, 200\]"):
+        tetrahedralize(Surface(V, F), resolution=1)  # 31 s for a torus, 3.6 s at 2
+    with pytest.raises(WigglyInputError, match=r"edge_length = 2 m is longer than 1/2 of the "
+                                               r"body's 1 m diagonal"):
+        tetrahedralize(Surface(V, F), edge_length=2.0)  # an edge of seven: 10 min, 14 GB
 
 
 # --------------------------------------------------------------------------- demo models

@@ -219,7 +219,7 @@ def scenes(draw) -> Scene:
                                  draw(w), draw(st.text(max_size=10))))
     fixed = tuple(draw(st.lists(st.sampled_from(names), unique=True)))
     return Scene(
-        mesh=MeshSpec("builtin:bar", draw(st.none() | st.integers(1, 200)),
+        mesh=MeshSpec("builtin:bar", draw(st.none() | st.integers(2, 200)),
                       repair=draw(st.none() | st.booleans())),
         material=MaterialSpec(draw(st.floats(1e-3, 1e13)), draw(st.floats(0, 0.4999)),
                               draw(st.floats(1e-3, 1e6))),
@@ -347,9 +347,9 @@ ERRORS = [
     ("mesh.path", "DELETE", "mesh.path is missing; it is required: a non-empty string"),
     ("mesh.path", "", 'mesh.path = "" must be a non-empty string'),
     ("mesh.path", "builtin:crtter", 'mesh.path = "builtin:crtter" is not a bundled model'),
-    ("mesh.resolution", 0, "mesh.resolution = 0 must be an integer in [1, 200]"),
-    ("mesh.resolution", 2.5, "mesh.resolution = 2.5 must be an integer in [1, 200]"),
-    ("mesh.resolution", 100000, "mesh.resolution = 100000 must be an integer in [1, 200]"),
+    ("mesh.resolution", 0, "mesh.resolution = 0 must be an integer in [2, 200]"),
+    ("mesh.resolution", 2.5, "mesh.resolution = 2.5 must be an integer in [2, 200]"),
+    ("mesh.resolution", 100000, "mesh.resolution = 100000 must be an integer in [2, 200]"),
     ("mesh.edge_length", 0.1, "mesh has both resolution and edge_length; give only one"),
     ("mesh.repair", "yes", 'mesh.repair = "yes" must be true or false'),
     ("material.young", -1.0, "material.young = -1.0 must be a number in [0.001, 1e+13] (Pa)"),

@@ -104,7 +104,7 @@ class WigglySettings(bpy.types.PropertyGroup):
         name="Modes", default=40, min=1, max=500,
         description="Number of eigenmodes (a free body needs at least its 6 rigid ones)")
     resolution: IntProperty(
-        name="Resolution", default=25, min=1, max=200,
+        name="Resolution", default=25, min=2, max=200,
         description="Tetrahedral mesh resolution: target tet edges along the bounding box "
                     "diagonal")
     warp: BoolProperty(

@@ -11,6 +11,10 @@ from __future__ import annotations
 # Tet resolution (target tet edges along the bounding-box diagonal).  The tet count grows
 # with its cube; bodies are also refused by their estimated tet count (MAX_TETS).
 MAX_RESOLUTION = 200
+# At least this many tet edges along the diagonal: with coarser targets fTetWild cannot meet
+# its sizing and runs on (a torus at resolution 1: 31 s against 3.6 s at 2; an edge of seven
+# diagonals: over 10 minutes and 14 GB).
+MIN_RESOLUTION = 2
 # Estimated tets of a body before tetrahedralizing (about 2 GB for modes and warp).
 MAX_TETS = 400_000
 # Eigenmodes per body.

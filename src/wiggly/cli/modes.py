@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wiggly.limits import MAX_MODES
+from wiggly.errors import counted
+from wiggly.limits import MAX_MODES, MIN_RESOLUTION
 from wiggly.mesh import DEFAULT_RESOLUTION
 from wiggly.progress import say
 
@@ -45,7 +46,7 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="number of modes, rigid ones included (default 20, or the "
                              "scene's)")
     size = parser.add_mutually_exclusive_group()
-    size.add_argument("--resolution", type=_int_at_least(1), metavar="R",
+    size.add_argument("--resolution", type=_int_at_least(MIN_RESOLUTION), metavar="R",
                       help="tet edges along the bounding-box diagonal (default "
                            f"{DEFAULT_RESOLUTION}, or the scene's)")
     size.add_argument("--edge-length", type=_number(0), metavar="L",
@@ -89,8 +90,11 @@ def run(args: argparse.Namespace) -> int:
         scene = replace(scene, keyframes=[])
     else:
         if not args.mesh.startswith("builtin:") and not Path(args.mesh).is_file():
-            raise WigglyInputError(f"{args.mesh}: does not exist; give the path of a mesh file.")
-        scene = Scene(MeshSpec(args.mesh), simulation=SimulationSpec(modes=20))
+            raise WigglyInputError(
+                f"{args.mesh}: {'is a folder' if Path(args.mesh).is_dir() else 'does not exist'}"
+                "; give the path of a mesh file.")
+        scene = Scene(MeshSpec(args.mesh), simulation=SimulationSpec(modes=20),
+                      label=args.mesh)
     mesh = scene.mesh
     if args.resolution is not None or args.edge_length is not None:
         mesh = replace(mesh, resolution=args.resolution, edge_length=args.edge_length)
@@ -104,12 +108,36 @@ def run(args: argparse.Namespace) -> int:
             f"basis must contain; use at least {RIGID_MODES + 1} to see elastic ones")
     sim = replace(scene.simulation, modes=args.modes or scene.simulation.modes)
     scene = replace(scene, mesh=mesh, material=material, simulation=sim)
-    body, _ = build(scene)
+    try:
+        body, _ = build(scene)
+    except WigglyInputError as err:
+        if scene.source is not None:  # a scene file's keys are the user's own words
+            raise
+        raise WigglyInputError(_in_options(str(err))) from None
     print(table(scene, body))
     if args.output is not None:
         path = preview(Path(args.output), body, overwrite=args.overwrite)
         print(f"wrote {path.resolve()}")
     return 0
+
+
+#: Scene keys as this command's options name them (its messages come from the scene checks).
+OPTIONS = {"mesh.resolution": "--resolution", "mesh.edge_length": "--edge-length",
+           "simulation.modes": "-n/--modes", "material.young": "--young",
+           "material.poisson": "--poisson", "material.density": "--density",
+           "edge_length": "--edge-length", "resolution": "--resolution"}
+
+
+def _in_options(message: str) -> str:
+    """A scene check's message in this command's terms (``mesh.resolution = 200`` is
+    ``--resolution 200``)."""
+    import re
+
+    names = "|".join(re.escape(k) for k in sorted(OPTIONS, key=len, reverse=True))
+    message = re.sub(rf"(?<![\w.-])({names}) = ", lambda m: f"{OPTIONS[m[1]]} ", message)
+    message = re.sub(rf"(?<![\w.-])({names}) (<=|>=)", lambda m: f"{OPTIONS[m[1]]} {m[2]}",
+                     message)
+    return re.sub(rf"(?<![\w.-])({names})\b", lambda m: OPTIONS[m[1]], message)
 
 
 def table(scene, body) -> str:
@@ -159,6 +187,7 @@ def preview(path: Path, body, *, overwrite: bool = False) -> Path:
         raise WigglyInputError("the model has no elastic modes to preview; ask for more "
                                "modes with -n")
     sheet = path.suffix.lower() == ".png"
+    every = elastic
     elastic = elastic[:MAX_SHEET_MODES if sheet else MAX_VIDEO_MODES]
     V = body.tets.vertices
     diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
@@ -169,16 +198,22 @@ def preview(path: Path, body, *, overwrite: bool = False) -> Path:
         moving = np.flatnonzero(d >= np.quantile(d, 0.85))
         hz = math.sqrt(max(lam[i], 0.0)) / (2 * math.pi)
         return Highlight(moving, t, (1.0, 0.45, 0.1), f"mode {i + 1}: {hz:.3g} Hz",
-                         window=0.5 * PREVIEW_SECONDS)
+                         window=0.5 * PREVIEW_SECONDS, timed=False)
 
-    say(f"rendering {len(elastic)} mode shapes (largest displacement {AMPLITUDE * diag:.3g} m)")
+    shown = (f"the first {len(elastic)} of {counted(len(every), 'elastic mode shape')} (a "
+             f"{'sheet' if sheet else 'video'} shows at most "
+             f"{MAX_SHEET_MODES if sheet else MAX_VIDEO_MODES})" if len(elastic) < len(every)
+             else counted(len(elastic), "elastic mode shape"))
+    say(f"rendering {shown}, largest displacement {AMPLITUDE * diag:.3g} m, orange where each "
+        "mode moves most")
     faces = body.surface.faces
     if sheet:
         times = PREVIEW_SECONDS * (np.arange(len(elastic)) + 0.25)
         positions = mode_shapes(body, elastic, np.ones(len(elastic)))
         hls = [highlight(i, t) for i, t in zip(elastic, times, strict=True)]
         return render_contact_sheet(path, times, positions, faces, at=times, columns=4,
-                                    highlights=hls, title="elastic modes at peak amplitude",
+                                    highlights=hls,
+                                    title="elastic modes at peak amplitude (orange: moves most)",
                                     overwrite=overwrite)
     per = round(PREVIEW_SECONDS * PREVIEW_FPS)
     tau = np.arange(per) / PREVIEW_FPS
@@ -189,7 +224,8 @@ def preview(path: Path, body, *, overwrite: bool = False) -> Path:
     positions = mode_shapes(body, modes, phase)
     hls = [highlight(i, (k + 0.5) * PREVIEW_SECONDS) for k, i in enumerate(elastic)]
     return render_video(path, times, positions, faces, highlights=hls, fps=PREVIEW_FPS,
-                        title="elastic modes, one per second", overwrite=overwrite)
+                        title="elastic modes, one per second (orange: moves most)",
+                        overwrite=overwrite)
 
 
 def _int_at_least(low: int, high: int | None = None):

@@ -171,6 +171,11 @@ def check_limits(scene: Scene, diagonal: float | None = None) -> None:
         problems.append(f"mesh.resolution = {res}: at most {limits.MAX_RESOLUTION} tet edges "
                         "along the diagonal")
     edge = scene.mesh.edge_length
+    if edge is not None and diagonal is not None and diagonal / edge < limits.MIN_RESOLUTION:
+        problems.append(f"mesh.edge_length = {edge:g} m is longer than 1/"
+                        f"{limits.MIN_RESOLUTION} of the mesh's {diagonal:.3g} m diagonal, "
+                        "coarser than fTetWild can mesh (edge_length <= "
+                        f"{diagonal / limits.MIN_RESOLUTION:.3g} m)")
     if edge is not None and diagonal is not None and diagonal / edge > limits.MAX_RESOLUTION:
         problems.append(f"mesh.edge_length = {edge:g} m is {diagonal / edge:.0f} edges along "
                         f"the mesh's {diagonal:.3g} m diagonal; at most "

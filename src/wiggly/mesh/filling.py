@@ -18,7 +18,7 @@ import numpy as np
 from wiggly.child import can_run_child
 from wiggly.errors import WigglyInputError, counted
 from wiggly.files import atomic_file, default_cache_dir
-from wiggly.limits import MAX_RESOLUTION, MAX_TETS
+from wiggly.limits import MAX_RESOLUTION, MAX_TETS, MIN_RESOLUTION
 from wiggly.mesh import defects as mesh_checks
 from wiggly.mesh import tetwild_child
 from wiggly.mesh.data import (
@@ -222,11 +222,16 @@ def edge_length_for(diag: float, edge_length: float | None, resolution: int | No
         )
     if resolution is not None and not (isinstance(resolution, int | np.integer | float)
                                        and int(resolution) == resolution
-                                       and 1 <= resolution <= MAX_RESOLUTION):
+                                       and MIN_RESOLUTION <= resolution <= MAX_RESOLUTION):
         raise WigglyInputError(
-            f"{source}: resolution must be an integer in [1, {MAX_RESOLUTION}] "
-            f"(wiggly.limits.MAX_RESOLUTION), got {resolution}."
+            f"{source}: resolution must be an integer in [{MIN_RESOLUTION}, {MAX_RESOLUTION}] "
+            f"(wiggly.limits.MIN_RESOLUTION, MAX_RESOLUTION), got {resolution}."
         )
+    if edge_length is not None and diag > 0 and edge_length > diag / MIN_RESOLUTION:
+        raise WigglyInputError(
+            f"{source}: edge_length = {edge_length:g} m is longer than 1/{MIN_RESOLUTION} of "
+            f"the body's {diag:.3g} m diagonal, coarser than fTetWild can mesh (it would run "
+            f"for minutes); use edge_length <= {diag / MIN_RESOLUTION:.3g} m.")
     return float(edge_length) if edge_length is not None else \
         diag / int(resolution or DEFAULT_RESOLUTION)
 

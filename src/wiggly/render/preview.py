@@ -347,7 +347,8 @@ class Preview:
             when = (f"key t = {hl.time:.2f} s" if hl.until is None else
                     f"t = {hl.time:.2f} s" if hl.until == hl.time else
                     f"t = {hl.time:.2f}-{hl.until:.2f} s")
-            actor.SetInput(f"{name}  ({when})" if hl.label is not None else "")
+            actor.SetInput("" if hl.label is None else f"{name}  ({when})" if hl.timed
+                           else name)
             actor.SetVisibility(False)
             self._key_labels.append(actor)
         self._label_rows = (margin, round(1.3 * font))  # first row, row height

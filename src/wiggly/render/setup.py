@@ -84,6 +84,9 @@ class Highlight:
     until : float or None
         The end of a span from ``time``: fully highlighted from ``time`` to ``until``, fading
         over ``window`` on either side (e.g. the frames where a motion folds).
+    timed : bool
+        Whether the label says the key's time (False: the label alone, for highlights that
+        are no keys, such as a mode preview's).
     """
 
     vertices: np.ndarray
@@ -93,6 +96,7 @@ class Highlight:
     targets: np.ndarray | None = None
     window: float = HIGHLIGHT_WINDOW
     until: float | None = None
+    timed: bool = True
 
     def weight(self, t: float) -> float:
         """Blend weight of the highlight color at time ``t``: smoothstep, 1 at the key time
@@ -213,7 +217,7 @@ def checked_highlights(highlights: Sequence[Highlight], n: int) -> list[Highligh
             if len(bad):
                 raise WigglyInputError(f"{where}: targets should be finite; target {bad[0]} is "
                                        f"{targets[bad[0]].tolist()}")
-        out.append(Highlight(v, time, color, h.label, targets, window, until))
+        out.append(Highlight(v, time, color, h.label, targets, window, until, bool(h.timed)))
     return out
 
 

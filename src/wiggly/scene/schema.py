@@ -16,7 +16,14 @@ from wiggly.errors import WigglyInputError
 from wiggly.export import GLTF_TARGETS
 from wiggly.export.animation import frame_steps
 from wiggly.fem import DENSITY_RANGE, YOUNG_RANGE
-from wiggly.limits import MAX_DURATION, MAX_FPS, MAX_FRAMES, MAX_MODES, MAX_RESOLUTION
+from wiggly.limits import (
+    MAX_DURATION,
+    MAX_FPS,
+    MAX_FRAMES,
+    MAX_MODES,
+    MAX_RESOLUTION,
+    MIN_RESOLUTION,
+)
 from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION, SURFACE_EXTENSIONS, VOLUME_EXTENSIONS
 from wiggly.scene.drive import check_drive, check_drive_file
 from wiggly.scene.spec import (
@@ -214,7 +221,7 @@ SCENE_FORMAT = Table(
      "mesh": Table(
          {"path": String(doc='mesh file, relative to the scene file, or "builtin:critter", '
                               '"builtin:plant", "builtin:bar"'),
-          "resolution": Number(integer=True, ge=1, le=MAX_RESOLUTION,
+          "resolution": Number(integer=True, ge=MIN_RESOLUTION, le=MAX_RESOLUTION,
                                 doc="tet edges along the bounding-box diagonal (default "
                                     f"{DEFAULT_RESOLUTION})"),
           "edge_length": Number(unit="m", **_POSITIVE, doc="target tet edge length (m)"),
