@@ -269,6 +269,42 @@ def test_render_animation_file(capsys, tmp_path):
     assert code == 1 and "render writes .mp4, .gif or .png" in err
 
 
+def test_render_reads_other_tools_files_as_drivers_and_takes_a_size(capsys, tmp_path,
+                                                                   monkeypatch):
+    """A skinned glTF of another tool renders its whole walk (it rendered one still frame),
+    wiggly's own files are read as written; --size sets the picture's size; a failed second
+    output leaves no first one."""
+    import imageio.v3 as iio
+
+    import wiggly.scene
+    from wiggly.export.formats import written_by_wiggly
+
+    walk = Path(__file__).resolve().parents[1] / "examples" / "critter_walk.glb"
+    video = tmp_path / "walk.mp4"
+    code, out, err = run_main(capsys, "render", walk, "-o", video, "--size", "320x180")
+    assert code == 0, err
+    assert "critter_walk.glb: 61 frames" in out and "read as a driver (glTF skin" in err, err
+    assert iio.improps(video).shape[1:3] == (180, 320)
+    ours = write_animation(tmp_path / "ball.glb", small_animation())
+    assert written_by_wiggly(ours) and not written_by_wiggly(walk)
+    code, _, err = run_main(capsys, "render", walk, "-o", tmp_path / "a.png", "--size", "3x3")
+    assert code == 2 and "--size" in err
+    real, calls = wiggly.scene.render_preview, []
+
+    def failing(path, *args, **kwargs):  # the second preview fails
+        calls.append(path)
+        if len(calls) == 2:
+            raise OSError("disk full")
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(wiggly.scene, "render_preview", failing)
+    code, _, err = run_main(capsys, "render", ours, "-o", tmp_path / "one.png", "-o",
+                            tmp_path / "two.png")
+    assert code == 1 and "disk full" in err, err
+    assert len(calls) == 2  # the first was written, then taken back
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ball.glb", "walk.mp4"]
+
+
 def test_render_scene(capsys, tmp_path):
     scene = write_scene(tmp_path, SCENE)
     sheet = tmp_path / "sheet.png"

@@ -10,15 +10,50 @@ DESCRIPTION = """\
 Render previews: an MP4 or GIF video, or a PNG contact sheet of 8 frames.
 INPUT is either a scene file (.toml), which is solved first (keyframed groups are
 highlighted at their key times, targets drawn as small spheres), or an animation
-written by wiggly (.npz, .glb, .usd, .usda, .usdc, or the first file name of an
-.obj sequence given as NAME.obj), which is rendered as it is."""
+(.npz, .glb, .gltf, .usd, .usda, .usdc, or the first file name of an .obj sequence
+given as NAME.obj), which is rendered as it is. A glTF or USD file from another
+tool is read as a [drive] driver is: skins, morph targets and node transforms
+evaluated, in metres with y up. Several outputs are written all or none."""
 EPILOG = """\
 examples:
   wiggly render examples/turn.toml -o turn.gif
   wiggly render out/jump.npz -o jump.mp4 --camera side
   wiggly render out/jump.glb -o jump-sheet.png --overwrite"""
 
-ANIMATION_EXTENSIONS = (".npz", ".glb", ".usd", ".usda", ".usdc", ".obj")
+ANIMATION_EXTENSIONS = (".npz", ".glb", ".gltf", ".usd", ".usda", ".usdc", ".obj")
+
+
+def _read(source: Path):
+    """The animation in ``source``: wiggly's own files as written; a glTF or USD file of
+    another tool as a driver is read (:func:`wiggly.drive.read_driver`: skins, morph targets
+    and node transforms evaluated), which the reader of wiggly's layout would take as one
+    still frame without its transforms."""
+    from wiggly.drive import read_driver
+    from wiggly.export import SurfaceAnimation, read_animation
+    from wiggly.export.formats import written_by_wiggly
+    from wiggly.progress import say
+
+    if source.suffix.lower() in (".npz", ".obj") or written_by_wiggly(source):
+        return read_animation(source)
+    driver = read_driver(source)
+    say(f"{source.name} is not wiggly's: read as a driver ({driver.kind}, "
+        f"{len(driver.times)} frames)")
+    return SurfaceAnimation(driver.times, driver.positions, driver.faces,
+                            name=source.stem)
+
+
+def _size(text: str) -> tuple[int, int]:
+    from wiggly.checks import pixel_size
+
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+        return pixel_size((w, h), "--size")
+    except (ValueError, TypeError) as err:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a size WIDTHxHEIGHT in pixels, each 16-8192 (e.g. 1280x720)"
+        ) from err
+    except Exception as err:  # WigglyInputError of pixel_size
+        raise argparse.ArgumentTypeError(str(err)) from None
 
 
 def add_args(parser: argparse.ArgumentParser) -> None:
@@ -34,6 +69,9 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="video frame rate (default: the scene's, or the animation's)")
     parser.add_argument("--camera", choices=CAMERAS, default=None,
                         help="camera preset (default: the scene's, or three_quarter)")
+    parser.add_argument("--size", type=_size, metavar="WxH", default=None,
+                        help="image size in pixels, e.g. 1280x720 (default: the scene's, or "
+                             "960x540)")
     parser.add_argument("-q", "--quiet", action="store_true",
                         help="no progress bars or stage messages")
 
@@ -68,24 +106,29 @@ def run(args: argparse.Namespace) -> int:
         scene = with_overrides(scene, fps=args.fps)
         if args.camera is not None:
             scene = replace(scene, output=replace(scene.output, camera=args.camera))
+        if args.size is not None:
+            scene = replace(scene, output=replace(scene.output, size=args.size))
         anim = run_scene(scene, outputs=outputs, overwrite=args.overwrite)
         print(summary(scene, anim))
         return 0
     if ext not in ANIMATION_EXTENSIONS:
         raise WigglyInputError(f"{source}: not a scene (.toml) or an animation "
                                f"({', '.join(ANIMATION_EXTENSIONS)})")
-    from wiggly.export import read_animation
     from wiggly.export.animation import without_seam
+    from wiggly.files import OutputSet
 
     overwrite = bool(args.overwrite)
     check_outputs(outputs, overwrite)
-    anim = read_animation(source)
+    anim = _read(source)
     shown = without_seam(anim)  # a looping video shows the seam's pose once
     spec = OutputSpec(camera=args.camera or "three_quarter")
-    for out in outputs:
-        say(f"rendering {out}")
-        render_preview(out, shown.times, shown.positions, shown.faces, output=spec,
-                       title=anim.name, overwrite=overwrite, fps=args.fps)
+    if args.size is not None:
+        spec = replace(spec, size=args.size)
+    with OutputSet() as staged:  # all or none, also when interrupted
+        for out in outputs:
+            say(f"rendering {out}")
+            render_preview(staged.stage(out), shown.times, shown.positions, shown.faces,
+                           output=spec, title=anim.name, overwrite=True, fps=args.fps)
     print(f"{source}: {counted(anim.n_frames, 'frame')}, {anim.n_vertices} vertices, "
           f"[{anim.times[0]:g}, {anim.times[-1]:g}] s")
     print("wrote")

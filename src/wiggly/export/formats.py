@@ -182,3 +182,36 @@ def read_animation(path) -> SurfaceAnimation:
         reader = {".glb": read_glb, ".npz": read_npz}.get(ext, read_usd)
         anim = reader(path)
     return checked_animation(anim, f"{path}")
+
+
+def written_by_wiggly(path) -> bool:
+    """Whether the glTF or USD file at ``path`` was written by :func:`write_animation` (its
+    asset's generator, or its layer's ``wiggly`` data): its layout is then wiggly's own (a
+    morph target per frame, time-sampled points), which :func:`read_animation` reads.  False
+    for other files and for files that cannot be read."""
+    import json
+    import struct
+
+    path = Path(path)
+    ext = path.suffix.lower()
+    try:
+        if ext == ".glb":
+            with open(path, "rb") as f:
+                head = f.read(20)
+                if len(head) < 20 or head[:4] != b"glTF":
+                    return False
+                length = struct.unpack("<I", head[12:16])[0]
+                doc = json.loads(f.read(length))
+        elif ext == ".gltf":
+            doc = json.loads(path.read_text(encoding="utf-8"))
+        elif ext in (".usd", ".usda", ".usdc"):
+            from pxr import Sdf
+
+            layer = Sdf.Layer.FindOrOpen(str(path))
+            return layer is not None and "wiggly" in dict(layer.customLayerData)
+        else:
+            return False
+    except (OSError, ValueError, UnicodeDecodeError, ImportError):
+        return False
+    generator = doc.get("asset", {}).get("generator", "") if isinstance(doc, dict) else ""
+    return generator == "wiggly"  # write_glb's (bundled examples made by scripts differ)
