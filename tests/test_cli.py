@@ -583,3 +583,21 @@ def test_the_solves_warnings_name_the_scene_file(capsys, tmp_path):
     lines = [line for line in capsys.readouterr().err.splitlines() if "held by the fixed" in line]
     assert len(lines) == 1 and lines[0].startswith(f"wiggly: warning: {tmp_path / 'held.toml'}: "
                                                    "keyframe #0 ('left') at t=0.5: all "), lines
+
+
+def test_mode_previews_of_a_coarse_surface_draw_the_tets(tmp_path):
+    """An 8-vertex box cannot show a bar's bending: its mode preview draws the tet mesh's
+    boundary, on which the first bending mode moves the bar's middle; a fine surface is
+    drawn as it is."""
+    import wiggly
+    from wiggly.cli.modes import drawn_surface, mode_shapes
+
+    trimesh.creation.box((1.0, 0.05, 0.05)).export(tmp_path / "bar.obj")
+    body = wiggly.prepare(str(tmp_path / "bar.obj"), n_modes=8, resolution=20)
+    rest, faces, on_tets = drawn_surface(body)
+    assert on_tets is not None and len(rest) > 8 and faces.max() == len(rest) - 1
+    bent = mode_shapes(body, [6], [1.0], on_tets)[0]
+    middle = np.abs(rest[:, 0] - 0.0) < 0.05
+    assert np.abs(bent[middle] - rest[middle]).max() > 0.05  # the first bending mode
+    critter = wiggly.prepare("builtin:critter", n_modes=8)
+    assert drawn_surface(critter)[2] is None

@@ -161,9 +161,21 @@ def table(scene, body) -> str:
     return "\n".join(lines)
 
 
-def mode_shapes(body, modes, phase) -> np.ndarray:
+def drawn_surface(body) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """(rest vertices, triangles, tet vertices drawn) of what a mode preview draws: the
+    user's surface (None), or the tet mesh's boundary when the surface has fewer than half
+    its vertices (an 8-vertex box cannot show a bar's bending, which its tets carry)."""
+    faces = body.tets.boundary_faces()
+    used, faces = np.unique(faces, return_inverse=True)
+    if body.surface.n_vertices >= 0.5 * len(used):
+        return body.surface.vertices, body.surface.faces, None
+    return body.tets.vertices[used], faces.reshape(-1, 3), used
+
+
+def mode_shapes(body, modes, phase, on_tets: np.ndarray | None = None) -> np.ndarray:
     """Surface positions (len(phase), p, 3) of the warped mode ``modes[k]`` scaled by
-    ``phase[k]`` (amplitude: :data:`AMPLITUDE` of the bounding-box diagonal at phase 1)."""
+    ``phase[k]`` (amplitude: :data:`AMPLITUDE` of the bounding-box diagonal at phase 1);
+    ``on_tets``: those tet vertices instead (:func:`drawn_surface`)."""
     V = body.tets.vertices
     diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
     Phi = body.modes.vectors
@@ -173,6 +185,8 @@ def mode_shapes(body, modes, phase) -> np.ndarray:
         u = Phi[:, i].reshape(n, 3)
         U[k] = s * AMPLITUDE * diag / max(np.abs(u).max(), 1e-300) * u
     W = np.concatenate([body.warp.apply(U[k:k + 64]) for k in range(0, len(U), 64)])
+    if on_tets is not None:
+        return (W + V)[:, on_tets]
     return body.to_surface(W) + body.surface.vertices
 
 
@@ -192,8 +206,13 @@ def preview(path: Path, body, *, overwrite: bool = False) -> Path:
     V = body.tets.vertices
     diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
 
+    rest, faces, on_tets = drawn_surface(body)
+    if on_tets is not None:
+        say(f"{body.surface.n_vertices} surface vertices cannot show the modes' bending: "
+            f"drawing the boundary of the {body.tets.n_tets} tets instead")
+
     def highlight(i: int, t: float) -> Highlight:
-        shape = mode_shapes(body, [i], [1.0])[0] - body.surface.vertices
+        shape = mode_shapes(body, [i], [1.0], on_tets)[0] - rest
         d = np.linalg.norm(shape, axis=1)
         moving = np.flatnonzero(d >= np.quantile(d, 0.85))
         hz = math.sqrt(max(lam[i], 0.0)) / (2 * math.pi)
@@ -206,10 +225,9 @@ def preview(path: Path, body, *, overwrite: bool = False) -> Path:
              else counted(len(elastic), "elastic mode shape"))
     say(f"rendering {shown}, largest displacement {AMPLITUDE * diag:.3g} m, orange where each "
         "mode moves most")
-    faces = body.surface.faces
     if sheet:
         times = PREVIEW_SECONDS * (np.arange(len(elastic)) + 0.25)
-        positions = mode_shapes(body, elastic, np.ones(len(elastic)))
+        positions = mode_shapes(body, elastic, np.ones(len(elastic)), on_tets)
         hls = [highlight(i, t) for i, t in zip(elastic, times, strict=True)]
         return render_contact_sheet(path, times, positions, faces, at=times, columns=4,
                                     highlights=hls,
@@ -221,7 +239,7 @@ def preview(path: Path, body, *, overwrite: bool = False) -> Path:
                            [[len(elastic) * PREVIEW_SECONDS]])
     modes = np.concatenate([np.full(per, i) for i in elastic] + [[elastic[-1]]])
     phase = np.sin(2 * np.pi * times / PREVIEW_SECONDS)
-    positions = mode_shapes(body, modes, phase)
+    positions = mode_shapes(body, modes, phase, on_tets)
     hls = [highlight(i, (k + 0.5) * PREVIEW_SECONDS) for k, i in enumerate(elastic)]
     return render_video(path, times, positions, faces, highlights=hls, fps=PREVIEW_FPS,
                         title="elastic modes, one per second (orange: moves most)",
