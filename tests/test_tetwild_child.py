@@ -183,3 +183,19 @@ def test_off_a_terminal_long_loops_log_their_count_now_and_then(monkeypatch, cap
     assert any(m.startswith("warped solve (Newton): 4 it, objective 3 (") for m in lines), lines
     assert any(m.startswith("rendering: 1 frame so far") for m in lines), lines
     assert lines[-1].startswith("rendering: 3 frames ("), lines
+
+
+def test_a_silent_stage_in_a_log_still_says_it_runs(monkeypatch, caplog):
+    """Off a terminal a stage whose call gives no note (fTetWild was silent for two minutes
+    while filling a fine plate) is said to run every NOTE_EVERY seconds, with its time."""
+    import time
+
+    monkeypatch.setattr(progress, "on_terminal", lambda: False)
+    monkeypatch.setattr(progress, "NOTE_EVERY", 0.2)
+    with progress.reporting(True), caplog.at_level("INFO", logger="wiggly"):
+        with progress.activity("tetrahedralizing plate.obj"):
+            time.sleep(0.75)
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines[0] == "tetrahedralizing plate.obj"
+    beats = [m for m in lines[1:] if m.startswith("tetrahedralizing plate.obj: still running (")]
+    assert 2 <= len(beats) <= 4 and len(beats) == len(lines) - 1, lines

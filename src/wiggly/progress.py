@@ -214,7 +214,32 @@ def activity(desc: str, enabled: bool = True) -> Iterator[Activity]:
             yield handle
     else:
         log.info(desc)
-        yield Activity(desc, logged=True)
+        with _heartbeat(desc) as handle:
+            yield handle
+
+
+@contextmanager
+def _heartbeat(desc: str) -> Iterator[Activity]:
+    """The logged :class:`Activity`, which also says every :data:`NOTE_EVERY` seconds that
+    it still runs when the call gives no note (fTetWild was silent in a log for two minutes
+    while it filled a fine plate)."""
+    handle = Activity(desc, logged=True)
+    stop = threading.Event()
+
+    def beat() -> None:
+        while not stop.wait(max(NOTE_EVERY / 4, 0.05)):
+            now = time.perf_counter()
+            if now - handle.said >= NOTE_EVERY:
+                handle.said = now
+                log.info(f"{desc}: {handle.text or 'still running'} ({now - handle.t0:.0f} s)")
+
+    thread = threading.Thread(target=beat, name="wiggly-heartbeat", daemon=True)
+    thread.start()
+    try:
+        yield handle
+    finally:
+        stop.set()
+        thread.join()
 
 
 def _counted(n: int, unit: str) -> str:
