@@ -239,6 +239,13 @@ def test_modes_of_a_scene_with_preview(capsys, tmp_path):
 
     with Image.open(out_png) as im:
         assert im.size[0] > 400 and im.size[1] > 100
+    video = tmp_path / "modes.mp4"
+    code, _, err = run_main(capsys, "modes", scene, "-n", "5", "-o", video, "--size",
+                            "320x180", "-q")
+    assert code == 0, err
+    import imageio.v3 as iio
+
+    assert iio.improps(video).shape[1:3] == (180, 320)
 
 
 def small_animation() -> SurfaceAnimation:

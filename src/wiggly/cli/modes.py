@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wiggly.cli.render import size_arg
 from wiggly.errors import counted
 from wiggly.limits import MAX_MODES, MIN_RESOLUTION
 from wiggly.mesh import DEFAULT_RESOLUTION
@@ -59,6 +60,8 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="density in kg/m^3 (default 1000)")
     parser.add_argument("-o", "--output", metavar="PREVIEW",
                         help="preview of the elastic mode shapes: .mp4, .gif or .png")
+    parser.add_argument("--size", type=size_arg, metavar="WxH", default=None,
+                        help="preview size in pixels, e.g. 1280x720 (default 960x540)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing preview")
     parser.add_argument("-q", "--quiet", action="store_true",
                         help="no progress bars or stage messages")
@@ -116,7 +119,8 @@ def run(args: argparse.Namespace) -> int:
         raise WigglyInputError(_in_options(str(err))) from None
     print(table(scene, body))
     if args.output is not None:
-        path = preview(Path(args.output), body, overwrite=args.overwrite)
+        path = preview(Path(args.output), body, overwrite=args.overwrite,
+                       size=args.size or (960, 540))
         print(f"wrote {path.resolve()}")
     return 0
 
@@ -190,7 +194,8 @@ def mode_shapes(body, modes, phase, on_tets: np.ndarray | None = None) -> np.nda
     return body.to_surface(W) + body.surface.vertices
 
 
-def preview(path: Path, body, *, overwrite: bool = False) -> Path:
+def preview(path: Path, body, *, overwrite: bool = False,
+            size: tuple[int, int] = (960, 540)) -> Path:
     """Render the elastic modes: a video (one second each) or a contact sheet (at peak)."""
     from wiggly.errors import WigglyInputError
     from wiggly.render import Highlight, render_contact_sheet, render_video
@@ -229,7 +234,9 @@ def preview(path: Path, body, *, overwrite: bool = False) -> Path:
         times = PREVIEW_SECONDS * (np.arange(len(elastic)) + 0.25)
         positions = mode_shapes(body, elastic, np.ones(len(elastic)), on_tets)
         hls = [highlight(i, t) for i, t in zip(elastic, times, strict=True)]
+        tile = (max(16, size[0] // 2), max(16, size[1] // 2))  # as a scene's sheet
         return render_contact_sheet(path, times, positions, faces, at=times, columns=4,
+                                    tile_size=tile,
                                     highlights=hls,
                                     title="elastic modes at peak amplitude (orange: moves most)",
                                     overwrite=overwrite)
@@ -242,6 +249,7 @@ def preview(path: Path, body, *, overwrite: bool = False) -> Path:
     positions = mode_shapes(body, modes, phase, on_tets)
     hls = [highlight(i, (k + 0.5) * PREVIEW_SECONDS) for k, i in enumerate(elastic)]
     return render_video(path, times, positions, faces, highlights=hls, fps=PREVIEW_FPS,
+                        size=size,
                         title="elastic modes, one per second (orange: moves most)",
                         overwrite=overwrite)
 

@@ -42,7 +42,8 @@ def _read(source: Path):
                             name=source.stem)
 
 
-def _size(text: str) -> tuple[int, int]:
+def size_arg(text: str) -> tuple[int, int]:
+    """``--size WxH`` as (width, height) in pixels (argparse's type)."""
     from wiggly.checks import pixel_size
 
     try:
@@ -69,7 +70,7 @@ def add_args(parser: argparse.ArgumentParser) -> None:
                         help="video frame rate (default: the scene's, or the animation's)")
     parser.add_argument("--camera", choices=CAMERAS, default=None,
                         help="camera preset (default: the scene's, or three_quarter)")
-    parser.add_argument("--size", type=_size, metavar="WxH", default=None,
+    parser.add_argument("--size", type=size_arg, metavar="WxH", default=None,
                         help="image size in pixels, e.g. 1280x720 (default: the scene's, or "
                              "960x540)")
     parser.add_argument("-q", "--quiet", action="store_true",
