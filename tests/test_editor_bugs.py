@@ -251,7 +251,7 @@ def test_4_nul_paths_and_deep_json_are_client_errors(tmp_path):
     ("time", {"fps": 1e5}, f"{limits.MAX_FPS:g}"),
     ("time", {"end": 3000.0, "fps": 60}, f"more than {limits.MAX_FRAMES}"),
     ("simulation", {"modes": 10**6}, f"in [1, {limits.MAX_MODES}]"),
-    ("mesh", {"resolution": 10**5}, f"in [1, {limits.MAX_RESOLUTION}]"),
+    ("mesh", {"resolution": 10**5}, f"in [{limits.MIN_RESOLUTION}, {limits.MAX_RESOLUTION}]"),
     ("mesh", {"edge_length": 1e-6}, f"at most {limits.MAX_RESOLUTION}"),
 ])
 def test_5_absurd_settings_are_refused(tmp_path, section, values, says):

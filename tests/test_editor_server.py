@@ -916,17 +916,32 @@ def test_export_asks_before_overwriting_and_names_an_obj_sequence(server, projec
     assert st == 200
 
 
-def test_an_export_overtaken_by_an_edit_says_it_has_the_earlier_scene(server, project):
+def test_an_export_overtaken_by_an_edit_says_it_has_the_earlier_scene(server, project,
+                                                                      monkeypatch):
     """An edit made while an export runs is not in the files: the export's message says so
-    (it said only "exported ..."); an export left alone says nothing of the kind."""
+    (it said only "exported ..."); an export left alone says nothing of the kind.  The export
+    writes only once the edit is in (on a loaded machine it could finish first)."""
+    import threading
+
+    import wiggly.scene
+
     q = server.session.bus.subscribe()
+    real, gate = wiggly.scene.write_outputs, threading.Event()
+
+    def gated(*args, **kwargs):
+        assert gate.wait(60)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(wiggly.scene, "write_outputs", gated)
 
     def export_and_wait(edit_meanwhile: bool) -> str:
+        gate.clear()
         st, r = call(server, "POST", "/api/export", {"paths": ["takes/shot.npz"],
                                                      "overwrite": True})
         assert st == 200, r
         if edit_meanwhile:
             server.session.edit({"op": "set", "section": "damping", "values": {"alpha": 0.9}})
+        gate.set()
         deadline = time.time() + 60
         while time.time() < deadline:
             try:
