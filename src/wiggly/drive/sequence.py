@@ -88,6 +88,16 @@ def _polygons(file: Path, data: bytes, n: int) -> list[np.ndarray]:
     return polys
 
 
+def carries_times(path: Path) -> bool:
+    """Whether the OBJ sequence at ``path`` gives its frames' times (wiggly's ``# time``
+    comments, read from its first file), so that no frame rate times it."""
+    files = sequence_files(Path(path))
+    try:
+        return bool(files) and _TIME.search(files[0][1].read_bytes()) is not None
+    except OSError:
+        return False
+
+
 def read_obj_sequence(path: Path, *, frame_rate: float | None = None) -> Driver:
     """The driver of an OBJ sequence (module docstring), with a bar over the files when
     stages are shown (:mod:`wiggly.progress`)."""

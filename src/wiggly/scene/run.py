@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 
 from wiggly import render
 from wiggly.drive import following
+from wiggly.drive.sequence import carries_times
 from wiggly.errors import WigglyInputError, counted
 from wiggly.export import stage_animation, surface_animation
 from wiggly.export.animation import without_seam
@@ -584,6 +585,13 @@ def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None 
                 Path(s.drive.path).suffix.lower() == ".obj":
             # an OBJ sequence's frames are timed by the scene's fps unless frame_rate says
             # otherwise: the output's rate must not retime the driver (and its physics)
+            if float(fps) != s.time.fps and not carries_times(s.resolve(s.drive.path)):
+                warnings.warn(
+                    f"{s.where()}: drive.path = {show(s.drive.path)} is an OBJ sequence timed "
+                    f"by the scene's {s.time.fps:g} fps (its file N at N / {s.time.fps:g} s), "
+                    f"not by --fps {float(fps):g}, which sets only the outputs' rate; if the "
+                    f"sequence was made at {float(fps):g} fps, set drive.frame_rate = "
+                    f"{float(fps):g} (or time.fps) in the scene", stacklevel=2)
             s = replace(s, drive=replace(s.drive, frame_rate=s.time.fps))
         s = replace(s, time=replace(s.time, fps=float(fps)))
         cycle = loop_cycle_problem(s, f" (from --fps {float(fps):g})")
