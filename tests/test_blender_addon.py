@@ -54,14 +54,15 @@ def wiggly_animate(scene: Path) -> tuple[np.ndarray, np.ndarray]:
         return data["times"], np.stack([P[..., 0], -P[..., 2], P[..., 1]], axis=-1)
 
 
-@pytest.mark.parametrize("bake_as, fps, fps_base, frames", [
-    ("MESH_CACHE", 24, 1.0, [1, 25]),
-    ("SHAPE_KEYS", 30, 1.001, [5, 29]),  # 29.97 fps, a shot that starts at frame 5
+@pytest.mark.parametrize("bake_as, fps, fps_base, frames, loop", [
+    ("MESH_CACHE", 24, 1.0, [1, 25], False),
+    ("SHAPE_KEYS", 30, 1.001, [5, 29], False),  # 29.97 fps, a shot that starts at frame 5
+    ("MESH_CACHE", 24, 1.0, [1, 24], True),  # a cycle of 24 frames: 24 plays, then 1 again
 ])
 def test_handle_bake_equals_wiggly_animate(blender_python, tmp_path, bake_as, fps, fps_base,
-                                           frames):
+                                           frames, loop):
     seen = in_blender(blender_python, "handles", tmp_path, bake_as=bake_as, fps=fps,
-                      fps_base=fps_base, frames=frames)
+                      fps_base=fps_base, frames=frames, loop=loop)
     for step in ("export", "bake", "bake_again"):
         assert seen[step]["result"] == ["FINISHED"], seen[step]
         assert "1 keyframes of handle 'left end.001 handle' lie outside frames" in \
@@ -74,8 +75,8 @@ def test_handle_bake_equals_wiggly_animate(blender_python, tmp_path, bake_as, fp
 
     scene = tomllib.loads((tmp_path / "shot.toml").read_text())
     jsonschema.validate(scene, json.loads(SCHEMA.read_text()))  # the documented format
-    assert scene["time"] == {"start": 0.0, "end": (frames[1] - frames[0]) / rate,
-                             "fps": pytest.approx(rate, rel=1e-12), "loop": False}
+    assert scene["time"] == {"start": 0.0, "end": (frames[1] - frames[0] + loop) / rate,
+                             "fps": pytest.approx(rate, rel=1e-12), "loop": loop}
     assert scene["simulation"]["fixed"] == ["middle"]
     assert scene["simulation"]["gravity"] == [0.0, -9.81, 0.0]  # Blender's, y up
     assert [k["group"] for k in scene["keyframes"]] == ["left_end_001"] * 3
@@ -85,7 +86,10 @@ def test_handle_bake_equals_wiggly_animate(blender_python, tmp_path, bake_as, fp
     assert scene["output"] == {"paths": ["shot_wiggly.glb"], "frame_start": frames[0]}
     times, cli = wiggly_animate(tmp_path / "shot.toml")
     F = frames[1] - frames[0] + 1
-    np.testing.assert_allclose(times * rate, np.arange(F), atol=1e-9)  # frame f at (f - fs)/fps
+    np.testing.assert_allclose(times * rate, np.arange(F + loop), atol=1e-9)  # f: (f - fs)/fps
+    if loop:  # the cycle's end is its start, one frame after the range's last
+        assert np.abs(cli[-1] - cli[0]).max() < 1e-9
+        cli = cli[:-1]
     baked = np.array(seen["positions"])
     rest = np.array(seen["rest_world"])
     size = float(np.ptp(rest, axis=0).max())

@@ -47,6 +47,8 @@ def read_result(path: Path, shot: Shot) -> np.ndarray:
                         "command in Edit > Preferences > Add-ons > wiggly is wiggly's own "
                         "(e.g. .venv/bin/wiggly) and of this add-on's version") from None
     frames = shot.frame_start + np.rint(times * shot.fps).astype(np.int64)
+    if shot.settings["loop"] and len(frames) and frames[-1] == shot.frame_end + 1:
+        frames, positions = frames[:-1], positions[:-1]  # the seam: the first frame again
     if not np.array_equal(frames, shot.frames) or positions.shape[1] != len(shot.rest):
         raise ShotError(f"wiggly's result {path} has frames {frames[0]}-{frames[-1]} and "
                         f"{positions.shape[1]} vertices; expected frames {shot.frame_start}-"

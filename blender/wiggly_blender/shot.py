@@ -522,7 +522,10 @@ def scene_toml(shot: Shot, mesh_file: str, driver_file: str | None,
         _table("damping", {"alpha": s["alpha"], "beta": s["beta"]}),
         _table("simulation", {"gravity": s["gravity"], "modes": s["modes"], "warp": s["warp"],
                               "fixed": shot.fixed}),
-        _table("time", {"start": 0.0, "end": (shot.frame_end - shot.frame_start) / shot.fps,
+        # a loop's cycle is the range and the step from its last frame back to its first:
+        # Blender plays frame_end, then frame_start, so the cycle's end is one frame later
+        _table("time", {"start": 0.0, "end": (shot.frame_end - shot.frame_start
+                                              + (1 if s["loop"] else 0)) / shot.fps,
                         "fps": shot.fps, "loop": s["loop"]}),
     ]
     for name, idx in shot.groups.items():

@@ -157,6 +157,7 @@ def case_handles() -> None:
     fps, base, frames = options.get("fps", 24), options.get("fps_base", 1.0), options["frames"]
     scene = fresh(fps, base, tuple(frames))
     obj = handles_scene(options.get("bake_as", "MESH_CACHE"))
+    obj.wiggly.loop = options.get("loop", False)
     handle = obj.wiggly.groups[0].handle
     before = [(c.data_path, c.array_index, [tuple(p.co) for p in c.keyframe_points])
               for c in bake.fcurves_of(handle)]
