@@ -159,9 +159,28 @@ def test_a_looped_animation_written_from_python_needs_whole_frames_per_cycle(bar
     anim = solve(bar, keys_of(bar), end=END, warp=False, loop=True)
     written = read_animation(write_animation(tmp_path / "fits.glb", anim, fps=25))
     assert written.loop and written.n_frames == 31 and written.times[-1] == pytest.approx(END)
-    with pytest.raises(WigglyInputError, match=r"1.2 s at 24 fps is 28.8 frames.*fps = 24.1667"):
+    with pytest.raises(WigglyInputError, match=r"1.2 s at 24 fps is 28.8 frames.*fps = "
+                                               r"24.1666667 \(or a whole 20 or 25 fps\)"):
         write_animation(tmp_path / "jumps.glb", anim, fps=24)
     assert not (tmp_path / "jumps.glb").exists()
+
+
+@pytest.mark.parametrize("duration, fps", [(1.0, 25.5), (0.75, 29.3333), (1.01, 30),
+                                           (1 / 3, 24), (1.001, 29.97), (2.0, 23.976)])
+def test_the_whole_frames_remedy_is_accepted_as_written(duration, fps):
+    """The remedy's numbers, read back as a user types them, make whole frames: 6-digit
+    suggestions such as 0.333333 s at 24 fps were refused (8 frames less 8e-6), and so were
+    the 29.97 fps ones."""
+    import re
+
+    from wiggly.limits import frame_steps, whole_frames_remedy
+
+    said = whole_frames_remedy(duration, fps)
+    shorter, rate = (float(x) for x in re.findall(r"(?:of|=) ([0-9.]+)", said)[:2])
+    assert frame_steps(shorter, fps)[1] and frame_steps(duration, rate)[1], said
+    for whole in re.findall(r"(\d+) (?:or|fps)", said.split("whole")[-1]) if "whole" in said \
+            else []:
+        assert frame_steps(duration, int(whole))[1], said
 
 
 def test_a_looped_scenes_previews_show_the_seam_once(tmp_path, monkeypatch):
@@ -240,3 +259,24 @@ def test_a_frame_rate_from_the_command_line_is_checked_against_the_loop(tmp_path
                                                r"number of frames per cycle: 1 s at 25\.5 fps "
                                                r"\(from --fps 25\.5\)"):
         with_overrides(scene, fps=25.5)
+
+
+def test_a_frame_rate_from_the_command_line_replaces_the_files_for_the_loop(tmp_path):
+    """A loop file at 25.5 fps (25.5 frames a cycle) animated with --fps 30: the cycle is
+    checked at the outputs' rate, not refused at the file's (it was, though --fps overrides
+    [time] fps); without --fps it is refused, with the remedy."""
+    from wiggly.cli import main
+    from wiggly.scene import load_scene
+
+    (tmp_path / "loop.toml").write_text(
+        'format = 1\n[mesh]\npath = "builtin:bar"\nresolution = 6\n[simulation]\nmodes = 8\n'
+        'warp = false\n[time]\nend = 1.0\nfps = 25.5\nloop = true\n[groups.tip]\n'
+        'box = { min = [0.9, -1, -1], max = [2, 1, 1] }\n'
+        '[[keyframes]]\ntime = 0.5\ngroup = "tip"\nposition = "rest"\n')
+    with pytest.raises(WigglyInputError, match=r"25\.5 frames; use a duration of"):
+        load_scene(tmp_path / "loop.toml")
+    assert load_scene(tmp_path / "loop.toml", output_fps=30).time.fps == 25.5
+    assert main(["animate", str(tmp_path / "loop.toml"), "--fps", "30", "-o",
+                 str(tmp_path / "loop.npz"), "-q"]) == 0
+    assert main(["animate", str(tmp_path / "loop.toml"), "--fps", "25.5", "-o",
+                 str(tmp_path / "other.npz"), "-q"]) == 1

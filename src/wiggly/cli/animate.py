@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from wiggly.scene import load_scene, with_overrides
     from wiggly.scene import run as run_scene
 
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene, output_fps=args.fps)
     scene = with_overrides(scene, fps=args.fps, warp=False if args.linear else None,
                            frame_start=args.frame_start, gltf_targets=args.gltf_targets)
     glb = any(str(p).lower().endswith(".glb") for p in (args.output or scene.output.paths))

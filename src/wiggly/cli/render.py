@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     source = Path(args.input)
     ext = source.suffix.lower()
     if ext == ".toml":
-        scene = load_scene(source)
+        scene = load_scene(source, output_fps=args.fps)
         scene = with_overrides(scene, fps=args.fps)
         if args.camera is not None:
             scene = replace(scene, output=replace(scene.output, camera=args.camera))

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from wiggly import limits
 from wiggly.editor import channel
 from wiggly.memo import Memo
 from wiggly.solve import SolveOptions
@@ -49,7 +50,7 @@ def playback_fps(fps: float, start: float, end: float, n_vertices: int) -> float
     """The frame rate of the editor's playback: the scene's, unless its frames of
     ``n_vertices`` would take more than :data:`PLAYBACK_BYTES` (a long shot of a fine
     surface); then the highest rate that fits (the page plays any rate)."""
-    frames = np.floor((end - start) * fps + 1e-9) + 1
+    frames = limits.frame_count(end - start, fps) if end > start else 1
     if frames * n_vertices * 12 <= PLAYBACK_BYTES or end <= start:
         return float(fps)
     most = max(PLAYBACK_BYTES // (12 * max(n_vertices, 1)), 2)

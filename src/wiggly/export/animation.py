@@ -160,13 +160,6 @@ def checked_animation(anim: SurfaceAnimation, where: str) -> SurfaceAnimation:
                             bool(anim.loop))
 
 
-def frame_steps(duration: float, fps: float) -> tuple[float, bool]:
-    """A span's length in frame steps at ``fps``, and whether that is a whole number (to a
-    relative 1e-6): a loop's cycle must be, so that its last frame is its first."""
-    steps = duration * fps
-    return steps, abs(steps - round(steps)) <= 1e-6 * max(1.0, steps)
-
-
 def without_seam(anim: SurfaceAnimation) -> SurfaceAnimation:
     """A looped animation without its last frame (which repeats the first): for frame-based
     formats, whose players step from the last frame to the first."""

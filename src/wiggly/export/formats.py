@@ -13,7 +13,6 @@ from wiggly.export.animation import (
     SurfaceAnimation,
     checked_animation,
     frame_codes,
-    frame_steps,
     gltf_times,
     without_seam,
 )
@@ -22,6 +21,7 @@ from wiggly.export.npz import read_npz, write_npz
 from wiggly.export.obj import read_obj_sequence, stage_obj_sequence
 from wiggly.export.usd import read_usd, write_usd
 from wiggly.files import OutputSet
+from wiggly.limits import frame_steps, whole_frames_remedy
 from wiggly.progress import deprecated_progress
 
 
@@ -34,12 +34,10 @@ def surface_animation(anim, fps: float = 30.0, name: str = "wiggly",
     if anim.loop:  # its last frame is its first: a cycle of a whole number of frames
         cycle, whole = frame_steps(anim.end - anim.start, fps)
         if not whole:
-            n = max(1, round(cycle))
             raise WigglyInputError(
                 f"a looped animation needs a whole number of frames per cycle: "
-                f"{anim.end - anim.start:g} s at {fps:g} fps is {cycle:.4g} frames, and its "
-                f"seam would jump; use fps = {n / (anim.end - anim.start):.6g} (or a cycle of "
-                f"{n / fps:.6g} s)")
+                f"{anim.end - anim.start:g} s at {fps:g} fps is {cycle:.6g} frames, and its "
+                f"seam would jump; {whole_frames_remedy(anim.end - anim.start, fps)}")
     times = anim.frame_times(fps)
     surf = anim.body.surface
     data = SurfaceAnimation(times, anim.positions(times, dtype=np.float32), surf.faces,

@@ -14,7 +14,6 @@ from pathlib import Path
 from wiggly.drive import DRIVER_EXTENSIONS
 from wiggly.errors import WigglyInputError
 from wiggly.export import GLTF_TARGETS
-from wiggly.export.animation import frame_steps
 from wiggly.fem import DENSITY_RANGE, YOUNG_RANGE
 from wiggly.limits import (
     MAX_DURATION,
@@ -23,6 +22,9 @@ from wiggly.limits import (
     MAX_MODES,
     MAX_RESOLUTION,
     MIN_RESOLUTION,
+    frame_count,
+    frame_steps,
+    whole_frames_remedy,
 )
 from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION, SURFACE_EXTENSIONS, VOLUME_EXTENSIONS
 from wiggly.scene.drive import check_drive, check_drive_file
@@ -312,9 +314,12 @@ def scene_schema() -> dict:
 # reading and checking
 
 
-def load_scene(path: str | os.PathLike[str]) -> Scene:
+def load_scene(path: str | os.PathLike[str], *, output_fps: float | None = None) -> Scene:
     """Read and check a scene file; every problem raises one :class:`WigglyInputError` that
-    lists all problems found (file, key path, value, what is allowed)."""
+    lists all problems found (file, key path, value, what is allowed).  ``output_fps``: the
+    outputs' frame rate will be this one (``--fps``), so the frame-count checks of the file's
+    own rate (a loop's whole frames, an end between frames) are left to
+    :func:`wiggly.scene.with_overrides`."""
     path = Path(path)
     if not path.is_file():
         raise WigglyInputError(f"{path}: no such scene file" if not path.exists()
@@ -324,7 +329,8 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         raise WigglyInputError(
             f"{path}: is a mesh, not a scene file (.toml); write a scene that names it as "
             f"mesh.path (docs/scene-format.md), or open it in the editor: wiggly edit {path}")
-    return scene_from_dict(read_toml(path), where=str(path), source=path.resolve())
+    return scene_from_dict(read_toml(path), where=str(path), source=path.resolve(),
+                           output_fps=output_fps)
 
 
 def read_toml(path: Path) -> dict:
@@ -365,14 +371,15 @@ def toml_message(err: tomllib.TOMLDecodeError, text: str) -> str:
     return f"not valid TOML: {message}{hint}"
 
 
-def scene_from_dict(data: dict, where: str = "scene", source: Path | None = None) -> Scene:
+def scene_from_dict(data: dict, where: str = "scene", source: Path | None = None, *,
+                    output_fps: float | None = None) -> Scene:
     """Check a parsed scene (the TOML as dicts and lists) and build the :class:`Scene`;
     ``source`` is the file it came from (relative paths resolve against its directory and the
-    mesh file must exist)."""
+    mesh file must exist); ``output_fps`` as in :func:`load_scene`."""
     p = Problems(where)
     scene = p.parse(SCENE_FORMAT, data)
     scene.source = source
-    _cross_check(scene, p)
+    _cross_check(scene, p, output_fps)
     if source is not None:
         _check_files(scene, p)
     p.raise_if_any()
@@ -393,9 +400,8 @@ def loop_cycle_problem(scene, fps_from: str = "") -> str | None:
         return None
     t0, t1 = scene.time_range()
     return (f"time.loop = true needs a whole number of frames per cycle: {t1 - t0:g} s at "
-            f"{scene.time.fps:g} fps{fps_from} is {cycle:.4g} frames; use a duration of "
-            f"{max(1, round(cycle)) / scene.time.fps:.6g} s or fps = "
-            f"{max(1, round(cycle)) / (t1 - t0):.6g}")
+            f"{scene.time.fps:g} fps{fps_from} is {cycle:.6g} frames; "
+            f"{whole_frames_remedy(t1 - t0, scene.time.fps)}")
 
 
 def partial_frame_note(scene, fps_from: str = "") -> str | None:
@@ -406,15 +412,16 @@ def partial_frame_note(scene, fps_from: str = "") -> str | None:
         return None
     t0, t1 = scene.time_range()
     fps = scene.time.fps
-    last = t0 + math.floor(steps + 1e-9) / fps
+    last = t0 + (frame_count(t1 - t0, fps) - 1) / fps
     return (f"the shot [{t0:g}, {t1:g}] s is not a whole number of frames at {fps:g} "
             f"fps{fps_from}: its last frame is at {last:.6g} s, and the outputs end there; "
             f"to end on a frame, use end = {last:.6g} or "
             f"{t0 + math.ceil(steps - 1e-9) / fps:.6g}")
 
 
-def _cross_check(scene: Scene, p: Problems) -> None:
-    """Checks between keys: group names, key times in the shot's time range."""
+def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> None:
+    """Checks between keys: group names, key times in the shot's time range; the frame
+    counts at ``output_fps`` when given (see :func:`load_scene`)."""
     names = list(scene.groups)
     listing = ", ".join(names) if names else "none are defined ([groups.<name>])"
     for j, kf in enumerate(scene.keyframes):
@@ -437,11 +444,12 @@ def _cross_check(scene: Scene, p: Problems) -> None:
     if t1 - t0 > MAX_DURATION and scene.time.end is None and scene.time.duration is None:
         p.add(f"the shot runs from {t0:g} s to the last keyframe at {t1:g} s, longer than "
               f"{MAX_DURATION:g} s (wiggly.limits.MAX_DURATION); check the keyframe times")
-    frames = math.floor((t1 - t0) * scene.time.fps + 1e-9) + 1
-    cycle = loop_cycle_problem(scene)
+    fps = scene.time.fps if output_fps is None else float(output_fps)
+    frames = frame_count(t1 - t0, fps)
+    cycle = loop_cycle_problem(scene) if output_fps is None else None
     if cycle is not None:
         p.add(cycle)
-    if frames <= MAX_FRAMES:
+    if frames <= MAX_FRAMES and output_fps is None:
         note = partial_frame_note(scene)
         if note is not None:
             warnings.warn(f"{p.where}: {note}", stacklevel=4)
@@ -455,7 +463,8 @@ def _cross_check(scene: Scene, p: Problems) -> None:
         p.add(f"simulation.preroll = {show(scene.simulation.preroll)} does not apply to a "
               "looped shot (time.loop = true): a loop has no before; leave it out")
     if frames > MAX_FRAMES and t1 - t0 <= MAX_DURATION:
-        p.add(f"time.fps = {show(scene.time.fps)} makes {frames} frames of a {t1 - t0:g} s "
+        which = f"time.fps = {show(scene.time.fps)}" if output_fps is None else f"--fps {fps:g}"
+        p.add(f"{which} makes {frames} frames of a {t1 - t0:g} s "
               f"shot, more than {MAX_FRAMES} (wiggly.limits.MAX_FRAMES); use fps <= "
               f"{math.floor((MAX_FRAMES - 1) / (t1 - t0)):g}")
     check_drive(scene, p)

@@ -92,7 +92,7 @@ class Animation:
         if fps > limits.MAX_FPS:
             raise WigglyInputError(f"fps = {fps:g} is more than {limits.MAX_FPS:g} frames per "
                                    "second (wiggly.limits.MAX_FPS)")
-        n = int(np.floor(self.duration * fps + 1e-9)) + 1
+        n = limits.frame_count(self.duration, fps)
         if n > limits.MAX_FRAMES:
             raise WigglyInputError(
                 f"{self.duration:g} s at {fps:g} fps is {n} frames, more than "
