@@ -307,7 +307,8 @@ def test_intensity_scales_the_swing_not_the_timing(bar):
 
 
 def test_loop_is_seamless(bar):
-    """A periodic shot: positions and velocities at the end equal those at the start."""
+    """A periodic shot: positions and velocities at the end equal those at the start; a
+    driver that cycles with it draws no warning."""
     body, driven = bar
     X = body.surface.vertices
     times = np.arange(31) / 30.0
@@ -316,12 +317,33 @@ def test_loop_is_seamless(bar):
     drv = Driver(times, X[None] + c[:, None, :], body.surface.faces, np.zeros((0, 2)),
                  "loop.npz", "test")
     for warped in (False, True):
-        anim = secondary_motion(body, drv, driven, start=0.0, end=1.0, warped=warped,
-                                loop=True)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", UserWarning)
+            anim = secondary_motion(body, drv, driven, start=0.0, end=1.0, warped=warped,
+                                    loop=True)
         P, V = anim.positions([0.0, 1.0]), anim.velocities_at([0.0, 1.0])
         assert np.abs(P[1] - P[0]).max() < 1e-9
         assert np.abs(V[1] - V[0]).max() < 1e-7 * max(1.0, np.abs(V).max())
         assert np.abs(P[0] - X).max() > 1e-4  # the free end is not at rest at the seam
+
+
+def test_a_driver_that_does_not_cycle_with_a_loop_is_warned_about(bar):
+    """A 0.8 s driver cycle in a 1 s loop: the loop makes its pose at 1 s its pose at 0 s, a
+    jump at the seam (the driven group's first and last frames 20 mm apart for steps of at
+    most 5 mm); a driver ending 0.2 s early is stretched by a curve. Both are said."""
+    body, driven = bar
+    X = body.surface.vertices
+    times = np.arange(31) / 30.0
+    c = np.zeros((31, 3))
+    c[:, 1] = 0.02 * np.sin(2 * np.pi * times / 0.8)
+    drv = Driver(times, X[None] + c[:, None, :], body.surface.faces, np.zeros((0, 2)),
+                 "walk.npz", "test")
+    with pytest.warns(UserWarning, match=r"walk\.npz does not cycle with the looped shot: its "
+                                         r"driven vertices at 1 s lie up to 20 mm"):
+        secondary_motion(body, drv, driven, start=0.0, end=1.0, warped=False, loop=True)
+    with pytest.warns(UserWarning, match=r"walk\.npz ends 0\.2 s before the looped shot's end"):
+        secondary_motion(body, drv, driven, start=0.0, end=1.0, warped=False, loop=True,
+                         driver_range=(0.0, 0.8))
 
 
 @pytest.mark.parametrize("warped", [False, True])

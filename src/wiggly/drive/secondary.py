@@ -482,6 +482,43 @@ def secondary_frames(
     return frames, times
 
 
+#: A looped shot's driver is said not to cycle with it when its driven vertices at the shot's
+#: end lie further than SEAM_STEPS of its largest step between frames from its start pose.
+SEAM_STEPS = 1.5
+
+
+def _warn_seam(driver: Driver, driven: np.ndarray, *, start: float, end: float,
+               offset: float, driver_range: tuple[float, float] | None) -> None:
+    """Warn when a looped shot's driver does not cycle with the shot: the loop makes its
+    pose at the end its pose at the start (:func:`secondary_frames`), a jump at the seam when
+    the two differ, or a curve over the time after its last frame in the shot when it ends
+    early, which stretches its cycle to the shot's."""
+    frames, times = keyed_frames(driver, offset=offset, driver_range=driver_range,
+                                 start=start, end=end)
+    if len(frames) < 3:
+        return
+    P = driver.positions[frames][:, driven]
+    step = float(np.linalg.norm(np.diff(P, axis=0), axis=2).max())
+    gap = float(np.linalg.norm(P[-1] - P[0], axis=1).max())
+    spacing = float(np.median(np.diff(times)))
+    remedy = ("end the shot on the driver's cycle (time.end), or keep one cycle of it "
+              "(drive.range)")
+    if times[-1] >= end - 1e-9 * (end - start):
+        if gap > SEAM_STEPS * step:
+            warnings.warn(
+                f"the driver {driver.source} does not cycle with the looped shot: its driven "
+                f"vertices at {end:g} s lie up to {1e3 * gap:.3g} mm from their pose at "
+                f"{start:g} s (they move at most {1e3 * step:.3g} mm from one frame to the "
+                f"next), and the loop joins the two with a jump at the seam; {remedy}",
+                stacklevel=3)
+    elif end - times[-1] > 1.5 * spacing:
+        warnings.warn(
+            f"the driver {driver.source} ends {end - times[-1]:.3g} s before the looped "
+            f"shot's end ({times[-1]:g} s of [{start:g}, {end:g}] s): the loop joins its last "
+            f"frame to its first by a curve over that time, which stretches the driver's "
+            f"cycle to the shot's; {remedy}", stacklevel=3)
+
+
 #: A driver step between two frames is called a cut when its driven vertices move further
 #: than CUT_STEPS times the median step and more than CUT_SIZE of the body's size.
 CUT_STEPS, CUT_SIZE = 8.0, 0.05
@@ -550,6 +587,8 @@ def secondary_motion(
     frames, times = secondary_frames(driver, start=start, end=end, loop=loop, offset=offset,
                                      driver_range=driver_range)
     _warn_cuts(driver, frames, times, v, body)
+    if loop:
+        _warn_seam(driver, v, start=start, end=end, offset=offset, driver_range=driver_range)
     duration = end - start
     tol = 1e-9 * duration
     # the rig: the driver extended into the tet mesh (unwarped for warped playback)
