@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import warnings
 
+import meshio
 import numpy as np
 import pytest
 import tomli_w
@@ -407,7 +408,16 @@ def test_a_driver_at_another_scale_is_refused_before_the_solve(shot, capsys):
     assert main(["animate", str(scene), "-q", "-o", str(folder / "cm.npz")]) == 1
     err = capsys.readouterr().err
     assert 'drive.path = "walk_cm.npz": its first pose is 100 times the size of bar.vtu' in err
+    assert "the driver is likely in other units: export it in metres" in err  # not the mesh
     assert not (folder / "cm.npz").exists()
+    # the mesh in centimetres instead (the driver in metres): mesh.scale is the remedy
+    mesh = meshio.read(folder / "bar.vtu")
+    meshio.write(folder / "bar_cm.vtu", meshio.Mesh(100 * mesh.points, mesh.cells))
+    scene = write(folder, {**data, "mesh": {**data["mesh"], "path": "bar_cm.vtu"},
+                           "drive": {"path": "walk.npz", "group": "driven"}}, "cm_mesh.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "cm.npz")]) == 1
+    err = capsys.readouterr().err
+    assert "0.01 times the size of bar_cm.vtu" in err and "set mesh.scale = 0.01" in err, err
 
 
 def test_a_clip_the_driver_lacks_is_blamed_on_drive_animation(tmp_path):

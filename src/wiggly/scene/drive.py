@@ -4,6 +4,7 @@ the driven keyframes (:func:`wiggly.drive.driven_keyframes`)."""
 
 from __future__ import annotations
 
+import math
 import threading
 from pathlib import Path
 
@@ -148,6 +149,28 @@ def scene_driver(scene: Scene) -> Driver:
 SCALE_MISMATCH = 5.0
 
 
+def _units_remedy(scene: Scene, ratio: float, size: float) -> str:
+    """How to bring a driver ``ratio`` times the size of the mesh (``size`` m across) to its
+    scale: a power of ten is units; the one of the two whose size is implausible for metres
+    is in other units (mesh.scale for the mesh; exporting in metres for the driver).  USD
+    drivers are read in metres by their metersPerUnit, which USD takes as 0.01 (centimetres)
+    in a stage that does not give it."""
+    from wiggly.mesh.model import PLAUSIBLE_SIZE
+
+    power = math.log10(ratio)
+    usd = Path(scene.drive.path).suffix.lower() in (".usd", ".usda", ".usdc")
+    usd_note = (" (a USD driver is read in metres by its stage's metersPerUnit, and a stage "
+                "without one counts as centimetres: author metersPerUnit)" if usd else "")
+    if abs(power - round(power)) > 0.05 or round(power) == 0:
+        return (f"scale the mesh by mesh.scale, or export the driver at the mesh's scale"
+                f"{usd_note}")
+    factor = 10.0 ** round(power)
+    if not PLAUSIBLE_SIZE[0] <= size <= PLAUSIBLE_SIZE[1]:
+        return (f"the mesh, {size:.3g} m across, is likely in other units: set mesh.scale = "
+                f"{factor * scene.mesh.metres_per_unit:g}")
+    return f"the driver is likely in other units: export it in metres{usd_note}"
+
+
 def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: str,
                          p: Problems, rest: np.ndarray | None = None) -> None:
     """The driver animates the surface just read (``vertices`` vertices, triangles
@@ -169,8 +192,7 @@ def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: s
         if not 1.0 / SCALE_MISMATCH <= ratio <= SCALE_MISMATCH:
             p.add(f"drive.path = {show(scene.drive.path)}: its first pose is {ratio:.3g} times "
                   f"the size of {mesh} ({posed:.3g} m against {size:.3g} m): the driver and the "
-                  "mesh must be in the same units and scale (a driver is read as it is, the "
-                  "mesh after mesh.scale: export the driver in metres)")
+                  f"mesh must be in the same units and scale; {_units_remedy(scene, ratio, size)}")
     if scene.time.end is None and scene.time.duration is None:
         return  # check_drive has said so
     start, end = scene.time_range()
