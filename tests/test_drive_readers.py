@@ -135,8 +135,21 @@ def test_usd_points_driver_converts_axes_units_and_transforms(tmp_path):
     expected = np.stack([world[..., 0], world[..., 2], -world[..., 1]], -1)
     np.testing.assert_allclose(d.positions, expected, atol=1e-6)
     np.testing.assert_allclose(d.positions - shift_yup(shift), P, atol=1e-6)
-    assert d.kind == "USD points" and len(d.edges) == 12
+    assert d.kind == "USD points" and len(d.edges) == 12 and d.parts == ("/rig/cube",)
     d.check(8, TRIS, "cube")
+    # a prop beside the object: the count differs, and the message names both meshes and
+    # drive.object, which keeps one
+    prop = UsdGeom.Mesh.Define(stage, "/prop")
+    prop.CreateFaceVertexCountsAttr(Vt.IntArray([3]))
+    prop.CreateFaceVertexIndicesAttr(Vt.IntArray([0, 1, 2]))
+    prop.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(np.eye(3, dtype=np.float32)))
+    stage.GetRootLayer().Save()
+    both = read_driver(tmp_path / "walk.usda")
+    assert both.parts == ("/rig/cube", "/prop")
+    with pytest.raises(WigglyInputError, match=r"holds 2 meshes \(/rig/cube, /prop\): "
+                                               r"drive\.object keeps those of one name"):
+        both.check(8, TRIS, "cube.obj")
+    assert read_driver(tmp_path / "walk.usda", object="rig").parts == ("/rig/cube",)
 
 
 @pytest.mark.parametrize("rate", [24, 30])

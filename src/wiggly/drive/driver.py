@@ -49,6 +49,9 @@ class Driver:
         The file, as messages name it.
     kind : str
         What was read ("glTF skin", "glTF morph targets", "USD points", ...).
+    parts : tuple of str
+        The meshes read, in order (USD prim paths, glTF node names), when the file names
+        them: a file of several meshes is told how to keep one (``drive.object``).
     """
 
     times: np.ndarray
@@ -57,6 +60,7 @@ class Driver:
     edges: np.ndarray
     source: str
     kind: str
+    parts: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         times = np.asarray(self.times, np.float64)
@@ -107,6 +111,10 @@ class Driver:
                 hint = ("; glTF exporters split vertices at UV seams and sharp edges, and USD "
                         "and OBJ do not, so the same object has more vertices in glTF: give "
                         "the mesh and the driver in the same format (the glTF file as both)")
+            if len(self.parts) > 1:
+                listed = ", ".join(self.parts[:4]) + (", ..." if len(self.parts) > 4 else "")
+                hint += (f"; the driver holds {len(self.parts)} meshes ({listed}): "
+                         "drive.object keeps those of one name (object= in Python)")
             return (f"the driver {self.source} animates {counted(n, 'vertex')} but the surface "
                     f"{surface} has {counted(vertices, 'vertex')}; a driver must animate the "
                     f"same surface, with the same vertices in the same order (export both from "

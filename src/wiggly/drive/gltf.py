@@ -377,10 +377,12 @@ def read_gltf(path: Path, *, animation: AnimationChoice = None,
     parts = _pose(f, channels, times, object)
     kinds = {k for part in parts for k in part.kinds}
     kind = "glTF " + " and ".join(sorted(kinds)) if kinds else "glTF node animation"
+    nodes = f.list("nodes")
+    names = dict.fromkeys(nodes[part.node].get("name") or f"node {part.node}" for part in parts)
     return Driver(times, np.concatenate([part.positions for part in parts], axis=1),
                   np.concatenate([part.faces for part in parts]),
                   np.concatenate([polygon_edges(part.faces) for part in parts]), str(path),
-                  kind)
+                  kind, tuple(names))
 
 
 @dataclass

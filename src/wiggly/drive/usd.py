@@ -148,4 +148,4 @@ def read_usd(path: Path, *, object: str | None = None) -> Driver:
                 / tcps
     kind = "USD skinning" if skinned else "USD points"
     return Driver(times, positions, np.concatenate(faces), np.concatenate(edges), str(path),
-                  kind)
+                  kind, tuple(str(mesh.GetPath()) for mesh in meshes))
