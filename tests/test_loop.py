@@ -280,3 +280,32 @@ def test_a_frame_rate_from_the_command_line_replaces_the_files_for_the_loop(tmp_
                  str(tmp_path / "loop.npz"), "-q"]) == 0
     assert main(["animate", str(tmp_path / "loop.toml"), "--fps", "25.5", "-o",
                  str(tmp_path / "other.npz"), "-q"]) == 1
+
+
+def test_a_looped_gltf_starts_at_zero_whatever_the_shots_start(tmp_path):
+    """Time-based players (three.js) cycle a clip over [0, its last key]: a loop of [0.5,
+    1.5] s is written as [0, 1] s (it held its first pose for a third of every cycle); a
+    shot that is no loop keeps its own time; with frame_start the frames are Blender's."""
+    import trimesh
+
+    from wiggly.export import SurfaceAnimation, read_animation, write_animation
+
+    sphere = trimesh.creation.icosphere(1)
+    times = 0.5 + np.arange(11) / 10.0
+    lift = 0.1 * np.sin(2 * np.pi * (times - 0.5))[:, None, None] * np.array([0.0, 1.0, 0.0])
+    positions = np.asarray(sphere.vertices)[None] + lift
+    loop = SurfaceAnimation(times, positions, sphere.faces, name="cycle", loop=True)
+    once = SurfaceAnimation(times, positions, sphere.faces, name="once")
+    def key_range(path) -> tuple[float, float]:  # what a player reads: the sampler's input
+        import pygltflib
+
+        gltf = pygltflib.GLTF2().load(str(path))
+        accessor = gltf.accessors[gltf.animations[0].samplers[0].input]
+        return accessor.min[0], accessor.max[0]
+
+    assert key_range(write_animation(tmp_path / "cycle.glb", loop)) == pytest.approx((0, 1))
+    assert key_range(write_animation(tmp_path / "once.glb", once)) == pytest.approx((0.5, 1.5))
+    assert key_range(write_animation(tmp_path / "framed.glb", loop, frame_start=1)) == \
+        pytest.approx((0.1, 1.1))
+    # wiggly reads its own times back (its extras keep the shot's)
+    np.testing.assert_allclose(read_animation(tmp_path / "cycle.glb").times, times, atol=1e-9)

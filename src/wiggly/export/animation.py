@@ -243,13 +243,16 @@ def frame_progress(iterable, total: int, what: str | os.PathLike[str]):
 # time codes of the formats
 
 
-def gltf_times(times: np.ndarray, frame_start: int | None = None) -> np.ndarray:
-    """Sampler input: float32 seconds, shifted to start at 0 if the first time is negative;
-    with ``frame_start``, ``(frame_start + k) / fps``."""
+def gltf_times(times: np.ndarray, frame_start: int | None = None,
+               loop: bool = False) -> np.ndarray:
+    """Sampler input: float32 seconds, shifted to start at 0 if the first time is negative,
+    or for a ``loop`` (time-based players such as three.js cycle over [0, the last key], and
+    a cycle starting at 0.5 s held its first pose for 0.5 s of each); with ``frame_start``,
+    ``(frame_start + k) / fps``."""
     if frame_start is not None:
         fps, codes = frame_codes(times, frame_start, "glTF", gltf=True)
         return (codes / fps).astype(np.float32)
-    return (times - min(times[0], 0.0)).astype(np.float32)
+    return (times - (times[0] if loop else min(times[0], 0.0))).astype(np.float32)
 
 
 def frame_codes(times: np.ndarray, frame_start: int | None, where: str,

@@ -135,7 +135,7 @@ def stage_animation(
                                "combination of modes); use gltf_targets='frames'")
     if frame_start is not None:
         frame_codes(anim.times, frame_start, f"cannot write {path}", gltf=ext == ".glb")
-    if ext == ".glb" and np.any(np.diff(gltf_times(anim.times, frame_start)) <= 0):
+    if ext == ".glb" and np.any(np.diff(gltf_times(anim.times, frame_start, anim.loop)) <= 0):
         raise WigglyInputError(
             f"cannot write {path}: frame times are too close to be distinct in float32, which "
             "glTF uses; use a larger frame interval (or export .usd / .npz)"

@@ -50,7 +50,7 @@ def write_glb(path: Path, anim: SurfaceAnimation, *,
         weights = np.eye(F, dtype=np.float32)  # keyframe k: weight 1 on target k
         names = [f"frame_{k:04d}" for k in range(F)]
     n_targets = len(dP)
-    t32 = gltf_times(anim.times, frame_start)
+    t32 = gltf_times(anim.times, frame_start, anim.loop)
     index_type = _GL_UNSIGNED_SHORT if n <= 65535 else _GL_UNSIGNED_INT
 
     blob = bytearray()
