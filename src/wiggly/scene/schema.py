@@ -419,6 +419,25 @@ def partial_frame_note(scene, fps_from: str = "") -> str | None:
             f"{t0 + math.ceil(steps - 1e-9) / fps:.6g}")
 
 
+def _warn_seam_keys(scene: Scene, where: str, t0: float, t1: float) -> None:
+    """In a loop the end is the start: keys of one group there that say different things
+    cannot both be met (the missed-keys warning would then advise a higher stiffness)."""
+    tol = 1e-9 * max(t1 - t0, 1.0)
+    first = [(j, k) for j, k in enumerate(scene.keyframes) if abs(k.time - t0) <= tol]
+    last = [(j, k) for j, k in enumerate(scene.keyframes) if abs(k.time - t1) <= tol]
+    for i, a in first:
+        for j, b in last:
+            differ = [what for what, x, y in (("position", a.position, b.position),
+                                              ("velocity", a.velocity, b.velocity))
+                      if x is not None and y is not None and x != y]
+            if a.group == b.group and differ:
+                warnings.warn(
+                    f"{where}: keyframes[{i}] (t = {t0:g} s) and keyframes[{j}] (t = {t1:g} s) "
+                    f"key group {a.group!r} with another {' and '.join(differ)}, but in a loop "
+                    f"t = {t1:g} s is t = {t0:g} s: both cannot be met; give them the same "
+                    "target, or keep one of them", stacklevel=5)
+
+
 def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> None:
     """Checks between keys: group names, key times in the shot's time range; the frame
     counts at ``output_fps`` when given (see :func:`load_scene`)."""
@@ -462,6 +481,8 @@ def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> 
     if scene.time.loop and scene.simulation.preroll not in (None, 0.0):
         p.add(f"simulation.preroll = {show(scene.simulation.preroll)} does not apply to a "
               "looped shot (time.loop = true): a loop has no before; leave it out")
+    if scene.time.loop:
+        _warn_seam_keys(scene, p.where, t0, t1)
     if frames > MAX_FRAMES and t1 - t0 <= MAX_DURATION:
         which = f"time.fps = {show(scene.time.fps)}" if output_fps is None else f"--fps {fps:g}"
         p.add(f"{which} makes {frames} frames of a {t1 - t0:g} s "
