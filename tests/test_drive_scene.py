@@ -420,6 +420,28 @@ def test_a_driver_at_another_scale_is_refused_before_the_solve(shot, capsys):
     assert "0.01 times the size of bar_cm.vtu" in err and "set mesh.scale = 0.01" in err, err
 
 
+def test_a_mesh_in_other_axes_than_its_driver_is_warned_about(shot, capsys):
+    """A Z-up mesh file driven by a Y-up driver: the driver's first pose is the mesh on its
+    side (gravity then pulled the free parts sideways, in silence); the warning names
+    mesh.up_axis, which then reads the mesh upright, and nothing more is said."""
+    folder, data = shot
+    mesh = meshio.read(folder / "bar.vtu")
+    X = mesh.points
+    meshio.write(folder / "bar_z.vtu", meshio.Mesh(np.stack([X[:, 0], -X[:, 2], X[:, 1]], 1),
+                                                  mesh.cells))
+    drive = {"path": "walk.npz", "group": "driven"}
+    scene = write(folder, {**data, "mesh": {**data["mesh"], "path": "bar_z.vtu"},
+                           "drive": drive}, "zup.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "z.npz")]) == 0
+    err = capsys.readouterr().err
+    assert 'its first pose is bar_z.vtu turned by 90 degrees from its up axis' in err, err
+    assert 'the mesh file looks Z-up: set mesh.up_axis = "z"' in err
+    scene = write(folder, {**data, "mesh": {**data["mesh"], "path": "bar_z.vtu",
+                                            "up_axis": "z"}, "drive": drive}, "zup2.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "z2.npz")]) == 0
+    assert "up axis" not in capsys.readouterr().err
+
+
 def test_a_clip_the_driver_lacks_is_blamed_on_drive_animation(tmp_path):
     """A glTF clip name the file does not have is drive.animation's mistake: the message
     names that key (it named drive.path) and lists the clips there are."""

@@ -258,7 +258,7 @@ def test_the_physics_parent_knows_which_models_its_child_holds(tmp_path):
         m = scene.mesh
         _, models[name] = preparer.call(
             ("model", model_key(scene), str(scene.mesh_file()), m.resolution, m.edge_length,
-             m.repair, m.metres_per_unit), lambda _: None, lambda: False)
+             m.repair, m.metres_per_unit, m.up), lambda _: None, lambda: False)
 
     def modes(name: str):
         from wiggly.scene import scene_to_dict
@@ -294,7 +294,7 @@ def test_what_the_physics_process_warns_of_reaches_the_page(tmp_path):
     preparer = Preparer(said.append)
     try:
         kind, model = preparer.call(("model", ("box",), str(tmp_path / "box.obj"), 8, None,
-                                     True, 1.0), lambda _: None, lambda: False)
+                                     True, 1.0, "y"), lambda _: None, lambda: False)
     finally:
         preparer.close()
     assert kind == "model" and model.tets.n_tets > 0

@@ -885,8 +885,14 @@ def test_load_mesh_scale_multiplies_the_coordinates_only(tmp_path):
     for bad in (0, -1.0, float("nan"), "cm"):
         with pytest.raises(WigglyInputError, match="scale should be a number > 0"):
             load_mesh(tmp_path / "ball.obj", bad)
+    turned = load_mesh(tmp_path / "ball.obj", 0.01, up="z")  # a Z-up file, in y-up axes
+    V, N = plain.vertices, plain.normals
+    assert np.allclose(turned.vertices, 0.01 * np.stack([V[:, 0], V[:, 2], -V[:, 1]], 1))
+    assert np.allclose(turned.normals, np.stack([N[:, 0], N[:, 2], -N[:, 1]], 1))
+    with pytest.raises(WigglyInputError, match=r"up = 'x' is not an up axis; use one of y, z"):
+        load_mesh(tmp_path / "ball.obj", up="x")
     model = load_model(tmp_path / "ball.obj", resolution=6, scale=0.01, cache_dir=False)
-    with pytest.raises(WigglyInputError, match=r"scale = 0\.01 applies to a mesh file"):
+    with pytest.raises(WigglyInputError, match=r"scale and up apply to a mesh file"):
         wiggly.prepare(model, scale=0.01)
 
 

@@ -368,6 +368,7 @@ def prepare(
     edge_length: float | None = None,
     young: np.ndarray | None = None,
     scale: float = 1.0,
+    up: str = "y",
 ) -> Body:
     """Load (if a path), assemble M and K, compute ``n_modes`` eigenmodes (cached on disk).
 
@@ -377,7 +378,8 @@ def prepare(
     softer tail (:func:`wiggly.body.tets_of` selects a vertex group's tets).  ``model`` is a
     path, ``builtin:NAME`` or a :class:`~wiggly.mesh.Model`; a surface in memory becomes one
     with :func:`wiggly.mesh.build_model`.  ``scale`` is the file's metres per unit (0.01 for
-    a file in centimetres; a path only).
+    a file in centimetres) and ``up`` its up axis ("y", or "z" for a Z-up file; a path
+    only).
     """
     material = _checked(material, Material, "material", "Material(young=2e5, poisson=0.45, "
                         "density=1000.0)")
@@ -392,10 +394,10 @@ def prepare(
         path = Path(model)
         model = load_model(
             path, resolution=resolution, edge_length=edge_length, cache_dir=cache_dir,
-            scale=scale)
-    elif scale != 1.0:
-        raise WigglyInputError(f"scale = {scale!r} applies to a mesh file; a Model is used as "
-                               "it is (scale its surface before wiggly.mesh.build_model)")
+            scale=scale, up=up)
+    elif scale != 1.0 or up != "y":
+        raise WigglyInputError("scale and up apply to a mesh file; a Model is used as it is "
+                               "(scale or turn its surface before wiggly.mesh.build_model)")
     V, T = model.tets.vertices, model.tets.tets
     fixed = vertex_set(fixed_vertices, len(V), "fixed vertices")
     say(f"assembling linear FEM on {len(T)} tets, {len(V)} vertices")

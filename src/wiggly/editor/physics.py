@@ -9,7 +9,7 @@ nobody wants any more (the user changed the resolution again) is abandoned by ki
 child, which is started again for the next job.
 
 Protocol (messages of :mod:`wiggly.editor.channel` on the child's stdin and stdout): the
-parent sends ``("model", key, path, resolution, edge_length, repair, scale)`` and ``("modes",
+parent sends ``("model", key, path, resolution, edge_length, repair, scale, up)`` and ``("modes",
 model_key, model or None, scene_dict, source)``; the child answers ``("status", stage, message,
 fraction)`` while it works, then ``("model", model)``, ``("modes", body)`` (the scene's body
 from :func:`wiggly.scene.body_of`, without its damping and gravity) or ``("error", message,
@@ -66,7 +66,7 @@ def model_key(scene: Scene) -> tuple:
     except OSError:
         mtime = 0
     m = scene.mesh
-    return (str(f), mtime, m.resolution, m.edge_length, m.repair, m.metres_per_unit)
+    return (str(f), mtime, m.resolution, m.edge_length, m.repair, m.metres_per_unit, m.up)
 
 
 def modes_key(scene: Scene) -> tuple:
@@ -118,11 +118,11 @@ def _child_job(msg: tuple, models: Memo, status) -> tuple[tuple, tuple | None]: 
 
     try:
         if msg[0] == "model":
-            _, key, path, resolution, edge_length, repair, scale = msg
+            _, key, path, resolution, edge_length, repair, scale, up = msg
             name = os.path.basename(path)
             status("mesh", f"reading and tetrahedralizing {name}", 0.1)
             model = load_model(path, resolution=resolution, edge_length=edge_length,
-                               repair=repair, scale=scale)
+                               repair=repair, scale=scale, up=up)
             return ("model", model), (key, model)
         _, key, model, data, source = msg
         if model is None:
@@ -302,7 +302,7 @@ class Physics:
         try:
             _, model = self._run(("model", key, str(f), scene.mesh.resolution,
                                   scene.mesh.edge_length, scene.mesh.repair,
-                                  scene.mesh.metres_per_unit),
+                                  scene.mesh.metres_per_unit, scene.mesh.up),
                                  key, t0,
                                  ("mesh", f"reading and tetrahedralizing {f.name}", 0.05))
         except Superseded:

@@ -676,7 +676,7 @@ def _surface_of(scene: Scene):
     from wiggly.mesh import Surface, TetMesh, load_mesh
 
     try:
-        loaded = load_mesh(scene.mesh_file(), scene.mesh.metres_per_unit)
+        loaded = load_mesh(scene.mesh_file(), scene.mesh.metres_per_unit, scene.mesh.up)
     except WigglyInputError as err:
         raise EditError(str(err)) from None
     if isinstance(loaded, Surface):

@@ -37,7 +37,7 @@ from wiggly.mesh.filling import (
     repair_note,
     tetrahedralize,
 )
-from wiggly.mesh.loading import BUILTIN_MODELS, load_mesh, resolve_builtin
+from wiggly.mesh.loading import BUILTIN_MODELS, UP_AXES, load_mesh, resolve_builtin
 from wiggly.mesh.model import build_model, load_model
 from wiggly.mesh.validate import (
     SurfaceDefectError,
@@ -52,6 +52,7 @@ __all__ = [
     "DEFAULT_RESOLUTION",
     "ENVELOPE_PER_EDGE",
     "SURFACE_EXTENSIONS",
+    "UP_AXES",
     "VOLUME_EXTENSIONS",
     "Embedding",
     "MeshRepairWarning",

@@ -42,7 +42,11 @@ def resolve_builtin(path: str | Path) -> Path:
     return Path(str(resources.files("wiggly") / "data" / f"{name}.obj"))
 
 
-def load_mesh(path: str | Path, scale: float = 1.0) -> TetMesh | Surface:
+#: Up axes a mesh file may have; wiggly's is y (glTF's, Blender's exports, USD's default).
+UP_AXES = ("y", "z")
+
+
+def load_mesh(path: str | Path, scale: float = 1.0, up: str = "y") -> TetMesh | Surface:
     """Read a tetrahedral mesh or a triangle surface from a file.
 
     Surface formats (``.obj .ply .stl .off .glb .gltf``) are read with
@@ -84,6 +88,9 @@ def load_mesh(path: str | Path, scale: float = 1.0) -> TetMesh | Surface:
     scale : float
         Metres per unit of the file: its coordinates are multiplied by it (0.01 for a file
         in centimetres, 0.001 for millimetres; wiggly's units are SI).
+    up : {"y", "z"}
+        The file's up axis: a Z-up file (CAD, 3ds Max, many STL files) is turned to wiggly's
+        y up, ``(x, y, z) -> (x, z, -y)`` (a rotation: the surface keeps its orientation).
 
     Returns
     -------
@@ -97,10 +104,22 @@ def load_mesh(path: str | Path, scale: float = 1.0) -> TetMesh | Surface:
         infinite coordinates, indices out of range, degenerate tets.
     """
     scale = checks.positive_number(scale, "scale", "metres per unit of the file")
+    if up not in UP_AXES:
+        raise WigglyInputError(f"up = {up!r} is not an up axis; use one of {', '.join(UP_AXES)}")
     loaded = _load_mesh(resolve_builtin(path))
     if scale != 1.0:
         loaded.vertices = loaded.vertices * scale  # uniform: normals and orientation stay
+    if up == "z":
+        loaded.vertices = z_up_to_y_up(loaded.vertices)
+        if isinstance(loaded, Surface) and loaded.normals is not None:
+            loaded.normals = z_up_to_y_up(loaded.normals)
     return loaded
+
+
+def z_up_to_y_up(X: np.ndarray) -> np.ndarray:
+    """Z-up coordinates in wiggly's y-up axes: ``(x, y, z) -> (x, z, -y)``, a rotation by
+    -90 degrees about x (the conversion of USD's and glTF's readers)."""
+    return np.stack([X[..., 0], X[..., 2], -X[..., 1]], axis=-1)
 
 
 def _load_mesh(path: Path) -> TetMesh | Surface:

@@ -40,6 +40,7 @@ def load_model(
     repair: bool | None = True,
     cache_dir: str | os.PathLike[str] | bool | None = None,
     scale: float = 1.0,
+    up: str = "y",
 ) -> Model:
     """Load a model, tetrahedralize it if it is a surface and embed the surface.
 
@@ -53,12 +54,14 @@ def load_model(
         Passed to :func:`tetrahedralize` for a surface; ignored for a tet mesh.
     scale : float
         Metres per unit of the file (:func:`load_mesh`): 0.01 for centimetres.
+    up : {"y", "z"}
+        The file's up axis (:func:`load_mesh`).
 
     Returns
     -------
     Model
     """
-    return build_model(load_mesh(path, scale), str(path), edge_length=edge_length,
+    return build_model(load_mesh(path, scale, up), str(path), edge_length=edge_length,
                        resolution=resolution, repair=repair, cache_dir=cache_dir)
 
 

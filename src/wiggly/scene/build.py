@@ -32,7 +32,7 @@ def _load_model(scene: Scene):
     f = scene.mesh_file()
     where = scene.where()
     try:
-        loaded = meshing.load_mesh(f, scene.mesh.metres_per_unit)
+        loaded = meshing.load_mesh(f, scene.mesh.metres_per_unit, scene.mesh.up)
     except WigglyInputError as err:  # a file that is there but cannot be read
         raise WigglyInputError(f"{where}: mesh.path = {show(scene.mesh.path)}: {err}") from None
     checked = None

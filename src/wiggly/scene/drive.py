@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import threading
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -149,6 +150,37 @@ def scene_driver(scene: Scene) -> Driver:
 SCALE_MISMATCH = 5.0
 
 
+#: A driver whose first pose turns the mesh's up axis by more than this (degrees) is likely
+#: in other axes (a Z-up file against a Y-up one).
+UP_TURN = 60.0
+
+
+def _warn_up_axes(scene: Scene, rest: np.ndarray, posed: np.ndarray, mesh: str) -> None:
+    """Warn when the driver's first pose is the rest mesh turned onto its side: the best
+    rotation from the rest vertices to the driver's (the same vertices) takes one's up axis
+    far from the other's, as a Z-up mesh against a Y-up driver does (its gravity then pulls
+    sideways)."""
+    from scipy.spatial.transform import Rotation
+
+    a, b = rest - rest.mean(axis=0), posed - posed.mean(axis=0)
+    if len(a) < 3 or not np.any(a) or not np.any(b):
+        return
+    R, _ = Rotation.align_vectors(b, a)
+    y = np.array([0.0, 1.0, 0.0])
+    turn = float(np.degrees(np.arccos(np.clip(R.apply(y) @ y, -1.0, 1.0))))
+    if turn <= UP_TURN:
+        return
+    mesh_z_up = float(R.apply([0.0, 0.0, 1.0]) @ y) > 0.7  # the mesh's z is the driver's up
+    remedy = ('the mesh file looks Z-up: set mesh.up_axis = "z"' if mesh_z_up else
+              "export the mesh and the driver with the same up axis (y, or mesh.up_axis = "
+              '"z" for a Z-up mesh)')
+    warnings.warn(
+        f"{scene.where()}: drive.path = {show(scene.drive.path)}: its first pose is {mesh} "
+        f"turned by {turn:.0f} degrees from its up axis: the two are likely in other axes "
+        f"(gravity would pull the free parts sideways); {remedy}, unless the driver starts "
+        "with the body on its side", stacklevel=3)
+
+
 def _units_remedy(scene: Scene, ratio: float, size: float) -> str:
     """How to bring a driver ``ratio`` times the size of the mesh (``size`` m across) to its
     scale: a power of ten is units; the one of the two whose size is implausible for metres
@@ -193,6 +225,8 @@ def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: s
             p.add(f"drive.path = {show(scene.drive.path)}: its first pose is {ratio:.3g} times "
                   f"the size of {mesh} ({posed:.3g} m against {size:.3g} m): the driver and the "
                   f"mesh must be in the same units and scale; {_units_remedy(scene, ratio, size)}")
+        else:
+            _warn_up_axes(scene, rest, driver.positions[0], mesh)
     if scene.time.end is None and scene.time.duration is None:
         return  # check_drive has said so
     start, end = scene.time_range()

@@ -26,7 +26,13 @@ from wiggly.limits import (
     frame_steps,
     whole_frames_remedy,
 )
-from wiggly.mesh import BUILTIN_MODELS, DEFAULT_RESOLUTION, SURFACE_EXTENSIONS, VOLUME_EXTENSIONS
+from wiggly.mesh import (
+    BUILTIN_MODELS,
+    DEFAULT_RESOLUTION,
+    SURFACE_EXTENSIONS,
+    UP_AXES,
+    VOLUME_EXTENSIONS,
+)
 from wiggly.scene.drive import check_drive, check_drive_file
 from wiggly.scene.spec import (
     CAMERAS,
@@ -233,7 +239,11 @@ SCENE_FORMAT = Table(
                           doc="metres per unit of the mesh file: its coordinates are "
                               "multiplied by it when read (0.01 for centimetres, 0.001 for "
                               "millimetres; default 1); everything else in the scene is in "
-                              "metres, on the scaled mesh")},
+                              "metres, on the scaled mesh"),
+          "up_axis": String(enum=UP_AXES,
+                            doc='the mesh file\'s up axis: "y" (default: glTF, Blender\'s '
+                                'exports) or "z" (CAD, 3ds Max, many STL files: turned to y '
+                                "up when read); the rest of the scene is y up")},
          required=("path",), exclusive=(("resolution", "edge_length"),),
          make=lambda d: MeshSpec(**d), doc="the model"),
      "material": Table(

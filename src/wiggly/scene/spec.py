@@ -63,11 +63,17 @@ class MeshSpec:
     edge_length: float | None = None
     repair: bool | None = None  # None: true (accept imperfect surfaces, with a warning)
     scale: float | None = None  # metres per unit of the file; None: 1
+    up_axis: str | None = None  # the file's up axis, "y" or "z"; None: "y"
 
     @property
     def metres_per_unit(self) -> float:
         """What the file's coordinates are multiplied by (``scale``, default 1)."""
         return 1.0 if self.scale is None else self.scale
+
+    @property
+    def up(self) -> str:
+        """The file's up axis (``up_axis``, default "y")."""
+        return self.up_axis or "y"
 
 
 @dataclass(frozen=True)
