@@ -346,6 +346,33 @@ def test_a_driver_that_does_not_cycle_with_a_loop_is_warned_about(bar):
                          driver_range=(0.0, 0.8))
 
 
+def test_a_driver_that_spins_fast_against_the_free_parts_is_warned_about(bar):
+    """The free parts move linearly in the driver's turning frame, without its centrifugal
+    force: a spin at twice the free parts' lowest frequency draws them toward the axis, and
+    is said; a turn at a tenth of it is not (the bob, which does not turn, neither)."""
+    from scipy.spatial.transform import Rotation
+
+    body, driven = bar
+    X = body.surface.vertices
+    lowest = float(np.sqrt(free_modes(body, driven, 12)[1].min()))  # rad/s, base held
+
+    def spinning(rate: float) -> Driver:
+        times = np.arange(61) / 60.0
+        turns = Rotation.from_rotvec(np.outer(rate * times, [0.0, 1.0, 0.0]))
+        c = X[driven].mean(axis=0)
+        poses = np.stack([R.apply(X - c) + c for R in turns])
+        return Driver(times, poses, body.surface.faces, np.zeros((0, 2)), "spin.npz", "test")
+
+    with pytest.warns(UserWarning, match=r"spin\.npz turns its driven group at up to .* turns "
+                                         r"per second, fast against the free parts' lowest"):
+        secondary_motion(body, spinning(2.0 * lowest), driven, start=0.0, end=1.0,
+                         warped=False)
+    for driver in (spinning(0.1 * lowest), bob_driver(body)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", UserWarning)
+            secondary_motion(body, driver, driven, start=0.0, end=1.0, warped=False)
+
+
 @pytest.mark.parametrize("warped", [False, True])
 def test_sparse_keys_on_the_free_parts_are_met(bar, warped):
     """'The tip is back where the driver puts it, and still, at 0.7 s': the key's residual is
