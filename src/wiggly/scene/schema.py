@@ -484,10 +484,12 @@ def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> 
             warnings.warn(f"{p.where}: {note}", stacklevel=4)
     if scene.time.loop and not scene.simulation.fixed and scene.drive is None and not any(
             kf.position is not None for kf in scene.keyframes):
+        what = ("velocity keys do not say where it is" if scene.keyframes else
+                "nothing says where it is")
         p.add("time.loop = true, but no keyframe has a position, no group is fixed and "
-              "nothing drives the body: velocity keys do not say where it is, so the looped "
-              "motion is undetermined (a loop has no rest before it); key a group's position "
-              "(e.g. position = \"rest\"), or fix a group")
+              f"nothing drives the body: {what}, so the looped motion is undetermined (a "
+              "loop has no rest before it); key a group's position (e.g. position = "
+              "\"rest\"), or fix a group")
     if scene.time.loop and scene.simulation.preroll not in (None, 0.0):
         p.add(f"simulation.preroll = {show(scene.simulation.preroll)} does not apply to a "
               "looped shot (time.loop = true): a loop has no before; leave it out")
