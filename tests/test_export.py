@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -891,3 +892,18 @@ sys.exit(cli.main(["animate", "builtin:bar"]))
     assert done.returncode == 128 + signal.SIGTERM, done.stderr
     assert "wiggly: terminated" in done.stderr and "Traceback" not in done.stderr, done.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == [], list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("ext", [".glb", ".usda", ".npz"])
+def test_a_body_far_from_the_origin_is_told_its_float32_rounding(tmp_path, ext, recwarn):
+    """float32 positions 1e5 m from the origin step by about 8-16 mm: the test's ball there
+    is warned about, with the step; 1 km away (steps of about 0.1 mm, under 1e-4 of its
+    size) it is not."""
+    anim = sphere_animation(F=3)
+    far = SurfaceAnimation(anim.times, anim.positions + 1e5, anim.faces, name="far")
+    near = SurfaceAnimation(anim.times, anim.positions + 1e3, anim.faces, name="near")
+    write_animation(tmp_path / f"near{ext}", near)
+    assert not [w for w in recwarn if "float32" in str(w.message)]
+    with pytest.warns(UserWarning, match=rf"far{re.escape(ext)}: the body lies 1e\+05 m from "
+                                         r"the origin.* steps of about 1\d mm"):
+        write_animation(tmp_path / f"far{ext}", far)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ from wiggly.export.gltf import read_glb, write_glb
 from wiggly.export.npz import read_npz, write_npz
 from wiggly.export.obj import read_obj_sequence, stage_obj_sequence
 from wiggly.export.usd import read_usd, write_usd
-from wiggly.files import OutputSet
+from wiggly.files import OutputSet, shown_name
 from wiggly.limits import frame_steps, whole_frames_remedy
 from wiggly.progress import deprecated_progress
 
@@ -147,6 +148,7 @@ def stage_animation(
         return
     if path.exists() and not overwrite:
         raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
+    _warn_far(path, anim)
     tmp = outputs.stage(path)
     if ext == ".glb":
         write_glb(tmp, anim, frame_start=frame_start, targets=gltf_targets)
@@ -154,6 +156,26 @@ def stage_animation(
         write_npz(tmp, anim)
     else:
         write_usd(tmp, without_seam(anim), frame_start=frame_start)
+
+
+#: float32 positions (glTF, USD, npz) rounded coarser than this share of the body's size are
+#: warned about.
+FLOAT32_STEP = 1e-4
+
+
+def _warn_far(path: Path, anim: SurfaceAnimation) -> None:
+    """Warn when the body lies so far from the origin, for its size, that the float32
+    positions of glTF, USD and npz round it visibly (a 1 m body 1e5 m away: 8 mm steps)."""
+    X = anim.positions
+    far = float(np.abs(X).max(initial=0.0))
+    size = float(np.linalg.norm(np.ptp(X[0], axis=0))) if X.shape[1] else 0.0
+    step = far * np.finfo(np.float32).eps
+    if size > 0 and step > FLOAT32_STEP * size:
+        warnings.warn(
+            f"{shown_name(path)}: the body lies {far:.3g} m from the origin, and the file's "
+            f"float32 positions round it to steps of about {1e3 * step:.2g} mm ({step / size:.1e} "
+            "of its size): move it near the origin for wiggly, and place it in your scene "
+            "afterwards", stacklevel=3)
 
 
 def read_animation(path) -> SurfaceAnimation:
