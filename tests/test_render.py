@@ -358,3 +358,17 @@ def test_a_body_far_from_the_origin_renders_as_it_does_at_the_origin():
     moved = (tuple(np.add(pose[0], off)), tuple(off))
     assert np.abs(posed - render_frame(t, far, F, at=0.5, camera=moved)).mean() < 0.5
     assert np.abs(posed - near).mean() > 5  # the poses differ: the check can tell pictures apart
+
+
+def test_a_preview_without_a_clock_draws_no_time():
+    """``clock=False`` (mode previews, whose time means nothing): a still body renders the
+    same picture at 0 s and 5 s, where the clock's "t = ..." makes the two differ."""
+    from wiggly.render.preview import Preview
+
+    sphere = trimesh.creation.icosphere(2, radius=0.5)
+    V, F = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    still = np.stack([V, V])
+    for clock, same in ((True, False), (False, True)):
+        with Preview([0.0, 5.0], still, F, size=(320, 180), clock=clock) as preview:
+            a, b = preview.render(0.0), preview.render(5.0)
+        assert np.array_equal(a, b) == same, clock

@@ -239,6 +239,7 @@ def preview(path: Path, body, *, overwrite: bool = False,
                                     tile_size=tile,
                                     highlights=hls,
                                     title="elastic modes at peak amplitude (orange: moves most)",
+                                    clock=False,
                                     overwrite=overwrite)
     per = round(PREVIEW_SECONDS * PREVIEW_FPS)
     tau = np.arange(per) / PREVIEW_FPS
@@ -250,7 +251,7 @@ def preview(path: Path, body, *, overwrite: bool = False,
     hls = [highlight(i, (k + 0.5) * PREVIEW_SECONDS) for k, i in enumerate(elastic)]
     return render_video(path, times, positions, faces, highlights=hls, fps=PREVIEW_FPS,
                         size=size,
-                        title="elastic modes, one per second (orange: moves most)",
+                        title="elastic modes, one per second (orange: moves most)", clock=False,
                         overwrite=overwrite)
 
 

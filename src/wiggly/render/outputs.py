@@ -92,7 +92,8 @@ def _scene_progress(times, what: str):
 def render_video(path, times, positions, faces, *, highlights: Sequence[Highlight] = (),
                  fps: float | None = None, size=(960, 540), up=(0.0, 1.0, 0.0),
                  ground: bool = True, camera=None, title: str | None = None,
-                 anti_aliasing: bool = False, overwrite: bool = False) -> Path:
+                 anti_aliasing: bool = False, overwrite: bool = False,
+                 clock: bool = True) -> Path:
     """Render the animation to an ``.mp4`` or ``.gif`` video; return the path.
 
     ``anti_aliasing`` (FXAA) is off by default here: with software rendering it halves the
@@ -119,7 +120,7 @@ def render_video(path, times, positions, faces, *, highlights: Sequence[Highligh
         w, h = w - w % 2, h - h % 2
     with Preview(times, positions, faces, highlights=highlights, size=(w, h), up=up,
                  ground=ground, camera=camera, title=title,
-                 anti_aliasing=anti_aliasing) as preview:
+                 anti_aliasing=anti_aliasing, clock=clock) as preview:
         if gif:
             requested = fps if fps is not None else video_frame_times(preview.times)[1]
             delay_cs = max(round(100 / GIF_MAX_FPS), round(100 / requested))
@@ -197,8 +198,9 @@ def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, co
                          highlights: Sequence[Highlight] = (), tile_size=(480, 270),
                          up=(0.0, 1.0, 0.0), ground: bool = True, camera=None,
                          title: str | None = None, anti_aliasing: bool = True,
-                         overwrite: bool = False) -> Path:
-    """A PNG grid of frames (each with its time label), row by row; return the path.
+                         overwrite: bool = False, clock: bool = True) -> Path:
+    """A PNG grid of frames (each with its time label, unless ``clock`` is False), row by
+    row; return the path.
 
     The frames are at ``n_frames`` (at most the animation's own count) evenly spaced times
     from the first to the last (or at the times ``at``, e.g. the key times).  With ``N``
@@ -229,7 +231,8 @@ def render_contact_sheet(path, times, positions, faces, *, n_frames: int = 8, co
     sheet = np.full((header + rows * th + (rows + 1) * gap, cols * tw + (cols + 1) * gap, 3), 250,
                     dtype=np.uint8)
     with Preview(times, positions, faces, highlights=highlights, size=(tw, th), up=up,
-                 ground=ground, camera=camera, anti_aliasing=anti_aliasing) as preview:
+                 ground=ground, camera=camera, anti_aliasing=anti_aliasing,
+                 clock=clock) as preview:
         for k, t in enumerate(_scene_progress(sheet_times, path.name)):
             r, c = divmod(k, cols)
             y, x = header + gap + r * (th + gap), gap + c * (tw + gap)

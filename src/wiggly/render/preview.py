@@ -175,12 +175,16 @@ class Preview:
     anti_aliasing : bool
         FXAA, a screen-space pass: smooth silhouettes, but about half the frame rate with
         software rendering (llvmpipe).
+    clock : bool
+        Show the time ("t = 0.25 s") in the corner (False: a preview whose time means
+        nothing to its viewer, such as a mode preview's).
     """
 
     def __init__(self, times, positions, faces, *, highlights: Sequence[Highlight] = (),
                  size=(960, 540), up=(0.0, 1.0, 0.0), ground: bool = True, camera=None,
-                 title: str | None = None, anti_aliasing: bool = True):
+                 title: str | None = None, anti_aliasing: bool = True, clock: bool = True):
         self.times, positions, self.faces = preview_arrays(times, positions, faces)
+        self.clock = clock
         # the scene about the centre of the frames' bounding box: VTK draws in float32, and a
         # body 1e4 m from the origin (a map's coordinates) vanished in its rounding
         self.origin = 0.5 * (positions.min(axis=(0, 1)) + positions.max(axis=(0, 1)))
@@ -397,7 +401,7 @@ class Preview:
 
         if self._ground is not None:
             self._update_shadow(x)
-        self._time_label.SetInput(f"t = {t:.2f} s")
+        self._time_label.SetInput(f"t = {t:.2f} s" if self.clock else "")
         return self._grab()
 
     def _update_shadow(self, x: np.ndarray) -> None:
