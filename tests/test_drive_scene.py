@@ -418,6 +418,13 @@ def test_a_driver_at_another_scale_is_refused_before_the_solve(shot, capsys):
     assert main(["animate", str(scene), "-q", "-o", str(folder / "cm.npz")]) == 1
     err = capsys.readouterr().err
     assert "0.01 times the size of bar_cm.vtu" in err and "set mesh.scale = 0.01" in err, err
+    # a scale given to a mesh in metres: the remedy is to leave it out
+    scene = write(folder, {**data, "mesh": {**data["mesh"], "scale": 0.01},
+                           "drive": {"path": "walk.npz", "group": "driven"}}, "scaled.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "s.npz")]) == 1
+    err = capsys.readouterr().err
+    assert "mesh.scale = 0.01 makes the mesh 100 times smaller than its file: leave it out" \
+        in err, err
 
 
 def test_a_mesh_in_other_axes_than_its_driver_is_warned_about(shot, capsys):

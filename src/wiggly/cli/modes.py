@@ -61,7 +61,8 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", metavar="PREVIEW",
                         help="preview of the elastic mode shapes: .mp4, .gif or .png")
     parser.add_argument("--size", type=size_arg, metavar="WxH", default=None,
-                        help="preview size in pixels, e.g. 1280x720 (default 960x540)")
+                        help="video size in pixels, e.g. 1280x720; a .png sheet's tiles are "
+                             "half of it (default 960x540)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing preview")
     parser.add_argument("-q", "--quiet", action="store_true",
                         help="no progress bars or stage messages")

@@ -20,7 +20,7 @@ examples:
   wiggly render out/jump.npz -o jump.mp4 --camera side
   wiggly render out/jump.glb -o jump-sheet.png --overwrite"""
 
-ANIMATION_EXTENSIONS = (".npz", ".glb", ".gltf", ".usd", ".usda", ".usdc", ".obj")
+ANIMATION_EXTENSIONS = (".npz", ".glb", ".gltf", ".usd", ".usda", ".usdc", ".usdz", ".obj")
 
 
 def _read(source: Path):
@@ -71,7 +71,8 @@ def add_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", choices=CAMERAS, default=None,
                         help="camera preset (default: the scene's, or three_quarter)")
     parser.add_argument("--size", type=size_arg, metavar="WxH", default=None,
-                        help="image size in pixels, e.g. 1280x720 (default: the scene's, or "
+                        help="video size in pixels, e.g. 1280x720; a .png sheet's tiles are "
+                             "half of it (default: the scene's, or "
                              "960x540)")
     parser.add_argument("-q", "--quiet", action="store_true",
                         help="no progress bars or stage messages")

@@ -197,6 +197,11 @@ def _units_remedy(scene: Scene, ratio: float, size: float) -> str:
         return (f"scale the mesh by mesh.scale, or export the driver at the mesh's scale"
                 f"{usd_note}")
     factor = 10.0 ** round(power)
+    scale = scene.mesh.metres_per_unit
+    if scale != 1.0 and abs(math.log10(factor * scale)) < 0.05:  # the scale made the ratio
+        return (f"mesh.scale = {scale:g} makes the mesh {1 / scale:g} times "
+                f"{'smaller' if scale < 1 else 'larger'} than its file: leave it out if the "
+                "file is in metres, as the driver is")
     if not PLAUSIBLE_SIZE[0] <= size <= PLAUSIBLE_SIZE[1]:
         return (f"the mesh, {size:.3g} m across, is likely in other units: set mesh.scale = "
                 f"{factor * scene.mesh.metres_per_unit:g}")

@@ -297,7 +297,8 @@ SCENE_FORMAT = Table(
           "frame_start": Number(integer=True, ge=-1_000_000, le=1_000_000,
                                  doc="glTF/USD frame of the first output frame: frame k lands "
                                      "on frame_start + k at the output fps (default: the "
-                                     "shot's own time, t * fps)"),
+                                     "shot's own time: USD time code t * fps; glTF moves a "
+                                     "negative start, and a loop's start, to 0 s)"),
           "gltf_targets": String(enum=GLTF_TARGETS,
                                   doc='glTF morph targets: "frames" (one per frame, default) '
                                       'or "modes" (one per mode, weights q(t); linear shots '
