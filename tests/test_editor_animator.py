@@ -742,3 +742,11 @@ def test_the_cycle_checkbox_makes_the_shot_a_loop(bar_editor):
     page.uncheck('[data-set="time.loop"]')
     page.wait_for_function("!window.wiggly.S.desc.scene.time.loop")
     assert not server.session.scene.time.loop
+    # a refused toggle (20.6 frames a cycle) leaves the box as the scene is, though focused
+    st, _ = post(server.url, "api/edit", {"op": "set", "section": "time", "values": {"end": 1.03}})
+    assert st == 200
+    page.wait_for_function("window.wiggly.S.desc.scene.time.end === 1.03")
+    page.click('[data-set="time.loop"]')
+    toast_saying(page, "whole number of frames")
+    page.wait_for_function("!document.querySelector('[data-set=\"time.loop\"]').checked")
+    assert not server.session.scene.time.loop

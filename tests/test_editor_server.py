@@ -101,6 +101,31 @@ def state(project) -> EditorState:
     return EditorState.of(load_scene(project / "shot.toml"))
 
 
+def test_groups_without_a_colour_get_the_palettes_as_in_previews(state):
+    """The page coloured every group without its own colour orange; it now gets the colour
+    the previews draw it in (the palette, in the groups' order)."""
+    from wiggly.editor.state import state_to_json
+    from wiggly.scene import PALETTE
+
+    scene = state.scene
+    colors = state_to_json(state)["group_colors"]
+    assert list(colors) == list(scene.groups) and colors == scene.group_colors()
+    for i, (name, g) in enumerate(scene.groups.items()):
+        assert colors[name] == (g.color or PALETTE[i % len(PALETTE)])
+    bare = [name for name, g in scene.groups.items() if g.color is None]
+    assert len({colors[n] for n in bare}) == min(len(bare), len(PALETTE))
+
+
+def test_the_mesh_scale_and_up_axis_are_set_in_the_editor(state):
+    """The units warning names mesh.scale and the axes warning mesh.up_axis: both can be set
+    by an edit (they were refused: 'mesh.scale cannot be set here')."""
+    s = apply_edit(state, {"op": "set", "section": "mesh",
+                           "values": {"scale": 0.01, "up_axis": "z"}})
+    assert s.scene.mesh.scale == 0.01 and s.scene.mesh.up == "z"
+    with pytest.raises(EditError, match=r'mesh.up_axis = "x" must be "y" or "z"'):
+        apply_edit(state, {"op": "set", "section": "mesh", "values": {"up_axis": "x"}})
+
+
 def test_group_edits(state):
     s = apply_edit(state, {"op": "set_group", "name": "mid", "indices": [5, 3, 3, 4],
                            "color": "#00FF00"})

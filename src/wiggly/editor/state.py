@@ -61,7 +61,7 @@ SETTABLE = {
     "damping": ("alpha", "beta"),
     "simulation": ("gravity", "modes", "warp", "lumped_mass", "preroll"),
     "time": ("start", "end", "duration", "fps", "loop"),
-    "mesh": ("resolution", "edge_length", "repair"),
+    "mesh": ("resolution", "edge_length", "repair", "scale", "up_axis"),
     "output": ("paths", "overwrite", "size", "camera"),
     "drive": ("intensity", "free_modes", "physics"),
 }
@@ -459,6 +459,7 @@ def state_to_json(state: EditorState) -> dict:
         k["id"] = kid
     d["time_range"] = list(state.scene.time_range())
     d["name"] = state.scene.name
+    d["group_colors"] = state.scene.group_colors()  # a group without its own: the palette's
     return d
 
 

@@ -30,7 +30,6 @@ from wiggly.scene.spec import (
     GEOMETRY_EXTENSIONS,
     MAX_TARGETS,
     OUTPUT_EXTENSIONS,
-    PALETTE,
     PREVIEW_EXTENSIONS,
     OutputSpec,
     Scene,
@@ -94,8 +93,7 @@ def keyframe_highlights(scene: Scene, body, keyframes, groups: dict[str, np.ndar
     keys of ``[drive]``, which are not highlighted."""
 
 
-    colors = {name: g.color or PALETTE[i % len(PALETTE)]
-              for i, (name, g) in enumerate(scene.groups.items())}
+    colors = scene.group_colors()
     out = []
     for spec, kf in zip(scene.keyframes, keyframes[:len(scene.keyframes)], strict=True):
         verts = groups[spec.group]

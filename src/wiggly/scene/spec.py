@@ -366,6 +366,12 @@ class Scene:
         except ValueError:
             return str(self.source)
 
+    def group_colors(self) -> dict[str, str]:
+        """Each group's colour: its own, else the palette's in the groups' order (previews,
+        the editor)."""
+        return {name: g.color or PALETTE[i % len(PALETTE)]
+                for i, (name, g) in enumerate(self.groups.items())}
+
     @property
     def secondary_motion(self) -> bool:
         """A ``[drive]`` with ``physics = "secondary"``: the driver owns the driven groups

@@ -210,8 +210,8 @@ for (const id of ['key-vel-on', 'key-vx', 'key-vy', 'key-vz']) keyField(id, velo
 for (const el of document.querySelectorAll('[data-set]')) {
   el.onchange = () => {
     const [section, key, index] = el.dataset.set.split('.');
-    let v = el.type === 'checkbox' ? el.checked : parseFloat(el.value);
-    if (el.type !== 'checkbox' && Number.isNaN(v)) { toast(`${section}.${key}: not a number`, true); renderPanels(); return; }  // the scene's value again
+    let v = el.type === 'checkbox' ? el.checked : el.tagName === 'SELECT' ? el.value : parseFloat(el.value);
+    if (el.type === 'number' && Number.isNaN(v)) { toast(`${section}.${key}: not a number`, true); renderPanels(); return; }  // the scene's value again
     if (key === 'modes') v = Math.round(v);
     if (index !== undefined) { const vec = [...(scene()[section][key])]; vec[+index] = v; v = vec; }
     edit({ op: 'set', section, values: { [key]: v } }).then((r) => { if (!r) renderPanels(); });  // refused: the scene's value again

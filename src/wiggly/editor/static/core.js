@@ -174,8 +174,8 @@ export function scene() { return S.desc && S.desc.open ? S.desc.scene : null; }
 export function range() { return scene() ? scene().time_range : [0, 1]; }
 export function fps() { return scene() ? scene().time.fps : 30; }
 export function groupColor(name) {
-  const g = scene() && scene().groups[name];
-  return (g && g.color) || '#ff7f0e';
+  const sc = scene();
+  return (sc && sc.group_colors && sc.group_colors[name]) || '#ff7f0e';
 }
 export function keyById(id) { return scene() ? scene().keyframes.find((k) => k.id === id) || null : null; }
 export function currentKey() { return S.selectedKey === null ? null : keyById(S.selectedKey); }

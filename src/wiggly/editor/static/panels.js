@@ -122,7 +122,7 @@ export function renderPanels() {
     li.dataset.group = name;
     if (name === S.selectedGroup || S.groups.has(name)) li.classList.add('sel');
     const color = document.createElement('input');
-    color.type = 'color'; color.value = g.color || '#ff7f0e'; color.title = 'color';
+    color.type = 'color'; color.value = groupColor(name); color.title = 'color';
     color.onchange = () => edit({ op: 'recolor_group', name, color: color.value });
     const label = document.createElement('span');
     label.className = 'name';
@@ -178,7 +178,9 @@ export function renderPanels() {
   }
   // physics and time
   for (const el of document.querySelectorAll('[data-set]')) {
-    if (document.activeElement === el) continue;
+    // a field being typed in keeps its text; a box shows the scene's state even when focused
+    // (a refused or undone toggle, another tab's)
+    if (document.activeElement === el && el.type !== 'checkbox') continue;
     const v = getPath(sc, el.dataset.set);
     if (el.type === 'checkbox') el.checked = !!v;
     else el.value = v === undefined || v === null ? '' : v;
@@ -187,6 +189,9 @@ export function renderPanels() {
   $('driver-toggle').hidden = !sc.drive;  // the driver ghost: [drive] scenes only
   for (const el of document.querySelectorAll('.drive-only')) el.hidden = !sc.drive;
   if (sc.drive && sc.drive.intensity === undefined) document.querySelector('[data-set="drive.intensity"]').value = 1;
+  for (const el of document.querySelectorAll('.keys-only')) el.hidden = !!(sc.drive && sc.drive.physics !== 'keys');
+  if (sc.mesh.scale === undefined) document.querySelector('[data-set="mesh.scale"]').value = 1;
+  if (sc.mesh.up_axis === undefined) document.querySelector('[data-set="mesh.up_axis"]').value = 'y';
   const lim = d.limits || {};
   if (lim.MAX_MODES) document.querySelector('[data-set="simulation.modes"]').max = lim.MAX_MODES;
   if (lim.MAX_NAME_LENGTH) { $('group-name').maxLength = lim.MAX_NAME_LENGTH; $('key-name').maxLength = lim.MAX_NAME_LENGTH; }
