@@ -447,6 +447,17 @@ def test_a_mesh_in_other_axes_than_its_driver_is_warned_about(shot, capsys):
                                             "up_axis": "z"}, "drive": drive}, "zup2.toml")
     assert main(["animate", str(scene), "-q", "-o", str(folder / "z2.npz")]) == 0
     assert "up axis" not in capsys.readouterr().err
+    # both Z-up: up_axis turns the mesh only, and the driver read as it is stays on its side
+    walk = read_animation(folder / "walk.npz")
+    P = walk.positions
+    write_animation(folder / "walk_z.npz", SurfaceAnimation(
+        walk.times, np.stack([P[..., 0], -P[..., 2], P[..., 1]], -1), walk.faces))
+    scene = write(folder, {**data, "mesh": {**data["mesh"], "path": "bar_z.vtu",
+                                            "up_axis": "z"},
+                           "drive": {"path": "walk_z.npz", "group": "driven"}}, "zup3.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "z3.npz")]) == 0
+    err = capsys.readouterr().err
+    assert "mesh.up_axis turns the mesh only, and the driver looks Z-up" in err, err
 
 
 def test_a_clip_the_driver_lacks_is_blamed_on_drive_animation(tmp_path):

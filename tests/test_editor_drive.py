@@ -249,3 +249,62 @@ def test_the_page_tints_where_the_warped_motion_folds(chromium, tmp_path):
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_a_driven_scenes_missed_key_is_a_notice(tmp_path):
+    """The warped secondary motion's checks reach the page as a keyed scene's do: a key on
+    the free tip that the motion cannot meet (a 0.3 m lift held by a weak key) is a notice
+    naming it, as wiggly animate warns (the editor said nothing, only residual_max)."""
+    from wiggly.editor.session import Sandbox, Session
+
+    path, _ = drive_project(tmp_path)
+    path.write_text(SCENE.replace("warp = false", "warp = true") + (
+        '[[keyframes]]\ntime = 0.5\ngroup = "tip"\nposition = { offset = [0.0, 0.3, 0.0] }\n'
+        "stiffness = 1e-3\n"))
+    session = Session(Sandbox([tmp_path]))
+    events = session.bus.subscribe()
+    session.open(str(path))
+    try:
+        _session_final(session)
+        notices = []
+        while True:
+            try:
+                e = events.get(timeout=5.0)
+            except Exception:
+                break
+            if e["type"] == "notice":
+                notices.append(e["message"])
+            if any("missed by more than" in n for n in notices):
+                break
+        assert any("keyframes[0] (group 'tip', t = 0.5 s)" in n for n in notices), notices
+    finally:
+        session.close()
+
+
+def test_a_driver_at_another_scale_is_refused_in_the_editor_as_by_the_cli(tmp_path):
+    """The editor solved (and exported) a driven scene whose driver is 100 times the mesh,
+    which wiggly animate refuses: it now says the CLI's error instead of frames."""
+    from wiggly.editor.session import Sandbox, Session
+    from wiggly.export import read_animation
+
+    path, _ = drive_project(tmp_path)
+    walk = read_animation(tmp_path / "walk.npz")
+    write_animation(tmp_path / "walk.npz", SurfaceAnimation(walk.times, 100 * walk.positions,
+                                                            walk.faces), overwrite=True)
+    session = Session(Sandbox([tmp_path]))
+    events = session.bus.subscribe()
+    session.open(str(path))
+    try:
+        said = None
+        for _ in range(120):
+            try:
+                e = events.get(timeout=1.0)
+            except Exception:
+                continue
+            if e["type"] == "solve" and e.get("stage") == "error":
+                said = e["message"]
+                break
+        assert said is not None and "its first pose is 100 times the size of bar.vtu" in said
+        assert session.latest_frames(final=True) is None
+    finally:
+        session.close()

@@ -308,9 +308,15 @@ class Playback:
     def _solve_linear(self, req: Request, box: Mailbox, problems, body, scene) -> None:
         """:meth:`_solve` once the body is ready."""
         from wiggly.scene import keyframes_of, problem_of, scene_to_dict
-        from wiggly.scene.drive import secondary_of
+        from wiggly.scene.drive import check_driver_against, secondary_of
         from wiggly.scene.run import soft_note
+        from wiggly.scene.validation import Problems
 
+        if scene.drive is not None:  # the driver's scale and axes, as `wiggly animate` checks
+            p = Problems(scene.where())
+            check_driver_against(scene, body.surface.n_vertices, body.surface.faces,
+                                 scene.mesh_file().name, p, body.surface.vertices)
+            p.raise_if_any()
         groups = resolve_groups(scene, body.model)
         keys = keyframes_of(scene, body, groups)
         start, end = scene.time_range()

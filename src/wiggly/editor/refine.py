@@ -141,7 +141,8 @@ def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested e
                 bodies[bkey] = body
             keys = keyframes_of(scene, body, groups)
             if scene.secondary_motion:
-                _secondary(seq, version, scene, body, groups, keys, out)
+                _secondary(seq, version, scene, body, groups, keys, out,
+                           surface_groups(scene, groups))
                 continue
             pkey = (*scene.time_range(), s.preroll, scene.time.loop)
             problem = problems.peek(pkey)
@@ -160,21 +161,32 @@ def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested e
                                f"internal error: {type(err).__name__}: {err}"))
 
 
-def _secondary(seq, version, scene, body, groups, keys,
-               out) -> None:  # pragma: no cover - runs in the subprocess
+def _secondary(seq, version, scene, body, groups, keys, out,
+               shown_groups=None) -> None:  # pragma: no cover - runs in the subprocess
     """The warped secondary motion of a ``[drive]`` scene (one linear solve, Gauss-Newton
-    only for keys on the free parts), as ``wiggly animate`` runs it."""
+    only for keys on the free parts), as ``wiggly animate`` runs it, with the notices of its
+    checks (folds, keys missed) as a keyed scene's final motion has them."""
     from wiggly.scene.drive import secondary_of
+    from wiggly.scene.run import fold_highlights, missed_note
+    from wiggly.solve import fold_note
 
     t0 = time.perf_counter()
-    anim = secondary_of(scene, body, groups, keys)
-    info = {"iterations": int(anim.info.get("iterations", 0)),
-            "converged": bool(anim.info.get("converged", True)),
-            "objective": float(anim.energy()),
-            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim)}
+    with warnings.catch_warnings():  # said by the notices below, and by the playback's solve
+        warnings.simplefilter("ignore")
+        anim = secondary_of(scene, body, groups, keys)
     start, end = scene.time_range()
     fps = playback_fps(scene.time.fps, start, end, body.surface.n_vertices)
     times = anim.frame_times(fps)
+    checked = anim.folds(times)
+    info = {"iterations": int(anim.info.get("iterations", 0)),
+            "converged": bool(anim.info.get("converged", True)),
+            "objective": float(anim.energy()),
+            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim),
+            "folds": fold_note(anim, api=False, groups=shown_groups, checked=checked),
+            "missed": missed_note(scene, anim), "source": scene.source}
+    if info["folds"] is not None:  # and where: the page tints them as previews do
+        info["fold_spans"] = [{"from": h.time, "until": h.until, "vertices": h.vertices.tolist()}
+                              for h in fold_highlights(anim, times, checked)]
     positions = anim.positions(times, dtype=np.float32)
     channel.send(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
 

@@ -171,9 +171,15 @@ def _warn_up_axes(scene: Scene, rest: np.ndarray, posed: np.ndarray, mesh: str) 
     if turn <= UP_TURN:
         return
     mesh_z_up = float(R.apply([0.0, 0.0, 1.0]) @ y) > 0.7  # the mesh's z is the driver's up
-    remedy = ('the mesh file looks Z-up: set mesh.up_axis = "z"' if mesh_z_up else
-              "export the mesh and the driver with the same up axis (y, or mesh.up_axis = "
-              '"z" for a Z-up mesh)')
+    if mesh_z_up and scene.mesh.up == "y":
+        remedy = 'the mesh file looks Z-up: set mesh.up_axis = "z"'
+    elif scene.mesh.up == "z":
+        remedy = ("mesh.up_axis turns the mesh only, and the driver looks Z-up: a driver read "
+                  "as it is (an OBJ sequence, an npz) must be y up (glTF and USD drivers are "
+                  "turned by their readers), so export it y up")
+    else:
+        remedy = ("export the mesh and the driver with the same up axis (y, or mesh.up_axis = "
+                  '"z" for a Z-up mesh)')
     warnings.warn(
         f"{scene.where()}: drive.path = {show(scene.drive.path)}: its first pose is {mesh} "
         f"turned by {turn:.0f} degrees from its up axis: the two are likely in other axes "
