@@ -6,12 +6,11 @@ a child process (``wiggly.mesh.tetwild_child``) and the parent draws the line me
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -88,8 +87,10 @@ def test_the_child_ends_with_its_parent(tmp_path, signum):
     """A parent ended by SIGTERM (kill PID) or SIGKILL leaves no fTetWild process running;
     SIGTERM also removes the temporary folder."""
     started = tmp_path / "started"
-    before = set(Path(tempfile.gettempdir()).glob("wiggly-ftetwild-*"))
-    parent = subprocess.Popen([sys.executable, "-c", PARENT, str(started)])
+    private = tmp_path / "tmp"  # its own temporary folder: other tests' fTetWild runs beside
+    private.mkdir()
+    parent = subprocess.Popen([sys.executable, "-c", PARENT, str(started)],
+                              env={**os.environ, "TMPDIR": str(private)})
     try:
         deadline = time.monotonic() + 60
         while not started.exists() and time.monotonic() < deadline and parent.poll() is None:
@@ -101,7 +102,7 @@ def test_the_child_ends_with_its_parent(tmp_path, signum):
         parent.wait(timeout=30)
         assert_ended(children)
         if signum == signal.SIGTERM:
-            assert set(Path(tempfile.gettempdir()).glob("wiggly-ftetwild-*")) <= before
+            assert not list(private.glob("wiggly-ftetwild-*"))
     finally:
         if parent.poll() is None:
             parent.kill()

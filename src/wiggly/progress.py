@@ -181,23 +181,32 @@ def fit_line(desc: str, elapsed: str, note: str, room: int) -> str:
 
 
 @contextmanager
+def _every(seconds: Callable[[], float], action: Callable[[], None]) -> Iterator[None]:
+    """Run ``action`` on a daemon thread every ``seconds()`` seconds while the block runs."""
+    stop = threading.Event()
+
+    def repeat() -> None:
+        while not stop.wait(seconds()):
+            action()
+
+    thread = threading.Thread(target=repeat, name="wiggly-progress", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
+@contextmanager
 def _ticking(desc: str) -> Iterator[Activity]:
     line = bar(total=None, bar_format="{desc}", leave=True)
     handle = Activity(f"[wiggly] {desc}", line)
     handle.draw()
-    stop = threading.Event()
-
-    def tick() -> None:
-        while not stop.wait(0.25):
-            handle.draw()
-
-    thread = threading.Thread(target=tick, daemon=True)
-    thread.start()
     try:
-        yield handle
+        with _every(lambda: 0.25, handle.draw):
+            yield handle
     finally:
-        stop.set()
-        thread.join()
         handle.note("")
         handle.draw()
         line.close()
@@ -224,22 +233,15 @@ def _heartbeat(desc: str) -> Iterator[Activity]:
     it still runs when the call gives no note (fTetWild was silent in a log for two minutes
     while it filled a fine plate)."""
     handle = Activity(desc, logged=True)
-    stop = threading.Event()
 
     def beat() -> None:
-        while not stop.wait(max(NOTE_EVERY / 4, 0.05)):
-            now = time.perf_counter()
-            if now - handle.said >= NOTE_EVERY:
-                handle.said = now
-                log.info(f"{desc}: {handle.text or 'still running'} ({now - handle.t0:.0f} s)")
+        now = time.perf_counter()
+        if now - handle.said >= NOTE_EVERY:
+            handle.said = now
+            log.info(f"{desc}: {handle.text or 'still running'} ({now - handle.t0:.0f} s)")
 
-    thread = threading.Thread(target=beat, name="wiggly-heartbeat", daemon=True)
-    thread.start()
-    try:
+    with _every(lambda: max(NOTE_EVERY / 4, 0.05), beat):
         yield handle
-    finally:
-        stop.set()
-        thread.join()
 
 
 def _counted(n: int, unit: str) -> str:
