@@ -493,13 +493,13 @@ def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
 def _warn_between_frames(scene: Scene, start: float, paths: list[Path]) -> None:
     """Warn when the shot's own time puts glTF/USD frames between the timeline's frames: a
     shot starting at -0.25 s at 30 fps has USD time codes -7.5, -6.5, ... (glTF shifts a
-    negative start to 0, a positive one keeps it)."""
+    negative start, and a loop's, to 0; a positive one keeps it)."""
     fps = scene.time.fps
     frame = start * fps
     if scene.output.frame_start is not None or abs(frame - round(frame)) <= 1e-6:
         return
     late = [p.name for p in paths if p.suffix.lower() in (".usd", ".usda", ".usdc")
-            or (p.suffix.lower() == ".glb" and start > 0)]
+            or (p.suffix.lower() == ".glb" and start > 0 and not scene.time.loop)]
     if late:
         warnings.warn(
             f"{scene.where()}: the shot starts at {start:g} s, frame {frame:g} at {fps:g} fps, "
