@@ -296,16 +296,18 @@ def test_an_imperfect_surface_is_accepted_with_one_warning(user, capsys):
     assert (folder / "out" / "shot.glb").is_file()
 
 
-@pytest.mark.parametrize("start, frame_start, named", [
-    (0.05, None, ["shot.glb", "shot.usda"]),  # frame 0.5: both land between frames
-    (-0.05, None, ["shot.usda"]),  # glTF shifts a negative start to 0
-    (0.05, 1, []),  # frame_start puts frame k on 1 + k
-    (0.1, None, []),  # frame 1
+@pytest.mark.parametrize("start, frame_start, named, loop", [
+    (0.05, None, ["shot.glb", "shot.usda"], False),  # frame 0.5: both land between frames
+    (-0.05, None, ["shot.usda"], False),  # glTF shifts a negative start to 0
+    (0.05, None, ["shot.usda"], True),  # and a loop's
+    (0.05, 1, [], False),  # frame_start puts frame k on 1 + k
+    (0.1, None, [], False),  # frame 1
 ])
 def test_a_shot_starting_between_frames_is_warned_about(user, capsys, start, frame_start,
-                                                        named):
+                                                        named, loop):
     _, scene = user
-    path = scene({"time.start": start, "time.end": start + 1.0, "keyframes": [
+    path = scene({"time.start": start, "time.end": start + 1.0, "time.loop": loop,
+                  "keyframes": [
         {"time": start, "group": "bottom", "position": "rest"},
         {"time": start + 1.0, "group": "top", "position": {"offset": [0.0, 0.05, 0.0]}}],
         "output.paths": ["out/shot.glb", "out/shot.usda"], "output.frame_start": frame_start,
