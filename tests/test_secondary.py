@@ -734,3 +734,18 @@ def test_a_looped_rig_whose_last_frame_differs_in_its_last_bits_fits():
     spline = FrameSpline.fit(t, values, loop=True)
     np.testing.assert_allclose(spline.slopes[0], spline.slopes[-1], rtol=0, atol=1e-12)
     np.testing.assert_allclose(spline(np.array([0.5])), values[6:7], atol=1e-12)
+
+
+def test_the_spin_check_says_nothing_of_a_group_along_a_line():
+    """A driven group whose vertices lie on a line has no turn about it: scipy's note that the
+    fit is poorly defined (four of them, one per frame) reached the user; now nothing does."""
+    from wiggly.drive.secondary import _warn_spin
+
+    times = np.arange(5) / 4.0
+    line = np.zeros((4, 3))
+    line[:, 0] = np.arange(4)
+    poses = np.stack([line + np.array([0.0, 0.1 * k, 0.0]) for k in range(5)])
+    driver = Driver(times, poses, np.array([[0, 1, 2]]), np.zeros((0, 2)), "line.npz", "test")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_spin(driver, np.arange(5), times, np.arange(4), np.array([100.0]))

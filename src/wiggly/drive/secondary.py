@@ -505,7 +505,9 @@ def _warn_spin(driver: Driver, frames: np.ndarray, times: np.ndarray, driven: np
     for k in range(len(P) - 1):
         if not np.any(P[k]) or not np.any(P[k + 1]):
             continue
-        R, _ = Rotation.align_vectors(P[k + 1], P[k])
+        with warnings.catch_warnings():  # a group along a line: its turn about it is none
+            warnings.simplefilter("ignore")
+            R, _ = Rotation.align_vectors(P[k + 1], P[k])
         rates.append(R.magnitude() / (times[k + 1] - times[k]))
     omega, lowest = max(rates, default=0.0), float(np.sqrt(positive.min()))
     if omega > SPIN * lowest:

@@ -165,7 +165,9 @@ def _warn_up_axes(scene: Scene, rest: np.ndarray, posed: np.ndarray, mesh: str) 
     a, b = rest - rest.mean(axis=0), posed - posed.mean(axis=0)
     if len(a) < 3 or not np.any(a) or not np.any(b):
         return
-    R, _ = Rotation.align_vectors(b, a)
+    with warnings.catch_warnings():  # scipy's note on a poorly defined fit is not the user's
+        warnings.simplefilter("ignore")
+        R, _ = Rotation.align_vectors(b, a)
     y = np.array([0.0, 1.0, 0.0])
     turn = float(np.degrees(np.arccos(np.clip(R.apply(y) @ y, -1.0, 1.0))))
     if turn <= UP_TURN:
