@@ -170,3 +170,21 @@ def test_console_mistakes_and_an_interruption_are_said_plainly(tmp_path, cache, 
     os.utime(out / "summary.json", (0, 0))  # an earlier batch's summary: not its counts
     said = interrupted(out, time.time() - 60)
     assert "of 12" not in said and "the same command runs the rest" in said
+
+
+def test_a_sweeps_output_dir_beside_other_inputs_is_said_to_be_unused(tmp_path, capsys,
+                                                                    monkeypatch):
+    """A sweep's [output] dir applies when it is the only input; beside a scene file the
+    batch goes to ./wiggly-batch, which used to happen without a word."""
+    monkeypatch.chdir(tmp_path)
+    scene = write_scene(tmp_path)
+    (tmp_path / "cubes.off").write_text("OFF\n0 0 0\n")
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(tomli_w.dumps({"base": "cubes.toml", "grid": {"damping.alpha": [0.5, 1.0]},
+                                    "output": {"dir": "sweep_out"}}))
+    assert main(["batch", str(sweep), str(scene), "--dry-run"]) == 0
+    err = capsys.readouterr().err
+    assert "sweep.toml: a sweep's [output] dir applies when the sweep is the only input; " \
+           "with 2 inputs the batch goes to wiggly-batch" in err, err
+    assert main(["batch", str(sweep), "--dry-run"]) == 0
+    assert "only input" not in capsys.readouterr().err

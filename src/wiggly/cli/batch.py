@@ -165,14 +165,22 @@ def _out_dir(args: argparse.Namespace) -> Path:
     from wiggly.errors import WigglyInputError
 
     sweeps = []
-    if len(args.inputs) == 1:
+    for given in args.inputs:
         try:
-            data = read_toml(Path(args.inputs[0]))
+            data = read_toml(Path(given))
         except WigglyInputError:  # the batch reports it as a failed shot
             data = {}
         if is_sweep(data):
-            sweeps = [load_sweep(args.inputs[0])]
-    return default_out_dir(args.inputs, sweeps)
+            sweeps.append(load_sweep(given))
+    out = default_out_dir(args.inputs, sweeps)
+    ignored = [s.where() for s in sweeps if s.out_dir is not None and s.out_dir != out]
+    if ignored:
+        import warnings
+
+        warnings.warn(f"{', '.join(ignored)}: a sweep's [output] dir applies when the sweep is "
+                      f"the only input; with {len(args.inputs)} inputs the batch goes to {out} "
+                      "(-o names the folder)", stacklevel=2)
+    return out
 
 
 def _dry_run(args: argparse.Namespace) -> int:
