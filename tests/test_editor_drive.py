@@ -5,6 +5,7 @@ the server's driver endpoint and its errors."""
 from __future__ import annotations
 
 import json
+import time
 import urllib.error
 import urllib.request
 
@@ -306,5 +307,47 @@ def test_a_driver_at_another_scale_is_refused_in_the_editor_as_by_the_cli(tmp_pa
                 break
         assert said is not None and "its first pose is 100 times the size of bar.vtu" in said
         assert session.latest_frames(final=True) is None
+    finally:
+        session.close()
+
+
+def test_a_driver_changed_on_disk_is_read_again(tmp_path, monkeypatch):
+    """Another tool re-exports the driver while the editor runs: the motion is solved again
+    with it, a notice says so, and the page's description changes its driver stamp (the
+    ghost fetches it again). It used to stay stale until some edit, the ghost until a
+    reload."""
+    import wiggly.editor.session as session_module
+    from wiggly.editor.session import Sandbox, Session
+    from wiggly.export import read_animation
+
+    monkeypatch.setattr(session_module, "DRIVER_WATCH", 0.2)
+    path, _ = drive_project(tmp_path)
+    session = Session(Sandbox([tmp_path]))
+    events = session.bus.subscribe()
+    session.open(str(path))
+    try:
+        first = _session_final(session).positions.copy()
+        stamp = session.describe()["driver_stamp"]
+        walk = read_animation(tmp_path / "walk.npz")
+        lifted = walk.positions + np.array([0.0, 0.2, 0.0], np.float32)
+        write_animation(tmp_path / "walk.npz", SurfaceAnimation(walk.times, lifted, walk.faces),
+                        overwrite=True)
+        said = None
+        for _ in range(60):
+            try:
+                e = events.get(timeout=1.0)
+            except Exception:
+                continue
+            if e["type"] == "notice" and "walk.npz changed on disk" in e["message"]:
+                said = e["message"]
+                break
+        assert said is not None
+        assert session.describe()["driver_stamp"] != stamp
+        for _ in range(60):
+            now = _session_final(session).positions
+            if np.abs(now - first).max() > 0.1:
+                break
+            time.sleep(0.5)
+        assert np.abs(now - first).max() > 0.1  # the body follows the lifted driver
     finally:
         session.close()

@@ -146,6 +146,27 @@ class Session:
         self._told: str | None = None  # the journal's write error the browsers were told
         self.autosaver = Autosaver(
             lambda message: self.bus.publish("notice", level="warning", message=message))
+        self._driver_stamp: tuple | None = None  # the [drive] file(s) as last seen
+        threading.Thread(target=self._watch_driver, name="wiggly-driver-watch",
+                         daemon=True).start()
+
+    def _watch_driver(self) -> None:
+        """Every :data:`DRIVER_WATCH` seconds: when the scene's driver file (or an OBJ
+        sequence's files) changed on disk, solve again and tell the browsers (whose ghost
+        then fetches it again), with a notice: another tool re-exported the animation."""
+        while not self._stop.wait(DRIVER_WATCH):
+            with self._lock:
+                scene = self._state.scene if self._state is not None else None
+                stamp = driver_stamp(scene) if scene is not None else None
+                before, self._driver_stamp = self._driver_stamp, stamp
+                changed = stamp is not None and before is not None and stamp != before \
+                    and stamp[0] == before[0]
+                if changed:
+                    self._changed(autosave=False)
+            if changed:
+                self.bus.publish("notice", sticky=False, level="info",
+                                 message=f"{Path(stamp[0]).name} changed on disk: the driver "
+                                         "is read again and the motion solved anew")
 
     # --- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
@@ -507,6 +528,7 @@ class Session:
                 "opened": self._opened,
                 "n_vertices": self.surface.n_vertices if self.surface is not None else 0,
                 "mesh_key": f"{self.instance}:{self._opened}:{state.scene.mesh.path}",
+                "driver_stamp": repr(driver_stamp(state.scene)),
             }
 
     def recoverable(self) -> list[str]:
@@ -651,6 +673,30 @@ def _written(path: Path) -> str:
     if not frames:
         return path.name
     return f"{frames[0].name} … {frames[-1].name} ({len(frames)} OBJ frames)"
+
+
+#: How often (s) the editor looks at the scene's driver file(s) for changes.
+DRIVER_WATCH = 1.0
+
+
+def driver_stamp(scene: Scene) -> tuple | None:
+    """The state of the scene's driver file(s) on disk: its path and the sizes and
+    modification times of its file, or of an OBJ sequence's files (None: no [drive])."""
+    if scene.drive is None:
+        return None
+    from wiggly.drive.sequence import sequence_files
+
+    path = scene.resolve(scene.drive.path)
+    files = ([f for _, f in sequence_files(path)] if path.suffix.lower() == ".obj"
+             else [path])
+    states = []
+    for f in files:
+        try:
+            st = f.stat()
+            states.append((f.name, st.st_size, st.st_mtime_ns))
+        except OSError:
+            states.append((f.name, None, None))
+    return (str(path), tuple(states))
 
 
 def _stamp(path: Path | None) -> str | None:

@@ -25,7 +25,7 @@ let loadedKey = null, loading = null;
 function driveKey() {
   const sc = scene();
   if (!sc || !sc.drive) return null;
-  return JSON.stringify([S.meshKey, sc.drive, sc.time_range]);
+  return JSON.stringify([S.meshKey, sc.drive, sc.time_range, S.desc.driver_stamp]);
 }
 
 // Fetch the driver's keyed frames when the scene's [drive] changed (called on every state).
