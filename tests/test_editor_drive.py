@@ -351,3 +351,28 @@ def test_a_driver_changed_on_disk_is_read_again(tmp_path, monkeypatch):
         assert np.abs(now - first).max() > 0.1  # the body follows the lifted driver
     finally:
         session.close()
+
+
+def test_after_the_drivers_last_frame_the_ghost_holds_it(chromium, tmp_path):
+    """A 1.5 s shot of a 1 s driver: the motion holds the driver's last pose after its last
+    frame, and so does the ghost (it vanished there, leaving nothing to compare with)."""
+    from tests.editor_ui import post
+
+    path, P = drive_project(tmp_path)
+    server = serve(path)
+    try:
+        st, _ = post(server.url, "api/edit", {"op": "set", "section": "time",
+                                              "values": {"end": 1.5}})
+        assert st == 200
+        with editor_page(chromium, server.url) as (page, errors):
+            wait_final(page)
+            page.wait_for_function("window.wiggly.driverInfo().loaded && "
+                                   "window.wiggly.S.desc.scene.time.end === 1.5")
+            page.evaluate("window.wiggly.setTime(1.3)")
+            info = page.evaluate("window.wiggly.driverInfo()")
+            assert info["visible"]
+            ghost = np.asarray(info["positions"]).reshape(-1, 3)
+            assert np.array_equal(ghost, P[-1].astype(np.float32))
+            assert not errors, errors
+    finally:
+        server.stop()

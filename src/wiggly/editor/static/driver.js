@@ -60,12 +60,17 @@ export async function syncDriver() {
   }
 }
 
-// The driver's pose at shot time t: linear between its keyed frames, null outside them.
+// The driver's pose at shot time t: linear between its keyed frames; before the first and
+// after the last, the pose the motion holds there (a loop's join of its ends is not drawn).
 export function driverPose(t = S.t) {
   const d = S.driver;
   if (!d) return null;
   const times = d.meta.times, F = times.length, n3 = S.n * 3;
-  if (t < times[0] - 1e-9 || t > times[F - 1] + 1e-9) return null;
+  if (t < times[0] - 1e-9 || t > times[F - 1] + 1e-9) {
+    const sc = scene();
+    if (sc && sc.time.loop) return null;
+    return d.data.subarray(t < times[0] ? 0 : (F - 1) * n3, t < times[0] ? n3 : F * n3);
+  }
   let i = 0;
   while (i < F - 2 && times[i + 1] <= t) i++;
   const a = d.data.subarray(i * n3, (i + 1) * n3);
