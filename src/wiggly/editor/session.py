@@ -642,7 +642,7 @@ class Session:
             anim = solve_scene(scene, body, keys)
             write_outputs(scene, anim, paths, overwrite=overwrite,
                           highlights=keyframe_highlights(scene, body, anim.keyframes, groups))
-            written = [_written(p) for p in paths]
+            written = [_written(p, self.sandbox.relative(p)) for p in paths]
             # an edit made while it ran is not in it: say so, rather than seem current
             later = version is not None and self.version != version
             since = (" (the scene as it was when the export started: edits made since are not "
@@ -664,15 +664,17 @@ def _free_name(folder: Path, stem: str) -> Path:
     return path
 
 
-def _written(path: Path) -> str:
-    """What an export of ``path`` wrote, for its message: the file's name, or for an OBJ
-    the sequence of frame files ``NAME_0000.obj``."""
+def _written(path: Path, shown: str) -> str:
+    """What an export of ``path`` wrote, for its message: the file as the page names it
+    (``shown``, e.g. ``out/shot.glb``), or for an OBJ the sequence of frame files
+    ``out/NAME_0000.obj`` …."""
     if path.suffix.lower() != ".obj":
-        return path.name
+        return shown
     frames = sorted(path.parent.glob(f"{path.stem}_[0-9][0-9][0-9][0-9].obj"))
     if not frames:
-        return path.name
-    return f"{frames[0].name} … {frames[-1].name} ({len(frames)} OBJ frames)"
+        return shown
+    folder = shown[:len(shown) - len(path.name)]
+    return f"{folder}{frames[0].name} … {frames[-1].name} ({len(frames)} OBJ frames)"
 
 
 #: How often (s) the editor looks at the scene's driver file(s) for changes.
