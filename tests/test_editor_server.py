@@ -1125,3 +1125,31 @@ def test_keys_the_final_warped_motion_misses_get_a_notice(project, monkeypatch):
     assert "stiff.toml: 1 keyframe missed by more than 5 % of the body's size or 50 % of " \
            "their offset from rest" in notices[0], notices
     assert "Young's modulus" in notices[0]
+
+
+def test_playback_at_a_lower_frame_rate_is_said(tmp_path, monkeypatch):
+    """A long shot of a fine surface plays at a lower rate than the scene's (its frames would
+    pass the playback's memory cap): a notice says so, and that exports keep the scene's
+    rate (the page played 22 of a 2M-vertex shot's 61 frames without a word)."""
+    import wiggly.editor.refine as refine
+    from tests.editor_ui import bar_project
+
+    monkeypatch.setattr(refine, "PLAYBACK_BYTES", 81 * 12 * 6)  # six frames of the bar
+    path = bar_project(tmp_path, warp=False)
+    session = Session(Sandbox([tmp_path]))
+    events = session.bus.subscribe()
+    session.open(str(path))
+    try:
+        wait_final(session)
+        said = []
+        while True:
+            try:
+                e = events.get(timeout=2.0)
+            except Exception:
+                break
+            if e["type"] == "notice":
+                said.append(e["message"])
+        assert any(m.startswith("playback shows 5 of the shot's 20 frames per second") and
+                   "exports keep 20 fps" in m for m in said), said
+    finally:
+        session.close()

@@ -36,7 +36,7 @@ import numpy as np
 
 from wiggly.editor.bus import EventBus, Mailbox
 from wiggly.editor.physics import Physics, Superseded, model_key, modes_key
-from wiggly.editor.refine import Refiner, playback_fps, residual_max
+from wiggly.editor.refine import PLAYBACK_BYTES, Refiner, playback_fps, residual_max
 from wiggly.editor.state import EditorState
 from wiggly.errors import WigglyInputError
 from wiggly.memo import Memo
@@ -336,6 +336,11 @@ class Playback:
         if drag and box.pending():
             return  # a newer request waits: skip this stale preview's playback frames
         fps = playback_fps(scene.time.fps, start, end, body.surface.n_vertices)
+        if fps < scene.time.fps and not drag:
+            self._tell_once(scene, (
+                f"playback shows {fps:.3g} of the shot's {scene.time.fps:g} frames per second: "
+                f"all of them, of {body.surface.n_vertices} surface vertices, would take more "
+                f"than {PLAYBACK_BYTES // 2**20} MB; exports keep {scene.time.fps:g} fps"))
         times = anim.frame_times(fps)
         positions = anim.positions(times, dtype=np.float32)
         warp = scene.simulation.warp
