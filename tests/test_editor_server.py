@@ -1153,3 +1153,33 @@ def test_playback_at_a_lower_frame_rate_is_said(tmp_path, monkeypatch):
                    "exports keep 20 fps" in m for m in said), said
     finally:
         session.close()
+
+
+def test_mesh_settings_past_the_tet_limit_are_refused_and_scale_reloads_the_surface(
+        tmp_path):
+    """A resolution whose tets would pass wiggly's limit is refused before the edit (it was
+    made, and the model then failed to load); a mesh.scale edit reads the surface again, so
+    the page shows it at its new size (its mesh key changes)."""
+    from tests.editor_ui import bar_project
+
+    path = bar_project(tmp_path, warp=False)  # the bar as a surface (a tet mesh keeps its tets)
+    box = trimesh.creation.box((1.0, 0.1, 0.1))
+    box.apply_translation((0.5, 0.05, 0.05))
+    box.subdivide().subdivide().export(tmp_path / "bar.obj")
+    path.write_text(path.read_text().replace('"bar.vtu"', '"bar.obj"'))
+    session = Session(Sandbox([tmp_path]))
+    session.open(str(path))
+    try:
+        before = session.version
+        with pytest.raises(EditError, match=r"mesh.resolution = 200 would make about .* "
+                                            r"tetrahedra, more than wiggly's limit of 400000"):
+            session.edit({"op": "set", "section": "mesh", "values": {"resolution": 200}})
+        assert session.version == before and session.scene.mesh.resolution is None
+        key, size = session.describe()["mesh_key"], session.diagonal
+        session.edit({"op": "set", "section": "mesh", "values": {"scale": 0.5}})
+        assert session.describe()["mesh_key"] != key
+        assert session.diagonal == pytest.approx(0.5 * size)
+        session.undo()
+        assert session.diagonal == pytest.approx(size)
+    finally:
+        session.close()

@@ -54,6 +54,7 @@ from wiggly.editor.state import (
 )
 from wiggly.errors import WigglyInputError
 from wiggly.files import remove_stale
+from wiggly.mesh import DEFAULT_RESOLUTION, VOLUME_EXTENSIONS
 from wiggly.progress import reporting
 from wiggly.scene import (
     BUILTIN_MODELS,
@@ -136,6 +137,7 @@ class Session:
         self._disk: str | None = None  # digest of the scene file as last read or written
         self.histories = Histories()
         self.surface = None  # the user's surface (rest), for the browser
+        self._surface_key: tuple | None = None  # the mesh settings it was read with
         self.diagonal: float | None = None  # of the surface's bounding box
         self._opened = 0  # how many scenes were opened (the browser reloads the mesh)
         self.notices: list[str] = []
@@ -245,6 +247,7 @@ class Session:
             # the scene file as read: a save checks that nobody changed it since
             self._disk = _stamp(scene.source)
             self.surface, self.diagonal = surface, diagonal
+            self._surface_key = (scene.mesh.path, scene.mesh.metres_per_unit, scene.mesh.up)
             self._opened += 1
             self._groups_cache = None
             self.notices = notices
@@ -356,6 +359,7 @@ class Session:
             old = self.state
             op = self._expand(op)
             new = apply_edit(old, op, self._n_vertices(), self.diagonal)
+            self._check_tets(old.scene, new.scene)
             record = Record.between(old, new, _label(op, old, new))
             if record is None:
                 return {"version": self.version, "changed": False}
@@ -376,6 +380,50 @@ class Session:
             if added:
                 out["ids"], out["id"] = added, added[-1]
             return out
+
+    def _sync_surface(self, scene: Scene) -> None:
+        """The surface shown, read again when the scene reads its file otherwise (another
+        ``mesh.scale`` or ``up_axis``, by an edit or its undo); the page then fetches it."""
+        key = (scene.mesh.path, scene.mesh.metres_per_unit, scene.mesh.up)
+        if self.surface is None or key == self._surface_key:
+            return
+        self.surface = _surface_of(scene)
+        self.diagonal = float(np.linalg.norm(np.ptp(self.surface.vertices, axis=0)))
+        self._surface_key = key
+        self._opened += 1  # the page's mesh key: it loads the mesh again
+        self._groups_cache = None
+
+    def _check_tets(self, old: Scene, new: Scene) -> None:
+        """Refuse mesh settings whose tet mesh would pass wiggly's tet limit, before the edit
+        is made (it was made, and the model then failed to load with nothing in the page to
+        undo it but Undo); estimated on the surface shown, scaled as ``new`` asks."""
+        from wiggly.mesh.defects import enclosed_volume, estimate_tets, max_resolution
+        from wiggly.mesh.filling import edge_length_for
+
+        a, b = old.mesh, new.mesh
+        if self.surface is None or (a.resolution, a.edge_length, a.metres_per_unit) == \
+                (b.resolution, b.edge_length, b.metres_per_unit) or \
+                new.mesh_file().suffix.lower() in VOLUME_EXTENSIONS:  # tets as they are
+            return
+        s = b.metres_per_unit / a.metres_per_unit
+        V, F = self.surface.vertices, self.surface.faces
+        volume = abs(enclosed_volume(V, F)) * s**3
+        area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]],
+                                                   V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
+        area *= s**2
+        diagonal = (self.diagonal or 0.0) * s
+        try:
+            h = edge_length_for(diagonal, b.edge_length, b.resolution, "mesh")
+        except WigglyInputError as err:
+            raise EditError(str(err).removeprefix("mesh: ")) from None
+        estimate = estimate_tets(volume, area, h)
+        if estimate > limits.MAX_TETS:
+            best = max_resolution(volume, area, diagonal, limits.MAX_TETS)
+            asked = (f"mesh.edge_length = {b.edge_length:g} m" if b.edge_length is not None
+                     else f"mesh.resolution = {b.resolution or DEFAULT_RESOLUTION}")
+            raise EditError(f"{asked} would make about {estimate:.2g} tetrahedra, more than "
+                            f"wiggly's limit of {limits.MAX_TETS} (wiggly.limits.MAX_TETS); "
+                            f"use resolution <= {best}")
 
     def _check_groups(self, old: Scene, new: Scene) -> None:
         """Refuse an edit after which the groups no longer resolve on the mesh while they did
@@ -470,6 +518,7 @@ class Session:
         (in the background).  A drag under way is over: its next preview starts another."""
         state = self.state
         self._dragging = None
+        self._sync_surface(state.scene)
         self.bus.publish("state", version=self.version, dirty=self.dirty)
         if solve:
             self.playback.request(state, self.version, "final")
@@ -529,6 +578,7 @@ class Session:
                 "n_vertices": self.surface.n_vertices if self.surface is not None else 0,
                 "mesh_key": f"{self.instance}:{self._opened}:{state.scene.mesh.path}",
                 "driver_stamp": repr(driver_stamp(state.scene)),
+                "default_resolution": DEFAULT_RESOLUTION,
             }
 
     def recoverable(self) -> list[str]:

@@ -212,7 +212,7 @@ for (const el of document.querySelectorAll('[data-set]')) {
     const [section, key, index] = el.dataset.set.split('.');
     let v = el.type === 'checkbox' ? el.checked : el.tagName === 'SELECT' ? el.value : parseFloat(el.value);
     if (el.type === 'number' && Number.isNaN(v)) { toast(`${section}.${key}: not a number`, true); renderPanels(); return; }  // the scene's value again
-    if (key === 'modes') v = Math.round(v);
+    if (key === 'modes' || key === 'resolution' || key === 'free_modes') v = Math.round(v);
     if (index !== undefined) { const vec = [...(scene()[section][key])]; vec[+index] = v; v = vec; }
     edit({ op: 'set', section, values: { [key]: v } }).then((r) => { if (!r) renderPanels(); });  // refused: the scene's value again
   };

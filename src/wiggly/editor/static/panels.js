@@ -191,6 +191,7 @@ export function renderPanels() {
   if (sc.drive && sc.drive.intensity === undefined) document.querySelector('[data-set="drive.intensity"]').value = 1;
   for (const el of document.querySelectorAll('.keys-only')) el.hidden = !!(sc.drive && sc.drive.physics !== 'keys');
   if (sc.mesh.scale === undefined) document.querySelector('[data-set="mesh.scale"]').value = 1;
+  if (sc.mesh.resolution === undefined && sc.mesh.edge_length === undefined) document.querySelector('[data-set="mesh.resolution"]').value = d.default_resolution || '';
   if (sc.mesh.up_axis === undefined) document.querySelector('[data-set="mesh.up_axis"]').value = 'y';
   const lim = d.limits || {};
   if (lim.MAX_MODES) document.querySelector('[data-set="simulation.modes"]').max = lim.MAX_MODES;
