@@ -7,6 +7,7 @@ Projects are structured tet bars (no tetrahedralizer), so every solve takes mill
 from __future__ import annotations
 
 import json
+import time
 import urllib.error
 import urllib.request
 from contextlib import contextmanager
@@ -205,3 +206,29 @@ def click_time(page, t: float, group: str | None = None, **kw) -> None:
     """Click the dope sheet at time ``t``: on the ruler, or on ``group``'s row."""
     p = page.evaluate("([t, g]) => window.wiggly.timePoint(t, g ?? undefined)", [t, group])
     page.mouse.click(p["x"], p["y"], **kw)
+
+
+def first_event(events, wanted, seconds: float = 60.0) -> dict | None:
+    """The first event of a bus subscription ``events`` for which ``wanted(event)`` holds,
+    within ``seconds`` (None if none came)."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        try:
+            e = events.get(timeout=min(1.0, max(deadline - time.monotonic(), 0.01)))
+        except Exception:
+            continue
+        if wanted(e):
+            return e
+    return None
+
+
+def notices(events, quiet: float = 2.0) -> list[str]:
+    """The notices' messages of a bus subscription until it stays quiet for ``quiet`` s."""
+    said = []
+    while True:
+        try:
+            e = events.get(timeout=quiet)
+        except Exception:
+            return said
+        if e["type"] == "notice":
+            said.append(e["message"])

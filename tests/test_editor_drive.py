@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tests.editor_ui import editor_page, wait_final
+from tests.editor_ui import editor_page, first_event, wait_final
 from wiggly.editor import serve
 from wiggly.export import SurfaceAnimation, write_animation
 from wiggly.mesh import TetMesh
@@ -267,17 +267,9 @@ def test_a_driven_scenes_missed_key_is_a_notice(tmp_path):
     session.open(str(path))
     try:
         _session_final(session)
-        notices = []
-        while True:
-            try:
-                e = events.get(timeout=5.0)
-            except Exception:
-                break
-            if e["type"] == "notice":
-                notices.append(e["message"])
-            if any("missed by more than" in n for n in notices):
-                break
-        assert any("keyframes[0] (group 'tip', t = 0.5 s)" in n for n in notices), notices
+        said = first_event(events, lambda e: e["type"] == "notice" and
+                           "missed by more than" in e["message"], 30.0)
+        assert said is not None and "keyframes[0] (group 'tip', t = 0.5 s)" in said["message"]
     finally:
         session.close()
 
@@ -296,16 +288,10 @@ def test_a_driver_at_another_scale_is_refused_in_the_editor_as_by_the_cli(tmp_pa
     events = session.bus.subscribe()
     session.open(str(path))
     try:
-        said = None
-        for _ in range(120):
-            try:
-                e = events.get(timeout=1.0)
-            except Exception:
-                continue
-            if e["type"] == "solve" and e.get("stage") == "error":
-                said = e["message"]
-                break
-        assert said is not None and "its first pose is 100 times the size of bar.vtu" in said
+        said = first_event(events, lambda e: e["type"] == "solve" and e.get("stage") == "error",
+                           120.0)
+        assert said is not None
+        assert "its first pose is 100 times the size of bar.vtu" in said["message"]
         assert session.latest_frames(final=True) is None
     finally:
         session.close()
@@ -332,15 +318,8 @@ def test_a_driver_changed_on_disk_is_read_again(tmp_path, monkeypatch):
         lifted = walk.positions + np.array([0.0, 0.2, 0.0], np.float32)
         write_animation(tmp_path / "walk.npz", SurfaceAnimation(walk.times, lifted, walk.faces),
                         overwrite=True)
-        said = None
-        for _ in range(60):
-            try:
-                e = events.get(timeout=1.0)
-            except Exception:
-                continue
-            if e["type"] == "notice" and "walk.npz changed on disk" in e["message"]:
-                said = e["message"]
-                break
+        said = first_event(events, lambda e: e["type"] == "notice" and
+                           "walk.npz changed on disk" in e["message"], 60.0)
         assert said is not None
         assert session.describe()["driver_stamp"] != stamp
         for _ in range(60):

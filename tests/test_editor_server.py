@@ -1132,7 +1132,7 @@ def test_playback_at_a_lower_frame_rate_is_said(tmp_path, monkeypatch):
     pass the playback's memory cap): a notice says so, and that exports keep the scene's
     rate (the page played 22 of a 2M-vertex shot's 61 frames without a word)."""
     import wiggly.editor.refine as refine
-    from tests.editor_ui import bar_project
+    from tests.editor_ui import bar_project, notices
 
     monkeypatch.setattr(refine, "PLAYBACK_BYTES", 81 * 12 * 6)  # six frames of the bar
     path = bar_project(tmp_path, warp=False)
@@ -1141,14 +1141,7 @@ def test_playback_at_a_lower_frame_rate_is_said(tmp_path, monkeypatch):
     session.open(str(path))
     try:
         wait_final(session)
-        said = []
-        while True:
-            try:
-                e = events.get(timeout=2.0)
-            except Exception:
-                break
-            if e["type"] == "notice":
-                said.append(e["message"])
+        said = notices(events)
         assert any(m.startswith("playback shows 5 of the shot's 20 frames per second") and
                    "exports keep 20 fps" in m for m in said), said
     finally:
