@@ -50,11 +50,11 @@ from scipy.linalg import solve_banded
 from wiggly.body import Body, Where, fixed_from_surface
 from wiggly.checks import vertex_indices
 from wiggly.drive.driver import Driver, keyed_frames
+from wiggly.drive.driver_checks import warn_cuts, warn_seam, warn_spin
 from wiggly.drive.unwarp import Unwarp
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread, factorize_spd, one_blas_thread
-from wiggly.mesh.defects import diagonal
 from wiggly.modes import compute_modes
 from wiggly.progress import deprecated_progress, reporting
 from wiggly.solve.animation import Animation
@@ -482,111 +482,6 @@ def secondary_frames(
     return frames, times
 
 
-#: A driver turning faster than SPIN times the free parts' lowest angular frequency is said
-#: to turn fast: the left-out centrifugal and Coriolis forces are then a sizeable part of the
-#: free parts' stiffness (their relative size grows like (turn rate / frequency)^2).
-SPIN = 0.5
-
-
-def _warn_spin(driver: Driver, frames: np.ndarray, times: np.ndarray, driven: np.ndarray,
-               lam: np.ndarray) -> None:
-    """Warn when the driven group turns fast against the free parts' lowest frequency: the
-    free parts' dynamics are linear in the driver's moving frame, without its centrifugal
-    and Coriolis forces, and a fast spin then draws them toward its axis instead of flinging
-    them out (2 rev/s pulled a 1 m creature's tail tip from 583 mm off the axis to 138 mm)."""
-    from scipy.spatial.transform import Rotation
-
-    positive = lam[lam > 1e-9 * max(float(lam.max(initial=0.0)), 1e-300)]
-    if len(frames) < 2 or len(driven) < 3 or not len(positive):
-        return
-    P = driver.positions[frames][:, driven]
-    P = P - P.mean(axis=1, keepdims=True)
-    rates = []
-    for k in range(len(P) - 1):
-        if not np.any(P[k]) or not np.any(P[k + 1]):
-            continue
-        with warnings.catch_warnings():  # a group along a line: its turn about it is none
-            warnings.simplefilter("ignore")
-            R, _ = Rotation.align_vectors(P[k + 1], P[k])
-        rates.append(R.magnitude() / (times[k + 1] - times[k]))
-    omega, lowest = max(rates, default=0.0), float(np.sqrt(positive.min()))
-    if omega > SPIN * lowest:
-        warnings.warn(
-            f"the driver {driver.source} turns its driven group at up to "
-            f"{omega / (2 * np.pi):.2g} turns per second, fast against the free parts' lowest "
-            f"frequency ({lowest / (2 * np.pi):.2g} Hz): the free parts move linearly in the "
-            "driver's turning frame, without its centrifugal and Coriolis forces, and a fast "
-            "turn draws them toward its axis rather than flinging them out; a stiffer "
-            "material for the free parts, or a slower turn, keeps this small", stacklevel=3)
-
-
-#: A looped shot's driver is said not to cycle with it when its driven vertices at the shot's
-#: end lie further than SEAM_STEPS of its largest step between frames from its start pose.
-SEAM_STEPS = 1.5
-
-
-def _warn_seam(driver: Driver, driven: np.ndarray, *, start: float, end: float,
-               offset: float, driver_range: tuple[float, float] | None) -> None:
-    """Warn when a looped shot's driver does not cycle with the shot: the loop makes its
-    pose at the end its pose at the start (:func:`secondary_frames`), a jump at the seam when
-    the two differ, or a curve over the time after its last frame in the shot when it ends
-    early, which stretches its cycle to the shot's."""
-    frames, times = keyed_frames(driver, offset=offset, driver_range=driver_range,
-                                 start=start, end=end)
-    if len(frames) < 3:
-        return
-    P = driver.positions[frames][:, driven]
-    step = float(np.linalg.norm(np.diff(P, axis=0), axis=2).max())
-    gap = float(np.linalg.norm(P[-1] - P[0], axis=1).max())
-    spacing = float(np.median(np.diff(times)))
-    remedy = ("end the shot on the driver's cycle (time.end), or keep one cycle of it "
-              "(drive.range)")
-    if times[-1] >= end - 1e-9 * (end - start):
-        if gap > SEAM_STEPS * step:
-            warnings.warn(
-                f"the driver {driver.source} does not cycle with the looped shot: its driven "
-                f"vertices at {end:g} s lie up to {1e3 * gap:.3g} mm from their pose at "
-                f"{start:g} s (they move at most {1e3 * step:.3g} mm from one frame to the "
-                f"next), and the loop joins the two with a jump at the seam; {remedy}",
-                stacklevel=3)
-    elif end - times[-1] > 1.5 * spacing:
-        warnings.warn(
-            f"the driver {driver.source} ends {end - times[-1]:.3g} s before the looped "
-            f"shot's end ({times[-1]:g} s of [{start:g}, {end:g}] s): the loop joins its last "
-            f"frame to its first by a curve over that time, which stretches the driver's "
-            f"cycle to the shot's; {remedy}", stacklevel=3)
-
-
-#: A driver step between two frames is called a cut when its driven vertices move further
-#: than CUT_STEPS times the median step and more than CUT_SIZE of the body's size.
-CUT_STEPS, CUT_SIZE = 8.0, 0.05
-
-
-def _warn_cuts(driver: Driver, frames: np.ndarray, times: np.ndarray, driven: np.ndarray,
-               body: Body) -> None:
-    """Warn when the driver jumps between two frames (a cut, a teleport): the C2 spline
-    through the frames (:class:`FrameSpline`) swings before and after such a jump, and the
-    body then moves before the driver does."""
-    if len(frames) < 3:
-        return
-    P = driver.positions[frames][:, driven]
-    step = np.linalg.norm(np.diff(P, axis=0), axis=2).max(axis=1)
-    size, typical = diagonal(body.surface.vertices), float(np.median(step))
-    cuts = np.flatnonzero((step > CUT_STEPS * typical) & (step > CUT_SIZE * size))
-    if not len(cuts):
-        return
-    k = int(cuts[np.argmax(step[cuts])])
-    than = (f"{step[k] / typical:.0f} times a typical frame's move" if typical > 1e-9 * size
-            else "most of its frames hold still")
-    more = f", and at {len(cuts) - 1} more steps" if len(cuts) > 1 else ""
-    warnings.warn(
-        f"the driver {driver.source} jumps: its driven vertices move {step[k]:.3g} m between "
-        f"t = {times[k]:g} and {times[k + 1]:g} s ({than}){more}; the smooth curve through "
-        "its frames swings before and after such a jump, so the body moves before the driver "
-        "does: end the shot at the cut (drive.range, or time.end), or animate the move over "
-        "several frames", stacklevel=3)
-
-
 @deprecated_progress
 @one_blas_thread
 def secondary_motion(
@@ -624,9 +519,10 @@ def secondary_motion(
     v = vertex_indices(driven, surface.n_vertices, "surface", "driven group")
     frames, times = secondary_frames(driver, start=start, end=end, loop=loop, offset=offset,
                                      driver_range=driver_range)
-    _warn_cuts(driver, frames, times, v, body)
+    driven_path = driver.positions[frames][:, v]  # the driven vertices at the frames
+    warn_cuts(driver.source, driven_path, times, body)
     if loop:
-        _warn_seam(driver, v, start=start, end=end, offset=offset, driver_range=driver_range)
+        warn_seam(driver, v, start=start, end=end, offset=offset, driver_range=driver_range)
     duration = end - start
     tol = 1e-9 * duration
     # the rig: the driver extended into the tet mesh (unwarped for warped playback)
@@ -643,7 +539,7 @@ def secondary_motion(
     t1 = _time.perf_counter()
     psi, lam = free_modes(body, v, free_mode_count)
     modes_seconds = _time.perf_counter() - t1
-    _warn_spin(driver, frames, times, v, lam)
+    warn_spin(driver.source, driven_path, times, lam)
     held_warp = HeldWarp(body, held_vertices(body, v)) if warped else None
     r = psi.shape[1]
     alpha, beta = body.damping.alpha, body.damping.beta
