@@ -167,8 +167,6 @@ def _secondary(seq, version, scene, body, groups, keys, out,
     only for keys on the free parts), as ``wiggly animate`` runs it, with the notices of its
     checks (folds, keys missed) as a keyed scene's final motion has them."""
     from wiggly.scene.drive import secondary_of
-    from wiggly.scene.run import fold_highlights, missed_note
-    from wiggly.solve import fold_note
 
     t0 = time.perf_counter()
     with warnings.catch_warnings():  # said by the notices below, and by the playback's solve
@@ -177,18 +175,29 @@ def _secondary(seq, version, scene, body, groups, keys, out,
     start, end = scene.time_range()
     fps = playback_fps(scene.time.fps, start, end, body.surface.n_vertices)
     times = anim.frame_times(fps)
-    checked = anim.folds(times)
+    notes = _notes(scene, anim, times, anim.folds(times), shown_groups)  # before residual_max
     info = {"iterations": int(anim.info.get("iterations", 0)),
             "converged": bool(anim.info.get("converged", True)),
             "objective": float(anim.energy()),
-            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim),
-            "folds": fold_note(anim, api=False, groups=shown_groups, checked=checked),
-            "missed": missed_note(scene, anim), "source": scene.source}
-    if info["folds"] is not None:  # and where: the page tints them as previews do
-        info["fold_spans"] = [{"from": h.time, "until": h.until, "vertices": h.vertices.tolist()}
-                              for h in fold_highlights(anim, times, checked)]
+            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim), **notes}
     positions = anim.positions(times, dtype=np.float32)
     channel.send(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
+
+
+def _notes(scene, anim, times, checked, groups) -> dict:  # pragma: no cover - subprocess
+    """A final motion's notices, as ``wiggly animate`` warns: its folds (``checked``:
+    ``anim.folds(times)``, None: not checked) with the spans the page tints, and the keys it
+    misses (the residual rows are kept in ``anim.info`` for :func:`residual_max`)."""
+    from wiggly.scene.run import fold_highlights, missed_note
+    from wiggly.solve import fold_note
+
+    out = {"folds": None if checked is None
+           else fold_note(anim, api=False, groups=groups, checked=checked),
+           "missed": missed_note(scene, anim), "source": scene.source}
+    if out["folds"] is not None:  # and where: the page tints them as previews do
+        out["fold_spans"] = [{"from": h.time, "until": h.until, "vertices": h.vertices.tolist()}
+                             for h in fold_highlights(anim, times, checked)]
+    return out
 
 
 class _Abandoned(Exception):
@@ -202,8 +211,6 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     abandons it, and a progress line goes out every ``PUSH_SECONDS``.  Its answers carry the
     request's ``kind``; a drag's solution, too, starts the next solve of the range."""
     from wiggly.scene.drive import linear_start_of
-    from wiggly.scene.run import fold_highlights, missed_note
-    from wiggly.solve import fold_note
 
     t0 = time.perf_counter()
     init = previous.peek(pkey)
@@ -240,22 +247,15 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     times = anim.frame_times(fps)
     # one warped playback on the tet mesh: the frames shown, and the folds in them
     moved = anim.displacements(times, on="tets")
-    # creases the user sees in the warped frames, explained (``wiggly animate`` warns)
-    checked = anim.folds(times, displacements=moved) if kind == "final" else None
-    # keys the final motion misses, as ``wiggly animate`` warns of them (the residual rows
-    # are kept in anim.info for residual_max)
-    missed = missed_note(scene, anim) if kind == "final" else None
+    # creases and missed keys of the final motion, explained (before residual_max: it reads
+    # the missed-key check's rows)
+    notes = (_notes(scene, anim, times, anim.folds(times, displacements=moved), groups)
+             if kind == "final" else {"folds": None, "missed": None, "source": scene.source})
     info = {"iterations": int(anim.info.get("iterations", 0)),
             "converged": bool(anim.info.get("converged")),
             "objective": float(anim.info.get("objective", np.nan)),
             "seconds": solved, "residual_max": residual_max(anim),
-            "request": kind,
-            "folds": None if checked is None
-            else fold_note(anim, api=False, groups=groups, checked=checked),
-            "missed": missed, "source": scene.source}
-    if info["folds"] is not None:  # and where: the page tints them as previews do
-        info["fold_spans"] = [{"from": h.time, "until": h.until, "vertices": h.vertices.tolist()}
-                              for h in fold_highlights(anim, times, checked)]
+            "request": kind, **notes}
     positions = (body.to_surface(moved) + body.rest_positions()).astype(np.float32)
     channel.send(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
 
