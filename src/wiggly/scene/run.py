@@ -16,7 +16,7 @@ from wiggly.drive import following
 from wiggly.drive.sequence import carries_times
 from wiggly.errors import WigglyInputError, counted
 from wiggly.export import stage_animation, surface_animation
-from wiggly.export.animation import without_seam
+from wiggly.export.animation import frame_codes, gltf_times, without_seam
 from wiggly.files import OutputSet, check_writable
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
@@ -490,20 +490,22 @@ def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
         raise input_error(scene.where(), problems)
 
 
-def _warn_between_frames(scene: Scene, start: float, paths: list[Path]) -> None:
+def _warn_between_frames(scene: Scene, times: np.ndarray, paths: list[Path]) -> None:
     """Warn when the shot's own time puts glTF/USD frames between the timeline's frames: a
-    shot starting at -0.25 s at 30 fps has USD time codes -7.5, -6.5, ... (glTF shifts a
-    negative start, and a loop's, to 0; a positive one keeps it)."""
+    shot starting at -0.25 s at 30 fps has USD time codes -7.5, -6.5, ... (each format's
+    own rule: :func:`~wiggly.export.animation.gltf_times`, ``frame_codes``)."""
     fps = scene.time.fps
-    frame = start * fps
-    if scene.output.frame_start is not None or abs(frame - round(frame)) <= 1e-6:
+    if scene.output.frame_start is not None:
         return
-    late = [p.name for p in paths if p.suffix.lower() in (".usd", ".usda", ".usdc")
-            or (p.suffix.lower() == ".glb" and start > 0 and not scene.time.loop)]
+    first = {".glb": float(gltf_times(times, None, scene.time.loop)[0]) * fps,
+             **dict.fromkeys((".usd", ".usda", ".usdc"), float(frame_codes(times, None, "")[1][0]))}
+    late = [p.name for p in paths if p.suffix.lower() in first
+            and abs(first[p.suffix.lower()] - round(first[p.suffix.lower()])) > 1e-6]
     if late:
+        start = float(times[0])
         warnings.warn(
-            f"{scene.where()}: the shot starts at {start:g} s, frame {frame:g} at {fps:g} fps, "
-            f"so the frames of {', '.join(late)} land between the timeline's frames (an "
+            f"{scene.where()}: the shot starts at {start:g} s, frame {start * fps:g} at {fps:g} "
+            f"fps, so the frames of {', '.join(late)} land between the timeline's frames (an "
             "application showing whole frames blends or skips them); set output.frame_start "
             "(or --frame-start; Blender: 1) to put frame k on frame_start + k", stacklevel=3)
 
@@ -519,7 +521,7 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
     if not paths:
         return []
     _check_gltf_targets(scene, paths)
-    _warn_between_frames(scene, anim.frame_times(scene.time.fps)[0], paths)
+    _warn_between_frames(scene, anim.frame_times(scene.time.fps), paths)
     t = _time.perf_counter()
     targets = scene.output.gltf_targets or "frames"
     modes = targets == "modes" and any(p.suffix.lower() == ".glb" for p in paths)
