@@ -1165,7 +1165,8 @@ def test_mesh_settings_past_the_tet_limit_are_refused_and_scale_reloads_the_surf
     try:
         before = session.version
         with pytest.raises(EditError, match=r"mesh.resolution = 200 would make about .* "
-                                            r"tetrahedra, more than wiggly's limit of 400000"):
+                                            r"tetrahedra of bar.obj, more than wiggly's limit "
+                                            r"of 400000 .*use resolution <= \d+"):
             session.edit({"op": "set", "section": "mesh", "values": {"resolution": 200}})
         assert session.version == before and session.scene.mesh.resolution is None
         key, size = session.describe()["mesh_key"], session.diagonal

@@ -65,7 +65,8 @@ from urllib.parse import parse_qs, urlsplit
 import numpy as np
 
 from wiggly.editor.history import TAB_ID, Histories
-from wiggly.editor.session import MESH_SUFFIXES, SCENE_SUFFIX, Session
+from wiggly.editor.scene_files import MESH_SUFFIXES, SCENE_SUFFIX
+from wiggly.editor.session import Session
 from wiggly.editor.state import EditError
 from wiggly.errors import WigglyInputError
 

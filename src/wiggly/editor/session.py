@@ -18,7 +18,6 @@ and the mesh when it meets a new one (a restarted server).  Exports solve the sc
 
 from __future__ import annotations
 
-import hashlib
 import secrets
 import threading
 import traceback
@@ -43,6 +42,18 @@ from wiggly.editor.history import (
 from wiggly.editor.physics import Physics
 from wiggly.editor.playback import FrameSet, Playback
 from wiggly.editor.sandbox import Sandbox
+from wiggly.editor.scene_files import (
+    MESH_SUFFIXES,
+    SCENE_SUFFIX,
+    display_groups,
+    driver_stamp,
+    export_written,
+    file_digest,
+    free_name,
+    load_checked,
+    new_scene,
+    surface_of,
+)
 from wiggly.editor.state import (
     EditError,
     EditorState,
@@ -59,33 +70,13 @@ from wiggly.progress import reporting
 from wiggly.scene import (
     BUILTIN_MODELS,
     OUTPUT_EXTENSIONS,
-    MeshSpec,
     Scene,
-    TimeSpec,
     builtin_model,
-    load_scene,
     resolve_groups,
     save_scene,
 )
 
 __all__ = ["Session", "autosave_path"]
-
-MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".msh", ".vtu", ".vtk",
-                 ".mesh")
-SCENE_SUFFIX = ".toml"
-
-
-def new_scene(mesh_file: Path, builtin: str | None = None) -> Scene:
-    """A fresh scene for a mesh: no groups or keyframes, a 2 s shot, saved beside the mesh
-    (or in the current directory for a bundled model)."""
-    if builtin is not None:
-        scene = Scene(MeshSpec(f"builtin:{builtin}"), time=TimeSpec(end=2.0))
-        scene.source = _free_name(Path.cwd(), builtin)
-        return scene
-    scene = Scene(MeshSpec(mesh_file.name), time=TimeSpec(end=2.0))
-    scene.source = _free_name(mesh_file.parent, mesh_file.stem)
-    return scene
-
 
 def _label(op: Any, before: EditorState, after: EditorState) -> str:
     """How the undo button names an edit (keyframes by their name or group and time)."""
@@ -206,7 +197,7 @@ class Session:
                 raise EditError(f"{path}: not a bundled model; use one of "
                                 + ", ".join(f"builtin:{m}" for m in BUILTIN_MODELS))
             scene = new_scene(builtin_model(name), builtin=name)
-            scene.source = _free_name(self.sandbox.home, name)
+            scene.source = free_name(self.sandbox.home, name)
             histories = self._histories(scene.source)
             state, _ = histories.load(scene)
         else:
@@ -237,7 +228,7 @@ class Session:
                                 "edit with --root and the mesh's folder to allow it", 403)
         assert state is not None
         scene = state.scene
-        surface = _surface_of(scene)
+        surface = surface_of(scene)
         diagonal = float(np.linalg.norm(np.ptp(surface.vertices, axis=0)))
         check_limits(scene, diagonal)
         with self._lock:
@@ -245,7 +236,7 @@ class Session:
             self.histories = histories
             self._saved = file_scene
             # the scene file as read: a save checks that nobody changed it since
-            self._disk = _stamp(scene.source)
+            self._disk = file_digest(scene.source)
             self.surface, self.diagonal = surface, diagonal
             self._surface_key = (scene.mesh.path, scene.mesh.metres_per_unit, scene.mesh.up)
             self._opened += 1
@@ -266,15 +257,15 @@ class Session:
         """The scene file ``real`` with the edits its autosave and journal hold beyond it
         (the journal's tail replayed over the autosave, which may lag it); the file's scene
         (None: never saved) and the histories."""
-        file_scene = _load(real) if real.is_file() else None
+        file_scene = load_checked(real) if real.is_file() else None
         auto = autosave_path(real)
         for written in (auto, history_path(real)):  # a write a crash cut short (a minute old:
             remove_stale(written.with_name(written.name + ".part"), 60.0)  # not another's)
         auto_scene: Scene | None = None
-        stale = set_aside_if_stale(real, _stamp(real), notices)
+        stale = set_aside_if_stale(real, file_digest(real), notices)
         if auto.is_file() and not stale:
             try:
-                auto_scene = _load(auto)
+                auto_scene = load_checked(auto)
                 auto_scene.source = real
             except EditError as err:
                 notices.append(f"ignored an unreadable autosave {auto.name}: "
@@ -314,7 +305,7 @@ class Session:
             if not out.mesh.path.startswith("builtin:") and \
                     not self.sandbox.contains(out.mesh_file()):
                 raise EditError(f"{out.mesh.path}: the mesh is outside the sandbox", 403)
-            on_disk = _stamp(target)
+            on_disk = file_digest(target)
             if on_disk is not None and not overwrite:
                 name = self.sandbox.relative(target)
                 if target != scene.source:
@@ -332,7 +323,7 @@ class Session:
             except OSError as err:
                 raise EditError(unwritable(err, f"cannot save {self.sandbox.relative(target)}",
                                            target.parent), write_status(err)) from None
-            self._disk = _stamp(target)
+            self._disk = file_digest(target)
             old_source = scene.source
             out.source = target
             if out is not scene or old_source != target:
@@ -387,7 +378,7 @@ class Session:
         key = (scene.mesh.path, scene.mesh.metres_per_unit, scene.mesh.up)
         if self.surface is None or key == self._surface_key:
             return
-        self.surface = _surface_of(scene)
+        self.surface = surface_of(scene)
         self.diagonal = float(np.linalg.norm(np.ptp(self.surface.vertices, axis=0)))
         self._surface_key = key
         self._opened += 1  # the page's mesh key: it loads the mesh again
@@ -396,9 +387,11 @@ class Session:
     def _check_tets(self, old: Scene, new: Scene) -> None:
         """Refuse mesh settings whose tet mesh would pass wiggly's tet limit, before the edit
         is made (it was made, and the model then failed to load with nothing in the page to
-        undo it but Undo); estimated on the surface shown, scaled as ``new`` asks."""
-        from wiggly.mesh.defects import enclosed_volume, estimate_tets, max_resolution
-        from wiggly.mesh.filling import edge_length_for
+        undo it but Undo), as ``wiggly animate`` refuses them
+        (:func:`wiggly.scene.build.check_surface_for_scene`), on the surface shown scaled as
+        ``new`` asks."""
+        from wiggly.mesh.defects import SurfaceReport, enclosed_volume, surface_area
+        from wiggly.scene.build import check_surface_for_scene
 
         a, b = old.mesh, new.mesh
         if self.surface is None or (a.resolution, a.edge_length, a.metres_per_unit) == \
@@ -407,23 +400,13 @@ class Session:
             return
         s = b.metres_per_unit / a.metres_per_unit
         V, F = self.surface.vertices, self.surface.faces
-        volume = abs(enclosed_volume(V, F)) * s**3
-        area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]],
-                                                   V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
-        area *= s**2
-        diagonal = (self.diagonal or 0.0) * s
+        report = SurfaceReport(len(F), volume=abs(enclosed_volume(V, F)) * s**3,
+                               area=surface_area(V, F) * s**2,
+                               diagonal=(self.diagonal or 0.0) * s)
         try:
-            h = edge_length_for(diagonal, b.edge_length, b.resolution, "mesh")
+            check_surface_for_scene(new, report, new.mesh_file().name)
         except WigglyInputError as err:
-            raise EditError(str(err).removeprefix("mesh: ")) from None
-        estimate = estimate_tets(volume, area, h)
-        if estimate > limits.MAX_TETS:
-            best = max_resolution(volume, area, diagonal, limits.MAX_TETS)
-            asked = (f"mesh.edge_length = {b.edge_length:g} m" if b.edge_length is not None
-                     else f"mesh.resolution = {b.resolution or DEFAULT_RESOLUTION}")
-            raise EditError(f"{asked} would make about {estimate:.2g} tetrahedra, more than "
-                            f"wiggly's limit of {limits.MAX_TETS} (wiggly.limits.MAX_TETS); "
-                            f"use resolution <= {best}")
+            raise EditError(str(err)) from None
 
     def _check_groups(self, old: Scene, new: Scene) -> None:
         """Refuse an edit after which the groups no longer resolve on the mesh while they did
@@ -433,10 +416,10 @@ class Session:
             return
         model = self._model_if_ready(new)
         try:
-            out = _display_groups(new, self.surface, model)
+            out = display_groups(new, self.surface, model)
         except WigglyInputError as err:
             try:
-                _display_groups(old, self.surface, model)
+                display_groups(old, self.surface, model)
             except WigglyInputError:
                 return  # already unresolved: the edit may be the user's way out
             raise EditError(str(err).splitlines()[0]) from None
@@ -539,7 +522,7 @@ class Session:
         cached = self._groups_cache
         if cached is not None and cached[0] == (scene.groups, scene.mesh):
             return cached[1]
-        out = _display_groups(scene, self.surface, self._model_if_ready(scene))
+        out = display_groups(scene, self.surface, self._model_if_ready(scene))
         self._groups_cache = ((dict(scene.groups), scene.mesh), out)
         return out
 
@@ -692,7 +675,7 @@ class Session:
             anim = solve_scene(scene, body, keys)
             write_outputs(scene, anim, paths, overwrite=overwrite,
                           highlights=keyframe_highlights(scene, body, anim.keyframes, groups))
-            written = [_written(p, self.sandbox.relative(p)) for p in paths]
+            written = [export_written(p, self.sandbox.relative(p)) for p in paths]
             # an edit made while it ran is not in it: say so, rather than seem current
             later = version is not None and self.version != version
             since = (" (the scene as it was when the export started: edits made since are not "
@@ -706,92 +689,5 @@ class Session:
             self.bus.publish("export", stage="error", message=f"export failed: {err}")
 
 
-def _free_name(folder: Path, stem: str) -> Path:
-    """``folder/stem.toml``, or ``stem-2.toml``, ... if taken (never overwrite a scene)."""
-    path, k = folder / f"{stem}{SCENE_SUFFIX}", 2
-    while path.exists() or autosave_path(path).exists() or history_path(path).exists():
-        path, k = folder / f"{stem}-{k}{SCENE_SUFFIX}", k + 1
-    return path
-
-
-def _written(path: Path, shown: str) -> str:
-    """What an export of ``path`` wrote, for its message: the file as the page names it
-    (``shown``, e.g. ``out/shot.glb``), or for an OBJ the sequence of frame files
-    ``out/NAME_0000.obj`` …."""
-    if path.suffix.lower() != ".obj":
-        return shown
-    frames = sorted(path.parent.glob(f"{path.stem}_[0-9][0-9][0-9][0-9].obj"))
-    if not frames:
-        return shown
-    folder = shown[:len(shown) - len(path.name)]
-    return f"{folder}{frames[0].name} … {frames[-1].name} ({len(frames)} OBJ frames)"
-
-
 #: How often (s) the editor looks at the scene's driver file(s) for changes.
 DRIVER_WATCH = 1.0
-
-
-def driver_stamp(scene: Scene) -> tuple | None:
-    """The state of the scene's driver file(s) on disk: its path and the sizes and
-    modification times of its file, or of an OBJ sequence's files (None: no [drive])."""
-    if scene.drive is None:
-        return None
-    from wiggly.drive.sequence import sequence_files
-
-    path = scene.resolve(scene.drive.path)
-    files = ([f for _, f in sequence_files(path)] if path.suffix.lower() == ".obj"
-             else [path])
-    states = []
-    for f in files:
-        try:
-            st = f.stat()
-            states.append((f.name, st.st_size, st.st_mtime_ns))
-        except OSError:
-            states.append((f.name, None, None))
-    return (str(path), tuple(states))
-
-
-def _stamp(path: Path | None) -> str | None:
-    """A digest of the file's bytes (None: no such file, or unreadable)."""
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest() if path else None
-    except OSError:
-        return None
-
-
-def _load(path: Path) -> Scene:
-    try:
-        scene = load_scene(path)
-        check_limits(scene)
-        return scene
-    except WigglyInputError as err:
-        raise EditError(f"{path.name}: {err}" if path.name not in str(err) else str(err)) \
-            from None
-
-
-def _surface_of(scene: Scene):
-    """The user's surface, read without tetrahedralizing (a tet mesh's boundary)."""
-    from wiggly.mesh import Surface, TetMesh, load_mesh
-
-    try:
-        loaded = load_mesh(scene.mesh_file(), scene.mesh.metres_per_unit, scene.mesh.up)
-    except WigglyInputError as err:
-        raise EditError(str(err)) from None
-    if isinstance(loaded, Surface):
-        return loaded
-    assert isinstance(loaded, TetMesh)
-    return Surface(loaded.vertices, loaded.boundary_faces(), groups=dict(loaded.groups))
-
-
-def _display_groups(scene: Scene, surface, model) -> dict[str, np.ndarray]:
-    resolved = (resolve_groups(scene, model) if model is not None
-                else resolve_groups(scene, surface=surface))
-    out = {}
-    for name, idx in resolved.items():
-        if scene.groups[name].on == "tets":
-            from scipy.spatial import cKDTree
-
-            _, idx = cKDTree(surface.vertices).query(model.tets.vertices[idx])
-            idx = np.unique(idx)
-        out[name] = np.asarray(idx, np.int64)
-    return out

@@ -139,6 +139,12 @@ def diagonal(V: np.ndarray) -> float:
     return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) if len(V) else 0.0
 
 
+def surface_area(V: np.ndarray, F: np.ndarray) -> float:
+    """The area of the triangles F (m^2)."""
+    cross = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    return 0.5 * float(np.linalg.norm(cross, axis=1).sum())
+
+
 def enclosed_volume(V: np.ndarray, F: np.ndarray) -> float:
     """The signed volume the triangles F enclose (m^3): positive when they face outwards.
     Summed about the centre of the triangles' bounding box: about the origin, a body far

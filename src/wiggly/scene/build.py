@@ -47,7 +47,7 @@ def _load_model(scene: Scene):
             except WigglyInputError as err:
                 raise WigglyInputError(
                     f"{where}: mesh.path = {show(scene.mesh.path)}: {err}") from None
-        _check_surface_for_scene(scene, checked.report, f.name)
+        check_surface_for_scene(scene, checked.report, f.name)
     t = _time.perf_counter()
     try:
         model = meshing.build_model(loaded, str(f), resolution=scene.mesh.resolution,
@@ -65,7 +65,7 @@ def _load_model(scene: Scene):
     return model
 
 
-def _check_surface_for_scene(scene: Scene, report, name: str) -> None:
+def check_surface_for_scene(scene: Scene, report, name: str) -> None:
     """``mesh.repair = false`` against a surface with defects, and the tet count that
     ``mesh.resolution`` / ``mesh.edge_length`` would make, in the scene's terms."""
 

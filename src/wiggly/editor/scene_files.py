@@ -1,0 +1,125 @@
+"""The files of the editor's scene: its digest on disk, the scene read and checked, the
+user's surface and its groups as the page draws them, and the state of its driver's files
+(:class:`wiggly.editor.session.Session` uses them)."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from wiggly.editor.autosave import autosave_path
+from wiggly.editor.history import history_path
+from wiggly.editor.state import EditError, check_limits
+from wiggly.errors import WigglyInputError
+from wiggly.scene import MeshSpec, Scene, TimeSpec, load_scene, resolve_groups
+
+__all__ = ["MESH_SUFFIXES", "SCENE_SUFFIX", "display_groups", "driver_stamp", "export_written",
+           "file_digest", "free_name", "load_checked", "new_scene", "surface_of"]
+
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".msh", ".vtu", ".vtk",
+                 ".mesh")
+SCENE_SUFFIX = ".toml"
+
+
+def new_scene(mesh_file: Path, builtin: str | None = None) -> Scene:
+    """A fresh scene for a mesh: no groups or keyframes, a 2 s shot, saved beside the mesh
+    (or in the current directory for a bundled model)."""
+    if builtin is not None:
+        scene = Scene(MeshSpec(f"builtin:{builtin}"), time=TimeSpec(end=2.0))
+        scene.source = free_name(Path.cwd(), builtin)
+        return scene
+    scene = Scene(MeshSpec(mesh_file.name), time=TimeSpec(end=2.0))
+    scene.source = free_name(mesh_file.parent, mesh_file.stem)
+    return scene
+
+
+def free_name(folder: Path, stem: str) -> Path:
+    """``folder/stem.toml``, or ``stem-2.toml``, ... if taken (never overwrite a scene)."""
+    path, k = folder / f"{stem}{SCENE_SUFFIX}", 2
+    while path.exists() or autosave_path(path).exists() or history_path(path).exists():
+        path, k = folder / f"{stem}-{k}{SCENE_SUFFIX}", k + 1
+    return path
+
+
+def export_written(path: Path, shown: str) -> str:
+    """What an export of ``path`` wrote, for its message: the file as the page names it
+    (``shown``, e.g. ``out/shot.glb``), or for an OBJ the sequence of frame files
+    ``out/NAME_0000.obj`` …."""
+    if path.suffix.lower() != ".obj":
+        return shown
+    frames = sorted(path.parent.glob(f"{path.stem}_[0-9][0-9][0-9][0-9].obj"))
+    if not frames:
+        return shown
+    folder = shown[:len(shown) - len(path.name)]
+    return f"{folder}{frames[0].name} … {frames[-1].name} ({len(frames)} OBJ frames)"
+
+def driver_stamp(scene: Scene) -> tuple | None:
+    """The state of the scene's driver file(s) on disk: its path and the sizes and
+    modification times of its file, or of an OBJ sequence's files (None: no [drive])."""
+    if scene.drive is None:
+        return None
+    from wiggly.drive.sequence import sequence_files
+
+    path = scene.resolve(scene.drive.path)
+    files = ([f for _, f in sequence_files(path)] if path.suffix.lower() == ".obj"
+             else [path])
+    states = []
+    for f in files:
+        try:
+            st = f.stat()
+            states.append((f.name, st.st_size, st.st_mtime_ns))
+        except OSError:
+            states.append((f.name, None, None))
+    return (str(path), tuple(states))
+
+
+def file_digest(path: Path | None) -> str | None:
+    """A digest of the file's bytes (None: no such file, or unreadable)."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest() if path else None
+    except OSError:
+        return None
+
+
+def load_checked(path: Path) -> Scene:
+    """The scene file at ``path``, checked against the editor's limits too; a problem is an
+    :class:`EditError` naming the file."""
+    try:
+        scene = load_scene(path)
+        check_limits(scene)
+        return scene
+    except WigglyInputError as err:
+        raise EditError(f"{path.name}: {err}" if path.name not in str(err) else str(err)) \
+            from None
+
+
+def surface_of(scene: Scene):
+    """The user's surface, read without tetrahedralizing (a tet mesh's boundary)."""
+    from wiggly.mesh import Surface, TetMesh, load_mesh
+
+    try:
+        loaded = load_mesh(scene.mesh_file(), scene.mesh.metres_per_unit, scene.mesh.up)
+    except WigglyInputError as err:
+        raise EditError(str(err)) from None
+    if isinstance(loaded, Surface):
+        return loaded
+    assert isinstance(loaded, TetMesh)
+    return Surface(loaded.vertices, loaded.boundary_faces(), groups=dict(loaded.groups))
+
+
+def display_groups(scene: Scene, surface, model) -> dict[str, np.ndarray]:
+    """The scene's groups as surface vertex indices, as the page draws them (a group on the
+    tets by the surface vertices nearest its tet vertices)."""
+    resolved = (resolve_groups(scene, model) if model is not None
+                else resolve_groups(scene, surface=surface))
+    out = {}
+    for name, idx in resolved.items():
+        if scene.groups[name].on == "tets":
+            from scipy.spatial import cKDTree
+
+            _, idx = cKDTree(surface.vertices).query(model.tets.vertices[idx])
+            idx = np.unique(idx)
+        out[name] = np.asarray(idx, np.int64)
+    return out
