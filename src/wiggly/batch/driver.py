@@ -246,7 +246,7 @@ def _scan(out: Path, shots: list[Shot], overwrite: bool, request: dict):
             others.append(s.name)
         extra = sorted(set(os.listdir(folder)) - _written(old))
         if extra:
-            foreign.append(f"{s.name} ({', '.join(extra[:3])}{', ...' if len(extra) > 3 else ''})")
+            foreign.append(f"{s.name} ({_listed(extra, 3)})")
             continue
         replace.add(s.name)  # another shot, or this one again (broken, or a thumbnail asked)
         todo.append(s)
@@ -274,8 +274,10 @@ def _scan(out: Path, shots: list[Shot], overwrite: bool, request: dict):
     return records, todo, replace
 
 
-def _listed(names: list[str]) -> str:
-    return ", ".join(names[:5]) + (f" and {len(names) - 5} more" if len(names) > 5 else "")
+def _listed(names: list[str], most: int = 5) -> str:
+    """The first ``most`` names, and how many more there are."""
+    return ", ".join(names[:most]) + (f" and {len(names) - most} more"
+                                      if len(names) > most else "")
 
 
 def _written(record: dict) -> set[str]:
