@@ -408,8 +408,26 @@ def test_a_driver_at_another_scale_is_refused_before_the_solve(shot, capsys):
     assert main(["animate", str(scene), "-q", "-o", str(folder / "cm.npz")]) == 1
     err = capsys.readouterr().err
     assert 'drive.path = "walk_cm.npz": its first pose is 100 times the size of bar.vtu' in err
-    assert "the driver is likely in other units: export it in metres" in err  # not the mesh
+    assert "the driver is likely in other units: set drive.scale = 0.01" in err  # not the mesh
     assert not (folder / "cm.npz").exists()
+    # drive.scale reads it in metres: the same motion as the driver in metres
+    base = write(folder, {**data, "drive": {"path": "walk.npz", "group": "driven"}},
+                 "m.toml")
+    assert main(["animate", str(base), "-q", "-o", str(folder / "m.npz")]) == 0
+    scene = write(folder, {**data, "drive": {"path": "walk_cm.npz", "group": "driven",
+                                             "scale": 0.01}}, "cm_scaled.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "cm_scaled.npz")]) == 0
+    capsys.readouterr()
+    # (npz stores float32: the files agree to their rounding, 1.2e-7 m at 1 m)
+    np.testing.assert_allclose(read_animation(folder / "cm_scaled.npz").positions,
+                               read_animation(folder / "m.npz").positions, atol=1e-6)
+    # a scale given to a driver in metres: the remedy is to leave it out
+    scene = write(folder, {**data, "drive": {"path": "walk.npz", "group": "driven",
+                                             "scale": 0.01}}, "m_scaled.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "x.npz")]) == 1
+    err = capsys.readouterr().err
+    assert "drive.scale = 0.01 makes the driver 100 times smaller than its files: leave it " \
+        "out" in err, err
     # the mesh in centimetres instead (the driver in metres): mesh.scale is the remedy
     mesh = meshio.read(folder / "bar.vtu")
     meshio.write(folder / "bar_cm.vtu", meshio.Mesh(100 * mesh.points, mesh.cells))
@@ -457,7 +475,44 @@ def test_a_mesh_in_other_axes_than_its_driver_is_warned_about(shot, capsys):
                            "drive": {"path": "walk_z.npz", "group": "driven"}}, "zup3.toml")
     assert main(["animate", str(scene), "-q", "-o", str(folder / "z3.npz")]) == 0
     err = capsys.readouterr().err
-    assert "mesh.up_axis turns the mesh only, and the driver looks Z-up" in err, err
+    assert 'mesh.up_axis turns the mesh only, and the driver looks Z-up: set drive.up_axis = ' \
+        '"z" as well' in err, err
+    # drive.up_axis turns the driver upright: the motion of the Y-up files, and no warning
+    scene = write(folder, {**data, "mesh": {**data["mesh"], "path": "bar_z.vtu",
+                                            "up_axis": "z"},
+                           "drive": {"path": "walk_z.npz", "group": "driven",
+                                     "up_axis": "z"}}, "zup4.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "z4.npz")]) == 0
+    assert "up axis" not in capsys.readouterr().err
+    np.testing.assert_allclose(read_animation(folder / "z4.npz").positions,
+                               read_animation(folder / "z2.npz").positions, atol=1e-9)
+
+
+def test_driver_units_and_axes_apply_to_files_without_their_own(shot, tmp_path):
+    """drive.scale and drive.up_axis are for OBJ sequences and npz: a glTF or USD driver
+    carries its own units and axes, and the keys are refused there, saying so."""
+    folder, data = shot
+    scene = write(folder, {**data, "drive": {"path": "walk.glb", "group": "driven",
+                                             "scale": 0.01, "up_axis": "z"}}, "glb.toml")
+    with pytest.raises(WigglyInputError) as err:
+        load_scene(scene)
+    text = str(err.value)
+    assert 'drive.scale = 0.01 applies to OBJ-sequence and npz drivers only; drive.path = ' \
+        '"walk.glb" is not one (a glTF driver is in metres, y up, by its specification' in text
+    assert 'drive.up_axis = "z" applies to OBJ-sequence and npz drivers only' in text
+    with pytest.raises(WigglyInputError, match=r"scale and up apply to OBJ sequences and \.npz"):
+        read_driver(tmp_path / "walk.glb", scale=0.01)
+    with pytest.raises(WigglyInputError, match="up = 'x' is not an up axis"):
+        read_driver(folder / "walk.npz", up="x")
+    with pytest.raises(WigglyInputError, match="scale should be a number > 0"):
+        read_driver(folder / "walk.npz", scale=-1)
+    # the conversion itself: (x, y, z) -> (x, z, -y) after the scale, as for meshes
+    plain = read_driver(folder / "walk.npz")
+    turned = read_driver(folder / "walk.npz", scale=0.5, up="z")
+    P = 0.5 * plain.positions
+    np.testing.assert_array_equal(turned.positions,
+                                  np.stack([P[..., 0], P[..., 2], -P[..., 1]], -1))
+    np.testing.assert_array_equal(turned.times, plain.times)
 
 
 def test_a_clip_the_driver_lacks_is_blamed_on_drive_animation(tmp_path):

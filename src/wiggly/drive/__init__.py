@@ -39,8 +39,10 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
+from wiggly.checks import positive_number
 from wiggly.drive.basis import driver_poses, enrich
 from wiggly.drive.driver import (
     DRIVE_STIFFNESS,
@@ -51,6 +53,7 @@ from wiggly.drive.driver import (
 )
 from wiggly.drive.secondary import SecondaryMotion, secondary_motion
 from wiggly.errors import WigglyInputError
+from wiggly.mesh.loading import UP_AXES, z_up_to_y_up
 from wiggly.progress import deprecated_progress
 
 __all__ = ["DRIVER_EXTENSIONS", "DRIVE_STIFFNESS", "Driver", "SecondaryMotion",
@@ -70,10 +73,26 @@ DRIVER_EXTENSIONS = {
 }
 
 
+#: Driver formats that carry no units or axes of their own: ``scale`` and ``up`` of
+#: :func:`read_driver` (``drive.scale``, ``drive.up_axis``) apply to them.
+UNIT_FREE = (".obj", ".npz")
+UNIT_FREE_NOTE = ("a glTF driver is in metres, y up, by its specification, and a USD driver "
+                  "is read in metres, y up, by its stage's metersPerUnit and upAxis")
+
+
+def _in_metres(driver: Driver, scale: float, up: str) -> Driver:
+    """``driver`` with its positions multiplied by ``scale`` and turned from ``up`` to y up."""
+    if scale == 1.0 and up == "y":
+        return driver
+    positions = driver.positions * scale
+    return replace(driver, positions=z_up_to_y_up(positions) if up == "z" else positions)
+
+
 @deprecated_progress
 def read_driver(path: str | os.PathLike[str], *,
                 animation: str | int | Sequence[str | int] | None = None,
-                object: str | None = None, frame_rate: float | None = None) -> Driver:
+                object: str | None = None, frame_rate: float | None = None,
+                scale: float = 1.0, up: str = "y") -> Driver:
     """Read a driver animation (format by extension, :data:`DRIVER_EXTENSIONS`).
 
     ``animation`` picks a glTF animation by name or index (default: the first), or several
@@ -81,8 +100,12 @@ def read_driver(path: str | os.PathLike[str], *,
     action); ``object``
     keeps the glTF mesh nodes, or the USD meshes at or below prims, of that name (default:
     every mesh, in file order); ``frame_rate`` times an OBJ sequence without wiggly's
-    ``# time`` comments (frame N at N / frame_rate s).  Raises :class:`WigglyInputError`
-    naming the file for anything it cannot read.
+    ``# time`` comments (frame N at N / frame_rate s).  ``scale`` (metres per unit of the
+    file) and ``up`` (its up axis, "y" or "z") bring an OBJ sequence or an npz written in
+    other units or axes to wiggly's metres, y up, as :func:`wiggly.mesh.load_mesh` does for
+    the mesh; glTF (metres, y up by its specification) and USD (its stage's
+    ``metersPerUnit`` and ``upAxis``) carry their own, and refuse them.  Raises
+    :class:`WigglyInputError` naming the file for anything it cannot read.
     """
     path = Path(path).expanduser()
     ext = path.suffix.lower()
@@ -92,10 +115,17 @@ def read_driver(path: str | os.PathLike[str], *,
             f"use one of {', '.join(DRIVER_EXTENSIONS)}")
     if frame_rate is not None and not (frame_rate > 0 and frame_rate < float("inf")):
         raise WigglyInputError(f"frame_rate = {frame_rate!r} must be a number > 0")
+    scale = positive_number(scale, "scale", "metres per unit of the driver file")
+    if up not in UP_AXES:
+        raise WigglyInputError(f"up = {up!r} is not an up axis; use one of {', '.join(UP_AXES)}")
+    if (scale != 1.0 or up != "y") and ext not in UNIT_FREE:
+        raise WigglyInputError(
+            f"{path}: scale and up apply to OBJ sequences and .npz drivers only; "
+            f"{UNIT_FREE_NOTE}")
     if ext == ".obj":
         from wiggly.drive.sequence import read_obj_sequence
 
-        return read_obj_sequence(path, frame_rate=frame_rate)
+        return _in_metres(read_obj_sequence(path, frame_rate=frame_rate), scale, up)
     if not path.is_file():
         raise WigglyInputError(f"cannot read the driver {path}: "
                                f"{'it is a directory' if path.is_dir() else 'no such file'}")
@@ -106,7 +136,7 @@ def read_driver(path: str | os.PathLike[str], *,
     if ext == ".npz":
         from wiggly.drive.sequence import read_npz
 
-        return read_npz(path)
+        return _in_metres(read_npz(path), scale, up)
     from wiggly.drive.usd import read_usd
 
     return read_usd(path, object=object)

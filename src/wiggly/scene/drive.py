@@ -13,6 +13,8 @@ import numpy as np
 
 from wiggly.drive import (
     DRIVE_STIFFNESS,
+    UNIT_FREE,
+    UNIT_FREE_NOTE,
     Driver,
     driven_keyframes,
     driver_poses,
@@ -60,10 +62,13 @@ def check_drive(scene: Scene, p: Problems) -> None:
     ext = Path(drive.path).suffix.lower()
     for key, formats, what in (("animation", _GLTF, "glTF"), ("object", _GLTF + _USD,
                                                                "glTF and USD"),
-                               ("frame_rate", (".obj",), "OBJ sequence")):
+                               ("frame_rate", (".obj",), "OBJ sequence"),
+                               ("scale", UNIT_FREE, "OBJ-sequence and npz"),
+                               ("up_axis", UNIT_FREE, "OBJ-sequence and npz")):
         if getattr(drive, key) is not None and ext not in formats:
+            why = f" ({UNIT_FREE_NOTE})" if formats is UNIT_FREE else ""
             p.add(f"drive.{key} = {show(getattr(drive, key))} applies to {what} drivers only; "
-                  f"drive.path = {show(drive.path)} is not one")
+                  f"drive.path = {show(drive.path)} is not one{why}")
 
 
 def _span_hint(scene: Scene) -> str:
@@ -124,7 +129,8 @@ def scene_driver(scene: Scene) -> Driver:
         raise WigglyInputError(f"{scene.where()}: the scene has no [drive]")
     path = scene.resolve(drive.path)
     rate = drive.frame_rate if drive.frame_rate is not None else scene.time.fps
-    key = (str(path), _stamp(path), drive.animation, drive.object, rate)
+    key = (str(path), _stamp(path), drive.animation, drive.object, rate, drive.metres_per_unit,
+           drive.up)
     with _LOCK:
         kept = _DRIVERS.peek(key)
         if kept is not None:
@@ -133,7 +139,7 @@ def scene_driver(scene: Scene) -> Driver:
     try:
         with activity(f"reading the driver {path.name}"):
             driver = read_driver(path, animation=drive.animation, object=drive.object,
-                                 frame_rate=rate)
+                                 frame_rate=rate, scale=drive.metres_per_unit, up=drive.up)
     except WigglyInputError as err:
         # a clip the file lacks is drive.animation's mistake, not the file's
         key_at_fault = (f"drive.animation = {show(drive.animation)}"
@@ -173,12 +179,19 @@ def _warn_up_axes(scene: Scene, rest: np.ndarray, posed: np.ndarray, mesh: str) 
     if turn <= UP_TURN:
         return
     mesh_z_up = float(R.apply([0.0, 0.0, 1.0]) @ y) > 0.7  # the mesh's z is the driver's up
+    unit_free = Path(scene.drive.path).suffix.lower() in UNIT_FREE
     if mesh_z_up and scene.mesh.up == "y":
         remedy = 'the mesh file looks Z-up: set mesh.up_axis = "z"'
-    elif scene.mesh.up == "z":
-        remedy = ("mesh.up_axis turns the mesh only, and the driver looks Z-up: a driver read "
-                  "as it is (an OBJ sequence, an npz) must be y up (glTF and USD drivers are "
-                  "turned by their readers), so export it y up")
+    elif scene.mesh.up == "z" and unit_free and scene.drive.up == "y":
+        remedy = ('mesh.up_axis turns the mesh only, and the driver looks Z-up: set '
+                  'drive.up_axis = "z" as well')
+    elif scene.mesh.up == "z" and not unit_free:
+        remedy = ("mesh.up_axis turns the mesh only, and the driver looks Z-up although its "
+                  "reader turns it to y up by its format's rules: export it from the same "
+                  "object as the mesh")
+    elif scene.drive.up == "z":
+        remedy = ('drive.up_axis = "z" turns the driver: leave it out if the driver file is '
+                  "y up")
     else:
         remedy = ("export the mesh and the driver with the same up axis (y, or mesh.up_axis = "
                   '"z" for a Z-up mesh)')
@@ -210,9 +223,18 @@ def _units_remedy(scene: Scene, ratio: float, size: float) -> str:
         return (f"mesh.scale = {scale:g} makes the mesh {1 / scale:g} times "
                 f"{'smaller' if scale < 1 else 'larger'} than its file: leave it out if the "
                 "file is in metres, as the driver is")
+    unit_free = Path(scene.drive.path).suffix.lower() in UNIT_FREE
+    drive_scale = scene.drive.metres_per_unit
+    if unit_free and drive_scale != 1.0 and abs(math.log10(factor / drive_scale)) < 0.05:
+        return (f"drive.scale = {drive_scale:g} makes the driver {1 / drive_scale:g} times "
+                f"{'smaller' if drive_scale < 1 else 'larger'} than its files: leave it out if "
+                "they are in metres, as the mesh is")
     if not PLAUSIBLE_SIZE[0] <= size <= PLAUSIBLE_SIZE[1]:
         return (f"the mesh, {size:.3g} m across, is likely in other units: set mesh.scale = "
                 f"{factor * scene.mesh.metres_per_unit:g}")
+    if unit_free:
+        return (f"the driver is likely in other units: set drive.scale = "
+                f"{drive_scale / factor:g}")
     return f"the driver is likely in other units: export it in metres{usd_note}"
 
 

@@ -214,7 +214,15 @@ _DRIVE = Table(
                            "which meshes are read, by path or name (default: every mesh)"),
      "frame_rate": Number(gt=0.0, le=MAX_FPS, unit="frames/s",
                            doc="OBJ sequences without wiggly's # time comments: frame N is at "
-                               "N / frame_rate s (default: time.fps)")},
+                               "N / frame_rate s (default: time.fps)"),
+     "scale": Number(gt=0.0, le=1e6,
+                     doc="OBJ sequences and npz: metres per unit of the driver files (0.01 "
+                         "for centimetres; default 1), as mesh.scale is for the mesh; glTF "
+                         "and USD drivers carry their own units"),
+     "up_axis": String(enum=UP_AXES,
+                       doc='OBJ sequences and npz: the driver files\' up axis, "y" (default) '
+                           'or "z" (turned to y up when read), as mesh.up_axis is for the '
+                           "mesh; glTF and USD drivers carry their own axes")},
     required=("path", "group"), check=_check_drive_range, make=lambda d: DriveSpec(**d),
     doc="secondary motion on an existing animation: a driver animation of the surface moves "
         "the driven group; the rest moves freely, driven by physics")

@@ -266,11 +266,13 @@ class DriveSpec:
     (:mod:`wiggly.drive`).  Driver time t plays at shot time t + ``offset``; only frames with
     driver time in ``range`` (inclusive) are keyed.  ``animation`` picks a glTF animation
     (name or index), ``object`` the glTF mesh node / USD prim to read, ``frame_rate`` times an
-    OBJ sequence without time comments (default: ``time.fps``).  ``physics = "secondary"``
-    (default) makes the driver a moving rest state and moves the free parts by physics
-    (:func:`wiggly.drive.secondary_motion`, with ``free_modes`` and ``intensity``);
-    ``physics = "keys"`` keys the driven group at every frame instead, with ``stiffness``,
-    and ``enrich`` adds the driver's shapes to the modal basis (:func:`wiggly.drive.enrich`)."""
+    OBJ sequence without time comments (default: ``time.fps``), ``scale`` and ``up_axis``
+    bring an OBJ sequence or an npz in other units or axes to metres, y up.
+    ``physics = "secondary"`` (default) makes the driver a moving rest state and moves the
+    free parts by physics (:func:`wiggly.drive.secondary_motion`, with ``free_modes`` and
+    ``intensity``); ``physics = "keys"`` keys the driven group at every frame instead, with
+    ``stiffness``, and ``enrich`` adds the driver's shapes to the modal basis
+    (:func:`wiggly.drive.enrich`)."""
 
     path: str
     group: str | tuple[str, ...]
@@ -284,6 +286,18 @@ class DriveSpec:
     physics: str = "secondary"
     free_modes: int = 24
     intensity: float = 1.0
+    scale: float | None = None  # OBJ sequences and npz: metres per unit of the file; None: 1
+    up_axis: str | None = None  # OBJ sequences and npz: the file's up axis; None: "y"
+
+    @property
+    def metres_per_unit(self) -> float:
+        """What the driver file's coordinates are multiplied by (``scale``, default 1)."""
+        return 1.0 if self.scale is None else self.scale
+
+    @property
+    def up(self) -> str:
+        """The driver file's up axis (``up_axis``, default "y")."""
+        return self.up_axis or "y"
 
     def __post_init__(self) -> None:
         if not isinstance(self.group, str):
