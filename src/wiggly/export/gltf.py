@@ -3,8 +3,11 @@ weights animation."""
 
 from __future__ import annotations
 
+import struct
 import warnings
+from collections.abc import Callable
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
@@ -29,77 +32,121 @@ _GL_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 51
 _GL_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 
 
+class _Chunk:
+    """The GLB's binary chunk, laid out before it is written: each buffer view gets its
+    4-byte aligned offset now and its bytes from ``write`` later, so that a long animation is
+    streamed to the file frame by frame instead of held in memory as one blob."""
+
+    def __init__(self) -> None:
+        self.length = 0
+        self.parts: list[tuple[int, Callable[[BinaryIO], None]]] = []
+
+    def add(self, nbytes: int, write: Callable[[BinaryIO], None]) -> int:
+        """Reserve ``nbytes`` at the next aligned offset (returned) for ``write``."""
+        offset = self.length
+        self.parts.append((nbytes, write))
+        self.length += nbytes + (-nbytes % 4)
+        return offset
+
+    def write(self, f: BinaryIO) -> None:
+        for nbytes, write in self.parts:
+            start = f.tell()
+            write(f)
+            assert f.tell() - start == nbytes, "a view wrote other than its length"
+            f.write(b"\0" * (-nbytes % 4))
+
+
+def _write_array(data: np.ndarray) -> Callable[[BinaryIO], None]:
+    return lambda f: f.write(memoryview(np.ascontiguousarray(data)).cast("B"))
+
+
 def write_glb(path: Path, anim: SurfaceAnimation, *,
               frame_start: int | None = None, targets: str = "frames") -> None:
     gl = format_library("pygltflib", "pygltflib", ".glb")
 
     F, n = anim.n_frames, anim.n_vertices
     frame_normals = FrameNormals(anim)
-    P = anim.positions.astype(np.float32)
     rest = anim.positions[0] if anim.rest is None else anim.rest
     base_p = rest.astype(np.float32)
     base_n = (anim.normals if anim.normals is not None else frame_normals(rest))
     base_n = base_n.astype(np.float32)
+    chunk = _Chunk()
     if targets == "modes":
         dP, dN, weights, names = _modal_targets(anim, frame_normals, base_n)
+        n_targets = len(dP)
+        bounds = [(d.min(axis=0), d.max(axis=0)) for d in dP]
+        write_dp, write_dn = _write_array(dP), _write_array(dN)
     else:
-        dP = P - base_p
-        dN = np.empty_like(dP)
-        for k in frame_progress(range(F), F, path):
-            dN[k] = frame_normals(anim.positions[k]).astype(np.float32) - base_n
+        def delta(k: int) -> np.ndarray:  # frame k's position target, float32 as written
+            return anim.positions[k].astype(np.float32) - base_p
+
+        bounds = [(d.min(axis=0), d.max(axis=0)) for d in map(delta, range(F))]
+
+        def write_dp(f: BinaryIO) -> None:
+            for k in range(F):
+                f.write(memoryview(delta(k)).cast("B"))
+
+        def write_dn(f: BinaryIO) -> None:  # the normals: the slow part, counted
+            for k in frame_progress(range(F), F, path):
+                dn = frame_normals(anim.positions[k]).astype(np.float32) - base_n
+                f.write(memoryview(np.ascontiguousarray(dn)).cast("B"))
+
+        n_targets = F
         weights = np.eye(F, dtype=np.float32)  # keyframe k: weight 1 on target k
         names = [f"frame_{k:04d}" for k in range(F)]
-    n_targets = len(dP)
     t32 = gltf_times(anim.times, frame_start, anim.loop)
     index_type = _GL_UNSIGNED_SHORT if n <= 65535 else _GL_UNSIGNED_INT
 
-    blob = bytearray()
     views, accessors = [], []
 
-    def add_view(data: np.ndarray, target=None, stride=None) -> int:
-        blob.extend(b"\0" * (-len(blob) % 4))
-        views.append(gl.BufferView(buffer=0, byteOffset=len(blob), byteLength=data.nbytes,
-                                   target=target, byteStride=stride))
-        blob.extend(data.tobytes())
-        blob.extend(b"\0" * (-len(blob) % 4))
+    def add_view(nbytes: int, write, target=None, stride=None) -> int:
+        views.append(gl.BufferView(buffer=0, byteOffset=chunk.add(nbytes, write),
+                                   byteLength=nbytes, target=target, byteStride=stride))
         return len(views) - 1
 
-    def add_accessor(view, data, ctype, kind, offset=0, bounds=False) -> int:
+    def add_data(data: np.ndarray, target=None) -> int:
+        return add_view(data.nbytes, _write_array(data), target)
+
+    def add_accessor(view, count, ctype, kind, offset=0, bounds=None) -> int:
         acc = gl.Accessor(bufferView=view, byteOffset=offset, componentType=ctype,
-                          count=len(data), type=kind)
-        if bounds:
-            acc.min = np.atleast_1d(data.min(axis=0)).astype(float).tolist()
-            acc.max = np.atleast_1d(data.max(axis=0)).astype(float).tolist()
+                          count=count, type=kind)
+        if bounds is not None:
+            acc.min = np.atleast_1d(bounds[0]).astype(float).tolist()
+            acc.max = np.atleast_1d(bounds[1]).astype(float).tolist()
         accessors.append(acc)
         return len(accessors) - 1
+
+    def extent(data: np.ndarray) -> tuple:
+        return data.min(axis=0), data.max(axis=0)
 
     indices = anim.faces.ravel().astype(np.uint16 if index_type == _GL_UNSIGNED_SHORT
                                          else np.uint32)
     attributes = gl.Attributes(
-        POSITION=add_accessor(add_view(base_p, _GL_ARRAY_BUFFER), base_p, _GL_FLOAT, "VEC3",
-                              bounds=True),
-        NORMAL=add_accessor(add_view(base_n, _GL_ARRAY_BUFFER), base_n, _GL_FLOAT, "VEC3"),
+        POSITION=add_accessor(add_data(base_p, _GL_ARRAY_BUFFER), n, _GL_FLOAT, "VEC3",
+                              bounds=extent(base_p)),
+        NORMAL=add_accessor(add_data(base_n, _GL_ARRAY_BUFFER), n, _GL_FLOAT, "VEC3"),
     )
     if anim.uvs is not None:
         st = np.column_stack([anim.uvs[:, 0], 1.0 - anim.uvs[:, 1]]).astype(np.float32)
-        attributes.TEXCOORD_0 = add_accessor(add_view(st, _GL_ARRAY_BUFFER), st, _GL_FLOAT,
+        attributes.TEXCOORD_0 = add_accessor(add_data(st, _GL_ARRAY_BUFFER), n, _GL_FLOAT,
                                              "VEC2")
-    index_accessor = add_accessor(add_view(indices, _GL_ELEMENT_ARRAY_BUFFER), indices,
-                                  index_type, "SCALAR", bounds=True)
+    index_accessor = add_accessor(add_data(indices, _GL_ELEMENT_ARRAY_BUFFER), len(indices),
+                                  index_type, "SCALAR", bounds=extent(indices))
     # All position deltas in one strided view, all normal deltas in another.
-    view_dp = add_view(dP, _GL_ARRAY_BUFFER, stride=12)
-    view_dn = add_view(dN, _GL_ARRAY_BUFFER, stride=12)
+    view_dp = add_view(n_targets * n * 12, write_dp, _GL_ARRAY_BUFFER, stride=12)
+    view_dn = add_view(n_targets * n * 12, write_dn, _GL_ARRAY_BUFFER, stride=12)
     morph = [
         gl.Attributes(
-            POSITION=add_accessor(view_dp, dP[k], _GL_FLOAT, "VEC3", offset=k * n * 12,
-                                  bounds=True),
-            NORMAL=add_accessor(view_dn, dN[k], _GL_FLOAT, "VEC3", offset=k * n * 12),
+            POSITION=add_accessor(view_dp, n, _GL_FLOAT, "VEC3", offset=k * n * 12,
+                                  bounds=bounds[k]),
+            NORMAL=add_accessor(view_dn, n, _GL_FLOAT, "VEC3", offset=k * n * 12),
         )
         for k in range(n_targets)
     ]
-    time_accessor = add_accessor(add_view(t32), t32, _GL_FLOAT, "SCALAR", bounds=True)
+    time_accessor = add_accessor(add_data(t32), len(t32), _GL_FLOAT, "SCALAR",
+                                 bounds=extent(t32))
     flat = weights.astype(np.float32).ravel()
-    weight_accessor = add_accessor(add_view(flat), flat, _GL_FLOAT, "SCALAR")
+    weight_accessor = add_accessor(add_data(flat), len(flat), _GL_FLOAT, "SCALAR")
     extras = {"format_version": FORMAT_VERSION, "times": anim.times.tolist(),
               "targets": targets, "loop": bool(anim.loop)}
     if frame_start is not None:
@@ -127,10 +174,16 @@ def write_glb(path: Path, anim: SurfaceAnimation, *,
         )],
         accessors=accessors,
         bufferViews=views,
-        buffers=[gl.Buffer(byteLength=len(blob))],
+        buffers=[gl.Buffer(byteLength=chunk.length)],
     )
-    gltf.set_binary_blob(bytes(blob))
-    gltf.save_binary(str(path))
+    text = gltf.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8")
+    text += b" " * (-len(text) % 4)  # the binary chunk's data starts 4-byte aligned
+    with open(path, "wb") as f:  # GLB: header, JSON chunk, BIN chunk (glTF 2.0, sec. 4.4)
+        f.write(struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(text) + 8 + chunk.length))
+        f.write(struct.pack("<I4s", len(text), b"JSON") + text)
+        f.write(struct.pack("<I4s", chunk.length, b"BIN\0"))
+        chunk.write(f)
+        assert f.tell() == 12 + 8 + len(text) + 8 + chunk.length
 
 
 def _modal_targets(anim: SurfaceAnimation, frame_normals: FrameNormals, base_n: np.ndarray
