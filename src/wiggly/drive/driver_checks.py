@@ -91,25 +91,29 @@ def warn_seam(driver: Driver, driven: np.ndarray, *, start: float, end: float,
 
 
 #: A driver step between two frames is called a cut when its driven vertices move further
-#: than CUT_STEPS times the median step and more than CUT_SIZE of the body's size.
+#: than CUT_STEPS times the steps on either side of it (and the median step), and more than
+#: CUT_SIZE of the body's size.
 CUT_STEPS, CUT_SIZE = 8.0, 0.05
 
 
 def warn_cuts(source: str, P: np.ndarray, times: np.ndarray, body: Body) -> None:
     """Warn when the driver jumps between two frames (a cut, a teleport): the C2 spline
     through the frames (:class:`wiggly.drive.secondary.FrameSpline`) swings before and after
-    such a jump, and the body then moves before the driver does.  ``P``: the driven vertices
-    at the frames (F, g, 3)."""
+    such a jump, and the body then moves before the driver does.  A jump is one step far
+    larger than the steps beside it: a fast move over a few frames between holds (a turn in
+    half a second) is none.  ``P``: the driven vertices at the frames (F, g, 3)."""
     if len(P) < 3:
         return
     step = np.linalg.norm(np.diff(P, axis=0), axis=2).max(axis=1)
     size, typical = diagonal(body.surface.vertices), float(np.median(step))
-    cuts = np.flatnonzero((step > CUT_STEPS * typical) & (step > CUT_SIZE * size))
+    beside = np.maximum(np.r_[0.0, step[:-1]], np.r_[step[1:], 0.0])
+    around = np.maximum(beside, typical)
+    cuts = np.flatnonzero((step > CUT_STEPS * around) & (step > CUT_SIZE * size))
     if not len(cuts):
         return
     k = int(cuts[np.argmax(step[cuts])])
-    than = (f"{step[k] / typical:.0f} times a typical frame's move" if typical > 1e-9 * size
-            else "most of its frames hold still")
+    than = (f"{step[k] / around[k]:.0f} times the steps beside it" if around[k] > 1e-9 * size
+            else "the frames beside it hold still")
     more = f", and at {len(cuts) - 1} more steps" if len(cuts) > 1 else ""
     warnings.warn(
         f"the driver {source} jumps: its driven vertices move {step[k]:.3g} m between "
