@@ -154,6 +154,11 @@ def test_driven_by_armature_equals_wiggly_animate(blender_python, tmp_path):
     # and then the free end follows the armature nearly rigidly (the docs' words)
     held = tomllib.loads((tmp_path / "shot.toml").read_text())["drive"]
     assert held["physics"] == "secondary" and "stiffness" not in held
+    assert (held["intensity"], held["free_modes"]) == (1.0, 24)  # the panel's defaults
+    # the panel's Intensity and Free modes reach the scene
+    assert seen["export_half"]["result"] == ["FINISHED"]
+    half = tomllib.loads((tmp_path / "shot_half.toml").read_text())["drive"]
+    assert (half["intensity"], half["free_modes"]) == (0.5, 12)
     assert seen["export_keys"]["result"] == ["FINISHED"]
     keyed = tomllib.loads((tmp_path / "shot_keys.toml").read_text())["drive"]
     assert keyed["physics"] == "keys" and keyed["stiffness"] == 1e12
@@ -198,7 +203,10 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
     assert errors.pop("plain") == [
         "the mesh is 52 m across",
         "1 keyframe missed (key 1 (group 'tip', t = 0.5 s) by 3 mm): raise Young's modulus, or "
-        "lower the scene's Gravity; Resolution"]
+        "lower the scene's Gravity; Resolution",
+        "the animation jumps: its driven vertices move 0.3 m",
+        "[wiggly] secondary motion on the animation (24 modes of the free parts)",
+        "the bake", "a larger driven group or a lower Intensity may help"]
     faint = [w for w in errors.pop("faint weights") if "weights below 0.1" in w]
     assert len(faint) == 1 and "Object 'Bar', group 'middle':" in faint[0], faint
     assert "takes every vertex of weight above 0 in full" in faint[0], faint

@@ -67,6 +67,9 @@ class WIGGLY_PT_main(_WigglyPanel, bpy.types.Panel):
                 box.prop(s, "drive_physics")
                 if s.drive_physics == "KEYS":
                     box.prop(s, "drive_stiffness")
+                else:
+                    box.prop(s, "drive_intensity")
+                    box.prop(s, "drive_free_modes")
 
 
 class WIGGLY_PT_material(_WigglyPanel, bpy.types.Panel):

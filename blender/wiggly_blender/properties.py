@@ -124,6 +124,15 @@ class WigglySettings(bpy.types.PropertyGroup):
                ("KEYS", "Keys", "The Driven group is keyed to the animation at every frame "
                 "(Drive stiffness) and the whole body minimises the spacetime energy")],
         default="SECONDARY")
+    drive_intensity: FloatProperty(
+        name="Intensity", default=1.0, min=0.0, max=100.0, soft_max=2.0,
+        description="Secondary motion: scales the animation's push on the free parts without "
+                    "changing their timing (1 physical, 0 carried along rigidly, 2 twice the "
+                    "swing)")
+    drive_free_modes: IntProperty(
+        name="Free modes", default=24, min=1, max=500,
+        description="Secondary motion: modes of the free parts with the Driven group held "
+                    "(more: finer wiggles, slower)")
     drive_stiffness: FloatProperty(
         name="Drive stiffness", default=1e12, min=0.0, soft_min=1.0,
         description="Keys physics: how hard the driven group follows the object's own "

@@ -242,10 +242,11 @@ def gather(context, obj) -> Shot:
     finally:
         scene.frame_set(frame[0], subframe=frame[1])
     settings = {k: getattr(s, k) for k in ("modes", "resolution", "warp", "loop",
-                                            "drive_physics")}
+                                            "drive_physics", "drive_free_modes")}
     # Blender keeps float properties in single precision: 0.45 reads 0.44999998807907104
     settings.update({k: _single(getattr(s, k)) for k in ("young", "poisson", "density",
-                                                          "alpha", "beta", "drive_stiffness")})
+                                                          "alpha", "beta", "drive_stiffness",
+                                                          "drive_intensity")})
     # Blender's gravity is in its units per second squared (the Gravity field shows it
     # times the unit scale, in m/s^2): the same scale as the positions
     gravity = (unit * Y_UP @ np.array(scene.gravity, np.float64) if scene.use_gravity
@@ -538,6 +539,9 @@ def scene_toml(shot: Shot, mesh_file: str, driver_file: str | None,
                  "physics": s["drive_physics"].lower()}
         if drive["physics"] == "keys":
             drive["stiffness"] = s["drive_stiffness"]
+        else:
+            drive["intensity"] = s["drive_intensity"]
+            drive["free_modes"] = s["drive_free_modes"]
         parts.append(_table("drive", drive))
     parts.append(_table("output", {"paths": outputs, "frame_start": shot.frame_start}))
     return "\n".join(parts)

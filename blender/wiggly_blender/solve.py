@@ -43,7 +43,8 @@ PANEL_NAMES = (
     (r"\bsimulation\.warp\b", "Warp"),
     (r"\bmesh\.resolution\b", "Resolution"),
     (r"\bdrive\.stiffness\b", "Drive stiffness"),
-    (r"\bdrive\.intensity\b", "the drive's intensity (drive.intensity of an exported scene)"),
+    (r"\bdrive\.intensity\b", "Intensity"),
+    (r"\bdrive\.free_modes\b", "Free modes"),
     (r"\bkeyframes\[(\d+)\]", r"key \1"),
 )
 
@@ -102,6 +103,13 @@ class Solve:
             text = text.replace(internal, "")
         for name in (f"{self.folder}{os.sep}{mesh}", mesh):
             text = text.replace(name, "the mesh")
+        driver = self.files.get("driver")
+        if driver is not None:  # the object's own animation, which the add-on wrote
+            for name in (f"{self.folder}{os.sep}{driver.name}", driver.name):
+                text = text.replace(f"the driver {name}", "the animation")
+                text = text.replace(name, "the animation")
+        for name in (f"{self.folder}{os.sep}{self.result.name}", self.result.name):
+            text = text.replace(name, "the bake")
         for key, label in PANEL_NAMES:
             text = re.sub(key, label, text)
         return text.replace(f"{self.folder}{os.sep}", "")
