@@ -320,6 +320,11 @@ def test_what_animators_also_do(blender_python, tmp_path):
         "result"][1]
     scene = tomllib.loads(seen["centimetres"])  # unit scale 0.01: -9.81 BU/s^2 is 0.0981 m/s^2
     assert scene["simulation"]["gravity"] == [0.0, pytest.approx(-0.0981, rel=1e-6), 0.0]
+    # which is said, with the value that is Earth's in these units
+    assert "the scene's Gravity is 0.0981 m/s^2 (9.81 at unit scale 0.01)" in seen[
+        "centimetres_export"]["printed"]
+    assert "Earth's gravity is 981 here" in seen["centimetres_export"]["printed"]
+    assert "Gravity is" not in seen["centimetres_earth"]["printed"]
     assert seen["keys_under_rig"]["result"][0] == "RuntimeError"
     assert "its modifiers 'Armature' move the vertices" in seen["keys_under_rig"]["result"][1]
     assert seen["edit_handle"]["result"] == ["FINISHED"]

@@ -136,6 +136,10 @@ def _members(mesh, indices: set[int]) -> tuple[dict[int, np.ndarray], dict[int, 
     return {i: np.array(idx, np.int64) for i, idx in out.items()}, faint
 
 
+#: Earth's gravity (m/s^2), for the unit-scale check of the scene's Gravity.
+EARTH = 9.81
+
+
 def gather(context, obj) -> Shot:
     """The shot of mesh object ``obj`` over the scene's frame range; raises ShotError."""
     scene = context.scene
@@ -251,6 +255,13 @@ def gather(context, obj) -> Shot:
     # times the unit scale, in m/s^2): the same scale as the positions
     gravity = (unit * Y_UP @ np.array(scene.gravity, np.float64) if scene.use_gravity
                else np.zeros(3))
+    g = float(np.linalg.norm(gravity))
+    if scene.use_gravity and unit != 1.0 and not 0.5 * EARTH <= g <= 2.0 * EARTH:
+        warnings.append(
+            f"the scene's Gravity is {g:.3g} m/s^2 ({np.linalg.norm(scene.gravity):g} at unit "
+            f"scale {unit:g}): Blender's Gravity field is in scene units per second squared, "
+            f"so Earth's gravity is {EARTH / unit:.4g} here; set it so (or turn Gravity off) "
+            "unless this gravity is meant")
     settings["gravity"] = [_single(g) + 0.0 for g in gravity]
     return Shot(obj.name, rest, tris, groups, labels, keyframes, fixed, driven, driver, fs, fe,
                 fps, settings, np.linalg.inv(to_wiggly), warnings)

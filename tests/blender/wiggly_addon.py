@@ -683,8 +683,12 @@ def case_sweep() -> None:
     report["no_path"] = run(bpy.ops.wiggly.export_scene, filepath="")
     report["relative_unsaved"] = run(bpy.ops.wiggly.export_scene, filepath="//x.toml")
     scene.unit_settings.scale_length = 0.01
-    run(bpy.ops.wiggly.export_scene, filepath=str(workdir / "centimetres.toml"))
+    report["centimetres_export"] = run(bpy.ops.wiggly.export_scene,
+                                       filepath=str(workdir / "centimetres.toml"))
     report["centimetres"] = (workdir / "centimetres.toml").read_text()
+    scene.gravity = (0.0, 0.0, -981.0)
+    report["centimetres_earth"] = run(bpy.ops.wiggly.export_scene,
+                                      filepath=str(workdir / "centimetres_earth.toml"))
 
     fresh(24, 1.0, (1, 13))
     obj, _ = armature_bar()
