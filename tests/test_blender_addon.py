@@ -178,7 +178,10 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
         "unkeyed handle": ("group 'left end.001': its handle 'left end.001 handle' has no "
                            "keyframes in frames 1-13",),
         "unsupported modifier": ("Object 'Tail': modifier 'Armature' (armature) comes after "
-                                 "'Subdivision' (subsurf)",),
+                                 "'Subdivision' (subsurf)", "move 'Subdivision' below it"),
+        # moving a Mirror below the rig would copy the modelled half's deformation: apply it
+        "mirror above the rig": ("modifier 'Armature' (armature) comes after 'Mirror' (mirror)",
+                                 "apply 'Mirror' (its copies would copy the deformation"),
         "driver vertex count": ("Object 'Tail', driven group 'body': its animation has",
                                 "vertices at frame 1 but the mesh has"),
         "no wiggly command": ("the wiggly command", "was not found", "Preferences"),

@@ -430,11 +430,14 @@ def driver_modifiers(obj) -> tuple[list, list]:
         elif generating is not None:
             if mod.type in DEFORMING and mod.show_viewport and mod.type not in (
                     "NORMAL_EDIT", "WEIGHTED_NORMAL", "UV_PROJECT", "UV_WARP"):
+                remedy = (f"apply '{generating.name}' (its copies would copy the deformation "
+                          "of the modelled part if it were moved below, legs walking in "
+                          "step)" if generating.type in COPYING else
+                          f"move '{generating.name}' below it, or apply it")
                 raise ShotError(
                     f"Object '{obj.name}': modifier '{mod.name}' ({mod.type.lower()}) comes "
                     f"after '{generating.name}' ({generating.type.lower()}), which changes "
-                    "the vertices; the driver must animate the mesh's own vertices: move "
-                    f"'{generating.name}' below it, or apply it")
+                    f"the vertices; the driver must animate the mesh's own vertices: {remedy}")
             off.append(mod)
         elif mod.type in DRIVER_STACK:
             keep.append(mod)
