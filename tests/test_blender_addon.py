@@ -150,6 +150,9 @@ def test_driven_by_armature_equals_wiggly_animate(blender_python, tmp_path):
     assert np.abs(baked[:, free] - original[:, free]).max() > 5e-3 * size
     assert seen["shape_keys"]["result"][0] == "RuntimeError"
     assert "a driven bake cannot be shape keys" in seen["shape_keys"]["printed"]
+    # baked: fresh, also after playback; a new rig key: out of date; the bake removed:
+    # nothing is; baked again: fresh; Young's modulus changed: out of date; changed back: fresh
+    assert seen["outdated"] == [False, False, True, False, False, True, False]
     # Drive physics: the default holds the group on the animation; Keys keys it stiffly,
     # and then the free end follows the armature nearly rigidly (the docs' words)
     held = tomllib.loads((tmp_path / "shot.toml").read_text())["drive"]

@@ -67,6 +67,10 @@ def write_pc2(path: Path, local: np.ndarray, frame_start: int) -> None:
 def remove_bake(obj) -> int:
     """Remove wiggly's bake from ``obj`` (modifier, shape keys and their F-curves); the count
     of things removed."""
+    from .freshness import FINGERPRINT
+
+    if FINGERPRINT in obj:
+        del obj[FINGERPRINT]
     gone = 0
     for mod in [m for m in obj.modifiers if m.type == "MESH_CACHE" and m.name == BAKE_NAME]:
         obj.modifiers.remove(mod)

@@ -12,7 +12,7 @@ import numpy as np
 from bpy.props import BoolProperty, StringProperty
 from bpy_extras.io_utils import ExportHelper
 
-from . import bake
+from . import bake, freshness
 from .shot import ShotError, gather, write_shot
 from .solve import Solve
 
@@ -68,6 +68,7 @@ class WIGGLY_OT_bake(bpy.types.Operator):
         t = time.perf_counter()
         try:
             self.shot = gather(context, self.obj)
+            self.inputs = freshness.fingerprint(context.scene, self.obj)
             self.times["gather"] = time.perf_counter() - t
             if self.obj.wiggly.bake_as == "MESH_CACHE":
                 bake.cache_path(self.obj)  # a cache folder that cannot be, before the solve
@@ -120,6 +121,7 @@ class WIGGLY_OT_bake(bpy.types.Operator):
                 where = "shape keys"
             else:
                 where = str(bake.bake_mesh_cache(self.obj, self.shot, local))
+            self.obj[freshness.FINGERPRINT] = self.inputs  # what this bake was made from
             self.times["bake"] = time.perf_counter() - t
         except ShotError as e:
             self.report({"ERROR"}, str(e))

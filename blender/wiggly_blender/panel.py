@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import bpy
 
+from . import freshness
 from .operators import _running
 
 
@@ -105,6 +106,9 @@ class WIGGLY_PT_bake(_WigglyPanel, bpy.types.Panel):
         s = context.active_object.wiggly
         layout = self.layout
         layout.use_property_split = True
+        if freshness.outdated(context.scene, context.active_object):
+            layout.label(text="Out of date: the animation or settings changed since the bake",
+                         icon="ERROR")
         layout.prop(s, "bake_as")
         if s.bake_as == "MESH_CACHE":
             layout.prop(s, "cache_dir")

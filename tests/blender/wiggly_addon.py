@@ -25,7 +25,7 @@ from rigs import two_bone_rig  # beside this script
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "blender"))
 import wiggly_blender  # noqa: E402
-from wiggly_blender import bake, shot  # noqa: E402
+from wiggly_blender import bake, freshness, shot  # noqa: E402
 
 case, out, command, workdir = sys.argv[1:5]
 options = json.loads(Path(sys.argv[5]).read_text()) if len(sys.argv) > 5 else {}
@@ -216,7 +216,7 @@ def armature_bar():
 
 def case_driven() -> None:
     scene = fresh(24, 1.0, tuple(options["frames"]))
-    obj, _ = armature_bar()
+    obj, rig = armature_bar()
     use_group(obj, "body", "DRIVEN")
     s = obj.wiggly
     s.modes, s.resolution, s.young = 16, 10, 5e4
@@ -227,6 +227,24 @@ def case_driven() -> None:
     report["modifiers"] = [(m.name, m.type) for m in obj.modifiers]
     report["positions"] = evaluated(obj, range(scene.frame_start, scene.frame_end + 1))
     report["body"] = [v.index for v in obj.data.vertices if v.co.x < 0.7]
+    # the bake goes out of date when the animation or a setting changes, not on playback
+    fresh_now = [freshness.outdated(scene, obj)]
+    scene.frame_set(scene.frame_start + 3)
+    fresh_now.append(freshness.outdated(scene, obj))
+    tip = rig.pose.bones["tip"]
+    tip.rotation_euler = (0.0, math.radians(60.0), 0.0)
+    tip.keyframe_insert("rotation_euler", frame=scene.frame_start + 1)
+    fresh_now.append(freshness.outdated(scene, obj))
+    tip.keyframe_delete("rotation_euler", frame=scene.frame_start + 1)  # the animation as before
+    run(bpy.ops.wiggly.remove_bake)  # no bake: nothing out of date
+    fresh_now.append(freshness.outdated(scene, obj))
+    run(bpy.ops.wiggly.bake)  # baked again: fresh
+    fresh_now.append(freshness.outdated(scene, obj))
+    s.young *= 2
+    fresh_now.append(freshness.outdated(scene, obj))
+    s.young /= 2
+    fresh_now.append(freshness.outdated(scene, obj))
+    report["outdated"] = fresh_now
     s.bake_as = "SHAPE_KEYS"
     report["shape_keys"] = run(bpy.ops.wiggly.bake)
     s.drive_intensity, s.drive_free_modes = 0.5, 12
