@@ -70,12 +70,15 @@ def tripwires(monkeypatch):
     """Make fTetWild, the eigenmodes and the solve fail loudly if they are reached."""
     import pytetwild
 
+    from wiggly.mesh import tetwild_child
+
     def wire(what):
         def tripped(*args, **kwargs):
             raise AssertionError(f"expensive work started: {what}")
         return tripped
 
     monkeypatch.setattr(pytetwild, "tetrahedralize", wire("fTetWild"))
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", wire("fTetWild"))
     monkeypatch.setattr(wiggly.body, "compute_modes", wire("eigenmodes"))
     # the solve where the scene runner calls it
     monkeypatch.setattr(importlib.import_module("wiggly.scene.run"), "solve", wire("solve"))

@@ -703,10 +703,13 @@ def test_tet_count_estimate_bounds_fTetWild_and_inverts():
 def test_too_many_tets_are_refused_before_fTetWild_runs(monkeypatch):
     import pytetwild
 
+    from wiggly.mesh import tetwild_child
+
     def forbidden(*args, **kwargs):
         raise AssertionError("fTetWild ran")
 
     monkeypatch.setattr(pytetwild, "tetrahedralize", forbidden)
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", forbidden)
     V, F = icosphere(2)
     with pytest.raises(wiggly.mesh.TetBudgetError, match=r"resolution=190 would make about "
                        r"\S+ tetrahedra .* limit of 400000 .* use resolution <= (\d+)") as err:
@@ -719,16 +722,16 @@ def test_too_many_tets_are_refused_before_fTetWild_runs(monkeypatch):
 def test_a_fine_surface_is_simplified_before_fTetWild(monkeypatch):
     """An 82k-triangle sphere at 12 edges per diagonal: fTetWild gets a simplified envelope of
     a few hundred triangles; the tets still fill the sphere and embed its surface closely."""
-    import pytetwild
+    from wiggly.mesh import tetwild_child
 
     seen = []
-    original = pytetwild.tetrahedralize
+    original = tetwild_child.tetrahedralize_in_child
 
-    def spy(V, F, **kwargs):
+    def spy(V, F, options, on_line):
         seen.append(len(F))
-        return original(V, F, **kwargs)
+        return original(V, F, options, on_line)
 
-    monkeypatch.setattr(pytetwild, "tetrahedralize", spy)
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", spy)
     V, F = icosphere(6)
     assert len(F) == 81920
     mesh = tetrahedralize(Surface(V, F), resolution=12, cache_dir=False)
@@ -744,21 +747,21 @@ def test_processes_filling_one_surface_at_once_get_one_tet_mesh(tmp_path, monkey
     """fTetWild is not reproducible, so the tet cache is written once: a process that meshes
     a surface while another has just published its mesh of the same surface takes that one
     (the first writer wins), and its own result never replaces a cache entry."""
-    import pytetwild
+    from wiggly.mesh import tetwild_child
 
     V, F = icosphere(2)
     first = tetrahedralize(Surface(V, F), resolution=8, cache_dir=tmp_path)
     entry = next(tmp_path.rglob("*.npz"))
     published = entry.read_bytes()
-    original = pytetwild.tetrahedralize
+    original = tetwild_child.tetrahedralize_in_child
 
-    def racing(V, F, **kwargs):  # meanwhile, the other process's mesh appears in the cache
-        tv, tt = original(V, F, **kwargs)
+    def racing(V, F, options, on_line):  # meanwhile, the other's mesh appears in the cache
+        tv, tt = original(V, F, options, on_line)
         entry.write_bytes(published)
         return tv + 1e-3, tt  # and ours differs
 
     entry.unlink()
-    monkeypatch.setattr(pytetwild, "tetrahedralize", racing)
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", racing)
     second = tetrahedralize(Surface(V, F), resolution=8, cache_dir=tmp_path)
     assert entry.read_bytes() == published
     np.testing.assert_array_equal(second.vertices, first.vertices)

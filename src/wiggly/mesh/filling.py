@@ -36,7 +36,7 @@ from wiggly.mesh.defects import (
     diagonal,
 )
 from wiggly.mesh.validate import check_tet_mesh, checked_surface, refuse_defects
-from wiggly.progress import activity, deprecated_progress, reporting
+from wiggly.progress import Activity, activity, deprecated_progress, log, reporting
 
 # --------------------------------------------------------------------------- meshing
 
@@ -294,8 +294,6 @@ def tetrahedralize_with_report(
     V, F = used_only(V, F)
     info = {"edge_length": h, "estimate": estimate, "input_faces": len(F),
             "simplified": simple is not None}
-    import pytetwild
-
     envelope = float(np.clip(ENVELOPE_PER_EDGE * h / report.diagonal, 1e-3, 1e-2))
     cached = _tet_cache(V, F, h, envelope, cache_dir)
     tv = tt = None
@@ -313,16 +311,7 @@ def tetrahedralize_with_report(
         name = os.path.basename(source) or source  # as the checking line names it
         with activity(f"tetrahedralizing {name} (fTetWild: {what}, about "
                       f"{_round(estimate)} tets)") as line:
-            # in a child, the line ticks (the call holds the interpreter lock) and its log
-            # names the stages, on the line or every NOTE_EVERY seconds in the log
-            if (line.live or line.logged) and can_run_child():
-                tv, tt = tetwild_child.tetrahedralize_in_child(
-                    V, F, options, tetwild_child.Log(line, OPTIMIZATION_PASSES, STOP_ENERGY))
-            else:
-                with _scratch_cwd():
-                    tv, tt = pytetwild.tetrahedralize(
-                        np.ascontiguousarray(V), np.ascontiguousarray(F, dtype=np.int32),
-                        quiet=True, loglevel=6, **options)
+            tv, tt = _fill_surviving_crashes(V, F, options, line, source, h)
         if cached is not None and len(tt):
             try:  # first writer wins: every process then meshes this surface the same way
                 with atomic_file(cached, replace=False) as tmp, open(tmp, "wb") as f:
@@ -343,6 +332,50 @@ def tetrahedralize_with_report(
         )
     mesh = TetMesh(*used_only(np.asarray(tv, dtype=np.float64), tt))
     return check_tet_mesh(mesh, f"{source} (tetrahedralized)"), report, info
+
+
+#: fTetWild's smallest envelope (relative to the bounding-box diagonal) that wiggly asks for
+MIN_ENVELOPE = 1e-3
+
+
+def _fill(V: np.ndarray, F: np.ndarray, options: dict, line: Activity) -> tuple:
+    """fTetWild on (V, F): in a child process wherever one can be started, so that its crash
+    ends only the child (:class:`tetwild_child.MesherCrash`) and the line ticks meanwhile (the
+    call holds the interpreter lock); in-process only in hosts that cannot start a Python
+    child (Blender's binary)."""
+    if can_run_child():
+        return tetwild_child.tetrahedralize_in_child(
+            V, F, options, tetwild_child.Log(line, OPTIMIZATION_PASSES, STOP_ENERGY))
+    import pytetwild
+
+    with _scratch_cwd():
+        return pytetwild.tetrahedralize(
+            np.ascontiguousarray(V), np.ascontiguousarray(F, dtype=np.int32),
+            quiet=True, loglevel=6, **options)
+
+
+def _fill_surviving_crashes(V: np.ndarray, F: np.ndarray, options: dict, line: Activity,
+                            source: str, h: float) -> tuple:
+    """:func:`_fill`; if fTetWild crashes, once more with the smallest envelope (fTetWild
+    segfaults on long thin rods whose envelope is wider than the rod: a 2 m rod of 5 mm
+    diameter at resolutions 12 and 25 always did, and meshed in 3-7 s with the smallest
+    envelope), then a refusal that says what to try."""
+    try:
+        return _fill(V, F, options, line)
+    except tetwild_child.MesherCrash as crash:
+        first = crash
+    if options["epsilon"] > MIN_ENVELOPE:
+        log.info("%s: fTetWild crashed (signal %d) with an envelope of %.2g of the diagonal; "
+                 "retrying with %.2g", source, first.signal, options["epsilon"], MIN_ENVELOPE)
+        try:
+            return _fill(V, F, {**options, "epsilon": MIN_ENVELOPE}, line)
+        except tetwild_child.MesherCrash as crash:
+            first = crash
+    raise WigglyInputError(
+        f"{source}: the tetrahedralizer (fTetWild) crashed on this surface (signal "
+        f"{first.signal}), also with its tightest envelope; try another resolution or "
+        f"edge_length (now {h:.3g} m; thin parts mesh better with shorter edges), or "
+        "tetrahedralize it yourself and bring the tet mesh (.msh, .vtu).")
 
 
 def _round(x: float) -> str:
