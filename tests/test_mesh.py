@@ -653,6 +653,79 @@ def test_orientation_is_made_consistent_and_outward():
     assert signed_volume(V, inside_out.faces) == pytest.approx(signed_volume(V, F))
 
 
+def nested_spheres(*radii: float, inward: tuple[bool, ...] = ()
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Concentric icospheres (subdivision 4), the i-th facing inwards when ``inward[i]``."""
+    Vs, Fs, n = [], [], 0
+    for i, r in enumerate(radii):
+        V, F = icosphere(4, r)
+        Vs.append(V)
+        Fs.append((F[:, ::-1] if i < len(inward) and inward[i] else F) + n)
+        n += len(V)
+    return np.vstack(Vs), np.vstack(Fs)
+
+
+def ball_volume(r: float) -> float:
+    return 4 / 3 * np.pi * r**3
+
+
+@pytest.mark.parametrize("inner_inward", [True, False])
+def test_a_hollow_ball_is_filled_as_a_shell(inner_inward):
+    """A ball of radius 0.5 with a cavity of radius 0.4: the shell, 4/3 pi (R^3 - r^3), not
+    the solid ball (2.0 times as much).  A cavity shell facing outwards is made a cavity too,
+    with a warning that says so; a correct one is no defect."""
+    from wiggly.mesh.defects import inspect_surface
+
+    V, F = nested_spheres(0.5, 0.4, inward=(False, inner_inward))
+    shell = ball_volume(0.5) - ball_volume(0.4)
+    report = inspect_surface(V, F).report
+    assert report.volume == pytest.approx(shell, rel=0.01)
+    assert report.clean == inner_inward and report.outward_cavities == (not inner_inward)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        mesh = tetrahedralize(Surface(V, F), resolution=20, cache_dir=False)
+    assert mesh.volumes().sum() == pytest.approx(shell, rel=0.03)
+    notes = [str(w.message) for w in caught if w.category is wiggly.mesh.MeshRepairWarning]
+    if inner_inward:
+        assert notes == []
+    else:
+        assert len(notes) == 1 and "1 inner shell facing outwards, made a cavity" in notes[0]
+
+
+def test_nesting_alternates_solid_and_cavity():
+    """A ball (r 0.2) in the cavity (r 0.35) of a ball (R 0.5), every shell facing outwards
+    in the file: the middle one is turned into a cavity, the innermost stays solid."""
+    from wiggly.mesh.defects import inspect_surface
+
+    V, F = nested_spheres(0.5, 0.35, 0.2)
+    report = inspect_surface(V, F).report
+    expected = ball_volume(0.5) - ball_volume(0.35) + ball_volume(0.2)
+    assert report.volume == pytest.approx(expected, rel=0.01)
+    assert report.outward_cavities == 1
+
+
+def test_overlapping_balls_are_not_nested():
+    """Two overlapping balls (neither inside the other) both face outwards."""
+    from wiggly.mesh.defects import inspect_surface
+
+    V, F = nested_spheres(0.5, 0.3)
+    V[len(V) // 2:] += [0.35, 0.0, 0.0]  # the small one pokes out of the big one
+    checked = inspect_surface(V, F)
+    assert checked.report.outward_cavities == 0
+    n = len(F) // 2
+    assert signed_volume(V, checked.faces[n:]) == pytest.approx(ball_volume(0.3), rel=0.01)
+
+
+def test_winding_numbers_inside_outside_and_on_a_half():
+    from wiggly.mesh.defects import winding_numbers
+
+    V, F = icosphere(3)
+    w = winding_numbers(np.array([[0.0, 0, 0], [0.3, 0.1, 0], [2.0, 0, 0]]), V, F)
+    np.testing.assert_allclose(w, [1.0, 1.0, 0.0], atol=1e-9)
+    w = winding_numbers(np.array([[0.0, 0, 0]]), V, F[V[F].mean(axis=1)[:, 2] > 0])
+    assert w[0] == pytest.approx(0.5, abs=0.02)  # the upper hemisphere: half the solid angle
+
+
 def test_open_and_misoriented_surfaces_are_filled_with_one_warning():
     V, F = cube_surface()
     top = np.flatnonzero(np.isclose(V[F][:, :, 2], 1.0).all(axis=1))

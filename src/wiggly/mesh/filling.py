@@ -120,7 +120,8 @@ def tetrahedralize(
 
     The surface is inspected first (:func:`inspect_surface`).  By default (``repair=True``)
     an open, non-manifold, misoriented or self-intersecting surface is accepted: its
-    triangles are oriented consistently and fTetWild fills the solid they enclose (it decides
+    triangles are oriented consistently, each closed shell by its nesting (a shell inside
+    another faces into its cavity), and fTetWild fills the solid they enclose (it decides
     inside and outside by generalized winding numbers, so it copes with self-intersections,
     overlapping parts and holes); one :class:`MeshRepairWarning` says what was unusual.
     ``repair=False`` refuses such a surface (:class:`SurfaceDefectError`).  What cannot be
