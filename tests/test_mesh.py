@@ -319,6 +319,68 @@ def test_obj_uvs_and_normals_per_vertex_and_at_seams(tmp_path):
     assert surface.uvs is None
 
 
+def uv_cube_lines(negative: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    """A cube's OBJ lines with per-vertex UVs and normals, each face written right after
+    its own v/vt/vn lines when ``negative`` (relative indices, as some exporters write)."""
+    V, F = cube_surface()
+    uv = np.random.default_rng(7).random((len(V), 2))
+    normals = (V - 0.5) / np.linalg.norm(V - 0.5, axis=1, keepdims=True)
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()]
+    lines += [f"vt {u!r} {v!r}" for u, v in uv.tolist()]
+    lines += [f"vn {x!r} {y!r} {z!r}" for x, y, z in normals.tolist()]
+    n = len(V)
+    for face in F.tolist():
+        index = [i - n if negative else i + 1 for i in face]
+        lines.append("f " + " ".join(f"{i}/{i}/{i}" for i in index))
+    return V, F, uv, lines
+
+
+def test_obj_negative_indices_with_texture_coordinates(tmp_path):
+    """Relative (negative) v/vt/vn indices give the same surface, UVs and normals as the
+    absolute ones (trimesh's ordered reader refused them: 'index -3 is out of bounds')."""
+    V, F, uv, lines = uv_cube_lines(negative=True)
+    path = tmp_path / "neg.obj"
+    path.write_text("\n".join(lines) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        surface = load_mesh(path)
+    np.testing.assert_array_equal(surface.vertices, V)
+    np.testing.assert_array_equal(surface.faces, F)
+    np.testing.assert_allclose(surface.uvs, uv, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(surface.normals, axis=1), 1.0)
+
+
+@pytest.mark.parametrize("where", ["middle", "end"])
+def test_obj_unused_vertices_are_kept_with_the_uvs(tmp_path, where):
+    """A ``v`` line no face uses, in the middle or at the end, stays a vertex (the file's
+    count and order), the UVs stay, no numpy warning leaks; the model carries the unused
+    vertex with the nearest tet (an affine map: its rest position exactly)."""
+    V, F, uv, lines = uv_cube_lines(negative=False)
+    k = 4 if where == "middle" else len(V)
+    extra = np.array([0.5, 0.5, 1.25])
+    lines.insert(k, "v 0.5 0.5 1.25")
+    F = np.where(F >= k, F + 1, F)
+    path = tmp_path / "unused.obj"
+    # the face lines name v and vt by the same number: shift both where the v moved
+    text = "\n".join(lines[:len(V) + 1 + 2 * len(V)] + [
+        "f " + " ".join(f"{a + 1}/{t + 1}/{t + 1}" for a, t in zip(face, orig, strict=True))
+        for face, orig in zip(F.tolist(), cube_surface()[1].tolist(), strict=True)])
+    path.write_text(text + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        surface = load_mesh(path)
+    expected = np.insert(V, k, extra, axis=0)
+    np.testing.assert_array_equal(surface.vertices, expected)
+    np.testing.assert_array_equal(surface.faces, F)
+    np.testing.assert_allclose(np.delete(surface.uvs, k, axis=0), uv, rtol=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wiggly.mesh.MeshRepairWarning)  # vertex k is outside
+        model = wiggly.mesh.load_model(path, resolution=8, cache_dir=False)
+    assert model.surface.n_vertices == len(V) + 1
+    carried = model.embedding.matrix(model.tets.n_vertices) @ model.tets.vertices
+    np.testing.assert_allclose(carried[k], extra, atol=1e-9)
+
+
 def test_obj_of_quads_only_is_split_into_triangles(tmp_path):
     """A file of quads only (Blender's OBJ export of a quad mesh) loads as triangles: every
     quad (a, b, c, d) as (a, b, c) and (a, c, d), the file's vertex order, an enclosed
