@@ -203,6 +203,7 @@ def test_repair_false_speaks_the_scene_file(user, tripwires, capsys):
 @pytest.mark.parametrize("content, expected", [
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n", "encloses no volume"),
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "contains no triangles"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0.5\nf 1 2 3\nf 2 4 3\n", "is an open sheet"),
     ("v 0 0 0\nv 1 0 nan\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
      "1 vertex has NaN or infinite coordinates"),
 ])

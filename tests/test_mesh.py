@@ -778,6 +778,50 @@ def test_overlapping_balls_are_not_nested():
     assert signed_volume(V, checked.faces[n:]) == pytest.approx(ball_volume(0.3), rel=0.01)
 
 
+def wavy_sheet(n: int = 21) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n grid over the unit square, z = 0.1 sin(pi x) (1 + 0.5 cos(3 pi y)): an open
+    cloth draped over a bar."""
+    x, y = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    x, y = x.ravel(), y.ravel()
+    V = np.c_[x, y, 0.1 * np.sin(np.pi * x) * (1 + 0.5 * np.cos(3 * np.pi * y))]
+    i = np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]
+    a, b, c, d = i.ravel(), i.ravel() + n, i.ravel() + n + 1, i.ravel() + 1
+    return V, np.r_[np.c_[a, b, c], np.c_[a, c, d]].astype(np.int64)
+
+
+def test_a_curved_open_sheet_is_refused():
+    """A wavy cloth encloses no volume: refused with what to do, not filled into a lump."""
+    V, F = wavy_sheet()
+    with pytest.raises(WigglyInputError, match=r"^cloth\.obj: the surface is an open sheet, "
+                       r"not the skin of a solid: its 80 open edges bound holes whose area is "
+                       r"\d+ % .* give the sheet a thickness .* or close it"):
+        tetrahedralize(Surface(V, F), resolution=12, source="cloth.obj", cache_dir=False)
+
+
+def test_open_share_is_the_holes_area_over_the_surfaces():
+    """The holes' area over the surface's: a unit cube without its top 1/5, a hemisphere
+    (bowl) 1/2 (pi r^2 over 2 pi r^2), a closed cube 0, the wavy sheet about its flat area
+    over its own, a ball without a cap below z = -0.95 its cap's pi (1 - 0.95^2) over 3.9 pi."""
+    from wiggly.mesh.defects import SHEET_SHARE, open_share
+
+    V, F = cube_surface()
+    top = np.isclose(V[F][:, :, 2], 1.0).all(axis=1)
+    assert open_share(V, F) == 0.0
+    assert open_share(V, F[~top]) == pytest.approx(0.2, rel=1e-12)
+    ball = trimesh.creation.uv_sphere(radius=1.0, count=[128, 128])
+    Vb, Fb = np.asarray(ball.vertices), np.asarray(ball.faces, dtype=np.int64)
+    upper = Vb[Fb].mean(axis=1)[:, 2] > 0
+    assert open_share(Vb, Fb[upper]) == pytest.approx(0.5, rel=0.01)
+    capless = Fb[Vb[Fb].mean(axis=1)[:, 2] > -0.95]
+    hole = np.pi * (1 - Vb[capless][:, :, 2].min() ** 2)  # the lowest ring the faces keep
+    assert open_share(Vb, capless) == pytest.approx(hole / (3.9 * np.pi), rel=0.02)
+    Vs, Fs = wavy_sheet()
+    flat_over_own = 1.0 / wiggly.mesh.defects.surface_area(Vs, Fs)
+    # its border's vector area: 1 upwards (the unit square below it), a little sideways
+    assert flat_over_own <= open_share(Vs, Fs) < 1.01 * flat_over_own
+    assert flat_over_own > SHEET_SHARE
+
+
 def test_winding_numbers_inside_outside_and_on_a_half():
     from wiggly.mesh.defects import winding_numbers
 

@@ -10,7 +10,8 @@ This module:
   (winding numbers need it: a cavity's shell faces inwards), and counts what is unusual:
   open, non-manifold and misoriented edges, crossing triangle pairs
   (:func:`inspect_surface`, giving a :class:`SurfaceReport`);
-- refuses only what cannot be filled: no triangles of positive area, or no enclosed volume;
+- refuses only what cannot be filled: no triangles of positive area, no enclosed volume, or
+  an open sheet (:func:`open_share`);
 - estimates the tet count at a given edge length before any memory is spent
   (:func:`estimate_tets`, :func:`max_resolution`);
 - simplifies a surface much finer than the tets to an envelope of about
@@ -233,6 +234,15 @@ def inspect_surface(V: np.ndarray, F: np.ndarray, source: str = "surface") -> Ch
             f"{source}: the surface encloses no volume ({volume:.3g} m^3): its triangles lie in "
             "one plane or fold flat onto each other. wiggly animates solids: give a surface "
             "that bounds one (a sheet needs a thickness).")
+    if n_open:
+        share = open_share(V, W)
+        if share > SHEET_SHARE:
+            raise WigglyInputError(
+                f"{source}: the surface is an open sheet, not the skin of a solid: its "
+                f"{counted(n_open, 'open edge')} bound holes whose area is {100 * share:.0f} % "
+                "of the surface's own, so it encloses no volume that could be filled. wiggly "
+                "animates solids: give the sheet a thickness (e.g. Blender's Solidify "
+                "modifier) or close it, and export it again.")
     pairs = self_intersections(V, W)
     if len(pairs):
         i, j = kept[pairs[0]]
@@ -244,6 +254,37 @@ def inspect_surface(V: np.ndarray, F: np.ndarray, source: str = "surface") -> Ch
         volume=abs(volume), area=area, diagonal=diag,
         examples=examples)
     return CheckedSurface(V, W, report)
+
+
+#: An open surface whose holes' area (:func:`open_share`) exceeds this share of its own area
+#: is a sheet, refused: a wavy cloth has 0.94, a hemispherical bowl 0.5, an open box 0.2.
+SHEET_SHARE = 0.6
+
+
+def open_share(V: np.ndarray, W: np.ndarray) -> float:
+    """The area of the holes of the oriented triangles W over their own area: the holes'
+    vector areas (one per connected chain of open edges, half the sum of ``a x b`` over its
+    edges a -> b), which no surface spanning a hole is smaller than.  0 for a closed
+    surface, small for a solid with holes, near 1 for a sheet."""
+    n = len(V)
+    half = W[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    key = half.min(axis=1) * n + half.max(axis=1)
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    edges = half[counts[inverse] == 1]
+    area = surface_area(V, W)
+    if len(edges) == 0 or area <= 0:
+        return 0.0
+    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, chain = connected_components(graph, directed=False)
+    chain = np.unique(chain[edges[:, 0]], return_inverse=True)[1]
+    P = V[edges]
+    centre = np.zeros((chain.max() + 1, 3))
+    np.add.at(centre, chain, P.mean(axis=1))
+    centre /= np.bincount(chain)[:, None]  # about each chain's centre: no far-origin rounding
+    moment = np.cross(P[:, 0] - centre[chain], P[:, 1] - centre[chain])
+    vector = np.zeros_like(centre)
+    np.add.at(vector, chain, 0.5 * moment)
+    return float(np.linalg.norm(vector, axis=1).sum()) / area
 
 
 def orient(V: np.ndarray, W: np.ndarray, half: np.ndarray, edge_of_half: np.ndarray,
