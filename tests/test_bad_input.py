@@ -229,6 +229,41 @@ def test_a_long_mesh_path_keeps_its_file_name_in_messages(user, tripwires, capsy
     assert len(key) < len(path) and " ... " in key and key.endswith("flat_sheet.obj"), line
 
 
+def _stl_binary_solid_header() -> bytes:
+    """A binary STL whose 80-byte header starts with "solid", as SolidWorks writes."""
+    data = trimesh.creation.icosphere(2).export(file_type="stl")
+    return b"solid SolidWorks exported part".ljust(80) + data[80:]
+
+
+@pytest.mark.parametrize("name, content, expected", [
+    ("ball.obj", lambda: trimesh.creation.icosphere(2).export(file_type="stl"),
+     "is an STL file, not OBJ as its extension says; rename it to end in .stl"),
+    ("ball.stl", lambda: trimesh.creation.icosphere(2).export(file_type="ply"),
+     "is a PLY file, not STL as its extension says; rename it to end in .ply"),
+    ("ball.stl", lambda: trimesh.creation.icosphere(2).export(file_type="stl_ascii")[:20000]
+     .encode(), "the file is cut short: an ASCII STL ends with an 'endsolid' line"),
+    ("ball.stl", lambda: _stl_binary_solid_header()[:8042],
+     "the file is cut short: its binary STL header announces 320 triangles (16084 bytes) but "
+     "it has 8042 bytes"),
+    ("ball.obj", lambda: b"", "the file is empty (0 bytes)"),
+])
+def test_a_file_of_another_format_or_cut_short_says_what_it_is(user, tripwires, capsys, name,
+                                                               content, expected):
+    """The refusal names the real cause (the content's format, a cut, an empty file), not
+    "contains no triangles" or a header count read from another format's bytes."""
+    folder, scene = user
+    (folder / name).write_bytes(content())
+    line = refused(capsys, folder, scene({"mesh.path": name, "groups": EVERYWHERE}))
+    assert name in line and expected in line, line
+
+
+def test_a_binary_stl_with_a_solid_header_loads(tmp_path):
+    from wiggly.mesh import load_mesh
+
+    (tmp_path / "ball.stl").write_bytes(_stl_binary_solid_header())
+    assert load_mesh(tmp_path / "ball.stl").n_faces == 320
+
+
 @pytest.mark.parametrize("name, damage, expected", [
     ("cut.stl", "truncate", "the file is cut short: its binary STL header announces 320 "
      "triangles (16084 bytes) but it has 5361 bytes"),

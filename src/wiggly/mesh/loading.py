@@ -238,6 +238,7 @@ def _load_trimesh(path: Path, ext: str) -> Surface:
 
     source = str(path)
     try:
+        _check_content(path, ext)
         if ext == ".stl":
             _check_stl_length(path)
         if ext in (".glb", ".gltf"):  # compressed geometry trimesh cannot decode, named
@@ -304,19 +305,82 @@ def _warn_posed(path: Path, bind: list[tuple[slice, np.ndarray]], posed: np.ndar
             "export: Data > Armature > Use Rest Position).", stacklevel=3)
 
 
+#: The surface formats' names in messages, by extension.
+FORMAT_NAMES = {".obj": "OBJ", ".ply": "PLY", ".stl": "STL", ".off": "OFF",
+                ".glb": "binary glTF", ".gltf": "glTF"}
+_ARTICLES = {".obj": "an", ".stl": "an", ".off": "an"}
+
+
+def _is_text(data: bytes) -> bool:
+    """Whether ``data`` looks like ASCII text (printable characters and whitespace)."""
+    return not data.translate(None, bytes(range(32, 127)) + b"\t\r\n\f\v")
+
+
+def _binary_stl(head: bytes, size: int) -> bool:
+    """Whether a file of ``size`` bytes starting with ``head`` is a binary STL: its size is
+    exactly what its header's triangle count says (whatever the header's text)."""
+    return len(head) >= 84 and size == 84 + 50 * int.from_bytes(head[80:84], "little")
+
+
+def _sniff(head: bytes, size: int) -> str | None:
+    """The surface format a file's first bytes show (an extension), or None if unsure."""
+    first = head.split(None, 1)[0] if head.strip() else b""
+    if first == b"ply":
+        return ".ply"
+    if head.startswith(b"glTF"):
+        return ".glb"
+    if first in (b"OFF", b"COFF", b"NOFF", b"CNOFF", b"STOFF", b"4OFF"):
+        return ".off"
+    if _binary_stl(head, size):
+        return ".stl"
+    if first.lower() == b"solid" and b"facet" in head.lower() and _is_text(head):
+        return ".stl"
+    if head.lstrip().startswith(b"{") and b'"asset"' in head:
+        return ".gltf"
+    return None
+
+
+def _check_content(path: Path, ext: str) -> None:
+    """Refuse an empty file, and a file whose first bytes show another format than its
+    extension's (a binary STL named .obj), naming the format it is."""
+    size = path.stat().st_size
+    if size == 0:
+        raise WigglyInputError(f"{path}: the file is empty (0 bytes); export or copy it "
+                               "again.")
+    with open(path, "rb") as file:
+        head = file.read(1024)
+    found = _sniff(head, size)
+    if found is None or found == ext or {found, ext} == {".glb", ".gltf"}:
+        return
+    raise WigglyInputError(
+        f"{path}: is {_ARTICLES.get(found, 'a')} {FORMAT_NAMES[found]} file, not "
+        f"{FORMAT_NAMES[ext]} as its extension "
+        f"says; rename it to end in {found} (or export it again as {FORMAT_NAMES[ext]}).")
+
+
 def _check_stl_length(path: Path) -> None:
-    """Refuse a binary STL shorter than its header says (cut short while copied or
-    downloaded): trimesh would read the triangles it finds, or none."""
+    """Refuse an STL cut short (while copied or downloaded): a binary one shorter than its
+    header says (also one whose header starts with "solid", as SolidWorks writes), an ASCII
+    one without its closing ``endsolid``.  trimesh would read the triangles it finds, or
+    none."""
     size = path.stat().st_size
     with open(path, "rb") as file:
-        head = file.read(84)
-    if len(head) < 84:
-        if not head.lstrip().lower().startswith(b"solid"):
-            raise WigglyInputError(f"{path}: is not an STL file: it has {size} bytes, fewer "
-                                   "than a binary STL's 84-byte header")
+        head = file.read(1024)
+        file.seek(max(size - 256, 0))
+        tail = file.read()
+    ascii_stl = head.lstrip().lower().startswith(b"solid") and _is_text(head) \
+        and not _binary_stl(head, size)
+    if ascii_stl:
+        if b"endsolid" not in tail.lower():
+            raise WigglyInputError(
+                f"{path}: the file is cut short: an ASCII STL ends with an 'endsolid' line, "
+                f"and this one stops after {size} bytes without it; copy or export it again")
         return
+    if len(head) < 84:
+        raise WigglyInputError(f"{path}: is not an STL file: it has {size} bytes, fewer "
+                               "than a binary STL's 84-byte header")
     n = int.from_bytes(head[80:84], "little")
-    if size < 84 + 50 * n and not head.lstrip().lower().startswith(b"solid"):
+    if size < 84 + 50 * n:
         raise WigglyInputError(
             f"{path}: the file is cut short: its binary STL header announces {n} triangles "
             f"({84 + 50 * n} bytes) but it has {size} bytes; copy or export it again")
