@@ -251,6 +251,30 @@ def test_a_crash_is_retried_with_the_tightest_envelope_then_refused(monkeypatch,
         tetrahedralize(Surface(V, F), resolution=12, source="ball.obj", cache_dir=False)
 
 
+def test_a_fill_that_lost_the_body_is_retried_with_the_tightest_envelope(monkeypatch, caplog):
+    """fTetWild giving no tets (a thin rod it did not crash on) is retried like a crash."""
+    from wiggly.mesh import filling, tetwild_child
+
+    real = tetwild_child.tetrahedralize_in_child
+    envelopes = []
+
+    def empty_once(V, F, options, on_line):
+        envelopes.append(options["epsilon"])
+        if len(envelopes) == 1:
+            return np.zeros((0, 3)), np.zeros((0, 4), dtype=np.int32)
+        return real(V, F, options, on_line)
+
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", empty_once)
+    V, F = sphere()
+    with caplog.at_level("INFO", logger="wiggly"):
+        mesh = tetrahedralize(Surface(V, F), resolution=12, cache_dir=False)
+    assert envelopes == [pytest.approx(0.1 / 12), filling.MIN_ENVELOPE]
+    assert any("fTetWild filled 0 % of the surface's volume" in r.getMessage()
+               for r in caplog.records)
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.5).volume
+    assert abs(mesh.volumes().sum() - ball) < 0.03 * ball
+
+
 ROD = """
 import sys, numpy as np, trimesh
 from wiggly.mesh import Surface, tetrahedralize
@@ -264,9 +288,9 @@ print(mesh.volumes().sum() / rod.volume)
 @pytest.mark.parametrize("radius", [0.0025, 0.01])
 def test_a_long_thin_rod_is_meshed_not_a_crash(radius):
     """fTetWild segfaulted on a 2 m rod of 5 mm and 20 mm diameter at resolution 12 (with no
-    progress line it ran in-process and took its host down): now the crash ends a child and
-    the retry with the tightest envelope meshes the rod (67-98 % of its volume: thinner
-    than the tets, it loses some)."""
+    progress line it ran in-process and took its host down), or gave 0-2 tets for the 20 mm
+    one: now the crash ends a child and the retry with the tightest envelope meshes the rod
+    (67-98 % of its volume: thinner than the tets, it loses some)."""
     done = subprocess.run([sys.executable, "-c", ROD, str(radius), "12"], capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -312,7 +312,7 @@ def tetrahedralize_with_report(
         name = os.path.basename(source) or source  # as the checking line names it
         with activity(f"tetrahedralizing {name} (fTetWild: {what}, about "
                       f"{_round(estimate)} tets)") as line:
-            tv, tt = _fill_surviving_crashes(V, F, options, line, source, h)
+            tv, tt = _fill_or_retry(V, F, options, line, source, h, report.volume)
         if cached is not None and len(tt):
             try:  # first writer wins: every process then meshes this surface the same way
                 with atomic_file(cached, replace=False) as tmp, open(tmp, "wb") as f:
@@ -355,28 +355,50 @@ def _fill(V: np.ndarray, F: np.ndarray, options: dict, line: Activity) -> tuple:
             quiet=True, loglevel=6, **options)
 
 
-def _fill_surviving_crashes(V: np.ndarray, F: np.ndarray, options: dict, line: Activity,
-                            source: str, h: float) -> tuple:
-    """:func:`_fill`; if fTetWild crashes, once more with the smallest envelope (fTetWild
-    segfaults on long thin rods whose envelope is wider than the rod: a 2 m rod of 5 mm
-    diameter at resolutions 12 and 25 always did, and meshed in 3-7 s with the smallest
-    envelope), then a refusal that says what to try."""
+#: A fill of less than this share of the surface's enclosed volume is tried again with the
+#: smallest envelope.
+LOST_SHARE = 0.5
+
+
+def _fill_or_retry(V: np.ndarray, F: np.ndarray, options: dict, line: Activity,
+                   source: str, h: float, volume: float) -> tuple:
+    """:func:`_fill`; once more with the smallest envelope if fTetWild crashes or fills less
+    than ``LOST_SHARE`` of the surface's enclosed ``volume``, keeping the fuller result; two
+    crashes are a refusal that says what to try.  A 2 m rod of 5 mm diameter at resolutions
+    12 and 25 always made fTetWild segfault with wiggly's envelope, wider than the rod; one of
+    20 mm crashed or gave 0-2 tets; with the smallest envelope both meshed in 2-7 s."""
+    tv = tt = None
+    filled = 0.0
     try:
-        return _fill(V, F, options, line)
+        tv, tt = _fill(V, F, options, line)
+        filled = _volume(tv, tt)
+        if filled >= LOST_SHARE * volume or options["epsilon"] <= MIN_ENVELOPE:
+            return tv, tt
+        why = f"filled {100 * filled / volume:.2g} % of the surface's volume"
     except tetwild_child.MesherCrash as crash:
-        first = crash
+        failure = crash
+        why = f"crashed (signal {crash.signal})"
     if options["epsilon"] > MIN_ENVELOPE:
-        log.info("%s: fTetWild crashed (signal %d) with an envelope of %.2g of the diagonal; "
-                 "retrying with %.2g", source, first.signal, options["epsilon"], MIN_ENVELOPE)
+        log.info("%s: fTetWild %s with an envelope of %.2g of the diagonal; retrying with "
+                 "%.2g", source, why, options["epsilon"], MIN_ENVELOPE)
         try:
-            return _fill(V, F, {**options, "epsilon": MIN_ENVELOPE}, line)
+            tv2, tt2 = _fill(V, F, {**options, "epsilon": MIN_ENVELOPE}, line)
+            return (tv2, tt2) if tv is None or _volume(tv2, tt2) > filled else (tv, tt)
         except tetwild_child.MesherCrash as crash:
-            first = crash
+            if tv is not None:
+                return tv, tt
+            failure = crash
     raise WigglyInputError(
         f"{source}: the tetrahedralizer (fTetWild) crashed on this surface (signal "
-        f"{first.signal}), also with its tightest envelope; try another resolution or "
+        f"{failure.signal}), also with its tightest envelope; try another resolution or "
         f"edge_length (now {h:.3g} m; thin parts mesh better with shorter edges), or "
         "tetrahedralize it yourself and bring the tet mesh (.msh, .vtu).")
+
+
+def _volume(tv: np.ndarray, tt: np.ndarray) -> float:
+    """The total volume of fTetWild's tets (m^3)."""
+    V, T = np.asarray(tv, dtype=np.float64), np.asarray(tt, dtype=np.int64).reshape(-1, 4)
+    return float(np.abs(np.linalg.det(V[T[:, 1:]] - V[T[:, :1]])).sum()) / 6
 
 
 def _round(x: float) -> str:
