@@ -70,12 +70,15 @@ def tripwires(monkeypatch):
     """Make fTetWild, the eigenmodes and the solve fail loudly if they are reached."""
     import pytetwild
 
+    from wiggly.mesh import tetwild_child
+
     def wire(what):
         def tripped(*args, **kwargs):
             raise AssertionError(f"expensive work started: {what}")
         return tripped
 
     monkeypatch.setattr(pytetwild, "tetrahedralize", wire("fTetWild"))
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", wire("fTetWild"))
     monkeypatch.setattr(wiggly.body, "compute_modes", wire("eigenmodes"))
     # the solve where the scene runner calls it
     monkeypatch.setattr(importlib.import_module("wiggly.scene.run"), "solve", wire("solve"))
@@ -200,6 +203,7 @@ def test_repair_false_speaks_the_scene_file(user, tripwires, capsys):
 @pytest.mark.parametrize("content, expected", [
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n", "encloses no volume"),
     ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", "contains no triangles"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0.5\nf 1 2 3\nf 2 4 3\n", "is an open sheet"),
     ("v 0 0 0\nv 1 0 nan\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
      "1 vertex has NaN or infinite coordinates"),
 ])
@@ -223,6 +227,41 @@ def test_a_long_mesh_path_keeps_its_file_name_in_messages(user, tripwires, capsy
     line = refused(capsys, folder, scene({"mesh.path": path, "groups": EVERYWHERE}))
     key = line.split("mesh.path = ", 1)[1].split('": ', 1)[0]
     assert len(key) < len(path) and " ... " in key and key.endswith("flat_sheet.obj"), line
+
+
+def _stl_binary_solid_header() -> bytes:
+    """A binary STL whose 80-byte header starts with "solid", as SolidWorks writes."""
+    data = trimesh.creation.icosphere(2).export(file_type="stl")
+    return b"solid SolidWorks exported part".ljust(80) + data[80:]
+
+
+@pytest.mark.parametrize("name, content, expected", [
+    ("ball.obj", lambda: trimesh.creation.icosphere(2).export(file_type="stl"),
+     "is an STL file, not OBJ as its extension says; rename it to end in .stl"),
+    ("ball.stl", lambda: trimesh.creation.icosphere(2).export(file_type="ply"),
+     "is a PLY file, not STL as its extension says; rename it to end in .ply"),
+    ("ball.stl", lambda: trimesh.creation.icosphere(2).export(file_type="stl_ascii")[:20000]
+     .encode(), "the file is cut short: an ASCII STL ends with an 'endsolid' line"),
+    ("ball.stl", lambda: _stl_binary_solid_header()[:8042],
+     "the file is cut short: its binary STL header announces 320 triangles (16084 bytes) but "
+     "it has 8042 bytes"),
+    ("ball.obj", lambda: b"", "the file is empty (0 bytes)"),
+])
+def test_a_file_of_another_format_or_cut_short_says_what_it_is(user, tripwires, capsys, name,
+                                                               content, expected):
+    """The refusal names the real cause (the content's format, a cut, an empty file), not
+    "contains no triangles" or a header count read from another format's bytes."""
+    folder, scene = user
+    (folder / name).write_bytes(content())
+    line = refused(capsys, folder, scene({"mesh.path": name, "groups": EVERYWHERE}))
+    assert name in line and expected in line, line
+
+
+def test_a_binary_stl_with_a_solid_header_loads(tmp_path):
+    from wiggly.mesh import load_mesh
+
+    (tmp_path / "ball.stl").write_bytes(_stl_binary_solid_header())
+    assert load_mesh(tmp_path / "ball.stl").n_faces == 320
 
 
 @pytest.mark.parametrize("name, damage, expected", [

@@ -319,6 +319,68 @@ def test_obj_uvs_and_normals_per_vertex_and_at_seams(tmp_path):
     assert surface.uvs is None
 
 
+def uv_cube_lines(negative: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+    """A cube's OBJ lines with per-vertex UVs and normals, each face written right after
+    its own v/vt/vn lines when ``negative`` (relative indices, as some exporters write)."""
+    V, F = cube_surface()
+    uv = np.random.default_rng(7).random((len(V), 2))
+    normals = (V - 0.5) / np.linalg.norm(V - 0.5, axis=1, keepdims=True)
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()]
+    lines += [f"vt {u!r} {v!r}" for u, v in uv.tolist()]
+    lines += [f"vn {x!r} {y!r} {z!r}" for x, y, z in normals.tolist()]
+    n = len(V)
+    for face in F.tolist():
+        index = [i - n if negative else i + 1 for i in face]
+        lines.append("f " + " ".join(f"{i}/{i}/{i}" for i in index))
+    return V, F, uv, lines
+
+
+def test_obj_negative_indices_with_texture_coordinates(tmp_path):
+    """Relative (negative) v/vt/vn indices give the same surface, UVs and normals as the
+    absolute ones (trimesh's ordered reader refused them: 'index -3 is out of bounds')."""
+    V, F, uv, lines = uv_cube_lines(negative=True)
+    path = tmp_path / "neg.obj"
+    path.write_text("\n".join(lines) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        surface = load_mesh(path)
+    np.testing.assert_array_equal(surface.vertices, V)
+    np.testing.assert_array_equal(surface.faces, F)
+    np.testing.assert_allclose(surface.uvs, uv, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(surface.normals, axis=1), 1.0)
+
+
+@pytest.mark.parametrize("where", ["middle", "end"])
+def test_obj_unused_vertices_are_kept_with_the_uvs(tmp_path, where):
+    """A ``v`` line no face uses, in the middle or at the end, stays a vertex (the file's
+    count and order), the UVs stay, no numpy warning leaks; the model carries the unused
+    vertex with the nearest tet (an affine map: its rest position exactly)."""
+    V, F, uv, lines = uv_cube_lines(negative=False)
+    k = 4 if where == "middle" else len(V)
+    extra = np.array([0.5, 0.5, 1.25])
+    lines.insert(k, "v 0.5 0.5 1.25")
+    F = np.where(F >= k, F + 1, F)
+    path = tmp_path / "unused.obj"
+    # the face lines name v and vt by the same number: shift both where the v moved
+    text = "\n".join(lines[:len(V) + 1 + 2 * len(V)] + [
+        "f " + " ".join(f"{a + 1}/{t + 1}/{t + 1}" for a, t in zip(face, orig, strict=True))
+        for face, orig in zip(F.tolist(), cube_surface()[1].tolist(), strict=True)])
+    path.write_text(text + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        surface = load_mesh(path)
+    expected = np.insert(V, k, extra, axis=0)
+    np.testing.assert_array_equal(surface.vertices, expected)
+    np.testing.assert_array_equal(surface.faces, F)
+    np.testing.assert_allclose(np.delete(surface.uvs, k, axis=0), uv, rtol=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wiggly.mesh.MeshRepairWarning)  # vertex k is outside
+        model = wiggly.mesh.load_model(path, resolution=8, cache_dir=False)
+    assert model.surface.n_vertices == len(V) + 1
+    carried = model.embedding.matrix(model.tets.n_vertices) @ model.tets.vertices
+    np.testing.assert_allclose(carried[k], extra, atol=1e-9)
+
+
 def test_obj_of_quads_only_is_split_into_triangles(tmp_path):
     """A file of quads only (Blender's OBJ export of a quad mesh) loads as triangles: every
     quad (a, b, c, d) as (a, b, c) and (a, c, d), the file's vertex order, an enclosed
@@ -653,6 +715,123 @@ def test_orientation_is_made_consistent_and_outward():
     assert signed_volume(V, inside_out.faces) == pytest.approx(signed_volume(V, F))
 
 
+def nested_spheres(*radii: float, inward: tuple[bool, ...] = ()
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Concentric icospheres (subdivision 4), the i-th facing inwards when ``inward[i]``."""
+    Vs, Fs, n = [], [], 0
+    for i, r in enumerate(radii):
+        V, F = icosphere(4, r)
+        Vs.append(V)
+        Fs.append((F[:, ::-1] if i < len(inward) and inward[i] else F) + n)
+        n += len(V)
+    return np.vstack(Vs), np.vstack(Fs)
+
+
+def ball_volume(r: float) -> float:
+    return 4 / 3 * np.pi * r**3
+
+
+@pytest.mark.parametrize("inner_inward", [True, False])
+def test_a_hollow_ball_is_filled_as_a_shell(inner_inward):
+    """A ball of radius 0.5 with a cavity of radius 0.4: the shell, 4/3 pi (R^3 - r^3), not
+    the solid ball (2.0 times as much).  A cavity shell facing outwards is made a cavity too,
+    with a warning that says so; a correct one is no defect."""
+    from wiggly.mesh.defects import inspect_surface
+
+    V, F = nested_spheres(0.5, 0.4, inward=(False, inner_inward))
+    shell = ball_volume(0.5) - ball_volume(0.4)
+    report = inspect_surface(V, F).report
+    assert report.volume == pytest.approx(shell, rel=0.01)
+    assert report.clean == inner_inward and report.outward_cavities == (not inner_inward)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        mesh = tetrahedralize(Surface(V, F), resolution=20, cache_dir=False)
+    assert mesh.volumes().sum() == pytest.approx(shell, rel=0.03)
+    notes = [str(w.message) for w in caught if w.category is wiggly.mesh.MeshRepairWarning]
+    if inner_inward:
+        assert notes == []
+    else:
+        assert len(notes) == 1 and "1 inner shell facing outwards, made a cavity" in notes[0]
+
+
+def test_nesting_alternates_solid_and_cavity():
+    """A ball (r 0.2) in the cavity (r 0.35) of a ball (R 0.5), every shell facing outwards
+    in the file: the middle one is turned into a cavity, the innermost stays solid."""
+    from wiggly.mesh.defects import inspect_surface
+
+    V, F = nested_spheres(0.5, 0.35, 0.2)
+    report = inspect_surface(V, F).report
+    expected = ball_volume(0.5) - ball_volume(0.35) + ball_volume(0.2)
+    assert report.volume == pytest.approx(expected, rel=0.01)
+    assert report.outward_cavities == 1
+
+
+def test_overlapping_balls_are_not_nested():
+    """Two overlapping balls (neither inside the other) both face outwards."""
+    from wiggly.mesh.defects import inspect_surface
+
+    V, F = nested_spheres(0.5, 0.3)
+    V[len(V) // 2:] += [0.35, 0.0, 0.0]  # the small one pokes out of the big one
+    checked = inspect_surface(V, F)
+    assert checked.report.outward_cavities == 0
+    n = len(F) // 2
+    assert signed_volume(V, checked.faces[n:]) == pytest.approx(ball_volume(0.3), rel=0.01)
+
+
+def wavy_sheet(n: int = 21) -> tuple[np.ndarray, np.ndarray]:
+    """An n x n grid over the unit square, z = 0.1 sin(pi x) (1 + 0.5 cos(3 pi y)): an open
+    cloth draped over a bar."""
+    x, y = np.meshgrid(np.linspace(0, 1, n), np.linspace(0, 1, n), indexing="ij")
+    x, y = x.ravel(), y.ravel()
+    V = np.c_[x, y, 0.1 * np.sin(np.pi * x) * (1 + 0.5 * np.cos(3 * np.pi * y))]
+    i = np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]
+    a, b, c, d = i.ravel(), i.ravel() + n, i.ravel() + n + 1, i.ravel() + 1
+    return V, np.r_[np.c_[a, b, c], np.c_[a, c, d]].astype(np.int64)
+
+
+def test_a_curved_open_sheet_is_refused():
+    """A wavy cloth encloses no volume: refused with what to do, not filled into a lump."""
+    V, F = wavy_sheet()
+    with pytest.raises(WigglyInputError, match=r"^cloth\.obj: the surface is an open sheet, "
+                       r"not the skin of a solid: its 80 open edges bound holes whose area is "
+                       r"\d+ % .* give the sheet a thickness .* or close it"):
+        tetrahedralize(Surface(V, F), resolution=12, source="cloth.obj", cache_dir=False)
+
+
+def test_open_share_is_the_holes_area_over_the_surfaces():
+    """The holes' area over the surface's: a unit cube without its top 1/5, a hemisphere
+    (bowl) 1/2 (pi r^2 over 2 pi r^2), a closed cube 0, the wavy sheet about its flat area
+    over its own, a ball without a cap below z = -0.95 its cap's pi (1 - 0.95^2) over 3.9 pi."""
+    from wiggly.mesh.defects import SHEET_SHARE, open_share
+
+    V, F = cube_surface()
+    top = np.isclose(V[F][:, :, 2], 1.0).all(axis=1)
+    assert open_share(V, F) == 0.0
+    assert open_share(V, F[~top]) == pytest.approx(0.2, rel=1e-12)
+    ball = trimesh.creation.uv_sphere(radius=1.0, count=[128, 128])
+    Vb, Fb = np.asarray(ball.vertices), np.asarray(ball.faces, dtype=np.int64)
+    upper = Vb[Fb].mean(axis=1)[:, 2] > 0
+    assert open_share(Vb, Fb[upper]) == pytest.approx(0.5, rel=0.01)
+    capless = Fb[Vb[Fb].mean(axis=1)[:, 2] > -0.95]
+    hole = np.pi * (1 - Vb[capless][:, :, 2].min() ** 2)  # the lowest ring the faces keep
+    assert open_share(Vb, capless) == pytest.approx(hole / (3.9 * np.pi), rel=0.02)
+    Vs, Fs = wavy_sheet()
+    flat_over_own = 1.0 / wiggly.mesh.defects.surface_area(Vs, Fs)
+    # its border's vector area: 1 upwards (the unit square below it), a little sideways
+    assert flat_over_own <= open_share(Vs, Fs) < 1.01 * flat_over_own
+    assert flat_over_own > SHEET_SHARE
+
+
+def test_winding_numbers_inside_outside_and_on_a_half():
+    from wiggly.mesh.defects import winding_numbers
+
+    V, F = icosphere(3)
+    w = winding_numbers(np.array([[0.0, 0, 0], [0.3, 0.1, 0], [2.0, 0, 0]]), V, F)
+    np.testing.assert_allclose(w, [1.0, 1.0, 0.0], atol=1e-9)
+    w = winding_numbers(np.array([[0.0, 0, 0]]), V, F[V[F].mean(axis=1)[:, 2] > 0])
+    assert w[0] == pytest.approx(0.5, abs=0.02)  # the upper hemisphere: half the solid angle
+
+
 def test_open_and_misoriented_surfaces_are_filled_with_one_warning():
     V, F = cube_surface()
     top = np.flatnonzero(np.isclose(V[F][:, :, 2], 1.0).all(axis=1))
@@ -703,10 +882,13 @@ def test_tet_count_estimate_bounds_fTetWild_and_inverts():
 def test_too_many_tets_are_refused_before_fTetWild_runs(monkeypatch):
     import pytetwild
 
+    from wiggly.mesh import tetwild_child
+
     def forbidden(*args, **kwargs):
         raise AssertionError("fTetWild ran")
 
     monkeypatch.setattr(pytetwild, "tetrahedralize", forbidden)
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", forbidden)
     V, F = icosphere(2)
     with pytest.raises(wiggly.mesh.TetBudgetError, match=r"resolution=190 would make about "
                        r"\S+ tetrahedra .* limit of 400000 .* use resolution <= (\d+)") as err:
@@ -719,16 +901,16 @@ def test_too_many_tets_are_refused_before_fTetWild_runs(monkeypatch):
 def test_a_fine_surface_is_simplified_before_fTetWild(monkeypatch):
     """An 82k-triangle sphere at 12 edges per diagonal: fTetWild gets a simplified envelope of
     a few hundred triangles; the tets still fill the sphere and embed its surface closely."""
-    import pytetwild
+    from wiggly.mesh import tetwild_child
 
     seen = []
-    original = pytetwild.tetrahedralize
+    original = tetwild_child.tetrahedralize_in_child
 
-    def spy(V, F, **kwargs):
+    def spy(V, F, options, on_line):
         seen.append(len(F))
-        return original(V, F, **kwargs)
+        return original(V, F, options, on_line)
 
-    monkeypatch.setattr(pytetwild, "tetrahedralize", spy)
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", spy)
     V, F = icosphere(6)
     assert len(F) == 81920
     mesh = tetrahedralize(Surface(V, F), resolution=12, cache_dir=False)
@@ -744,21 +926,21 @@ def test_processes_filling_one_surface_at_once_get_one_tet_mesh(tmp_path, monkey
     """fTetWild is not reproducible, so the tet cache is written once: a process that meshes
     a surface while another has just published its mesh of the same surface takes that one
     (the first writer wins), and its own result never replaces a cache entry."""
-    import pytetwild
+    from wiggly.mesh import tetwild_child
 
     V, F = icosphere(2)
     first = tetrahedralize(Surface(V, F), resolution=8, cache_dir=tmp_path)
     entry = next(tmp_path.rglob("*.npz"))
     published = entry.read_bytes()
-    original = pytetwild.tetrahedralize
+    original = tetwild_child.tetrahedralize_in_child
 
-    def racing(V, F, **kwargs):  # meanwhile, the other process's mesh appears in the cache
-        tv, tt = original(V, F, **kwargs)
+    def racing(V, F, options, on_line):  # meanwhile, the other's mesh appears in the cache
+        tv, tt = original(V, F, options, on_line)
         entry.write_bytes(published)
         return tv + 1e-3, tt  # and ours differs
 
     entry.unlink()
-    monkeypatch.setattr(pytetwild, "tetrahedralize", racing)
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", racing)
     second = tetrahedralize(Surface(V, F), resolution=8, cache_dir=tmp_path)
     assert entry.read_bytes() == published
     np.testing.assert_array_equal(second.vertices, first.vertices)

@@ -670,6 +670,7 @@ def test_keyframe_targets(bar):
 def test_build_fixes_groups_and_checks_before_tetrahedralizing(tmp_path, monkeypatch):
     import pytetwild
 
+    from wiggly.mesh import tetwild_child
     from wiggly.scene import build
 
     scene = load_scene(write(tmp_path, BASE))
@@ -680,6 +681,8 @@ def test_build_fixes_groups_and_checks_before_tetrahedralizing(tmp_path, monkeyp
 
     calls = []
     monkeypatch.setattr(pytetwild, "tetrahedralize", lambda *a, **k: calls.append(1))
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child",
+                        lambda *a, **k: calls.append(1))
     bad = mutate("groups.three.indices", [5, 3, 99999])
     with pytest.raises(WigglyInputError, match=r"groups.three.indices\[2\] = 99999"):
         build(load_scene(write(tmp_path, bad)))

@@ -6,10 +6,12 @@ to be *filled* with tets. fTetWild (Hu et al. 2020) fills whatever a triangle so
 generalized winding numbers, so open, non-manifold or self-intersecting surfaces can be filled too.
 This module:
 
-- welds coincident vertices, orients the triangles consistently (winding numbers need it) and
-  counts what is unusual: open, non-manifold and misoriented edges, crossing triangle pairs
+- welds coincident vertices, orients the triangles consistently, each shell by its nesting
+  (winding numbers need it: a cavity's shell faces inwards), and counts what is unusual:
+  open, non-manifold and misoriented edges, crossing triangle pairs
   (:func:`inspect_surface`, giving a :class:`SurfaceReport`);
-- refuses only what cannot be filled: no triangles of positive area, or no enclosed volume;
+- refuses only what cannot be filled: no triangles of positive area, no enclosed volume, or
+  an open sheet (:func:`open_share`);
 - estimates the tet count at a given edge length before any memory is spent
   (:func:`estimate_tets`, :func:`max_resolution`);
 - simplifies a surface much finer than the tets to an envelope of about
@@ -75,7 +77,10 @@ class SurfaceReport:
         faces the wrong way).
     crossing_pairs : pairs of triangles that intersect (sharing no vertex, or folding over).
     zero_area_faces : triangles that lost a corner when coincident vertices were welded.
-    volume : enclosed volume (m^3), each connected piece oriented outwards.
+    outward_cavities : shells inside another shell (an odd number of shells deep) that faced
+        outwards; they were turned inwards, so that the space inside them is a cavity.
+    volume : enclosed volume (m^3), each connected piece oriented by its nesting (a cavity's
+        volume is subtracted).
     area : surface area (m^2).
     diagonal : bounding-box diagonal (m).
     examples : one example per kind of defect ("the edge between vertices 3 and 7").
@@ -87,6 +92,7 @@ class SurfaceReport:
     misoriented_edges: int = 0
     crossing_pairs: int = 0
     zero_area_faces: int = 0
+    outward_cavities: int = 0
     volume: float = 0.0
     area: float = 0.0
     diagonal: float = 0.0
@@ -96,7 +102,7 @@ class SurfaceReport:
     def clean(self) -> bool:
         """Closed, manifold, consistently oriented and free of self-intersections."""
         return not (self.open_edges or self.nonmanifold_edges or self.misoriented_edges
-                    or self.crossing_pairs)
+                    or self.crossing_pairs or self.outward_cavities)
 
     def defects(self, detailed: bool = False) -> list[str]:
         """One phrase per kind of defect ("6 open edges", ...); ``detailed`` adds what each
@@ -113,6 +119,12 @@ class SurfaceReport:
             ("crossing", self.crossing_pairs,
              f"{counted(self.crossing_pairs, 'pair')} of triangles that cross",
              "the surface intersects itself"),
+            ("cavity", self.outward_cavities,
+             f"{counted(self.outward_cavities, 'inner shell')} facing outwards, made "
+             f"{'a cavity' if self.outward_cavities == 1 else 'cavities'} (the space inside "
+             f"{'it' if self.outward_cavities == 1 else 'them'} is left empty; remove "
+             f"{'it' if self.outward_cavities == 1 else 'them'} for a solid body)",
+             "a closed shell inside another bounds a hole in the solid"),
         ]
         out = []
         for key, count, short, meaning in kinds:
@@ -207,7 +219,9 @@ def inspect_surface(V: np.ndarray, F: np.ndarray, source: str = "surface") -> Ch
 
     n_open = example(counts == 1, "open")
     n_nonmanifold = example(counts > 2, "nonmanifold")
-    W, misoriented = orient(V, W, half, inverse, counts)
+    W, misoriented, cavities = orient(V, W, half, inverse, counts)
+    if cavities:
+        examples["cavity"] = f"the shell of vertex {int(W[cavities[0]].min())}"
     if len(misoriented):
         a, b = divmod(int(edges[misoriented[0]]), n)
         examples["misoriented"] = f"the edge between vertices {a} and {b}"
@@ -220,6 +234,15 @@ def inspect_surface(V: np.ndarray, F: np.ndarray, source: str = "surface") -> Ch
             f"{source}: the surface encloses no volume ({volume:.3g} m^3): its triangles lie in "
             "one plane or fold flat onto each other. wiggly animates solids: give a surface "
             "that bounds one (a sheet needs a thickness).")
+    if n_open:
+        share = open_share(V, W)
+        if share > SHEET_SHARE:
+            raise WigglyInputError(
+                f"{source}: the surface is an open sheet, not the skin of a solid: its "
+                f"{counted(n_open, 'open edge')} bound holes whose area is {100 * share:.0f} % "
+                "of the surface's own, so it encloses no volume that could be filled. wiggly "
+                "animates solids: give the sheet a thickness (e.g. Blender's Solidify "
+                "modifier) or close it, and export it again.")
     pairs = self_intersections(V, W)
     if len(pairs):
         i, j = kept[pairs[0]]
@@ -227,19 +250,55 @@ def inspect_surface(V: np.ndarray, F: np.ndarray, source: str = "surface") -> Ch
     report = SurfaceReport(
         n_faces=len(F), open_edges=n_open, nonmanifold_edges=n_nonmanifold,
         misoriented_edges=len(misoriented), crossing_pairs=len(pairs),
-        zero_area_faces=len(F) - len(kept), volume=abs(volume), area=area, diagonal=diag,
+        zero_area_faces=len(F) - len(kept), outward_cavities=len(cavities),
+        volume=abs(volume), area=area, diagonal=diag,
         examples=examples)
     return CheckedSurface(V, W, report)
 
 
+#: An open surface whose holes' area (:func:`open_share`) exceeds this share of its own area
+#: is a sheet, refused: a wavy cloth has 0.94, a hemispherical bowl 0.5, an open box 0.2.
+SHEET_SHARE = 0.6
+
+
+def open_share(V: np.ndarray, W: np.ndarray) -> float:
+    """The area of the holes of the oriented triangles W over their own area: the holes'
+    vector areas (one per connected chain of open edges, half the sum of ``a x b`` over its
+    edges a -> b), which no surface spanning a hole is smaller than.  0 for a closed
+    surface, small for a solid with holes, near 1 for a sheet."""
+    n = len(V)
+    half = W[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    key = half.min(axis=1) * n + half.max(axis=1)
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    edges = half[counts[inverse] == 1]
+    area = surface_area(V, W)
+    if len(edges) == 0 or area <= 0:
+        return 0.0
+    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, chain = connected_components(graph, directed=False)
+    chain = np.unique(chain[edges[:, 0]], return_inverse=True)[1]
+    P = V[edges]
+    centre = np.zeros((chain.max() + 1, 3))
+    np.add.at(centre, chain, P.mean(axis=1))
+    centre /= np.bincount(chain)[:, None]  # about each chain's centre: no far-origin rounding
+    moment = np.cross(P[:, 0] - centre[chain], P[:, 1] - centre[chain])
+    vector = np.zeros_like(centre)
+    np.add.at(vector, chain, 0.5 * moment)
+    return float(np.linalg.norm(vector, axis=1).sum()) / area
+
+
 def orient(V: np.ndarray, W: np.ndarray, half: np.ndarray, edge_of_half: np.ndarray,
-           edge_counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Orient triangles consistently across manifold edges, each connected piece outwards.
+           edge_counts: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Orient triangles consistently across manifold edges, each connected piece by its
+    nesting: outwards, or inwards when it lies inside an odd number of other pieces (the
+    inner shell of a hollow ball faces into its cavity), so that the winding number is 1 in
+    the solid and 0 in the cavity (and outside).
 
     Two triangles sharing a manifold edge agree when they run along it in opposite directions.
     A breadth-first walk over the triangles flips every triangle to agree with the one it was
-    reached from; then every piece whose signed volume (about its centroid) is negative is
-    flipped whole.  A non-orientable piece (a Moebius strip) keeps some disagreeing edges.
+    reached from; then every piece whose signed volume (about its centroid) has the wrong sign
+    for its nesting depth (:func:`nesting_depths`) is flipped whole.  A non-orientable piece
+    (a Moebius strip) keeps some disagreeing edges.
 
     Parameters
     ----------
@@ -251,6 +310,8 @@ def orient(V: np.ndarray, W: np.ndarray, half: np.ndarray, edge_of_half: np.ndar
     -------
     oriented : (k, 3) the triangles, some reversed.
     misoriented : indices of the manifold edges whose two triangles disagreed in ``W``.
+    cavities : one triangle of each piece at an odd depth that mostly faced outwards in
+        ``W`` (by area), now turned inwards.
     """
     k = len(W)
     manifold = np.flatnonzero(edge_counts[edge_of_half] == 2)
@@ -288,9 +349,72 @@ def orient(V: np.ndarray, W: np.ndarray, half: np.ndarray, edge_of_half: np.ndar
     centre /= np.bincount(piece, minlength=n_pieces)[:, None]
     c = centre[piece]
     signed = np.einsum("ij,ij->i", tri[:, 0] - c, np.cross(tri[:, 1] - c, tri[:, 2] - c))
-    inward = np.bincount(piece, weights=signed, minlength=n_pieces) < 0
-    oriented = np.where(inward[piece][:, None], oriented[:, ::-1], oriented)
-    return oriented, misoriented
+    volume = np.bincount(piece, weights=signed, minlength=n_pieces)
+    odd = nesting_depths(V, oriented, piece, n_pieces) % 2 == 1
+    turn = np.where(odd, volume > 0, volume < 0)
+    oriented = np.where(turn[piece][:, None], oriented[:, ::-1], oriented)
+    # the pieces at odd depths that mostly faced outwards in the input (by area)
+    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    reversed_area = np.bincount(piece, weights=area * (flip ^ turn[piece]),
+                                minlength=n_pieces)
+    total = np.bincount(piece, weights=area, minlength=n_pieces)
+    outward = np.flatnonzero(odd & (reversed_area > 0.5 * total))
+    firsts = np.unique(piece, return_index=True)[1]
+    return oriented, misoriented, [int(firsts[p]) for p in outward]
+
+
+#: Points of a piece (its triangles' centroids) tested to tell whether it lies inside another.
+NESTING_SAMPLES = 32
+
+
+def nesting_depths(V: np.ndarray, F: np.ndarray, piece: np.ndarray,
+                   n_pieces: int) -> np.ndarray:
+    """How many other pieces each piece of the triangles F lies inside: piece p lies inside
+    piece q when p's bounding box lies strictly inside q's and the winding number of q
+    (:func:`winding_numbers`, by absolute value) exceeds 1/2 at up to ``NESTING_SAMPLES`` of
+    p's triangle centroids, all of them (a piece that only overlaps q is not inside it)."""
+    depth = np.zeros(n_pieces, dtype=np.int64)
+    if n_pieces < 2:
+        return depth
+    tri = V[F]
+    lo = np.full((n_pieces, 3), np.inf)
+    hi = np.full((n_pieces, 3), -np.inf)
+    np.minimum.at(lo, piece, tri.min(axis=1))
+    np.maximum.at(hi, piece, tri.max(axis=1))
+    order = np.argsort(piece, kind="stable")
+    starts = np.searchsorted(piece[order], np.arange(n_pieces + 1))
+    centroid = tri.mean(axis=1)
+    for q in range(n_pieces):
+        inner = np.flatnonzero(np.all(lo > lo[q], axis=1) & np.all(hi < hi[q], axis=1))
+        if len(inner) == 0:
+            continue
+        samples = [order[starts[p]:starts[p + 1]] for p in inner]
+        samples = [f[np.linspace(0, len(f) - 1, min(len(f), NESTING_SAMPLES)).astype(int)]
+                   for f in samples]
+        w = np.abs(winding_numbers(centroid[np.concatenate(samples)], V,
+                                   F[order[starts[q]:starts[q + 1]]]))
+        bounds = np.cumsum([0] + [len(f) for f in samples])
+        for p, a, b in zip(inner, bounds[:-1], bounds[1:], strict=True):
+            depth[p] += bool(np.all(w[a:b] > 0.5))
+    return depth
+
+
+def winding_numbers(P: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """The generalized winding number of the triangles F at each point P (Jacobson et al.
+    2013): their solid angles (van Oosterom and Strackee 1983) over 4 pi; 1 inside a closed
+    outward surface, 0 outside, in between near the holes of an open one."""
+    out = np.empty(len(P))
+    A0, B0, C0 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    chunk = max(1, 200_000 // max(len(F), 1))
+    for s in range(0, len(P), chunk):
+        p = P[s:s + chunk, None, :]
+        A, B, C = A0 - p, B0 - p, C0 - p
+        a, b, c = (np.linalg.norm(X, axis=2) for X in (A, B, C))
+        det = np.einsum("pki,pki->pk", A, np.cross(B, C))
+        den = (a * b * c + np.einsum("pki,pki->pk", A, B) * c
+               + np.einsum("pki,pki->pk", B, C) * a + np.einsum("pki,pki->pk", C, A) * b)
+        out[s:s + chunk] = np.arctan2(det, den).sum(axis=1) / (2 * np.pi)
+    return out
 
 
 def self_intersections(V: np.ndarray, F: np.ndarray) -> np.ndarray:

@@ -36,7 +36,7 @@ from wiggly.mesh.defects import (
     diagonal,
 )
 from wiggly.mesh.validate import check_tet_mesh, checked_surface, refuse_defects
-from wiggly.progress import activity, deprecated_progress, reporting
+from wiggly.progress import Activity, activity, deprecated_progress, log, reporting
 
 # --------------------------------------------------------------------------- meshing
 
@@ -120,7 +120,8 @@ def tetrahedralize(
 
     The surface is inspected first (:func:`inspect_surface`).  By default (``repair=True``)
     an open, non-manifold, misoriented or self-intersecting surface is accepted: its
-    triangles are oriented consistently and fTetWild fills the solid they enclose (it decides
+    triangles are oriented consistently, each closed shell by its nesting (a shell inside
+    another faces into its cavity), and fTetWild fills the solid they enclose (it decides
     inside and outside by generalized winding numbers, so it copes with self-intersections,
     overlapping parts and holes); one :class:`MeshRepairWarning` says what was unusual.
     ``repair=False`` refuses such a surface (:class:`SurfaceDefectError`).  What cannot be
@@ -294,8 +295,6 @@ def tetrahedralize_with_report(
     V, F = used_only(V, F)
     info = {"edge_length": h, "estimate": estimate, "input_faces": len(F),
             "simplified": simple is not None}
-    import pytetwild
-
     envelope = float(np.clip(ENVELOPE_PER_EDGE * h / report.diagonal, 1e-3, 1e-2))
     cached = _tet_cache(V, F, h, envelope, cache_dir)
     tv = tt = None
@@ -313,16 +312,7 @@ def tetrahedralize_with_report(
         name = os.path.basename(source) or source  # as the checking line names it
         with activity(f"tetrahedralizing {name} (fTetWild: {what}, about "
                       f"{_round(estimate)} tets)") as line:
-            # in a child, the line ticks (the call holds the interpreter lock) and its log
-            # names the stages, on the line or every NOTE_EVERY seconds in the log
-            if (line.live or line.logged) and can_run_child():
-                tv, tt = tetwild_child.tetrahedralize_in_child(
-                    V, F, options, tetwild_child.Log(line, OPTIMIZATION_PASSES, STOP_ENERGY))
-            else:
-                with _scratch_cwd():
-                    tv, tt = pytetwild.tetrahedralize(
-                        np.ascontiguousarray(V), np.ascontiguousarray(F, dtype=np.int32),
-                        quiet=True, loglevel=6, **options)
+            tv, tt = _fill_or_retry(V, F, options, line, source, h, report.volume)
         if cached is not None and len(tt):
             try:  # first writer wins: every process then meshes this surface the same way
                 with atomic_file(cached, replace=False) as tmp, open(tmp, "wb") as f:
@@ -343,6 +333,72 @@ def tetrahedralize_with_report(
         )
     mesh = TetMesh(*used_only(np.asarray(tv, dtype=np.float64), tt))
     return check_tet_mesh(mesh, f"{source} (tetrahedralized)"), report, info
+
+
+#: fTetWild's smallest envelope (relative to the bounding-box diagonal) that wiggly asks for
+MIN_ENVELOPE = 1e-3
+
+
+def _fill(V: np.ndarray, F: np.ndarray, options: dict, line: Activity) -> tuple:
+    """fTetWild on (V, F): in a child process wherever one can be started, so that its crash
+    ends only the child (:class:`tetwild_child.MesherCrash`) and the line ticks meanwhile (the
+    call holds the interpreter lock); in-process only in hosts that cannot start a Python
+    child (Blender's binary)."""
+    if can_run_child():
+        return tetwild_child.tetrahedralize_in_child(
+            V, F, options, tetwild_child.Log(line, OPTIMIZATION_PASSES, STOP_ENERGY))
+    import pytetwild
+
+    with _scratch_cwd():
+        return pytetwild.tetrahedralize(
+            np.ascontiguousarray(V), np.ascontiguousarray(F, dtype=np.int32),
+            quiet=True, loglevel=6, **options)
+
+
+#: A fill of less than this share of the surface's enclosed volume is tried again with the
+#: smallest envelope.
+LOST_SHARE = 0.5
+
+
+def _fill_or_retry(V: np.ndarray, F: np.ndarray, options: dict, line: Activity,
+                   source: str, h: float, volume: float) -> tuple:
+    """:func:`_fill`; once more with the smallest envelope if fTetWild crashes or fills less
+    than ``LOST_SHARE`` of the surface's enclosed ``volume``, keeping the fuller result; two
+    crashes are a refusal that says what to try.  A 2 m rod of 5 mm diameter at resolutions
+    12 and 25 always made fTetWild segfault with wiggly's envelope, wider than the rod; one of
+    20 mm crashed or gave 0-2 tets; with the smallest envelope both meshed in 2-7 s."""
+    tv = tt = None
+    filled = 0.0
+    try:
+        tv, tt = _fill(V, F, options, line)
+        filled = _volume(tv, tt)
+        if filled >= LOST_SHARE * volume or options["epsilon"] <= MIN_ENVELOPE:
+            return tv, tt
+        why = f"filled {100 * filled / volume:.2g} % of the surface's volume"
+    except tetwild_child.MesherCrash as crash:
+        failure = crash
+        why = f"crashed (signal {crash.signal})"
+    if options["epsilon"] > MIN_ENVELOPE:
+        log.info("%s: fTetWild %s with an envelope of %.2g of the diagonal; retrying with "
+                 "%.2g", source, why, options["epsilon"], MIN_ENVELOPE)
+        try:
+            tv2, tt2 = _fill(V, F, {**options, "epsilon": MIN_ENVELOPE}, line)
+            return (tv2, tt2) if tv is None or _volume(tv2, tt2) > filled else (tv, tt)
+        except tetwild_child.MesherCrash as crash:
+            if tv is not None:
+                return tv, tt
+            failure = crash
+    raise WigglyInputError(
+        f"{source}: the tetrahedralizer (fTetWild) crashed on this surface (signal "
+        f"{failure.signal}), also with its tightest envelope; try another resolution or "
+        f"edge_length (now {h:.3g} m; thin parts mesh better with shorter edges), or "
+        "tetrahedralize it yourself and bring the tet mesh (.msh, .vtu).")
+
+
+def _volume(tv: np.ndarray, tt: np.ndarray) -> float:
+    """The total volume of fTetWild's tets (m^3)."""
+    V, T = np.asarray(tv, dtype=np.float64), np.asarray(tt, dtype=np.int64).reshape(-1, 4)
+    return float(np.abs(np.linalg.det(V[T[:, 1:]] - V[T[:, :1]])).sum()) / 6
 
 
 def _round(x: float) -> str:

@@ -1,5 +1,5 @@
-"""Reading models: surfaces (OBJ, PLY, STL, OFF, glTF: trimesh) and tet meshes (MSH, VTU,
-MESH, ...: meshio), with their vertex groups; the bundled models."""
+"""Reading models: surfaces (PLY, STL, OFF, glTF: trimesh; OBJ: :mod:`wiggly.mesh.obj`) and
+tet meshes (MSH, VTU, MESH, ...: meshio), with their vertex groups; the bundled models."""
 
 from __future__ import annotations
 
@@ -22,6 +22,7 @@ from wiggly.mesh.data import (
     check_surface_arrays,
 )
 from wiggly.mesh.defects import diagonal
+from wiggly.mesh.obj import read_obj
 from wiggly.mesh.validate import check_tet_mesh
 
 # --------------------------------------------------------------------------- loading
@@ -56,13 +57,13 @@ def load_mesh(path: str | Path, scale: float = 1.0, up: str = "y") -> TetMesh | 
     - STL stores every triangle with its own three corners, so the surface has
       ``3 * n_faces`` vertices in face order (welded by position in
       :func:`check_surface` and :func:`tetrahedralize`).
-    - OBJ is read with ``maintain_order=True``: the vertices are the file's
-      ``v`` lines (if the file has texture coordinates, ``v`` lines after the
-      last one used by a face are dropped), faces in file order, polygons
-      split into triangles. Texture coordinates and normals are attached per
-      vertex only when every corner of a vertex has the same ``vt`` (``vn``);
-      at a UV seam (one ``v`` with several ``vt``) ``uvs`` is ``None`` and a
-      warning says so. OBJ groups (``g``, ``o``) and materials are not read.
+    - OBJ is read by :func:`wiggly.mesh.obj.read_obj`: the vertices are all the
+      file's ``v`` lines, in order (also those no face uses), faces in file
+      order, polygons split into triangles, negative indices counted back.
+      Texture coordinates and normals are attached per vertex only when every
+      corner of a vertex has the same ``vt`` (``vn``); at a UV seam (one ``v``
+      with several ``vt``) ``uvs`` is ``None`` and a warning says so. OBJ
+      groups (``g``, ``o``) and materials are not read.
     - PLY and OFF: exactly the file's vertices and faces.
     - glTF stores one UV per vertex, so its vertices are already split at seams.
       A scene with several meshes is concatenated in node order with each
@@ -237,6 +238,7 @@ def _load_trimesh(path: Path, ext: str) -> Surface:
 
     source = str(path)
     try:
+        _check_content(path, ext)
         if ext == ".stl":
             _check_stl_length(path)
         if ext in (".glb", ".gltf"):  # compressed geometry trimesh cannot decode, named
@@ -245,7 +247,7 @@ def _load_trimesh(path: Path, ext: str) -> Surface:
             _check_glb_magic(path, ext)
             GltfFile(path)
         if ext == ".obj":
-            return _obj_surface(path)
+            return read_obj(path)
         loaded = trimesh.load(path, process=False)
     except WigglyInputError:
         raise
@@ -303,19 +305,82 @@ def _warn_posed(path: Path, bind: list[tuple[slice, np.ndarray]], posed: np.ndar
             "export: Data > Armature > Use Rest Position).", stacklevel=3)
 
 
+#: The surface formats' names in messages, by extension.
+FORMAT_NAMES = {".obj": "OBJ", ".ply": "PLY", ".stl": "STL", ".off": "OFF",
+                ".glb": "binary glTF", ".gltf": "glTF"}
+_ARTICLES = {".obj": "an", ".stl": "an", ".off": "an"}
+
+
+def _is_text(data: bytes) -> bool:
+    """Whether ``data`` looks like ASCII text (printable characters and whitespace)."""
+    return not data.translate(None, bytes(range(32, 127)) + b"\t\r\n\f\v")
+
+
+def _binary_stl(head: bytes, size: int) -> bool:
+    """Whether a file of ``size`` bytes starting with ``head`` is a binary STL: its size is
+    exactly what its header's triangle count says (whatever the header's text)."""
+    return len(head) >= 84 and size == 84 + 50 * int.from_bytes(head[80:84], "little")
+
+
+def _sniff(head: bytes, size: int) -> str | None:
+    """The surface format a file's first bytes show (an extension), or None if unsure."""
+    first = head.split(None, 1)[0] if head.strip() else b""
+    if first == b"ply":
+        return ".ply"
+    if head.startswith(b"glTF"):
+        return ".glb"
+    if first in (b"OFF", b"COFF", b"NOFF", b"CNOFF", b"STOFF", b"4OFF"):
+        return ".off"
+    if _binary_stl(head, size):
+        return ".stl"
+    if first.lower() == b"solid" and b"facet" in head.lower() and _is_text(head):
+        return ".stl"
+    if head.lstrip().startswith(b"{") and b'"asset"' in head:
+        return ".gltf"
+    return None
+
+
+def _check_content(path: Path, ext: str) -> None:
+    """Refuse an empty file, and a file whose first bytes show another format than its
+    extension's (a binary STL named .obj), naming the format it is."""
+    size = path.stat().st_size
+    if size == 0:
+        raise WigglyInputError(f"{path}: the file is empty (0 bytes); export or copy it "
+                               "again.")
+    with open(path, "rb") as file:
+        head = file.read(1024)
+    found = _sniff(head, size)
+    if found is None or found == ext or {found, ext} == {".glb", ".gltf"}:
+        return
+    raise WigglyInputError(
+        f"{path}: is {_ARTICLES.get(found, 'a')} {FORMAT_NAMES[found]} file, not "
+        f"{FORMAT_NAMES[ext]} as its extension "
+        f"says; rename it to end in {found} (or export it again as {FORMAT_NAMES[ext]}).")
+
+
 def _check_stl_length(path: Path) -> None:
-    """Refuse a binary STL shorter than its header says (cut short while copied or
-    downloaded): trimesh would read the triangles it finds, or none."""
+    """Refuse an STL cut short (while copied or downloaded): a binary one shorter than its
+    header says (also one whose header starts with "solid", as SolidWorks writes), an ASCII
+    one without its closing ``endsolid``.  trimesh would read the triangles it finds, or
+    none."""
     size = path.stat().st_size
     with open(path, "rb") as file:
-        head = file.read(84)
-    if len(head) < 84:
-        if not head.lstrip().lower().startswith(b"solid"):
-            raise WigglyInputError(f"{path}: is not an STL file: it has {size} bytes, fewer "
-                                   "than a binary STL's 84-byte header")
+        head = file.read(1024)
+        file.seek(max(size - 256, 0))
+        tail = file.read()
+    ascii_stl = head.lstrip().lower().startswith(b"solid") and _is_text(head) \
+        and not _binary_stl(head, size)
+    if ascii_stl:
+        if b"endsolid" not in tail.lower():
+            raise WigglyInputError(
+                f"{path}: the file is cut short: an ASCII STL ends with an 'endsolid' line, "
+                f"and this one stops after {size} bytes without it; copy or export it again")
         return
+    if len(head) < 84:
+        raise WigglyInputError(f"{path}: is not an STL file: it has {size} bytes, fewer "
+                               "than a binary STL's 84-byte header")
     n = int.from_bytes(head[80:84], "little")
-    if size < 84 + 50 * n and not head.lstrip().lower().startswith(b"solid"):
+    if size < 84 + 50 * n:
         raise WigglyInputError(
             f"{path}: the file is cut short: its binary STL header announces {n} triangles "
             f"({84 + 50 * n} bytes) but it has {size} bytes; copy or export it again")
@@ -333,39 +398,10 @@ def _check_glb_magic(path: Path, ext: str) -> None:
 
 
 def _unreadable(path: Path, ext: str, exc: Exception) -> str:
-    """What to tell of a surface file trimesh could not read: the cause where the file shows
-    it (an OBJ face naming a vertex the file lacks), else the reader's own words."""
-    if ext == ".obj":
-        bad = _obj_bad_index(path)
-        if bad is not None:
-            return f"{path}: {bad}"
+    """What to tell of a surface file trimesh could not read: the reader's own words."""
     kind = ext.lstrip(".").upper()
     return (f"{path}: could not be read as {kind} ({type(exc).__name__}: {exc}); check that "
             f"the file is complete and is {kind}, as its extension says")
-
-
-def _obj_bad_index(path: Path) -> str | None:
-    """The first OBJ face line that names a vertex the file does not have (1-based; negative
-    numbers count back from the last ``v`` line before the face), or None."""
-    with open(path, "rb") as file:
-        lines = file.read().splitlines()
-    total = sum(1 for raw in lines if raw.split()[:1] == [b"v"])
-    n = 0
-    for line_no, raw in enumerate(lines, 1):
-        words = raw.split()
-        if words[:1] == [b"v"]:
-            n += 1
-        elif words[:1] == [b"f"]:
-            for word in words[1:]:
-                try:
-                    i = int(word.split(b"/")[0])
-                except ValueError:
-                    return (f"line {line_no}: face corner {word.decode(errors='replace')!r} is "
-                            "not a vertex number")
-                if i == 0 or i > total or i < -n:
-                    return (f"line {line_no}: a face names vertex {i}, but the file has {total} "
-                            "vertices ('v' lines); the file is damaged or cut short")
-    return None
 
 
 _NO_TRIANGLES = (
@@ -433,82 +469,3 @@ def _concatenate(meshes: list[tuple[str, object, np.ndarray | None]]) -> Surface
         normals=None if any(n is None for n in normals) else np.concatenate(normals),
         groups=groups,
     )
-
-
-def _obj_surface(path: Path) -> Surface:
-    """An OBJ surface with the file's ``v`` order and unambiguous per-vertex UVs and normals.
-
-    trimesh's ordered read keeps the ``v`` lines but then guesses one UV per
-    vertex; a second read that splits vertices at seams gives every face corner
-    its true ``vt`` and ``vn``, which are kept per vertex only where they agree.
-    """
-    ordered = _obj_chunks(path, maintain_order=True)
-    if not ordered:
-        raise WigglyInputError(_NO_TRIANGLES.format(source=path))
-    # with maintain_order every chunk holds a prefix of the file's v lines
-    V = np.asarray(max((c["vertices"] for c in ordered), key=len), dtype=np.float64)
-    F = np.concatenate([np.asarray(c["faces"], dtype=np.int64) for c in ordered])
-    uvs = normals = None
-    if any(_chunk_uv(c) is not None or "vertex_normals" in c for c in ordered):
-        split = _obj_chunks(path, maintain_order=False)
-        corners = np.concatenate([np.asarray(c["vertices"])[c["faces"]] for c in split])
-        if corners.shape == (len(F), 3, 3) and np.allclose(corners, V[F], rtol=0, atol=0):
-            uv = [_chunk_uv(c) for c in split]
-            if all(u is not None for u in uv):
-                uvs = _per_vertex(
-                    np.concatenate([u[c["faces"]] for u, c in zip(uv, split, strict=True)]),
-                    F,
-                    len(V),
-                )
-                if uvs is None:
-                    warnings.warn(
-                        f"{path}: some vertices have several texture coordinates (UV seams); "
-                        "per-vertex UVs cannot represent that, so the surface has no UVs. The "
-                        "vertex order is the file's, so the animation still applies to it.",
-                        stacklevel=4,
-                    )
-            if all("vertex_normals" in c for c in split):
-                corner_normals = [np.asarray(c["vertex_normals"])[c["faces"]] for c in split]
-                normals = _per_vertex(np.concatenate(corner_normals), F, len(V))
-    return Surface(V, F, uvs=uvs, normals=normals)
-
-
-def _obj_chunks(path: Path, maintain_order: bool) -> list[dict]:
-    """trimesh's OBJ reader output: one dict per material chunk, in file order."""
-    from trimesh.exchange.obj import load_obj
-
-    with open(path, "rb") as file:
-        kwargs = load_obj(
-            file, maintain_order=maintain_order, group_material=False, skip_materials=True
-        )
-    # trimesh builds the chunks from the end of the file backwards
-    chunks = list(kwargs.get("geometry", {}).values())[::-1]
-    for chunk in chunks:  # a file of quads only comes back as quads (mixed: triangles)
-        faces = np.asarray(chunk["faces"], dtype=np.int64)
-        if faces.ndim == 2 and faces.shape[1] == 4:
-            chunk["faces"] = np.concatenate([faces[:, [0, 1, 2]], faces[:, [0, 2, 3]]])
-    return chunks
-
-
-def _chunk_uv(chunk: dict) -> np.ndarray | None:
-    """Per-vertex texture coordinates of one OBJ chunk, if any."""
-    uv = getattr(chunk.get("visual"), "uv", None)
-    if uv is None or len(uv) != len(chunk["vertices"]):
-        return None
-    return np.asarray(uv, dtype=np.float64)[:, :2]
-
-
-def _per_vertex(corner_values: np.ndarray, F: np.ndarray, n: int) -> np.ndarray | None:
-    """Scatter per-corner values ``(k, 3, d)`` to vertices, or None if a vertex's corners differ."""
-    d = corner_values.shape[-1]
-    flat = corner_values.reshape(-1, d)
-    idx = F.ravel()
-    low = np.full((n, d), np.inf)
-    high = np.full((n, d), -np.inf)
-    np.minimum.at(low, idx, flat)
-    np.maximum.at(high, idx, flat)
-    if (high - low > 1e-12 * (1 + np.abs(flat).max())).any():
-        return None
-    values = np.zeros((n, d))
-    values[idx] = flat
-    return values

@@ -1,4 +1,5 @@
-"""fTetWild in a child process, so that its progress can be shown while it runs.
+"""fTetWild in a child process, so that its progress can be shown while it runs, and so that
+a crash of fTetWild (it segfaults on some surfaces, e.g. long thin rods) ends only the child.
 
 pytetwild holds the interpreter lock for its whole call (1-120 s on the surfaces users
 bring), so no thread of the calling process runs meanwhile: a live stage line would freeze
@@ -23,7 +24,16 @@ import numpy as np
 from wiggly.child import python_child
 from wiggly.progress import Activity, log
 
-__all__ = ["Log", "tetrahedralize_in_child"]
+__all__ = ["Log", "MesherCrash", "tetrahedralize_in_child"]
+
+
+class MesherCrash(RuntimeError):
+    """fTetWild's child process was ended by a signal (``signal``: 11 for a segmentation
+    fault, 6 for an abort), not by an error Python could report."""
+
+    def __init__(self, message: str, signal: int) -> None:
+        super().__init__(message)
+        self.signal = signal
 
 
 class Log:
@@ -67,7 +77,8 @@ class Log:
 def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
                             on_line: Callable[[str], None]) -> tuple[np.ndarray, np.ndarray]:
     """``pytetwild.tetrahedralize(V, F, **options)`` in a child process, its log lines handed
-    to ``on_line`` as they come.  Ctrl+C (or any exception here) ends the child."""
+    to ``on_line`` as they come.  Ctrl+C (or any exception here) ends the child.  A crash of
+    fTetWild (a signal) is :class:`MesherCrash`; any other failure a ``RuntimeError``."""
     with tempfile.TemporaryDirectory(prefix="wiggly-ftetwild-") as tmp:
         inp, out = Path(tmp, "surface.npz"), Path(tmp, "tets.npz")
         np.savez(inp, vertices=np.ascontiguousarray(V, np.float64),
@@ -77,6 +88,9 @@ def tetrahedralize_in_child(V: np.ndarray, F: np.ndarray, options: dict,
             for text in child.lines():
                 on_line(text)
             code = child.wait()
+        if code < 0:
+            raise MesherCrash(f"fTetWild's process was ended by signal {-code}: "
+                              + child.error_tail(), -code)
         if code != 0 or not out.exists():
             raise RuntimeError(f"fTetWild's process ended with code {code}: "
                                + child.error_tail())
