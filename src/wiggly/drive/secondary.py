@@ -3,9 +3,9 @@
 A driver (a rig's walk, a motion-capture clip) is a *moving rest state* of the whole body
 (Complementary Dynamics, Zhang et al. 2020): the rig field ubar(t) is the driver's
 displacement of every surface vertex, extended into the tet mesh (its best-fit affine motion
-exactly, plus a harmonic extension of the rest; elastic forces act on Psi q only, so the extension enters through the mass
-matrix alone) and unwarped for warped playback (:mod:`wiggly.drive.unwarp`), cubic in time
-through the driver's frames.  The motion is
+exactly, plus a harmonic extension of the rest; elastic forces act on Psi q only, so the
+extension enters through the mass matrix alone) and unwarped for warped playback
+(:mod:`wiggly.drive.unwarp`), cubic in time through the driver's frames.  The motion is
 
     u(t) = ubar(t) + Psi q(t),
 
