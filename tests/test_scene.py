@@ -8,6 +8,7 @@ import math
 import os
 import shutil
 import tomllib
+import warnings
 from pathlib import Path
 
 import jsonschema
@@ -841,3 +842,43 @@ def test_a_z_up_mesh_with_mesh_up_axis_is_the_same_body(tmp_path):
     assert np.allclose(turned.modes.eigenvalues, upright.modes.eigenvalues, rtol=1e-8)
     with pytest.raises(WigglyInputError, match=r'mesh.up_axis = "x" must be "y" or "z"'):
         load_scene(write(tmp_path, mutate("mesh.up_axis", "x"), "x.toml"))
+
+
+def test_parts_meeting_at_an_edge_are_said_to_hinge(tmp_path):
+    """Two boxes that share only an edge, joined there by one sliver tet (as fTetWild may join
+    them): the top box swung tens of metres between keys, said only as a soft-material note;
+    the joint is warned about, naming where it is.  Without the sliver the hinge is free, and
+    refused (an extra zero-energy mode).  A soft box alone gets no joint warning."""
+    from wiggly.scene import run
+
+    V, T = box_mesh((4, 4, 4), (0.4, 0.4, 0.4))
+    upper = V + np.array([-0.4, 0.4, 0.0])  # it shares the edge x = 0, y = 0.4
+    X = np.vstack([V, upper])
+    X, index = np.unique(np.round(X, 9), axis=0, return_inverse=True)
+    tets = index.ravel()[np.vstack([T, T + len(V)])]
+
+    def at(p):
+        return int(np.argmin(np.linalg.norm(X - p, axis=1)))
+
+    sliver = [at([0, 0.4, 0.1]), at([0, 0.4, 0.2]), at([0.1, 0.4, 0.1]), at([0, 0.5, 0.1])]
+    if np.linalg.det(X[sliver[1:]] - X[sliver[0]]) < 0:
+        sliver = [sliver[0], sliver[2], sliver[1], sliver[3]]
+    meshio.write(tmp_path / "hinged.vtu", meshio.Mesh(X, [("tetra", np.vstack([tets, sliver]))]))
+    meshio.write(tmp_path / "free.vtu", meshio.Mesh(X, [("tetra", tets)]))
+    meshio.write(tmp_path / "box.vtu", meshio.Mesh(V, [("tetra", T)]))
+    for name in ("hinged", "free", "box"):
+        (tmp_path / f"{name}.toml").write_text(tomli_w.dumps({
+            "mesh": {"path": f"{name}.vtu"},
+            "simulation": {"modes": 12, "warp": False, "fixed": ["bottom"]},
+            "time": {"end": 1.0, "fps": 10},
+            "groups": {"bottom": {"box": {"min": [-1, -0.01, -1], "max": [1, 0.05, 1]}}}}))
+    with pytest.warns(UserWarning, match=r"the body bends almost freely at a joint near "
+                                         r"\(0\.025, 0\.425, 0\.125\) m: 1 of its 769 tets "
+                                         r"holds half the elastic energy"):
+        run(load_scene(tmp_path / "hinged.toml"), outputs=[])
+    with pytest.raises(WigglyInputError, match="parts joined only at a vertex or an edge"):
+        run(load_scene(tmp_path / "free.toml"), outputs=[])
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        run(load_scene(tmp_path / "box.toml"), outputs=[])
+    assert not [w for w in said if "joint" in str(w.message)]

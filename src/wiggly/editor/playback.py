@@ -309,7 +309,7 @@ class Playback:
         """:meth:`_solve` once the body is ready."""
         from wiggly.scene import keyframes_of, problem_of, scene_to_dict
         from wiggly.scene.drive import check_driver_against, secondary_of
-        from wiggly.scene.run import soft_note
+        from wiggly.scene.run import soft_note, thin_joint
         from wiggly.scene.validation import Problems
 
         if scene.drive is not None:  # the driver's scale and axes, as `wiggly animate` checks
@@ -350,8 +350,8 @@ class Playback:
         self._publish(FrameSet(0, req.seq, req.version, "linear", final, float(times[0]), fps,
                                positions, req.kind, info))
         if req.kind == "final":
-            self._tell_once(scene, soft_note(
-                scene, body, anim.held_modes if scene.secondary_motion else None))
+            held = anim.held_modes if scene.secondary_motion else None
+            self._tell_once(scene, soft_note(scene, body, held) or thin_joint(scene, body, held))
         if req.kind == "final" and scene.source not in self._told_falling:
             rest = body.rest_positions()
             notice = fall_notice(positions, times, scene.simulation.gravity,

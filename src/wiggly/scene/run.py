@@ -226,9 +226,13 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
         anim = solve_scene(scene, body, keyframes, groups=groups)
     _said_of(scene, said)
     timings["solve"] = _time.perf_counter() - t
-    note = soft_note(scene, body, anim.held_modes if scene.secondary_motion else None)
+    held = anim.held_modes if scene.secondary_motion else None
+    note = soft_note(scene, body, held)
     if note is not None:
         say(f"note: {note}")
+    joint = thin_joint(scene, body, held)
+    if joint is not None:
+        warnings.warn(f"{scene.where()}: {joint}", stacklevel=2)
     highlights = check_motion(scene, body, anim, groups, paths)
     written = write_outputs(scene, anim, paths, overwrite=overwrite, highlights=highlights,
                             timings=timings)
@@ -281,12 +285,60 @@ def static_sag(body, modes: tuple[np.ndarray, np.ndarray] | None = None) -> floa
         if body.modes.n_rigid:
             return None
         modes = (body.modes.vectors, body.modes.eigenvalues)
+    u = _sag_field(body, modes)
+    return None if u is None else float(np.sqrt((u**2).sum(axis=1)).max())
+
+
+def _sag_field(body, modes: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
+    """The static sag's tet-vertex displacements (n, 3) of :func:`static_sag`, or None."""
+    if not np.any(body.gravity):
+        return None
+    if modes is None:
+        if body.modes.n_rigid:
+            return None
+        modes = (body.modes.vectors, body.modes.eigenvalues)
     psi, lam = modes
     if not len(lam) or np.any(lam <= 0):
         return None
     q = -(psi.T @ body.gravity_vector) / lam
-    u = (psi @ q).reshape(-1, 3)
-    return float(np.sqrt((u**2).sum(axis=1)).max())
+    return (psi @ q).reshape(-1, 3)
+
+
+#: A sag whose elastic energy lies for half in at most this share of the tets bends the body
+#: at a joint, not along it (two boxes meeting at an edge: 1.0 %; soft bars, a critter and a
+#: plant held at one end, at two resolutions: 5.5-11 %).
+JOINT_SHARE = 0.02
+
+
+def thin_joint(scene: Scene, body,
+               held: tuple[np.ndarray, np.ndarray] | None = None) -> str | None:
+    """Why the motion may swing far when a held body's sag under gravity (more than ``SAG``
+    of its size, :func:`static_sag`) bends it at a joint: half its elastic energy in at most
+    ``JOINT_SHARE`` of the tets (two parts meeting at an edge, which the tets join by a
+    sliver), so that the parts hinge on it almost freely; None otherwise."""
+    from wiggly.fem import lame_parameters, tet_gradients
+
+    u = _sag_field(body, held)
+    X, T = body.tets.vertices, body.tets.tets
+    size = diagonal(body.rest_positions())
+    if u is None or np.sqrt((u**2).sum(axis=1)).max() <= SAG * size or len(T) < 2:
+        return None
+    grads, vol = tet_gradients(X, T)
+    G = np.einsum("mai,maj->mij", u[T], grads)  # du_i / dX_j per tet
+    eps = 0.5 * (G + G.transpose(0, 2, 1))
+    lam, mu = lame_parameters(body.material.young, body.material.poisson)
+    energy = vol * (mu * np.einsum("mij,mij->m", eps, eps)
+                    + 0.5 * lam * np.trace(eps, axis1=1, axis2=2) ** 2)
+    order = np.argsort(energy)[::-1]
+    k = int(np.searchsorted(np.cumsum(energy[order]), 0.5 * energy.sum())) + 1
+    if k > JOINT_SHARE * len(T):
+        return None
+    near = X[T[order[:k]]].reshape(-1, 3).mean(axis=0)
+    return (f"the body bends almost freely at a joint near ({near[0]:.3g}, {near[1]:.3g}, "
+            f"{near[2]:.3g}) m: {k} of its {len(T)} tets {'holds' if k == 1 else 'hold'} half "
+            "the elastic energy of its sag under gravity, as where two parts meet at an edge "
+            "or a corner; its parts hinge there, and keys or gravity can swing them far. Join "
+            "the parts by a face in the model (overlap them a little), or fix or key each part")
 
 
 def soft_note(scene: Scene, body,
@@ -300,6 +352,8 @@ def soft_note(scene: Scene, body,
     modulus, so the note says which modulus sags 5 %.  The command line logs it (a stage
     line; silent with ``-q``), the editor shows it once per scene."""
     held_by = "its fixed vertices hold" if held is None else "its driven group holds"
+    if thin_joint(scene, body, held) is not None:
+        return None  # the joint, not the material: said by thin_joint
     sag = static_sag(body, held)
     size = diagonal(body.rest_positions())
     if sag is None or sag <= SAG * size:
