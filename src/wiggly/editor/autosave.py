@@ -22,7 +22,8 @@ from pathlib import Path
 from wiggly.errors import WigglyInputError
 from wiggly.scene import Scene, scene_to_toml
 
-__all__ = ["Autosaver", "autosave_base", "autosave_path", "set_aside_if_stale", "write_durably"]
+__all__ = ["Autosaver", "autosave_base", "autosave_path", "set_aside_if_stale", "write_autosave",
+           "write_durably"]
 
 _BASE = "# wiggly autosave of the scene file with sha256 "
 
@@ -74,6 +75,12 @@ def write_durably(target: Path, text: str) -> None:
     os.replace(tmp, target)
 
 
+def write_autosave(target: Path, scene: Scene, base: str | None) -> None:
+    """Write the autosave ``target`` of ``scene`` (edited from the scene file whose bytes
+    have the digest ``base``; None: no file yet), atomically."""
+    write_durably(target, f"{_BASE}{base or 'none'}\n" + scene_to_toml(scene))
+
+
 class Autosaver:
     """Writes (``scene``) or removes (``None``) autosave files on one background thread;
     ``on_error(message)`` is told when a write fails."""
@@ -119,8 +126,7 @@ class Autosaver:
                 if item is None:
                     target.unlink(missing_ok=True)
                 else:
-                    scene, base = item
-                    write_durably(target, f"{_BASE}{base or 'none'}\n" + scene_to_toml(scene))
+                    write_autosave(target, *item)
             except (OSError, WigglyInputError) as err:
                 self._on_error(f"autosave failed: {err}")
             finally:

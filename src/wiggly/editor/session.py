@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from wiggly import limits
-from wiggly.editor.autosave import Autosaver, autosave_path, set_aside_if_stale
+from wiggly.editor.autosave import Autosaver, autosave_path
 from wiggly.editor.bus import EventBus
 from wiggly.editor.history import (
     DEFAULT_TAB,
@@ -41,6 +41,7 @@ from wiggly.editor.history import (
 )
 from wiggly.editor.physics import Physics
 from wiggly.editor.playback import FrameSet, Playback
+from wiggly.editor.recovery import recover
 from wiggly.editor.sandbox import Sandbox
 from wiggly.editor.scene_files import (
     MESH_SUFFIXES,
@@ -50,7 +51,6 @@ from wiggly.editor.scene_files import (
     export_written,
     file_digest,
     free_name,
-    load_checked,
     new_scene,
     surface_of,
 )
@@ -64,7 +64,6 @@ from wiggly.editor.state import (
     state_to_json,
 )
 from wiggly.errors import WigglyInputError
-from wiggly.files import remove_stale
 from wiggly.mesh import DEFAULT_RESOLUTION, VOLUME_EXTENSIONS
 from wiggly.progress import reporting
 from wiggly.scene import (
@@ -236,7 +235,7 @@ class Session:
             self.histories = histories
             self._saved = file_scene
             # the scene file as read: a save checks that nobody changed it since
-            self._disk = file_digest(scene.source)
+            self._disk = histories.disk = file_digest(scene.source)
             self.surface, self.diagonal = surface, diagonal
             self._surface_key = (scene.mesh.path, scene.mesh.metres_per_unit, scene.mesh.up)
             self._opened += 1
@@ -254,38 +253,11 @@ class Session:
 
     def _recover(self, path: str, real: Path, notices: list[str],
                  ) -> tuple[EditorState, Scene | None, Histories]:
-        """The scene file ``real`` with the edits its autosave and journal hold beyond it
-        (the journal's tail replayed over the autosave, which may lag it); the file's scene
+        """The scene file ``real`` with its unsaved edits (:func:`recover`), the file's scene
         (None: never saved) and the histories."""
-        file_scene = load_checked(real) if real.is_file() else None
-        auto = autosave_path(real)
-        for written in (auto, history_path(real)):  # a write a crash cut short (a minute old:
-            remove_stale(written.with_name(written.name + ".part"), 60.0)  # not another's)
-        auto_scene: Scene | None = None
-        stale = set_aside_if_stale(real, file_digest(real), notices)
-        if auto.is_file() and not stale:
-            try:
-                auto_scene = load_checked(auto)
-                auto_scene.source = real
-            except EditError as err:
-                notices.append(f"ignored an unreadable autosave {auto.name}: "
-                               f"{str(err).splitlines()[0]}")
+        self.autosaver.flush()  # a write still pending for this scene must not land later
         histories = self._histories(real)
-        state, notice = histories.load(auto_scene if auto_scene is not None else file_scene,
-                                       real)
-        if notice:
-            notices.append(notice)
-        if state is None:
-            raise EditError(f"{path}: no such file", 404)
-        if state.scene != file_scene:
-            names = [auto.name] if auto_scene is not None and auto_scene != file_scene else []
-            base = auto_scene if auto_scene is not None else file_scene
-            if histories.path is not None and state.scene != base:
-                names.append(histories.path.name)
-            notices.append(f"recovered the unsaved scene from {' and '.join(names)}"
-                           if file_scene is None else
-                           f"recovered unsaved edits from {' and '.join(names)} (the saved "
-                           "file is unchanged until you save)")
+        state, file_scene = recover(path, real, histories, notices)
         return state, file_scene, histories
 
     def save(self, path: str | None = None, overwrite: bool = False) -> dict:
@@ -323,7 +295,7 @@ class Session:
             except OSError as err:
                 raise EditError(unwritable(err, f"cannot save {self.sandbox.relative(target)}",
                                            target.parent), write_status(err)) from None
-            self._disk = file_digest(target)
+            self._disk = self.histories.disk = file_digest(target)
             old_source = scene.source
             out.source = target
             if out is not scene or old_source != target:

@@ -1,0 +1,151 @@
+"""Recovery is idempotent: the scene and undo history an open recovers after a crash come
+back the same after any number of later restarts, clean or killed.
+
+A kill is reproduced by the files it leaves: the editor is closed (its background writes
+done), then the autosave is put back as it was before the last edits, as when the editor is
+killed after their journal lines are on the disk but before their autosave lands.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tests.editor_ui import bar_project
+from wiggly.editor import Sandbox, Session
+from wiggly.editor.session import autosave_path
+from wiggly.scene import load_scene
+
+KEYS = """
+[[keyframes]]
+name = "plant"
+time = 0.25
+group = "mid"
+position = { offset = [0.0, 0.01, 0.0] }
+"""
+
+
+def _open(folder: Path, name: str) -> tuple[Session, list[str]]:
+    session = Session(Sandbox([folder]))
+    return session, session.open(name)["notices"]
+
+
+def _killed(session: Session, autosave: Path, lagging: bytes | None) -> None:
+    """Stop ``session`` as a kill before its last autosave would: the autosave is left as
+    ``lagging`` (None: none was written)."""
+    session.close()
+    if lagging is None:
+        autosave.unlink(missing_ok=True)
+    else:
+        autosave.write_bytes(lagging)
+
+
+def _view(session: Session) -> tuple:
+    return session.scene, session.state.keyframe_ids, session.histories.describe("a")
+
+
+def test_a_recovered_edit_survives_every_later_restart(tmp_path):
+    """Edit A, then B (delete the key "plant"), killed before B's autosave: the restart
+    recovers B; a clean stop and more restarts keep B and its undo step, and no notice
+    says the file was changed elsewhere."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "material", "values": {"young": 8e5}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.edit({"op": "delete_keyframe", "id": 1}, tab="a")
+    expected = _view(s)
+    _killed(s, auto, lagging)
+
+    for restart in range(4):  # the recovery, then clean stops and kills with nothing new
+        s, notices = _open(tmp_path, path.name)
+        try:
+            assert _view(s) == expected, f"restart {restart}"
+            assert expected[2]["undo_label"] == "delete keyframe 'plant' (mid at 0.25 s)"
+            assert not any("outside the editor" in n for n in notices), notices
+            assert any("recovered unsaved edits" in n for n in notices), notices
+        finally:
+            if restart % 2:
+                _killed(s, auto, auto.read_bytes() if auto.exists() else None)
+            else:
+                s.close()
+    s, _ = _open(tmp_path, path.name)
+    try:  # the whole history is there: undo walks back to the file
+        assert s.undo("a")["changed"] and s.undo("a")["changed"]
+        assert s.scene == load_scene(path) and not s.dirty
+    finally:
+        s.close()
+
+
+def test_an_edit_after_a_recovery_survives_the_next_kill(tmp_path):
+    """A crash, a restart that recovers edit B, one more edit C, then a kill before C's
+    autosave: the next restart has B and C."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.edit({"op": "delete_keyframe", "id": 1}, tab="a")
+    _killed(s, auto, lagging)
+
+    s, _ = _open(tmp_path, path.name)
+    assert "plant" not in [k.name for k in s.scene.keyframes]
+    lagging = auto.read_bytes()  # as the recovery left it
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.9}}, tab="a")
+    expected = _view(s)
+    _killed(s, auto, lagging)
+
+    s, notices = _open(tmp_path, path.name)
+    try:
+        assert _view(s) == expected
+        assert len(s.scene.keyframes) == 1 and s.scene.damping.alpha == 0.9
+        assert not any("outside the editor" in n for n in notices), notices
+    finally:
+        s.close()
+
+
+def test_an_undo_back_to_the_file_recovered_after_a_kill_stays_clean(tmp_path):
+    """An edit, its undo (back to the saved file), killed before the autosave was removed:
+    the restart and every later one open the file clean, with the step to redo."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.undo("a")
+    _killed(s, auto, lagging)
+    for restart in range(3):
+        s, notices = _open(tmp_path, path.name)
+        try:
+            assert s.scene == load_scene(path) and not s.dirty, f"restart {restart}"
+            assert s.describe("a")["redo_label"] == "set damping.alpha"
+            assert not any("outside the editor" in n for n in notices), notices
+        finally:
+            s.close()
+
+
+def test_the_journal_alone_recovers_when_the_autosave_is_lost(tmp_path):
+    """After a recovery, the autosave is lost (removed, or unreadable): the journal alone
+    brings the edits back, since the scene file is unchanged since it was written."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.edit({"op": "delete_keyframe", "id": 1}, tab="a")
+    expected = _view(s)
+    s.close()
+    s, _ = _open(tmp_path, path.name)  # a restart: the journal is rewritten as a snapshot
+    s.close()
+    for lost in ("removed", "unreadable"):
+        if lost == "removed":
+            auto.unlink()
+        else:
+            auto.write_text("[material\n")
+        s, notices = _open(tmp_path, path.name)
+        try:
+            assert _view(s) == expected, lost
+            assert not any("outside the editor" in n for n in notices), notices
+        finally:
+            s.close()
