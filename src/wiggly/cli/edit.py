@@ -21,7 +21,8 @@ The editor reads and writes files only inside the directory of the file it was s
 (or, started without a file, the current directory), plus any --root (e.g. --root .. for a
 mesh in the folder above the scene); edits are autosaved beside the scene
 (.NAME.autosave.toml) with every browser tab's undo history (.NAME.history.jsonl), and both
-are recovered when the editor is started again."""
+are recovered when the editor is started again. A scene is open in one editor at a time: a
+second `wiggly edit` on it is refused, naming the first one's process and address."""
 EPILOG = """\
 examples:
   wiggly edit shot.toml

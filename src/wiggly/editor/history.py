@@ -40,7 +40,7 @@ from wiggly.editor.state import EditError, EditorState, rebuild_state
 from wiggly.errors import WigglyInputError
 from wiggly.scene import Scene, scene_from_dict, scene_to_dict
 
-__all__ = ["Histories", "Record", "history_path", "key_phrase", "scene_hash"]
+__all__ = ["Histories", "Record", "edit_label", "history_path", "key_phrase", "scene_hash"]
 
 SECTIONS = ("mesh", "material", "damping", "simulation", "time", "output", "drive")
 MAX_RECORDS = 500  # per tab
@@ -87,6 +87,39 @@ def _changed_since(entity: Entity, value: Any) -> str:
     if kind == "group":
         return f"group {name!r} was changed since"
     return f"the {name} settings were changed since"
+
+
+def edit_label(op: Any, before: EditorState, after: EditorState) -> str:
+    """How the undo button names an edit (keyframes by their name or group and time)."""
+    kind = op.get("op") if isinstance(op, dict) else None
+    label = op.get("label") if isinstance(op, dict) else None
+    if isinstance(label, str) and 0 < len(label) <= 80:
+        return label
+    if kind == "batch":
+        return f"{len(op.get('ops') or [])} edits"
+    if kind == "set":  # "set material.young", "set damping.alpha, damping.beta"
+        section, values = op.get("section"), op.get("values")
+        fields = sorted(values)[:3] if isinstance(values, dict) else []
+        return "set " + (", ".join(f"{section}.{f}" for f in fields) or str(section))
+    if kind in ("update_keyframe", "delete_keyframe"):
+        key = _key_of(before, op.get("id"))
+        if kind == "delete_keyframe":
+            return f"delete keyframe {key_phrase(key)}"
+        if set(op) <= {"op", "id", "time"} and isinstance(op.get("time"), int | float):
+            return f"move keyframe {key_phrase(key)} to {op['time']:g} s"
+        return f"edit keyframe {key_phrase(key)}"
+    if kind == "add_keyframe":
+        added = [i for i in after.keyframe_ids if i not in set(before.keyframe_ids)]
+        return f"add keyframe {key_phrase(_key_of(after, added[-1] if added else None))}"
+    return str(kind).replace("_", " ")
+
+
+def _key_of(state: EditorState, key_id: Any) -> dict | None:
+    """The keyframe ``key_id`` of ``state`` in its dict form (None: no such keyframe)."""
+    if key_id not in state.keyframe_ids:
+        return None
+    k = state.scene.keyframes[state.keyframe_ids.index(key_id)]
+    return {"name": k.name, "group": k.group, "time": k.time}
 
 
 @dataclass(frozen=True)

@@ -34,8 +34,8 @@ from wiggly.editor.history import (
     DEFAULT_TAB,
     Histories,
     Record,
+    edit_label,
     history_path,
-    key_phrase,
     unwritable,
     write_status,
 )
@@ -54,6 +54,7 @@ from wiggly.editor.scene_files import (
     new_scene,
     surface_of,
 )
+from wiggly.editor.scene_lock import SceneLock
 from wiggly.editor.state import (
     EditError,
     EditorState,
@@ -76,39 +77,6 @@ from wiggly.scene import (
 )
 
 __all__ = ["Session", "autosave_path"]
-
-def _label(op: Any, before: EditorState, after: EditorState) -> str:
-    """How the undo button names an edit (keyframes by their name or group and time)."""
-    kind = op.get("op") if isinstance(op, dict) else None
-    label = op.get("label") if isinstance(op, dict) else None
-    if isinstance(label, str) and 0 < len(label) <= 80:
-        return label
-    if kind == "batch":
-        return f"{len(op.get('ops') or [])} edits"
-    if kind == "set":  # "set material.young", "set damping.alpha, damping.beta"
-        section, values = op.get("section"), op.get("values")
-        fields = sorted(values)[:3] if isinstance(values, dict) else []
-        return "set " + (", ".join(f"{section}.{f}" for f in fields) or str(section))
-    if kind in ("update_keyframe", "delete_keyframe"):
-        key = _key_of(before, op.get("id"))
-        if kind == "delete_keyframe":
-            return f"delete keyframe {key_phrase(key)}"
-        if set(op) <= {"op", "id", "time"} and isinstance(op.get("time"), int | float):
-            return f"move keyframe {key_phrase(key)} to {op['time']:g} s"
-        return f"edit keyframe {key_phrase(key)}"
-    if kind == "add_keyframe":
-        added = [i for i in after.keyframe_ids if i not in set(before.keyframe_ids)]
-        return f"add keyframe {key_phrase(_key_of(after, added[-1] if added else None))}"
-    return str(kind).replace("_", " ")
-
-
-def _key_of(state: EditorState, key_id: Any) -> dict | None:
-    """The keyframe ``key_id`` of ``state`` in its dict form (None: no such keyframe)."""
-    if key_id not in state.keyframe_ids:
-        return None
-    k = state.scene.keyframes[state.keyframe_ids.index(key_id)]
-    return {"name": k.name, "group": k.group, "time": k.time}
-
 
 class Session:
     """One edited scene with its histories, workers and frames.  See the module doc."""
@@ -139,6 +107,8 @@ class Session:
         self.autosaver = Autosaver(
             lambda message: self.bus.publish("notice", level="warning", message=message))
         self._driver_stamp: tuple | None = None  # the [drive] file(s) as last seen
+        self._scene_lock: SceneLock | None = None  # no other editor opens the scene meanwhile
+        self.url: str | None = None  # where this editor is served (named in its lock)
         threading.Thread(target=self._watch_driver, name="wiggly-driver-watch",
                          daemon=True).start()
 
@@ -164,6 +134,10 @@ class Session:
     def close(self) -> None:
         self._stop.set()
         self.autosaver.close()
+        with self._lock:
+            if self._scene_lock is not None:
+                self._scene_lock.release()
+                self._scene_lock = None
         self.playback.close()
         self.physics.close()
         self._export_pool.shutdown(wait=False, cancel_futures=True)
@@ -184,10 +158,48 @@ class Session:
         return self._saved is None or self._saved != self.state.scene
 
     # --- opening and saving ---------------------------------------------------------------
+    def serving(self, url: str) -> None:
+        """The editor is served at ``url``: its scene's lock names it."""
+        with self._lock:
+            self.url = url
+            if self._scene_lock is not None:
+                self._scene_lock.serving(url)
+
+    def _claim(self, scene_path: Path, taken: list[SceneLock]) -> None:
+        """Lock ``scene_path`` for this editor (unless it holds it already), adding the lock
+        to ``taken``; :class:`EditError` (409) if another editor has it open."""
+        held = self._scene_lock
+        if held is not None and held.scene_path == scene_path:
+            return
+        lock = SceneLock.take(scene_path)
+        if lock is not None:
+            taken.append(lock)
+            if self.url is not None:
+                lock.serving(self.url)
+
+    def _keep_lock(self, scene_path: Path | None, taken: list[SceneLock]) -> None:
+        """The scene is now ``scene_path``: keep its lock, release the one held before."""
+        old = self._scene_lock
+        if taken:
+            self._scene_lock = taken.pop()
+        elif old is not None and old.scene_path != scene_path:
+            self._scene_lock = None
+        if old is not None and old is not self._scene_lock:
+            old.release()
+
     def open(self, path: str) -> dict:
         """Open a scene file (.toml) or a mesh (new scene) inside the sandbox.  A scene whose
         autosave or undo journal holds edits the file lacks (the editor stopped or crashed
-        before a save) is recovered from them, and says so; the undo histories come back."""
+        before a save) is recovered from them, and says so; the undo histories come back.
+        A scene another editor has open is refused (409, naming it)."""
+        taken: list[SceneLock] = []
+        try:
+            return self._open(path, taken)
+        finally:
+            for lock in taken:  # not kept: the open failed
+                lock.release()
+
+    def _open(self, path: str, taken: list[SceneLock]) -> dict:
         notices: list[str] = []
         file_scene: Scene | None = None
         if path.startswith("builtin:"):
@@ -197,14 +209,17 @@ class Session:
                                 + ", ".join(f"builtin:{m}" for m in BUILTIN_MODELS))
             scene = new_scene(builtin_model(name), builtin=name)
             scene.source = free_name(self.sandbox.home, name)
+            self._claim(scene.source, taken)
             histories = self._histories(scene.source)
             state, _ = histories.load(scene)
         else:
             real = self.sandbox.resolve(path, suffixes=(SCENE_SUFFIX, *MESH_SUFFIXES))
             if real.suffix.lower() == SCENE_SUFFIX:
+                self._claim(real, taken)
                 state, file_scene, histories = self._recover(path, real, notices)
             elif real.is_file():
                 scene = new_scene(real)
+                self._claim(scene.source, taken)
                 histories = self._histories(scene.source)
                 state, _ = histories.load(scene)
                 # a never-saved scene of this mesh with edits (a crash, or another editor
@@ -231,6 +246,7 @@ class Session:
         diagonal = float(np.linalg.norm(np.ptp(surface.vertices, axis=0)))
         check_limits(scene, diagonal)
         with self._lock:
+            self._keep_lock(scene.source, taken)
             self._state = state
             self.histories = histories
             self._saved = file_scene
@@ -263,7 +279,16 @@ class Session:
     def save(self, path: str | None = None, overwrite: bool = False) -> dict:
         """Save the scene to its file, or to ``path`` (inside the sandbox).  A file that is
         not the scene's own, or its own file changed on disk since it was opened or last
-        saved, is overwritten only with ``overwrite`` (409 otherwise, saying which)."""
+        saved, is overwritten only with ``overwrite`` (409 otherwise, saying which); a file
+        another editor has open, never (409, naming it)."""
+        taken: list[SceneLock] = []
+        try:
+            return self._save(path, overwrite, taken)
+        finally:
+            for lock in taken:  # not kept: the save failed
+                lock.release()
+
+    def _save(self, path: str | None, overwrite: bool, taken: list[SceneLock]) -> dict:
         with self._lock:
             state = self.state
             scene = state.scene
@@ -277,6 +302,8 @@ class Session:
             if not out.mesh.path.startswith("builtin:") and \
                     not self.sandbox.contains(out.mesh_file()):
                 raise EditError(f"{out.mesh.path}: the mesh is outside the sandbox", 403)
+            if target != scene.source:
+                self._claim(target, taken)
             on_disk = file_digest(target)
             if on_disk is not None and not overwrite:
                 name = self.sandbox.relative(target)
@@ -296,6 +323,7 @@ class Session:
                 raise EditError(unwritable(err, f"cannot save {self.sandbox.relative(target)}",
                                            target.parent), write_status(err)) from None
             self._disk = self.histories.disk = file_digest(target)
+            self._keep_lock(target, taken)
             old_source = scene.source
             out.source = target
             if out is not scene or old_source != target:
@@ -323,7 +351,7 @@ class Session:
             op = self._expand(op)
             new = apply_edit(old, op, self._n_vertices(), self.diagonal)
             self._check_tets(old.scene, new.scene)
-            record = Record.between(old, new, _label(op, old, new))
+            record = Record.between(old, new, edit_label(op, old, new))
             if record is None:
                 return {"version": self.version, "changed": False}
             self._check_groups(old.scene, new.scene)
