@@ -149,3 +149,30 @@ def test_the_journal_alone_recovers_when_the_autosave_is_lost(tmp_path):
             assert not any("outside the editor" in n for n in notices), notices
         finally:
             s.close()
+
+
+def test_save_as_leaves_the_original_clean_and_moves_the_history(tmp_path):
+    """Edits, Save as take2.toml, stop: the original reopens as it is on disk, clean and
+    without the edits or their undo steps; take2.toml reopens with them."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    original = path.read_bytes()
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "material", "values": {"young": 9e5}}, tab="a")
+    s.edit({"op": "update_keyframe", "id": 1, "time": 0.75}, tab="a")
+    s.save("take2.toml")
+    s.close()
+    assert path.read_bytes() == original
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".shot")) == []
+    s, notices = _open(tmp_path, path.name)
+    try:
+        assert s.scene == load_scene(path) and not s.dirty and not notices
+        assert not s.histories.describe("a")["can_undo"]
+    finally:
+        s.close()
+    s, notices = _open(tmp_path, "take2.toml")
+    try:
+        assert s.scene.material.young == 9e5 and not s.dirty and not notices
+        assert s.histories.describe("a")["undo_label"] == \
+            "move keyframe 'plant' (mid at 0.25 s) to 0.75 s"
+    finally:
+        s.close()

@@ -329,9 +329,11 @@ class Session:
             if out is not scene or old_source != target:
                 state = EditorState(out, state.keyframe_ids, state.next_id)
                 self._state = state
-                if self.histories.path is not None:
-                    self.histories.path = history_path(target)
+                if self.histories.path is not None:  # the history moves to the new name
+                    old_journal, self.histories.path = self.histories.path, history_path(target)
                     self.histories.compact(state)
+                    if old_journal != self.histories.path:  # the old file reopens clean
+                        old_journal.unlink(missing_ok=True)
             self._saved = out
             # what was recovered is saved now: the page stops saying so
             self.notices = [n for n in self.notices if not n.startswith("recovered")]
