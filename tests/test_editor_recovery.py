@@ -176,3 +176,36 @@ def test_save_as_leaves_the_original_clean_and_moves_the_history(tmp_path):
             "move keyframe 'plant' (mid at 0.25 s) to 0.75 s"
     finally:
         s.close()
+
+
+def test_edits_set_aside_after_an_outside_change_include_the_last_answered_one(tmp_path):
+    """Edit A is autosaved, edit B only journaled (killed before its autosave), then the
+    scene file is changed in another program: the file opens as it is on disk, one notice
+    says so, and the scene the unsaved edits are kept as has A and B, with their undo."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.edit({"op": "set", "section": "material", "values": {"young": 8e5}}, tab="a")
+    _killed(s, auto, lagging)
+    path.write_text(path.read_text().replace("end = 1.0", "end = 1.5"))
+    s, notices = _open(tmp_path, path.name)
+    try:
+        assert s.scene == load_scene(path) and s.scene.time.end == 1.5 and not s.dirty
+        kept = [p for p in tmp_path.iterdir() if p.name.startswith("shot.unsaved-")]
+        assert len(kept) == 1
+        assert len(notices) == 1 and "changed outside the editor" in notices[0], notices
+        assert kept[0].name in notices[0]
+        unsaved = load_scene(kept[0])
+        assert (unsaved.damping.alpha, unsaved.material.young) == (0.3, 8e5)
+        assert not s.histories.describe("a")["can_undo"]
+    finally:
+        s.close()
+    s, notices = _open(tmp_path, kept[0].name)
+    try:
+        assert s.histories.describe("a")["undo_label"] == "set material.young"
+        assert s.undo("a")["changed"] and s.scene.material.young != 8e5
+    finally:
+        s.close()

@@ -15,15 +15,13 @@ from __future__ import annotations
 
 import os
 import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 from wiggly.errors import WigglyInputError
 from wiggly.scene import Scene, scene_to_toml
 
-__all__ = ["Autosaver", "autosave_base", "autosave_path", "set_aside_if_stale", "write_autosave",
-           "write_durably"]
+__all__ = ["Autosaver", "autosave_base", "autosave_path", "write_autosave", "write_durably"]
 
 _BASE = "# wiggly autosave of the scene file with sha256 "
 
@@ -42,27 +40,6 @@ def autosave_base(path: Path) -> str | None:
     except (OSError, UnicodeDecodeError):
         return None
     return first[len(_BASE):] if first.startswith(_BASE) else None
-
-
-def set_aside_if_stale(scene_path: Path, digest: str | None, notices: list[str]) -> bool:
-    """Whether the autosave of ``scene_path`` is stale: made from another version of the
-    file than the one on disk now (``digest``, None: no file), i.e. the file was changed in
-    another program after the edits.  They must not overwrite that change unasked: the
-    autosave is kept as the scene ``NAME.unsaved-<date>-<time>.toml`` and a notice says so."""
-    auto = autosave_path(scene_path)
-    base = autosave_base(auto) if auto.is_file() else None
-    if base is None or base == (digest or "none"):
-        return False
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    kept = scene_path.with_name(f"{scene_path.stem}.unsaved-{stamp}.toml")
-    try:
-        os.replace(auto, kept)
-        where = f"; they are kept as the scene {kept.name} (Open shows it)"
-    except OSError:
-        where = ""
-    notices.append(f"{scene_path.name} was changed outside the editor after edits that were "
-                   f"not saved: it opens as it is on disk, without them{where}")
-    return True
 
 
 def write_durably(target: Path, text: str) -> None:

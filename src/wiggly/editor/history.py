@@ -342,6 +342,20 @@ class Histories:
             self.compact(state)
         return state, None
 
+    def peek(self, scene: Scene, source: Path | None) -> EditorState | None:
+        """The scene after the journal's steps replayed over ``scene`` (made ``source``'s),
+        changing nothing; None: no journal, or none of its lines is ``scene``."""
+        if self.path is None or not self.path.is_file():
+            return None
+        try:
+            state, _ = _replay(_read_lines(self.path), scene, None)
+        except (OSError, ValueError, KeyError, TypeError, IndexError, EditError,
+                WigglyInputError):
+            return None
+        if state is not None:
+            state.scene.source = source
+        return state
+
     def compact(self, state: EditorState, strict: bool = False) -> None:
         """Rewrite the journal as one snapshot line (with the scene), atomically.  A failure
         is kept in :attr:`write_error` (``strict``: raised as :class:`EditError`, 507)."""

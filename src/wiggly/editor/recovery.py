@@ -10,14 +10,16 @@ scene and undo history, however many times it happens.
 
 from __future__ import annotations
 
+import os
+import time
 from pathlib import Path
 
-from wiggly.editor.autosave import autosave_path, set_aside_if_stale, write_autosave
+from wiggly.editor.autosave import autosave_base, autosave_path, write_autosave, write_durably
 from wiggly.editor.history import Histories, history_path
 from wiggly.editor.scene_files import file_digest, load_checked
 from wiggly.editor.state import EditError, EditorState
 from wiggly.files import remove_stale
-from wiggly.scene import Scene
+from wiggly.scene import Scene, scene_to_toml
 
 __all__ = ["recover"]
 
@@ -33,8 +35,10 @@ def recover(path: str, real: Path, histories: Histories, notices: list[str],
     for written in (auto, history_path(real)):  # a write a crash cut short (a minute old:
         remove_stale(written.with_name(written.name + ".part"), 60.0)  # not another's)
     auto_scene: Scene | None = None
-    stale = set_aside_if_stale(real, disk, notices)
-    if auto.is_file() and not stale:
+    base_of_auto = autosave_base(auto) if auto.is_file() else None
+    if base_of_auto is not None and base_of_auto != (disk or "none"):
+        _set_aside(real, histories, notices)
+    elif auto.is_file():
         try:
             auto_scene = load_checked(auto)
             auto_scene.source = real
@@ -74,3 +78,35 @@ def _write_back(auto: Path, state: EditorState, file_scene: Scene | None, auto_s
     except OSError:
         return
     histories.compact(state)
+
+
+def _set_aside(real: Path, histories: Histories, notices: list[str]) -> None:
+    """The scene file ``real`` was changed in another program after edits that were not
+    saved (its autosave was made from another version of it): they must not overwrite that
+    change unasked.  They are kept as the scene ``NAME.unsaved-<date>-<time>.toml``, the
+    journal's tail replayed over the autosave (every answered edit), with the journal as its
+    undo history; the file then opens as it is on disk, and a notice says so."""
+    auto = autosave_path(real)
+    kept = real.with_name(f"{real.stem}.unsaved-{time.strftime('%Y%m%d-%H%M%S')}.toml")
+    state = None
+    try:
+        scene = load_checked(auto)
+        scene.source = kept
+        state = histories.peek(scene, kept)
+        write_durably(kept, scene_to_toml(state.scene if state is not None else scene))
+        auto.unlink()
+        where = f"; they are kept as the scene {kept.name} (Open shows it)"
+    except (EditError, OSError):  # unreadable: kept as it is
+        try:
+            os.replace(auto, kept)
+            where = f"; they are kept as the scene {kept.name} (Open shows it)"
+        except OSError:
+            where = ""
+    if state is not None and histories.path is not None:  # its undo history goes with it
+        try:
+            os.replace(histories.path, history_path(kept))
+            where = where.replace("(Open shows it)", "(Open shows it, with their undo steps)")
+        except OSError:
+            pass
+    notices.append(f"{real.name} was changed outside the editor after edits that were not "
+                   f"saved: it opens as it is on disk, without them{where}")
