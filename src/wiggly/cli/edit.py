@@ -101,25 +101,60 @@ def start(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     server = start(args)
-    print(f"wiggly edit: {server.url}  (Ctrl+C to stop)", flush=True)
-    if not args.no_browser:
-        import webbrowser
-
-        webbrowser.open(server.url)
     stop = threading.Event()
 
     def on_signal(*_) -> None:
         stop.set()
 
+    # before the address is printed: a Ctrl+C right after it stops the editor cleanly too
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
+        print(f"wiggly edit: {server.url}  (Ctrl+C to stop)", flush=True)
+        if not args.no_browser:
+            import webbrowser
+
+            webbrowser.open(server.url)
         while not stop.wait(0.5):
             # native code run by the background threads (the tetrahedralizer) may install its
             # own SIGINT handler: take Ctrl+C back so that it stops the editor cleanly
             signal.signal(signal.SIGINT, on_signal)
-        print("wiggly edit: stopped", file=sys.stderr)
+        for line in stop_messages(server.session, autosave=not args.no_autosave):
+            print(line, file=sys.stderr, flush=True)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         server.stop()
     return 0
+
+
+def stop_messages(session, autosave: bool = True) -> list[str]:
+    """What Ctrl+C prints: that an export under way is finished first, and where the
+    unsaved edits are kept (or that they are lost, without autosave)."""
+    import os
+    import shlex
+
+    from wiggly.editor.autosave import autosave_path
+    from wiggly.editor.state import EditError
+
+    out = []
+    if session.exporting:
+        out.append(f"wiggly edit: finishing the export of {', '.join(session.exporting)} "
+                   "before stopping...")
+    try:
+        scene, dirty = session.scene, session.dirty
+    except EditError:  # no scene open
+        scene, dirty = None, False
+    if scene is None or not dirty or scene.source is None:
+        return [*out, "wiggly edit: stopped"]
+    source = Path(scene.source)
+    try:
+        shown = os.path.relpath(source)
+    except ValueError:  # another drive
+        shown = str(source)
+    shown = shown if not shown.startswith("..") else str(source)
+    if not autosave:
+        return [*out, f"wiggly edit: stopped; the unsaved edits of {source.name} are lost "
+                      "(--no-autosave)"]
+    return [*out, f"wiggly edit: stopped; the unsaved edits of {source.name} are kept beside "
+                  f"it ({autosave_path(source).name}): `wiggly edit {shlex.quote(shown)}` "
+                  "opens it with them, and Save writes them to the file"]

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import secrets
 import threading
-import traceback
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ import numpy as np
 from wiggly import limits
 from wiggly.editor.autosave import Autosaver, autosave_path
 from wiggly.editor.bus import EventBus
+from wiggly.editor.exporting import Exports
 from wiggly.editor.history import (
     DEFAULT_TAB,
     Histories,
@@ -48,7 +48,6 @@ from wiggly.editor.scene_files import (
     SCENE_SUFFIX,
     display_groups,
     driver_stamp,
-    export_written,
     file_digest,
     free_name,
     new_scene,
@@ -69,16 +68,14 @@ from wiggly.mesh import DEFAULT_RESOLUTION, VOLUME_EXTENSIONS
 from wiggly.progress import reporting
 from wiggly.scene import (
     BUILTIN_MODELS,
-    OUTPUT_EXTENSIONS,
     Scene,
     builtin_model,
-    resolve_groups,
     save_scene,
 )
 
 __all__ = ["Session", "autosave_path"]
 
-class Session:
+class Session(Exports):
     """One edited scene with its histories, workers and frames.  See the module doc."""
 
     def __init__(self, sandbox: Sandbox, *, autosave: bool = True, bus: EventBus | None = None):
@@ -627,68 +624,6 @@ class Session:
     def latest_frames(self, final: bool = False) -> FrameSet | None:
         """The frames of the newest request (``final``: the newest final ones)."""
         return self.playback.latest(final=final)
-
-    # --- export ---------------------------------------------------------------------------
-    def export(self, paths: Any, overwrite: Any = False) -> dict:
-        if not isinstance(paths, list) or not paths or len(paths) > 8:
-            raise EditError("paths must be a list of 1 to 8 output files")
-        if not isinstance(overwrite, bool):
-            raise EditError("overwrite must be true or false")
-        real = [self.sandbox.resolve(p, suffixes=OUTPUT_EXTENSIONS) for p in paths]
-        from wiggly.scene import check_outputs
-
-        try:
-            check_outputs(real, True)
-        except WigglyInputError as err:
-            raise EditError(str(err)) from None
-        existing = [p for p in real if p.exists() or (
-            p.suffix.lower() == ".obj" and p.with_name(f"{p.stem}_0000.obj").exists())]
-        if existing and not overwrite:
-            raise EditError(f"{', '.join(self.sandbox.relative(p) for p in existing)} "
-                            f"{'exists' if len(existing) == 1 else 'exist'}: overwrite, or "
-                            "export under other names", 409)
-        with self._lock:
-            state, version = self.state, self.version
-        self._export_pool.submit(self._export, state, version, real, overwrite)
-        return {"paths": [self.sandbox.relative(p) for p in real]}
-
-    def _export(self, state: EditorState, version: int, paths: list[Path], overwrite: bool):
-        """Solve the scene as ``wiggly animate`` does (same body) and write ``paths``."""
-        with reporting(False):  # the page shows the export; the terminal stays quiet
-            self._solve_and_write(state, paths, overwrite, version)
-
-    def _solve_and_write(self, state: EditorState, paths: list[Path], overwrite: bool,
-                         version: int | None = None):
-        scene = state.scene
-        names = [p.name for p in paths]
-        self.bus.publish("export", stage="running", message=f"exporting {', '.join(names)}")
-        try:
-            from wiggly.scene import keyframe_highlights, keyframes_of, solve_scene, write_outputs
-
-            body = self.physics.body(scene, abandon=self._stop.is_set, hold=True)
-            if body is None:
-                return
-            groups = resolve_groups(scene, body.model)
-            keys = keyframes_of(scene, body, groups)
-            # the library's solve, as `wiggly animate` runs it; its warnings are not caught
-            # here: warnings.catch_warnings changes process-wide state, and a block of this
-            # thread overlapping the playback thread's would restore the other's wrongly
-            # (warnings then stayed ignored); the playback's solve shows the same ones
-            anim = solve_scene(scene, body, keys)
-            write_outputs(scene, anim, paths, overwrite=overwrite,
-                          highlights=keyframe_highlights(scene, body, anim.keyframes, groups))
-            written = [export_written(p, self.sandbox.relative(p)) for p in paths]
-            # an edit made while it ran is not in it: say so, rather than seem current
-            later = version is not None and self.version != version
-            since = (" (the scene as it was when the export started: edits made since are not "
-                     "in it; export again to include them)" if later else "")
-            self.bus.publish("export", stage="done",
-                             message=f"exported {', '.join(written)}{since}",
-                             paths=[self.sandbox.relative(p) for p in paths])
-        except Exception as err:
-            if not isinstance(err, WigglyInputError):
-                traceback.print_exc()
-            self.bus.publish("export", stage="error", message=f"export failed: {err}")
 
 
 #: How often (s) the editor looks at the scene's driver file(s) for changes.
