@@ -209,3 +209,47 @@ def test_edits_set_aside_after_an_outside_change_include_the_last_answered_one(t
         assert s.undo("a")["changed"] and s.scene.material.young != 8e5
     finally:
         s.close()
+
+
+def test_a_deleted_scene_with_unsaved_edits_reopens_with_them(tmp_path):
+    """The scene file is deleted while the editor has unsaved edits, then a kill: opening
+    the scene's name brings the edits back as an unsaved scene, with one notice."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.edit({"op": "set", "section": "material", "values": {"young": 8e5}}, tab="a")
+    expected = _view(s)
+    _killed(s, auto, lagging)
+    path.unlink()
+    for restart in range(2):
+        s, notices = _open(tmp_path, path.name)
+        try:
+            assert _view(s) == expected and s.dirty, f"restart {restart}"
+            assert len(notices) == 1 and "recovered the unsaved scene" in notices[0], notices
+            assert not any(p.name.startswith("shot.unsaved-") for p in tmp_path.iterdir())
+        finally:
+            s.close()
+
+
+def test_wiggly_edit_on_a_deleted_scene_with_unsaved_edits_recovers_them(tmp_path):
+    import signal
+
+    from tests.test_editor_lock import _start
+
+    path = bar_project(tmp_path, KEYS, warp=False)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.close()
+    path.unlink()
+    proc, _ = _start(path)  # before, "no such file"
+    try:
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 0
+        said = proc.stderr.read()
+    finally:
+        proc.stdout.close()
+        proc.stderr.close()
+    assert "recovered the unsaved scene from .shot.autosave.toml" in said, said

@@ -68,6 +68,16 @@ def exposure_warning(host: str) -> str | None:
             "scene files in the editor's directories. Use only on a trusted network.")
 
 
+def _has_unsaved_edits(path: Path) -> bool:
+    """Whether the scene file ``path`` (missing: deleted, or never saved) has edits kept
+    beside it, which opening it recovers."""
+    from wiggly.editor.autosave import autosave_path
+    from wiggly.editor.history import history_path
+
+    return path.suffix.lower() == ".toml" and (
+        autosave_path(path).is_file() or history_path(path).is_file())
+
+
 def start(args: argparse.Namespace):
     """Open the file and start the server on a background thread (``run`` waits on it)."""
     from wiggly.editor import EditorServer, Sandbox, Session
@@ -77,7 +87,8 @@ def start(args: argparse.Namespace):
     if warning:
         print(f"wiggly: warning: {warning}", file=sys.stderr)
     if args.path is not None and not args.path.startswith("builtin:") and \
-            not Path(args.path).expanduser().is_file():
+            not Path(args.path).expanduser().is_file() and \
+            not _has_unsaved_edits(Path(args.path).expanduser()):
         raise WigglyInputError(f"{args.path}: no such file")
     session = Session(Sandbox(roots_for(args.path, args.root)), autosave=not args.no_autosave)
     try:

@@ -36,7 +36,8 @@ def recover(path: str, real: Path, histories: Histories, notices: list[str],
         remove_stale(written.with_name(written.name + ".part"), 60.0)  # not another's)
     auto_scene: Scene | None = None
     base_of_auto = autosave_base(auto) if auto.is_file() else None
-    if base_of_auto is not None and base_of_auto != (disk or "none"):
+    # changed in another program (a deleted file has nothing to protect: the edits come back)
+    if base_of_auto is not None and disk is not None and base_of_auto != disk:
         _set_aside(real, histories, notices)
     elif auto.is_file():
         try:
