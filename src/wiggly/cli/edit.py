@@ -21,7 +21,8 @@ The editor reads and writes files only inside the directory of the file it was s
 (or, started without a file, the current directory), plus any --root (e.g. --root .. for a
 mesh in the folder above the scene); edits are autosaved beside the scene
 (.NAME.autosave.toml) with every browser tab's undo history (.NAME.history.jsonl), and both
-are recovered when the editor is started again."""
+are recovered when the editor is started again. A scene is open in one editor at a time: a
+second `wiggly edit` on it is refused, naming the first one's process and address."""
 EPILOG = """\
 examples:
   wiggly edit shot.toml
@@ -67,6 +68,16 @@ def exposure_warning(host: str) -> str | None:
             "scene files in the editor's directories. Use only on a trusted network.")
 
 
+def _has_unsaved_edits(path: Path) -> bool:
+    """Whether the scene file ``path`` (missing: deleted, or never saved) has edits kept
+    beside it, which opening it recovers."""
+    from wiggly.editor.autosave import autosave_path
+    from wiggly.editor.history import history_path
+
+    return path.suffix.lower() == ".toml" and (
+        autosave_path(path).is_file() or history_path(path).is_file())
+
+
 def start(args: argparse.Namespace):
     """Open the file and start the server on a background thread (``run`` waits on it)."""
     from wiggly.editor import EditorServer, Sandbox, Session
@@ -76,7 +87,8 @@ def start(args: argparse.Namespace):
     if warning:
         print(f"wiggly: warning: {warning}", file=sys.stderr)
     if args.path is not None and not args.path.startswith("builtin:") and \
-            not Path(args.path).expanduser().is_file():
+            not Path(args.path).expanduser().is_file() and \
+            not _has_unsaved_edits(Path(args.path).expanduser()):
         raise WigglyInputError(f"{args.path}: no such file")
     session = Session(Sandbox(roots_for(args.path, args.root)), autosave=not args.no_autosave)
     try:
@@ -100,25 +112,60 @@ def start(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     server = start(args)
-    print(f"wiggly edit: {server.url}  (Ctrl+C to stop)", flush=True)
-    if not args.no_browser:
-        import webbrowser
-
-        webbrowser.open(server.url)
     stop = threading.Event()
 
     def on_signal(*_) -> None:
         stop.set()
 
+    # before the address is printed: a Ctrl+C right after it stops the editor cleanly too
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
+        print(f"wiggly edit: {server.url}  (Ctrl+C to stop)", flush=True)
+        if not args.no_browser:
+            import webbrowser
+
+            webbrowser.open(server.url)
         while not stop.wait(0.5):
             # native code run by the background threads (the tetrahedralizer) may install its
             # own SIGINT handler: take Ctrl+C back so that it stops the editor cleanly
             signal.signal(signal.SIGINT, on_signal)
-        print("wiggly edit: stopped", file=sys.stderr)
+        for line in stop_messages(server.session, autosave=not args.no_autosave):
+            print(line, file=sys.stderr, flush=True)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
         server.stop()
     return 0
+
+
+def stop_messages(session, autosave: bool = True) -> list[str]:
+    """What Ctrl+C prints: that an export under way is finished first, and where the
+    unsaved edits are kept (or that they are lost, without autosave)."""
+    import os
+    import shlex
+
+    from wiggly.editor.autosave import autosave_path
+    from wiggly.editor.state import EditError
+
+    out = []
+    if session.exporting:
+        out.append(f"wiggly edit: finishing the export of {', '.join(session.exporting)} "
+                   "before stopping...")
+    try:
+        scene, dirty = session.scene, session.dirty
+    except EditError:  # no scene open
+        scene, dirty = None, False
+    if scene is None or not dirty or scene.source is None:
+        return [*out, "wiggly edit: stopped"]
+    source = Path(scene.source)
+    try:
+        shown = os.path.relpath(source)
+    except ValueError:  # another drive
+        shown = str(source)
+    shown = shown if not shown.startswith("..") else str(source)
+    if not autosave:
+        return [*out, f"wiggly edit: stopped; the unsaved edits of {source.name} are lost "
+                      "(--no-autosave)"]
+    return [*out, f"wiggly edit: stopped; the unsaved edits of {source.name} are kept beside "
+                  f"it ({autosave_path(source).name}): `wiggly edit {shlex.quote(shown)}` "
+                  "opens it with them, and Save writes them to the file"]

@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import os
 import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 from wiggly.errors import WigglyInputError
 from wiggly.scene import Scene, scene_to_toml
 
-__all__ = ["Autosaver", "autosave_base", "autosave_path", "set_aside_if_stale", "write_durably"]
+__all__ = ["Autosaver", "autosave_base", "autosave_path", "write_autosave", "write_durably"]
 
 _BASE = "# wiggly autosave of the scene file with sha256 "
 
@@ -43,27 +42,6 @@ def autosave_base(path: Path) -> str | None:
     return first[len(_BASE):] if first.startswith(_BASE) else None
 
 
-def set_aside_if_stale(scene_path: Path, digest: str | None, notices: list[str]) -> bool:
-    """Whether the autosave of ``scene_path`` is stale: made from another version of the
-    file than the one on disk now (``digest``, None: no file), i.e. the file was changed in
-    another program after the edits.  They must not overwrite that change unasked: the
-    autosave is kept as the scene ``NAME.unsaved-<date>-<time>.toml`` and a notice says so."""
-    auto = autosave_path(scene_path)
-    base = autosave_base(auto) if auto.is_file() else None
-    if base is None or base == (digest or "none"):
-        return False
-    stamp = time.strftime("%Y%m%d-%H%M%S")
-    kept = scene_path.with_name(f"{scene_path.stem}.unsaved-{stamp}.toml")
-    try:
-        os.replace(auto, kept)
-        where = f"; they are kept as the scene {kept.name} (Open shows it)"
-    except OSError:
-        where = ""
-    notices.append(f"{scene_path.name} was changed outside the editor after edits that were "
-                   f"not saved: it opens as it is on disk, without them{where}")
-    return True
-
-
 def write_durably(target: Path, text: str) -> None:
     """Replace ``target`` with ``text`` atomically, flushed to the disk before the rename."""
     tmp = target.with_name(target.name + ".part")
@@ -72,6 +50,12 @@ def write_durably(target: Path, text: str) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, target)
+
+
+def write_autosave(target: Path, scene: Scene, base: str | None) -> None:
+    """Write the autosave ``target`` of ``scene`` (edited from the scene file whose bytes
+    have the digest ``base``; None: no file yet), atomically."""
+    write_durably(target, f"{_BASE}{base or 'none'}\n" + scene_to_toml(scene))
 
 
 class Autosaver:
@@ -119,8 +103,7 @@ class Autosaver:
                 if item is None:
                     target.unlink(missing_ok=True)
                 else:
-                    scene, base = item
-                    write_durably(target, f"{_BASE}{base or 'none'}\n" + scene_to_toml(scene))
+                    write_autosave(target, *item)
             except (OSError, WigglyInputError) as err:
                 self._on_error(f"autosave failed: {err}")
             finally:

@@ -17,7 +17,10 @@ the saved file's, else, for a scene never saved, the journal's first snapshot) a
 steps after it, checking each against its hash: the scene comes back as the last acknowledged
 edit left it, with its keyframe ids and every tab's history.  A journal that no line of which
 matches the scene (changed outside the editor) is dropped with a notice.  The journal is
-rewritten compactly (one snapshot line, atomically) when it is opened.
+rewritten compactly (one snapshot line, atomically) when it is opened, once the autosave
+agrees with what it recovered (:mod:`wiggly.editor.recovery`).  The snapshot names the digest
+of the scene file it was taken against: while the file is unchanged, the snapshot alone
+recovers the scene (the autosave lost or unreadable).
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ from wiggly.editor.state import EditError, EditorState, rebuild_state
 from wiggly.errors import WigglyInputError
 from wiggly.scene import Scene, scene_from_dict, scene_to_dict
 
-__all__ = ["Histories", "Record", "history_path", "key_phrase", "scene_hash"]
+__all__ = ["Histories", "Record", "edit_label", "history_path", "key_phrase", "scene_hash"]
 
 SECTIONS = ("mesh", "material", "damping", "simulation", "time", "output", "drive")
 MAX_RECORDS = 500  # per tab
@@ -84,6 +87,39 @@ def _changed_since(entity: Entity, value: Any) -> str:
     if kind == "group":
         return f"group {name!r} was changed since"
     return f"the {name} settings were changed since"
+
+
+def edit_label(op: Any, before: EditorState, after: EditorState) -> str:
+    """How the undo button names an edit (keyframes by their name or group and time)."""
+    kind = op.get("op") if isinstance(op, dict) else None
+    label = op.get("label") if isinstance(op, dict) else None
+    if isinstance(label, str) and 0 < len(label) <= 80:
+        return label
+    if kind == "batch":
+        return f"{len(op.get('ops') or [])} edits"
+    if kind == "set":  # "set material.young", "set damping.alpha, damping.beta"
+        section, values = op.get("section"), op.get("values")
+        fields = sorted(values)[:3] if isinstance(values, dict) else []
+        return "set " + (", ".join(f"{section}.{f}" for f in fields) or str(section))
+    if kind in ("update_keyframe", "delete_keyframe"):
+        key = _key_of(before, op.get("id"))
+        if kind == "delete_keyframe":
+            return f"delete keyframe {key_phrase(key)}"
+        if set(op) <= {"op", "id", "time"} and isinstance(op.get("time"), int | float):
+            return f"move keyframe {key_phrase(key)} to {op['time']:g} s"
+        return f"edit keyframe {key_phrase(key)}"
+    if kind == "add_keyframe":
+        added = [i for i in after.keyframe_ids if i not in set(before.keyframe_ids)]
+        return f"add keyframe {key_phrase(_key_of(after, added[-1] if added else None))}"
+    return str(kind).replace("_", " ")
+
+
+def _key_of(state: EditorState, key_id: Any) -> dict | None:
+    """The keyframe ``key_id`` of ``state`` in its dict form (None: no such keyframe)."""
+    if key_id not in state.keyframe_ids:
+        return None
+    k = state.scene.keyframes[state.keyframe_ids.index(key_id)]
+    return {"name": k.name, "group": k.group, "time": k.time}
 
 
 @dataclass(frozen=True)
@@ -169,6 +205,7 @@ class Histories:
         self.path = path
         self.tabs: OrderedDict[str, _Tab] = OrderedDict()
         self.write_error: str | None = None
+        self.disk: str | None = None  # digest of the scene file as read or saved (a snapshot's)
         self._base: EditorState | None = None  # the snapshot a new journal starts with
 
     @staticmethod
@@ -266,21 +303,25 @@ class Histories:
             err, f"the undo journal {self.path.name} cannot be written, so the change would "
             "not survive a crash", self.path.parent), write_status(err))
 
-    def load(self, scene: Scene | None, source: Path | None = None,
+    def load(self, scene: Scene | None, source: Path | None = None, *,
+             disk: str | None = None, compact: bool = True,
              ) -> tuple[EditorState | None, str | None]:
         """Recover from the journal for ``scene`` (just opened: the autosave, else the saved
         file; None: neither exists): the state after the last journaled step, with its
         keyframe ids and every tab's history, and a notice if the journal was dropped.  The
-        newest line whose hash is ``scene``'s is where the steps after it are replayed from
-        (for ``scene=None``, the journal's snapshot, made ``source``'s).  The journal is then
-        rewritten compactly.  None for the state: no scene and no journal to recover it."""
+        newest line whose hash is ``scene``'s is where the steps after it are replayed from;
+        else (or for ``scene=None``) the journal's snapshot, made ``source``'s, if it was
+        taken of the scene file as it is on disk now (``disk``: its digest) or there is no
+        ``scene``.  The journal is then rewritten compactly (unless not ``compact``: the
+        caller makes the autosave agree first, then calls :meth:`compact`).  None for the
+        state: no scene and no journal to recover it."""
         fresh = EditorState.of(scene) if scene is not None else None
         if self.path is None or not self.path.is_file():
             self._base = fresh
             return fresh, None
         try:
             lines = _read_lines(self.path)
-            state, tabs = _replay(lines, scene, source)
+            state, tabs = _replay(lines, scene, source, disk or "none")
         except (OSError, ValueError, KeyError, TypeError, IndexError, EditError,
                 WigglyInputError) as err:
             self._discard(fresh)
@@ -297,8 +338,23 @@ class Histories:
                            f"the undo history {name}: it opens as it is on disk, without "
                            f"any edits that were not saved before{where}; undo starts afresh")
         self.tabs = tabs
-        self.compact(state)
+        if compact:
+            self.compact(state)
         return state, None
+
+    def peek(self, scene: Scene, source: Path | None) -> EditorState | None:
+        """The scene after the journal's steps replayed over ``scene`` (made ``source``'s),
+        changing nothing; None: no journal, or none of its lines is ``scene``."""
+        if self.path is None or not self.path.is_file():
+            return None
+        try:
+            state, _ = _replay(_read_lines(self.path), scene, None)
+        except (OSError, ValueError, KeyError, TypeError, IndexError, EditError,
+                WigglyInputError):
+            return None
+        if state is not None:
+            state.scene.source = source
+        return state
 
     def compact(self, state: EditorState, strict: bool = False) -> None:
         """Rewrite the journal as one snapshot line (with the scene), atomically.  A failure
@@ -306,7 +362,8 @@ class Histories:
         if self.path is None:
             self._base = None
             return
-        line = {"op": "snapshot", "scene": scene_to_dict(state.scene), "tabs": {
+        line = {"op": "snapshot", "file": self.disk or "none",
+                "scene": scene_to_dict(state.scene), "tabs": {
             tab: {"undo": [r.to_json() for r in t.undo], "redo": [r.to_json() for r in t.redo]}
             for tab, t in self.tabs.items()}}
         tmp = self.path.with_name(self.path.name + ".part")
@@ -366,10 +423,11 @@ def _read_lines(path: Path) -> list[dict]:
     return [json.loads(p) for p in parts if p]
 
 
-def _replay(lines: list[dict], scene: Scene | None, source: Path | None,
+def _replay(lines: list[dict], scene: Scene | None, source: Path | None, disk: str = "none",
             ) -> tuple[EditorState | None, OrderedDict[str, _Tab]]:
     """Every tab's stacks after ``lines``, and the scene after them: replayed from the newest
-    line whose state ``scene`` is (None: no line is)."""
+    line whose state ``scene`` is, else from the snapshot if it was taken of the scene file
+    whose digest is ``disk`` (the file unchanged since); None: neither."""
     start, state = -1, None
     if scene is not None:
         hashes: dict[tuple, str] = {}
@@ -383,7 +441,8 @@ def _replay(lines: list[dict], scene: Scene | None, source: Path | None,
             if hashes[ids] == line["hash"]:
                 start, state = i, EditorState(scene, ids, int(line["next"]))
                 break
-    elif lines and lines[0]["op"] == "snapshot" and "scene" in lines[0]:
+    if state is None and lines and lines[0]["op"] == "snapshot" and "scene" in lines[0] and (
+            scene is None or lines[0].get("file") == disk):
         snap = scene_from_dict(lines[0]["scene"], where="the undo history's snapshot")
         snap.source = source
         start, state = 0, EditorState(snap, tuple(int(k) for k in lines[0]["ids"]),

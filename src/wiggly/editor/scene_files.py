@@ -11,6 +11,7 @@ import numpy as np
 
 from wiggly.editor.autosave import autosave_path
 from wiggly.editor.history import history_path
+from wiggly.editor.scene_lock import held_by
 from wiggly.editor.state import EditError, check_limits
 from wiggly.errors import WigglyInputError
 from wiggly.scene import MeshSpec, Scene, TimeSpec, load_scene, resolve_groups
@@ -36,9 +37,11 @@ def new_scene(mesh_file: Path, builtin: str | None = None) -> Scene:
 
 
 def free_name(folder: Path, stem: str) -> Path:
-    """``folder/stem.toml``, or ``stem-2.toml``, ... if taken (never overwrite a scene)."""
+    """``folder/stem.toml``, or ``stem-2.toml``, ... if taken (never overwrite a scene, nor
+    take the name of one another editor has open)."""
     path, k = folder / f"{stem}{SCENE_SUFFIX}", 2
-    while path.exists() or autosave_path(path).exists() or history_path(path).exists():
+    while path.exists() or autosave_path(path).exists() or history_path(path).exists() or \
+            held_by(path) is not None:
         path, k = folder / f"{stem}-{k}{SCENE_SUFFIX}", k + 1
     return path
 

@@ -509,6 +509,7 @@ class EditorServer(ThreadingHTTPServer):
         return f"http://{host}:{self.port}/"
 
     def start(self) -> EditorServer:
+        self.session.serving(self.url)
         self._thread = threading.Thread(target=self.serve_forever, kwargs={"poll_interval": 0.1},
                                         name="wiggly-editor-http", daemon=True)
         self._thread.start()

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import secrets
 import threading
-import traceback
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -28,32 +27,33 @@ from typing import Any
 import numpy as np
 
 from wiggly import limits
-from wiggly.editor.autosave import Autosaver, autosave_path, set_aside_if_stale
+from wiggly.editor.autosave import Autosaver, autosave_path
 from wiggly.editor.bus import EventBus
+from wiggly.editor.exporting import Exports
 from wiggly.editor.history import (
     DEFAULT_TAB,
     Histories,
     Record,
+    edit_label,
     history_path,
-    key_phrase,
     unwritable,
     write_status,
 )
 from wiggly.editor.physics import Physics
 from wiggly.editor.playback import FrameSet, Playback
+from wiggly.editor.recovery import recover
 from wiggly.editor.sandbox import Sandbox
 from wiggly.editor.scene_files import (
     MESH_SUFFIXES,
     SCENE_SUFFIX,
     display_groups,
     driver_stamp,
-    export_written,
     file_digest,
     free_name,
-    load_checked,
     new_scene,
     surface_of,
 )
+from wiggly.editor.scene_lock import SceneLock
 from wiggly.editor.state import (
     EditError,
     EditorState,
@@ -64,54 +64,18 @@ from wiggly.editor.state import (
     state_to_json,
 )
 from wiggly.errors import WigglyInputError
-from wiggly.files import remove_stale
 from wiggly.mesh import DEFAULT_RESOLUTION, VOLUME_EXTENSIONS
 from wiggly.progress import reporting
 from wiggly.scene import (
     BUILTIN_MODELS,
-    OUTPUT_EXTENSIONS,
     Scene,
     builtin_model,
-    resolve_groups,
     save_scene,
 )
 
 __all__ = ["Session", "autosave_path"]
 
-def _label(op: Any, before: EditorState, after: EditorState) -> str:
-    """How the undo button names an edit (keyframes by their name or group and time)."""
-    kind = op.get("op") if isinstance(op, dict) else None
-    label = op.get("label") if isinstance(op, dict) else None
-    if isinstance(label, str) and 0 < len(label) <= 80:
-        return label
-    if kind == "batch":
-        return f"{len(op.get('ops') or [])} edits"
-    if kind == "set":  # "set material.young", "set damping.alpha, damping.beta"
-        section, values = op.get("section"), op.get("values")
-        fields = sorted(values)[:3] if isinstance(values, dict) else []
-        return "set " + (", ".join(f"{section}.{f}" for f in fields) or str(section))
-    if kind in ("update_keyframe", "delete_keyframe"):
-        key = _key_of(before, op.get("id"))
-        if kind == "delete_keyframe":
-            return f"delete keyframe {key_phrase(key)}"
-        if set(op) <= {"op", "id", "time"} and isinstance(op.get("time"), int | float):
-            return f"move keyframe {key_phrase(key)} to {op['time']:g} s"
-        return f"edit keyframe {key_phrase(key)}"
-    if kind == "add_keyframe":
-        added = [i for i in after.keyframe_ids if i not in set(before.keyframe_ids)]
-        return f"add keyframe {key_phrase(_key_of(after, added[-1] if added else None))}"
-    return str(kind).replace("_", " ")
-
-
-def _key_of(state: EditorState, key_id: Any) -> dict | None:
-    """The keyframe ``key_id`` of ``state`` in its dict form (None: no such keyframe)."""
-    if key_id not in state.keyframe_ids:
-        return None
-    k = state.scene.keyframes[state.keyframe_ids.index(key_id)]
-    return {"name": k.name, "group": k.group, "time": k.time}
-
-
-class Session:
+class Session(Exports):
     """One edited scene with its histories, workers and frames.  See the module doc."""
 
     def __init__(self, sandbox: Sandbox, *, autosave: bool = True, bus: EventBus | None = None):
@@ -140,6 +104,8 @@ class Session:
         self.autosaver = Autosaver(
             lambda message: self.bus.publish("notice", level="warning", message=message))
         self._driver_stamp: tuple | None = None  # the [drive] file(s) as last seen
+        self._scene_lock: SceneLock | None = None  # no other editor opens the scene meanwhile
+        self.url: str | None = None  # where this editor is served (named in its lock)
         threading.Thread(target=self._watch_driver, name="wiggly-driver-watch",
                          daemon=True).start()
 
@@ -165,6 +131,10 @@ class Session:
     def close(self) -> None:
         self._stop.set()
         self.autosaver.close()
+        with self._lock:
+            if self._scene_lock is not None:
+                self._scene_lock.release()
+                self._scene_lock = None
         self.playback.close()
         self.physics.close()
         self._export_pool.shutdown(wait=False, cancel_futures=True)
@@ -185,10 +155,48 @@ class Session:
         return self._saved is None or self._saved != self.state.scene
 
     # --- opening and saving ---------------------------------------------------------------
+    def serving(self, url: str) -> None:
+        """The editor is served at ``url``: its scene's lock names it."""
+        with self._lock:
+            self.url = url
+            if self._scene_lock is not None:
+                self._scene_lock.serving(url)
+
+    def _claim(self, scene_path: Path, taken: list[SceneLock]) -> None:
+        """Lock ``scene_path`` for this editor (unless it holds it already), adding the lock
+        to ``taken``; :class:`EditError` (409) if another editor has it open."""
+        held = self._scene_lock
+        if held is not None and held.scene_path == scene_path:
+            return
+        lock = SceneLock.take(scene_path)
+        if lock is not None:
+            taken.append(lock)
+            if self.url is not None:
+                lock.serving(self.url)
+
+    def _keep_lock(self, scene_path: Path | None, taken: list[SceneLock]) -> None:
+        """The scene is now ``scene_path``: keep its lock, release the one held before."""
+        old = self._scene_lock
+        if taken:
+            self._scene_lock = taken.pop()
+        elif old is not None and old.scene_path != scene_path:
+            self._scene_lock = None
+        if old is not None and old is not self._scene_lock:
+            old.release()
+
     def open(self, path: str) -> dict:
         """Open a scene file (.toml) or a mesh (new scene) inside the sandbox.  A scene whose
         autosave or undo journal holds edits the file lacks (the editor stopped or crashed
-        before a save) is recovered from them, and says so; the undo histories come back."""
+        before a save) is recovered from them, and says so; the undo histories come back.
+        A scene another editor has open is refused (409, naming it)."""
+        taken: list[SceneLock] = []
+        try:
+            return self._open(path, taken)
+        finally:
+            for lock in taken:  # not kept: the open failed
+                lock.release()
+
+    def _open(self, path: str, taken: list[SceneLock]) -> dict:
         notices: list[str] = []
         file_scene: Scene | None = None
         if path.startswith("builtin:"):
@@ -198,14 +206,17 @@ class Session:
                                 + ", ".join(f"builtin:{m}" for m in BUILTIN_MODELS))
             scene = new_scene(builtin_model(name), builtin=name)
             scene.source = free_name(self.sandbox.home, name)
+            self._claim(scene.source, taken)
             histories = self._histories(scene.source)
             state, _ = histories.load(scene)
         else:
             real = self.sandbox.resolve(path, suffixes=(SCENE_SUFFIX, *MESH_SUFFIXES))
             if real.suffix.lower() == SCENE_SUFFIX:
+                self._claim(real, taken)
                 state, file_scene, histories = self._recover(path, real, notices)
             elif real.is_file():
                 scene = new_scene(real)
+                self._claim(scene.source, taken)
                 histories = self._histories(scene.source)
                 state, _ = histories.load(scene)
                 # a never-saved scene of this mesh with edits (a crash, or another editor
@@ -232,11 +243,12 @@ class Session:
         diagonal = float(np.linalg.norm(np.ptp(surface.vertices, axis=0)))
         check_limits(scene, diagonal)
         with self._lock:
+            self._keep_lock(scene.source, taken)
             self._state = state
             self.histories = histories
             self._saved = file_scene
             # the scene file as read: a save checks that nobody changed it since
-            self._disk = file_digest(scene.source)
+            self._disk = histories.disk = file_digest(scene.source)
             self.surface, self.diagonal = surface, diagonal
             self._surface_key = (scene.mesh.path, scene.mesh.metres_per_unit, scene.mesh.up)
             self._opened += 1
@@ -254,44 +266,26 @@ class Session:
 
     def _recover(self, path: str, real: Path, notices: list[str],
                  ) -> tuple[EditorState, Scene | None, Histories]:
-        """The scene file ``real`` with the edits its autosave and journal hold beyond it
-        (the journal's tail replayed over the autosave, which may lag it); the file's scene
+        """The scene file ``real`` with its unsaved edits (:func:`recover`), the file's scene
         (None: never saved) and the histories."""
-        file_scene = load_checked(real) if real.is_file() else None
-        auto = autosave_path(real)
-        for written in (auto, history_path(real)):  # a write a crash cut short (a minute old:
-            remove_stale(written.with_name(written.name + ".part"), 60.0)  # not another's)
-        auto_scene: Scene | None = None
-        stale = set_aside_if_stale(real, file_digest(real), notices)
-        if auto.is_file() and not stale:
-            try:
-                auto_scene = load_checked(auto)
-                auto_scene.source = real
-            except EditError as err:
-                notices.append(f"ignored an unreadable autosave {auto.name}: "
-                               f"{str(err).splitlines()[0]}")
+        self.autosaver.flush()  # a write still pending for this scene must not land later
         histories = self._histories(real)
-        state, notice = histories.load(auto_scene if auto_scene is not None else file_scene,
-                                       real)
-        if notice:
-            notices.append(notice)
-        if state is None:
-            raise EditError(f"{path}: no such file", 404)
-        if state.scene != file_scene:
-            names = [auto.name] if auto_scene is not None and auto_scene != file_scene else []
-            base = auto_scene if auto_scene is not None else file_scene
-            if histories.path is not None and state.scene != base:
-                names.append(histories.path.name)
-            notices.append(f"recovered the unsaved scene from {' and '.join(names)}"
-                           if file_scene is None else
-                           f"recovered unsaved edits from {' and '.join(names)} (the saved "
-                           "file is unchanged until you save)")
+        state, file_scene = recover(path, real, histories, notices)
         return state, file_scene, histories
 
     def save(self, path: str | None = None, overwrite: bool = False) -> dict:
         """Save the scene to its file, or to ``path`` (inside the sandbox).  A file that is
         not the scene's own, or its own file changed on disk since it was opened or last
-        saved, is overwritten only with ``overwrite`` (409 otherwise, saying which)."""
+        saved, is overwritten only with ``overwrite`` (409 otherwise, saying which); a file
+        another editor has open, never (409, naming it)."""
+        taken: list[SceneLock] = []
+        try:
+            return self._save(path, overwrite, taken)
+        finally:
+            for lock in taken:  # not kept: the save failed
+                lock.release()
+
+    def _save(self, path: str | None, overwrite: bool, taken: list[SceneLock]) -> dict:
         with self._lock:
             state = self.state
             scene = state.scene
@@ -305,6 +299,8 @@ class Session:
             if not out.mesh.path.startswith("builtin:") and \
                     not self.sandbox.contains(out.mesh_file()):
                 raise EditError(f"{out.mesh.path}: the mesh is outside the sandbox", 403)
+            if target != scene.source:
+                self._claim(target, taken)
             on_disk = file_digest(target)
             if on_disk is not None and not overwrite:
                 name = self.sandbox.relative(target)
@@ -323,15 +319,18 @@ class Session:
             except OSError as err:
                 raise EditError(unwritable(err, f"cannot save {self.sandbox.relative(target)}",
                                            target.parent), write_status(err)) from None
-            self._disk = file_digest(target)
+            self._disk = self.histories.disk = file_digest(target)
+            self._keep_lock(target, taken)
             old_source = scene.source
             out.source = target
             if out is not scene or old_source != target:
                 state = EditorState(out, state.keyframe_ids, state.next_id)
                 self._state = state
-                if self.histories.path is not None:
-                    self.histories.path = history_path(target)
+                if self.histories.path is not None:  # the history moves to the new name
+                    old_journal, self.histories.path = self.histories.path, history_path(target)
                     self.histories.compact(state)
+                    if old_journal != self.histories.path:  # the old file reopens clean
+                        old_journal.unlink(missing_ok=True)
             self._saved = out
             # what was recovered is saved now: the page stops saying so
             self.notices = [n for n in self.notices if not n.startswith("recovered")]
@@ -351,7 +350,7 @@ class Session:
             op = self._expand(op)
             new = apply_edit(old, op, self._n_vertices(), self.diagonal)
             self._check_tets(old.scene, new.scene)
-            record = Record.between(old, new, _label(op, old, new))
+            record = Record.between(old, new, edit_label(op, old, new))
             if record is None:
                 return {"version": self.version, "changed": False}
             self._check_groups(old.scene, new.scene)
@@ -625,68 +624,6 @@ class Session:
     def latest_frames(self, final: bool = False) -> FrameSet | None:
         """The frames of the newest request (``final``: the newest final ones)."""
         return self.playback.latest(final=final)
-
-    # --- export ---------------------------------------------------------------------------
-    def export(self, paths: Any, overwrite: Any = False) -> dict:
-        if not isinstance(paths, list) or not paths or len(paths) > 8:
-            raise EditError("paths must be a list of 1 to 8 output files")
-        if not isinstance(overwrite, bool):
-            raise EditError("overwrite must be true or false")
-        real = [self.sandbox.resolve(p, suffixes=OUTPUT_EXTENSIONS) for p in paths]
-        from wiggly.scene import check_outputs
-
-        try:
-            check_outputs(real, True)
-        except WigglyInputError as err:
-            raise EditError(str(err)) from None
-        existing = [p for p in real if p.exists() or (
-            p.suffix.lower() == ".obj" and p.with_name(f"{p.stem}_0000.obj").exists())]
-        if existing and not overwrite:
-            raise EditError(f"{', '.join(self.sandbox.relative(p) for p in existing)} "
-                            f"{'exists' if len(existing) == 1 else 'exist'}: overwrite, or "
-                            "export under other names", 409)
-        with self._lock:
-            state, version = self.state, self.version
-        self._export_pool.submit(self._export, state, version, real, overwrite)
-        return {"paths": [self.sandbox.relative(p) for p in real]}
-
-    def _export(self, state: EditorState, version: int, paths: list[Path], overwrite: bool):
-        """Solve the scene as ``wiggly animate`` does (same body) and write ``paths``."""
-        with reporting(False):  # the page shows the export; the terminal stays quiet
-            self._solve_and_write(state, paths, overwrite, version)
-
-    def _solve_and_write(self, state: EditorState, paths: list[Path], overwrite: bool,
-                         version: int | None = None):
-        scene = state.scene
-        names = [p.name for p in paths]
-        self.bus.publish("export", stage="running", message=f"exporting {', '.join(names)}")
-        try:
-            from wiggly.scene import keyframe_highlights, keyframes_of, solve_scene, write_outputs
-
-            body = self.physics.body(scene, abandon=self._stop.is_set, hold=True)
-            if body is None:
-                return
-            groups = resolve_groups(scene, body.model)
-            keys = keyframes_of(scene, body, groups)
-            # the library's solve, as `wiggly animate` runs it; its warnings are not caught
-            # here: warnings.catch_warnings changes process-wide state, and a block of this
-            # thread overlapping the playback thread's would restore the other's wrongly
-            # (warnings then stayed ignored); the playback's solve shows the same ones
-            anim = solve_scene(scene, body, keys)
-            write_outputs(scene, anim, paths, overwrite=overwrite,
-                          highlights=keyframe_highlights(scene, body, anim.keyframes, groups))
-            written = [export_written(p, self.sandbox.relative(p)) for p in paths]
-            # an edit made while it ran is not in it: say so, rather than seem current
-            later = version is not None and self.version != version
-            since = (" (the scene as it was when the export started: edits made since are not "
-                     "in it; export again to include them)" if later else "")
-            self.bus.publish("export", stage="done",
-                             message=f"exported {', '.join(written)}{since}",
-                             paths=[self.sandbox.relative(p) for p in paths])
-        except Exception as err:
-            if not isinstance(err, WigglyInputError):
-                traceback.print_exc()
-            self.bus.publish("export", stage="error", message=f"export failed: {err}")
 
 
 #: How often (s) the editor looks at the scene's driver file(s) for changes.

@@ -1,0 +1,113 @@
+"""Opening a scene file with the edits its autosave and undo journal hold beyond it.
+
+The journal's tail is replayed over the autosave (which may lag it: an edit is answered once
+its journal line is on the disk, and the autosave follows in the background).  The recovered
+state is then written back before the journal is compacted: the autosave is made the
+recovered scene (or removed, when that is the file's), and only then is the journal rewritten
+as one snapshot of it.  So a later open, after a clean stop or another crash, finds the same
+scene and undo history, however many times it happens.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+from wiggly.editor.autosave import autosave_base, autosave_path, write_autosave, write_durably
+from wiggly.editor.history import Histories, history_path
+from wiggly.editor.scene_files import file_digest, load_checked
+from wiggly.editor.state import EditError, EditorState
+from wiggly.files import remove_stale
+from wiggly.scene import Scene, scene_to_toml
+
+__all__ = ["recover"]
+
+
+def recover(path: str, real: Path, histories: Histories, notices: list[str],
+            ) -> tuple[EditorState, Scene | None]:
+    """The scene file ``real`` (as the user named it: ``path``) with the edits its autosave
+    and journal (``histories``) hold beyond it, and the file's scene (None: never saved).
+    What was recovered, set aside or ignored is appended to ``notices``."""
+    file_scene = load_checked(real) if real.is_file() else None
+    disk = file_digest(real)
+    auto = autosave_path(real)
+    for written in (auto, history_path(real)):  # a write a crash cut short (a minute old:
+        remove_stale(written.with_name(written.name + ".part"), 60.0)  # not another's)
+    auto_scene: Scene | None = None
+    base_of_auto = autosave_base(auto) if auto.is_file() else None
+    # changed in another program (a deleted file has nothing to protect: the edits come back)
+    if base_of_auto is not None and disk is not None and base_of_auto != disk:
+        _set_aside(real, histories, notices)
+    elif auto.is_file():
+        try:
+            auto_scene = load_checked(auto)
+            auto_scene.source = real
+        except EditError as err:
+            notices.append(f"ignored an unreadable autosave {auto.name}: "
+                           f"{str(err).splitlines()[0]}")
+    histories.disk = disk
+    base = auto_scene if auto_scene is not None else file_scene
+    state, notice = histories.load(base, real, disk=disk, compact=False)
+    if notice:
+        notices.append(notice)
+    if state is None:
+        raise EditError(f"{path}: no such file", 404)
+    if histories.path is not None and histories.path.is_file():
+        _write_back(auto, state, file_scene, auto_scene, disk, histories)
+    if state.scene != file_scene:
+        names = [auto.name] if auto_scene is not None and auto_scene != file_scene else []
+        if histories.path is not None and state.scene != base:
+            names.append(histories.path.name)
+        notices.append(f"recovered the unsaved scene from {' and '.join(names)}"
+                       if file_scene is None else
+                       f"recovered unsaved edits from {' and '.join(names)} (the saved "
+                       "file is unchanged until you save)")
+    return state, file_scene
+
+
+def _write_back(auto: Path, state: EditorState, file_scene: Scene | None, auto_scene: Scene | None,
+                disk: str | None, histories: Histories) -> None:
+    """Make the autosave ``auto`` the recovered ``state`` (removed: it is the file's), then compact
+    the journal to it.  If the autosave cannot be written, the journal stays as it is: it
+    still gives ``state`` over the old autosave."""
+    try:
+        if state.scene == file_scene:
+            auto.unlink(missing_ok=True)
+        elif state.scene != auto_scene:
+            write_autosave(auto, state.scene, disk)
+    except OSError:
+        return
+    histories.compact(state)
+
+
+def _set_aside(real: Path, histories: Histories, notices: list[str]) -> None:
+    """The scene file ``real`` was changed in another program after edits that were not
+    saved (its autosave was made from another version of it): they must not overwrite that
+    change unasked.  They are kept as the scene ``NAME.unsaved-<date>-<time>.toml``, the
+    journal's tail replayed over the autosave (every answered edit), with the journal as its
+    undo history; the file then opens as it is on disk, and a notice says so."""
+    auto = autosave_path(real)
+    kept = real.with_name(f"{real.stem}.unsaved-{time.strftime('%Y%m%d-%H%M%S')}.toml")
+    state = None
+    try:
+        scene = load_checked(auto)
+        scene.source = kept
+        state = histories.peek(scene, kept)
+        write_durably(kept, scene_to_toml(state.scene if state is not None else scene))
+        auto.unlink()
+        where = f"; they are kept as the scene {kept.name} (Open shows it)"
+    except (EditError, OSError):  # unreadable: kept as it is
+        try:
+            os.replace(auto, kept)
+            where = f"; they are kept as the scene {kept.name} (Open shows it)"
+        except OSError:
+            where = ""
+    if state is not None and histories.path is not None:  # its undo history goes with it
+        try:
+            os.replace(histories.path, history_path(kept))
+            where = where.replace("(Open shows it)", "(Open shows it, with their undo steps)")
+        except OSError:
+            pass
+    notices.append(f"{real.name} was changed outside the editor after edits that were not "
+                   f"saved: it opens as it is on disk, without them{where}")

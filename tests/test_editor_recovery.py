@@ -1,0 +1,255 @@
+"""Recovery is idempotent: the scene and undo history an open recovers after a crash come
+back the same after any number of later restarts, clean or killed.
+
+A kill is reproduced by the files it leaves: the editor is closed (its background writes
+done), then the autosave is put back as it was before the last edits, as when the editor is
+killed after their journal lines are on the disk but before their autosave lands.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from tests.editor_ui import bar_project
+from wiggly.editor import Sandbox, Session
+from wiggly.editor.session import autosave_path
+from wiggly.scene import load_scene
+
+KEYS = """
+[[keyframes]]
+name = "plant"
+time = 0.25
+group = "mid"
+position = { offset = [0.0, 0.01, 0.0] }
+"""
+
+
+def _open(folder: Path, name: str) -> tuple[Session, list[str]]:
+    session = Session(Sandbox([folder]))
+    return session, session.open(name)["notices"]
+
+
+def _killed(session: Session, autosave: Path, lagging: bytes | None) -> None:
+    """Stop ``session`` as a kill before its last autosave would: the autosave is left as
+    ``lagging`` (None: none was written)."""
+    session.close()
+    if lagging is None:
+        autosave.unlink(missing_ok=True)
+    else:
+        autosave.write_bytes(lagging)
+
+
+def _view(session: Session) -> tuple:
+    return session.scene, session.state.keyframe_ids, session.histories.describe("a")
+
+
+def test_a_recovered_edit_survives_every_later_restart(tmp_path):
+    """Edit A, then B (delete the key "plant"), killed before B's autosave: the restart
+    recovers B; a clean stop and more restarts keep B and its undo step, and no notice
+    says the file was changed elsewhere."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "material", "values": {"young": 8e5}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.edit({"op": "delete_keyframe", "id": 1}, tab="a")
+    expected = _view(s)
+    _killed(s, auto, lagging)
+
+    for restart in range(4):  # the recovery, then clean stops and kills with nothing new
+        s, notices = _open(tmp_path, path.name)
+        try:
+            assert _view(s) == expected, f"restart {restart}"
+            assert expected[2]["undo_label"] == "delete keyframe 'plant' (mid at 0.25 s)"
+            assert not any("outside the editor" in n for n in notices), notices
+            assert any("recovered unsaved edits" in n for n in notices), notices
+        finally:
+            if restart % 2:
+                _killed(s, auto, auto.read_bytes() if auto.exists() else None)
+            else:
+                s.close()
+    s, _ = _open(tmp_path, path.name)
+    try:  # the whole history is there: undo walks back to the file
+        assert s.undo("a")["changed"] and s.undo("a")["changed"]
+        assert s.scene == load_scene(path) and not s.dirty
+    finally:
+        s.close()
+
+
+def test_an_edit_after_a_recovery_survives_the_next_kill(tmp_path):
+    """A crash, a restart that recovers edit B, one more edit C, then a kill before C's
+    autosave: the next restart has B and C."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.edit({"op": "delete_keyframe", "id": 1}, tab="a")
+    _killed(s, auto, lagging)
+
+    s, _ = _open(tmp_path, path.name)
+    assert "plant" not in [k.name for k in s.scene.keyframes]
+    lagging = auto.read_bytes()  # as the recovery left it
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.9}}, tab="a")
+    expected = _view(s)
+    _killed(s, auto, lagging)
+
+    s, notices = _open(tmp_path, path.name)
+    try:
+        assert _view(s) == expected
+        assert len(s.scene.keyframes) == 1 and s.scene.damping.alpha == 0.9
+        assert not any("outside the editor" in n for n in notices), notices
+    finally:
+        s.close()
+
+
+def test_an_undo_back_to_the_file_recovered_after_a_kill_stays_clean(tmp_path):
+    """An edit, its undo (back to the saved file), killed before the autosave was removed:
+    the restart and every later one open the file clean, with the step to redo."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.undo("a")
+    _killed(s, auto, lagging)
+    for restart in range(3):
+        s, notices = _open(tmp_path, path.name)
+        try:
+            assert s.scene == load_scene(path) and not s.dirty, f"restart {restart}"
+            assert s.describe("a")["redo_label"] == "set damping.alpha"
+            assert not any("outside the editor" in n for n in notices), notices
+        finally:
+            s.close()
+
+
+def test_the_journal_alone_recovers_when_the_autosave_is_lost(tmp_path):
+    """After a recovery, the autosave is lost (removed, or unreadable): the journal alone
+    brings the edits back, since the scene file is unchanged since it was written."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.edit({"op": "delete_keyframe", "id": 1}, tab="a")
+    expected = _view(s)
+    s.close()
+    s, _ = _open(tmp_path, path.name)  # a restart: the journal is rewritten as a snapshot
+    s.close()
+    for lost in ("removed", "unreadable"):
+        if lost == "removed":
+            auto.unlink()
+        else:
+            auto.write_text("[material\n")
+        s, notices = _open(tmp_path, path.name)
+        try:
+            assert _view(s) == expected, lost
+            assert not any("outside the editor" in n for n in notices), notices
+        finally:
+            s.close()
+
+
+def test_save_as_leaves_the_original_clean_and_moves_the_history(tmp_path):
+    """Edits, Save as take2.toml, stop: the original reopens as it is on disk, clean and
+    without the edits or their undo steps; take2.toml reopens with them."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    original = path.read_bytes()
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "material", "values": {"young": 9e5}}, tab="a")
+    s.edit({"op": "update_keyframe", "id": 1, "time": 0.75}, tab="a")
+    s.save("take2.toml")
+    s.close()
+    assert path.read_bytes() == original
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".shot")) == []
+    s, notices = _open(tmp_path, path.name)
+    try:
+        assert s.scene == load_scene(path) and not s.dirty and not notices
+        assert not s.histories.describe("a")["can_undo"]
+    finally:
+        s.close()
+    s, notices = _open(tmp_path, "take2.toml")
+    try:
+        assert s.scene.material.young == 9e5 and not s.dirty and not notices
+        assert s.histories.describe("a")["undo_label"] == \
+            "move keyframe 'plant' (mid at 0.25 s) to 0.75 s"
+    finally:
+        s.close()
+
+
+def test_edits_set_aside_after_an_outside_change_include_the_last_answered_one(tmp_path):
+    """Edit A is autosaved, edit B only journaled (killed before its autosave), then the
+    scene file is changed in another program: the file opens as it is on disk, one notice
+    says so, and the scene the unsaved edits are kept as has A and B, with their undo."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.edit({"op": "set", "section": "material", "values": {"young": 8e5}}, tab="a")
+    _killed(s, auto, lagging)
+    path.write_text(path.read_text().replace("end = 1.0", "end = 1.5"))
+    s, notices = _open(tmp_path, path.name)
+    try:
+        assert s.scene == load_scene(path) and s.scene.time.end == 1.5 and not s.dirty
+        kept = [p for p in tmp_path.iterdir() if p.name.startswith("shot.unsaved-")]
+        assert len(kept) == 1
+        assert len(notices) == 1 and "changed outside the editor" in notices[0], notices
+        assert kept[0].name in notices[0]
+        unsaved = load_scene(kept[0])
+        assert (unsaved.damping.alpha, unsaved.material.young) == (0.3, 8e5)
+        assert not s.histories.describe("a")["can_undo"]
+    finally:
+        s.close()
+    s, notices = _open(tmp_path, kept[0].name)
+    try:
+        assert s.histories.describe("a")["undo_label"] == "set material.young"
+        assert s.undo("a")["changed"] and s.scene.material.young != 8e5
+    finally:
+        s.close()
+
+
+def test_a_deleted_scene_with_unsaved_edits_reopens_with_them(tmp_path):
+    """The scene file is deleted while the editor has unsaved edits, then a kill: opening
+    the scene's name brings the edits back as an unsaved scene, with one notice."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.edit({"op": "set", "section": "material", "values": {"young": 8e5}}, tab="a")
+    expected = _view(s)
+    _killed(s, auto, lagging)
+    path.unlink()
+    for restart in range(2):
+        s, notices = _open(tmp_path, path.name)
+        try:
+            assert _view(s) == expected and s.dirty, f"restart {restart}"
+            assert len(notices) == 1 and "recovered the unsaved scene" in notices[0], notices
+            assert not any(p.name.startswith("shot.unsaved-") for p in tmp_path.iterdir())
+        finally:
+            s.close()
+
+
+def test_wiggly_edit_on_a_deleted_scene_with_unsaved_edits_recovers_them(tmp_path):
+    import signal
+
+    from tests.test_editor_lock import _start
+
+    path = bar_project(tmp_path, KEYS, warp=False)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.close()
+    path.unlink()
+    proc, _ = _start(path)  # before, "no such file"
+    try:
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 0
+        said = proc.stderr.read()
+    finally:
+        proc.stdout.close()
+        proc.stderr.close()
+    assert "recovered the unsaved scene from .shot.autosave.toml" in said, said
