@@ -213,6 +213,7 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
         "the animation jumps: its driven vertices move 0.3 m",
         "[wiggly] secondary motion on the animation (24 modes of the free parts)",
         "the bake", "a larger driven group or a lower Intensity may help"]
+    assert errors.pop("status") == "[wiggly] tetrahedralizing the mesh (fTetWild: 9 s)"
     faint = [w for w in errors.pop("faint weights") if "weights below 0.1" in w]
     assert len(faint) == 1 and "Object 'Bar', group 'middle':" in faint[0], faint
     assert "takes every vertex of weight above 0 in full" in faint[0], faint

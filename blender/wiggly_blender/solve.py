@@ -48,6 +48,9 @@ PANEL_NAMES = (
     (r"\bkeyframes\[(\d+)\]", r"key \1"),
 )
 
+#: characters of wiggly's stage line shown in the status bar
+STATUS_WIDTH = 120
+
 #: seconds wiggly gets to end on Esc before it is killed (its outputs are written atomically,
 #: so a kill leaves no half-written file; the add-on removes its temporary folder)
 GRACE = 0.5
@@ -90,7 +93,11 @@ class Solve:
         except OSError:
             return ""
         lines = [s.strip() for s in re.split(r"[\r\n]", tail) if s.strip()]
-        return self._plain(lines[-1]) if lines else "starting"
+        stages = [s for s in lines if s.startswith("[wiggly]")]  # not a warning's paragraph
+        if not stages:
+            return "starting"
+        text = self._plain(stages[-1])
+        return text if len(text) <= STATUS_WIDTH else text[:STATUS_WIDTH - 3] + "..."
 
     def _plain(self, text: str) -> str:
         """wiggly's text without the add-on's own temporary folder and files (the report

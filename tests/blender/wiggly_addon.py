@@ -305,6 +305,13 @@ def case_errors() -> None:
         "the driver shot_drive.npz jumps: its driven vertices move 0.3 m",
         "[wiggly] secondary motion on shot_drive.npz (24 modes of the free parts)",
         "result.npz", "a larger driven group or a lower drive.intensity may help")]
+    probe.log = probe.folder / "wiggly.log"  # the status bar: the last stage, not a warning
+    probe.folder.mkdir(parents=True, exist_ok=True)
+    probe.log.write_text("[wiggly] checking shot_rest.obj (12 triangles)\n"
+                         "[wiggly] tetrahedralizing shot_rest.obj (fTetWild: 3 s)\r"
+                         "[wiggly] tetrahedralizing shot_rest.obj (fTetWild: 9 s)\n"
+                         "wiggly: warning: shot.toml: " + "a long paragraph " * 20 + "\n")
+    out["status"] = probe.status()
     obj.scale = (-1.0, 1.0, 1.0)  # mirrored: its world triangles wind the other way
     out["mirrored export"] = run(bpy.ops.wiggly.export_scene,
                                  filepath=str(workdir / "mirrored.toml"))
