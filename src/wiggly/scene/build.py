@@ -103,6 +103,13 @@ def _check_modes_for_scene(scene: Scene, model, fixed_vertices) -> None:
         raise input_error(scene.where(), [
             f"simulation.fixed = [{groups}] holds every vertex of {name}'s tet mesh, so "
             "nothing can move: fix fewer vertices (a base, the feet), and key the others"])
+    if len(fixed) and scene.drive is None and np.isin(
+            fixed_from_surface(model, np.arange(model.surface.n_vertices)), fixed).all():
+        groups = ", ".join(repr(g) for g in scene.simulation.fixed)
+        raise input_error(scene.where(), [
+            f"simulation.fixed = [{groups}] holds every vertex of {name}'s surface (through "
+            "the tets that carry them), so the surface cannot move: fix fewer vertices (a "
+            "base, the feet), and key the others"])
     if modes > free:
         held = f", {len(fixed)} of them fixed" if len(fixed) else ""
         raise input_error(scene.where(), [
