@@ -279,12 +279,6 @@ def static_sag(body, modes: tuple[np.ndarray, np.ndarray] | None = None) -> floa
     keyframes), or None for a body with rigid modes (nothing holds it, so it falls).
     ``modes`` (Psi, lambda): other modes to take, e.g. those of the free parts with a driven
     group held."""
-    if not np.any(body.gravity):
-        return None
-    if modes is None:
-        if body.modes.n_rigid:
-            return None
-        modes = (body.modes.vectors, body.modes.eigenvalues)
     u = _sag_field(body, modes)
     return None if u is None else float(np.sqrt((u**2).sum(axis=1)).max())
 

@@ -54,16 +54,11 @@ def _set(obj, name: str, value) -> None:
     object.__setattr__(obj, name, value)
 
 
-@dataclass(frozen=True)
-class MeshSpec:
-    """``[mesh]``: the model file and how to tetrahedralize it."""
+class _FileUnits:
+    """The ``scale`` and ``up_axis`` of a file's coordinates (the mesh's, a driver's)."""
 
-    path: str
-    resolution: int | None = None
-    edge_length: float | None = None
-    repair: bool | None = None  # None: true (accept imperfect surfaces, with a warning)
-    scale: float | None = None  # metres per unit of the file; None: 1
-    up_axis: str | None = None  # the file's up axis, "y" or "z"; None: "y"
+    scale: float | None
+    up_axis: str | None
 
     @property
     def metres_per_unit(self) -> float:
@@ -74,6 +69,18 @@ class MeshSpec:
     def up(self) -> str:
         """The file's up axis (``up_axis``, default "y")."""
         return self.up_axis or "y"
+
+
+@dataclass(frozen=True)
+class MeshSpec(_FileUnits):
+    """``[mesh]``: the model file and how to tetrahedralize it."""
+
+    path: str
+    resolution: int | None = None
+    edge_length: float | None = None
+    repair: bool | None = None  # None: true (accept imperfect surfaces, with a warning)
+    scale: float | None = None  # metres per unit of the file; None: 1
+    up_axis: str | None = None  # the file's up axis, "y" or "z"; None: "y"
 
 
 @dataclass(frozen=True)
@@ -260,7 +267,7 @@ class KeyframeSpec:
 
 
 @dataclass(frozen=True)
-class DriveSpec:
+class DriveSpec(_FileUnits):
     """``[drive]``: a driver animation of the surface (``path``) that keys the vertices of
     ``group`` (one group name or several, their union) at every driver frame
     (:mod:`wiggly.drive`).  Driver time t plays at shot time t + ``offset``; only frames with
@@ -288,16 +295,6 @@ class DriveSpec:
     intensity: float = 1.0
     scale: float | None = None  # OBJ sequences and npz: metres per unit of the file; None: 1
     up_axis: str | None = None  # OBJ sequences and npz: the file's up axis; None: "y"
-
-    @property
-    def metres_per_unit(self) -> float:
-        """What the driver file's coordinates are multiplied by (``scale``, default 1)."""
-        return 1.0 if self.scale is None else self.scale
-
-    @property
-    def up(self) -> str:
-        """The driver file's up axis (``up_axis``, default "y")."""
-        return self.up_axis or "y"
 
     def __post_init__(self) -> None:
         if not isinstance(self.group, str):
