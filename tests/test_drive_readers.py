@@ -236,6 +236,46 @@ def write_glb(path: Path, doc: dict, arrays: list[tuple[np.ndarray, str, bool]])
     return path
 
 
+@pytest.mark.parametrize("base", ["buffer", "zeros"])
+def test_sparse_positions_are_applied_to_the_rest_mesh_and_the_driver(tmp_path, base):
+    """A 0.2 m cube whose POSITION accessor has a sparse substitution (glTF 3.6.2.3): the
+    four top vertices moved from y = 0.2 to y = 0.5 over the stored cube, or, for an
+    accessor without a bufferView, every vertex given by the substitution over zeros.  The
+    mesh and the driver are the 0.2 x 0.5 x 0.2 box: its vertices exactly, volume 0.02."""
+    top = np.flatnonzero(CUBE[:, 1] > 0)
+    moved = CUBE.copy()
+    moved[top, 1] = 0.5
+    rows = top if base == "buffer" else np.arange(len(CUBE))
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"name": "bar", "mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}]}
+    path = write_glb(tmp_path / "bar.glb", doc, [
+        (CUBE.astype(np.float32), "VEC3", False), (TRIS.ravel().astype(np.uint16), "SCALAR",
+                                                   False),
+        (rows.astype(np.uint32), "SCALAR", False),
+        (moved[rows].astype(np.float32), "VEC3", False)])
+    data = path.read_bytes()
+    length = struct.unpack_from("<I", data, 12)[0]
+    gltf = json.loads(data[20:20 + length])
+    gltf["accessors"][0]["sparse"] = {
+        "count": len(rows), "indices": {"bufferView": 2, "componentType": 5125},
+        "values": {"bufferView": 3}}
+    gltf["accessors"][0]["max"] = [0.2, 0.5, 0.2]
+    if base == "zeros":
+        del gltf["accessors"][0]["bufferView"]
+    text = json.dumps(gltf).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + data[20 + length:]
+    path.write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body)
+    from wiggly.mesh.loading import load_mesh
+
+    surface = load_mesh(path)
+    np.testing.assert_allclose(surface.vertices, moved, rtol=0, atol=1e-7)  # float32
+    P = surface.vertices[surface.faces]
+    volume = np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2])).sum() / 6
+    assert abs(volume) == pytest.approx(0.2 * 0.5 * 0.2, rel=1e-6)
+    np.testing.assert_allclose(read_driver(path).positions[0], moved, rtol=0, atol=1e-7)
+
+
 def test_gltf_morph_targets_under_a_moving_parent(tmp_path):
     """Base + w1 D1 + w2 D2 with LINEAR weights (not one-hot), the mesh node under a parent
     whose translation is animated: both evaluated at every key time and between the keys."""

@@ -402,17 +402,13 @@ class RestPose:
     bind: list[tuple[slice, np.ndarray]]
 
 
-def rest_pose(path: Path) -> RestPose | None:
+def rest_pose(path: Path) -> RestPose:
     """The meshes of a ``.glb`` / ``.gltf`` file with no animation applied: node transforms
-    at their static values, default morph weights, and skins blended by their joints' static
-    transforms (the skinned node's own transform ignored, as the specification requires).
-    None when no mesh of the scene is skinned (a reader that ignores skins reads it right)."""
+    at their static values, default morph weights, sparse accessors applied, and skins
+    blended by their joints' static transforms (the skinned node's own transform ignored,
+    as the specification requires)."""
     f = GltfFile(Path(path))
-    if not any(n.get("skin") is not None and n.get("mesh") is not None for n in f.list("nodes")):
-        return None  # without posing anything
     parts = _pose(f, [], np.zeros(1), None)
-    if all(part.bind is None for part in parts):
-        return None
     normals, uvs = [], []
     for part in parts:
         attrs = part.primitive["attributes"]
