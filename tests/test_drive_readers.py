@@ -276,6 +276,40 @@ def test_sparse_positions_are_applied_to_the_rest_mesh_and_the_driver(tmp_path, 
     np.testing.assert_allclose(read_driver(path).positions[0], moved, rtol=0, atol=1e-7)
 
 
+def test_gltf_groups_are_named_by_node_and_primitive_on_every_read(tmp_path):
+    """A node "body" whose mesh has two primitives (two cubes) and an unnamed node beside
+    it: a group per node (the unnamed one by its mesh's name) and one per primitive of the
+    two-primitive mesh, the same names on every read; a file of one mesh node has that
+    node's group."""
+    cube = CUBE.astype(np.float32)
+    tris = TRIS.ravel().astype(np.uint16)
+    doc = {"scene": 0, "scenes": [{"nodes": [0, 1]}],
+           "nodes": [{"name": "body", "mesh": 0}, {"mesh": 1, "translation": [0, 1.0, 0]}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1},
+                                      {"attributes": {"POSITION": 2}, "indices": 1}]},
+                      {"name": "lid", "primitives": [{"attributes": {"POSITION": 0},
+                                                      "indices": 1}]}]}
+    path = write_glb(tmp_path / "two.glb", doc, [(cube, "VEC3", False),
+                                                (tris, "SCALAR", False),
+                                                (cube + np.float32(0.5), "VEC3", False)])
+    from wiggly.mesh.loading import load_mesh
+
+    expected = {"body": range(0, 16), "body/primitive 0": range(0, 8),
+                "body/primitive 1": range(8, 16), "lid": range(16, 24)}
+    for _ in range(2):
+        surface = load_mesh(path)
+        assert {k: v.tolist() for k, v in surface.groups.items()} == {
+            k: list(v) for k, v in expected.items()}
+    np.testing.assert_allclose(surface.vertices[surface.groups["body/primitive 1"]],
+                               CUBE + 0.5, atol=1e-7)
+    np.testing.assert_allclose(surface.vertices[surface.groups["lid"]],
+                               CUBE + np.array([0, 1.0, 0]), atol=1e-7)
+    one = write_glb(tmp_path / "one.glb", {"nodes": [{"name": "bar", "mesh": 0}],
+                                           "meshes": doc["meshes"][1:]},
+                    [(cube, "VEC3", False), (tris, "SCALAR", False)])
+    assert {k: v.tolist() for k, v in load_mesh(one).groups.items()} == {"bar": list(range(8))}
+
+
 def test_gltf_morph_targets_under_a_moving_parent(tmp_path):
     """Base + w1 D1 + w2 D2 with LINEAR weights (not one-hot), the mesh node under a parent
     whose translation is animated: both evaluated at every key time and between the keys."""

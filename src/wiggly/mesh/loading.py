@@ -72,8 +72,8 @@ def load_mesh(path: str | Path, scale: float = 1.0, up: str = "y") -> TetMesh | 
       weights, skinned meshes posed by their joints' static transforms with
       their own node transform ignored, as the glTF specification says. glTF
       stores one UV per vertex, so its vertices are already split at seams.
-      With several mesh nodes, every node's vertices form a group named after
-      the node.
+      Every mesh node's vertices form a group named after the node, and each
+      primitive of a mesh of several one named ``<node>/primitive <k>``.
 
     Other formats (``.msh .vtu .vtk .mesh .xdmf ...``, see
     :data:`VOLUME_EXTENSIONS`) are read with meshio. A file with ``tetra``
