@@ -236,6 +236,80 @@ def write_glb(path: Path, doc: dict, arrays: list[tuple[np.ndarray, str, bool]])
     return path
 
 
+@pytest.mark.parametrize("base", ["buffer", "zeros"])
+def test_sparse_positions_are_applied_to_the_rest_mesh_and_the_driver(tmp_path, base):
+    """A 0.2 m cube whose POSITION accessor has a sparse substitution (glTF 3.6.2.3): the
+    four top vertices moved from y = 0.2 to y = 0.5 over the stored cube, or, for an
+    accessor without a bufferView, every vertex given by the substitution over zeros.  The
+    mesh and the driver are the 0.2 x 0.5 x 0.2 box: its vertices exactly, volume 0.02."""
+    top = np.flatnonzero(CUBE[:, 1] > 0)
+    moved = CUBE.copy()
+    moved[top, 1] = 0.5
+    rows = top if base == "buffer" else np.arange(len(CUBE))
+    doc = {"scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"name": "bar", "mesh": 0}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}]}
+    path = write_glb(tmp_path / "bar.glb", doc, [
+        (CUBE.astype(np.float32), "VEC3", False), (TRIS.ravel().astype(np.uint16), "SCALAR",
+                                                   False),
+        (rows.astype(np.uint32), "SCALAR", False),
+        (moved[rows].astype(np.float32), "VEC3", False)])
+    data = path.read_bytes()
+    length = struct.unpack_from("<I", data, 12)[0]
+    gltf = json.loads(data[20:20 + length])
+    gltf["accessors"][0]["sparse"] = {
+        "count": len(rows), "indices": {"bufferView": 2, "componentType": 5125},
+        "values": {"bufferView": 3}}
+    gltf["accessors"][0]["max"] = [0.2, 0.5, 0.2]
+    if base == "zeros":
+        del gltf["accessors"][0]["bufferView"]
+    text = json.dumps(gltf).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + data[20 + length:]
+    path.write_bytes(b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body)
+    from wiggly.mesh.loading import load_mesh
+
+    surface = load_mesh(path)
+    np.testing.assert_allclose(surface.vertices, moved, rtol=0, atol=1e-7)  # float32
+    P = surface.vertices[surface.faces]
+    volume = np.einsum("ij,ij->i", P[:, 0], np.cross(P[:, 1], P[:, 2])).sum() / 6
+    assert abs(volume) == pytest.approx(0.2 * 0.5 * 0.2, rel=1e-6)
+    np.testing.assert_allclose(read_driver(path).positions[0], moved, rtol=0, atol=1e-7)
+
+
+def test_gltf_groups_are_named_by_node_and_primitive_on_every_read(tmp_path):
+    """A node "body" whose mesh has two primitives (two cubes) and an unnamed node beside
+    it: a group per node (the unnamed one by its mesh's name) and one per primitive of the
+    two-primitive mesh, the same names on every read; a file of one mesh node has that
+    node's group."""
+    cube = CUBE.astype(np.float32)
+    tris = TRIS.ravel().astype(np.uint16)
+    doc = {"scene": 0, "scenes": [{"nodes": [0, 1]}],
+           "nodes": [{"name": "body", "mesh": 0}, {"mesh": 1, "translation": [0, 1.0, 0]}],
+           "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1},
+                                      {"attributes": {"POSITION": 2}, "indices": 1}]},
+                      {"name": "lid", "primitives": [{"attributes": {"POSITION": 0},
+                                                      "indices": 1}]}]}
+    path = write_glb(tmp_path / "two.glb", doc, [(cube, "VEC3", False),
+                                                (tris, "SCALAR", False),
+                                                (cube + np.float32(0.5), "VEC3", False)])
+    from wiggly.mesh.loading import load_mesh
+
+    expected = {"body": range(0, 16), "body/primitive 0": range(0, 8),
+                "body/primitive 1": range(8, 16), "lid": range(16, 24)}
+    for _ in range(2):
+        surface = load_mesh(path)
+        assert {k: v.tolist() for k, v in surface.groups.items()} == {
+            k: list(v) for k, v in expected.items()}
+    np.testing.assert_allclose(surface.vertices[surface.groups["body/primitive 1"]],
+                               CUBE + 0.5, atol=1e-7)
+    np.testing.assert_allclose(surface.vertices[surface.groups["lid"]],
+                               CUBE + np.array([0, 1.0, 0]), atol=1e-7)
+    one = write_glb(tmp_path / "one.glb", {"nodes": [{"name": "bar", "mesh": 0}],
+                                           "meshes": doc["meshes"][1:]},
+                    [(cube, "VEC3", False), (tris, "SCALAR", False)])
+    assert {k: v.tolist() for k, v in load_mesh(one).groups.items()} == {"bar": list(range(8))}
+
+
 def test_gltf_morph_targets_under_a_moving_parent(tmp_path):
     """Base + w1 D1 + w2 D2 with LINEAR weights (not one-hot), the mesh node under a parent
     whose translation is animated: both evaluated at every key time and between the keys."""

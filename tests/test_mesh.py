@@ -1096,3 +1096,61 @@ def test_a_surface_far_from_the_origin_keeps_its_orientation():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert np.array_equal(_outward(Surface(V, F), "far.obj").faces, F)  # no flip, no warning
+
+
+@pytest.mark.parametrize("height, crossing, told", [
+    (1.0, 0, True),  # half the enclosed 2 m^3
+    (1.6, 0, False),  # 80 %: within LOST_VOLUME
+    (1.0, 3, False),  # crossing triangles: the enclosed volume counts overlaps twice
+])
+def test_a_fill_lacking_volume_is_told_with_both_volumes(monkeypatch, height, crossing, told):
+    """A 1 x 1 x 2 m box surface (2 m^3) whose tet mesh is the box [0, 1]^2 x [0, height]:
+    more than LOST_VOLUME of the enclosed volume missing (thin parts got no tets) is
+    told with both volumes and the remedy; 80 % is not, nor a surface whose triangles
+    cross."""
+    from wiggly.mesh import model as model_module
+    from wiggly.mesh.defects import SurfaceReport
+    from wiggly.mesh.filling import LOST_VOLUME
+
+    assert 1 - LOST_VOLUME < 0.8
+    V, F = cube_surface()
+    surface = Surface(V * [1.0, 1.0, 2.0], F)
+    tets = check_tet_mesh(TetMesh(*box_tets(1, 1, 2, (1.0, 1.0, height))))  # oriented
+    report = SurfaceReport(n_faces=12, crossing_pairs=crossing, volume=2.0, area=10.0,
+                           diagonal=2.45)
+
+    def fill(*args, **kwargs):  # the edge length keeps the top vertices "near" the tets
+        return tets, report, {"edge_length": 10.0}
+
+    monkeypatch.setattr(model_module, "tetrahedralize_with_report", fill)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        model_module.build_model(surface, "box.obj")
+    notes = [str(w.message) for w in caught if w.category is wiggly.mesh.MeshRepairWarning]
+    said = [n for n in notes if "the tet mesh holds" in n]
+    if told:
+        assert said == [
+            "box.obj: the tet mesh holds 1 m^3, 50 % of the 2 m^3 the surface encloses: parts "
+            "thinner than the tets (edge length 10 m) got no tets of their own, so the body "
+            "is that much lighter and softer there; a higher resolution (or a shorter "
+            "edge_length) gives them tets."]
+    else:
+        assert said == []
+
+
+def test_a_body_far_from_the_origin_is_meshed_as_at_the_origin():
+    """A ball of radius 0.5 m at (3e6, 5e6, 1e6) m, the review's case: meshed about its
+    centre it fills the icosphere's volume as at the origin (98 %) with every surface
+    vertex within a few cm of the tets; in its own coordinates fTetWild filled 52 % and
+    left vertices 0.15 m outside."""
+    ball = trimesh.creation.icosphere(3, radius=0.5)
+    shift = np.array([3e6, 5e6, 1e6])
+    V = np.asarray(ball.vertices) + shift
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", wiggly.mesh.MeshRepairWarning)
+        tets = tetrahedralize(Surface(V, np.asarray(ball.faces)), resolution=12,
+                              cache_dir=False)
+    assert tets.volumes().sum() == pytest.approx(ball.volume, rel=0.04)
+    assert embed(V, tets).outside_distance(tets).max() < 0.05
+    np.testing.assert_allclose(tets.vertices.min(axis=0) - shift, [-0.5] * 3, atol=0.01)
+    np.testing.assert_allclose(tets.vertices.max(axis=0) - shift, [0.5] * 3, atol=0.01)

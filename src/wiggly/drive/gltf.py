@@ -390,9 +390,10 @@ class RestPose:
     """The scene's meshes as a viewer shows them with no animation (module docstring), in
     the vertex order of :func:`read_gltf`: ``positions`` (n, 3), ``faces`` (k, 3), the file's
     ``normals`` turned as the pose turns them and ``uvs`` (v up, as trimesh reads them; None
-    unless every primitive has them), ``groups`` (each mesh node's vertices, by node name,
-    when there are several) and ``bind`` (each skinned primitive's vertices as stored, their
-    bind pose, with the slice of ``positions`` they become)."""
+    unless every primitive has them), ``groups`` (each mesh node's vertices, and each
+    primitive's of a mesh with several, see :func:`_node_groups`) and ``bind`` (each
+    skinned primitive's vertices as stored, their bind pose, with the slice of
+    ``positions`` they become)."""
 
     positions: np.ndarray
     faces: np.ndarray
@@ -402,17 +403,13 @@ class RestPose:
     bind: list[tuple[slice, np.ndarray]]
 
 
-def rest_pose(path: Path) -> RestPose | None:
+def rest_pose(path: Path) -> RestPose:
     """The meshes of a ``.glb`` / ``.gltf`` file with no animation applied: node transforms
-    at their static values, default morph weights, and skins blended by their joints' static
-    transforms (the skinned node's own transform ignored, as the specification requires).
-    None when no mesh of the scene is skinned (a reader that ignores skins reads it right)."""
+    at their static values, default morph weights, sparse accessors applied, and skins
+    blended by their joints' static transforms (the skinned node's own transform ignored,
+    as the specification requires)."""
     f = GltfFile(Path(path))
-    if not any(n.get("skin") is not None and n.get("mesh") is not None for n in f.list("nodes")):
-        return None  # without posing anything
     parts = _pose(f, [], np.zeros(1), None)
-    if all(part.bind is None for part in parts):
-        return None
     normals, uvs = [], []
     for part in parts:
         attrs = part.primitive["attributes"]
@@ -424,10 +421,26 @@ def rest_pose(path: Path) -> RestPose | None:
             uv = f.accessor(attrs["TEXCOORD_0"]).astype(np.float64)[:, :2].copy()
             uv[:, 1] = 1.0 - uv[:, 1]
             uvs.append(uv)
+    return RestPose(
+        np.concatenate([part.positions[0] for part in parts]),
+        np.concatenate([part.faces for part in parts]),
+        np.concatenate(normals) if len(normals) == len(parts) else None,
+        np.concatenate(uvs) if len(uvs) == len(parts) else None,
+        _node_groups(f, parts),
+        [(part.vertices, part.bind) for part in parts if part.bind is not None])
+
+
+def _node_groups(f: GltfFile, parts: list[_Part]) -> dict[str, np.ndarray]:
+    """Vertex groups of the mesh nodes, the same on every read: each node's vertices named
+    as the node (else its mesh, else ``node <i>``; a repeated name gets ``.1``, ``.2``),
+    and for a mesh of several triangle primitives each one's as ``<node>/primitive <k>``,
+    ``k`` its index in the mesh's ``primitives``."""
     names: dict[int, str] = {}
-    for part in parts:  # one group per mesh node, named as the node (unique)
+    for part in parts:
         if part.node not in names:
-            base = f.list("nodes")[part.node].get("name") or f"node {part.node}"
+            node = f.list("nodes")[part.node]
+            base = (node.get("name") or f.item("meshes", node["mesh"]).get("name")
+                    or f"node {part.node}")
             name, k = base, 1
             while name in names.values():
                 name, k = f"{base}.{k}", k + 1
@@ -436,13 +449,13 @@ def rest_pose(path: Path) -> RestPose | None:
     for part in parts:
         groups.setdefault(names[part.node], []).append(
             np.arange(part.vertices.start, part.vertices.stop))
-    return RestPose(
-        np.concatenate([part.positions[0] for part in parts]),
-        np.concatenate([part.faces for part in parts]),
-        np.concatenate(normals) if len(normals) == len(parts) else None,
-        np.concatenate(uvs) if len(uvs) == len(parts) else None,
-        {k: np.concatenate(v) for k, v in groups.items()} if len(groups) > 1 else {},
-        [(part.vertices, part.bind) for part in parts if part.bind is not None])
+    for part in parts:
+        if len(groups[names[part.node]]) > 1:
+            prims = f.item("meshes", f.list("nodes")[part.node]["mesh"])["primitives"]
+            k = next(k for k, p in enumerate(prims) if p is part.primitive)
+            groups[f"{names[part.node]}/primitive {k}"] = [
+                np.arange(part.vertices.start, part.vertices.stop)]
+    return {k: np.concatenate(v) for k, v in groups.items()}
 
 
 @dataclass

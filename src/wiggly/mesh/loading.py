@@ -50,9 +50,9 @@ UP_AXES = ("y", "z")
 def load_mesh(path: str | Path, scale: float = 1.0, up: str = "y") -> TetMesh | Surface:
     """Read a tetrahedral mesh or a triangle surface from a file.
 
-    Surface formats (``.obj .ply .stl .off .glb .gltf``) are read with
-    trimesh (``process=False``), which keeps the file's vertices, their order
-    and the faces, with these exceptions:
+    Surface formats (``.obj .ply .stl .off``) are read with trimesh
+    (``process=False``), which keeps the file's vertices, their order and the
+    faces, with these exceptions:
 
     - STL stores every triangle with its own three corners, so the surface has
       ``3 * n_faces`` vertices in face order (welded by position in
@@ -65,14 +65,15 @@ def load_mesh(path: str | Path, scale: float = 1.0, up: str = "y") -> TetMesh | 
       with several ``vt``) ``uvs`` is ``None`` and a warning says so. OBJ
       groups (``g``, ``o``) and materials are not read.
     - PLY and OFF: exactly the file's vertices and faces.
-    - glTF stores one UV per vertex, so its vertices are already split at seams.
-      A scene with several meshes is concatenated in node order with each
-      node's scene transform applied; every node's vertices form a group named
-      after the node. A file with skins is read by wiggly's glTF evaluator
-      instead (:func:`wiggly.drive.gltf.rest_pose`, the one that reads
-      drivers): its vertices in the driver's order, skinned meshes posed by
-      their joints' static transforms with their own node transform ignored,
-      as the glTF specification says.
+    - glTF (``.glb .gltf``) is read by wiggly's glTF evaluator
+      (:func:`wiggly.drive.gltf.rest_pose`, the one that reads drivers): the
+      scene's triangle primitives concatenated depth first in node order, each
+      with its node's scene transform, sparse accessors applied, default morph
+      weights, skinned meshes posed by their joints' static transforms with
+      their own node transform ignored, as the glTF specification says. glTF
+      stores one UV per vertex, so its vertices are already split at seams.
+      Every mesh node's vertices form a group named after the node, and each
+      primitive of a mesh of several one named ``<node>/primitive <k>``.
 
     Other formats (``.msh .vtu .vtk .mesh .xdmf ...``, see
     :data:`VOLUME_EXTENSIONS`) are read with meshio. A file with ``tetra``
@@ -241,11 +242,9 @@ def _load_trimesh(path: Path, ext: str) -> Surface:
         _check_content(path, ext)
         if ext == ".stl":
             _check_stl_length(path)
-        if ext in (".glb", ".gltf"):  # compressed geometry trimesh cannot decode, named
-            from wiggly.drive.gltf_file import GltfFile
-
+        if ext in (".glb", ".gltf"):
             _check_glb_magic(path, ext)
-            GltfFile(path)
+            return _gltf_surface(path)
         if ext == ".obj":
             return read_obj(path)
         loaded = trimesh.load(path, process=False)
@@ -260,27 +259,19 @@ def _load_trimesh(path: Path, ext: str) -> Surface:
     meshes = [m for m in meshes if isinstance(m[1], trimesh.Trimesh) and len(m[1].faces)]
     if not meshes:
         raise WigglyInputError(_NO_TRIANGLES.format(source=source))
-    surface = _concatenate(meshes)
-    if ext in (".glb", ".gltf"):
-        surface = _skinned_rest(path, surface)
-    return surface
+    return _concatenate(meshes)
 
 
-def _skinned_rest(path: Path, surface: Surface) -> Surface:
-    """A glTF surface whose skinned meshes are placed as the specification places them.
-
-    trimesh ignores skins and applies a skinned node's own transform, which the glTF
-    specification (3.7.3) says to ignore: a Blender rig scaled by 2 would give a rest mesh
-    scaled by 4 (Blender writes the skinned positions already in world scale).  A file with
-    skins is therefore read by the glTF evaluator that reads drivers
-    (:func:`wiggly.drive.gltf.rest_pose`): vertices in the driver's order, skinned ones
-    placed by their joints' static transforms as a viewer shows the file with no animation,
-    normals turned with them, and a group per mesh node."""
+def _gltf_surface(path: Path) -> Surface:
+    """A glTF surface as a viewer shows it with no animation, read by the glTF evaluator
+    that reads drivers (:func:`wiggly.drive.gltf.rest_pose`), so vertices come in the
+    driver's order.  trimesh is not used: it ignores sparse accessors (a bar whose sparse
+    substitution moves its top from 1 m to 2 m is read 1 m long) and skins (the glTF
+    specification, 3.7.3, ignores a skinned node's own transform; trimesh applies it, so a
+    Blender rig scaled by 2 gives a rest mesh scaled by 4)."""
     from wiggly.drive.gltf import rest_pose  # the glTF evaluator; no solver import
 
     pose = rest_pose(path)
-    if pose is None:
-        return surface
     _warn_posed(path, pose.bind, pose.positions)
     return Surface(pose.positions, pose.faces, uvs=pose.uvs, normals=pose.normals,
                    groups=pose.groups)

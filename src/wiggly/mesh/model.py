@@ -21,6 +21,7 @@ from wiggly.mesh.filling import (
     MeshRepairWarning,
     repair_note,
     tetrahedralize_with_report,
+    volume_lost,
 )
 from wiggly.mesh.loading import load_mesh
 from wiggly.progress import deprecated_progress
@@ -83,8 +84,9 @@ def build_model(
     the surface vertices.  One :class:`MeshRepairWarning` says what was unusual: the
     surface's defects, small solid pieces of the tet mesh left out (less than
     ``SMALL_PIECE`` of its volume, joined to the rest by an edge, a vertex or nothing: they
-    would hinge there), and surface vertices farther than ``FAR_OUTSIDE`` tet edge lengths
-    outside the tets (parts thinner than the tets).  For a tet mesh: the surface has all the
+    would hinge there), surface vertices farther than ``FAR_OUTSIDE`` tet edge lengths
+    outside the tets, and tets lacking more than ``LOST_VOLUME`` of the surface's enclosed
+    volume (both: parts thinner than the tets).  For a tet mesh: the surface has all the
     tet mesh vertices (same indices, so groups and keyframes address the same vertices;
     interior vertices are simply not used by any face) and the mesh's boundary faces; the
     embedding puts every vertex at a corner of one of its tets (barycentrics ``(1, 0, 0, 0)``
@@ -104,9 +106,10 @@ def build_model(
         embedding = embed(loaded.vertices, tets)
         outside = embedding.outside_distance(tets)[np.unique(loaded.faces)] / info["edge_length"]
         far = outside > FAR_OUTSIDE
-        if not report.clean or far.any() or dropped:
+        filled = float(tets.volumes().sum())
+        if not report.clean or far.any() or dropped or volume_lost(report, filled):
             warnings.warn(repair_note(source, report, int(far.sum()), float(outside.max()),
-                                      dropped, share),
+                                      dropped, share, filled, info["edge_length"]),
                           MeshRepairWarning, stacklevel=2)
         return Model(loaded, tets, embedding, source)
     mesh_arrays(loaded.vertices, loaded.tets, source)  # indices in range, tets present
