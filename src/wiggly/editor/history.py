@@ -1,12 +1,14 @@
 """Undo and redo per browser tab, kept on disk so that they survive a restart.
 
-Every logged edit becomes a :class:`Record`: what it changed, as the *entities* of the scene
-before and after it.  Entities are the scene's tables (``mesh``, ``material``, ``damping``,
-``simulation``, ``time``, ``output``), its groups by name and its keyframes by id, each in the
-scene file's dict form.  Undo puts the "before" entities back into the *current* scene, so a
-tab undoes its own edits and keeps the others' (two tabs working on different keyframes do not
-undo each other's work).  When another tab changed an entity since, undoing would silently
-discard that change: the undo is refused (HTTP 409, with what changed) and the step dropped.
+Every logged edit becomes a :class:`Record`: what it changed in the *entities* of the scene.
+Entities are the scene's tables (``mesh``, ``material``, ``damping``, ``simulation``, ``time``,
+``output``), its groups by name and its keyframes by id, each in the scene file's dict form;
+a record holds only the fields that changed (a whole entity only when it was added or
+removed), so a step costs what it changed, not the size of a pose.  Undo puts the "before"
+fields back into the *current* scene, so a tab undoes its own edits and keeps the others'
+(two tabs changing different keyframes, or different fields of one, do not undo each other's
+work).  When another tab changed one of those fields since, undoing would silently discard
+that change: the undo is refused (HTTP 409, with what changed) and the step dropped.
 
 The histories of all tabs are journaled beside the scene (``.NAME.history.jsonl``, one JSON
 line per edit, undo or redo) with the keyframe ids and a hash of the resulting scene.  Each line
@@ -124,41 +126,50 @@ def _key_of(state: EditorState, key_id: Any) -> dict | None:
 
 @dataclass(frozen=True)
 class Record:
-    """One undoable step: ``changes`` are (entity kind, name, before, after), None for an
-    entity that does not exist on that side."""
+    """One undoable step: ``changes`` are (entity kind, name, before, after, partial), None
+    for an entity that does not exist on that side.  A ``partial`` change (an entity that
+    exists on both sides) holds only the fields that changed, None for a field absent on that
+    side: dragging a key's time does not copy its pose."""
 
     label: str
-    changes: tuple[tuple[str, Any, Any, Any], ...]
+    changes: tuple[tuple[str, Any, Any, Any, bool], ...]
 
     @classmethod
     def between(cls, before: EditorState, after: EditorState, label: str) -> Record | None:
         """The step from ``before`` to ``after`` (None if nothing changed)."""
         a, b = entities(before), entities(after)
-        changes = tuple((kind, name, a.get((kind, name)), b.get((kind, name)))
+        changes = tuple(_change(kind, name, a.get((kind, name)), b.get((kind, name)))
                         for kind, name in sorted({*a, *b}, key=repr)
                         if a.get((kind, name)) != b.get((kind, name)))
         return cls(label, changes) if changes else None
 
     def to_json(self) -> dict:
-        return {"label": self.label, "changes": [list(c) for c in self.changes]}
+        return {"label": self.label,
+                "changes": [[k, n, b, a, 1] if p else [k, n, b, a]
+                            for k, n, b, a, p in self.changes]}
 
     @classmethod
     def from_json(cls, d: dict) -> Record:
-        return cls(str(d["label"]), tuple((str(k), n, b, a) for k, n, b, a in d["changes"]))
+        return cls(str(d["label"]), tuple((str(c[0]), c[1], c[2], c[3], bool(c[4:]))
+                                          for c in d["changes"]))
 
     def applied(self, state: EditorState, undo: bool) -> EditorState:
-        """``state`` with this step undone (or redone); :class:`EditError` (409) if an
-        entity it changed was changed since."""
+        """``state`` with this step undone (or redone); :class:`EditError` (409) if what it
+        changed (for a partial change: the fields it changed) was changed since."""
         now = entities(state)
-        for kind, name, before, after in self.changes:
-            expect = after if undo else before
-            if now.get((kind, name)) != expect:
-                what = _changed_since((kind, name), expect if expect is not None else before)
+        for kind, name, before, after, partial in self.changes:
+            expect, has = (after if undo else before), now.get((kind, name))
+            if not _matches(has, expect, partial):
+                what = _changed_since((kind, name), {**(has or {}), **expect} if partial
+                                      else expect if expect is not None else before)
                 raise EditError(f"cannot {'undo' if undo else 'redo'} {self.label!r}: "
                                 f"{what} (in another tab or by an edit there); that step is "
                                 "dropped", 409)
-        for kind, name, before, after in self.changes:
+        for kind, name, before, after, partial in self.changes:
             value = before if undo else after
+            if partial:
+                value = {**now[(kind, name)], **value}
+                value = {f: v for f, v in value.items() if v is not None}
             if value is None:
                 now.pop((kind, name), None)
             else:
@@ -175,6 +186,24 @@ class Record:
             raise EditError(f"cannot {'undo' if undo else 'redo'} {self.label!r}: the scene "
                             f"would be invalid ({str(err).splitlines()[0]}); that step is "
                             "dropped", 409) from None
+
+
+def _matches(has: Any, expect: Any, partial: bool) -> bool:
+    """Whether an entity now ``has`` what a step expects (``partial``: in the fields it
+    changed)."""
+    if not partial:
+        return has == expect
+    return isinstance(has, dict) and all(has.get(f) == v for f, v in expect.items())
+
+
+def _change(kind: str, name: Any, before: Any, after: Any) -> tuple[str, Any, Any, Any, bool]:
+    """A change of one entity: whole (created, removed, not a table), else only the fields
+    that differ (None: absent on that side)."""
+    if not (isinstance(before, dict) and isinstance(after, dict)):
+        return kind, name, before, after, False
+    diff = [f for f in {*before, *after} if before.get(f) != after.get(f)]
+    return (kind, name, {f: before.get(f) for f in diff}, {f: after.get(f) for f in diff},
+            True)
 
 
 @dataclass
