@@ -340,7 +340,7 @@ def test_7_recovered_edits_are_shown_in_the_page(chromium, tmp_path):
         with editor_page(chromium, server.url) as (page, errors):
             page.wait_for_selector("#notices:not([hidden])")
             text = page.locator("#notices-text").text_content()
-            assert "recovered unsaved edits from .shot.autosave.toml" in text, text
+            assert "recovered unsaved edits to shot.toml: set material.young = 2e+06" in text, text
             assert page.evaluate("window.wiggly.S.desc.dirty")
             assert page.evaluate("window.wiggly.S.desc.scene.material.young") == 2e6
             page.click("#btn-notices")

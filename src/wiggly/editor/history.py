@@ -333,8 +333,8 @@ class Histories:
             "not survive a crash", self.path.parent), write_status(err))
 
     def load(self, scene: Scene | None, source: Path | None = None, *,
-             disk: str | None = None, compact: bool = True,
-             ) -> tuple[EditorState | None, str | None]:
+             disk: str | None = None, compact: bool = True, name: str = "the scene",
+             autosaved: bool = False) -> tuple[EditorState | None, str | None]:
         """Recover from the journal for ``scene`` (just opened: the autosave, else the saved
         file; None: neither exists): the state after the last journaled step, with its
         keyframe ids and every tab's history, and a notice if the journal was dropped.  The
@@ -343,7 +343,8 @@ class Histories:
         taken of the scene file as it is on disk now (``disk``: its digest) or there is no
         ``scene``.  The journal is then rewritten compactly (unless not ``compact``: the
         caller makes the autosave agree first, then calls :meth:`compact`).  None for the
-        state: no scene and no journal to recover it."""
+        state: no scene and no journal to recover it.  The notice names the scene as
+        ``name``; ``autosaved``: ``scene`` is its autosave (its unsaved edits, which stand)."""
         fresh = EditorState.of(scene) if scene is not None else None
         if self.path is None or not self.path.is_file():
             self._base = fresh
@@ -355,17 +356,19 @@ class Histories:
                 WigglyInputError) as err:
             self._discard(fresh)
             why = str(err).splitlines()[0] if str(err) else type(err).__name__
-            return fresh, f"ignored an unreadable undo history {self.path.name}: {why}"
+            return fresh, f"ignored the unreadable undo history of {name} ({why}): undo " \
+                "starts afresh"
         if state is None:
-            name = self.path.name
             if fresh is None or not any("hash" in line for line in lines):
                 self._discard(fresh)
                 return fresh, None
-            kept = self._discard(fresh, keep=True)
-            where = (f"; the old history is kept as {kept.name}" if kept is not None else "")
-            return fresh, (f"the scene file was changed outside the editor after the edits in "
-                           f"the undo history {name}: it opens as it is on disk, without "
-                           f"any edits that were not saved before{where}; undo starts afresh")
+            self._discard(fresh, keep=True)
+            if autosaved:  # the unsaved scene stands; only its steps are lost
+                return fresh, (f"the undo history kept for {name} does not match its "
+                               "unsaved edits: they are recovered, but undo starts afresh")
+            return fresh, (f"{name} was changed outside the editor after edits that were not "
+                           "saved: it opens as it is on disk, without them; undo starts "
+                           "afresh")
         self.tabs = tabs
         if compact:
             self.compact(state)
