@@ -74,3 +74,23 @@ def test_two_tabs_changing_different_fields_of_a_key_keep_each_others_work(tmp_p
         assert (key.time, key.stiffness) == (0.25, 0.5)
     finally:
         s.close()
+
+
+def test_undo_says_once_when_its_depth_is_reached(tmp_path):
+    """The 501st edit of a tab says that undo keeps the last 500 steps; later edits do not
+    say it again, and undo then walks back 500 steps."""
+    path = bar_project(tmp_path, warp=False)
+    s = Session(Sandbox([tmp_path]))
+    try:
+        s.open(path.name)
+        said = [s.edit({"op": "set", "section": "damping",
+                        "values": {"alpha": 0.001 * (i + 1)}}, tab="a").get("notice")
+                for i in range(502)]
+        assert said[:500] == [None] * 500 and said[501] is None
+        assert said[500] and "last 500 steps" in said[500], said[500]
+        steps = 0
+        while s.undo("a")["changed"]:
+            steps += 1
+        assert steps == 500 and s.scene.damping.alpha == 0.002
+    finally:
+        s.close()

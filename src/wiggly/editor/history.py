@@ -210,6 +210,7 @@ def _change(kind: str, name: Any, before: Any, after: Any) -> tuple[str, Any, An
 class _Tab:
     undo: list[Record] = field(default_factory=list)
     redo: list[Record] = field(default_factory=list)
+    full: bool = False  # told that its oldest steps are forgotten (once a session)
 
 
 def _use(tabs: OrderedDict[str, _Tab], tab: str) -> _Tab:
@@ -255,16 +256,23 @@ class Histories:
                 "redo_label": t.redo[-1].label if t.redo else None}
 
     # --- steps ----------------------------------------------------------------------------
-    def record(self, tab: str, record: Record, state: EditorState) -> None:
+    def record(self, tab: str, record: Record, state: EditorState) -> str | None:
         """Journal the step ``record`` of ``tab`` that gave ``state`` (on the disk before
         this returns), then push it on the tab's undo stack; :class:`EditError` (507) and
-        nothing recorded if the journal cannot be written."""
+        nothing recorded if the journal cannot be written.  A notice the first time (this
+        session) the tab's oldest step is forgotten, :data:`MAX_RECORDS` being reached."""
         self._begin()
         self._journal({"op": "edit", "tab": tab, "rec": record.to_json()}, state)
         t = self._tab(tab)
         t.undo.append(record)
+        full = len(t.undo) > MAX_RECORDS
         del t.undo[:-MAX_RECORDS]
         t.redo.clear()
+        if full and not t.full:
+            t.full = True
+            return (f"undo keeps the last {MAX_RECORDS} steps of each tab: from now on, each "
+                    "edit forgets this tab's oldest step")
+        return None
 
     def step(self, tab: str, state: EditorState, undo: bool) -> EditorState | None:
         """``state`` with the tab's last step undone (redone), journaled; None if there is
