@@ -340,7 +340,7 @@ def test_7_recovered_edits_are_shown_in_the_page(chromium, tmp_path):
         with editor_page(chromium, server.url) as (page, errors):
             page.wait_for_selector("#notices:not([hidden])")
             text = page.locator("#notices-text").text_content()
-            assert "recovered unsaved edits from .shot.autosave.toml" in text, text
+            assert "recovered unsaved edits to shot.toml: set material.young = 2e+06" in text, text
             assert page.evaluate("window.wiggly.S.desc.dirty")
             assert page.evaluate("window.wiggly.S.desc.scene.material.young") == 2e6
             page.click("#btn-notices")
@@ -394,6 +394,32 @@ def test_8_release_latency_counts_frames_that_come_before_the_answer(chromium, t
             assert first["posted"] is None or first["posted"] > first["requested"]
             next_frame(page, 2)
             assert fetched[version].is_set()
+            assert not errors, errors
+    finally:
+        server.stop()
+
+
+# ----------------------------------------------------------------------------------------------
+# a value typed in a field without Enter was lost on reload
+
+
+def test_a_value_typed_without_enter_is_kept_on_reload(chromium, tmp_path):
+    """Damping typed in its field, then the page reloaded without Enter or leaving the field:
+    the value is an edit of the scene (autosaved, undoable), not lost."""
+    path = bar_project(tmp_path, warp=False)
+    server = serve(path)
+    try:
+        with editor_page(chromium, server.url) as (page, errors):
+            alpha = "[data-set='damping.alpha']"
+            page.click(alpha)
+            page.fill(alpha, "0.7")
+            page.reload()
+            page.wait_for_function("window.wiggly && window.wiggly.ready && "
+                                   "window.wiggly.S.desc.scene.damping.alpha === 0.7")
+            assert page.evaluate("window.wiggly.S.desc.undo_label") == "set damping.alpha"
+            assert page.input_value(alpha) == "0.7"
+            server.session.autosaver.flush()
+            assert "alpha = 0.7" in autosave_path(path).read_text()
             assert not errors, errors
     finally:
         server.stop()

@@ -252,4 +252,24 @@ def test_wiggly_edit_on_a_deleted_scene_with_unsaved_edits_recovers_them(tmp_pat
     finally:
         proc.stdout.close()
         proc.stderr.close()
-    assert "recovered the unsaved scene from .shot.autosave.toml" in said, said
+    assert "recovered the unsaved scene shot.toml, with all its edits" in said, said
+
+
+def test_the_recovery_notice_says_what_came_back_in_the_scenes_terms(tmp_path):
+    """A key moved and damping set, killed before the autosave of the move: one notice
+    names both changes and where the saved file stands, and no hidden file of the editor."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(tmp_path, path.name)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.edit({"op": "update_keyframe", "id": 1, "time": 0.4}, tab="a")
+    _killed(s, auto, lagging)
+    s, notices = _open(tmp_path, path.name)
+    try:
+        assert notices == ["recovered unsaved edits to shot.toml: set damping.alpha = 0.3; "
+                           "moved keyframe 'plant' (mid at 0.25 s) to 0.4 s. shot.toml on "
+                           "disk is as it was last saved until you save"], notices
+    finally:
+        s.close()

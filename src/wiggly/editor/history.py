@@ -1,12 +1,14 @@
 """Undo and redo per browser tab, kept on disk so that they survive a restart.
 
-Every logged edit becomes a :class:`Record`: what it changed, as the *entities* of the scene
-before and after it.  Entities are the scene's tables (``mesh``, ``material``, ``damping``,
-``simulation``, ``time``, ``output``), its groups by name and its keyframes by id, each in the
-scene file's dict form.  Undo puts the "before" entities back into the *current* scene, so a
-tab undoes its own edits and keeps the others' (two tabs working on different keyframes do not
-undo each other's work).  When another tab changed an entity since, undoing would silently
-discard that change: the undo is refused (HTTP 409, with what changed) and the step dropped.
+Every logged edit becomes a :class:`Record`: what it changed in the *entities* of the scene.
+Entities are the scene's tables (``mesh``, ``material``, ``damping``, ``simulation``, ``time``,
+``output``), its groups by name and its keyframes by id, each in the scene file's dict form;
+a record holds only the fields that changed (a whole entity only when it was added or
+removed), so a step costs what it changed, not the size of a pose.  Undo puts the "before"
+fields back into the *current* scene, so a tab undoes its own edits and keeps the others'
+(two tabs changing different keyframes, or different fields of one, do not undo each other's
+work).  When another tab changed one of those fields since, undoing would silently discard
+that change: the undo is refused (HTTP 409, with what changed) and the step dropped.
 
 The histories of all tabs are journaled beside the scene (``.NAME.history.jsonl``, one JSON
 line per edit, undo or redo) with the keyframe ids and a hash of the resulting scene.  Each line
@@ -124,41 +126,50 @@ def _key_of(state: EditorState, key_id: Any) -> dict | None:
 
 @dataclass(frozen=True)
 class Record:
-    """One undoable step: ``changes`` are (entity kind, name, before, after), None for an
-    entity that does not exist on that side."""
+    """One undoable step: ``changes`` are (entity kind, name, before, after, partial), None
+    for an entity that does not exist on that side.  A ``partial`` change (an entity that
+    exists on both sides) holds only the fields that changed, None for a field absent on that
+    side: dragging a key's time does not copy its pose."""
 
     label: str
-    changes: tuple[tuple[str, Any, Any, Any], ...]
+    changes: tuple[tuple[str, Any, Any, Any, bool], ...]
 
     @classmethod
     def between(cls, before: EditorState, after: EditorState, label: str) -> Record | None:
         """The step from ``before`` to ``after`` (None if nothing changed)."""
         a, b = entities(before), entities(after)
-        changes = tuple((kind, name, a.get((kind, name)), b.get((kind, name)))
+        changes = tuple(_change(kind, name, a.get((kind, name)), b.get((kind, name)))
                         for kind, name in sorted({*a, *b}, key=repr)
                         if a.get((kind, name)) != b.get((kind, name)))
         return cls(label, changes) if changes else None
 
     def to_json(self) -> dict:
-        return {"label": self.label, "changes": [list(c) for c in self.changes]}
+        return {"label": self.label,
+                "changes": [[k, n, b, a, 1] if p else [k, n, b, a]
+                            for k, n, b, a, p in self.changes]}
 
     @classmethod
     def from_json(cls, d: dict) -> Record:
-        return cls(str(d["label"]), tuple((str(k), n, b, a) for k, n, b, a in d["changes"]))
+        return cls(str(d["label"]), tuple((str(c[0]), c[1], c[2], c[3], bool(c[4:]))
+                                          for c in d["changes"]))
 
     def applied(self, state: EditorState, undo: bool) -> EditorState:
-        """``state`` with this step undone (or redone); :class:`EditError` (409) if an
-        entity it changed was changed since."""
+        """``state`` with this step undone (or redone); :class:`EditError` (409) if what it
+        changed (for a partial change: the fields it changed) was changed since."""
         now = entities(state)
-        for kind, name, before, after in self.changes:
-            expect = after if undo else before
-            if now.get((kind, name)) != expect:
-                what = _changed_since((kind, name), expect if expect is not None else before)
+        for kind, name, before, after, partial in self.changes:
+            expect, has = (after if undo else before), now.get((kind, name))
+            if not _matches(has, expect, partial):
+                what = _changed_since((kind, name), {**(has or {}), **expect} if partial
+                                      else expect if expect is not None else before)
                 raise EditError(f"cannot {'undo' if undo else 'redo'} {self.label!r}: "
                                 f"{what} (in another tab or by an edit there); that step is "
                                 "dropped", 409)
-        for kind, name, before, after in self.changes:
+        for kind, name, before, after, partial in self.changes:
             value = before if undo else after
+            if partial:
+                value = {**now[(kind, name)], **value}
+                value = {f: v for f, v in value.items() if v is not None}
             if value is None:
                 now.pop((kind, name), None)
             else:
@@ -177,10 +188,29 @@ class Record:
                             "dropped", 409) from None
 
 
+def _matches(has: Any, expect: Any, partial: bool) -> bool:
+    """Whether an entity now ``has`` what a step expects (``partial``: in the fields it
+    changed)."""
+    if not partial:
+        return has == expect
+    return isinstance(has, dict) and all(has.get(f) == v for f, v in expect.items())
+
+
+def _change(kind: str, name: Any, before: Any, after: Any) -> tuple[str, Any, Any, Any, bool]:
+    """A change of one entity: whole (created, removed, not a table), else only the fields
+    that differ (None: absent on that side)."""
+    if not (isinstance(before, dict) and isinstance(after, dict)):
+        return kind, name, before, after, False
+    diff = [f for f in {*before, *after} if before.get(f) != after.get(f)]
+    return (kind, name, {f: before.get(f) for f in diff}, {f: after.get(f) for f in diff},
+            True)
+
+
 @dataclass
 class _Tab:
     undo: list[Record] = field(default_factory=list)
     redo: list[Record] = field(default_factory=list)
+    full: bool = False  # told that its oldest steps are forgotten (once a session)
 
 
 def _use(tabs: OrderedDict[str, _Tab], tab: str) -> _Tab:
@@ -226,16 +256,23 @@ class Histories:
                 "redo_label": t.redo[-1].label if t.redo else None}
 
     # --- steps ----------------------------------------------------------------------------
-    def record(self, tab: str, record: Record, state: EditorState) -> None:
+    def record(self, tab: str, record: Record, state: EditorState) -> str | None:
         """Journal the step ``record`` of ``tab`` that gave ``state`` (on the disk before
         this returns), then push it on the tab's undo stack; :class:`EditError` (507) and
-        nothing recorded if the journal cannot be written."""
+        nothing recorded if the journal cannot be written.  A notice the first time (this
+        session) the tab's oldest step is forgotten, :data:`MAX_RECORDS` being reached."""
         self._begin()
         self._journal({"op": "edit", "tab": tab, "rec": record.to_json()}, state)
         t = self._tab(tab)
         t.undo.append(record)
+        full = len(t.undo) > MAX_RECORDS
         del t.undo[:-MAX_RECORDS]
         t.redo.clear()
+        if full and not t.full:
+            t.full = True
+            return (f"undo keeps the last {MAX_RECORDS} steps of each tab: from now on, each "
+                    "edit forgets this tab's oldest step")
+        return None
 
     def step(self, tab: str, state: EditorState, undo: bool) -> EditorState | None:
         """``state`` with the tab's last step undone (redone), journaled; None if there is
@@ -304,8 +341,8 @@ class Histories:
             "not survive a crash", self.path.parent), write_status(err))
 
     def load(self, scene: Scene | None, source: Path | None = None, *,
-             disk: str | None = None, compact: bool = True,
-             ) -> tuple[EditorState | None, str | None]:
+             disk: str | None = None, compact: bool = True, name: str = "the scene",
+             autosaved: bool = False) -> tuple[EditorState | None, str | None]:
         """Recover from the journal for ``scene`` (just opened: the autosave, else the saved
         file; None: neither exists): the state after the last journaled step, with its
         keyframe ids and every tab's history, and a notice if the journal was dropped.  The
@@ -314,7 +351,8 @@ class Histories:
         taken of the scene file as it is on disk now (``disk``: its digest) or there is no
         ``scene``.  The journal is then rewritten compactly (unless not ``compact``: the
         caller makes the autosave agree first, then calls :meth:`compact`).  None for the
-        state: no scene and no journal to recover it."""
+        state: no scene and no journal to recover it.  The notice names the scene as
+        ``name``; ``autosaved``: ``scene`` is its autosave (its unsaved edits, which stand)."""
         fresh = EditorState.of(scene) if scene is not None else None
         if self.path is None or not self.path.is_file():
             self._base = fresh
@@ -326,17 +364,19 @@ class Histories:
                 WigglyInputError) as err:
             self._discard(fresh)
             why = str(err).splitlines()[0] if str(err) else type(err).__name__
-            return fresh, f"ignored an unreadable undo history {self.path.name}: {why}"
+            return fresh, f"ignored the unreadable undo history of {name} ({why}): undo " \
+                "starts afresh"
         if state is None:
-            name = self.path.name
             if fresh is None or not any("hash" in line for line in lines):
                 self._discard(fresh)
                 return fresh, None
-            kept = self._discard(fresh, keep=True)
-            where = (f"; the old history is kept as {kept.name}" if kept is not None else "")
-            return fresh, (f"the scene file was changed outside the editor after the edits in "
-                           f"the undo history {name}: it opens as it is on disk, without "
-                           f"any edits that were not saved before{where}; undo starts afresh")
+            self._discard(fresh, keep=True)
+            if autosaved:  # the unsaved scene stands; only its steps are lost
+                return fresh, (f"the undo history kept for {name} does not match its "
+                               "unsaved edits: they are recovered, but undo starts afresh")
+            return fresh, (f"{name} was changed outside the editor after edits that were not "
+                           "saved: it opens as it is on disk, without them; undo starts "
+                           "afresh")
         self.tabs = tabs
         if compact:
             self.compact(state)

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from wiggly.editor.autosave import autosave_base, autosave_path, write_autosave, write_durably
+from wiggly.editor.changes import describe_changes
 from wiggly.editor.history import Histories, history_path
 from wiggly.editor.scene_files import file_digest, load_checked
 from wiggly.editor.state import EditError, EditorState
@@ -44,11 +45,12 @@ def recover(path: str, real: Path, histories: Histories, notices: list[str],
             auto_scene = load_checked(auto)
             auto_scene.source = real
         except EditError as err:
-            notices.append(f"ignored an unreadable autosave {auto.name}: "
-                           f"{str(err).splitlines()[0]}")
+            notices.append(f"ignored the unreadable autosave of {real.name} "
+                           f"({str(err).splitlines()[0]})")
     histories.disk = disk
     base = auto_scene if auto_scene is not None else file_scene
-    state, notice = histories.load(base, real, disk=disk, compact=False)
+    state, notice = histories.load(base, real, disk=disk, compact=False, name=real.name,
+                                   autosaved=auto_scene is not None)
     if notice:
         notices.append(notice)
     if state is None:
@@ -56,14 +58,18 @@ def recover(path: str, real: Path, histories: Histories, notices: list[str],
     if histories.path is not None and histories.path.is_file():
         _write_back(auto, state, file_scene, auto_scene, disk, histories)
     if state.scene != file_scene:
-        names = [auto.name] if auto_scene is not None and auto_scene != file_scene else []
-        if histories.path is not None and state.scene != base:
-            names.append(histories.path.name)
-        notices.append(f"recovered the unsaved scene from {' and '.join(names)}"
-                       if file_scene is None else
-                       f"recovered unsaved edits from {' and '.join(names)} (the saved "
-                       "file is unchanged until you save)")
+        notices.append(_recovered(real, file_scene, state.scene))
     return state, file_scene
+
+
+def _recovered(real: Path, file_scene: Scene | None, scene: Scene) -> str:
+    """The notice of a recovery: what the unsaved edits changed, and where the file stands."""
+    if file_scene is None:
+        return (f"recovered the unsaved scene {real.name}, with all its edits: it is not on "
+                "disk (never saved, or deleted since); Save writes it")
+    changes = describe_changes(file_scene, scene)
+    return (f"recovered unsaved edits to {real.name}: {'; '.join(changes)}. {real.name} on "
+            "disk is as it was last saved until you save")
 
 
 def _write_back(auto: Path, state: EditorState, file_scene: Scene | None, auto_scene: Scene | None,

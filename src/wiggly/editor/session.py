@@ -358,7 +358,7 @@ class Session(Exports):
             # made (and told) only once it is there
             self.playback.request(new, self.version + 1, "final")
             try:
-                self.histories.record(tab, record, new)
+                full = self.histories.record(tab, record, new)
             except EditError:
                 self.playback.restore(old, self.version)
                 raise
@@ -366,6 +366,8 @@ class Session(Exports):
             self.version += 1
             self._changed(solve=False)
             out: dict[str, Any] = {"version": self.version, "changed": True}
+            if full:
+                out["notice"] = full
             added = [i for i in new.keyframe_ids if i not in set(old.keyframe_ids)]
             if added:
                 out["ids"], out["id"] = added, added[-1]

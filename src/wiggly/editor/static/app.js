@@ -371,7 +371,16 @@ function adaptScale(dt) {
 window.addEventListener('resize', () => { resize(); drawDopesheet(); });
 // reloaded or closed mid-drag: the drag is abandoned (the server also notices the event
 // stream's end, for a crashed page)
-window.addEventListener('pagehide', () => { if (S.dragging) api.beacon('/api/preview/cancel'); });
+// a value typed in a field without Enter is committed, as leaving the field does
+window.addEventListener('pagehide', () => {
+  if (S.dragging) api.beacon('/api/preview/cancel');
+  const field = document.activeElement;
+  if (field && ['INPUT', 'TEXTAREA'].includes(field.tagName) && field.value !== field.dataset.before) {
+    S.leaving = true;  // its change handler's request is sent with keepalive
+    field.blur();      // fires its change event
+    S.leaving = false;
+  }
+});
 new ResizeObserver(() => { resize(); drawDopesheet(); }).observe($('view'));
 
 function tick(now) {

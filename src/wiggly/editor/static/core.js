@@ -25,6 +25,7 @@ export const PAGE = (crypto.randomUUID ? crypto.randomUUID() : `${Date.now()}-${
 
 async function request(method, path, body) {
   const init = { method, headers: { 'X-Wiggly-Tab': TAB, 'X-Wiggly-Page': PAGE } };
+  if (S.leaving) init.keepalive = true;  // sent from pagehide: it outlives the page
   if (body !== undefined) {
     init.headers['Content-Type'] = 'application/json';
     init.body = JSON.stringify(body);
@@ -60,6 +61,7 @@ export const api = {
 
 export const S = {
   desc: null,            // /api/state
+  leaving: false,        // the page is being hidden (reload, close): requests keep alive
   instance: null,        // the server process whose frames and sequence numbers we hold
   meshKey: null,
   rest: null,            // Float32Array n*3 (rest positions)
@@ -165,7 +167,11 @@ export function toast(text, err = false) {
 export async function act(fn) {
   try { return await fn(); } catch (err) { toast(err.message, true); setStatus(err.message.split('\n')[0], 'err'); return null; }
 }
-export function edit(op) { return act(() => api.post('/api/edit', op)); }
+export async function edit(op) {
+  const r = await act(() => api.post('/api/edit', op));
+  if (r && r.notice) toast(r.notice);  // e.g. undo's depth reached
+  return r;
+}
 
 // ------------------------------------------------------------------------------------------
 // the scene as the server describes it
