@@ -7,6 +7,7 @@ from __future__ import annotations
 import http.client
 import json
 import os
+import queue
 import socket
 import threading
 import time
@@ -860,6 +861,39 @@ def test_save_never_overwrites_a_change_made_on_disk_unasked(server, project):
     assert other.read_text() == "# someone's notes\n"
     st, r = call(server, "POST", "/api/save", {"path": "other.toml", "overwrite": True})
     assert st == 200 and load_scene(other) == server.session.scene
+
+
+def test_a_scene_file_changed_on_disk_is_said_once(server, project):
+    """A text editor changes the scene file while the editor runs: a notice says so (it went
+    unnoticed until Save), once per version on disk; the editor's own saves are not such a
+    change."""
+    session = server.session
+    events = session.bus.subscribe()
+
+    def told() -> list[str]:
+        out = []
+        while True:
+            try:
+                event = events.get_nowait()
+            except queue.Empty:
+                return out
+            if event["type"] == "notice" and "was changed on disk" in event["message"]:
+                out.append(event["message"])
+
+    session.check_scene_file()
+    assert told() == []
+    shot = project / "shot.toml"
+    shot.write_text(shot.read_text() + "# changed in another program\n")
+    session.check_scene_file()
+    said = told()
+    assert len(said) == 1 and said[0].startswith("shot.toml was changed on disk by another "
+                                                 "program: the editor keeps the scene"), said
+    session.check_scene_file()  # the same version: said once
+    assert told() == []
+    st, r = call(server, "POST", "/api/save", {"overwrite": True})
+    assert st == 200, r
+    session.check_scene_file()  # the editor's own save
+    assert told() == []
 
 
 def test_a_read_only_folder_gets_a_clear_refusal(server, project, monkeypatch):

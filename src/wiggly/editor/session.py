@@ -90,6 +90,8 @@ class Session(Exports):
         self._state: EditorState | None = None
         self._saved: Scene | None = None  # as last saved or loaded (None: never saved)
         self._disk: str | None = None  # digest of the scene file as last read or written
+        self._disk_seen: tuple | None = None  # its (path, mtime, size) when last checked
+        self._disk_told: str | None = None  # the digest on disk the browsers were told of
         self.histories = Histories()
         self.surface = None  # the user's surface (rest), for the browser
         self._surface_key: tuple | None = None  # the mesh settings it was read with
@@ -112,8 +114,10 @@ class Session(Exports):
     def _watch_driver(self) -> None:
         """Every :data:`DRIVER_WATCH` seconds: when the scene's driver file (or an OBJ
         sequence's files) changed on disk, solve again and tell the browsers (whose ghost
-        then fetches it again), with a notice: another tool re-exported the animation."""
+        then fetches it again), with a notice: another tool re-exported the animation.  And
+        when the scene file itself changed on disk (:meth:`check_scene_file`)."""
         while not self._stop.wait(DRIVER_WATCH):
+            self.check_scene_file()
             with self._lock:
                 scene = self._state.scene if self._state is not None else None
                 stamp = driver_stamp(scene) if scene is not None else None
@@ -126,6 +130,34 @@ class Session(Exports):
                 self.bus.publish("notice", sticky=False, level="info",
                                  message=f"{Path(stamp[0]).name} changed on disk: the driver "
                                          "is read again and the motion solved anew")
+
+    def check_scene_file(self) -> None:
+        """Tell the browsers, once per version, when the scene file on disk is no longer the
+        one the editor read or saved (a text editor or another tool wrote it): the editor
+        keeps its own scene, Open shows the disk's version, and Save asks before
+        overwriting it."""
+        with self._lock:
+            scene = self._state.scene if self._state is not None else None
+            path = scene.source if scene is not None else None
+            if path is None or self._disk is None:
+                return
+            try:
+                st = Path(path).stat()
+                seen = (str(path), st.st_mtime_ns, st.st_size)
+            except OSError:
+                return  # gone: saving writes it again
+            if seen == self._disk_seen:
+                return
+            self._disk_seen = seen
+            digest = file_digest(Path(path))
+            if digest is None or digest in (self._disk, self._disk_told):
+                return
+            self._disk_told = digest
+            name = self.sandbox.relative(Path(path))
+        self.bus.publish("notice", sticky=True, level="warning",
+                         message=f"{name} was changed on disk by another program: the editor "
+                                 f"keeps the scene as edited here; Open {name} to see the "
+                                 "disk's version, or Save to replace it (Save asks first)")
 
     # --- lifecycle ------------------------------------------------------------------------
     def close(self) -> None:
