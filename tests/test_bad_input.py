@@ -261,6 +261,12 @@ def _stl_binary_solid_header() -> bytes:
      "the file is cut short: its binary STL header announces 320 triangles (16084 bytes) but "
      "it has 8042 bytes"),
     ("ball.obj", lambda: b"", "the file is empty (0 bytes)"),
+    ("ball.off", lambda: trimesh.creation.icosphere(2).export(file_type="off")[:-3000].encode(),
+     "the file is cut short: its OFF header announces 162 vertices and 320 faces, but it "
+     "holds 162 and"),
+    ("ball.obj", lambda: trimesh.creation.icosphere(2).export(file_type="obj")
+     .rstrip()[:-4].encode(), "a face of 2 corners (a face needs 3 or more) at the end of the "
+     "file: the file is damaged or cut short"),
 ])
 def test_a_file_of_another_format_or_cut_short_says_what_it_is(user, tripwires, capsys, name,
                                                                content, expected):

@@ -242,6 +242,8 @@ def _load_trimesh(path: Path, ext: str) -> Surface:
         _check_content(path, ext)
         if ext == ".stl":
             _check_stl_length(path)
+        if ext == ".off":
+            _check_off_counts(path)
         if ext in (".glb", ".gltf"):
             _check_glb_magic(path, ext)
             return _gltf_surface(path)
@@ -347,6 +349,28 @@ def _check_content(path: Path, ext: str) -> None:
         f"{path}: is {_ARTICLES.get(found, 'a')} {FORMAT_NAMES[found]} file, not "
         f"{FORMAT_NAMES[ext]} as its extension "
         f"says; rename it to end in {found} (or export it again as {FORMAT_NAMES[ext]}).")
+
+
+def _check_off_counts(path: Path) -> None:
+    """Refuse an OFF file with fewer vertex or face lines than its header announces (cut
+    short while copied or downloaded): trimesh reads the faces it finds."""
+    with open(path, "rb") as file:
+        rows = [r.split(b"#", 1)[0].split() for r in file.read().splitlines()]
+    rows = [r for r in rows if r]
+    if not rows or not rows[0][0].endswith(b"OFF"):
+        return  # not OFF's text form: trimesh says what it is
+    header = rows[0][1:] if len(rows[0]) > 1 else (rows[1] if len(rows) > 1 else [])
+    start = 1 if len(rows[0]) > 1 else 2
+    try:
+        n_vertices, n_faces = int(header[0]), int(header[1])
+    except (IndexError, ValueError):
+        return
+    vertices = max(0, min(len(rows) - start, n_vertices))
+    faces = max(0, len(rows) - start - n_vertices)
+    if vertices < n_vertices or faces < n_faces:
+        raise WigglyInputError(
+            f"{path}: the file is cut short: its OFF header announces {n_vertices} vertices "
+            f"and {n_faces} faces, but it holds {vertices} and {faces}; copy or export it again")
 
 
 def _check_stl_length(path: Path) -> None:

@@ -44,7 +44,9 @@ def read_obj(path: Path) -> Surface:
     corners: list[list[int]] = []  # per triangle corner: v, vt, vn (0-based; -1: none)
     with open(path, "rb") as file:
         data = file.read().replace(b"\\\r\n", b" ").replace(b"\\\n", b" ")
-    for line_no, raw in enumerate(data.splitlines(), 1):
+    lines = data.splitlines()
+    last = len(lines)
+    for line_no, raw in enumerate(lines, 1):
         words = raw.split(b"#", 1)[0].split()
         if not words:
             continue
@@ -53,6 +55,11 @@ def read_obj(path: Path) -> Surface:
             values[kind].append(words[1:4 if kind != b"vt" else 3])
             counts[kind] += 1
         elif kind == b"f":
+            if len(words) < 4:
+                raise WigglyInputError(
+                    f"{path}: line {line_no}: a face of {len(words) - 1} corners (a face "
+                    f"needs 3 or more){' at the end of the file' if line_no == last else ''}"
+                    ": the file is damaged or cut short; export or copy it again")
             poly = [_corner(word, counts, line_no, path) for word in words[1:]]
             for i in range(1, len(poly) - 1):
                 corners.extend((poly[0], poly[i], poly[i + 1]))
