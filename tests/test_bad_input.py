@@ -167,6 +167,21 @@ def test_a_surface_fixed_everywhere_is_told_so(user, capsys):
            "(through the tets that carry them), so the surface cannot move" in line
 
 
+def test_a_plate_thinner_than_any_tet_says_how_thick_it_is(user, capsys):
+    """A 1 mm plate, 1 m across, at resolution 12: fTetWild makes no tets, and the refusal
+    said only "not thick compared to the edge length", with no way out; it names the
+    plate's thickness (twice its volume over its area) and what to do."""
+    import trimesh
+
+    folder, scene = user
+    trimesh.creation.box(extents=(1.0, 0.001, 1.0)).export(folder / "plate.obj")
+    line = refused(capsys, folder, scene({"mesh.path": "plate.obj", "mesh.resolution": 12,
+                                          "groups": EVERYWHERE}))
+    assert "fTetWild produced no tetrahedra; the body is about 0.000998 m thick, against " \
+           "tets of edge length" in line, line
+    assert "thinner than the finest resolution (200) reaches: thicken it in the model" in line
+
+
 def test_unwritable_folder_is_found_before_the_solve(user, tripwires, capsys):
     folder, scene = user
     if os.geteuid() == 0:  # root may write anywhere a permission allows: use a read-only fs

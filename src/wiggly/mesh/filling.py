@@ -355,10 +355,7 @@ def tetrahedralize_with_report(
                 pass  # a read-only cache directory only costs time
     tt = np.asarray(tt, dtype=np.int64).reshape(-1, 4)
     if len(tt) == 0:
-        raise WigglyInputError(
-            f"{source}: fTetWild produced no tetrahedra; the surface does not enclose a volume "
-            f"that is thick compared to the edge length {h:.3g} m."
-        )
+        raise WigglyInputError(f"{source}: fTetWild produced no tetrahedra; {_too_thin(report, h)}")
     mesh = TetMesh(*used_only(np.asarray(tv, dtype=np.float64) + centre, tt))
     return check_tet_mesh(mesh, f"{source} (tetrahedralized)"), report, info
 
@@ -376,6 +373,21 @@ def far_centre(V: np.ndarray, diag: float) -> np.ndarray:
     from the origin, else zeros: what to subtract before meshing and add back after."""
     centre = 0.5 * (V.min(axis=0) + V.max(axis=0))
     return centre if np.linalg.norm(centre) > FAR_FROM_ORIGIN * diag else np.zeros(3)
+
+
+def _too_thin(report: SurfaceReport, h: float) -> str:
+    """Why a fill made no tets and what to do: the body's mean thickness (twice its volume
+    over its area, exact for a plate) against the edge length ``h``, and the resolution at
+    which the tets fit into it."""
+    thick = 2.0 * report.volume / report.area if report.area > 0 else 0.0
+    needed = int(np.ceil(report.diagonal / thick)) if thick > 0 else 0
+    say = (f"the body is about {thick:.3g} m thick, against tets of edge length {h:.3g} m")
+    if 0 < needed <= MAX_RESOLUTION:
+        return (f"{say}: a resolution of {needed} or more (edge_length {thick:.3g} m or less) "
+                "gives it tets, or thicken it in the model, or bring a tet mesh (.msh, .vtu).")
+    return (f"{say}, thinner than the finest resolution ({MAX_RESOLUTION}) reaches: thicken "
+            "it in the model (e.g. Blender's Solidify modifier), or tetrahedralize it "
+            "yourself and bring the tet mesh (.msh, .vtu).")
 
 
 #: fTetWild's smallest envelope (relative to the bounding-box diagonal) that wiggly asks for
