@@ -622,7 +622,8 @@ def test_from_mesh_groups(tmp_path):
     (GroupSpec(Indices((0, 10**6)), on="tets"), None,
      "groups.g.indices[1] = 1000000 is out of range: the tet mesh has"),
     (GroupSpec(Nearest(((0.0, 0.0, 0.0),), 5000)), None,
-     "groups.g.nearest.count = 5000 exceeds the number of vertices of the surface (1034)"),
+     "groups.g.nearest.count = 5000 exceeds the number of vertex positions of the surface "
+     "(1034)"),
     (GroupSpec(FromMesh("saddle")), None,
      'groups.g.from_mesh = "saddle": the surface has no vertex group of that name; it has no '
      "vertex groups"),
@@ -635,6 +636,28 @@ def test_group_errors(bar_model, group, keyframe, message):
         resolve_groups(scene, bar_model)
     assert str(err.value).startswith("scene: ")
     assert message in str(err.value)
+
+
+def test_nearest_counts_positions_so_an_stl_corner_is_one(tmp_path):
+    """An STL file stores each triangle's corners apart: `nearest` with count 4 took four
+    copies of one corner (a "fixed base" of a single point). It counts positions, and takes
+    every vertex at them: on the STL and on the same welded mesh, the same points."""
+    import trimesh
+
+    from wiggly.mesh import load_model
+
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    box.export(tmp_path / "box.stl")
+    box.export(tmp_path / "box.obj")
+    nearest = GroupSpec(Nearest(((-0.6, -0.6, -0.6),), 4))
+    picked = {}
+    for name in ("box.stl", "box.obj"):
+        model = load_model(tmp_path / name, resolution=4)
+        scene = Scene(MeshSpec(str(tmp_path / name)), groups={"base": nearest})
+        idx = resolve_groups(scene, model)["base"]
+        picked[name] = np.unique(np.round(model.surface.vertices[idx], 9), axis=0)
+    assert len(picked["box.obj"]) == 4  # the corner and its three neighbours
+    np.testing.assert_array_equal(picked["box.stl"], picked["box.obj"])
 
 
 # ----------------------------------------------------------------------------------------------

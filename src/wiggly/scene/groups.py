@@ -35,13 +35,14 @@ def _select(name: str, group: GroupSpec, X: np.ndarray, mesh_groups: dict[str, n
     elif isinstance(sel, Sphere):
         idx = np.flatnonzero(np.linalg.norm(X - np.asarray(sel.center), axis=1) <= sel.radius)
     elif isinstance(sel, Nearest):
-        if sel.count > n:
-            p.add(f"{path}.nearest.count = {sel.count} exceeds the number of vertices of the "
-                  f"{what} ({n})")
+        # positions, not vertices: coincident copies (an STL's corners) count once, all taken
+        places, place_of = np.unique(X, axis=0, return_inverse=True)
+        if sel.count > len(places):
+            p.add(f"{path}.nearest.count = {sel.count} exceeds the number of vertex "
+                  f"positions of the {what} ({len(places)})")
             return None
-
-        _, nn = cKDTree(X).query(np.asarray(sel.points), k=sel.count)
-        idx = np.unique(np.asarray(nn).ravel())
+        _, nn = cKDTree(places).query(np.asarray(sel.points), k=sel.count)
+        idx = np.flatnonzero(np.isin(place_of.ravel(), np.asarray(nn).ravel()))
     elif isinstance(sel, Indices):
         idx = np.asarray(sel.indices, dtype=np.int64)
         bad = np.flatnonzero(idx >= n)
