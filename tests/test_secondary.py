@@ -562,6 +562,34 @@ def test_free_parts_settle_onto_a_driver_that_turned_and_stopped(critter):
     assert late[1] < 0.5 * late[0] and late[2] < 0.5 * late[1], late
 
 
+@pytest.mark.parametrize("degrees, said", [(30.0, False), (90.0, True)])
+def test_a_far_turn_of_a_warped_secondary_motion_is_warned_about(critter, degrees, said):
+    """The warp adds the free parts' own rotations to the rig's instead of composing them, so
+    across the turn's axis their bending and sag are scaled by sin(a) / a (a reviewer's
+    tail sagged 45 mm at rest, 29 mm at 90 degrees, none at 180): a turn past 45 degrees
+    says so in a warped solve, naming the factor; a linear one does not."""
+    from scipy.spatial.transform import Rotation
+
+    body, driven = critter
+    S = body.surface.vertices
+    times = np.arange(31) / 30.0
+    c = S[driven].mean(axis=0)
+    poses = np.array([Rotation.from_euler("y", degrees * min(t / 0.5, 1.0),
+                                          degrees=True).apply(S - c) + c for t in times])
+    driver = Driver(times, poses, body.surface.faces, np.zeros((0, 2)), "turn.npz", "test")
+    for warped in (True, False):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            secondary_motion(body, driver, driven, start=0.0, end=1.0, warped=warped)
+        turned = [str(w.message) for w in caught if "from its rest pose" in str(w.message)]
+        if said and warped:
+            assert len(turned) == 1 and f"by up to {degrees:.0f} degrees" in turned[0], turned
+            a = np.radians(degrees)
+            assert f"scaled by sin(a) / a ({np.sin(a) / a:.2f}" in turned[0]
+        else:
+            assert not turned, turned
+
+
 def test_bad_drivers_are_refused(bar, tmp_path):
     body, driven = bar
     X = body.surface.vertices

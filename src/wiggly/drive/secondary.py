@@ -50,7 +50,7 @@ from scipy.linalg import solve_banded
 from wiggly.body import Body, Where, fixed_from_surface
 from wiggly.checks import vertex_indices
 from wiggly.drive.driver import Driver, keyed_frames
-from wiggly.drive.driver_checks import warn_cuts, warn_seam, warn_spin
+from wiggly.drive.driver_checks import warn_cuts, warn_seam, warn_spin, warn_turn
 from wiggly.drive.unwarp import Unwarp
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
@@ -540,6 +540,8 @@ def secondary_motion(
     psi, lam = free_modes(body, v, free_mode_count)
     modes_seconds = _time.perf_counter() - t1
     warn_spin(driver.source, driven_path, times, lam)
+    if warped:
+        warn_turn(driver.source, surface.vertices[v], driven_path, times)
     held_warp = HeldWarp(body, held_vertices(body, v)) if warped else None
     r = psi.shape[1]
     alpha, beta = body.damping.alpha, body.damping.beta
