@@ -486,6 +486,12 @@ def test_a_mesh_in_other_axes_than_its_driver_is_warned_about(shot, capsys):
     assert "up axis" not in capsys.readouterr().err
     np.testing.assert_allclose(read_animation(folder / "z4.npz").positions,
                                read_animation(folder / "z2.npz").positions, atol=1e-9)
+    # a Y-up mesh with a Z-up driver: the driver's drive.up_axis is named, not the mesh's
+    scene = write(folder, {**data, "drive": {"path": "walk_z.npz", "group": "driven"}},
+                  "zup5.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "z5.npz")]) == 0
+    err = capsys.readouterr().err
+    assert 'the driver looks Z-up: set drive.up_axis = "z"' in err, err
 
 
 def test_driver_units_and_axes_apply_to_files_without_their_own(shot, tmp_path):

@@ -179,12 +179,15 @@ def _warn_up_axes(scene: Scene, rest: np.ndarray, posed: np.ndarray, mesh: str) 
     if turn <= UP_TURN:
         return
     mesh_z_up = float(R.apply([0.0, 0.0, 1.0]) @ y) > 0.7  # the mesh's z is the driver's up
+    driver_z_up = float(R.apply(y)[2]) > 0.7  # the mesh's up is the driver's z
     unit_free = Path(scene.drive.path).suffix.lower() in UNIT_FREE
     if mesh_z_up and scene.mesh.up == "y":
         remedy = 'the mesh file looks Z-up: set mesh.up_axis = "z"'
     elif scene.mesh.up == "z" and unit_free and scene.drive.up == "y":
         remedy = ('mesh.up_axis turns the mesh only, and the driver looks Z-up: set '
                   'drive.up_axis = "z" as well')
+    elif driver_z_up and unit_free and scene.drive.up == "y":
+        remedy = 'the driver looks Z-up: set drive.up_axis = "z"'
     elif scene.mesh.up == "z" and not unit_free:
         remedy = ("mesh.up_axis turns the mesh only, and the driver looks Z-up although its "
                   "reader turns it to y up by its format's rules: export it from the same "
