@@ -111,8 +111,9 @@ class Body:
     modes: Modes
     lumped: bool = False
     cache_dir: str | os.PathLike[str] | Literal[False] | None = field(default=None, repr=False)
-    # vertex groups seen on the warp levels, kept by value (vertex indices) for every solve
-    _groups: Memo = field(default_factory=lambda: Memo(limit=512), repr=False)
+    # vertex groups seen on the warp levels, kept by value (vertex indices) for every solve;
+    # not a field of __init__, so that dataclasses.replace (other modes) starts it empty
+    _groups: Memo = field(default_factory=lambda: Memo(limit=512), repr=False, init=False)
 
     # derived data that does not depend on damping or gravity (shared by with_dynamics)
     _STATIC = ("mass", "surface_basis", "warp", "fine_level", "coarse_level", "surface_embedding")
@@ -133,6 +134,7 @@ class Body:
         if damping == self.damping and np.array_equal(g, self.gravity):
             return self
         new = replace(self, damping=damping, gravity=g)
+        object.__setattr__(new, "_groups", self._groups)  # the same modes: the same Grams
         for name in self._STATIC:
             if name in self.__dict__:  # cached_property values of this body: its own data
                 new.__dict__[name] = self.__dict__[name]
