@@ -280,3 +280,20 @@ def test_a_preview_shows_where_the_motion_folds(tmp_path):
 
     assert fold_pixels(-1.8) > 200
     assert fold_pixels(-0.3) == 0
+
+
+def test_a_shot_longer_than_an_outputs_frames_is_checked_for_folds(tmp_path_factory):
+    """A warped solve of a 700 s shot (shots may last an hour) raised from its own fold
+    check, "more than 20000 frames: lower fps", though no fps was given: the check samples
+    at most FOLD_TIMES frames, and it never makes the rest."""
+    from tests.conftest import make_body
+
+    body = make_body(tmp_path_factory, shape=(8, 2, 2), n_modes=10, gravity=(0, 0, 0))
+    tip = np.flatnonzero(body.rest_positions()[:, 0] > 0.9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a key of a long shot is missed: said, not tested
+        anim = wiggly.solve(body, [Keyframe.offset(body, 350.0, tip, (0.0, 0.1, 0.0))],
+                            duration=700.0, warp=True)
+    checked = anim.folds()
+    assert FOLD_TIMES <= len(checked) <= FOLD_TIMES + 1  # frames, and the key's time
+    assert checked[0]["time"] == 0.0 and checked[-1]["time"] == pytest.approx(700.0)

@@ -232,10 +232,12 @@ class Animation:
         (``displacements(times, on="tets")``), when the caller has played them back already
         (the editor shows the same frames).
         """
-        if times is None:
+        if times is None:  # frames at DEFAULT_FPS, at most FOLD_TIMES of them (a long shot
+            # has more frames than any output may: they are not all made)
             keys = np.unique([kf.time for kf in self.keyframes])
-            times = np.unique(np.concatenate([_evenly(self.frame_times(DEFAULT_FPS)),
-                                              _evenly(keys)]))
+            count = limits.frame_count(self.duration, DEFAULT_FPS)
+            picks = np.unique(np.linspace(0, count - 1, min(count, FOLD_TIMES)).round())
+            times = np.unique(np.concatenate([self.start + picks / DEFAULT_FPS, _evenly(keys)]))
         times = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if times.size == 0:  # no times asked
             return []
