@@ -96,3 +96,40 @@ def test_objects_print_as_short_summaries(body):
     assert f"{len(X)} surface vertices, position and velocity" in said["key"]
     assert "'start'" in said["key"] and "[0, 1] s, 2 keyframes" in said["anim"]
     assert ("converged in" in said["anim"]) == anim.warped
+
+
+def test_a_mode_count_inside_a_group_of_equal_frequencies_is_warned_about(tmp_path):
+    """A 1 m cube (symmetric under a quarter turn about y): 10 modes end inside a pair of
+    equal frequencies, so the top pulled 5 cm along x moved 4.95 cm and along z 4.52 cm (the
+    eigensolver kept one of the pair); the count is warned about, and the count it names
+    answers both pulls alike."""
+    import re
+    import warnings
+
+    import meshio
+
+    from wiggly.primitives import box_mesh
+
+    V, T = box_mesh((4, 4, 4), (1.0, 1.0, 1.0))
+    meshio.write(tmp_path / "cube.vtu", meshio.Mesh(V, [("tetra", T)]))
+    bottom, top = np.flatnonzero(V[:, 1] < 0.01), np.flatnonzero(V[:, 1] > 0.99)
+
+    def pulls(n):
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            b = prepare(str(tmp_path / "cube.vtu"), n_modes=n, cache_dir=False,
+                        gravity=(0, 0, 0))
+        moved = []
+        for d in ((0.05, 0.0, 0.0), (0.0, 0.0, 0.05)):
+            a = solve(b, [Keyframe.rest(b, 1.0, bottom), Keyframe.offset(b, 1.0, top, d)],
+                      duration=1.0, warp=False, check_keys=False)
+            moved.append(np.linalg.norm((a.positions([1.0])[0] - V)[top].mean(axis=0)))
+        return [str(w.message) for w in said if "equal frequency" in str(w.message)], moved
+
+    said, moved = pulls(10)
+    assert len(said) == 1 and said[0].startswith("n_modes = 10 (simulation.modes in a scene) "
+                                                 "ends inside a group"), said
+    assert abs(moved[0] - moved[1]) > 1e-3  # the split pair: unequal answers
+    fewer = int(re.search(r"use (\d+) modes", said[0]).group(1))
+    said, moved = pulls(fewer)
+    assert not said and moved[0] == pytest.approx(moved[1], rel=1e-6)

@@ -14,7 +14,9 @@ Everything is inspectable: ``body.M``, ``body.K``, ``body.modes.eigenvalues``,
 
 from __future__ import annotations
 
+import math
 import os
+import warnings
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -408,6 +410,15 @@ def prepare(
     modes = compute_modes(
         K, M, n_modes, vertices=V, fixed_vertices=fixed, cache_dir=cache_dir
     )
+    split = modes.split_group()
+    if split:
+        hz = math.sqrt(modes.next_eigenvalue) / (2 * math.pi)
+        warnings.warn(
+            f"n_modes = {n_modes} (simulation.modes in a scene) ends inside a group of modes "
+            f"of equal frequency ({hz:.4g} Hz; this body is symmetric): its last {split} and "
+            "at least one more share it, and which of them the basis holds is the "
+            "eigensolver's pick, so symmetric keys get unequal answers; use "
+            f"{n_modes - split} modes (without the group) or more (all of it)", stacklevel=2)
     if model.embedding is None:  # a new model: the caller's is not changed
         model = replace(model, embedding=embed(model.surface.vertices, model.tets))
     return Body(model, material, damping, gravity, fixed, M, K, modes, lumped, cache_dir)

@@ -51,7 +51,10 @@ log = logging.getLogger(__name__)
 
 __all__ = ["Modes", "compute_modes", "default_cache_dir", "rigid_motions"]
 
-CACHE_FORMAT = "wiggly.modes/1"
+CACHE_FORMAT = "wiggly.modes/2"  # 2: with the eigenvalue of the first mode left out
+#: Eigenvalues within this relative distance are one group of equal frequencies (a symmetric
+#: body's pairs agree to about 1e-12; distinct modes of real meshes differ by far more).
+EQUAL = 1e-6
 DENSE_MAX_DOFS = 3000
 """Problems with at most this many free dofs are solved densely by ``method="auto"``."""
 SHIFT_FRACTION = 1e-8
@@ -87,6 +90,20 @@ class Modes:
     vectors: np.ndarray
     n_rigid: int
     fixed_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    #: lambda of the lowest mode left out (None: not known), to tell whether the basis ends
+    #: inside a group of equal frequencies (:meth:`split_group`)
+    next_eigenvalue: float | None = None
+
+    def split_group(self) -> int:
+        """How many of the last kept elastic modes share their eigenvalue (to a relative
+        :data:`EQUAL`) with the lowest mode left out: then the basis holds part of a group of
+        equal frequencies, an arbitrary one (the eigensolver's pick), and a symmetric body
+        answers symmetric keys unequally; 0 when it ends between groups (or is unknown)."""
+        lam = self.eigenvalues[self.n_rigid:]
+        nxt = self.next_eigenvalue
+        if nxt is None or not len(lam) or not nxt > 0:
+            return 0
+        return int(np.sum(np.abs(lam - nxt) <= EQUAL * nxt))
 
     def __repr__(self) -> str:  # a summary: the arrays are attributes
         f = self.frequencies_hz()[self.n_rigid:]
@@ -215,6 +232,8 @@ def _load_cache(path: Path, key: str, r: int, n: int) -> Modes | None:
                 vectors=np.array(data["vectors"], dtype=np.float64),
                 n_rigid=int(data["n_rigid"]),
                 fixed_vertices=np.array(data["fixed_vertices"], dtype=np.int64),
+                next_eigenvalue=(float(data["next_eigenvalue"])
+                                 if np.isfinite(data["next_eigenvalue"]) else None),
             )
     except Exception:  # corrupt or foreign file: recompute
         return None
@@ -239,6 +258,8 @@ def _save_cache(path: Path, key: str, modes: Modes) -> None:
                 vectors=modes.vectors,
                 n_rigid=np.array(modes.n_rigid),
                 fixed_vertices=modes.fixed_vertices,
+                next_eigenvalue=np.array(np.nan if modes.next_eigenvalue is None
+                                         else modes.next_eigenvalue),
             )
     except OSError as err:
         warnings.warn(f"could not write the modes cache {path}: {err}", stacklevel=3)
@@ -507,6 +528,7 @@ def _compute_modes(
     progress.say(f"{n_rigid} rigid modes; {r - n_rigid} elastic modes to compute ({nf} dofs)")
 
     k_el = r - n_rigid
+    next_eigenvalue = None
     lam_el = np.zeros(0)
     Phi_el = np.zeros((nf, 0))
     if k_el:
@@ -515,7 +537,7 @@ def _compute_modes(
             raise WigglyInputError(
                 f"method='sparse' needs r < free dofs - 1 = {nf - 1}; got r = {r}; use 'dense'"
             )
-        k = r
+        k = min(r + 1, nf - (0 if dense else 2))  # one more: the first left out
         while True:
             if dense:
                 progress.say(f"dense eigh ({nf} dofs)")
@@ -541,13 +563,15 @@ def _compute_modes(
                 "each loose part"
             )
         lam_el, Phi_el = lam[:k_el], Phi[:, :k_el]
+        next_eigenvalue = float(lam[k_el]) if lam.size > k_el else None
 
     vectors = np.zeros((3 * n, r))
     vectors[free_dofs] = _normalize_signs(np.hstack([Rig, Phi_el]))
     eigenvalues = np.concatenate([np.zeros(n_rigid), lam_el])
     progress.say("done")
     return Modes(
-        eigenvalues=eigenvalues, vectors=vectors, n_rigid=n_rigid, fixed_vertices=all_fixed
+        eigenvalues=eigenvalues, vectors=vectors, n_rigid=n_rigid, fixed_vertices=all_fixed,
+        next_eigenvalue=next_eigenvalue,
     )
 
 
