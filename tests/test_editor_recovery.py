@@ -23,6 +23,8 @@ group = "mid"
 position = { offset = [0.0, 0.01, 0.0] }
 """
 
+YOUNG = {"op": "set", "section": "material", "values": {"young": 8e5}}
+
 
 def _open(folder: Path, name: str) -> tuple[Session, list[str]]:
     session = Session(Sandbox([folder]))
@@ -43,19 +45,29 @@ def _view(session: Session) -> tuple:
     return session.scene, session.state.keyframe_ids, session.histories.describe("a")
 
 
+def _killed_after_two_edits(folder: Path, second: dict, first: dict | None = None
+                            ) -> tuple[Path, Path, tuple]:
+    """A scene with edit ``first`` (default: damping alpha 0.3) autosaved and edit ``second``
+    only journaled, killed before its autosave: (the scene's path, its autosave, the view it
+    had)."""
+    path = bar_project(folder, KEYS, warp=False)
+    auto = autosave_path(path)
+    s, _ = _open(folder, path.name)
+    s.edit(first or {"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    s.autosaver.flush()
+    lagging = auto.read_bytes()
+    s.edit(second, tab="a")
+    expected = _view(s)
+    _killed(s, auto, lagging)
+    return path, auto, expected
+
+
 def test_a_recovered_edit_survives_every_later_restart(tmp_path):
     """Edit A, then B (delete the key "plant"), killed before B's autosave: the restart
     recovers B; a clean stop and more restarts keep B and its undo step, and no notice
     says the file was changed elsewhere."""
-    path = bar_project(tmp_path, KEYS, warp=False)
-    auto = autosave_path(path)
-    s, _ = _open(tmp_path, path.name)
-    s.edit({"op": "set", "section": "material", "values": {"young": 8e5}}, tab="a")
-    s.autosaver.flush()
-    lagging = auto.read_bytes()
-    s.edit({"op": "delete_keyframe", "id": 1}, tab="a")
-    expected = _view(s)
-    _killed(s, auto, lagging)
+    path, auto, expected = _killed_after_two_edits(
+        tmp_path, {"op": "delete_keyframe", "id": 1}, first=YOUNG)
 
     for restart in range(4):  # the recovery, then clean stops and kills with nothing new
         s, notices = _open(tmp_path, path.name)
@@ -80,14 +92,7 @@ def test_a_recovered_edit_survives_every_later_restart(tmp_path):
 def test_an_edit_after_a_recovery_survives_the_next_kill(tmp_path):
     """A crash, a restart that recovers edit B, one more edit C, then a kill before C's
     autosave: the next restart has B and C."""
-    path = bar_project(tmp_path, KEYS, warp=False)
-    auto = autosave_path(path)
-    s, _ = _open(tmp_path, path.name)
-    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
-    s.autosaver.flush()
-    lagging = auto.read_bytes()
-    s.edit({"op": "delete_keyframe", "id": 1}, tab="a")
-    _killed(s, auto, lagging)
+    path, auto, _ = _killed_after_two_edits(tmp_path, {"op": "delete_keyframe", "id": 1})
 
     s, _ = _open(tmp_path, path.name)
     assert "plant" not in [k.name for k in s.scene.keyframes]
@@ -182,14 +187,7 @@ def test_edits_set_aside_after_an_outside_change_include_the_last_answered_one(t
     """Edit A is autosaved, edit B only journaled (killed before its autosave), then the
     scene file is changed in another program: the file opens as it is on disk, one notice
     says so, and the scene the unsaved edits are kept as has A and B, with their undo."""
-    path = bar_project(tmp_path, KEYS, warp=False)
-    auto = autosave_path(path)
-    s, _ = _open(tmp_path, path.name)
-    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
-    s.autosaver.flush()
-    lagging = auto.read_bytes()
-    s.edit({"op": "set", "section": "material", "values": {"young": 8e5}}, tab="a")
-    _killed(s, auto, lagging)
+    path, _, _ = _killed_after_two_edits(tmp_path, YOUNG)
     path.write_text(path.read_text().replace("end = 1.0", "end = 1.5"))
     s, notices = _open(tmp_path, path.name)
     try:
@@ -214,15 +212,7 @@ def test_edits_set_aside_after_an_outside_change_include_the_last_answered_one(t
 def test_a_deleted_scene_with_unsaved_edits_reopens_with_them(tmp_path):
     """The scene file is deleted while the editor has unsaved edits, then a kill: opening
     the scene's name brings the edits back as an unsaved scene, with one notice."""
-    path = bar_project(tmp_path, KEYS, warp=False)
-    auto = autosave_path(path)
-    s, _ = _open(tmp_path, path.name)
-    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
-    s.autosaver.flush()
-    lagging = auto.read_bytes()
-    s.edit({"op": "set", "section": "material", "values": {"young": 8e5}}, tab="a")
-    expected = _view(s)
-    _killed(s, auto, lagging)
+    path, _, expected = _killed_after_two_edits(tmp_path, YOUNG)
     path.unlink()
     for restart in range(2):
         s, notices = _open(tmp_path, path.name)
@@ -258,14 +248,8 @@ def test_wiggly_edit_on_a_deleted_scene_with_unsaved_edits_recovers_them(tmp_pat
 def test_the_recovery_notice_says_what_came_back_in_the_scenes_terms(tmp_path):
     """A key moved and damping set, killed before the autosave of the move: one notice
     names both changes and where the saved file stands, and no hidden file of the editor."""
-    path = bar_project(tmp_path, KEYS, warp=False)
-    auto = autosave_path(path)
-    s, _ = _open(tmp_path, path.name)
-    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
-    s.autosaver.flush()
-    lagging = auto.read_bytes()
-    s.edit({"op": "update_keyframe", "id": 1, "time": 0.4}, tab="a")
-    _killed(s, auto, lagging)
+    path, _, _ = _killed_after_two_edits(tmp_path,
+                                         {"op": "update_keyframe", "id": 1, "time": 0.4})
     s, notices = _open(tmp_path, path.name)
     try:
         assert notices == ["recovered unsaved edits to shot.toml: set damping.alpha = 0.3; "
