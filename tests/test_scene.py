@@ -905,3 +905,26 @@ def test_parts_meeting_at_an_edge_are_said_to_hinge(tmp_path):
         warnings.simplefilter("always")
         run(load_scene(tmp_path / "box.toml"), outputs=[])
     assert not [w for w in said if "joint" in str(w.message)]
+
+
+def test_a_missed_offset_key_of_a_linear_shot_is_not_blamed_on_turns(tmp_path):
+    """A plain offset key missed in a linear shot was told that "a linear solve cannot meet
+    turned targets" (a numerics review): that hint is for keys that turn their group."""
+    from wiggly.scene import run
+
+    V, T = box_mesh((8, 2, 2), (1.0, 0.1, 0.1))
+    meshio.write(tmp_path / "bar.vtu", meshio.Mesh(V, [("tetra", T)]))
+    base = {"mesh": {"path": "bar.vtu"}, "simulation": {"modes": 10, "warp": False},
+            "time": {"end": 1.0},
+            "groups": {"tip": {"box": {"min": [0.9, -1, -1], "max": [2, 1, 1]}}}}
+    for name, position, turned in (("offset", {"offset": [0.0, 0.3, 0.0]}, False),
+                                   ("turn", {"rotation": [0.0, 0.0, 60.0]}, True)):
+        data = {**base, "keyframes": [{"time": 0.5, "group": "tip", "position": position,
+                                       "stiffness": 1e-4}]}
+        (tmp_path / f"{name}.toml").write_text(tomli_w.dumps(data))
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            run(load_scene(tmp_path / f"{name}.toml"), outputs=[])
+        missed = [str(w.message) for w in said if "missed by more than" in str(w.message)]
+        assert len(missed) == 1, [str(w.message) for w in said]
+        assert ("cannot meet turned targets" in missed[0]) == turned, missed

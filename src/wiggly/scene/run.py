@@ -32,6 +32,7 @@ from wiggly.scene.spec import (
     OUTPUT_EXTENSIONS,
     PREVIEW_EXTENSIONS,
     OutputSpec,
+    Rigid,
     Scene,
 )
 from wiggly.scene.validation import input_error, show
@@ -439,7 +440,9 @@ def missed_note(scene: Scene, anim) -> str | None:
            + (", or their c_A, which replaces it where given" if explicit else "")
            + (" (a stiff material resists keys: the default weighs a key against the body's "
               "mass, not its Young's modulus)" if any("offset" in m.how for m in missed) else ""))
-    if not scene.simulation.warp:
+    turned = any(isinstance(scene.keyframes[m.index].position, Rigid)
+                 and any(scene.keyframes[m.index].position.rotation) for m in missed)
+    if not scene.simulation.warp and turned:
         why = ("a linear solve (simulation.warp = false) cannot meet turned targets, it "
                "stretches them: turn warping on; or " + why)
     # targets no body could follow: a unit slip, not a weight (raising it does not help)
