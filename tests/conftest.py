@@ -93,3 +93,11 @@ def blender_python() -> str:
         pytest.skip(f"no Blender as a Python module at {python}: `make blender` installs PyPI "
                     "bpy (Python 3.11) into .venv-blender (or set WIGGLY_BLENDER_PYTHON)")
     return python
+
+
+def generic_direction(rng: np.random.Generator, g: np.ndarray) -> np.ndarray:
+    """A random direction along which the slope g . d is not small against |g| |d| (a random
+    direction alone is nearly orthogonal to g now and then: in 300 dimensions
+    |cos| < 1e-3 about once in 70 draws, and the slope check then compares rounding)."""
+    d = rng.standard_normal(g.size)
+    return d + np.sign(g @ d or 1.0) * 0.2 * np.linalg.norm(d) * g / np.linalg.norm(g)

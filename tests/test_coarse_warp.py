@@ -25,7 +25,7 @@ from wiggly.solve import SolveOptions, SpacetimeProblem, WarpedObjective
 from wiggly.solve.banded import band_matvec
 from wiggly.warp import Warp, coarse_level
 
-from .conftest import make_body
+from .conftest import generic_direction, make_body
 
 
 @pytest.fixture(scope="module")
@@ -293,10 +293,9 @@ def test_coarse_objective_is_the_coarse_warp_least_squares(slab):
     point = obj.evaluate(z)
     assert abs(point.F - direct) <= 1e-10 * abs(direct)
     for _ in range(3):
-        d = rng.standard_normal(z.size)
+        d = generic_direction(rng, point.g)
         h = 1e-6 * np.abs(z).max() / np.abs(d).max()
         slope = (obj.evaluate(z + h * d).F - obj.evaluate(z - h * d).F) / (2 * h)
-        assert abs(point.g @ d) > 1e-3 * np.linalg.norm(point.g) * np.linalg.norm(d)
         assert abs(point.g @ d - slope) <= 1e-7 * abs(slope)
 
 
