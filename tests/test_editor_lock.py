@@ -74,6 +74,18 @@ def _start(scene: Path) -> tuple[subprocess.Popen, str]:
     return proc, url.group(0)
 
 
+def _ctrl_c(proc: subprocess.Popen) -> str:
+    """Ctrl+C to a ``wiggly edit`` of :func:`_start`: it stops cleanly; what it said on
+    stderr."""
+    try:
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=60) == 0
+        return proc.stderr.read()
+    finally:
+        proc.stdout.close()
+        proc.stderr.close()
+
+
 def test_a_second_wiggly_edit_is_refused_and_a_killed_ones_lock_is_taken_over(tmp_path):
     folder = tmp_path / "my shots ü 猫"
     folder.mkdir()
@@ -95,10 +107,5 @@ def test_a_second_wiggly_edit_is_refused_and_a_killed_ones_lock_is_taken_over(tm
         first.stderr.close()
     assert any(p.name.endswith(".editor.lock") for p in folder.iterdir())  # left by the kill
     third, _ = _start(scene)  # the stale lock is taken over
-    try:
-        third.send_signal(signal.SIGINT)
-        assert third.wait(timeout=60) == 0
-    finally:
-        third.stdout.close()
-        third.stderr.close()
+    _ctrl_c(third)
     assert not any(p.name.endswith(".editor.lock") for p in folder.iterdir())

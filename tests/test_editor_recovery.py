@@ -225,9 +225,7 @@ def test_a_deleted_scene_with_unsaved_edits_reopens_with_them(tmp_path):
 
 
 def test_wiggly_edit_on_a_deleted_scene_with_unsaved_edits_recovers_them(tmp_path):
-    import signal
-
-    from tests.test_editor_lock import _start
+    from tests.test_editor_lock import _ctrl_c, _start
 
     path = bar_project(tmp_path, KEYS, warp=False)
     s, _ = _open(tmp_path, path.name)
@@ -235,13 +233,7 @@ def test_wiggly_edit_on_a_deleted_scene_with_unsaved_edits_recovers_them(tmp_pat
     s.close()
     path.unlink()
     proc, _ = _start(path)  # before, "no such file"
-    try:
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=60) == 0
-        said = proc.stderr.read()
-    finally:
-        proc.stdout.close()
-        proc.stderr.close()
+    said = _ctrl_c(proc)
     assert "recovered the unsaved scene shot.toml, with all its edits" in said, said
 
 

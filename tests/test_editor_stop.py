@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import urllib.request
 
 import pytest
 
 from tests.editor_ui import bar_project
-from tests.test_editor_lock import _start
+from tests.test_editor_lock import _ctrl_c, _start
 from wiggly.cli.edit import stop_messages
 from wiggly.editor import Sandbox, Session
 
@@ -27,12 +26,8 @@ def test_ctrl_c_with_unsaved_edits_says_they_are_kept_and_how_to_get_them(tmp_pa
                              "values": {"alpha": 0.7}}).encode())
         with urllib.request.urlopen(request, timeout=60) as answer:
             assert answer.status == 200
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=60) == 0
-        said = proc.stderr.read()
     finally:
-        proc.stdout.close()
-        proc.stderr.close()
+        said = _ctrl_c(proc)
     assert "the unsaved edits of my shot.toml are kept beside it (.my shot.autosave.toml)" \
         in said, said
     assert "`wiggly edit 'my shot.toml'` opens it with them" in said
