@@ -351,7 +351,7 @@ class Playback:
                                positions, req.kind, info))
         if req.kind == "final":
             held = anim.held_modes if scene.secondary_motion else None
-            self._tell_once(scene, soft_note(scene, body, held) or thin_joint(scene, body, held))
+            self._tell_once(scene, thin_joint(scene, body, held) or soft_note(scene, body, held))
         if req.kind == "final" and scene.source not in self._told_falling:
             rest = body.rest_positions()
             notice = fall_notice(positions, times, scene.simulation.gravity,

@@ -228,12 +228,13 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     _said_of(scene, said)
     timings["solve"] = _time.perf_counter() - t
     held = anim.held_modes if scene.secondary_motion else None
-    note = soft_note(scene, body, held)
-    if note is not None:
-        say(f"note: {note}")
     joint = thin_joint(scene, body, held)
     if joint is not None:
         warnings.warn(f"{scene.where()}: {joint}", stacklevel=2)
+    else:  # the joint, not the material, when there is one
+        note = soft_note(scene, body, held)
+        if note is not None:
+            say(f"note: {note}")
     highlights = check_motion(scene, body, anim, groups, paths)
     written = write_outputs(scene, anim, paths, overwrite=overwrite, highlights=highlights,
                             timings=timings)
@@ -345,10 +346,9 @@ def soft_note(scene: Scene, body,
     ``held`` are then the free parts' modes (Psi, lambda) that the solve used
     (:attr:`wiggly.drive.SecondaryMotion.held_modes`).  Static sag scales as 1 / Young's
     modulus, so the note says which modulus sags 5 %.  The command line logs it (a stage
-    line; silent with ``-q``), the editor shows it once per scene."""
+    line; silent with ``-q``), the editor shows it once per scene; both ask
+    :func:`thin_joint` first, and say this note only where the sag is not a joint's."""
     held_by = "its fixed vertices hold" if held is None else "its driven group holds"
-    if thin_joint(scene, body, held) is not None:
-        return None  # the joint, not the material: said by thin_joint
     sag = static_sag(body, held)
     size = diagonal(body.rest_positions())
     if sag is None or sag <= SAG * size:
