@@ -12,14 +12,29 @@ from wiggly.body import Body
 from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.mesh.defects import diagonal
 
-__all__ = ["CUT_SIZE", "CUT_STEPS", "SEAM_STEPS", "SPIN", "TURN", "warn_cuts", "warn_seam",
-           "warn_spin", "warn_turn"]
+__all__ = ["CUT_SIZE", "CUT_STEPS", "SEAM_STEPS", "SPIN", "TURN", "best_turn", "warn_cuts",
+           "warn_seam", "warn_spin", "warn_turn"]
 
 
 #: A driver turning faster than SPIN times the free parts' lowest angular frequency is said
 #: to turn fast: the left-out centrifugal and Coriolis forces are then a sizeable part of the
 #: free parts' stiffness (their relative size grows like (turn rate / frequency)^2).
 SPIN = 0.5
+
+
+def best_turn(a: np.ndarray, b: np.ndarray):
+    """The rotation (scipy's ``Rotation``) that best takes the points ``a`` (g, 3) onto the
+    same points ``b`` about their centroids (Kabsch), or None where either does not span
+    (all at one point); scipy's note on a poorly determined fit is not the user's (a group
+    along a line: its turn about the line is none)."""
+    from scipy.spatial.transform import Rotation
+
+    a, b = a - a.mean(axis=0), b - b.mean(axis=0)
+    if len(a) < 3 or not np.any(a) or not np.any(b):
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return Rotation.align_vectors(b, a)[0]
 
 
 def warn_spin(source: str, P: np.ndarray, times: np.ndarray, lam: np.ndarray) -> None:
@@ -29,20 +44,14 @@ def warn_spin(source: str, P: np.ndarray, times: np.ndarray, lam: np.ndarray) ->
     them out (2 rev/s pulled a 1 m creature's tail tip from 583 mm off the axis to 138 mm).
     ``P``: the driven vertices at the driver's frames, (F, g, 3); ``lam``: the free modes'
     eigenvalues."""
-    from scipy.spatial.transform import Rotation
-
     positive = lam[lam > 1e-9 * max(float(lam.max(initial=0.0)), 1e-300)]
     if len(P) < 2 or P.shape[1] < 3 or not len(positive):
         return
-    P = P - P.mean(axis=1, keepdims=True)
     rates = []
     for k in range(len(P) - 1):
-        if not np.any(P[k]) or not np.any(P[k + 1]):
-            continue
-        with warnings.catch_warnings():  # a group along a line: its turn about it is none
-            warnings.simplefilter("ignore")
-            R, _ = Rotation.align_vectors(P[k + 1], P[k])
-        rates.append(R.magnitude() / (times[k + 1] - times[k]))
+        R = best_turn(P[k], P[k + 1])
+        if R is not None:
+            rates.append(R.magnitude() / (times[k + 1] - times[k]))
     omega, lowest = max(rates, default=0.0), float(np.sqrt(positive.min()))
     if omega > SPIN * lowest:
         warnings.warn(
@@ -68,19 +77,10 @@ def warn_turn(source: str, rest: np.ndarray, P: np.ndarray, times: np.ndarray) -
     and 360 degrees; a reviewer's tail sagged 45 mm at rest, 29 mm at 90 degrees, 0 at 180),
     and what remains turns with the body.  ``rest``: the driven vertices at rest (g, 3);
     ``P``: at the driver's frames (F, g, 3)."""
-    from scipy.spatial.transform import Rotation
-
-    if len(P) < 1 or len(rest) < 3:
+    turns = [best_turn(rest, pose) for pose in P]
+    angles = np.array([0.0 if R is None else np.degrees(R.magnitude()) for R in turns])
+    if not len(angles):
         return
-    a = rest - rest.mean(axis=0)
-    if not np.any(a):
-        return
-    angles = np.zeros(len(P))
-    with warnings.catch_warnings():  # a group along a line: its turn about it is none
-        warnings.simplefilter("ignore")
-        for k, pose in enumerate(P):
-            R, _ = Rotation.align_vectors(pose - pose.mean(axis=0), a)
-            angles[k] = np.degrees(R.magnitude())
     k = int(np.argmax(angles))
     if angles[k] <= TURN:
         return

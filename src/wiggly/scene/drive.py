@@ -22,6 +22,7 @@ from wiggly.drive import (
     keyed_frames,
     read_driver,
 )
+from wiggly.drive.driver_checks import best_turn
 from wiggly.drive.secondary import secondary_frames, secondary_motion
 from wiggly.drive.sequence import sequence_files
 from wiggly.errors import WigglyInputError, counted
@@ -166,14 +167,9 @@ def _warn_up_axes(scene: Scene, rest: np.ndarray, posed: np.ndarray, mesh: str) 
     rotation from the rest vertices to the driver's (the same vertices) takes one's up axis
     far from the other's, as a Z-up mesh against a Y-up driver does (its gravity then pulls
     sideways)."""
-    from scipy.spatial.transform import Rotation
-
-    a, b = rest - rest.mean(axis=0), posed - posed.mean(axis=0)
-    if len(a) < 3 or not np.any(a) or not np.any(b):
+    R = best_turn(rest, posed)
+    if R is None:
         return
-    with warnings.catch_warnings():  # scipy's note on a poorly defined fit is not the user's
-        warnings.simplefilter("ignore")
-        R, _ = Rotation.align_vectors(b, a)
     y = np.array([0.0, 1.0, 0.0])
     turn = float(np.degrees(np.arccos(np.clip(R.apply(y) @ y, -1.0, 1.0))))
     if turn <= UP_TURN:
