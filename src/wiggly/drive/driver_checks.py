@@ -17,8 +17,8 @@ __all__ = ["CUT_SIZE", "CUT_STEPS", "SEAM_STEPS", "SPIN", "TURN", "best_turn", "
 
 
 #: A driver turning faster than SPIN times the free parts' lowest angular frequency is said
-#: to turn fast: the left-out centrifugal and Coriolis forces are then a sizeable part of the
-#: free parts' stiffness (their relative size grows like (turn rate / frequency)^2).
+#: to turn fast: the turning frame's centrifugal force is then a sizeable part of the free
+#: parts' stiffness (its relative size grows like (turn rate / frequency)^2).
 SPIN = 0.5
 
 
@@ -38,12 +38,12 @@ def best_turn(a: np.ndarray, b: np.ndarray):
 
 
 def warn_spin(source: str, P: np.ndarray, times: np.ndarray, lam: np.ndarray) -> None:
-    """Warn when the driven group turns fast against the free parts' lowest frequency: the
-    free parts' dynamics are linear in the driver's moving frame, without its centrifugal
-    and Coriolis forces, and a fast spin then draws them toward its axis instead of flinging
-    them out (2 rev/s pulled a 1 m creature's tail tip from 583 mm off the axis to 138 mm).
-    ``P``: the driven vertices at the driver's frames, (F, g, 3); ``lam``: the free modes'
-    eigenvalues."""
+    """Warn when the driven group turns fast against the free parts' lowest frequency: their
+    dynamics are linear elasticity in the driver's turning frame, whose centrifugal force
+    softens them by (turn rate / frequency)^2 of their stiffness, and past their lowest
+    frequency flings them out without bound (a spin at twice it swung a soft bar's tip to
+    2.4 times its radius), where a real part stiffens as it stretches.  ``P``: the driven
+    vertices at the driver's frames, (F, g, 3); ``lam``: the free modes' eigenvalues."""
     positive = lam[lam > 1e-9 * max(float(lam.max(initial=0.0)), 1e-300)]
     if len(P) < 2 or P.shape[1] < 3 or not len(positive):
         return
@@ -57,26 +57,28 @@ def warn_spin(source: str, P: np.ndarray, times: np.ndarray, lam: np.ndarray) ->
         warnings.warn(
             f"the driver {source} turns its driven group at up to "
             f"{omega / (2 * np.pi):.2g} turns per second, fast against the free parts' lowest "
-            f"frequency ({lowest / (2 * np.pi):.2g} Hz): the free parts move linearly in the "
-            "driver's turning frame, without its centrifugal and Coriolis forces, and a fast "
-            "turn draws them toward its axis rather than flinging them out; a stiffer "
-            "material for the free parts, or a slower turn, keeps this small", stacklevel=3)
+            f"frequency ({lowest / (2 * np.pi):.2g} Hz): their motion is linear elasticity in "
+            "the turning frame, whose centrifugal force takes "
+            f"{100 * min((omega / lowest) ** 2, 9.99):.0f} % of their stiffness (past 100 % "
+            "they fly out without bound, where a real part would stiffen as it stretches); a "
+            "stiffer material for the free parts, or a slower turn, keeps this small",
+            stacklevel=3)
 
 
-#: A warped secondary motion whose driver turns the driven group further than this (degrees)
-#: from its rest pose is warned about: the free parts' bending across the turn's axis is
-#: played scaled by sin(a) / a (0.90 at 45 degrees).
+#: A linear secondary motion whose driver turns the driven group further than this (degrees)
+#: from its rest pose is warned about: its free parts' swing and sag stay in the rest pose's
+#: axes instead of turning with the body.
 TURN = 45.0
 
 
 def warn_turn(source: str, rest: np.ndarray, P: np.ndarray, times: np.ndarray) -> None:
-    """Warn when the driver turns the driven group far from its rest pose, in a warped
-    secondary motion: the warp adds the free parts' own rotations to the rig's rotation
-    vectors instead of composing the two, so across the turn's axis their bending and
-    gravity's sag are scaled by sin(a) / a at a turn by a (0.64 at 90 degrees, none at 180
-    and 360 degrees; a reviewer's tail sagged 45 mm at rest, 29 mm at 90 degrees, 0 at 180),
-    and what remains turns with the body.  ``rest``: the driven vertices at rest (g, 3);
-    ``P``: at the driver's frames (F, g, 3)."""
+    """Warn when the driver turns the driven group far from its rest pose, in a linear
+    secondary motion (``warp = false``): it adds the free parts' modal displacement to the
+    driver's in the rest pose's axes, so after a turn their sag and bending point as they
+    did at rest, not as the turned body's would (after a half turn about the vertical a
+    tail's static sag was 141 % of itself off a full-space static solve in the body's frame;
+    the warped motion, which carries them in the rig's frame, 1 %).  ``rest``: the driven
+    vertices at rest (g, 3); ``P``: at the driver's frames (F, g, 3)."""
     turns = [best_turn(rest, pose) for pose in P]
     angles = np.array([0.0 if R is None else np.degrees(R.magnitude()) for R in turns])
     if not len(angles):
@@ -84,14 +86,12 @@ def warn_turn(source: str, rest: np.ndarray, P: np.ndarray, times: np.ndarray) -
     k = int(np.argmax(angles))
     if angles[k] <= TURN:
         return
-    x = np.radians(angles[k])
     warnings.warn(
         f"the driver {source} turns its driven group by up to {angles[k]:.0f} degrees from "
-        f"its rest pose (at t = {times[k]:g} s): the warped secondary motion then plays the "
-        "free parts' bending and their sag under gravity across the turn's axis scaled by "
-        f"sin(a) / a ({np.sin(x) / x:.2f} here; 0 at 180 and 360 degrees), and turns the sag "
-        "with the body; simulation.warp = false keeps them (as linear elasticity does), or "
-        "key the free parts", stacklevel=3)
+        f"its rest pose (at t = {times[k]:g} s): a linear secondary motion "
+        "(simulation.warp = false) keeps the free parts' swing and sag in the rest pose's "
+        "axes instead of turning them with the body; the warped motion (the default) turns "
+        "them", stacklevel=3)
 
 
 #: A looped shot's driver is said not to cycle with it when its driven vertices at the shot's

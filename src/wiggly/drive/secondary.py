@@ -21,18 +21,26 @@ then decouples per mode as before, with the driver's accelerations as a forcing 
 
 where kappa is the ``intensity`` (1: physical; 0: the free parts are carried as the driver
 carries them; 2: twice the swing, at the same timing).  Between two nodes p_i is a quadratic
-polynomial (ubar is cubic), so it has a quadratic particular solution q_p with L q_p = -(g + p)
+polynomial (ubar is cubic; a cubic where the forces are turned, below), so it has a
+polynomial particular solution q_p with L q_p = -(g + p)
 (L = d^2 + 2 delta d + lambda); with y = q - q_p the interval's energy is the unforced one of
 y, and the minimiser is q_p plus a wiggly spline (Theorem 1 with g = 0), C^1 at every node
 and C^2 where no velocity is prescribed.  Nodes fall at the driver's frames and the user's
 keyframe times; the unknowns are node values and velocities of every free mode.
 
+Warped playback carries the free parts in the rig's frame (:mod:`wiggly.drive.carried`):
+per tet the rig's warped gradient times the free parts' own, W(ubar, Psi q), so that their
+bending and sag turn with the body by any angle, and the driver's inertial forces and
+gravity above act turned into that frame, rotation by rotation at each vertex (what that
+adds to g + p is a cubic spline through the driver's frames).
+
 Without keyframes on the free parts, E = 0 is reached by the forced ODE's solution that
 starts at rest relative to the driver (q' = 0, and q = -g / lambda: in equilibrium under
 gravity; a looped shot is periodic instead): one banded linear solve, no Newton iterations.
 Sparse keyframes on the free parts (eq. (4)) add least-squares terms at their nodes; for warped
-playback their targets apply to W(ubar + Psi q) and are met by Gauss-Newton on the few keyed
-nodes (Theorem 2: the minimiser is still a wiggly spline in every mode).
+playback their targets apply to W(ubar, Psi q) and are met by Gauss-Newton on the few keyed
+nodes (Theorem 2: the minimiser is still a wiggly spline in every mode).  Linear playback
+(``warped=False``) adds Psi q to the driver's displacement in the rest pose's frame.
 """
 
 from __future__ import annotations
@@ -44,13 +52,20 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
-from scipy.interpolate import CubicSpline
-from scipy.linalg import solve_banded
 
 from wiggly.body import Body, Where, fixed_from_surface
 from wiggly.checks import vertex_indices
+from wiggly.drive.carried import (
+    HeldWarp,
+    frame_couplings,
+    frame_forces,
+    frame_rates,
+    turned_forces,
+    vertex_rotations,
+)
 from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.drive.driver_checks import warn_cuts, warn_seam, warn_spin, warn_turn
+from wiggly.drive.frame_spline import FrameSpline
 from wiggly.drive.unwarp import Unwarp
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
@@ -60,7 +75,6 @@ from wiggly.progress import deprecated_progress, reporting
 from wiggly.solve.animation import Animation
 from wiggly.solve.nodes import node_index, node_times
 from wiggly.splines import energy_form, evaluate, wiggly_basis
-from wiggly.warp import Warp
 
 __all__ = ["DEFAULT_FREE_MODES", "FrameSpline", "HeldWarp", "SecondaryMotion", "free_modes",
            "held_vertices",
@@ -71,142 +85,6 @@ DEFAULT_FREE_MODES = 24
 #: Gauss-Newton on warped keyframes of the free parts: iteration budget and the relative
 #: decrease of the key objective below which the iteration has converged.
 _GN_ITERATIONS, _GN_TOLERANCE = 30, 1e-10
-#: Columns per chunk when fitting cubic splines to many fields at once (bounds memory).
-_CHUNK = 4096
-
-
-@dataclass(frozen=True)
-class FrameSpline:
-    """A C^2 cubic spline through frames ``values`` (F, N) at ``times`` (F,), held in Hermite
-    form (values and slopes at the frames); constant before the first and after the last
-    frame."""
-
-    times: np.ndarray
-    values: np.ndarray
-    slopes: np.ndarray
-
-    @classmethod
-    def fit(cls, times: np.ndarray, values: np.ndarray, *, loop: bool = False,
-            hold_start: bool = False, hold_end: bool = False) -> FrameSpline:
-        """The cubic spline through ``values``: periodic for a ``loop``; otherwise zero slope
-        at an end where the motion holds its pose beyond the frames (``hold_start``,
-        ``hold_end``), not-a-knot elsewhere."""
-        times = np.asarray(times, float)
-        values = np.ascontiguousarray(values, dtype=float)
-        if len(times) < 2:
-            return cls(times, values, np.zeros_like(values))
-        if loop:
-            # the last frame is the first again (secondary_frames); fields computed from it
-            # separately may differ from the first's in their last bits, which a periodic
-            # spline refuses
-            values = values.copy()
-            values[-1] = values[0]
-            bc = "periodic"
-        else:
-            bc = ((1, 0.0) if hold_start else "not-a-knot", (1, 0.0) if hold_end else
-                  "not-a-knot")
-            if len(times) < 4 and "not-a-knot" in bc:
-                bc = ((1, 0.0) if hold_start else (2, 0.0), (1, 0.0) if hold_end else (2, 0.0))
-        if not loop and len(times) >= 4:  # one banded solve for every column
-            return cls(times, values, _spline_slopes(times, values, hold_start, hold_end))
-        slopes = np.empty_like(values)
-        for c0 in range(0, values.shape[1], _CHUNK):
-            c1 = min(values.shape[1], c0 + _CHUNK)
-            end_bc = bc if isinstance(bc, str) else tuple(
-                b if isinstance(b, str) else (b[0], np.zeros(c1 - c0)) for b in bc)
-            slopes[:, c0:c1] = CubicSpline(times, values[:, c0:c1], bc_type=end_bc)(times, 1)
-        return cls(times, values, slopes)
-
-    def _segment(self, t: np.ndarray, side: str = "right"):
-        T = self.times
-        j = np.clip(np.searchsorted(T, t, side=side) - 1, 0, len(T) - 2)
-        h = T[j + 1] - T[j]
-        s = np.clip((t - T[j]) / h, 0.0, 1.0)
-        inside = (t >= T[0]) & (t <= T[-1])
-        return j, h, s, inside
-
-    def __call__(self, t: ArrayLike, derivative: int = 0) -> np.ndarray:
-        """Values (or the ``derivative``-th time derivative) at times ``t``: shape (T, N)."""
-        t = np.atleast_1d(np.asarray(t, float))
-        if len(self.times) < 2:
-            v = self.values[0] if derivative == 0 else np.zeros(self.values.shape[1])
-            return np.tile(v, (len(t), 1))
-        j, h, s, inside = self._segment(t)
-        if derivative == 0:
-            b = [2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2]
-        elif derivative == 1:
-            b = [(6 * s**2 - 6 * s) / h, 3 * s**2 - 4 * s + 1, (-6 * s**2 + 6 * s) / h,
-                 3 * s**2 - 2 * s]
-        elif derivative == 2:
-            b = [(12 * s - 6) / h**2, (6 * s - 4) / h, (-12 * s + 6) / h**2, (6 * s - 2) / h]
-        else:
-            raise ValueError("derivative must be 0, 1 or 2")
-        if derivative == 0:  # slopes enter as h m in the unit-interval Hermite basis
-            b[1] = b[1] * h
-            b[3] = b[3] * h
-        if derivative > 0:
-            b = [np.where(inside, x, 0.0) for x in b]
-        out = (b[0][:, None] * self.values[j] + b[1][:, None] * self.slopes[j]
-               + b[2][:, None] * self.values[j + 1] + b[3][:, None] * self.slopes[j + 1])
-        if derivative == 0:  # held poses outside the frames
-            out[t < self.times[0]] = self.values[0]
-            out[t > self.times[-1]] = self.values[-1]
-        return out
-
-    def taylor(self, t: np.ndarray) -> np.ndarray:
-        """Taylor coefficients (T, 4, N) of the cubic right of each time t: value, first
-        derivative, second / 2 and third / 6 (zero derivatives outside the frames)."""
-        t = np.atleast_1d(np.asarray(t, float))
-        N = self.values.shape[1]
-        out = np.zeros((len(t), 4, N))
-        out[:, 0] = self(t)
-        if len(self.times) < 2:
-            return out
-        j, h, _, _ = self._segment(t, side="right")
-        inside = (t >= self.times[0]) & (t < self.times[-1])
-        y0, y1 = self.values[j], self.values[j + 1]
-        m0, m1 = self.slopes[j], self.slopes[j + 1]
-        hh = h[:, None]
-        d = (y1 - y0) / hh
-        # cubic on the segment in local time x = t - T[j]: y0 + m0 x + c2 x^2 + c3 x^3
-        c2 = (3 * d - 2 * m0 - m1) / hh
-        c3 = (m0 + m1 - 2 * d) / hh**2
-        x = (t - self.times[j])[:, None]
-        out[:, 1] = np.where(inside[:, None], m0 + 2 * c2 * x + 3 * c3 * x**2, 0.0)
-        out[:, 2] = np.where(inside[:, None], c2 + 3 * c3 * x, 0.0)
-        out[:, 3] = np.where(inside[:, None], c3, 0.0)
-        return out
-
-
-def _spline_slopes(x: np.ndarray, y: np.ndarray, clamped_start: bool,
-                   clamped_end: bool) -> np.ndarray:
-    """Slopes (F, N) at the knots of the C^2 cubic spline through y (F, N), F >= 4: the
-    tridiagonal system of spline slopes with a zero slope (clamped) or not-a-knot condition
-    at each end, one banded solve for all columns (the system scipy's CubicSpline solves,
-    without its piecewise-polynomial coefficients)."""
-    n = len(x)
-    dx = np.diff(x)
-    slope = np.diff(y, axis=0) / dx[:, None]
-    A = np.zeros((3, n))
-    A[1, 1:-1] = 2 * (dx[:-1] + dx[1:])
-    A[0, 2:] = dx[:-1]
-    A[-1, :-2] = dx[1:]
-    b = np.empty_like(y)
-    b[1:-1] = 3 * (dx[1:, None] * slope[:-1] + dx[:-1, None] * slope[1:])
-    if clamped_start:
-        A[1, 0], A[0, 1], b[0] = 1.0, 0.0, 0.0
-    else:  # not-a-knot: the first two intervals are one cubic
-        d = x[2] - x[0]
-        A[1, 0], A[0, 1] = dx[1], d
-        b[0] = ((dx[0] + 2 * d) * dx[1] * slope[0] + dx[0] ** 2 * slope[1]) / d
-    if clamped_end:
-        A[1, -1], A[-1, -2], b[-1] = 1.0, 0.0, 0.0
-    else:
-        d = x[-1] - x[-3]
-        A[1, -1], A[-1, -2] = dx[-2], d
-        b[-1] = (dx[-1] ** 2 * slope[-2] + (2 * d + dx[-1]) * dx[-2] * slope[-1]) / d
-    return solve_banded((1, 1), A, b, overwrite_ab=True, overwrite_b=True,
-                        check_finite=False)
 
 
 def held_vertices(body: Body, driven: np.ndarray) -> np.ndarray:
@@ -258,48 +136,6 @@ def _hermite_of(a: np.ndarray, h: np.ndarray) -> np.ndarray:
     return np.stack([a[..., 0], a[..., 1], _poly(a, h, 0), _poly(a, h, 1)], axis=-1)
 
 
-class HeldWarp:
-    """Warped playback that holds the driven group on the driver: the Poisson fit of the
-    warped gradients of u = ubar + Psi q (Schulz et al. 2014, Theorem 2) with the tet
-    vertices that carry the driven group (``held``) prescribed to the driver's own
-    displacement d there (its extension into the tet mesh, not the warp of its unwarped
-    version), x = W_S(u) + Lift(d_S).  W_S is the warp with ``held`` fixed at zero and Lift
-    the harmonic extension (L_ff y_f = -L_fS d_S) of the held values.  So the driven group
-    follows the driver as closely as the linear solve does, also where the rig bends a joint
-    so sharply that W(ubar) is only near d (unwarping is a least-squares fit), and the free
-    parts' warp cannot shift it through the warp's translation gauge."""
-
-    def __init__(self, body: Body, held: np.ndarray) -> None:
-        tets = body.tets
-        self.body = body
-        self.held = np.zeros(tets.n_vertices, bool)
-        self.held[held] = True
-        self.warp = Warp(tets.vertices, tets.tets, fixed_vertices=self.held)
-        L = self.warp.laplacian
-        free = ~self.held
-        self._L_fS = L[free][:, self.held]
-        self._solve = factorize_spd(sp.csr_matrix(L[free][:, free]))
-
-    def _lift(self, D: np.ndarray) -> np.ndarray:
-        """Harmonic extension of held values D (f, n, 3) (only the held rows are read)."""
-        f = D.shape[0]
-        out = np.zeros_like(D)
-        out[:, self.held] = D[:, self.held]
-        rhs = -(self._L_fS @ D[:, self.held].transpose(1, 0, 2).reshape(int(self.held.sum()), -1))
-        out[:, ~self.held] = self._solve(rhs).reshape(-1, f, 3).transpose(1, 0, 2)
-        return out
-
-    def apply(self, U: np.ndarray, D: np.ndarray) -> np.ndarray:
-        """x (f, n, 3) for linear fields U and the driver's displacements D (f, n, 3; only
-        the held rows are read)."""
-        return self.warp.apply(U) + self._lift(D)
-
-    def jvp(self, U: np.ndarray, dU: np.ndarray, dD: np.ndarray) -> np.ndarray:
-        """The time derivative of :meth:`apply` along dU and the driver's velocities dD."""
-        own = np.stack([self.warp.jvp(u, du) for u, du in zip(U, dU, strict=True)])
-        return own + self._lift(dD)
-
-
 @dataclass(eq=False)
 class SecondaryMotion(Animation):
     """A solved secondary motion (module doc): u(t) = ubar(t) + Psi q(t), played linear or
@@ -348,11 +184,19 @@ class SecondaryMotion(Animation):
                      rig_only: bool = False) -> np.ndarray:
         """ubar(t) + Psi q(t) (or a time derivative; ubar alone with ``rig_only``) on the
         tet mesh: shape (F, n, 3)."""
-        t = np.atleast_1d(times)
-        U = self.rig(t, derivative)
-        if not rig_only:
-            U = U + self.modal(t, derivative)[derivative] @ self.psi.T
+        U = self._rig_field(times, derivative)
+        return U if rig_only else U + self._modal_field(times, derivative)
+
+    def _rig_field(self, times: ArrayLike, derivative: int = 0) -> np.ndarray:
+        """ubar(t) (or a time derivative) on the tet mesh, (F, n, 3)."""
+        U = self.rig(np.atleast_1d(times), derivative)
         return U.reshape(len(U), -1, 3)
+
+    def _modal_field(self, times: ArrayLike, derivative: int = 0) -> np.ndarray:
+        """Psi q(t) (or a time derivative) on the tet mesh, (F, n, 3)."""
+        t = np.atleast_1d(times)
+        U = self.modal(t, derivative)[derivative] @ self.psi.T
+        return U.reshape(len(t), -1, 3)
 
     @property
     def held_modes(self) -> tuple[np.ndarray, np.ndarray]:
@@ -388,9 +232,11 @@ class SecondaryMotion(Animation):
             if not self.warped:
                 W = self.linear_field(tt, derivative)
             elif derivative == 0:
-                W = self.held_warp.apply(self.linear_field(tt), self._driver(tt))
+                W = self.held_warp.apply(self._rig_field(tt), self._modal_field(tt),
+                                         self._driver(tt))
             else:
-                W = self.held_warp.jvp(self.linear_field(tt), self.linear_field(tt, 1),
+                W = self.held_warp.jvp(self._rig_field(tt), self._rig_field(tt, 1),
+                                       self._modal_field(tt), self._modal_field(tt, 1),
                                        self._driver(tt, 1))
             if on == "surface":
                 n = W.shape[1]
@@ -409,6 +255,61 @@ class SecondaryMotion(Animation):
         x = (x - _hermite_of(self.particular, h[:, None])).reshape(-1, 4)
         form = energy_form(self.basis, np.zeros(m * r))
         return float(form(x).sum())
+
+
+def _energy_system(Q: np.ndarray, lam: np.ndarray, delta: np.ndarray, h: np.ndarray,
+                   c: np.ndarray, blocks: int, coupling: tuple | None):
+    """H (sparse), b and ``forcing``: E(z) = 1/2 z^T H z - b^T z + const over the node values
+    and velocities z (module doc), and ``forcing(z)``, each interval's forcing coefficients
+    (m, r, 4).  Q (m, r, 4, 4) are the intervals' energy forms, c (m, r, 4) their forcing.
+    With ``coupling`` (G, N), the turning frame's matrices at the nodes (m + 1, r, r), interval
+    k's forcing adds ``G q' + N q`` interpolated linearly between its nodes: linear in z, so E
+    stays quadratic (and banded), its minimum without keys still the forced ODE's solution."""
+    m, r = c.shape[:2]
+    k0 = np.arange(m)
+    k1 = (k0 + 1) % blocks
+    xp = _hermite_of(_particular(lam, delta, c), h[:, None])  # (m, r, 4)
+    if coupling is None:
+        i = np.arange(r)
+        idx = np.stack([2 * k0[:, None] * r + i, (2 * k0[:, None] + 1) * r + i,
+                        2 * k1[:, None] * r + i, (2 * k1[:, None] + 1) * r + i], axis=-1)
+        rows = np.broadcast_to(idx[..., :, None], Q.shape).ravel()
+        cols = np.broadcast_to(idx[..., None, :], Q.shape).ravel()
+        b = np.zeros(2 * r * blocks)
+        np.add.at(b, idx.ravel(), np.einsum("mrij,mrj->mri", Q, xp).ravel())
+        return (sp.csr_matrix((Q.ravel(), (rows, cols)), shape=(len(b), len(b))), b,
+                lambda z: c)
+    G, Nq = coupling
+    # D: forcing coefficients 0 and 1 of interval k from its [q_k, q'_k, q_k+1, q'_k+1]
+    D = np.zeros((m, r, 2, 4 * r))
+    D[:, :, 0, :r], D[:, :, 0, r:2 * r] = Nq[:-1], G[:-1]
+    hh = h[:, None, None]
+    D[:, :, 1] = np.concatenate([-Nq[:-1], -G[:-1], Nq[1:], G[1:]], axis=2) / hh
+    # P: the Hermite data of the particular solution per unit coefficient 0 and 1
+    P = np.stack([_hermite_of(_particular(lam, delta, np.broadcast_to(unit, (m, r, 4))),
+                              h[:, None]) for unit in np.eye(4)[:2]], axis=-1)  # (m, r, 4, 2)
+    A = -np.einsum("kiaj,kijx->kiax", P, D)  # (m, r, 4, 4r): Hermite data minus particular
+    i, a = np.arange(r)[:, None], np.arange(4)[None, :]
+    A[:, i, a, a * r + i] += 1.0
+    QA = np.einsum("kiab,kibx->kiax", Q, A).reshape(m, 4 * r, 4 * r)
+    A = A.reshape(m, 4 * r, 4 * r)
+    Hk = A.transpose(0, 2, 1) @ QA
+    bk = np.einsum("kyx,ky->kx", QA, xp.reshape(m, 4 * r))
+    glob = np.concatenate([2 * k0[:, None] * r + np.arange(2 * r),
+                           2 * k1[:, None] * r + np.arange(2 * r)], axis=1)  # (m, 4r)
+    n = 2 * r * blocks
+    b = np.zeros(n)
+    np.add.at(b, glob.ravel(), bk.ravel())
+    H = sp.csr_matrix((Hk.ravel(), (np.broadcast_to(glob[:, :, None], Hk.shape).ravel(),
+                                    np.broadcast_to(glob[:, None, :], Hk.shape).ravel())),
+                      shape=(n, n))
+
+    def forcing(z: np.ndarray) -> np.ndarray:
+        out = c.copy()
+        out[:, :, :2] += np.einsum("kijx,kx->kij", D, z[glob])
+        return out
+
+    return H, b, forcing
 
 
 def _rows(body: Body, psi: np.ndarray, vertices: np.ndarray, on: Where) -> np.ndarray:
@@ -540,7 +441,7 @@ def secondary_motion(
     psi, lam = free_modes(body, v, free_mode_count)
     modes_seconds = _time.perf_counter() - t1
     warn_spin(driver.source, driven_path, times, lam)
-    if warped:
+    if not warped:
         warn_turn(driver.source, surface.vertices[v], driven_path, times)
     held_warp = HeldWarp(body, held_vertices(body, v)) if warped else None
     r = psi.shape[1]
@@ -553,29 +454,39 @@ def secondary_motion(
     h = np.diff(nodes)
     g = psi.T @ body.gravity_vector  # gravity's g_i = psi_i^T g (the sag: -g / lambda)
     c = _forcing(nodes, linear_rig, C, g, alpha, intensity)  # (m, r, 4): g + p(t)
-    a = _particular(lam, delta, c)  # (m, r, 4)
-    xp = _hermite_of(a, h[:, None])  # (m, r, 4)
+    g0 = g
+    if warped:  # the forces turned into the rig's frame (wiggly.drive.carried)
+        t1 = _time.perf_counter()
+        R = vertex_rotations(held_warp.warp, body.tets.tets, rig.values.T)
+        gravity = np.asarray(body.gravity, float)
+        turned = turned_forces(C, R, intensity * (linear_rig(times, 2) + alpha * linear_rig(
+            times, 1)), gravity)
+        c += FrameSpline.fit(times, turned, **bc).taylor(nodes[:-1]).transpose(0, 2, 1)
+        g0 = g + turned_forces(C, R[:1], np.zeros((1, C.shape[1])), gravity)[0]
+        rig_seconds += _time.perf_counter() - t1
     basis = wiggly_basis(np.tile(lam, m), np.tile(delta, m), np.repeat(h, r))
     Q = energy_form(basis, np.zeros(m * r)).Q.reshape(m, r, 4, 4)
     # unknowns: node k (node m is node 0 in a loop): values at 2 k r + i, velocities at
     # (2 k + 1) r + i
     blocks = m if loop else m + 1
     N = 2 * r * blocks
-    k0 = np.arange(m)
-    k1 = (k0 + 1) % blocks
-    i = np.arange(r)
-    idx = np.stack([2 * k0[:, None] * r + i, (2 * k0[:, None] + 1) * r + i,
-                    2 * k1[:, None] * r + i, (2 * k1[:, None] + 1) * r + i], axis=-1)
-    rows = np.broadcast_to(idx[..., :, None], Q.shape).ravel()
-    cols = np.broadcast_to(idx[..., None, :], Q.shape).ravel()
-    H0 = sp.csr_matrix((Q.ravel(), (rows, cols)), shape=(N, N))
-    b0 = np.zeros(N)
-    np.add.at(b0, idx.ravel(), np.einsum("mrij,mrj->mri", Q, xp).ravel())
+    coupling = None
+    if warped and intensity > 0:  # the turning frame's forces on Psi q (wiggly.drive.carried)
+        loose = ~held_warp.held
+
+        def rig_at(d: int) -> np.ndarray:
+            return linear_rig(nodes, d).reshape(len(nodes), -1, 3)[:, loose]
+
+        omega, domega = frame_rates(body.tets.vertices[loose], mass[loose], rig_at(0),
+                                    rig_at(1), rig_at(2))
+        G, Nq = frame_forces(*frame_couplings(C, psi), omega, domega, alpha)
+        coupling = (intensity * G, intensity * Nq)
+    H0, b0, forcing = _energy_system(Q, lam, delta, h, c, blocks, coupling)
     fixed = np.zeros(N, bool)
     z = np.zeros(N)
     if not loop:  # at rest relative to the driver, sagging under gravity
         fixed[:2 * r] = True
-        z[:r], z[r:2 * r] = -g / lam, 0.0
+        z[:r], z[r:2 * r] = -g0 / lam, 0.0
     # the user's keys on the free parts
     keys = []
     for kf in own:
@@ -606,10 +517,12 @@ def secondary_motion(
             ubar = rig(t)[0].reshape(n, 3)
             qk = z[2 * k * r:(2 * k + 1) * r]
             if warped:  # linearize the held warp at the current state of the node
-                u = ubar + (psi @ qk).reshape(n, 3)
-                Wu = held_warp.apply(u[None], linear_rig(t).reshape(1, n, 3))[0]
-                dW = held_warp.warp.jvp(np.repeat(u[None], r, axis=0),
-                                        np.ascontiguousarray(psi.T.reshape(r, n, 3)))
+                u = (psi @ qk).reshape(n, 3)
+                Wu = held_warp.apply(ubar[None], u[None], linear_rig(t).reshape(1, n, 3))[0]
+                ubars = np.repeat(ubar[None], r, axis=0)
+                dW = held_warp.warp.carried_jvp(ubars, np.zeros_like(ubars),
+                                                np.repeat(u[None], r, axis=0),
+                                                np.ascontiguousarray(psi.T.reshape(r, n, 3)))
                 J = np.stack([_field_rows(body, dW[j], kf.vertices, kf.on).ravel()
                               for j in range(r)], 1)
                 base = _field_rows(body, Wu, kf.vertices, kf.on).ravel() - J @ qk
@@ -624,8 +537,8 @@ def secondary_motion(
             if kf.velocity is not None and c_B > 0:
                 vel = rig(t, 1)[0]
                 if warped:
-                    du = held_warp.jvp(u[None], vel.reshape(1, n, 3),
-                                       linear_rig(t, 1).reshape(1, n, 3))[0]
+                    du = held_warp.jvp(ubar[None], vel.reshape(1, n, 3), u[None],
+                                       np.zeros((1, n, 3)), linear_rig(t, 1).reshape(1, n, 3))[0]
                     vbase = _field_rows(body, du, kf.vertices, kf.on).ravel()
                 else:
                     vbase = _field_rows(body, vel.reshape(n, 3), kf.vertices, kf.on).ravel()
@@ -654,6 +567,7 @@ def secondary_motion(
         _time.perf_counter() - t1
     if warped and keys:
         info.update(iterations=iterations, converged=converged)
+    a = _particular(lam, delta, forcing(z))  # (m, r, 4)
     values = z.reshape(blocks, 2, r)[:, 0]
     velocities = z.reshape(blocks, 2, r)[:, 1]
     if loop:

@@ -50,6 +50,8 @@ pjit = njit(cache=True, fastmath={"contract"}, nogil=True, parallel=True)
 
 __all__ = [
     "AVAILABLE",
+    "carried_jvp_rhs",
+    "carried_target_rhs",
     "chunks",
     "field_gradients",
     "inverted",
@@ -338,6 +340,77 @@ def vjp_rhs(U, Z, index, tets, grads, vol, out, chunks):
                     scatter(dA, 1.0, tets, grads, t, o)
 
 
+
+@jit
+def compose(Hr, Hf, H):
+    """``H = (I + Hr)(I + Hf) - I = Hr + Hf + Hr Hf``."""
+    for i in range(3):
+        for j in range(3):
+            H[3 * i + j] = (Hr[3 * i + j] + Hf[3 * i + j] + Hr[3 * i] * Hf[j]
+                            + Hr[3 * i + 1] * Hf[3 + j] + Hr[3 * i + 2] * Hf[6 + j])
+
+
+@pjit
+def carried_target_rhs(Ur, Uf, tets, grads, vol, out, chunks):
+    """``out[s] += G^T Vol ((I + H(G Ur[s]))(I + H(G Uf[s])) - I)``: the warped gradients of
+    the fields ``Uf`` carried by the warped gradients of the fields ``Ur``."""
+    f, m = Uf.shape[0], tets.shape[0]
+    for c in prange(chunks):
+        s0, s1 = _frames(c, chunks, f)
+        A = np.empty(9)
+        S = np.empty(9)
+        Rm = np.empty(9)
+        Hr = np.empty(9)
+        Hf = np.empty(9)
+        H = np.empty(9)
+        for b0 in range(0, m, _TET_BLOCK):
+            b1 = min(m, b0 + _TET_BLOCK)
+            for s in range(s0, s1):
+                ur, uf, o = Ur[s], Uf[s], out[s]
+                for t in range(b0, b1):
+                    gradient(ur, tets, grads, t, A)
+                    target(A, S, Rm, Hr)
+                    gradient(uf, tets, grads, t, A)
+                    target(A, S, Rm, Hf)
+                    compose(Hr, Hf, H)
+                    scatter(H, vol[t], tets, grads, t, o)
+
+
+@pjit
+def carried_jvp_rhs(Ur, dUr, Uf, dUf, tets, grads, vol, out, chunks):
+    """``out[s] += G^T Vol (dHr (I + Hf) + (I + Hr) dHf)``: the tangent of
+    :func:`carried_target_rhs` along ``dUr[s]`` and ``dUf[s]``."""
+    f, m = Uf.shape[0], tets.shape[0]
+    for c in prange(chunks):
+        s0, s1 = _frames(c, chunks, f)
+        A = np.empty(9)
+        dA = np.empty(9)
+        S = np.empty(9)
+        dHr = np.empty(9)
+        dHf = np.empty(9)
+        dH = np.empty(9)
+        lr = np.empty(LIN)
+        lf = np.empty(LIN)
+        for b0 in range(0, m, _TET_BLOCK):
+            b1 = min(m, b0 + _TET_BLOCK)
+            for s in range(s0, s1):
+                o = out[s]
+                for t in range(b0, b1):
+                    gradient(Ur[s], tets, grads, t, A)
+                    linearize(A, S, lr)
+                    gradient(dUr[s], tets, grads, t, dA)
+                    tangent(lr, dA, S, dHr)
+                    gradient(Uf[s], tets, grads, t, A)
+                    linearize(A, S, lf)
+                    gradient(dUf[s], tets, grads, t, dA)
+                    tangent(lf, dA, S, dHf)
+                    for i in range(3):  # F = I + H is lin[14:23]
+                        for j in range(3):
+                            dH[3 * i + j] = (
+                                dHr[3 * i] * lf[14 + j] + dHr[3 * i + 1] * lf[17 + j]
+                                + dHr[3 * i + 2] * lf[20 + j] + lr[14 + 3 * i] * dHf[j]
+                                + lr[15 + 3 * i] * dHf[3 + j] + lr[16 + 3 * i] * dHf[6 + j])
+                    scatter(dH, vol[t], tets, grads, t, o)
 
 
 @pjit

@@ -12,6 +12,9 @@ fields from :meth:`field_gradients`):
     right-hand sides ``G^T Vol H(G U[s])`` of the warp's Poisson fit, (f, n, 3);
 ``tangent(U, dU)``
     ``G^T Vol dH(G U[s]; G dU[s])``, (f, n, 3);
+``carried_target(Ur, Uf)`` / ``carried_tangent(Ur, dUr, Uf, dUf)``
+    ``G^T Vol ((I + H(G Ur[s]))(I + H(G Uf[s])) - I)`` (the warped gradients of ``Uf``
+    carried by those of ``Ur``) and its tangent along ``dUr``, ``dUf``, (f, n, 3);
 ``cotangent(U, Z, index, out)``
     ``out[s] += G^T dA_s`` with ``dA_s`` the cotangent of ``Vol G Z[:, index[s]]``;
 ``jacobians(U, GB)`` / ``second_derivatives(U, V, GB, step)``
@@ -60,6 +63,19 @@ class NumbaKernels:
     def tangent(self, U: np.ndarray, dU: np.ndarray) -> np.ndarray:
         out = np.zeros_like(U)
         compiled.jvp_rhs(U, dU, self.tets, self.grads, self.vol, out, compiled.chunks(len(U)))
+        return out
+
+    def carried_target(self, Ur: np.ndarray, Uf: np.ndarray) -> np.ndarray:
+        out = np.zeros_like(Uf)
+        compiled.carried_target_rhs(Ur, Uf, self.tets, self.grads, self.vol, out,
+                                    compiled.chunks(len(Uf)))
+        return out
+
+    def carried_tangent(self, Ur: np.ndarray, dUr: np.ndarray, Uf: np.ndarray,
+                        dUf: np.ndarray) -> np.ndarray:
+        out = np.zeros_like(Uf)
+        compiled.carried_jvp_rhs(Ur, dUr, Uf, dUf, self.tets, self.grads, self.vol, out,
+                                 compiled.chunks(len(Uf)))
         return out
 
     def cotangent(self, U: np.ndarray, Z: np.ndarray, index: np.ndarray, out: np.ndarray) -> None:
@@ -159,6 +175,8 @@ def compile_all() -> None:
     compiled.target_rhs(U, tets, grads, vol, out, 1)
     compiled.jvp_rhs(U, U, tets, grads, vol, out, 1)
     compiled.vjp_rhs(U, U.transpose(1, 0, 2).copy(), np.arange(2), tets, grads, vol, out, 1)
+    compiled.carried_target_rhs(U, U, tets, grads, vol, out, 1)
+    compiled.carried_jvp_rhs(U, U, U, U, tets, grads, vol, out, 1)
     GB = compiled.field_gradients(U, tets, grads)
     compiled.inverted(U, tets, grads, np.empty((2, 1), dtype=np.bool_))
     compiled.jacobians_rhs(U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))
@@ -171,6 +189,7 @@ def compile_all() -> None:
 
 def _entry_points() -> list:
     return [compiled.target_rhs, compiled.jvp_rhs, compiled.vjp_rhs, compiled.field_gradients,
+            compiled.carried_target_rhs, compiled.carried_jvp_rhs,
             compiled.inverted, compiled.jacobians_rhs, compiled_second.second_derivatives_rhs,
             compiled_second.curvature_products]
 

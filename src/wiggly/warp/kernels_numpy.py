@@ -95,6 +95,33 @@ class NumpyKernels:
             out[sl] = self._scatter(H)
         return out
 
+    def carried_target(self, Ur: np.ndarray, Uf: np.ndarray) -> np.ndarray:
+        """``G^T Vol ((I + Hr)(I + Hf) - I)``, ``Hr = H(G Ur[s])``, ``Hf = H(G Uf[s])``."""
+        out = np.empty_like(Uf)
+        for sl in self._chunks(len(Uf)):
+            Ar, Af = self._grad(Ur[sl]), self._grad(Uf[sl])
+            Hr, Hf = np.empty_like(Ar), np.empty_like(Af)
+            target_block(Hr, Ar)
+            target_block(Hf, Af)
+            out[sl] = self._scatter(Hr + Hf + np.einsum("ik...,kj...->ij...", Hr, Hf))
+        return out
+
+    def carried_tangent(self, Ur: np.ndarray, dUr: np.ndarray, Uf: np.ndarray,
+                        dUf: np.ndarray) -> np.ndarray:
+        """``G^T Vol (dHr (I + Hf) + (I + Hr) dHf)``: the tangent of :meth:`carried_target`."""
+        out = np.empty_like(Uf)
+        for sl in self._chunks(len(Uf)):
+            lr, lf = linearization(self._grad(Ur[sl])), linearization(self._grad(Uf[sl]))
+            dAr, dAf = self._grad(dUr[sl]), self._grad(dUf[sl])
+            dHr, dHf = np.empty_like(dAr), np.empty_like(dAf)
+            tangent_block(dHr, lr, dAr)
+            tangent_block(dHf, lf, dAf)
+            Fr = np.array(lr[14:23]).reshape(dAr.shape)  # I + H
+            Ff = np.array(lf[14:23]).reshape(dAf.shape)
+            out[sl] = self._scatter(np.einsum("ik...,kj...->ij...", dHr, Ff)
+                                    + np.einsum("ik...,kj...->ij...", Fr, dHf))
+        return out
+
     def cotangent(self, U: np.ndarray, Z: np.ndarray, index: np.ndarray, out: np.ndarray) -> None:
         """``out[s] += G^T dA`` with ``dA`` the cotangent of ``Vol G Z[:, index[s]]`` at
         ``G U[s]`` (``Z`` (n, k, 3): Poisson-adjoint columns)."""
