@@ -554,3 +554,10 @@ def test_carried_warp_jvp_matches_central_differences(mesh, kernels):
                  kernels="numpy" if kernels == "numba" else "numba")
     assert rel(w.carried(ubar, u), other.carried(ubar, u)) < 1e-13
     assert rel(w.carried_jvp(ubar, dubar, u, du), other.carried_jvp(ubar, dubar, u, du)) < 1e-12
+    # relative: U's part alone, carried(Ubar, U) - apply(Ubar), and its tangent
+    part = w.carried(ubar, u, relative=True)
+    assert rel(part, w.carried(ubar, u) - w.apply(ubar)) < 1e-12
+    assert rel(part, other.carried(ubar, u, relative=True)) < 1e-13
+    fd = (w.carried(ubar + h * dubar, u + h * du, relative=True)
+          - w.carried(ubar - h * dubar, u - h * du, relative=True)) / (2 * h)
+    assert rel(w.carried_jvp(ubar, dubar, u, du, relative=True), fd) < 1e-7

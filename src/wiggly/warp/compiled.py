@@ -351,9 +351,10 @@ def compose(Hr, Hf, H):
 
 
 @pjit
-def carried_target_rhs(Ur, Uf, tets, grads, vol, out, chunks):
+def carried_target_rhs(Ur, Uf, tets, grads, vol, out, chunks, relative):
     """``out[s] += G^T Vol ((I + H(G Ur[s]))(I + H(G Uf[s])) - I)``: the warped gradients of
-    the fields ``Uf`` carried by the warped gradients of the fields ``Ur``."""
+    the fields ``Uf`` carried by the warped gradients of the fields ``Ur``; ``relative``: less
+    ``Ur``'s own, ``G^T Vol (I + H(G Ur[s])) H(G Uf[s])``."""
     f, m = Uf.shape[0], tets.shape[0]
     for c in prange(chunks):
         s0, s1 = _frames(c, chunks, f)
@@ -373,13 +374,16 @@ def carried_target_rhs(Ur, Uf, tets, grads, vol, out, chunks):
                     gradient(uf, tets, grads, t, A)
                     target(A, S, Rm, Hf)
                     compose(Hr, Hf, H)
+                    if relative:
+                        for x in range(9):
+                            H[x] -= Hr[x]
                     scatter(H, vol[t], tets, grads, t, o)
 
 
 @pjit
-def carried_jvp_rhs(Ur, dUr, Uf, dUf, tets, grads, vol, out, chunks):
-    """``out[s] += G^T Vol (dHr (I + Hf) + (I + Hr) dHf)``: the tangent of
-    :func:`carried_target_rhs` along ``dUr[s]`` and ``dUf[s]``."""
+def carried_jvp_rhs(Ur, dUr, Uf, dUf, tets, grads, vol, out, chunks, relative):
+    """``out[s] += G^T Vol (dHr (I + Hf) + (I + Hr) dHf)`` (``relative``: less ``dHr``): the
+    tangent of :func:`carried_target_rhs` along ``dUr[s]`` and ``dUf[s]``."""
     f, m = Uf.shape[0], tets.shape[0]
     for c in prange(chunks):
         s0, s1 = _frames(c, chunks, f)
@@ -410,6 +414,9 @@ def carried_jvp_rhs(Ur, dUr, Uf, dUf, tets, grads, vol, out, chunks):
                                 dHr[3 * i] * lf[14 + j] + dHr[3 * i + 1] * lf[17 + j]
                                 + dHr[3 * i + 2] * lf[20 + j] + lr[14 + 3 * i] * dHf[j]
                                 + lr[15 + 3 * i] * dHf[3 + j] + lr[16 + 3 * i] * dHf[6 + j])
+                    if relative:
+                        for x in range(9):
+                            dH[x] -= dHr[x]
                     scatter(dH, vol[t], tets, grads, t, o)
 
 

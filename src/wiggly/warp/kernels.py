@@ -12,9 +12,10 @@ fields from :meth:`field_gradients`):
     right-hand sides ``G^T Vol H(G U[s])`` of the warp's Poisson fit, (f, n, 3);
 ``tangent(U, dU)``
     ``G^T Vol dH(G U[s]; G dU[s])``, (f, n, 3);
-``carried_target(Ur, Uf)`` / ``carried_tangent(Ur, dUr, Uf, dUf)``
+``carried_target(Ur, Uf, relative)`` / ``carried_tangent(Ur, dUr, Uf, dUf, relative)``
     ``G^T Vol ((I + H(G Ur[s]))(I + H(G Uf[s])) - I)`` (the warped gradients of ``Uf``
-    carried by those of ``Ur``) and its tangent along ``dUr``, ``dUf``, (f, n, 3);
+    carried by those of ``Ur``; ``relative``: less ``H(G Ur[s])``) and its tangent along
+    ``dUr``, ``dUf``, (f, n, 3);
 ``cotangent(U, Z, index, out)``
     ``out[s] += G^T dA_s`` with ``dA_s`` the cotangent of ``Vol G Z[:, index[s]]``;
 ``jacobians(U, GB)`` / ``second_derivatives(U, V, GB, step)``
@@ -65,17 +66,17 @@ class NumbaKernels:
         compiled.jvp_rhs(U, dU, self.tets, self.grads, self.vol, out, compiled.chunks(len(U)))
         return out
 
-    def carried_target(self, Ur: np.ndarray, Uf: np.ndarray) -> np.ndarray:
+    def carried_target(self, Ur: np.ndarray, Uf: np.ndarray, relative: bool) -> np.ndarray:
         out = np.zeros_like(Uf)
         compiled.carried_target_rhs(Ur, Uf, self.tets, self.grads, self.vol, out,
-                                    compiled.chunks(len(Uf)))
+                                    compiled.chunks(len(Uf)), relative)
         return out
 
     def carried_tangent(self, Ur: np.ndarray, dUr: np.ndarray, Uf: np.ndarray,
-                        dUf: np.ndarray) -> np.ndarray:
+                        dUf: np.ndarray, relative: bool) -> np.ndarray:
         out = np.zeros_like(Uf)
         compiled.carried_jvp_rhs(Ur, dUr, Uf, dUf, self.tets, self.grads, self.vol, out,
-                                 compiled.chunks(len(Uf)))
+                                 compiled.chunks(len(Uf)), relative)
         return out
 
     def cotangent(self, U: np.ndarray, Z: np.ndarray, index: np.ndarray, out: np.ndarray) -> None:
@@ -175,8 +176,8 @@ def compile_all() -> None:
     compiled.target_rhs(U, tets, grads, vol, out, 1)
     compiled.jvp_rhs(U, U, tets, grads, vol, out, 1)
     compiled.vjp_rhs(U, U.transpose(1, 0, 2).copy(), np.arange(2), tets, grads, vol, out, 1)
-    compiled.carried_target_rhs(U, U, tets, grads, vol, out, 1)
-    compiled.carried_jvp_rhs(U, U, U, U, tets, grads, vol, out, 1)
+    compiled.carried_target_rhs(U, U, tets, grads, vol, out, 1, True)
+    compiled.carried_jvp_rhs(U, U, U, U, tets, grads, vol, out, 1, True)
     GB = compiled.field_gradients(U, tets, grads)
     compiled.inverted(U, tets, grads, np.empty((2, 1), dtype=np.bool_))
     compiled.jacobians_rhs(U, GB, tets, grads, vol, np.zeros((2, 2, 4, 3)))

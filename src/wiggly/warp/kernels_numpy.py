@@ -95,20 +95,23 @@ class NumpyKernels:
             out[sl] = self._scatter(H)
         return out
 
-    def carried_target(self, Ur: np.ndarray, Uf: np.ndarray) -> np.ndarray:
-        """``G^T Vol ((I + Hr)(I + Hf) - I)``, ``Hr = H(G Ur[s])``, ``Hf = H(G Uf[s])``."""
+    def carried_target(self, Ur: np.ndarray, Uf: np.ndarray, relative: bool) -> np.ndarray:
+        """``G^T Vol ((I + Hr)(I + Hf) - I)``, ``Hr = H(G Ur[s])``, ``Hf = H(G Uf[s])``
+        (``relative``: less ``Hr``)."""
         out = np.empty_like(Uf)
         for sl in self._chunks(len(Uf)):
             Ar, Af = self._grad(Ur[sl]), self._grad(Uf[sl])
             Hr, Hf = np.empty_like(Ar), np.empty_like(Af)
             target_block(Hr, Ar)
             target_block(Hf, Af)
-            out[sl] = self._scatter(Hr + Hf + np.einsum("ik...,kj...->ij...", Hr, Hf))
+            H = Hf + np.einsum("ik...,kj...->ij...", Hr, Hf)
+            out[sl] = self._scatter(H if relative else H + Hr)
         return out
 
     def carried_tangent(self, Ur: np.ndarray, dUr: np.ndarray, Uf: np.ndarray,
-                        dUf: np.ndarray) -> np.ndarray:
-        """``G^T Vol (dHr (I + Hf) + (I + Hr) dHf)``: the tangent of :meth:`carried_target`."""
+                        dUf: np.ndarray, relative: bool) -> np.ndarray:
+        """``G^T Vol (dHr (I + Hf) + (I + Hr) dHf)`` (``relative``: less ``dHr``): the tangent
+        of :meth:`carried_target`."""
         out = np.empty_like(Uf)
         for sl in self._chunks(len(Uf)):
             lr, lf = linearization(self._grad(Ur[sl])), linearization(self._grad(Uf[sl]))
@@ -118,8 +121,9 @@ class NumpyKernels:
             tangent_block(dHf, lf, dAf)
             Fr = np.array(lr[14:23]).reshape(dAr.shape)  # I + H
             Ff = np.array(lf[14:23]).reshape(dAf.shape)
-            out[sl] = self._scatter(np.einsum("ik...,kj...->ij...", dHr, Ff)
-                                    + np.einsum("ik...,kj...->ij...", Fr, dHf))
+            dH = (np.einsum("ik...,kj...->ij...", dHr, Ff)
+                  + np.einsum("ik...,kj...->ij...", Fr, dHf))
+            out[sl] = self._scatter(dH - dHr if relative else dH)
         return out
 
     def cotangent(self, U: np.ndarray, Z: np.ndarray, index: np.ndarray, out: np.ndarray) -> None:

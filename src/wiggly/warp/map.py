@@ -199,25 +199,27 @@ class Warp:
         out = self._poisson(self.kernels.tangent(Uf, dUf), [dUf])
         return out if batched else out[0]
 
-    def carried(self, Ubar: np.ndarray, U: np.ndarray) -> np.ndarray:
+    def carried(self, Ubar: np.ndarray, U: np.ndarray, *, relative: bool = False) -> np.ndarray:
         """The warp of displacements U carried by the warp of ``Ubar``: the Poisson fit of the
         per-tet gradients ``F(Ubar) F(U) - I``, ``F(u) = exp([w]x)(I + S)`` as in :meth:`apply`.
 
         So U acts in the frame that ``Ubar`` turns each tet to: its rotations compose with
         Ubar's instead of adding to them (:meth:`apply` of ``Ubar + U`` adds the rotation
         vectors, which scales U's rotations across a turn by a of Ubar by sin(a) / a).
-        ``carried(Ubar, 0) = apply(Ubar)`` and ``carried(0, U) = apply(U)``.  Shapes as
-        :meth:`apply`; the gauge takes the means of ``Ubar + U``."""
+        ``carried(Ubar, 0) = apply(Ubar)`` and ``carried(0, U) = apply(U)``.  ``relative``:
+        ``carried(Ubar, U) - apply(Ubar)``, U's part alone (one fit of ``F(Ubar) H(U)``).
+        Shapes as :meth:`apply`; the gauge takes the means of ``Ubar + U`` (``U``)."""
         Ur, batched = self._frames(Ubar, "Ubar")
         Uf, fbatched = self._frames(U, "U")
         if Uf.shape != Ur.shape or fbatched != batched:
             raise WigglyInputError(
                 f"U should have the shape of Ubar {np.shape(Ubar)}; shape is {np.shape(U)}")
-        out = self._poisson(self.kernels.carried_target(Ur, Uf), [Ur + Uf])
+        out = self._poisson(self.kernels.carried_target(Ur, Uf, relative),
+                            [Uf if relative else Ur + Uf])
         return out if batched else out[0]
 
     def carried_jvp(self, Ubar: np.ndarray, dUbar: np.ndarray, U: np.ndarray,
-                    dU: np.ndarray) -> np.ndarray:
+                    dU: np.ndarray, *, relative: bool = False) -> np.ndarray:
         """Directional derivative of :meth:`carried` along ``dUbar`` and ``dU`` (analytic)."""
         fields = [self._frames(x, name) for x, name in
                   ((Ubar, "Ubar"), (dUbar, "dUbar"), (U, "U"), (dU, "dU"))]
@@ -226,7 +228,8 @@ class Warp:
                 "Ubar, dUbar, U and dU should have one shape, (n, 3) or (f, n, 3); shapes are "
                 f"{[np.shape(x) for x in (Ubar, dUbar, U, dU)]}")
         (Ur, batched), (dUr, _), (Uf, _), (dUf, _) = fields
-        out = self._poisson(self.kernels.carried_tangent(Ur, dUr, Uf, dUf), [dUr + dUf])
+        out = self._poisson(self.kernels.carried_tangent(Ur, dUr, Uf, dUf, relative),
+                            [dUf if relative else dUr + dUf])
         return out if batched else out[0]
 
     def apply_and_jvp(
