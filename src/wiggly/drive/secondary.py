@@ -29,8 +29,9 @@ and C^2 where no velocity is prescribed.  Nodes fall at the driver's frames and 
 keyframe times; the unknowns are node values and velocities of every free mode.
 
 Warped playback carries the free parts in the rig's frame (:mod:`wiggly.drive.carried`):
-per tet the rig's warped gradient times the free parts' own, W(ubar, Psi q), so that their
-bending and sag turn with the body by any angle, and the driver's inertial forces and
+the driver's own pose of the tet mesh plus the fit of the rig's warped gradient times the
+free parts' own, less the rig's (W(ubar, Psi q) - W(ubar)), so that the free parts rest on
+the rig's pose of them and their bending and sag turn with the body by any angle, and the driver's inertial forces and
 gravity above act turned into that frame, rotation by rotation at each vertex (what that
 adds to g + p is a cubic spline through the driver's frames).
 
