@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -1008,3 +1009,110 @@ def test_a_turn_follows_a_full_space_simulation_in_the_turning_frame(tmp_path):
 
     assert rms(ref - half) < 0.01 * rms(half)  # the reference's own step error
     assert rms(ours[:, free] - half) < 0.10 * rms(half), rms(ours[:, free] - half) / rms(half)
+
+
+def _bar_of(tmp_path, name, shape, size, young, gravity=(0.0, -9.81, 0.0)):
+    """A box bar written as a tet mesh (no fTetWild) and prepared."""
+    import meshio
+
+    V, Tt = box_mesh(shape, size)
+    path = tmp_path / f"{name}.vtu"
+    meshio.write(path, meshio.Mesh(V, [("tetra", Tt)]))
+    return wiggly.prepare(str(path), n_modes=12, material=Material(young, 0.4, 1000.0),
+                          damping=Damping(alpha=0.4, beta=0.002), gravity=gravity,
+                          cache_dir=False)
+
+
+def test_a_still_tail_stays_still_while_the_head_shakes(tmp_path):
+    """A bar whose middle is driven: its right end (a head with an antenna) shakes "no" by 60
+    degrees at 2 Hz, its left end (a tail) does not move.  Each free part gets its own turning
+    frame: the tail, under gravity, hangs still (under 1 % of the antenna's swing; one turn
+    rate fitted over both parts gave it the head's Coriolis forces, 0.35-0.83 mm), and the
+    antenna swings as it does with the tail held."""
+    from scipy.spatial.transform import Rotation
+
+    body = _bar_of(tmp_path, "twolimb", (20, 2, 2), (1.0, 0.05, 0.05), 3e5)
+    S = body.surface.vertices
+    x = S[:, 0]
+    tail_tip, antenna_tip = np.flatnonzero(x < 0.01), np.flatnonzero(x > 0.99)
+    pivot = np.array([0.65, 0.025, 0.025])
+    times = np.arange(61) / 30.0
+    head = np.clip((x - 0.5) / 0.1, 0.0, 1.0)[:, None]
+
+    def angle(t):
+        return 60.0 * np.sin(4 * np.pi * t) * min(t / 0.3, 1.0)
+
+    poses = np.array([(1 - head) * S + head * (Rotation.from_euler(
+        "y", angle(t), degrees=True).apply(S - pivot) + pivot) for t in times])
+    driver = Driver(times, poses, body.surface.faces, np.zeros((0, 2)), "shake.npz", "test")
+    tt = np.linspace(0.0, 2.0, 121)
+
+    def run(driven):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return secondary_motion(body, driver, driven, start=0.0, end=2.0).positions(tt)
+
+    both = run(np.flatnonzero((x >= 0.25) & (x <= 0.75)))
+    alone = run(np.flatnonzero(x <= 0.75))  # the antenna the only free part
+    tail = both[:, tail_tip].mean(axis=1)
+    turned = [Rotation.from_euler("y", angle(t), degrees=True).inv() for t in tt]
+    a = np.array([R.apply(p[antenna_tip].mean(0) - pivot) for R, p in zip(turned, both,
+                                                                          strict=True)])
+    b = np.array([R.apply(p[antenna_tip].mean(0) - pivot) for R, p in zip(turned, alone,
+                                                                          strict=True)])
+    swing = np.linalg.norm(a - a[0], axis=1).max()
+    assert swing > 0.01  # the antenna swings by centimetres
+    assert np.linalg.norm(tail - tail[0], axis=1).max() < 0.01 * swing
+    assert np.linalg.norm(a - b, axis=1).max() < 0.01 * swing
+
+
+def test_a_loop_that_turns_a_whole_turn_is_smooth_at_its_seam(tmp_path):
+    """A looped cartwheel (a whole turn about z per 2 s cycle) of a bar held at one end,
+    under gravity: the free end's offset from the rig, in the body's frame, changes smoothly
+    through the last driver interval into the start (the periodic fit of the unwarped rig
+    unwound the whole turn there: the sag swept a full circle within 1/30 s)."""
+    from scipy.spatial.transform import Rotation
+
+    body = _bar_of(tmp_path, "wheel", (10, 2, 2), (0.5, 0.05, 0.05), 1e6)
+    S = body.surface.vertices
+    driven = np.flatnonzero(S[:, 0] < 0.1)
+    tip = np.flatnonzero(S[:, 0] > 0.49)
+    pivot = S[driven].mean(axis=0)
+    times = np.arange(61) / 30.0
+    turns = [Rotation.from_euler("z", 360.0 * t / 2.0, degrees=True) for t in times]
+    poses = np.array([R.apply(S - pivot) + pivot for R in turns])
+    driver = Driver(times, poses, body.surface.faces, np.zeros((0, 2)), "wheel.npz", "test")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        anim = secondary_motion(body, driver, driven, start=0.0, end=2.0, loop=True)
+    tt = np.r_[np.linspace(2.0 - 2 / 30, 2.0, 9), np.linspace(0.0, 2 / 30, 9)[1:]]
+    P = anim.positions(tt)
+    off = np.array([Rotation.from_euler("z", 180.0 * t, degrees=True).inv().apply(
+        p[tip].mean(0) - pose_tip) for t, p, pose_tip in zip(
+        tt, P, [Rotation.from_euler("z", 180.0 * t, degrees=True).apply(
+            S[tip].mean(0) - pivot) + pivot for t in tt], strict=True)])
+    sag = np.linalg.norm(off, axis=1).max()
+    assert sag > 1e-3
+    assert np.linalg.norm(np.diff(off, axis=0), axis=1).max() < 0.1 * sag
+
+
+def test_a_driver_too_sparse_for_its_turn_is_warned_about(critter):
+    """A 180 degree turn sampled at 8 frames per second (22 degrees apart) says that the
+    driver needs more frames; at 30 per second (6 degrees) it does not."""
+    from scipy.spatial.transform import Rotation
+
+    body, driven = critter
+    S = body.surface.vertices
+    c = S[driven].mean(axis=0)
+    for fps, said in ((8, True), (30, False)):
+        times = np.arange(round(fps) + 1) / fps
+        poses = np.array([Rotation.from_euler("y", 180.0 * t, degrees=True).apply(S - c) + c
+                          for t in times])
+        driver = Driver(times, poses, body.surface.faces, np.zeros((0, 2)), "turn.npz", "test")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            secondary_motion(body, driver, driven, start=0.0, end=1.0)
+        sparse = [str(w.message) for w in caught if "from one frame to the next" in str(w.message)]
+        assert bool(sparse) == said, sparse
+        if said:
+            assert re.search(r"by up to 2[23] degrees", sparse[0]) and "more frames" in sparse[0]

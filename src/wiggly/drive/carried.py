@@ -9,11 +9,11 @@ by sin(a) / a: a tail's sag vanished at a half turn and pointed up at three quar
 
 The free parts' dynamics then hold in that frame: the driver's inertial forces and gravity
 act on Psi q turned into it, ``Psi^T M R_v(t)^T (kappa (ubar'' + alpha ubar') - gravity)``
-with R_v(t) the rig's rotation at each vertex (:func:`vertex_rotations`), and the turning
+with R_v(t) the rig's rotation at each vertex (:func:`turned_forces`), and the turning
 frame's own forces on Psi q act too: Coriolis ``2 W x q'``, Euler ``W' x q``, centrifugal
 ``W x (W x q)`` and the mass damping of the frame's motion ``alpha W x q``, with W the frame's
-angular velocity, fitted over the free parts as a whole (:func:`frame_rates`), in the
-frame's axes.  They couple the modes; :func:`frame_forces` gives them as modal matrices, and
+angular velocity, fitted over each free part (:func:`free_parts`, :func:`frame_rates`), in
+the frame's axes.  They couple the modes; :func:`frame_forces` gives them as modal matrices, and
 the solve interpolates them linearly between nodes (:mod:`wiggly.drive.secondary`).  This is
 linear elasticity in a floating frame (exact for a rigid rig and small strains in it); a spin
 faster than the free parts' lowest frequency overcomes their stiffness
@@ -24,13 +24,14 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial.transform import Rotation
 
 from wiggly.body import Body
 from wiggly.warp import Warp
 
-__all__ = ["HeldWarp", "frame_couplings", "frame_forces", "frame_rates", "turned_forces",
-           "vertex_rotations"]
+__all__ = ["HeldWarp", "frame_couplings", "frame_forces", "frame_rates", "free_parts",
+           "turned_forces"]
 
 
 class HeldWarp:
@@ -63,36 +64,56 @@ class HeldWarp:
         return dD + self.warp.carried_jvp(Ubar, dUbar, U, dU, relative=True)
 
 
-def vertex_rotations(warp: Warp, tets: np.ndarray, Ubar: np.ndarray) -> np.ndarray:
-    """Per frame and vertex of the warp's tet mesh (``tets`` (m, 4)) the rotation (F, n, 3,
-    3) that the unwarped rig Ubar (3n, F) turns it by: each tet's ``exp([w]x)``, ``w`` the
-    axial part of the gradient of ubar (the rotation the warp gives the tet), averaged over
-    the tets around the vertex by volume and taken to the nearest rotation."""
-    n, m = warp.n_vertices, warp.n_tets
+def free_parts(tets: np.ndarray, free: np.ndarray) -> list[np.ndarray]:
+    """The free parts (a tail, each ear): the connected components of the ``free`` tet
+    vertices ((n,) bool), two free vertices connected when they share a tet; vertex indices
+    per part."""
     T = np.asarray(tets)
-    weights = sp.csr_matrix((np.repeat(warp.volumes / 4.0, 4), (T.ravel(), np.repeat(
-        np.arange(m), 4))), shape=(n, m))
-    out = np.empty((Ubar.shape[1], n, 3, 3))
+    a, b = T[:, [0, 0, 0, 1, 1, 2]].ravel(), T[:, [1, 2, 3, 2, 3, 3]].ravel()
+    both = free[a] & free[b]
+    n = len(free)
+    graph = sp.csr_matrix((np.ones(int(both.sum())), (a[both], b[both])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    return [np.flatnonzero(free & (label == k)) for k in np.unique(label[free])]
+
+
+def turned_forces(warp: Warp, tets: np.ndarray, Ubar: np.ndarray, C: np.ndarray,
+                  accelerations: np.ndarray, gravity: np.ndarray) -> np.ndarray:
+    """What turning the free parts' forces into the rig's frame adds to their modal forcing
+    (module doc), per frame: ``C (R_v^T - I)(accelerations - gravity)`` (F, r), with C = Psi^T
+    M (r, 3n), ``accelerations`` (F, 3n) the rig's ``kappa (ubar'' + alpha ubar')``,
+    ``gravity`` (3,) in m/s^2, and R_v the rotation the unwarped rig Ubar (3n, F) turns each
+    vertex by: each tet's ``exp([w]x)`` (``w`` the axial part of the gradient of ubar, the
+    rotation the warp gives the tet), averaged over the tets around the vertex by volume and
+    taken to the nearest rotation.  One frame at a time, on the vertices where C is not zero
+    (the free ones and, through the mass matrix, the held ones beside them) and their tets."""
+    T = np.asarray(tets)
+    n = warp.n_vertices
+    free = np.abs(C).reshape(C.shape[0], n, 3).max(axis=(0, 2)) > 0
+    near = np.flatnonzero(free[T].any(axis=1))
+    rows = (3 * near[:, None] + np.arange(3)).ravel()
+    G = warp.gradient[rows]
+    idx = np.flatnonzero(free)
+    where = np.full(n, -1)
+    where[idx] = np.arange(len(idx))
+    corners = where[T[near]]
+    inside = corners >= 0
+    weights = sp.csr_matrix((np.repeat(warp.volumes[near] / 4.0, 4)[inside.ravel()],
+                             (corners[inside], np.nonzero(inside)[0])),
+                            shape=(len(idx), len(near)))
+    dofs = (3 * idx[:, None] + np.arange(3)).ravel()
+    Cf = C[:, dofs]
+    out = np.empty((Ubar.shape[1], C.shape[0]))
     for f in range(Ubar.shape[1]):
-        grad = np.asarray(warp.gradient @ Ubar[:, f].reshape(n, 3)).reshape(m, 3, 3)
+        grad = np.asarray(G @ Ubar[:, f].reshape(n, 3)).reshape(-1, 3, 3)
         # grad[t, j, i] = d ubar_i / d X_j: w = axial((A - A^T) / 2) with A = grad^T
         w = 0.5 * np.stack([grad[:, 1, 2] - grad[:, 2, 1], grad[:, 2, 0] - grad[:, 0, 2],
                             grad[:, 0, 1] - grad[:, 1, 0]], axis=1)
-        mean = weights @ Rotation.from_rotvec(w).as_matrix().reshape(m, 9)
-        out[f] = Rotation.from_matrix(mean.reshape(n, 3, 3)).as_matrix()
+        mean = weights @ Rotation.from_rotvec(w).as_matrix().reshape(-1, 9)
+        R = Rotation.from_matrix(mean.reshape(-1, 3, 3)).as_matrix()
+        phi = accelerations[f].reshape(n, 3)[idx] - gravity
+        out[f] = Cf @ (np.einsum("nji,nj->ni", R, phi) - phi).ravel()
     return out
-
-
-def turned_forces(C: np.ndarray, R: np.ndarray, accelerations: np.ndarray,
-                  gravity: np.ndarray) -> np.ndarray:
-    """What turning the free parts' forces into the rig's frame adds to their modal forcing
-    (module doc), per frame: ``C (R^T - I)(accelerations - gravity)`` (F, r), with C = Psi^T
-    M (r, 3n), R (F, n, 3, 3) from :func:`vertex_rotations`, ``accelerations`` (F, 3n) the
-    rig's ``kappa (ubar'' + alpha ubar')`` and ``gravity`` (3,) in m/s^2."""
-    F, n = R.shape[:2]
-    phi = accelerations.reshape(F, n, 3) - gravity
-    turned = np.einsum("fnji,fnj->fni", R, phi) - phi
-    return turned.reshape(F, 3 * n) @ C.T
 
 
 def frame_rates(X: np.ndarray, mass: np.ndarray, D: np.ndarray, V: np.ndarray,
@@ -123,34 +144,42 @@ def frame_rates(X: np.ndarray, mass: np.ndarray, D: np.ndarray, V: np.ndarray,
     return turn.inv().apply(omega), turn.inv().apply(domega)
 
 
-def frame_couplings(C: np.ndarray, psi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``S_a = Psi^T M [e_a]x Psi`` (3, r, r) and ``T_ab = Psi^T M e_a e_b^T Psi`` (3, 3, r,
-    r) for the turning frame's forces on Psi q (C = Psi^T M)."""
-    n, r = psi.shape[0] // 3, psi.shape[1]
-    P = psi.reshape(n, 3, r)
+def frame_couplings(C: np.ndarray, psi: np.ndarray,
+                    vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``S_a = Psi^T M P [e_a]x Psi`` (3, r, r) and ``T_ab = Psi^T M P e_a e_b^T Psi`` (3, 3,
+    r, r), P the restriction to one free part's ``vertices``: the turning frame's forces on
+    that part of Psi q (C = Psi^T M)."""
+    r = psi.shape[1]
+    dofs = (3 * np.asarray(vertices)[:, None] + np.arange(3)).ravel()
+    Cp = C[:, dofs]
+    P = psi[dofs].reshape(-1, 3, r)
     S = np.empty((3, r, r))
     T = np.empty((3, 3, r, r))
     for a in range(3):
         e = np.zeros(3)
         e[a] = 1.0
-        S[a] = C @ np.cross(e[None, :, None], P, axisa=1, axisb=1, axisc=1).reshape(3 * n, r)
+        S[a] = Cp @ np.cross(e[None, :, None], P, axisa=1, axisb=1, axisc=1).reshape(-1, r)
         for b in range(3):
-            F = np.zeros((n, 3, r))
+            F = np.zeros_like(P)
             F[:, a] = P[:, b]
-            T[a, b] = C @ F.reshape(3 * n, r)
+            T[a, b] = Cp @ F.reshape(-1, r)
     return S, T
 
 
-def frame_forces(S: np.ndarray, T: np.ndarray, omega: np.ndarray, domega: np.ndarray,
+def frame_forces(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
                  alpha: float) -> tuple[np.ndarray, np.ndarray]:
-    """Per time the modal matrices (T, r, r) of the turning frame's forces on the free parts,
-    ``G q' + N q`` (module doc): Coriolis ``G = 2 Psi^T M [W]x Psi``, and Euler, centrifugal
-    and mass damping of the frame's motion ``N = Psi^T M ([W']x + [W]x^2 + alpha [W]x) Psi``
-    (Psi^T M Psi = I), for the frame's angular velocity W and acceleration W' (T, 3) in its
-    own axes."""
-    cross = np.einsum("ta,aij->tij", omega, S)
-    G = 2.0 * cross
-    N = (np.einsum("ta,aij->tij", domega, S) + alpha * cross
-         + np.einsum("ta,tb,abij->tij", omega, omega, T)
-         - np.sum(omega**2, axis=1)[:, None, None] * np.eye(S.shape[1]))
+    """Per time the modal matrices (T, r, r) of the turning frames' forces on the free parts,
+    ``G q' + N q`` (module doc), summed over the parts ``(S, T, W, W')`` (their couplings from
+    :func:`frame_couplings` and their frame's angular velocity and acceleration (T, 3) in its
+    own axes from :func:`frame_rates`): Coriolis ``G = 2 Psi^T M [W]x Psi``, and Euler,
+    centrifugal and mass damping of the frame's motion ``N = Psi^T M ([W']x + [W]x^2 + alpha
+    [W]x) Psi``, with ``[W]x^2 = W W^T - |W|^2 I``."""
+    G = N = 0.0
+    for S, T, omega, domega in parts:
+        cross = np.einsum("ta,aij->tij", omega, S)
+        square = np.einsum("ta,tb->tab", omega, omega) - np.einsum(
+            "ta,ta->t", omega, omega)[:, None, None] * np.eye(3)
+        G = G + 2.0 * cross
+        N = N + (np.einsum("ta,aij->tij", domega, S) + alpha * cross
+                 + np.einsum("tab,abij->tij", square, T))
     return G, N

@@ -31,9 +31,11 @@ keyframe times; the unknowns are node values and velocities of every free mode.
 Warped playback carries the free parts in the rig's frame (:mod:`wiggly.drive.carried`):
 the driver's own pose of the tet mesh plus the fit of the rig's warped gradient times the
 free parts' own, less the rig's (W(ubar, Psi q) - W(ubar)), so that the free parts rest on
-the rig's pose of them and their bending and sag turn with the body by any angle, and the driver's inertial forces and
-gravity above act turned into that frame, rotation by rotation at each vertex (what that
-adds to g + p is a cubic spline through the driver's frames).
+the rig's pose of them and their bending and sag turn with the body by any angle; the
+driver's inertial forces and gravity above act turned into that frame, rotation by rotation
+at each vertex (what that adds to g + p is a cubic spline through the driver's frames), and
+the frame's own Coriolis, Euler and centrifugal forces act on Psi q, interpolated linearly
+between nodes.
 
 Without keyframes on the free parts, E = 0 is reached by the forced ODE's solution that
 starts at rest relative to the driver (q' = 0, and q = -g / lambda: in equilibrium under
@@ -61,16 +63,23 @@ from wiggly.drive.carried import (
     frame_couplings,
     frame_forces,
     frame_rates,
+    free_parts,
     turned_forces,
-    vertex_rotations,
 )
 from wiggly.drive.driver import Driver, keyed_frames
-from wiggly.drive.driver_checks import warn_cuts, warn_seam, warn_spin, warn_turn
+from wiggly.drive.driver_checks import (
+    warn_cuts,
+    warn_seam,
+    warn_sparse_turn,
+    warn_spin,
+    warn_turn,
+)
 from wiggly.drive.frame_spline import FrameSpline
 from wiggly.drive.unwarp import Unwarp
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread, factorize_spd, one_blas_thread
+from wiggly.mesh.defects import diagonal
 from wiggly.modes import compute_modes
 from wiggly.progress import deprecated_progress, reporting
 from wiggly.solve.animation import Animation
@@ -258,6 +267,21 @@ class SecondaryMotion(Animation):
         return float(form(x).sum())
 
 
+def _runaway(source: str, coupling: tuple | None, lam: np.ndarray) -> WigglyInputError:
+    """The error of a secondary motion whose spline system is not positive definite: its
+    free parts' motion grows without bound (the turning frame's centrifugal force beyond
+    their stiffness), and its numbers lose all precision."""
+    rate = 0.0
+    if coupling is not None:  # |G| = 2 |W| (Psi^T M Psi = I)
+        rate = 0.5 * float(max(np.linalg.norm(G, 2) for G in coupling[0])) / (2 * np.pi)
+    return WigglyInputError(
+        f"the secondary motion on the driver {source} has no bounded solution: the driver "
+        f"turns the free parts at up to {rate:.2g} turns per second, past their lowest "
+        f"frequency ({np.sqrt(lam.min()) / (2 * np.pi):.2g} Hz), where the centrifugal force "
+        "of the turning frame overcomes their stiffness in linear elasticity; stiffen the "
+        "free parts (a group's young), slow the turn, or use simulation.warp = false")
+
+
 def _energy_system(Q: np.ndarray, lam: np.ndarray, delta: np.ndarray, h: np.ndarray,
                    c: np.ndarray, blocks: int, coupling: tuple | None):
     """H (sparse), b and ``forcing``: E(z) = 1/2 z^T H z - b^T z + const over the node values
@@ -435,7 +459,14 @@ def secondary_motion(
     hold_start, hold_end = bool(times[0] > start + tol), bool(times[-1] < end - tol)
     bc = {"loop": loop, "hold_start": hold_start, "hold_end": hold_end}
     linear_rig = FrameSpline.fit(times, U.T, **bc)
-    rig = FrameSpline.fit(times, rigging(U).T, **bc) if warped else linear_rig
+    rig = linear_rig
+    if warped:
+        unwarped = rigging(U)
+        # a loop whose driver turns by whole turns per cycle ends unwarped a whole turn (or
+        # more) from its start: a periodic fit would unwind that turn in the last interval
+        wound = loop and np.abs(unwarped[:, -1] - unwarped[:, 0]).max() > 1e-6 * diagonal(
+            body.tets.vertices)
+        rig = FrameSpline.fit(times, unwarped.T, **(bc | {"loop": False} if wound else bc))
     rig_seconds = _time.perf_counter() - t0
     # the free parts' modes and their forcing
     t1 = _time.perf_counter()
@@ -444,6 +475,8 @@ def secondary_motion(
     warn_spin(driver.source, driven_path, times, lam)
     if not warped:
         warn_turn(driver.source, surface.vertices[v], driven_path, times)
+    else:
+        warn_sparse_turn(driver.source, driven_path, times)
     held_warp = HeldWarp(body, held_vertices(body, v)) if warped else None
     r = psi.shape[1]
     alpha, beta = body.damping.alpha, body.damping.beta
@@ -458,12 +491,14 @@ def secondary_motion(
     g0 = g
     if warped:  # the forces turned into the rig's frame (wiggly.drive.carried)
         t1 = _time.perf_counter()
-        R = vertex_rotations(held_warp.warp, body.tets.tets, rig.values.T)
+        loose = ~held_warp.held
         gravity = np.asarray(body.gravity, float)
-        turned = turned_forces(C, R, intensity * (linear_rig(times, 2) + alpha * linear_rig(
-            times, 1)), gravity)
+        turned = turned_forces(held_warp.warp, body.tets.tets, rig.values.T, C,
+                               intensity * (linear_rig(times, 2) + alpha * linear_rig(times, 1)),
+                               gravity)
         c += FrameSpline.fit(times, turned, **bc).taylor(nodes[:-1]).transpose(0, 2, 1)
-        g0 = g + turned_forces(C, R[:1], np.zeros((1, C.shape[1])), gravity)[0]
+        g0 = g + turned_forces(held_warp.warp, body.tets.tets, rig.values[:1].T, C,
+                               np.zeros((1, C.shape[1])), gravity)[0]
         rig_seconds += _time.perf_counter() - t1
     basis = wiggly_basis(np.tile(lam, m), np.tile(delta, m), np.repeat(h, r))
     Q = energy_form(basis, np.zeros(m * r)).Q.reshape(m, r, 4, 4)
@@ -472,16 +507,18 @@ def secondary_motion(
     blocks = m if loop else m + 1
     N = 2 * r * blocks
     coupling = None
-    if warped and intensity > 0:  # the turning frame's forces on Psi q (wiggly.drive.carried)
-        loose = ~held_warp.held
+    if warped:  # the turning frames' forces on Psi q, part by part (wiggly.drive.carried)
+        parts = []
+        everything = np.flatnonzero(loose)
+        for part in free_parts(body.tets.tets, loose):
+            fit = part if len(part) >= 4 else everything  # a stray vertex has no frame
 
-        def rig_at(d: int) -> np.ndarray:
-            return linear_rig(nodes, d).reshape(len(nodes), -1, 3)[:, loose]
+            def rig_at(d: int, fit=fit) -> np.ndarray:
+                return linear_rig(nodes, d).reshape(len(nodes), -1, 3)[:, fit]
 
-        omega, domega = frame_rates(body.tets.vertices[loose], mass[loose], rig_at(0),
-                                    rig_at(1), rig_at(2))
-        G, Nq = frame_forces(*frame_couplings(C, psi), omega, domega, alpha)
-        coupling = (intensity * G, intensity * Nq)
+            parts.append((*frame_couplings(C, psi, part), *frame_rates(
+                body.tets.vertices[fit], mass[fit], rig_at(0), rig_at(1), rig_at(2))))
+        coupling = frame_forces(parts, alpha)
     H0, b0, forcing = _energy_system(Q, lam, delta, h, c, blocks, coupling)
     fixed = np.zeros(N, bool)
     z = np.zeros(N)
@@ -551,7 +588,10 @@ def secondary_motion(
         free = ~fixed
         rhs = b[free] - H[free][:, fixed] @ z[fixed]
         new = z.copy()
-        new[free] = factorize_spd(H[free][:, free])(rhs)
+        try:
+            new[free] = factorize_spd(H[free][:, free])(rhs)
+        except np.linalg.LinAlgError as error:  # E is a sum of squares: only a runaway
+            raise _runaway(driver.source, coupling, lam) from error
         step = float(np.max(np.abs(new - z))) if keys else 0.0
         z = new
         if not (warped and keys):
