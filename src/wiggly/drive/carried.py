@@ -83,37 +83,52 @@ def turned_forces(warp: Warp, tets: np.ndarray, Ubar: np.ndarray, C: np.ndarray,
     (module doc), per frame: ``C (R_v^T - I)(accelerations - gravity)`` (F, r), with C = Psi^T
     M (r, 3n), ``accelerations`` (F, 3n) the rig's ``kappa (ubar'' + alpha ubar')``,
     ``gravity`` (3,) in m/s^2, and R_v the rotation the unwarped rig Ubar (3n, F) turns each
-    vertex by: each tet's ``exp([w]x)`` (``w`` the axial part of the gradient of ubar, the
-    rotation the warp gives the tet), averaged over the tets around the vertex by volume and
-    taken to the nearest rotation.  One frame at a time, on the vertices where C is not zero
-    (the free ones and, through the mass matrix, the held ones beside them) and their tets."""
+    vertex by: ``exp([w_v]x)``, w_v the volume-weighted mean over the tets around the vertex
+    of the axial part of the gradient of ubar (the rotation vectors the warp exponentiates,
+    on one branch: :mod:`wiggly.drive.unwarp`).  On the vertices where C is not zero (the
+    free ones and, through the mass matrix, the held ones beside them) and their tets, a few
+    frames at a time."""
     T = np.asarray(tets)
     n = warp.n_vertices
     free = np.abs(C).reshape(C.shape[0], n, 3).max(axis=(0, 2)) > 0
     near = np.flatnonzero(free[T].any(axis=1))
-    rows = (3 * near[:, None] + np.arange(3)).ravel()
-    G = warp.gradient[rows]
+    G = warp.gradient[(3 * near[:, None] + np.arange(3)).ravel()]
     idx = np.flatnonzero(free)
     where = np.full(n, -1)
     where[idx] = np.arange(len(idx))
     corners = where[T[near]]
     inside = corners >= 0
-    weights = sp.csr_matrix((np.repeat(warp.volumes[near] / 4.0, 4)[inside.ravel()],
+    weights = sp.csr_matrix((np.repeat(warp.volumes[near], 4)[inside.ravel()],
                              (corners[inside], np.nonzero(inside)[0])),
                             shape=(len(idx), len(near)))
-    dofs = (3 * idx[:, None] + np.arange(3)).ravel()
-    Cf = C[:, dofs]
-    out = np.empty((Ubar.shape[1], C.shape[0]))
-    for f in range(Ubar.shape[1]):
-        grad = np.asarray(G @ Ubar[:, f].reshape(n, 3)).reshape(-1, 3, 3)
-        # grad[t, j, i] = d ubar_i / d X_j: w = axial((A - A^T) / 2) with A = grad^T
+    weights = sp.diags(1.0 / np.asarray(weights.sum(axis=1)).ravel()) @ weights
+    Cf = C[:, (3 * idx[:, None] + np.arange(3)).ravel()]
+    F = Ubar.shape[1]
+    out = np.empty((F, C.shape[0]))
+    for f0 in range(0, F, _FRAMES):
+        f1 = min(F, f0 + _FRAMES)
+        k = f1 - f0
+        U = np.ascontiguousarray(Ubar[:, f0:f1].reshape(n, 3, k)).reshape(n, 3 * k)
+        grad = np.asarray(G @ U).reshape(len(near), 3, 3, k)  # [t, d/dX_j, u_i, frame]
         w = 0.5 * np.stack([grad[:, 1, 2] - grad[:, 2, 1], grad[:, 2, 0] - grad[:, 0, 2],
-                            grad[:, 0, 1] - grad[:, 1, 0]], axis=1)
-        mean = weights @ Rotation.from_rotvec(w).as_matrix().reshape(-1, 9)
-        R = Rotation.from_matrix(mean.reshape(-1, 3, 3)).as_matrix()
-        phi = accelerations[f].reshape(n, 3)[idx] - gravity
-        out[f] = Cf @ (np.einsum("nji,nj->ni", R, phi) - phi).ravel()
+                            grad[:, 0, 1] - grad[:, 1, 0]], axis=1)  # (t, 3, k)
+        w = (weights @ w.reshape(len(near), -1)).reshape(len(idx), 3, k).transpose(2, 0, 1)
+        phi = accelerations[f0:f1].reshape(k, n, 3)[:, idx] - gravity
+        out[f0:f1] = (_turned_back(w, phi) - phi).reshape(k, -1) @ Cf.T
     return out
+
+
+#: Frames per pass of :func:`turned_forces`.
+_FRAMES = 16
+
+
+def _turned_back(w: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``exp([w]x)^T v`` (Rodrigues, about -w) for rotation vectors and vectors (..., 3)."""
+    angle = np.linalg.norm(w, axis=-1, keepdims=True)
+    axis = w / np.where(angle > 0, angle, 1.0)
+    cos, sin = np.cos(angle), np.sin(angle)
+    return (v * cos - np.cross(axis, v) * sin
+            + axis * np.sum(axis * v, axis=-1, keepdims=True) * (1.0 - cos))
 
 
 def frame_rates(X: np.ndarray, mass: np.ndarray, D: np.ndarray, V: np.ndarray,
