@@ -219,8 +219,10 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
         ensure_compiled()
         if _time.perf_counter() - t > 0.5:
             timings["compile"] = _time.perf_counter() - t
-    say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: "
-         f"{len(keyframes)} keyframes, {body.r} modes, [{start:g}, {end:g}] s")
+    what = (f"{len(keyframes)} keyframes of the free parts" if scene.secondary_motion
+            else f"{len(keyframes)} keyframes, {body.r} modes")  # the body's: not computed
+    say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: {what}, "
+        f"[{start:g}, {end:g}] s")  # for secondary motion, which uses the free parts' own
     t = _time.perf_counter()
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always")
