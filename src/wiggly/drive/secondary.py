@@ -149,9 +149,10 @@ def _hermite_of(a: np.ndarray, h: np.ndarray) -> np.ndarray:
 @dataclass(eq=False)
 class SecondaryMotion(Animation):
     """A solved secondary motion (module doc): u(t) = ubar(t) + Psi q(t), played linear or
-    warped (W(u(t))).  ``values``/``velocities`` are the free modes' node data, ``basis``
-    their wiggly-spline kernels (g = 0) and ``particular`` (m, r, 3) each interval's
-    quadratic particular solution."""
+    warped (the driver's pose plus the free parts carried in the rig's frame,
+    :class:`wiggly.drive.carried.HeldWarp`).  ``values``/``velocities`` are the free modes'
+    node data, ``basis`` their wiggly-spline kernels (g = 0) and ``particular`` (m, r, 4)
+    each interval's cubic particular solution."""
 
     rig: FrameSpline = field(default=None, repr=False)
     psi: np.ndarray = field(default=None, repr=False)
