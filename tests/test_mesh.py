@@ -1154,3 +1154,36 @@ def test_a_body_far_from_the_origin_is_meshed_as_at_the_origin():
     assert embed(V, tets).outside_distance(tets).max() < 0.05
     np.testing.assert_allclose(tets.vertices.min(axis=0) - shift, [-0.5] * 3, atol=0.01)
     np.testing.assert_allclose(tets.vertices.max(axis=0) - shift, [0.5] * 3, atol=0.01)
+
+
+def test_flat_tets_from_fTetWild_are_dropped_before_the_cache(tmp_path, monkeypatch):
+    """fTetWild's float output can leave a few tets of no volume (39 of 26050 on a review's
+    creature at resolution 40): they are dropped, so the mesh is accepted and the cached
+    entry holds none (a cached flat tet failed every later run at that resolution); a cache
+    entry written with them is cleaned on load."""
+    from wiggly.mesh import tetwild_child
+
+    V, F = icosphere(2)
+    original = tetwild_child.tetrahedralize_in_child
+
+    def with_a_flat_tet(V, F, options, on_line):
+        tv, tt = original(V, F, options, on_line)
+        tv = np.vstack([tv, tv[tt[0, :3]].mean(axis=0)])  # a fourth vertex in a face's plane
+        return tv, np.vstack([tt, [[*tt[0, :3], len(tv) - 1]]])
+
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", with_a_flat_tet)
+    mesh = tetrahedralize(Surface(V, F), resolution=8, cache_dir=tmp_path)
+    vol = mesh.volumes()
+    assert vol.min() > 1e-9 * vol.max()
+    entry = next(tmp_path.rglob("*.npz"))
+    with np.load(entry) as data:
+        cached = TetMesh(data["vertices"], data["tets"])
+    assert len(cached.tets) == len(mesh.tets)
+    # an entry written with the flat tet (before this check) is cleaned when read
+    with np.load(entry) as data:
+        tv, tt = data["vertices"], data["tets"]
+    tv = np.vstack([tv, tv[tt[0, :3]].mean(axis=0)])
+    np.savez(entry, vertices=tv, tets=np.vstack([tt, [[*tt[0, :3], len(tv) - 1]]]))
+    monkeypatch.setattr(tetwild_child, "tetrahedralize_in_child", None)  # read, not run
+    again = tetrahedralize(Surface(V, F), resolution=8, cache_dir=tmp_path)
+    assert len(again.tets) == len(mesh.tets)
