@@ -109,8 +109,9 @@ class WigglySettings(bpy.types.PropertyGroup):
                     "diagonal")
     warp: BoolProperty(
         name="Warp", default=True,
-        description="Rotation-strain warping: large rotations keep the shape (off: linear, "
-                    "faster, large rotations distort)")
+        description="Rotation-strain warping: large rotations keep the shape, and a driven "
+                    "shot's free parts swing and sag in the turning body's frame (off: "
+                    "linear, faster, large rotations distort)")
     loop: BoolProperty(
         name="Loop", default=False,
         description="A seamless cycle: the last frame's positions and velocities equal the "

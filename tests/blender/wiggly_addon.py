@@ -255,6 +255,29 @@ def case_driven() -> None:
                                 filepath=str(workdir / "shot_keys.toml"))
 
 
+def case_turning() -> None:
+    """The armature bar's rig turned by 180 degrees about the vertical in half a second (15
+    degrees per frame at 24 fps), then held: exported and baked."""
+    scene = fresh(24, 1.0, (1, 25))
+    obj, rig = armature_bar()
+    use_group(obj, "body", "DRIVEN")
+    from mathutils import Matrix
+
+    root = rig.pose.bones["root"]
+    root.rotation_mode = "QUATERNION"
+    rest = root.bone.matrix_local.copy()
+    for f, angle in ((1, 0.0), (13, 180.0)):
+        root.matrix = Matrix.Rotation(math.radians(angle), 4, "Z") @ rest
+        bpy.context.view_layer.update()
+        root.keyframe_insert("rotation_quaternion", frame=f)
+    s = obj.wiggly
+    s.modes, s.resolution, s.young = 16, 10, 5e4
+    s.cache_dir = str(workdir / "cache")
+    report["export"] = run(bpy.ops.wiggly.export_scene, filepath=str(workdir / "turn.toml"))
+    report["bake"] = run(bpy.ops.wiggly.bake)
+    report["frames"] = [scene.frame_start, scene.frame_end]
+
+
 def case_errors() -> None:
     """Each mistake: the operator's result and printed report, and gather()'s message."""
     out = {}
@@ -771,7 +794,8 @@ def panel_layout(obj) -> list:
     return out
 
 
-{"handles": case_handles, "driven": case_driven, "errors": case_errors, "modal": case_modal,
+{"handles": case_handles, "driven": case_driven, "turning": case_turning,
+ "errors": case_errors, "modal": case_modal,
  "critter": case_critter, "pictures": case_pictures, "housekeeping": case_housekeeping,
  "sweep": case_sweep}[case]()
 Path(out).write_text(json.dumps(report))
