@@ -18,7 +18,12 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from .shot import Shot, ShotError, write_shot
+
+#: A number as wiggly prints it.
+_NUMBER = r"-?\d+(?:\.\d*)?(?:e[-+]?\d+)?"
 
 
 def wiggly_command(command: str) -> str:
@@ -119,7 +124,31 @@ class Solve:
             text = text.replace(name, "the bake")
         for key, label in PANEL_NAMES:
             text = re.sub(key, label, text)
-        return text.replace(f"{self.folder}{os.sep}", "")
+        return self._blender_terms(text.replace(f"{self.folder}{os.sep}", ""))
+
+    def _blender_terms(self, text: str) -> str:
+        """wiggly's times (seconds from the shot's start) as the scene's frames, its places
+        (y up, metres) in the object's local coordinates, and its group names as the Blender
+        vertex groups' names."""
+        shot = getattr(self, "shot", None)
+        if shot is None:
+            return text
+
+        def frame(t: str) -> str:
+            return f"{round(shot.frame_start + float(t) * shot.fps, 2):g}"
+
+        def place(m: re.Match) -> str:
+            p = shot.local(np.array([float(m[1]), float(m[2]), float(m[3])]))
+            return f"({p[0]:.3g}, {p[1]:.3g}, {p[2]:.3g}) in the object's local coordinates"
+
+        text = re.sub(rf"\bt = ({_NUMBER}) to ({_NUMBER}) s\b",
+                      lambda m: f"frames {frame(m[1])} to {frame(m[2])}", text)
+        text = re.sub(rf"\bt = ({_NUMBER}) s\b", lambda m: f"frame {frame(m[1])}", text)
+        text = re.sub(rf"\(({_NUMBER}), ({_NUMBER}), ({_NUMBER})\) m(?![\w/^])", place, text)
+        for name, label in shot.labels.items():
+            if name != label:
+                text = text.replace(f"'{name}'", f"'{label}'")
+        return text
 
     def warnings(self) -> list[str]:
         """wiggly's warnings and notes of the run (a key it missed, a surface that is not

@@ -328,6 +328,17 @@ def case_errors() -> None:
         "the driver shot_drive.npz jumps: its driven vertices move 0.3 m",
         "[wiggly] secondary motion on shot_drive.npz (24 modes of the free parts)",
         "result.npz", "a larger driven group or a lower drive.intensity may help")]
+    from types import SimpleNamespace  # a shot from frame 1001 at 30 fps, y up -> z up
+
+    probe.shot = SimpleNamespace(frame_start=1001, fps=30.0,
+                                 labels={"left_end_001": "left end.001", "tip": "tip"},
+                                 local=lambda p: np.array([p[0], -p[2], p[1]]))
+    out["blender terms"] = [probe._plain(text) for text in (
+        "turns by up to 22 degrees from one frame to the next (t = 0.5 to 0.533333 s): export",
+        "keyframes[1] (group 'left_end_001', t = 0.5 s) missed by 3 mm",
+        "bends almost freely at a joint near (-0.355, 0.548, 0.00182) m; gravity (0, -9.81, 0) "
+        "m/s^2")]
+    probe.shot = None
     probe.log = probe.folder / "wiggly.log"  # the status bar: the last stage, not a warning
     probe.folder.mkdir(parents=True, exist_ok=True)
     probe.log.write_text("[wiggly] checking shot_rest.obj (12 triangles)\n"
