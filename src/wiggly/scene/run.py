@@ -312,8 +312,10 @@ def thin_joint(scene: Scene, body,
                held: tuple[np.ndarray, np.ndarray] | None = None) -> str | None:
     """Why the motion may swing far when a held body's sag under gravity (more than ``SAG``
     of its size, :func:`static_sag`) bends it at a joint: half its elastic energy in at most
-    ``JOINT_SHARE`` of the tets (two parts meeting at an edge, which the tets join by a
-    sliver), so that the parts hinge on it almost freely; None otherwise."""
+    ``JOINT_SHARE`` of the tets that move (two parts meeting at an edge, which the tets join
+    by a sliver), so that the parts hinge on it almost freely; None otherwise.  Counted
+    among the moving tets, not all: a cantilevered tail holds half its energy near its root,
+    a few per cent of a big held body's tets."""
     from wiggly.fem import lame_parameters, tet_gradients
 
     u = _sag_field(body, held)
@@ -329,7 +331,8 @@ def thin_joint(scene: Scene, body,
                     + 0.5 * lam * np.trace(eps, axis1=1, axis2=2) ** 2)
     order = np.argsort(energy)[::-1]
     k = int(np.searchsorted(np.cumsum(energy[order]), 0.5 * energy.sum())) + 1
-    if k > JOINT_SHARE * len(T):
+    moving = int(np.count_nonzero(np.abs(u[T]).max(axis=(1, 2)) > 0))  # not all held
+    if k > JOINT_SHARE * moving:  # a thin tail's root on a big held body is no hinge
         return None
     near = X[T[order[:k]]].reshape(-1, 3).mean(axis=0)
     return (f"the body bends almost freely at a joint near ({near[0]:.3g}, {near[1]:.3g}, "
