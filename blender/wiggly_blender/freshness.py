@@ -78,12 +78,21 @@ def _animation(h, block) -> None:
                                strip.mute, strip.influence)).encode())
 
 
+def secondary_shot(settings) -> bool:
+    """Whether an object's Wiggly ``settings`` make a secondary-motion shot (a Driven group,
+    Drive physics Secondary), whose free parts move in modes of their own: Modes, the
+    body's, does not enter it."""
+    return (settings.drive_physics == "SECONDARY"
+            and any(item.role == "DRIVEN" for item in settings.groups))
+
+
 def fingerprint(scene, obj) -> str:
     """The fingerprint of what a bake of ``obj`` in ``scene`` is made from (module doc)."""
     h = hashlib.sha256()
     s = obj.wiggly
+    unused = {"modes"} if secondary_shot(s) else set()
     for prop in s.bl_rna.properties:
-        if prop.identifier not in _NOT_INPUTS:
+        if prop.identifier not in _NOT_INPUTS | unused:
             h.update(repr((prop.identifier, getattr(s, prop.identifier))).encode())
     for item in s.groups:
         h.update(repr((item.name, item.role, getattr(item.handle, "name", None),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 
 from . import freshness
+from .freshness import secondary_shot
 from .operators import _running
 
 
@@ -93,7 +94,10 @@ class WIGGLY_PT_simulation(_WigglyPanel, bpy.types.Panel):
         s = context.active_object.wiggly
         layout = self.layout
         layout.use_property_split = True
-        for name in ("modes", "resolution", "warp", "loop"):
+        row = layout.row()
+        row.enabled = not secondary_shot(s)  # the free parts' own modes move them
+        row.prop(s, "modes")
+        for name in ("resolution", "warp", "loop"):
             layout.prop(s, name)
         layout.prop(context.scene, "use_gravity", text="Gravity (scene)")
 

@@ -102,7 +102,8 @@ class WigglySettings(bpy.types.PropertyGroup):
         description="Rayleigh damping beta (seconds): damps fast wiggles more than slow ones")
     modes: IntProperty(
         name="Modes", default=40, min=1, max=500,
-        description="Number of eigenmodes (a free body needs at least its 6 rigid ones)")
+        description="Number of eigenmodes (a free body needs at least its 6 rigid ones); a "
+                    "secondary-motion shot moves its free parts in Free modes instead")
     resolution: IntProperty(
         name="Resolution", default=25, min=2, max=200,
         description="Tetrahedral mesh resolution: target tet edges along the bounding box "
