@@ -152,6 +152,34 @@ def test_usd_points_driver_converts_axes_units_and_transforms(tmp_path):
     assert read_driver(tmp_path / "walk.usda", object="rig").parts == ("/rig/cube",)
 
 
+def test_usd_holds_between_sparse_samples_are_read_as_usd_plays_them(tmp_path):
+    """Blender's USD export writes a points sample only where the mesh changes: a turn at
+    frames 10-12 of a stage from 1 to 20.  The driver holds the first sample's pose from frame
+    1 and the last one's to frame 20, at every frame, as USD plays the stage (a cubic through
+    the samples and the stage's ends alone counter-turned a Blender rig by 2.6 degrees during
+    its hold); a gap between samples is filled by USD's own (linear) interpolation."""
+    from pxr import Usd, UsdGeom, Vt
+
+    _, P = sequence()
+    stage = Usd.Stage.CreateNew(str(tmp_path / "hold.usda"))
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetTimeCodesPerSecond(24)
+    stage.SetStartTimeCode(1)
+    stage.SetEndTimeCode(20)
+    mesh = UsdGeom.Mesh.Define(stage, "/cube")
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray([4] * len(QUADS)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(QUADS.ravel().tolist()))
+    for code, k in ((10, 0), (11, 1), (12, 2), (16, 4)):
+        mesh.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(P[k].astype(np.float32)), code)
+    stage.GetRootLayer().Save()
+    d = read_driver(tmp_path / "hold.usda")
+    np.testing.assert_allclose(d.times, np.arange(1, 21) / 24)
+    frames = d.positions
+    np.testing.assert_allclose(frames[:10], np.broadcast_to(P[0], (10, *P[0].shape)), atol=1e-6)
+    np.testing.assert_allclose(frames[15:], np.broadcast_to(P[4], (5, *P[4].shape)), atol=1e-6)
+    np.testing.assert_allclose(frames[13], P[2] + 0.5 * (P[4] - P[2]), atol=1e-6)  # frame 14
+
+
 @pytest.mark.parametrize("rate", [24, 30])
 def test_usd_skinning_driver_lands_on_its_time_codes(tmp_path, rate):
     """UsdSkel skinning (one joint, turned and moved at time codes 1-5) at the stage's own

@@ -4,15 +4,17 @@ into the stage's session layer: the file is not touched).
 
 Every ``UsdGeom.Mesh`` of the stage (in traversal order; ``object`` keeps the meshes whose
 path or name is ``object`` and the meshes below a prim of that path or name) is evaluated at
-every time code where its points or any transform above it has a sample: points in world
-space (``UsdGeom.XformCache``), converted to wiggly's axes and units: a Z-up stage is turned
-to Y up as Blender's glTF and OBJ exporters do, (x, y, z) -> (x, z, -y), and coordinates are
+every time code where its points or any transform above it has a sample, at the stage's
+start and end, and at every whole time code inside longer gaps (:func:`_filled`): points in
+world space (``UsdGeom.XformCache``), converted to wiggly's axes and units: a Z-up stage is
+turned to Y up as Blender's glTF and OBJ exporters do, (x, y, z) -> (x, z, -y), and coordinates are
 scaled by the stage's ``metersPerUnit``.  Time = time code / ``timeCodesPerSecond`` (wiggly's
 own USD files keep their exact start time in the layer's ``customLayerData``).
 """
 
 from __future__ import annotations
 
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +64,26 @@ def _time_codes(meshes) -> list[float]:
     return sorted(codes)
 
 
+#: At most this many time codes are read from a stage (gaps are filled up to it).
+MAX_CODES = 20000
+
+
+def _filled(codes: list[float], stage) -> list[float]:
+    """The time codes to read: the samples, the stage's start and end time codes (where it
+    has them, and samples) and every whole time code inside a gap of more than 1.5 between
+    them, so that holds between sparse samples (Blender writes a sample only where the mesh
+    changes) are read as USD plays them (held before the first sample and after the last,
+    interpolated by the stage between), not joined by a cubic that swings through them."""
+    if not codes:
+        return []
+    ends = {stage.GetStartTimeCode(), stage.GetEndTimeCode()} if \
+        stage.HasAuthoredTimeCodeRange() else set()
+    known = sorted(set(codes) | ends)
+    gaps = [np.arange(np.floor(a) + 1.0, np.ceil(b)) for a, b in pairwise(known) if b - a > 1.5]
+    filled = np.unique(np.concatenate([known, *gaps]))
+    return known if len(filled) > MAX_CODES else [float(c) for c in filled]
+
+
 def _bake_skinning(stage) -> bool:
     """Bake UsdSkel skinning into time-sampled points in the session layer; whether any
     skinned mesh was found."""
@@ -101,7 +123,7 @@ def read_usd(path: Path, *, object: str | None = None) -> Driver:
         raise WigglyInputError(f"cannot read {path}: USD could not open it")
     skinned = _bake_skinning(stage)
     meshes = _meshes(stage, object, path)
-    codes = _time_codes(meshes) or [Usd.TimeCode.Default()]
+    codes = _filled(_time_codes(meshes), stage) or [Usd.TimeCode.Default()]
     faces, edges, counts, offset = [], [], [], 0
     for mesh in meshes:
         m = UsdGeom.Mesh(mesh)
