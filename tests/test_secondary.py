@@ -360,6 +360,22 @@ def test_a_driver_that_does_not_cycle_with_a_loop_is_warned_about(bar):
     with pytest.warns(UserWarning, match=r"walk\.npz ends 0\.2 s before the looped shot's end"):
         secondary_motion(body, drv, driven, start=0.0, end=1.0, warped=False, loop=True,
                          driver_range=(0.0, 0.8))
+    # a cycle of frames 1..N as Blender exports it, its last frame one before the shot's end:
+    # the seam is one more step, and a driver that does not cycle is said so (it was said to
+    # jump, "end the shot at the cut"); frame 1 at 1/30 s is refused, naming the offset
+    blender = Driver(times[:-1] + 1 / 30, X[None] + c[:-1, None, :], body.surface.faces,
+                     np.zeros((0, 2)), "walk.npz", "test")
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        secondary_motion(body, blender, driven, start=0.0, end=1.0, warped=False, loop=True,
+                         offset=-1 / 30)
+    said = [str(w.message) for w in said]
+    assert any("does not cycle with the looped shot" in w for w in said), said
+    assert not any("jumps" in w for w in said), said
+    with pytest.raises(WigglyInputError, match=r"needs a driver frame at its start \(0 s\); "
+                                               r"the first frame of walk\.npz in the shot is at "
+                                               r"0\.0333333 s: set drive\.offset = -0\.03333333333"):
+        secondary_motion(body, blender, driven, start=0.0, end=1.0, loop=True)
 
 
 def test_a_driver_that_spins_fast_against_the_free_parts_is_warned_about(bar):

@@ -142,15 +142,15 @@ def warn_seam(driver: Driver, driven: np.ndarray, *, start: float, end: float,
     spacing = float(np.median(np.diff(times)))
     remedy = ("end the shot on the driver's cycle (time.end), or keep one cycle of it "
               "(drive.range)")
-    if times[-1] >= end - 1e-9 * (end - start):
-        if gap > SEAM_STEPS * step:
+    if end - times[-1] <= 1.5 * spacing:  # the seam is one step: the last frame at the end,
+        if gap > SEAM_STEPS * step:  # or a frame before it (a cycle of frames 1..N)
             warnings.warn(
                 f"the driver {driver.source} does not cycle with the looped shot: its driven "
-                f"vertices at {end:g} s lie up to {1e3 * gap:.3g} mm from their pose at "
+                f"vertices at {times[-1]:g} s lie up to {1e3 * gap:.3g} mm from their pose at "
                 f"{start:g} s (they move at most {1e3 * step:.3g} mm from one frame to the "
                 f"next), and the loop joins the two with a jump at the seam; {remedy}",
                 stacklevel=3)
-    elif end - times[-1] > 1.5 * spacing:
+    else:
         warnings.warn(
             f"the driver {driver.source} ends {end - times[-1]:.3g} s before the looped "
             f"shot's end ({times[-1]:g} s of [{start:g}, {end:g}] s): the loop joins its last "

@@ -401,7 +401,9 @@ def secondary_frames(
         if times[0] > start + tol:
             raise WigglyInputError(
                 f"a looped shot needs a driver frame at its start ({start:g} s); the first "
-                f"frame of {driver.source} in the shot is at {times[0]:g} s")
+                f"frame of {driver.source} in the shot is at {times[0]:g} s: set drive.offset "
+                f"= {offset - (times[0] - start):.10g} to start the loop on it (a Blender "
+                "export starts at frame 1), or time.start to its time")
         if times[-1] < end - tol:
             times, frames = np.r_[times, end], np.r_[frames, frames[:1]]
         else:
@@ -447,9 +449,11 @@ def secondary_motion(
     frames, times = secondary_frames(driver, start=start, end=end, loop=loop, offset=offset,
                                      driver_range=driver_range)
     driven_path = driver.positions[frames][:, v]  # the driven vertices at the frames
-    warn_cuts(driver.source, driven_path, times, body)
+    # a loop's last step, back to its first frame, is the seam: warn_seam's, not a cut's
+    path, path_times = (driven_path[:-1], times[:-1]) if loop else (driven_path, times)
     if loop:
         warn_seam(driver, v, start=start, end=end, offset=offset, driver_range=driver_range)
+    warn_cuts(driver.source, path, path_times, body)
     duration = end - start
     tol = 1e-9 * duration
     # the rig: the driver extended into the tet mesh (unwarped for warped playback)
@@ -473,11 +477,11 @@ def secondary_motion(
     t1 = _time.perf_counter()
     psi, lam = free_modes(body, v, free_mode_count)
     modes_seconds = _time.perf_counter() - t1
-    warn_spin(driver.source, driven_path, times, lam)
+    warn_spin(driver.source, path, path_times, lam)
     if not warped:
-        warn_turn(driver.source, surface.vertices[v], driven_path, times)
+        warn_turn(driver.source, surface.vertices[v], path, path_times)
     else:
-        warn_sparse_turn(driver.source, driven_path, times)
+        warn_sparse_turn(driver.source, path, path_times)
     held_warp = HeldWarp(body, held_vertices(body, v)) if warped else None
     r = psi.shape[1]
     alpha, beta = body.damping.alpha, body.damping.beta
