@@ -355,3 +355,34 @@ def test_after_the_drivers_last_frame_the_ghost_holds_it(chromium, tmp_path):
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_a_warped_drive_scene_shows_the_warped_solves_warnings(tmp_path):
+    """A warped [drive] scene whose driver turns the bar by 90 degrees in five frames (18
+    per frame): the page says what `wiggly animate` warns of the warped motion (its frames
+    too far apart for the turn), not the linear preview's warning for `warp = false` scenes
+    (it showed that one, and never the warped solve's)."""
+    from wiggly.editor.session import Sandbox, Session
+
+    path, _ = drive_project(tmp_path)
+    V, T = box_mesh((8, 2, 2), (0.8, 0.1, 0.1))
+    times = np.arange(21) / FPS
+    pivot = np.array([0.15, 0.05, 0.05])
+    P = np.array([Rotation.from_euler("y", 90.0 * min(k / 5, 1.0), degrees=True)
+                  .apply(V - pivot) + pivot for k in range(len(times))])
+    write_animation(tmp_path / "walk.npz",
+                    SurfaceAnimation(times, P, TetMesh(V, T).boundary_faces()), overwrite=True)
+    path.write_text(SCENE.replace("warp = false", "warp = true"))
+    session = Session(Sandbox([tmp_path]))
+    events = session.bus.subscribe()
+    session.open(str(path))
+    try:
+        _session_final(session)
+        said = first_event(events, lambda e: e["type"] == "notice" and
+                           "from one frame to the next" in e["message"], 30.0)
+        assert said is not None and "by up to 18 degrees" in said["message"]
+        notices = [e["message"] for e in [events.get_nowait() for _ in range(events.qsize())]
+                   if e["type"] == "notice"]
+        assert not [m for m in notices if "a linear secondary motion" in m], notices
+    finally:
+        session.close()

@@ -222,8 +222,10 @@ class Playback:
             request = info.pop("request", "final")
             drag = request == "drag"  # a held drag's warped preview: never the final frames
             folds, source = info.pop("folds", None), info.pop("source", None)
-            missed = info.pop("missed", None)
+            missed, said_by_solve = info.pop("missed", None), info.pop("said", [])
             if final and not drag:
+                for message in said_by_solve:  # a warped secondary motion's own warnings
+                    self._notice_once(source, message)
                 # said when a file's motion starts to fold, not again while its edits keep it
                 if folds is not None and self._folding != source:
                     self.bus.publish("notice", sticky=False, level="warning", message=folds)
@@ -291,7 +293,10 @@ class Playback:
         with warnings.catch_warnings(record=True) as said:
             warnings.simplefilter("always")
             self._solve_linear(req, box, problems, body, scene)
-        if req.kind == "final":
+        # a warped secondary motion's preview is its linear solve, whose warnings are the
+        # linear model's (a turn keeps the rest axes): the warped refinement says its own
+        refined = scene.secondary_motion and scene.simulation.warp
+        if req.kind == "final" and not refined:
             for w in said:
                 self._tell_once(scene, str(w.message))
 

@@ -169,8 +169,8 @@ def _secondary(seq, version, scene, body, groups, keys, out,
     from wiggly.scene.drive import secondary_of
 
     t0 = time.perf_counter()
-    with warnings.catch_warnings():  # said by the notices below, and by the playback's solve
-        warnings.simplefilter("ignore")
+    with warnings.catch_warnings(record=True) as caught:  # the page's notices, as `wiggly
+        warnings.simplefilter("always")  # animate` warns (the linear preview's are not said)
         anim = secondary_of(scene, body, groups, keys)
     start, end = scene.time_range()
     fps = playback_fps(scene.time.fps, start, end, body.surface.n_vertices)
@@ -179,7 +179,8 @@ def _secondary(seq, version, scene, body, groups, keys, out,
     info = {"iterations": int(anim.info.get("iterations", 0)),
             "converged": bool(anim.info.get("converged", True)),
             "objective": float(anim.energy()),
-            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim), **notes}
+            "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim), **notes,
+            "said": list(dict.fromkeys(str(w.message) for w in caught))}
     positions = anim.positions(times, dtype=np.float32)
     channel.send(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
 
