@@ -492,6 +492,15 @@ def test_a_mesh_in_other_axes_than_its_driver_is_warned_about(shot, capsys):
     assert main(["animate", str(scene), "-q", "-o", str(folder / "z5.npz")]) == 0
     err = capsys.readouterr().err
     assert 'the driver looks Z-up: set drive.up_axis = "z"' in err, err
+    # drive.up_axis = "z" given to a Y-up driver: that setting is named, not the mesh's (a
+    # review was told to set mesh.up_axis, which would have turned the mesh too)
+    scene = write(folder, {**data, "drive": {"path": "walk.npz", "group": "driven",
+                                             "up_axis": "z"}}, "zup6.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "z6.npz")]) == 0
+    err = capsys.readouterr().err
+    assert 'drive.up_axis = "z" turns the driver: leave it out if the driver file is y up' \
+        in err, err
+    assert "mesh.up_axis" not in err, err
 
 
 def test_driver_units_and_axes_apply_to_files_without_their_own(shot, tmp_path):

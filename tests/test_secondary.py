@@ -373,8 +373,9 @@ def test_a_driver_that_does_not_cycle_with_a_loop_is_warned_about(bar):
     assert any("does not cycle with the looped shot" in w for w in said), said
     assert not any("jumps" in w for w in said), said
     with pytest.raises(WigglyInputError, match=r"needs a driver frame at its start \(0 s\); "
-                                               r"the first frame of walk\.npz in the shot is at "
-                                               r"0\.0333333 s: set drive\.offset = -0\.03333333333"):
+                                               r"the first frame of walk\.npz in the shot is "
+                                               r"at 0\.0333333 s: set drive\.offset = "
+                                               r"-0\.03333333333"):
         secondary_motion(body, blender, driven, start=0.0, end=1.0, loop=True)
 
 

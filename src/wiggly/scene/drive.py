@@ -177,7 +177,10 @@ def _warn_up_axes(scene: Scene, rest: np.ndarray, posed: np.ndarray, mesh: str) 
     mesh_z_up = float(R.apply([0.0, 0.0, 1.0]) @ y) > 0.7  # the mesh's z is the driver's up
     driver_z_up = float(R.apply(y)[2]) > 0.7  # the mesh's up is the driver's z
     unit_free = Path(scene.drive.path).suffix.lower() in UNIT_FREE
-    if mesh_z_up and scene.mesh.up == "y":
+    if scene.drive.up == "z" and scene.mesh.up == "y":  # the setting given is the likely slip
+        remedy = ('drive.up_axis = "z" turns the driver: leave it out if the driver file is '
+                  "y up")
+    elif mesh_z_up and scene.mesh.up == "y":
         remedy = 'the mesh file looks Z-up: set mesh.up_axis = "z"'
     elif scene.mesh.up == "z" and unit_free and scene.drive.up == "y":
         remedy = ('mesh.up_axis turns the mesh only, and the driver looks Z-up: set '
