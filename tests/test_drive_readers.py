@@ -88,7 +88,8 @@ def test_an_obj_sequence_with_missing_or_broken_frames_says_which(tmp_path):
     _, P = sequence()
     for k in (1, 2, 5):
         write_obj(tmp_path / f"walk_{k:04d}.obj", P[k - 1], QUADS)
-    with pytest.warns(UserWarning, match=r"no files for frames 3-4: the driver is interpolated"):
+    with pytest.warns(UserWarning, match=r"no files for frames 3-4: the driver is "
+                                         r"interpolated across them"):
         d = read_driver(tmp_path / "walk_0001.obj", frame_rate=24)
     np.testing.assert_allclose(d.times, np.array([1, 2, 5]) / 24)
     broken = P[4].copy()

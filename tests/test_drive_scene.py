@@ -220,13 +220,17 @@ def test_topology_mismatch_stops_before_anything_is_computed(shot, capsys):
 
 @pytest.mark.parametrize("time, drive, message", [
     ({"start": 2.0, "end": 3.0}, {},
-     "walk.npz (frames from 0 to 1 s, offset 0 s) falls in the shot's [2.0, 3.0] s"),
+     "walk.npz (frames from 0 to 1 s, offset 0 s) falls in the shot's [2.0, 3.0] s: an offset "
+     "from 1 to 3 s puts some of them in it"),
     ({"start": 1.0, "end": 2.0}, {},
      "has 1 frame in the shot [1, 2] s: secondary motion needs an animated driver"),
+    ({"start": 0.0, "end": 1.0}, {"range": [0.5, 0.51]},
+     "has 1 frame in the shot [0, 1] s: secondary motion needs an animated driver (two frames "
+     "or more); drive.range = [0.5, 0.51] s keeps too little of it"),
     ({"start": 0.0, "end": 1.0, "loop": True}, {"offset": 0.2},
      "a looped shot needs a driver frame at its start (0 s)"),
     ({"start": 1.0, "end": 2.0}, {"physics": "keys"}, None),  # keys: one frame is enough
-], ids=["outside", "one frame", "loop start", "keys"])
+], ids=["outside", "one frame", "range", "loop start", "keys"])
 def test_a_driver_outside_the_shot_stops_before_meshing(tmp_path, capsys, monkeypatch, time,
                                                         drive, message):
     """A surface driven by frames at 0-1 s, in shots that miss them: one message naming the

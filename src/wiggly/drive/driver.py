@@ -204,9 +204,13 @@ def keyed_frames(
         first, last = driver.span
         window = "" if driver_range is None else f", range {list(driver_range)} s"
         shot = "" if start is None and end is None else f" in the shot's [{start}, {end}] s"
+        fix = ""
+        if start is not None and end is not None:  # the offsets that bring frames in
+            fix = (f": an offset from {start - last:g} to {end - first:g} s puts some of them "
+                   "in it (shot time = driver time + offset)")
         raise WigglyInputError(
             f"no frame of the driver {driver.source} (frames from {first:g} to {last:g} s"
-            f"{window}, offset {offset:g} s) falls{shot}")
+            f"{window}, offset {offset:g} s) falls{shot}{fix}")
     frames = np.flatnonzero(keep)
     times = t[frames]
     if start is not None and end is not None:

@@ -392,9 +392,12 @@ def secondary_frames(
             raise WigglyInputError(
                 f"the driver {driver.source} is not animated (it has a single pose): secondary "
                 "motion needs an animated driver (two frames or more)")
+        kept = ("" if driver_range is None else
+                f"; drive.range = {[float(x) for x in driver_range]} s keeps too little of it")
         raise WigglyInputError(
             f"the driver {driver.source} has {len(frames)} frame in the shot [{start:g}, "
-            f"{end:g}] s: secondary motion needs an animated driver (two frames or more)")
+            f"{end:g}] s: secondary motion needs an animated driver (two frames or more)"
+            f"{kept}")
     tol = 1e-9 * (end - start)
     frames = frames.copy()
     if loop:

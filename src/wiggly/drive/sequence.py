@@ -139,11 +139,12 @@ def read_obj_sequence(path: Path, *, frame_rate: float | None = None) -> Driver:
         gaps = [(a + 1, b - 1) for a, b in itertools.pairwise(numbers) if b - a > 1]
         if gaps:
             listed = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in gaps[:4])
+            one = len(gaps) == 1 and gaps[0][0] == gaps[0][1]
             warnings.warn(
-                f"the OBJ sequence {path} has no files for frames {listed}"
-                f"{' and more' if len(gaps) > 4 else ''}: the driver is interpolated across "
-                "them (as a smooth curve, which a jerk or a cut there would not be)",
-                stacklevel=2)
+                f"the OBJ sequence {path} has no files for {'frame' if one else 'frames'} "
+                f"{listed}{' and more' if len(gaps) > 4 else ''}: the driver is interpolated "
+                f"across {'it' if one else 'them'} (as a smooth curve, which a jerk or a cut "
+                "there would not be)", stacklevel=2)
     counts = np.array([len(p) for p in polys], np.int64)
     faces, _ = fan_triangles(counts, np.concatenate(polys) if polys else np.zeros(0, np.int64))
     return Driver(times, np.stack(positions), faces, polygon_edges(polys), str(path),
