@@ -235,7 +235,9 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
         "turns by up to 22 degrees from one frame to the next (frames 1016 to 1017): export",
         "key 1 (group 'left end.001', frame 1016) missed by 3 mm",
         "bends almost freely at a joint near (-0.355, -0.00182, 0.548) in the object's local "
-        "coordinates; gravity (0, -9.81, 0) m/s^2"]
+        "coordinates; gravity (0, -9.81, 0) m/s^2",
+        "moves 0.3 m between frames 1016 and 1017; at frame 1059.75 671 mm from their pose at "
+        "frame 1001"]
     assert errors.pop("status") == "[wiggly] tetrahedralizing the mesh (fTetWild: 9 s)"
     faint = [w for w in errors.pop("faint weights") if "weights below 0.1" in w]
     assert len(faint) == 1 and "Object 'Bar', group 'middle':" in faint[0], faint

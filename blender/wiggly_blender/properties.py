@@ -62,7 +62,8 @@ class WigglyGroup(bpy.types.PropertyGroup):
                 "moved rigidly as the Empty moved from its rest placement", "EMPTY_AXIS", 0),
                ("FIXED", "Fixed", "Held at rest for the whole shot", "PINNED", 1),
                ("DRIVEN", "Driven", "Follows the object's own animation (armature, shape "
-                "keys, deform modifiers) at every frame", "ARMATURE_DATA", 2)],
+                "keys, deform modifiers) at every frame (and subframes where it turns fast)",
+                "ARMATURE_DATA", 2)],
         default="HANDLE")
     handle: PointerProperty(
         name="Handle", type=bpy.types.Object, poll=_handle_poll, update=_store_rest,
@@ -121,7 +122,8 @@ class WigglySettings(bpy.types.PropertyGroup):
         name="Drive physics",
         description="How the Driven group's animation moves the body",
         items=[("SECONDARY", "Secondary motion", "The animation owns the Driven group, which "
-                "follows it exactly; physics moves the free parts, pushed by its "
+                "follows it as closely as the tet mesh can; physics moves the free parts, "
+                "pushed by its "
                 "accelerations"),
                ("KEYS", "Keys", "The Driven group is keyed to the animation at every frame "
                 "(Drive stiffness) and the whole body minimises the spacetime energy")],
@@ -129,8 +131,8 @@ class WigglySettings(bpy.types.PropertyGroup):
     drive_intensity: FloatProperty(
         name="Intensity", default=1.0, min=0.0, max=100.0, soft_max=2.0,
         description="Secondary motion: scales the animation's push on the free parts without "
-                    "changing their timing (1 physical, 0 carried along rigidly, 2 twice the "
-                    "swing)")
+                    "changing their timing (1 physical, 0 no push: gravity alone sags them, 2 "
+                    "twice the swing)")
     drive_free_modes: IntProperty(
         name="Free modes", default=24, min=1, max=500,
         description="Secondary motion: modes of the free parts with the Driven group held "

@@ -143,7 +143,10 @@ class Solve:
 
         text = re.sub(rf"\bt = ({_NUMBER}) to ({_NUMBER}) s\b",
                       lambda m: f"frames {frame(m[1])} to {frame(m[2])}", text)
+        text = re.sub(rf"\bbetween t = ({_NUMBER}) and ({_NUMBER}) s\b",
+                      lambda m: f"between frames {frame(m[1])} and {frame(m[2])}", text)
         text = re.sub(rf"\bt = ({_NUMBER}) s\b", lambda m: f"frame {frame(m[1])}", text)
+        text = re.sub(rf"\bat ({_NUMBER}) s\b", lambda m: f"at frame {frame(m[1])}", text)
         text = re.sub(rf"\(({_NUMBER}), ({_NUMBER}), ({_NUMBER})\) m(?![\w/^])", place, text)
         for name, label in shot.labels.items():
             if name != label:

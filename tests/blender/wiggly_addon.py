@@ -340,7 +340,8 @@ def case_errors() -> None:
         "turns by up to 22 degrees from one frame to the next (t = 0.5 to 0.533333 s): export",
         "keyframes[1] (group 'left_end_001', t = 0.5 s) missed by 3 mm",
         "bends almost freely at a joint near (-0.355, 0.548, 0.00182) m; gravity (0, -9.81, 0) "
-        "m/s^2")]
+        "m/s^2",
+        "moves 0.3 m between t = 0.5 and 0.533333 s; at 1.95833 s 671 mm from their pose at 0 s")]
     probe.shot = None
     probe.log = probe.folder / "wiggly.log"  # the status bar: the last stage, not a warning
     probe.folder.mkdir(parents=True, exist_ok=True)

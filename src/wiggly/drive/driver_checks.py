@@ -1,6 +1,7 @@
 """Checks of a secondary-motion driver against the shot and the body, said as warnings: a
-cut between two frames, a loop the driver does not cycle with, and a turn fast against the
-free parts' frequencies (:func:`wiggly.drive.secondary_motion` calls them)."""
+cut between two frames, a loop the driver does not cycle with, a turn fast against the free
+parts' frequencies (warped), frames too far apart for the driver's turn (warped), and a
+far turn of a linear shot (:func:`wiggly.drive.secondary_motion` calls them)."""
 
 from __future__ import annotations
 
@@ -63,7 +64,8 @@ def warn_sparse_turn(source: str, P: np.ndarray, times: np.ndarray) -> None:
             f"the driver {source} turns its driven group by up to {steps[k]:.0f} degrees from "
             f"one frame to the next (t = {times[k]:g} to {times[k + 1]:g} s): between frames "
             "its motion is a cubic through the positions, which cuts the turn's arc, and the "
-            "free parts' swing comes out wrong by some tens of per cent; export the driver "
+            "free parts' swing comes out wrong (by about 10 % at 15 degrees per frame, some "
+            "tens of per cent beyond); export the driver "
             f"with more frames (at most {STEP_TURN:.0f} degrees apart)", stacklevel=3)
 
 
@@ -72,8 +74,9 @@ def warn_spin(source: str, P: np.ndarray, times: np.ndarray, lam: np.ndarray) ->
     dynamics are linear elasticity in the driver's turning frame, whose centrifugal force
     softens them by (turn rate / frequency)^2 of their stiffness; past their lowest frequency
     that model has no stable motion (a spin at twice it swung a bar's tip erratically by
-    0.4 m), where a real part stiffens as it stretches.  ``P``: the driven
-    vertices at the driver's frames, (F, g, 3); ``lam``: the free modes' eigenvalues."""
+    tenths of a metre, at six times by metres), where a real part stiffens as it stretches.
+    ``P``: the driven vertices at the driver's frames, (F, g, 3); ``lam``: the free modes'
+    eigenvalues."""
     positive = lam[lam > 1e-9 * max(float(lam.max(initial=0.0)), 1e-300)]
     if len(P) < 2 or P.shape[1] < 3 or not len(positive):
         return

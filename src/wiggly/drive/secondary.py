@@ -19,10 +19,10 @@ then decouples per mode as before, with the driver's accelerations as a forcing 
     E = 1/2 sum_i int (q_i'' + 2 delta_i q_i' + lambda_i q_i + g_i + p_i(t))^2 dt,
     p_i(t) = kappa psi_i^T M (ubar''(t) + alpha ubar'(t)),
 
-where kappa is the ``intensity`` (1: physical; 0: the free parts are carried as the driver
-carries them; 2: twice the swing, at the same timing).  Between two nodes p_i is a quadratic
-polynomial (ubar is cubic; a cubic where the forces are turned, below), so it has a
-polynomial particular solution q_p with L q_p = -(g + p)
+where kappa is the ``intensity`` (1: physical; 0: no push from the driver, only gravity's
+sag, which turns with the body when warped; 2: twice the swing, at the same timing).
+Between two nodes p_i is a quadratic polynomial (ubar is cubic; a cubic where the forces are
+turned, below), so it has a polynomial particular solution q_p with L q_p = -(g + p)
 (L = d^2 + 2 delta d + lambda); with y = q - q_p the interval's energy is the unforced one of
 y, and the minimiser is q_p plus a wiggly spline (Theorem 1 with g = 0), C^1 at every node
 and C^2 where no velocity is prescribed.  Nodes fall at the driver's frames and the user's
@@ -445,7 +445,7 @@ def secondary_motion(
         raise WigglyInputError(f"end = {end} s must be after start = {start} s")
     if not (np.isfinite(intensity) and intensity >= 0):
         raise WigglyInputError(f"intensity = {intensity!r} must be a number >= 0 (1 is "
-                               "physical, 0 carries the free parts with the driver)")
+                               "physical, 0 no push from the driver)")
     surface = body.surface
     driver.check(surface.n_vertices, surface.faces, body.model.source or "of the body")
     v = vertex_indices(driven, surface.n_vertices, "surface", "driven group")
@@ -480,10 +480,10 @@ def secondary_motion(
     t1 = _time.perf_counter()
     psi, lam = free_modes(body, v, free_mode_count)
     modes_seconds = _time.perf_counter() - t1
-    warn_spin(driver.source, path, path_times, lam)
-    if not warped:
+    if not warped:  # linear: the rest pose's axes, whatever the turn rate
         warn_turn(driver.source, surface.vertices[v], path, path_times)
-    else:
+    else:  # warped: the turning frame's centrifugal force, and the frames' spacing
+        warn_spin(driver.source, path, path_times, lam)
         warn_sparse_turn(driver.source, path, path_times)
     held_warp = HeldWarp(body, held_vertices(body, v)) if warped else None
     r = psi.shape[1]

@@ -179,15 +179,16 @@ _DRIVE = Table(
      "group": ByType({str: String(what="a group name"),
                        list: Array(String(what="a group name"), min_items=1, unique=True)},
                       what="a group name or an array of group names",
-                      doc="the driven group (or groups: their union), keyed to the driver at "
-                          "every driver frame"),
+                      doc="the driven group (or groups: their union), which follows the "
+                          "driver (held on it, or keyed at every frame with physics = keys)"),
      "offset": Number(unit="s", doc="driver time t plays at shot time t + offset (default 0)"),
      "range": Vector(2, "first, last", "s",
                       doc="only driver frames with first <= t <= last (driver seconds) are "
                           "keyed (default: all)"),
      "physics": String(enum=DRIVE_PHYSICS,
                         doc='"secondary" (default): the driver is a moving rest state, the '
-                            "driven group follows it exactly and physics moves the free parts "
+                            "driven group follows it as closely as the tet mesh can and physics "
+                            "moves the free parts "
                             'during the animation; "keys": the driven group is keyed at every '
                             "driver frame and the whole body minimises the spacetime energy"),
      "free_modes": Number(integer=True, ge=1, le=MAX_MODES,
@@ -195,8 +196,8 @@ _DRIVE = Table(
                                "(default 24)"),
      "intensity": Number(ge=0.0, le=100.0,
                           doc="secondary: scales the driver's inertial forces on the free "
-                              "parts without changing their timing (1 physical, 0 carried "
-                              "with the driver; default 1)"),
+                              "parts without changing their timing (1 physical, 0 no push: "
+                              "gravity alone sags them; default 1)"),
      "stiffness": Number(ge=0.0, doc='physics = "keys": dimensionless weight of every driven '
                                        "key (default 1e12: the driven group meets the driver)"),
      "enrich": Bool(doc='physics = "keys": add the driver\'s shapes to the modal basis '
