@@ -13,7 +13,7 @@ with Psi the lowest modes of the body with the driven group held (fixed-interfac
 Craig & Bampton 1968): zero on the driven group, which therefore follows the driver, and
 M-orthonormal with Psi^T K Psi = diag(lambda) on the free parts.  Elasticity and stiffness
 damping act on the complementary displacement Psi q, inertia and mass damping on the whole
-motion.  The spacetime energy of Schulz et al. 2014 (eq. (3)), charged on the free parts only,
+motion.  The spacetime energy of Schulz et al. 2014 (eq. (4)), charged on the free parts only,
 then decouples per mode as before, with the driver's accelerations as a forcing term:
 
     E = 1/2 sum_i int (q_i'' + 2 delta_i q_i' + lambda_i q_i + g_i + p_i(t))^2 dt,
@@ -40,7 +40,7 @@ between nodes.
 Without keyframes on the free parts, E = 0 is reached by the forced ODE's solution that
 starts at rest relative to the driver (q' = 0, and q = -g / lambda: in equilibrium under
 gravity; a looped shot is periodic instead): one banded linear solve, no Newton iterations.
-Sparse keyframes on the free parts (eq. (4)) add least-squares terms at their nodes; for warped
+Sparse keyframes on the free parts (eq. (6)) add least-squares terms at their nodes; for warped
 playback their targets apply to W(ubar, Psi q) and are met by Gauss-Newton on the few keyed
 nodes (Theorem 2: the minimiser is still a wiggly spline in every mode).  Linear playback
 (``warped=False``) adds Psi q to the driver's displacement in the rest pose's frame.

@@ -208,7 +208,7 @@ class Animation:
 
     # --- diagnostics ---------------------------------------------------------------------
     def energy(self) -> float:
-        """E of eq. (3): the integrated squared extra force (M^-1 norm), summed over modes."""
+        """E of eq. (4): the integrated squared extra force (M^-1 norm), summed over modes."""
         x = _interval_data(self.values, self.velocities)
         form = energy_form(self.basis, np.tile(self.body.modal_gravity, len(self.nodes) - 1))
         return float(form(x).sum())

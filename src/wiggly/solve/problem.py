@@ -256,7 +256,7 @@ class SpacetimeProblem:
     def linear_system(
         self, kfs: list[Keyframe], nodes: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Band storage and linear term of E + E_C (eq. (4)): ``c_A |A_k Phi q_k - a_k|^2 +
+        """Band storage and linear term of E + E_C (eq. (6)): ``c_A |A_k Phi q_k - a_k|^2 +
         c_B |B_k Phi q'_k - b_k|^2`` added at the keyframes' nodes."""
         energy = self.energy(nodes)
         ab, f = np.array(energy.ab, order="F"), energy.f.copy()
