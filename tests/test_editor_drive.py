@@ -256,20 +256,36 @@ def test_a_driven_scenes_missed_key_is_a_notice(tmp_path):
     """The warped secondary motion's checks reach the page as a keyed scene's do: a key on
     the free tip that the motion cannot meet (a 0.3 m lift held by a weak key) is a notice
     naming it, as wiggly animate warns (the editor said nothing, only residual_max)."""
+    path, _ = drive_project(tmp_path)
+    said, _ = _notices(path, SCENE.replace("warp = false", "warp = true") + (
+        '[[keyframes]]\ntime = 0.5\ngroup = "tip"\nposition = { offset = [0.0, 0.3, 0.0] }\n'
+        "stiffness = 1e-3\n"), "missed by more than")
+    assert said is not None and "keyframes[0] (group 'tip', t = 0.5 s)" in said["message"]
+
+
+def _notices(path, text: str, words: str):
+    """The scene ``text`` written to ``path`` and opened in a session, to its final frames:
+    the first notice that says ``words`` (None: none within 30 s) and every notice said
+    until then and queued after it."""
     from wiggly.editor.session import Sandbox, Session
 
-    path, _ = drive_project(tmp_path)
-    path.write_text(SCENE.replace("warp = false", "warp = true") + (
-        '[[keyframes]]\ntime = 0.5\ngroup = "tip"\nposition = { offset = [0.0, 0.3, 0.0] }\n'
-        "stiffness = 1e-3\n"))
-    session = Session(Sandbox([tmp_path]))
+    path.write_text(text)
+    session = Session(Sandbox([path.parent]))
     events = session.bus.subscribe()
     session.open(str(path))
+    seen: list[str] = []
+
+    def wanted(e) -> bool:
+        if e["type"] == "notice":
+            seen.append(e["message"])
+        return e["type"] == "notice" and words in e["message"]
+
     try:
         _session_final(session)
-        said = first_event(events, lambda e: e["type"] == "notice" and
-                           "missed by more than" in e["message"], 30.0)
-        assert said is not None and "keyframes[0] (group 'tip', t = 0.5 s)" in said["message"]
+        said = first_event(events, wanted, 30.0)
+        seen += [e["message"] for e in [events.get_nowait() for _ in range(events.qsize())]
+                 if e["type"] == "notice"]
+        return said, seen
     finally:
         session.close()
 
@@ -362,8 +378,6 @@ def test_a_warped_drive_scene_shows_the_warped_solves_warnings(tmp_path):
     per frame): the page says what `wiggly animate` warns of the warped motion (its frames
     too far apart for the turn), not the linear preview's warning for `warp = false` scenes
     (it showed that one, and never the warped solve's)."""
-    from wiggly.editor.session import Sandbox, Session
-
     path, _ = drive_project(tmp_path)
     V, T = box_mesh((8, 2, 2), (0.8, 0.1, 0.1))
     times = np.arange(21) / FPS
@@ -372,17 +386,7 @@ def test_a_warped_drive_scene_shows_the_warped_solves_warnings(tmp_path):
                   .apply(V - pivot) + pivot for k in range(len(times))])
     write_animation(tmp_path / "walk.npz",
                     SurfaceAnimation(times, P, TetMesh(V, T).boundary_faces()), overwrite=True)
-    path.write_text(SCENE.replace("warp = false", "warp = true"))
-    session = Session(Sandbox([tmp_path]))
-    events = session.bus.subscribe()
-    session.open(str(path))
-    try:
-        _session_final(session)
-        said = first_event(events, lambda e: e["type"] == "notice" and
-                           "from one frame to the next" in e["message"], 30.0)
-        assert said is not None and "by up to 18 degrees" in said["message"]
-        notices = [e["message"] for e in [events.get_nowait() for _ in range(events.qsize())]
-                   if e["type"] == "notice"]
-        assert not [m for m in notices if "a linear secondary motion" in m], notices
-    finally:
-        session.close()
+    said, later = _notices(path, SCENE.replace("warp = false", "warp = true"),
+                           "from one frame to the next")
+    assert said is not None and "by up to 18 degrees" in said["message"]
+    assert not [m for m in later if "a linear secondary motion" in m], later
