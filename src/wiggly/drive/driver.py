@@ -3,6 +3,7 @@ partial keyframes that key a vertex group to it at every driver frame."""
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -13,7 +14,8 @@ from wiggly.checks import vertex_indices
 from wiggly.errors import WigglyInputError, counted
 from wiggly.keyframes import Keyframe
 
-__all__ = ["DRIVE_STIFFNESS", "Driver", "driven_keyframes", "following", "polygon_edges"]
+__all__ = ["DRIVE_STIFFNESS", "Driver", "driven_keyframes", "filled_times", "following",
+           "polygon_edges"]
 
 #: Driver times closer than this (seconds) are one frame.
 TIME_TOLERANCE = 1e-9
@@ -170,6 +172,18 @@ def fan_triangles(counts: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, 
             for s, c in zip(starts, counts, strict=True) if c >= 3]
     faces = np.concatenate(tris) if tris else np.zeros((0, 3), np.int64)
     return faces, polys
+
+
+def filled_times(times: np.ndarray, rate: float) -> np.ndarray:
+    """Sorted sample ``times`` with evenly spaced times filled into every gap longer than
+    1.5 / ``rate``, about ``rate`` a unit of time: where a reader samples its file's own
+    interpolation between sparse keys or samples (glTF keys, USD time samples), which a
+    spline through the samples alone would not follow."""
+    filled = [times[:1]]
+    for a, b in itertools.pairwise(times):
+        n = max(1, round((b - a) * rate)) if b - a > 1.5 / rate else 1
+        filled.append(np.linspace(a, b, n + 1)[1:])
+    return np.concatenate(filled)
 
 
 def _edge_codes(edges: np.ndarray, n: int) -> np.ndarray:

@@ -28,7 +28,6 @@ specification defines them (sections 3.7 "Concepts: Geometry" and 3.11 "Animatio
 
 from __future__ import annotations
 
-import itertools
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -36,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wiggly.drive.driver import Driver, polygon_edges
+from wiggly.drive.driver import Driver, filled_times, polygon_edges
 from wiggly.drive.gltf_file import GltfFile
 
 __all__ = ["RestPose", "read_gltf", "rest_pose", "sample", "slerp", "trs_matrix"]
@@ -227,12 +226,7 @@ def _frame_times(channels: list[_Channel]) -> np.ndarray:
     if not channels:
         return np.zeros(1)
     t = np.unique(np.concatenate([c.keys for c in channels]))
-    t = t[np.r_[True, np.diff(t) > 1e-6]]
-    filled = [t[:1]]
-    for a, b in itertools.pairwise(t):
-        n = max(1, round((b - a) * SAMPLE_RATE)) if b - a > 1.5 / SAMPLE_RATE else 1
-        filled.append(np.linspace(a, b, n + 1)[1:])
-    return np.concatenate(filled)
+    return filled_times(t[np.r_[True, np.diff(t) > 1e-6]], SAMPLE_RATE)
 
 
 def _local_transforms(f: GltfFile, channels: list[_Channel], times: np.ndarray

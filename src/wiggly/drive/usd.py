@@ -14,12 +14,11 @@ own USD files keep their exact start time in the layer's ``customLayerData``).
 
 from __future__ import annotations
 
-from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
 
-from wiggly.drive.driver import Driver, fan_triangles, polygon_edges
+from wiggly.drive.driver import Driver, fan_triangles, filled_times, polygon_edges
 from wiggly.errors import WigglyInputError
 
 __all__ = ["read_usd"]
@@ -70,17 +69,17 @@ MAX_CODES = 20000
 
 def _filled(codes: list[float], stage) -> list[float]:
     """The time codes to read: the samples, the stage's start and end time codes (where it
-    has them, and samples) and every whole time code inside a gap of more than 1.5 between
-    them, so that holds between sparse samples (Blender writes a sample only where the mesh
-    changes) are read as USD plays them (held before the first sample and after the last,
-    interpolated by the stage between), not joined by a cubic that swings through them."""
+    has them, and samples) and time codes about one apart inside every gap of more than 1.5
+    between them (:func:`wiggly.drive.driver.filled_times`), so that holds between sparse
+    samples (Blender writes a sample only where the mesh changes) are read as USD plays them
+    (held before the first sample and after the last, interpolated by the stage between),
+    not joined by a cubic that swings through them."""
     if not codes:
         return []
     ends = {stage.GetStartTimeCode(), stage.GetEndTimeCode()} if \
         stage.HasAuthoredTimeCodeRange() else set()
     known = sorted(set(codes) | ends)
-    gaps = [np.arange(np.floor(a) + 1.0, np.ceil(b)) for a, b in pairwise(known) if b - a > 1.5]
-    filled = np.unique(np.concatenate([known, *gaps]))
+    filled = filled_times(np.asarray(known, np.float64), 1.0)  # one a time code
     return known if len(filled) > MAX_CODES else [float(c) for c in filled]
 
 
