@@ -943,7 +943,7 @@ def test_a_looped_rig_whose_last_frame_differs_in_its_last_bits_fits():
 def test_the_spin_check_says_nothing_of_a_group_along_a_line():
     """A driven group whose vertices lie on a line has no turn about it: scipy's note that the
     fit is poorly defined (four of them, one per frame) reached the user; now nothing does."""
-    from wiggly.drive.driver_checks import warn_spin
+    from wiggly.drive.driver_checks import step_turns, warn_spin
 
     times = np.arange(5) / 4.0
     line = np.zeros((4, 3))
@@ -952,7 +952,7 @@ def test_the_spin_check_says_nothing_of_a_group_along_a_line():
     driver = Driver(times, poses, np.array([[0, 1, 2]]), np.zeros((0, 2)), "line.npz", "test")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        warn_spin(driver.source, driver.positions, times, np.array([100.0]))
+        warn_spin(driver.source, step_turns(driver.positions), times, np.array([100.0]))
 
 
 def test_a_turn_follows_a_full_space_simulation_in_the_turning_frame(tmp_path):

@@ -52,12 +52,12 @@ def step_turns(P: np.ndarray) -> np.ndarray:
 STEP_TURN = 10.0
 
 
-def warn_sparse_turn(source: str, P: np.ndarray, times: np.ndarray) -> None:
+def warn_sparse_turn(source: str, turns: np.ndarray, times: np.ndarray) -> None:
     """Warn when the driven group turns by more than STEP_TURN degrees between two frames of
-    the driver (``P``: the driven vertices at its frames, (F, g, 3))."""
-    if len(P) < 2 or P.shape[1] < 3:
+    the driver (``turns``: its :func:`step_turns` (F - 1,) at the frames' ``times``)."""
+    if not len(turns):
         return
-    steps = np.degrees(step_turns(P))
+    steps = np.degrees(turns)
     k = int(np.argmax(steps))
     if steps[k] > STEP_TURN:
         warnings.warn(
@@ -69,18 +69,18 @@ def warn_sparse_turn(source: str, P: np.ndarray, times: np.ndarray) -> None:
             f"with more frames (at most {STEP_TURN:.0f} degrees apart)", stacklevel=3)
 
 
-def warn_spin(source: str, P: np.ndarray, times: np.ndarray, lam: np.ndarray) -> None:
+def warn_spin(source: str, turns: np.ndarray, times: np.ndarray, lam: np.ndarray) -> None:
     """Warn when the driven group turns fast against the free parts' lowest frequency: their
     dynamics are linear elasticity in the driver's turning frame, whose centrifugal force
     softens them by (turn rate / frequency)^2 of their stiffness; past their lowest frequency
     that model has no stable motion (a spin at twice it swung a bar's tip erratically by
     tenths of a metre, at six times by metres), where a real part stiffens as it stretches.
-    ``P``: the driven vertices at the driver's frames, (F, g, 3); ``lam``: the free modes'
-    eigenvalues."""
+    ``turns``: the driven group's :func:`step_turns` (F - 1,) at the frames' ``times``;
+    ``lam``: the free modes' eigenvalues."""
     positive = lam[lam > 1e-9 * max(float(lam.max(initial=0.0)), 1e-300)]
-    if len(P) < 2 or P.shape[1] < 3 or not len(positive):
+    if not len(turns) or not len(positive):
         return
-    rates = step_turns(P) / np.diff(times)
+    rates = turns / np.diff(times)
     omega, lowest = float(rates.max(initial=0.0)), float(np.sqrt(positive.min()))
     if omega > SPIN * lowest:
         warnings.warn(

@@ -68,6 +68,7 @@ from wiggly.drive.carried import (
 )
 from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.drive.driver_checks import (
+    step_turns,
     warn_cuts,
     warn_seam,
     warn_sparse_turn,
@@ -483,8 +484,9 @@ def secondary_motion(
     if not warped:  # linear: the rest pose's axes, whatever the turn rate
         warn_turn(driver.source, surface.vertices[v], path, path_times)
     else:  # warped: the turning frame's centrifugal force, and the frames' spacing
-        warn_spin(driver.source, path, path_times, lam)
-        warn_sparse_turn(driver.source, path, path_times)
+        steps = step_turns(path)
+        warn_spin(driver.source, steps, path_times, lam)
+        warn_sparse_turn(driver.source, steps, path_times)
     held_warp = HeldWarp(body, held_vertices(body, v)) if warped else None
     r = psi.shape[1]
     alpha, beta = body.damping.alpha, body.damping.beta
@@ -518,14 +520,11 @@ def secondary_motion(
     if warped:  # the turning frames' forces on Psi q, part by part (wiggly.drive.carried)
         parts = []
         everything = np.flatnonzero(loose)
+        rig_at = [linear_rig(nodes, d).reshape(len(nodes), -1, 3) for d in range(3)]
         for part in free_parts(body.tets.tets, loose):
             fit = part if len(part) >= 4 else everything  # a stray vertex has no frame
-
-            def rig_at(d: int, fit=fit) -> np.ndarray:
-                return linear_rig(nodes, d).reshape(len(nodes), -1, 3)[:, fit]
-
             parts.append((*frame_couplings(C, psi, part), *frame_rates(
-                body.tets.vertices[fit], mass[fit], rig_at(0), rig_at(1), rig_at(2))))
+                body.tets.vertices[fit], mass[fit], *(R[:, fit] for R in rig_at))))
         coupling = frame_forces(parts, alpha)
     H0, b0, forcing = _energy_system(Q, lam, delta, h, c, blocks, coupling)
     fixed = np.zeros(N, bool)
