@@ -91,9 +91,11 @@ class _Inbox:
 
 def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested end to end)
     """The child's loop (started by :class:`Refiner`)."""
+    from wiggly.editor.physics import child_niceness
+
     inp, out = channel.child_ends()
     try:
-        os.nice(10)
+        os.nice(child_niceness(10))
     except OSError:
         pass
     from wiggly.errors import WigglyInputError
