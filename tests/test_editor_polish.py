@@ -302,6 +302,14 @@ def test_labels_of_keyframe_edits(tmp_path):
         with pytest.raises(EditError) as err:
             session.undo("b")
         assert "group 'tip' was changed since" in str(err.value)
+        # a keyframe moved in tab d and deleted in tab e: the undo says it was deleted
+        session.edit({"op": "update_keyframe", "id": 1, "time": 0.4}, tab="d")
+        session.edit({"op": "delete_keyframe", "id": 1}, tab="e")
+        with pytest.raises(EditError) as err:
+            session.undo("d")
+        text = str(err.value)
+        assert "cannot undo \"move keyframe 'lift' (mid at 0.25 s) to 0.4 s\"" in text, text
+        assert "that keyframe was deleted since" in text and "None" not in text, text
     finally:
         session.close()
 

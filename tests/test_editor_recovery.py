@@ -8,12 +8,14 @@ killed after their journal lines are on the disk but before their autosave lands
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from tests.editor_ui import bar_project
-from wiggly.editor import Sandbox, Session
+from wiggly import files
+from wiggly.editor import Sandbox, Session, presence
 from wiggly.editor.session import autosave_path
-from wiggly.scene import load_scene
+from wiggly.scene import load_scene, save_scene
 
 KEYS = """
 [[keyframes]]
@@ -249,3 +251,84 @@ def test_the_recovery_notice_says_what_came_back_in_the_scenes_terms(tmp_path):
                            "disk is as it was last saved until you save"], notices
     finally:
         s.close()
+
+
+def test_a_save_cut_short_by_a_kill_is_the_editors_own(tmp_path):
+    """Killed inside Save, after the new scene file is in place but before the autosave is
+    dropped: the restart opens the file clean, as the editor's own save (no notice of a
+    change made elsewhere, no edits set aside), with the undo history of the saved edits."""
+    path, auto, expected = _killed_after_two_edits(tmp_path, YOUNG)
+    edited = expected[0]
+    save_scene(edited, path, overwrite=True)  # what Save had written when it was killed
+    assert auto.exists()
+    s, notices = _open(tmp_path, path.name)
+    try:
+        assert s.scene == load_scene(path) == edited and not s.dirty
+        assert notices == [], notices
+        assert not [p for p in tmp_path.iterdir() if ".unsaved-" in p.name]
+        assert not auto.exists()
+        assert s.histories.describe("a")["undo_label"] == "set material.young"
+    finally:
+        s.close()
+
+
+def test_a_new_tab_takes_over_the_history_of_a_tab_that_is_gone(tmp_path, monkeypatch):
+    """Edits made in tab a: while a page of a listens, its history is its own; once a is
+    gone (closed, its browser crashed, or not back after a restart), a tab without a history
+    of its own takes it over, so the edits can still be undone; the take-over is journaled
+    and survives a kill."""
+    monkeypatch.setattr(presence, "TAB_GRACE", 0.0)
+    path = bar_project(tmp_path, KEYS, warp=False)
+    s, _ = _open(tmp_path, path.name)
+    try:
+        s.page_opened("a")
+        s.page_opened("b")
+        s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+        assert not s.describe("b")["can_undo"]  # a is live
+        s.page_closed("page-a", "a")
+        assert s.describe("b")["undo_label"] == "set damping.alpha"
+        assert not s.describe("a")["can_undo"]
+        s.edit(YOUNG, tab="b")
+        assert s.describe("b")["undo_label"] == "set material.young"
+    finally:
+        _killed(s, autosave_path(path), None)  # the journal alone recovers both steps
+    s, _ = _open(tmp_path, path.name)
+    try:
+        s.page_opened("b")  # b came back: its history stays its own
+        assert not s.describe("c")["can_undo"]
+        assert s.undo("b")["changed"] and s.undo("b")["changed"]
+        assert s.scene == load_scene(path) and not s.dirty
+    finally:
+        s.close()
+
+
+def test_a_tab_back_after_a_restart_keeps_its_history(tmp_path):
+    """Right after a restart, before the tabs of the journal could come back, a new tab
+    takes nothing (a reload or a reconnect takes a second or two)."""
+    path, _, _ = _killed_after_two_edits(tmp_path, YOUNG)
+    s, _ = _open(tmp_path, path.name)
+    try:
+        assert not s.describe("new")["can_undo"]
+        s.page_opened("a")
+        assert s.describe("a")["undo_label"] == "set material.young"
+    finally:
+        s.close()
+
+
+def test_a_saved_scene_is_on_the_disk_before_it_replaces_the_file(tmp_path, monkeypatch):
+    """save_scene flushes the new file's bytes to the disk before the rename, and the
+    folder's entry after it: an operating-system crash leaves the old file or the new one,
+    and the editor drops its autosave only after that."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    scene = load_scene(path)
+    scene = dataclasses.replace(scene, damping=dataclasses.replace(scene.damping, alpha=0.7))
+    synced: list[tuple[str, str | None]] = []
+
+    def sync(p):
+        p = Path(p)
+        synced.append((p.name, p.read_text() if p.is_file() else None))
+
+    monkeypatch.setattr(files, "sync_file", sync)
+    save_scene(scene, path, overwrite=True)
+    assert len(synced) == 2 and synced[1] == (tmp_path.name, None)
+    assert synced[0][0] != path.name and synced[0][1] == path.read_text()

@@ -381,6 +381,21 @@ def test_obj_unused_vertices_are_kept_with_the_uvs(tmp_path, where):
     np.testing.assert_allclose(carried[k], extra, atol=1e-9)
 
 
+@pytest.mark.parametrize(("data", "said"), [
+    (bytes(range(256)) * 40, "is not a Wavefront OBJ file (binary data)"),
+    (b"<html><body>404 not found</body></html>\n", "no vertex (v) or face (f) lines"),
+    (b"v 0 0 0\nv 1 0 0\nl 1 2\n", "contains no triangles (only points or lines)"),
+])
+def test_obj_that_is_not_one_says_so(tmp_path, data, said):
+    """A file named .obj that holds no OBJ (binary junk, a web page saved by mistake) is
+    told apart from an OBJ of points and lines."""
+    path = tmp_path / "junk.obj"
+    path.write_bytes(data)
+    with pytest.raises(WigglyInputError) as err:
+        wiggly.mesh.load_mesh(path)
+    assert said in str(err.value) and "junk.obj" in str(err.value)
+
+
 def test_obj_of_quads_only_is_split_into_triangles(tmp_path):
     """A file of quads only (Blender's OBJ export of a quad mesh) loads as triangles: every
     quad (a, b, c, d) as (a, b, c) and (a, c, d), the file's vertex order, an enclosed

@@ -307,6 +307,18 @@ position = "rest"
                     groups={**edited.groups, "head": GroupSpec(Sphere((0.45, 0.3, 0.0), 0.1))})
     save_scene(fewer, path, overwrite=True)
     assert load_scene(path) == fewer and "# my shot: notes the author keeps" in path.read_text()
+    # a key posed (rest -> a turn), then another added: poses stay one inline table per key
+    posed = replace(fewer, keyframes=[replace(fewer.keyframes[0], position=Rigid(
+        (0.0, 0.0, 5.0), (0.0, 0.1, 0.0), (0.4, 0.3, 0.0)))])
+    for scene in (posed, replace(posed, keyframes=[*posed.keyframes, replace(
+            posed.keyframes[0], time=1.0, position=Rigid((0.0, 9.0, 0.0), (0.0, 0.0, 0.0),
+                                                         None))])):
+        save_scene(scene, path, overwrite=True)
+        saved = path.read_text()
+        assert load_scene(path) == scene
+        assert "position = {rotation = [0.0, 0.0, 5.0], translation = [0.0, 0.1, 0.0], " \
+            "center = [0.4, 0.3, 0.0]}\n" in saved, saved
+        assert "[keyframes.position]" not in saved and "{  " not in saved, saved
 
 
 def test_save_refuses_invalid_scene(tmp_path):
@@ -404,7 +416,8 @@ ERRORS = [
     ("keyframes", {"time": 0}, "keyframes = { time = 0 } must be an array of tables"),
     ("keyframes[0].time", "DELETE", "keyframes[0].time is missing; it is required: a number (s)"),
     ("keyframes[0].time", 3.5, "keyframes[0].time = 3.5 is outside the shot's time range "
-                               "[0.0, 1.0] s"),
+                               "[0.0, 1.0] s (the keyframe of group \"tip\"): move it, or the "
+                               "shot's start or end"),
     ("keyframes[0].time", -0.1, "keyframes[0].time = -0.1 is outside the shot's time range"),
     ("keyframes[0].group", "DELETE", "keyframes[0].group is missing; it is required"),
     ("keyframes[0].group", "tpi", 'keyframes[0].group = "tpi" is not a group (did you mean '

@@ -85,21 +85,29 @@ def fix_mode(path: str | os.PathLike[str]) -> None:
 
 
 @contextmanager
-def atomic_file(path: str | os.PathLike[str], replace: bool = True) -> Iterator[Path]:
+def atomic_file(path: str | os.PathLike[str], replace: bool = True,
+                durable: bool = False) -> Iterator[Path]:
     """Yield a temporary path next to ``path`` (same extension); move it to ``path`` when the
     block succeeds (:func:`os.replace`, atomic on one file system), delete it when it raises.
 
     ``replace=False`` publishes only if ``path`` does not exist yet (a hard link, atomic:
     of processes racing to write the same cache entry, the first wins) and raises
-    :class:`FileExistsError` otherwise."""
+    :class:`FileExistsError` otherwise.  ``durable``: the file's bytes are flushed to the disk
+    before the rename and the folder's entry after it (a user's scene file: an operating
+    system crash or a power cut then leaves the old file or the new one, never an empty
+    one)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = _temporary(path)
     try:
         yield tmp
         fix_mode(tmp)
+        if durable:
+            sync_file(tmp)
         if replace:
             os.replace(tmp, path)
+            if durable:
+                sync_file(path.parent)
         else:
             try:
                 os.link(tmp, path)
@@ -111,6 +119,21 @@ def atomic_file(path: str | os.PathLike[str], replace: bool = True) -> Iterator[
                 os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def sync_file(path: str | os.PathLike[str]) -> None:
+    """Flush a file's bytes, or a folder's entries, to the disk (``fsync``); where a file
+    system cannot (some network or virtual ones), nothing more is done."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def shown_name(path: str | os.PathLike[str]) -> str:

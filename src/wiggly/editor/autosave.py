@@ -19,6 +19,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from wiggly.errors import WigglyInputError
+from wiggly.files import sync_file
 from wiggly.scene import Scene, scene_to_toml
 
 __all__ = ["Autosaver", "autosave_base", "autosave_path", "write_autosave", "write_durably"]
@@ -50,6 +51,7 @@ def write_durably(target: Path, text: str) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, target)
+    sync_file(target.parent)
 
 
 def write_autosave(target: Path, scene: Scene, base: str | None) -> None:

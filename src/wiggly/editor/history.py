@@ -34,12 +34,14 @@ import os
 import re
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from wiggly.editor.state import EditError, EditorState, rebuild_state
 from wiggly.errors import WigglyInputError
+from wiggly.files import sync_file
 from wiggly.scene import Scene, scene_from_dict, scene_to_dict
 
 __all__ = ["Histories", "Record", "edit_label", "history_path", "key_phrase", "scene_hash"]
@@ -160,8 +162,10 @@ class Record:
         for kind, name, before, after, partial in self.changes:
             expect, has = (after if undo else before), now.get((kind, name))
             if not _matches(has, expect, partial):
-                what = _changed_since((kind, name), {**(has or {}), **expect} if partial
-                                      else expect if expect is not None else before)
+                what = "that keyframe was deleted since" if kind == "key" and has is None \
+                    and expect is not None else _changed_since(
+                        (kind, name), {**(has or {}), **expect} if partial
+                        else expect if expect is not None else before)
                 raise EditError(f"cannot {'undo' if undo else 'redo'} {self.label!r}: "
                                 f"{what} (in another tab or by an edit there); that step is "
                                 "dropped", 409)
@@ -248,6 +252,31 @@ class Histories:
 
     def _tab(self, tab: str) -> _Tab:
         return _use(self.tabs, tab)
+
+    def attend(self, tab: str, gone: Callable[[str], bool]) -> None:
+        """A request of ``tab``: a browser tab without a history of its own takes over the
+        newest history of a tab that is ``gone`` (no page of it open: closed, its browser
+        crashed, or not back since the editor restarted), so that the edits it made can
+        still be undone.  The take-over is journaled; if it cannot be, the history stays
+        where it was."""
+        own = self.tabs.get(tab)
+        if tab == DEFAULT_TAB or (own is not None and (own.undo or own.redo)):
+            return
+        left = [t for t, h in self.tabs.items()
+                if t not in (tab, DEFAULT_TAB) and (h.undo or h.redo) and gone(t)]
+        if not left:
+            return
+        try:
+            self._begin()
+            self._journal({"op": "adopt", "tab": tab, "from": left[-1]}, None)
+        except EditError:
+            return
+        _adopt(self.tabs, tab, left[-1])
+
+    def orphaned(self, gone: Callable[[str], bool]) -> bool:
+        """Whether a tab that is ``gone`` left a history that another tab could take over."""
+        return any(t != DEFAULT_TAB and (h.undo or h.redo) and gone(t)
+                   for t, h in self.tabs.items())
 
     def describe(self, tab: str) -> dict:
         t = self.tabs.get(tab) or _Tab()
@@ -413,7 +442,7 @@ class Histories:
                 f.flush()
                 os.fsync(f.fileno())
             tmp.replace(self.path)
-            _sync_dir(self.path.parent)
+            sync_file(self.path.parent)
             self._base = None
         except OSError as err:
             if strict:
@@ -439,18 +468,11 @@ class Histories:
         return None
 
 
-def _sync_dir(folder: Path) -> None:
-    """Flush a directory's entries (a renamed or new file) to the disk, where that works."""
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+def _adopt(tabs: OrderedDict[str, _Tab], tab: str, gone: str) -> None:
+    """``tab`` takes over the history of the tab ``gone`` (:meth:`Histories.attend`)."""
+    if gone in tabs:
+        tabs[tab] = tabs.pop(gone)
+        tabs.move_to_end(tab)
 
 
 def _read_lines(path: Path) -> list[dict]:
@@ -504,6 +526,8 @@ def _replay(lines: list[dict], scene: Scene | None, source: Path | None, disk: s
             t.undo.append(rec)
             del t.undo[:-MAX_RECORDS]
             t.redo.clear()
+        elif op == "adopt":
+            _adopt(tabs, line["tab"], line["from"])
         elif op in ("undo", "redo", "drop"):
             t = _use(tabs, line["tab"])
             src, dst = (t.undo, t.redo) if op == "undo" or (

@@ -38,7 +38,11 @@ def recover(path: str, real: Path, histories: Histories, notices: list[str],
     auto_scene: Scene | None = None
     base_of_auto = autosave_base(auto) if auto.is_file() else None
     # changed in another program (a deleted file has nothing to protect: the edits come back)
-    if base_of_auto is not None and disk is not None and base_of_auto != disk:
+    changed = base_of_auto is not None and disk is not None and base_of_auto != disk
+    if changed and _saved_edits(real, auto, file_scene, histories):
+        auto.unlink(missing_ok=True)  # a save cut short: the file holds the edits
+        changed = False
+    if changed:
         _set_aside(real, histories, notices)
     elif auto.is_file():
         try:
@@ -85,6 +89,22 @@ def _write_back(auto: Path, state: EditorState, file_scene: Scene | None, auto_s
     except OSError:
         return
     histories.compact(state)
+
+
+def _saved_edits(real: Path, auto: Path, file_scene: Scene | None,
+                 histories: Histories) -> bool:
+    """Whether the scene file is the autosave ``auto`` with the journal's steps replayed over
+    it: the editor saved them and stopped before it dropped its autosave (a crash within the
+    save), so the file on disk is the editor's own, not another program's change."""
+    if file_scene is None:
+        return False
+    try:
+        scene = load_checked(auto)
+    except EditError:
+        return False
+    scene.source = real
+    state = histories.peek(scene, real)
+    return (state.scene if state is not None else scene) == file_scene
 
 
 def _set_aside(real: Path, histories: Histories, notices: list[str]) -> None:

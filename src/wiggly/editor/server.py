@@ -15,7 +15,8 @@ Endpoints (JSON bodies are objects; errors answer ``{"error": message}``)::
     GET  /api/driver           the [drive] driver's keyed frames, binary float32 (F, n, 3);
                                their shot times and groups in the X-Wiggly-Driver header
     GET  /api/events           Server-Sent Events: state, frames, solve, physics, export,
-                               notice (?page=ID: when it ends, that page's drag is abandoned)
+                               notice (?page=ID: when it ends, that page's drag is abandoned;
+                               &tab=ID: the tab is live while one of its pages listens)
     GET  /api/files            scene and mesh files inside the sandbox
     POST /api/edit             an edit {"op": ...} (see wiggly.editor.state), logged:
                                answered once its undo journal line is on the disk (507 if
@@ -30,7 +31,9 @@ Endpoints (JSON bodies are objects; errors answer ``{"error": message}``)::
     PUT  /api/upload?name=F    a mesh file as the raw body, stored in <first root>/uploads/
 
 Edits, undo and redo belong to the tab named by the ``X-Wiggly-Tab`` header (each browser tab
-has its own undo history; requests without it share the tab "api").  A drag's previews
+has its own undo history; requests without it share the tab "api"; a new tab takes over the
+history of a tab that is gone, so that a restart or a crashed browser leaves no edit that
+cannot be undone).  A drag's previews
 belong to the page load named by ``X-Wiggly-Page`` (a reload is a new page): a page that is
 reloaded, closed or crashes mid-drag leaves no preview on the other tabs.
 
@@ -188,8 +191,10 @@ class _Handler(BaseHTTPRequestHandler):
 
     @property
     def tab(self) -> str:
-        """The browser tab of the request (its undo history)."""
-        return Histories.tab_id(self.headers.get("X-Wiggly-Tab"))
+        """The browser tab of the request (its undo history): the ``X-Wiggly-Tab`` header,
+        or the event stream's ``tab`` query parameter."""
+        query = parse_qs(urlsplit(self.path).query).get("tab")
+        return Histories.tab_id(self.headers.get("X-Wiggly-Tab") or (query[0] if query else None))
 
     @property
     def page(self) -> str | None:
@@ -294,11 +299,12 @@ class _Handler(BaseHTTPRequestHandler):
     def get_events(self) -> None:
         session = self.server.session
         bus = session.bus
-        page = self.page
+        page, tab = self.page, self.tab
         if bus.n_subscribers >= self.server.max_streams:
             self._error(503, "too many open event streams")
             return
         q = bus.subscribe()
+        session.page_opened(tab)
         self.close_connection = True
         try:
             self.send_response(200)
@@ -327,8 +333,7 @@ class _Handler(BaseHTTPRequestHandler):
             pass
         finally:
             bus.unsubscribe(q)
-            if page is not None:
-                session.page_closed(page)
+            session.page_closed(page, tab)
 
     # --- POST -----------------------------------------------------------------------------
     def _post(self, fn) -> None:

@@ -41,6 +41,7 @@ from wiggly.editor.history import (
 )
 from wiggly.editor.physics import Physics
 from wiggly.editor.playback import FrameSet, Playback
+from wiggly.editor.presence import TAB_GRACE, Presence
 from wiggly.editor.recovery import recover
 from wiggly.editor.sandbox import Sandbox
 from wiggly.editor.scene_files import (
@@ -100,6 +101,7 @@ class Session(Exports):
         self.notices: list[str] = []
         self._groups_cache: tuple[Any, dict] | None = None
         self._dragging: str | None = None  # the page load whose drag preview is shown
+        self.presence = Presence()  # the tabs with a page open
         self._export_pool = ThreadPoolExecutor(1, thread_name_prefix="wiggly-export")
         self._stop = threading.Event()
         self._told: str | None = None  # the journal's write error the browsers were told
@@ -284,6 +286,8 @@ class Session(Exports):
             self.surface, self.diagonal = surface, diagonal
             self._surface_key = (scene.mesh.path, scene.mesh.metres_per_unit, scene.mesh.up)
             self._opened += 1
+            self.presence.restart()
+            self._offer_history()
             self._groups_cache = None
             self.notices = notices
             self.version += 1
@@ -378,6 +382,7 @@ class Session(Exports):
         """Apply an edit (see :mod:`wiggly.editor.state`), record it in ``tab``'s history and
         start a solve.  New keyframes' ids are returned (``ids``; ``id``: the last one)."""
         with self._lock:
+            self.histories.attend(tab, self.presence.gone)
             old = self.state
             op = self._expand(op)
             new = apply_edit(old, op, self._n_vertices(), self.diagonal)
@@ -477,12 +482,31 @@ class Session(Exports):
             return {"seq": self.playback.restore(self.state, self.version),
                     "version": self.version}
 
-    def page_closed(self, page: str) -> None:
+    def page_opened(self, tab: str) -> None:
+        """A page of ``tab`` opened its event stream: the tab is live (its undo history
+        stays its own, :mod:`wiggly.editor.presence`)."""
+        self.presence.opened(tab)
+
+    def page_closed(self, page: str | None, tab: str | None = None) -> None:
         """The event stream of a page load ended (reloaded, closed or crashed): a drag it
-        left mid-way is abandoned, so the other tabs stop showing its preview."""
+        left mid-way is abandoned, so the other tabs stop showing its preview; ``tab`` has
+        one page fewer."""
         with self._lock:
-            if self._dragging == page:
+            if page is not None and self._dragging == page:
                 self.cancel_preview(page)
+        if tab is not None and self.presence.closed(tab):
+            self._offer_history()
+
+    def _offer_history(self) -> None:
+        """Once tabs may be gone: the pages ask again, and one without an undo history of
+        its own takes over theirs (:meth:`wiggly.editor.history.Histories.attend`)."""
+        def offer() -> None:
+            with self._lock:
+                if self._state is not None and self.histories.orphaned(self.presence.gone):
+                    self.bus.publish("state", version=self.version, dirty=self.dirty)
+        timer = threading.Timer(TAB_GRACE + 0.25, offer)
+        timer.daemon = True
+        timer.start()
 
     def undo(self, tab: str = DEFAULT_TAB) -> dict:
         return self._step(tab, undo=True)
@@ -492,6 +516,7 @@ class Session(Exports):
 
     def _step(self, tab: str, undo: bool) -> dict:
         with self._lock:
+            self.histories.attend(tab, self.presence.gone)
             try:
                 new = self.histories.step(tab, self.state, undo)
             except EditError:
@@ -575,6 +600,7 @@ class Session(Exports):
             if self._state is None:
                 return {"open": False, **base}
             state = self.state
+            self.histories.attend(tab, self.presence.gone)
             try:
                 groups = {k: v.tolist() for k, v in self.groups().items()}
                 group_error = None

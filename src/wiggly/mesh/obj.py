@@ -63,6 +63,10 @@ def read_obj(path: Path) -> Surface:
             poly = [_corner(word, counts, line_no, path) for word in words[1:]]
             for i in range(1, len(poly) - 1):
                 corners.extend((poly[0], poly[i], poly[i + 1]))
+    if not corners and not counts[b"v"]:
+        what = "binary data" if b"\0" in data[:65536] else "no vertex (v) or face (f) lines"
+        raise WigglyInputError(f"{path}: is not a Wavefront OBJ file ({what}); check its "
+                               "extension, or export it again as OBJ")
     if not corners:
         raise WigglyInputError(_NO_TRIANGLES.format(source=path))
     V = _numbers(values[b"v"], 3, b"v", path)

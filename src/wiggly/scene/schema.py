@@ -474,8 +474,10 @@ def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> 
     t0, t1 = scene.time_range()
     for j, kf in enumerate(scene.keyframes):
         if not t0 - 1e-9 <= kf.time <= t1 + 1e-9:
+            who = f"{show(kf.name)} of group {show(kf.group)}" if kf.name else \
+                f"of group {show(kf.group)}"
             p.add(f"keyframes[{j}].time = {show(kf.time)} is outside the shot's time range "
-                  f"[{t0}, {t1}] s")
+                  f"[{t0}, {t1}] s (the keyframe {who}): move it, or the shot's start or end")
     if scene.mesh.path.startswith("builtin:") and \
             scene.mesh.path.removeprefix("builtin:") not in BUILTIN_MODELS:
         p.add(f"mesh.path = {show(scene.mesh.path)} is not a bundled model; use one of "

@@ -191,9 +191,33 @@ def merged_toml(scene: Scene, original: str) -> str | None:
     return text if again == scene else None
 
 
-def _merge(table, new: dict, before: dict) -> None:
+def _fresh(value: Any, nested: bool) -> Any:
+    """A value for tomlkit written as :func:`scene_to_toml` would: tables inside a section or
+    a keyframe inline, keyframes as an array of tables (a plain dict would become a
+    ``[keyframes.position]`` sub-table)."""
+    import tomlkit
+
+    if isinstance(value, dict):
+        if not nested:
+            return value  # a section: a table of its own
+        out = tomlkit.inline_table()
+        out.update({k: _fresh(v, True) for k, v in value.items()})
+        return out
+    if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+        out = tomlkit.aot()
+        for item in value:
+            t = tomlkit.table()
+            t.update({k: _fresh(v, True) for k, v in item.items()})
+            out.append(t)
+        return out
+    return value
+
+
+def _merge(table, new: dict, before: dict, nested: bool = False) -> None:
     """Update the tomlkit ``table`` in place to ``new`` (a :func:`scene_to_dict` level), with
-    ``before`` the same level of the scene the table held."""
+    ``before`` the same level of the scene the table held (``nested``: below a section)."""
+    import tomlkit
+
     for key in [k for k in table if k not in new]:
         del table[key]
     for key, value in new.items():
@@ -202,19 +226,24 @@ def _merge(table, new: dict, before: dict) -> None:
             mine = old.unwrap() if hasattr(old, "unwrap") else old
             if mine == value:
                 continue  # unchanged: its formatting and comments stay
+            if isinstance(value, dict) and isinstance(old, tomlkit.items.InlineTable) \
+                    and set(old) != set(value):  # another kind (an offset made a turn):
+                table[key] = _fresh(value, True)  # written afresh, not patched key by key
+                continue
             if isinstance(value, dict) and hasattr(old, "items"):
-                _merge(old, value, before.get(key, {}) if isinstance(before, dict) else {})
+                _merge(old, value, before.get(key, {}) if isinstance(before, dict) else {},
+                       True)
                 continue
             if (isinstance(value, list) and value and all(isinstance(v, dict) for v in value)
                     and isinstance(old, list) and len(old) == len(value)
                     and all(hasattr(o, "items") for o in old)):
                 was = before.get(key) if isinstance(before, dict) else None
                 for j, (o, v) in enumerate(zip(old, value, strict=True)):
-                    _merge(o, v, was[j] if isinstance(was, list) and j < len(was) else {})
+                    _merge(o, v, was[j] if isinstance(was, list) and j < len(was) else {}, True)
                 continue
-            table[key] = value
+            table[key] = _fresh(value, nested)
         elif not (isinstance(before, dict) and before.get(key) == value):
-            table[key] = value  # new, not a default the original left out
+            table[key] = _fresh(value, nested)  # new, not a default the original left out
 
 
 def save_scene(scene: Scene, path: str | os.PathLike[str], overwrite: bool = False) -> Path:
@@ -240,6 +269,6 @@ def save_scene(scene: Scene, path: str | os.PathLike[str], overwrite: bool = Fal
         raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
     if path.is_dir():
         raise WigglyInputError(f"{path} is a directory")
-    with atomic_file(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
+    with atomic_file(path, durable=True) as tmp:  # on the disk before the editor drops
+        tmp.write_text(text, encoding="utf-8")  # its autosave and journal
     return path

@@ -95,7 +95,7 @@ window.wiggly = {                 // test and benchmark hooks (read-only use)
 // events from the server
 
 function connect() {
-  const es = new EventSource(`/api/events?page=${PAGE}`);
+  const es = new EventSource(`/api/events?page=${PAGE}&tab=${TAB}`);
   es.onmessage = (m) => {
     const e = JSON.parse(m.data);
     if (e.type === 'state') {
@@ -199,7 +199,9 @@ $('btn-play').onclick = togglePlay;
 $('btn-notices').onclick = () => { $('notices').hidden = true; };
 // fn gives the keyframe's changed fields, or null for a value that is not one (then the
 // fields show the scene's values again and nothing is sent)
-const keyField = (id, fn) => { $(id).onchange = () => { const k = currentKey(); if (!k) return; const f = fn($(id)); if (f === null) { renderPanels(); return; } edit({ op: 'update_keyframe', id: k.id, ...f }); }; };
+// a refused value leaves the field (the field being typed in keeps its text otherwise)
+const showScene = (el) => { if (document.activeElement === el) el.blur(); renderPanels(); };
+const keyField = (id, fn) => { $(id).onchange = () => { const k = currentKey(); if (!k) return; const f = fn($(id)); if (f === null) { showScene($(id)); return; } edit({ op: 'update_keyframe', id: k.id, ...f }).then((r) => { if (!r) showScene($(id)); }); }; };
 const numberOf = (el, what) => { const v = parseFloat(el.value); if (Number.isFinite(v)) return v; toast(`keyframe ${what}: ${el.value === '' ? 'empty' : JSON.stringify(el.value)} is not a number`, true); return null; };
 keyField('key-time', (el) => { const t = numberOf(el, 'time'); return t === null ? null : { time: t }; });
 keyField('key-group', (el) => ({ group: el.value }));
@@ -211,10 +213,10 @@ for (const el of document.querySelectorAll('[data-set]')) {
   el.onchange = () => {
     const [section, key, index] = el.dataset.set.split('.');
     let v = el.type === 'checkbox' ? el.checked : el.tagName === 'SELECT' ? el.value : parseFloat(el.value);
-    if (el.type === 'number' && Number.isNaN(v)) { toast(`${section}.${key}: not a number`, true); renderPanels(); return; }  // the scene's value again
+    if (el.type === 'number' && Number.isNaN(v)) { toast(`${section}.${key}: not a number`, true); showScene(el); return; }  // the scene's value again
     if (key === 'modes' || key === 'resolution' || key === 'free_modes') v = Math.round(v);
     if (index !== undefined) { const vec = [...(scene()[section][key])]; vec[+index] = v; v = vec; }
-    edit({ op: 'set', section, values: { [key]: v } }).then((r) => { if (!r) renderPanels(); });  // refused: the scene's value again
+    edit({ op: 'set', section, values: { [key]: v } }).then((r) => { if (!r) showScene(el); });  // refused: the scene's value again
   };
 }
 // view options (this tab only)

@@ -163,12 +163,17 @@ export function toast(text, err = false) {
   clearTimeout(toastTimer);
   toastTimer = setTimeout(() => { el.hidden = true; }, err ? 7000 : 3500);
 }
+export function clearError() {
+  const el = $('toast');
+  if (!el.hidden && el.className === 'err') { el.hidden = true; clearTimeout(toastTimer); }
+}
 // Run a request; errors (the server's 4xx message) go to the toast and the status line.
 export async function act(fn) {
   try { return await fn(); } catch (err) { toast(err.message, true); setStatus(err.message.split('\n')[0], 'err'); return null; }
 }
 export async function edit(op) {
   const r = await act(() => api.post('/api/edit', op));
+  if (r) clearError();  // an earlier refusal's message no longer stands over this edit
   if (r && r.notice) toast(r.notice);  // e.g. undo's depth reached
   return r;
 }
