@@ -154,6 +154,23 @@ def test_targets_drawn_only_around_key_time(offscreen, ball):
     assert np.array_equal(with_targets[1], without[1])
 
 
+def test_targets_sit_where_their_key_puts_the_vertices(offscreen, ball):
+    """A key's target spheres are drawn at its targets, in the same place as the body: a key
+    met exactly puts them on its vertices (the scene is drawn about the frames' centre, and
+    the targets were not moved with it: a demo's feet targets floated at mid-body)."""
+    times, P, F = ball
+    P = P + np.array([0.3, 2.0, -0.5])  # off the origin, so the drawn scene is shifted
+    keyed = np.arange(0, len(P[0]), 7)
+    hl = Highlight(keyed, time=times[10], color=(0.1, 0.3, 1.0), targets=P[10][keyed])
+    with Preview(times, P, F, size=SIZE, highlights=[hl]) as p:
+        p.render(times[10])
+        lo, hi = np.reshape(p._targets[0].GetBounds(), (3, 2)).T
+        drawn = p.positions_at(times[10])[keyed]
+        radius = 0.012 * p.scale
+    assert np.allclose(lo, drawn.min(axis=0) - radius, atol=1e-3 * p.scale)
+    assert np.allclose(hi, drawn.max(axis=0) + radius, atol=1e-3 * p.scale)
+
+
 # ----------------------------------------------------------------------------------------------
 # videos
 

@@ -233,7 +233,7 @@ class Preview:
                 actor = None
                 if hl.targets is not None:
                     radius = 0.012 * self.scale
-                    spheres = pv.PolyData(hl.targets).glyph(
+                    spheres = pv.PolyData(hl.targets - self.origin).glyph(
                         geom=pv.Sphere(radius=radius, theta_resolution=16, phi_resolution=12),
                         scale=False, orient=False)
                     color = 0.75 * np.asarray(hl.color)
