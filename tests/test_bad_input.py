@@ -270,6 +270,10 @@ def _stl_binary_solid_header() -> bytes:
      "is an STL file, not OBJ as its extension says; rename it to end in .stl"),
     ("ball.stl", lambda: trimesh.creation.icosphere(2).export(file_type="ply"),
      "is a PLY file, not STL as its extension says; rename it to end in .ply"),
+    ("ball.stl", lambda: trimesh.creation.icosphere(2).export(file_type="obj").encode(),
+     "is an OBJ file, not STL as its extension says; rename it to end in .obj"),
+    ("ball.ply", lambda: ("# Blender 4.2\no ball\n" + trimesh.creation.icosphere(2).export(
+        file_type="obj")).encode(), "is an OBJ file, not PLY as its extension says"),
     ("ball.stl", lambda: trimesh.creation.icosphere(2).export(file_type="stl_ascii")[:20000]
      .encode(), "the file is cut short: an ASCII STL ends with an 'endsolid' line"),
     ("ball.stl", lambda: _stl_binary_solid_header()[:8042],

@@ -315,6 +315,20 @@ def _binary_stl(head: bytes, size: int) -> bool:
     return len(head) >= 84 and size == 84 + 50 * int.from_bytes(head[80:84], "little")
 
 
+_OBJ_WORDS = {b"v", b"vt", b"vn", b"vp", b"f", b"l", b"p", b"o", b"g", b"s", b"mtllib",
+              b"usemtl"}
+
+
+def _obj_like(head: bytes) -> bool:
+    """Whether ``head`` reads as the start of a Wavefront OBJ file: text whose lines (but
+    comments, and the last, maybe cut) all start with OBJ's words, ``v`` among them."""
+    if b"\0" in head:
+        return False
+    words = [line.split(b"#", 1)[0].split()[:1] for line in head.splitlines()[:-1]]
+    words = [w[0] for w in words if w]
+    return b"v" in words and all(w in _OBJ_WORDS for w in words)
+
+
 def _sniff(head: bytes, size: int) -> str | None:
     """The surface format a file's first bytes show (an extension), or None if unsure."""
     first = head.split(None, 1)[0] if head.strip() else b""
@@ -330,6 +344,8 @@ def _sniff(head: bytes, size: int) -> str | None:
         return ".stl"
     if head.lstrip().startswith(b"{") and b'"asset"' in head:
         return ".gltf"
+    if _obj_like(head):
+        return ".obj"
     return None
 
 
