@@ -22,11 +22,13 @@ $(TESTED): $(STAMP)
 
 venv: $(STAMP)
 
-## Compile the warp's numba kernels into their on-disk cache (20-60 s once; 1 s when cached).
+## Compile the warp's numba kernels into their on-disk cache (about a minute on two cores
+## the first time, with a live elapsed-time line; 1 s when cached).
 kernels: $(STAMP)
-	@echo "[make] warp kernels: compiling into numba's cache (20-60 s the first time)"
-	@$(BIN)/python -c "import time; t = time.perf_counter(); \
-	  from wiggly.warp.kernels import compile_all; compile_all(); \
+	@$(BIN)/python -c "import logging, time; t = time.perf_counter(); \
+	  logging.basicConfig(format='[wiggly] %(message)s', level=logging.INFO); \
+	  from wiggly.progress import reporting; shown = reporting(); shown.__enter__(); \
+	  from wiggly.warp.kernels import ensure_compiled; ensure_compiled(); \
 	  from wiggly.drive.unwarp import compile_kernels; compile_kernels(); \
 	  print(f'[wiggly] warp kernels ready ({time.perf_counter() - t:.1f} s)')"
 

@@ -147,7 +147,7 @@ def test_animate_without_outputs(capsys, tmp_path):
 
 def test_a_first_run_tells_the_kernels_compile_apart_from_the_solve(capsys, tmp_path,
                                                                     monkeypatch):
-    """The warp's kernels compile once after an install (20-60 s): the summary's time line
+    """The warp's kernels compile once after an install (about a minute): the summary's time line
     gives it its own figure instead of folding it into the solve's (stood in for here by a
     0.6 s wait); an already compiled process says nothing of it."""
     import importlib

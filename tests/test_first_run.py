@@ -52,7 +52,8 @@ def test_compiling_is_announced_before_it_starts(monkeypatch, caplog):
         finally:
             logging.getLogger("wiggly").handlers.pop()
     assert events == [kernels.COMPILING, "compiled"]
-    assert kernels.COMPILING.startswith("compiling the warp kernels, once, about 20 s")
+    assert kernels.COMPILING.startswith("compiling the warp kernels, once after an install: "
+                                        "about a minute")
 
 
 @needs_numba

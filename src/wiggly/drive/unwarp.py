@@ -236,7 +236,8 @@ if _HAVE_NUMBA:
 
 
 #: Said before a first compilation of the unwarp kernels (numba's cache is cold).
-COMPILING = "compiling the unwarp kernels, once, about 10 s (longer on a busy machine)"
+COMPILING = ("compiling the unwarp kernels, once after an install: about 10 s (longer "
+             "on a busy machine)")
 _ready = False
 
 

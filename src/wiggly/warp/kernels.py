@@ -41,7 +41,8 @@ __all__ = ["NumbaKernels", "NumpyKernels", "cache_is_cold", "compile_all", "ensu
            "kernels_for"]
 
 #: What a first warped solve after an install waits for, said before it starts.
-COMPILING = "compiling the warp kernels, once, about 20 s (longer on a busy machine)"
+COMPILING = ("compiling the warp kernels, once after an install: about a minute on two "
+             "cores (longer on a busy machine)")
 _ready = False
 
 
