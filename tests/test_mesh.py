@@ -396,6 +396,34 @@ def test_obj_that_is_not_one_says_so(tmp_path, data, said):
     assert said in str(err.value) and "junk.obj" in str(err.value)
 
 
+def test_a_plain_obj_reads_as_the_line_by_line_reader_reads_it(tmp_path, monkeypatch):
+    """A plain OBJ (v lines, then f lines, with comments and names: a scanner's output) is
+    parsed by numpy at once, 5 times faster on a 53 MB file; the vertices and faces are
+    those of the line-by-line reader, bit for bit. Files with more than that take the
+    line-by-line reader."""
+    from wiggly.mesh import obj
+
+    rng = np.random.default_rng(3)
+    mesh = trimesh.creation.icosphere(3)
+    V = np.asarray(mesh.vertices) * rng.uniform(0.5, 2.0, (len(mesh.vertices), 1)) * 1e-3
+    lines = ["# scanned", "mtllib scan.mtl", "o scan"]
+    lines += [f"v {x!r} {y:.9e} {z:.17g}" for x, y, z in V.tolist()]
+    lines += ["g body", "usemtl skin", "s 1"]
+    lines += ["f {} {} {}".format(*(f + 1)) for f in np.asarray(mesh.faces)]
+    plain = tmp_path / "plain.obj"
+    plain.write_text("\n".join(lines) + "\n")
+    assert obj._plain(plain.read_bytes().splitlines()) is not None
+    fast = obj.read_obj(plain)
+    with monkeypatch.context() as m:
+        m.setattr(obj, "_plain", lambda lines: None)
+        slow = obj.read_obj(plain)
+    assert np.array_equal(fast.vertices, slow.vertices) and fast.vertices.dtype == np.float64
+    assert np.array_equal(fast.faces, slow.faces) and len(fast.faces) == len(mesh.faces)
+    for other in (["v 0 0 0 1 0 0"], ["vn 0 0 1"], ["f 1/1 2/2 3/3"], ["f -1 -2 -3"],
+                  ["l 1 2"], ["f 1 2 3", "v 5 5 5"]):  # colours, normals, UVs, relative, ...
+        assert obj._plain([line.encode() for line in lines + other]) is None, other
+
+
 def test_obj_of_quads_only_is_split_into_triangles(tmp_path):
     """A file of quads only (Blender's OBJ export of a quad mesh) loads as triangles: every
     quad (a, b, c, d) as (a, b, c) and (a, c, d), the file's vertex order, an enclosed

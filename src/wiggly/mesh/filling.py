@@ -107,6 +107,9 @@ class TetBudgetError(WigglyInputError):
 #: A surface vertex farther than this many tet edge lengths outside the tet mesh is reported.
 FAR_OUTSIDE = 1.0
 
+#: Surfaces of more triangles (scans) get a line before each step that takes them seconds.
+LARGE_SURFACE = 200_000
+
 #: A tet mesh that lacks more than this share of the volume its surface encloses is reported:
 #: parts thinner than the tets get no tets of their own, so the body is lighter and softer
 #: than its surface.  Tets / enclosed volume measured at resolutions 12, 25 and 40: the
@@ -319,7 +322,10 @@ def tetrahedralize_with_report(
     V, F = checked.vertices, canonical_faces(checked.faces)
     centre = far_centre(V[np.unique(F)], report.diagonal)
     V = V - centre  # exact (Sterbenz): both are about the same far coordinate
-    simple = mesh_checks.simplified_envelope(V, F, h, report.area) if simplify else None
+    # a scan's million triangles take VTK's decimation seconds: a line says what runs
+    with activity(f"simplifying {Path(source).name}'s {counted(len(F), 'triangle')} for the "
+                  "tetrahedralizer", enabled=simplify and len(F) > LARGE_SURFACE):
+        simple = mesh_checks.simplified_envelope(V, F, h, report.area) if simplify else None
     if simple is not None:
         V, F = simple
     V, F = used_only(V, F)

@@ -24,6 +24,7 @@ from wiggly.mesh.data import (
 from wiggly.mesh.defects import diagonal
 from wiggly.mesh.obj import read_obj
 from wiggly.mesh.validate import check_tet_mesh
+from wiggly.progress import activity
 
 # --------------------------------------------------------------------------- loading
 
@@ -130,6 +131,16 @@ def _load_mesh(path: Path) -> TetMesh | Surface:
     if not path.is_file():
         where = "is a directory, not a file" if path.is_dir() else "does not exist"
         raise WigglyInputError(f"{source}: {where}; give the path of a mesh file.")
+    size = path.stat().st_size
+    with activity(f"reading {source} ({size / 1e6:.0f} MB)", enabled=size > LARGE_FILE):
+        return _read(path, ext, source)
+
+
+#: Mesh files larger than this (bytes) get a line while they are read.
+LARGE_FILE = 20_000_000
+
+
+def _read(path: Path, ext: str, source: str) -> TetMesh | Surface:
     if ext in SURFACE_EXTENSIONS:
         surface = _load_trimesh(path, ext)
         check_surface_arrays(surface, source)

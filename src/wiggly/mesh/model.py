@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from wiggly.checks import mesh_arrays
+from wiggly.errors import counted
 from wiggly.mesh.data import Embedding, Model, Surface, TetMesh, embed, without_small_pieces
 from wiggly.mesh.defects import (
     CheckedSurface,
@@ -18,13 +19,14 @@ from wiggly.mesh.defects import (
 )
 from wiggly.mesh.filling import (
     FAR_OUTSIDE,
+    LARGE_SURFACE,
     MeshRepairWarning,
     repair_note,
     tetrahedralize_with_report,
     volume_lost,
 )
 from wiggly.mesh.loading import load_mesh
-from wiggly.progress import deprecated_progress
+from wiggly.progress import activity, deprecated_progress
 
 #: Solid pieces of a filled surface's tet mesh with less than this share of its volume are left
 #: out (:func:`wiggly.mesh.data.without_small_pieces`); larger loose parts are refused by the
@@ -103,7 +105,10 @@ def build_model(
         # there (a motion of zero elastic energy): the surface around them follows the
         # nearest tets of the body instead
         tets, dropped, share = without_small_pieces(tets, SMALL_PIECE)
-        embedding = embed(loaded.vertices, tets)
+        with activity(f"placing {counted(loaded.n_vertices, 'surface vertex')} in the "
+                      f"{counted(tets.n_tets, 'tet')}",
+                      enabled=loaded.n_faces > LARGE_SURFACE):
+            embedding = embed(loaded.vertices, tets)
         outside = embedding.outside_distance(tets)[np.unique(loaded.faces)] / info["edge_length"]
         far = outside > FAR_OUTSIDE
         filled = float(tets.volumes().sum())

@@ -45,6 +45,9 @@ def read_obj(path: Path) -> Surface:
     with open(path, "rb") as file:
         data = file.read().replace(b"\\\r\n", b" ").replace(b"\\\n", b" ")
     lines = data.splitlines()
+    plain = _plain(lines)
+    if plain is not None:
+        return Surface(*plain)
     last = len(lines)
     for line_no, raw in enumerate(lines, 1):
         words = raw.split(b"#", 1)[0].split()
@@ -85,6 +88,40 @@ def read_obj(path: Path) -> Surface:
     if (C[:, :, 2] >= 0).all():
         normals = _per_vertex(_numbers(values[b"vn"], 3, b"vn", path)[C[:, :, 2]], F, len(V))
     return Surface(V, F, uvs=uvs, normals=normals)
+
+
+# lines a plain file may hold besides v and f: nothing the reader keeps
+_SKIPPED = (b"#", b"o ", b"g ", b"s ", b"usemtl", b"mtllib")
+
+
+def _plain(lines: list[bytes]) -> tuple[np.ndarray, np.ndarray] | None:
+    """The vertices and triangles of a file of ``v x y z`` lines, then ``f a b c`` lines
+    (1-based, no ``/``), comments and names (a scanner's or a converter's output, often
+    millions of lines), parsed by numpy at once: the general reader takes 6 s per million
+    lines.  None for any other file, which the general reader then reads, with its checks
+    and messages."""
+    v = [line[2:] for line in lines if line[:2] == b"v "]
+    f = [line[2:] for line in lines if line[:2] == b"f "]
+    if not v or not f or len(v) + len(f) + sum(
+            1 for line in lines if not line.strip() or line.startswith(_SKIPPED)) != len(lines):
+        return None
+    last_v = len(lines) - 1 - next(i for i, line in enumerate(reversed(lines))
+                                   if line[:2] == b"v ")
+    first_f = next(i for i, line in enumerate(lines) if line[:2] == b"f ")
+    faces = b" ".join(f)
+    if last_v > first_f or b"/" in faces or b"#" in faces or b"-" in faces:
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a token that is not a number: not plain
+        try:
+            V = np.fromstring(b" ".join(v), sep=" ")
+            F = np.fromstring(faces, dtype=np.int64, sep=" ")
+        except (ValueError, DeprecationWarning):
+            return None
+    if V.size != 3 * len(v) or F.size != 3 * len(f) or not np.isfinite(V).all() \
+            or F.min() < 1 or F.max() > len(v):
+        return None
+    return V.reshape(-1, 3), F.reshape(-1, 3) - 1
 
 
 def _corner(word: bytes, counts: dict[bytes, int], line_no: int, path: Path) -> list[int]:
