@@ -83,6 +83,20 @@ def test_usage_errors_exit_2(capsys, argv):
     assert "usage: wiggly" in err and "Traceback" not in err
 
 
+@pytest.mark.parametrize(("argv", "said"), [
+    (["animate", "x.toml", "--warp"], "wiggly animate: error: unrecognized arguments: --warp "
+     "(the solve is warped by default; --linear solves without the warp)"),
+    (["animate", "x.toml", "--overwite"], "(did you mean --overwrite?)"),
+    (["modes", "m.obj", "--overwite"], "wiggly modes: error: unrecognized arguments"),
+])
+def test_an_unknown_option_names_the_commands_own(capsys, argv, said):
+    """An option the command does not have: the command's usage (not wiggly's, which lists
+    no option of it) and the closest option it has, or what the guess means."""
+    code, _, err = run_main(capsys, *argv)
+    assert code == 2 and said in err, err
+    assert f"usage: wiggly {argv[0]} " in err and f"`wiggly {argv[0]} --help`" in err, err
+
+
 def test_schema_command(capsys):
     code, out, _ = run_main(capsys, "schema")
     assert code == 0 and json.loads(out) == scene_schema()
@@ -176,6 +190,14 @@ def test_user_errors_exit_1(capsys, tmp_path):
     assert code == 1 and "unsupported output extension '.mov'" in err
     code, _, err = run_main(capsys, "modes", tmp_path / "nothing.obj")
     assert code == 1 and "does not exist" in err and "Traceback" not in err
+    (tmp_path / "out").mkdir()  # an output folder for a file: named as one
+    code, _, err = run_main(capsys, "animate", write_scene(tmp_path, SCENE), "-o",
+                            tmp_path / "out")
+    assert code == 1 and "out: it is a directory; give a file name in it, e.g. " in err, err
+    (tmp_path / "taken.npz").write_bytes(b"")  # the path once, not "taken.npz: taken.npz"
+    code, _, err = run_main(capsys, "animate", write_scene(tmp_path, SCENE), "-o",
+                            tmp_path / "taken.npz")
+    assert code == 1 and err.count("taken.npz") == 1, err
 
 
 def test_internal_error_prints_traceback(capsys, tmp_path, monkeypatch):

@@ -408,7 +408,7 @@ def prepare(
     M = mass_matrix(V, T, material.density, lumped=lumped)
     K = stiffness_matrix(V, T, material.young if young is None else young, material.poisson)
     modes = compute_modes(
-        K, M, n_modes, vertices=V, fixed_vertices=fixed, cache_dir=cache_dir
+        K, M, n_modes, vertices=V, fixed_vertices=fixed, cache_dir=cache_dir, called="n_modes"
     )
     split = modes.split_group()
     if split:

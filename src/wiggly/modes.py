@@ -397,6 +397,7 @@ def compute_modes(
     cache_dir: str | os.PathLike[str] | Literal[False] | None = None,
     method: Literal["auto", "sparse", "dense"] = "auto",
     backend: str | None = None,
+    called: str = "r",
 ) -> Modes:
     """Lowest r eigenmodes of K phi = lambda M phi, rigid modes first (Schulz et al. 2014, eq. (5)).
 
@@ -418,6 +419,8 @@ def compute_modes(
         "auto": dense up to :data:`DENSE_MAX_DOFS` free dofs (or when r >= free dofs - 1).
     backend : str, optional
         Sparse Cholesky backend, see :func:`wiggly.linalg.factorize_spd`.
+    called : str
+        How messages name ``r`` (``"n_modes"`` for :func:`wiggly.prepare`).
 
     Returns
     -------
@@ -439,7 +442,7 @@ def compute_modes(
     M = _as_csr(M, "M", 3 * n)
     fixed = vertex_set(fixed_vertices, n, "fixed_vertices")
     if isinstance(r, bool) or not isinstance(r, int | np.integer):
-        raise WigglyInputError(f"r (number of modes) should be an integer; got {r!r}")
+        raise WigglyInputError(f"{called} (number of modes) should be an integer; got {r!r}")
     r = int(r)
     free_mask = np.ones(3 * n, dtype=bool)
     free_mask[(3 * fixed[:, None] + np.arange(3)).ravel()] = False
@@ -447,7 +450,8 @@ def compute_modes(
     nf = free_dofs.size
     if r > MAX_MODES:
         raise WigglyInputError(
-            f"r (number of modes) should be at most {MAX_MODES} (wiggly.limits.MAX_MODES, as in "
+            f"{called} (number of modes) should be at most {MAX_MODES} (wiggly.limits.MAX_MODES, "
+            "as in "
             f"scene files); got {r}"
         )
     if nf == 0:
@@ -455,7 +459,8 @@ def compute_modes(
             "every vertex is fixed: no degrees of freedom are left to move (fix fewer vertices)")
     if r < 1 or r > nf:
         raise WigglyInputError(
-            f"r (number of modes) should be in [1, {nf}] (the number of free dofs); got {r}"
+            f"{called} (number of modes) should be in [1, {nf}] (the number of free dofs); got "
+            f"{r}"
         )
     if method not in ("auto", "sparse", "dense"):
         raise WigglyInputError(f"method should be 'auto', 'sparse' or 'dense'; got {method!r}")
@@ -471,7 +476,8 @@ def compute_modes(
             return cached
 
     with blas_single_thread():
-        modes = _compute_modes(K, M, r, V, fixed, free_dofs, method, backend, _Progress(shown()))
+        modes = _compute_modes(K, M, r, V, fixed, free_dofs, method, backend,
+                               _Progress(shown()), called)
     if path is not None:
         _save_cache(path, key, modes)
     return modes
@@ -487,6 +493,7 @@ def _compute_modes(
     method: str,
     backend: str | None,
     progress: _Progress,
+    called: str = "r",
 ) -> Modes:
     n = V.shape[0]
     nf = free_dofs.size
@@ -521,9 +528,10 @@ def _compute_modes(
             )
     if r < n_rigid:
         raise WigglyInputError(
-            f"r = {r} is smaller than the number of rigid modes of this body ({n_rigid}); "
-            "the basis must contain all rigid modes, or the body could not move freely: use "
-            f"r >= {n_rigid} (r = {n_rigid} moves it rigidly only; each mode more bends it)"
+            f"{called} = {r} is smaller than the number of rigid modes of this body "
+            f"({n_rigid}); the basis must contain all rigid modes, or the body could not move "
+            f"freely: use {called} >= {n_rigid} ({called} = {n_rigid} moves it rigidly only; "
+            "each mode more bends it)"
         )
     progress.say(f"{n_rigid} rigid modes; {r - n_rigid} elastic modes to compute ({nf} dofs)")
 

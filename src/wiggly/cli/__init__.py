@@ -18,6 +18,7 @@ only on a terminal (:mod:`wiggly.progress`).
 from __future__ import annotations
 
 import argparse
+import difflib
 import logging
 import signal
 import sys
@@ -116,9 +117,11 @@ def main(argv: list[str] | None = None) -> int:
     """Run ``wiggly`` with ``argv`` (default: ``sys.argv[1:]``); return the exit code."""
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
     except SystemExit as exit_:  # --help, --version (0) or a usage error (2)
         return exit_.code if isinstance(exit_.code, int) else 2
+    if extra:
+        return _unrecognized(parser, args, extra)
     if args.command is None:
         parser.print_help(sys.stderr)
         return 2
@@ -155,6 +158,35 @@ def main(argv: list[str] | None = None) -> int:
             logger.removeHandler(handler)
             logger.setLevel(level)
         return 1
+
+
+#: What an option a user may guess for means instead.
+_MEANT = {"--warp": "the solve is warped by default; --linear solves without the warp",
+          "--warped": "the solve is warped by default; --linear solves without the warp",
+          "--force": "--overwrite replaces existing outputs"}
+
+
+def _unrecognized(parser: argparse.ArgumentParser, args: argparse.Namespace,
+                  extra: list[str]) -> int:
+    """A usage error for arguments the command does not take: its own usage, and the
+    options it has that come closest (the top-level usage named none of them)."""
+    command = getattr(args, "command", None)
+    sub = next((a.choices[command] for a in parser._actions
+                if isinstance(a, argparse._SubParsersAction) and command in a.choices), parser)
+    options = [o for a in sub._actions for o in a.option_strings if o.startswith("--")]
+    flags = [w.split("=", 1)[0] for w in extra if w.startswith("-")]
+    hints = []
+    for flag in flags:
+        close = difflib.get_close_matches(flag, options, n=1, cutoff=0.6)
+        hint = _MEANT.get(flag) or (f"did you mean {close[0]}?" if close else None)
+        if hint:
+            hints.append(hint if len(flags) == 1 else f"{flag}: {hint}")
+    sub.print_usage(sys.stderr)
+    name = f"wiggly {command}" if command else "wiggly"
+    print(f"{name}: error: unrecognized arguments: {' '.join(extra)}"
+          + (f" ({'; '.join(hints)})" if hints else "")
+          + f"; `{name} --help` lists its options", file=sys.stderr)
+    return 2
 
 
 def _error(message: str) -> None:

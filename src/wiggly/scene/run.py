@@ -56,30 +56,40 @@ def check_outputs(paths: list[Path], overwrite: bool, where: str = "outputs",
     :class:`WigglyInputError` listing every problem."""
 
     problems = []
+
+    def said(label: str, text: str) -> None:  # no "a.mp4: a.mp4 exists"
+        problems.append(text if text.startswith(label) else f"{label}: {text}")
+
     seen = set()
     labels = labels or [str(p) for p in paths]
     for path, label in zip(paths, labels, strict=True):
         ext = path.suffix.lower()
+        named = str(path) in label and label != str(path)  # "-o a.glb": a.glb named already
+        it, the_file = ("it", "the file") if named else (str(path), str(path))
+        if ext not in OUTPUT_EXTENSIONS and path.is_dir():
+            said(label, f"{it} is a directory; give a file name in it, e.g. "
+                        f"{path / 'shot.glb'}")
+            continue
         if ext not in OUTPUT_EXTENSIONS:
-            problems.append(f"{label}: unsupported output extension "
-                            f"{path.suffix or '(none)'!r}; use one of "
-                            f"{', '.join(OUTPUT_EXTENSIONS)}")
+            said(label, f"unsupported output extension {path.suffix or '(none)'!r}; use one "
+                        f"of {', '.join(OUTPUT_EXTENSIONS)}")
             continue
         if path.resolve() in seen:
-            problems.append(f"{label}: {path} is given twice")
+            said(label, f"{the_file} is given twice")
         seen.add(path.resolve())
         why = check_writable(path)
         if why is not None:
-            problems.append(f"{label}: {why}")
+            said(label, why)
         elif path.is_dir():
-            problems.append(f"{label}: {path} is a directory; give a file name")
+            said(label, f"{it} is a directory; give a file name")
         elif not overwrite:
             existing = path if path.exists() else None
             if ext == ".obj" and existing is None:
                 first = path.with_name(f"{path.stem}_0000.obj")
                 existing = first if first.exists() else None
             if existing is not None:
-                problems.append(f"{label}: {existing} exists; {replace_how} to replace it")
+                said(label, f"{the_file if existing == path else existing} exists; "
+                            f"{replace_how} to replace it")
     if problems:
         raise input_error(where, problems)
 
