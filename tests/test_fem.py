@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
+import warnings
 
 import numpy as np
 import pytest
@@ -53,11 +55,25 @@ def test_material_defaults_and_lame():
 
     spec = MaterialSpec()
     assert (spec.young, spec.poisson, spec.density) == (mat.young, mat.poisson, mat.density)
-    lam, mu = Material(young=2.0, poisson=0.25).lame
+    lam, mu = Material(young=2e3, poisson=0.25).lame
     # nu = 1/4: lambda = mu = E / 2.5
-    assert lam == pytest.approx(0.8) and mu == pytest.approx(0.8)
+    assert lam == pytest.approx(800.0) and mu == pytest.approx(800.0)
     with pytest.raises(AttributeError):
         mat.young = 1.0  # frozen
+
+
+@pytest.mark.parametrize(("kw", "said"), [
+    ({"young": 0.05}, "young = 0.05 Pa is softer than any solid"),  # 0.05 MPa meant
+    ({"density": 1.1}, "density = 1.1 kg/m^3 is lighter than any foam"),  # g/cm^3 meant
+])
+def test_a_material_in_other_units_is_warned_about(kw, said):
+    """A modulus in MPa or a density in g/cm^3 read as SI: accepted (within the ranges the
+    arithmetic takes), and said, with the value in the other unit."""
+    with pytest.warns(UserWarning, match=re.escape(said)):
+        Material(**kw)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Material(young=1e2, density=10.0)  # a soft gel, a light foam: no warning
 
 
 @pytest.mark.parametrize(

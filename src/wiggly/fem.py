@@ -19,6 +19,7 @@ vectorized over elements (element blocks are summed by a COO -> CSR conversion).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,6 +53,25 @@ def _as_real(name: str, value: object, allowed: str) -> float:
 #: overflows (a Young's modulus of 1e-300 Pa never finished; 1e300 overflowed K).
 YOUNG_RANGE = (1e-3, 1e13)
 DENSITY_RANGE = (1e-3, 1e6)
+
+
+#: Below these a material is softer than any gel (about 1e2 Pa) or lighter than any foam
+#: (about 10 kg/m^3): a value in MPa or g/cm^3 read as SI, said once.
+PLAUSIBLE_YOUNG = 10.0
+PLAUSIBLE_DENSITY = 5.0
+
+
+def _warn_units(young: float, density: float) -> None:
+    """Warn of a Young's modulus or density that reads as another unit than wiggly's SI."""
+    if young < PLAUSIBLE_YOUNG:
+        warnings.warn(
+            f"young = {young:g} Pa is softer than any solid (gels are about 1e2 to 1e4 Pa, "
+            f"rubber about 1e6): wiggly takes pascals; {young:g} MPa would be "
+            f"{young * 1e6:g}", stacklevel=4)
+    if density < PLAUSIBLE_DENSITY:
+        warnings.warn(
+            f"density = {density:g} kg/m^3 is lighter than any foam (water is 1000): wiggly "
+            f"takes kg/m^3; {density:g} g/cm^3 would be {density * 1e3:g}", stacklevel=4)
 
 
 def _check_young(young: float) -> float:
@@ -100,6 +120,7 @@ class Material:
         object.__setattr__(self, "young", _check_young(self.young))
         object.__setattr__(self, "poisson", _check_poisson(self.poisson))
         object.__setattr__(self, "density", _check_density(self.density))
+        _warn_units(self.young, self.density)
 
     @property
     def lame(self) -> tuple[float, float]:
