@@ -226,7 +226,7 @@ class Keyframe:
         return replace(self, time=t, vertices=v, position=pos, velocity=vel)
 
     def weights(self, body: Body, duration: float) -> tuple[float, float]:
-        """(c_A, c_B) of eq. (4), from explicit values or the dimensionless stiffness."""
+        """(c_A, c_B) of eq. (6), from explicit values or the dimensionless stiffness."""
         k = max(len(self.vertices), 1)
         m = body.mass
         c_A = self.c_A if self.c_A is not None else self.stiffness * m / (k * duration**3)
