@@ -200,6 +200,20 @@ def test_user_errors_exit_1(capsys, tmp_path):
     assert code == 1 and err.count("taken.npz") == 1, err
 
 
+def test_a_glb_past_4_gib_is_refused_before_the_solve(capsys, tmp_path, monkeypatch):
+    """GLB's sizes are 32-bit: a .glb of a morph target per frame past 4 GiB (an hour-long
+    shot of a scan) is refused before anything is solved, saying what fits (it failed
+    after the solve with an internal error); here the limit is lowered to 1 kB."""
+    from wiggly.export import gltf
+
+    monkeypatch.setattr(gltf, "GLB_LIMIT", 1000)
+    scene = write_scene(tmp_path, {**SCENE, "output": {"paths": ["out/bar.glb"]}})
+    code, _, err = run_main(capsys, "animate", scene)
+    assert code == 1 and "more than the 4 GiB a GLB file can hold" in err, err
+    assert "write .usdc" in err and "solve" not in err and "Traceback" not in err
+    assert not (tmp_path / "out" / "bar.glb").exists()
+
+
 def test_internal_error_prints_traceback(capsys, tmp_path, monkeypatch):
     import wiggly.scene
 

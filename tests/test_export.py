@@ -202,14 +202,28 @@ def test_glb_passes_khronos_validator(tmp_path, gltf_validator):
 def raw_accessor(gltf, index) -> np.ndarray:
     """Accessor data straight from the buffer, with pygltflib's objects only."""
     acc = gltf.accessors[index]
-    view = gltf.bufferViews[acc.bufferView]
     dtype = {5126: np.float32, 5123: np.uint16, 5125: np.uint32}[acc.componentType]
     width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3}[acc.type]
     itemsize = np.dtype(dtype).itemsize
-    stride = view.byteStride or itemsize * width
-    assert stride % 4 == 0 and (view.byteOffset + acc.byteOffset) % 4 == 0
-    return np.ndarray((acc.count, width), dtype, buffer=gltf.binary_blob(),
-                      offset=view.byteOffset + acc.byteOffset, strides=(stride, itemsize))
+    if acc.bufferView is None:  # glTF: zeros, then the sparse entries (sec. 3.6.2.3)
+        out = np.zeros((acc.count, width), dtype)
+    else:
+        view = gltf.bufferViews[acc.bufferView]
+        stride = view.byteStride or itemsize * width
+        assert stride % 4 == 0 and (view.byteOffset + acc.byteOffset) % 4 == 0
+        out = np.ndarray((acc.count, width), dtype, buffer=gltf.binary_blob(),
+                         offset=view.byteOffset + acc.byteOffset, strides=(stride, itemsize))
+    if acc.sparse is not None:
+        out = out.copy()
+        sp_ = acc.sparse
+        iview = gltf.bufferViews[sp_.indices.bufferView]
+        vview = gltf.bufferViews[sp_.values.bufferView]
+        idx = np.frombuffer(gltf.binary_blob(), {5125: np.uint32, 5123: np.uint16}[
+            sp_.indices.componentType], sp_.count, iview.byteOffset)
+        assert np.all(np.diff(idx.astype(np.int64)) > 0)  # strictly rising, as glTF asks
+        out[idx] = np.frombuffer(gltf.binary_blob(), dtype, sp_.count * width,
+                                 vview.byteOffset).reshape(-1, width)
+    return out
 
 
 def test_glb_morph_targets_reproduce_frames(tmp_path):
@@ -239,6 +253,9 @@ def test_glb_morph_targets_reproduce_frames(tmp_path):
                                anim.times.astype(np.float32))
     W = raw_accessor(gltf, sampler.output).reshape(anim.n_frames, anim.n_frames)
     np.testing.assert_array_equal(W, np.eye(anim.n_frames))
+    # stored as its F ones (sparse), not F^2 floats: 18001 frames made 1.3 GB of zeros
+    out = gltf.accessors[sampler.output]
+    assert out.bufferView is None and out.sparse.count == anim.n_frames
     assert animation.extras["wiggly"]["times"] == anim.times.tolist()
     assert gltf.meshes[0].extras["targetNames"][3] == "frame_0003"
     # glTF's V axis points down: TEXCOORD_0 = (u, 1 - v)
@@ -907,3 +924,15 @@ def test_a_body_far_from_the_origin_is_told_its_float32_rounding(tmp_path, ext, 
     with pytest.warns(UserWarning, match=rf"far{re.escape(ext)}: the body lies 1e\+05 m from "
                                          r"the origin.* steps of about 1\d mm"):
         write_animation(tmp_path / f"far{ext}", far)
+
+
+def test_a_glb_past_its_32_bit_sizes_is_refused_and_leaves_no_file(tmp_path, monkeypatch):
+    """write_animation refuses a .glb beyond GLB's 32-bit sizes with a WigglyInputError that
+    says what fits (a struct.error and an internal error before); the limit lowered here."""
+    from wiggly.export import gltf
+
+    monkeypatch.setattr(gltf, "GLB_LIMIT", 10_000)
+    with pytest.raises(WigglyInputError, match=r"a.glb: the .glb would be .* GiB, more than "
+                       r"the 4 GiB a GLB file can hold .*write .usdc"):
+        write_animation(tmp_path / "a.glb", sphere_animation(F=10))
+    assert list(tmp_path.iterdir()) == []

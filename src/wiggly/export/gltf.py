@@ -20,6 +20,7 @@ from wiggly.export.animation import (
     frame_progress,
     gltf_times,
 )
+from wiggly.files import shown_name
 
 # ----------------------------------------------------------------------------------------------
 # glTF binary
@@ -92,7 +93,7 @@ def write_glb(path: Path, anim: SurfaceAnimation, *,
                 f.write(memoryview(np.ascontiguousarray(dn)).cast("B"))
 
         n_targets = F
-        weights = np.eye(F, dtype=np.float32)  # keyframe k: weight 1 on target k
+        weights = None  # keyframe k: weight 1 on target k, 0 on the others (sparse below)
         names = [f"frame_{k:04d}" for k in range(F)]
     t32 = gltf_times(anim.times, frame_start, anim.loop)
     index_type = _GL_UNSIGNED_SHORT if n <= 65535 else _GL_UNSIGNED_INT
@@ -145,8 +146,20 @@ def write_glb(path: Path, anim: SurfaceAnimation, *,
     ]
     time_accessor = add_accessor(add_data(t32), len(t32), _GL_FLOAT, "SCALAR",
                                  bounds=extent(t32))
-    flat = weights.astype(np.float32).ravel()
-    weight_accessor = add_accessor(add_data(flat), len(flat), _GL_FLOAT, "SCALAR")
+    if weights is None:  # the identity of F x F weights, sparse: F entries, not F^2 (an
+        # 18001-frame shot had 1.3 GB of zeros); indices k F + k rise, as glTF asks
+        diagonal = np.arange(F, dtype=np.uint32) * np.uint32(F + 1)
+        accessors.append(gl.Accessor(componentType=_GL_FLOAT, count=F * F, type="SCALAR",
+                                     byteOffset=None,  # no bufferView: zeros but the sparse
+                                     sparse=gl.Sparse(
+            count=F,
+            indices=gl.AccessorSparseIndices(bufferView=add_data(diagonal),
+                                             componentType=_GL_UNSIGNED_INT),
+            values=gl.AccessorSparseValues(bufferView=add_data(np.ones(F, np.float32))))))
+        weight_accessor = len(accessors) - 1
+    else:
+        flat = weights.astype(np.float32).ravel()
+        weight_accessor = add_accessor(add_data(flat), len(flat), _GL_FLOAT, "SCALAR")
     extras = {"format_version": FORMAT_VERSION, "times": anim.times.tolist(),
               "targets": targets, "loop": bool(anim.loop)}
     if frame_start is not None:
@@ -178,12 +191,33 @@ def write_glb(path: Path, anim: SurfaceAnimation, *,
     )
     text = gltf.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8")
     text += b" " * (-len(text) % 4)  # the binary chunk's data starts 4-byte aligned
+    too_big(path, 12 + 8 + len(text) + 8 + chunk.length)
     with open(path, "wb") as f:  # GLB: header, JSON chunk, BIN chunk (glTF 2.0, sec. 4.4)
         f.write(struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(text) + 8 + chunk.length))
         f.write(struct.pack("<I4s", len(text), b"JSON") + text)
         f.write(struct.pack("<I4s", chunk.length, b"BIN\0"))
         chunk.write(f)
         assert f.tell() == 12 + 8 + len(text) + 8 + chunk.length
+
+
+#: A GLB file's header and chunks give their lengths as 32-bit numbers (glTF 2.0, sec. 4.4).
+GLB_LIMIT = 2**32 - 1
+
+
+def frames_bytes(n_vertices: int, n_frames: int) -> int:
+    """About the size of a .glb of ``n_frames`` frames as morph targets (float32 position and
+    normal deltas per vertex and frame; the rest pose, faces and JSON not counted)."""
+    return 24 * n_vertices * n_frames
+
+
+def too_big(path, nbytes: int) -> None:
+    """Refuse a .glb of ``nbytes`` beyond :data:`GLB_LIMIT`, saying what fits instead."""
+    if nbytes > GLB_LIMIT:
+        raise WigglyInputError(
+            f"{shown_name(path)}: the .glb would be {nbytes / 2**30:.1f} GiB, more than the 4 "
+            "GiB a GLB file can hold (its sizes are 32-bit numbers); write .usdc (no such "
+            "limit) or .npz, fewer frames (a lower fps), or for a linear shot gltf_targets = "
+            "\"modes\" (a morph target per mode, not per frame)")
 
 
 def _modal_targets(anim: SurfaceAnimation, frame_normals: FrameNormals, base_n: np.ndarray

@@ -3,6 +3,7 @@ all or nothing."""
 
 from __future__ import annotations
 
+import math
 import time as _time
 import warnings
 from dataclasses import replace
@@ -17,6 +18,7 @@ from wiggly.drive.sequence import carries_times
 from wiggly.errors import WigglyInputError, counted
 from wiggly.export import stage_animation, surface_animation
 from wiggly.export.animation import frame_codes, gltf_times, without_seam
+from wiggly.export.gltf import frames_bytes, too_big
 from wiggly.files import OutputSet, check_writable
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
@@ -223,6 +225,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     body, keyframes, groups = build_with_groups(scene)
     timings["prepare"] = _time.perf_counter() - t
     _warn_unit_slips(scene, body)
+    _check_glb_size(scene, paths, body.model.surface.n_vertices)
     start, end = scene.time_range()
     if scene.simulation.warp:  # the warp's kernels, compiled once after an install: their
         t = _time.perf_counter()  # own line in the summary, not the solve's seconds
@@ -528,6 +531,18 @@ def _warn_unfollowed(scene: Scene, report: dict | None, body) -> None:
         f"{scene.where()}: the driven vertices ({group}) stray up to "
         f"{1e3 * report['max']:.3g} mm from the driver (at t = {report['worst_time']:g} s), "
         f"{100 * report['max'] / size:.1f} % of the body's size: {why}", stacklevel=2)
+
+
+def _check_glb_size(scene: Scene, paths: list[Path], n_vertices: int) -> None:
+    """A .glb of a morph target per frame beyond GLB's 4 GiB, refused before the solve (it
+    failed after it, in the writer)."""
+    if scene.output.gltf_targets == "modes":
+        return
+    start, end = scene.time_range()
+    frames = math.floor((end - start) * scene.time.fps + 1e-9) + 1
+    for path in paths:
+        if path.suffix.lower() == ".glb":
+            too_big(path, frames_bytes(n_vertices, frames))
 
 
 def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
