@@ -348,6 +348,27 @@ def test_render_reads_other_tools_files_as_drivers_and_takes_a_size(capsys, tmp_
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ball.glb", "walk.mp4"]
 
 
+def test_render_reads_another_tools_obj_sequence(capsys, tmp_path):
+    """Blender's OBJ sequence (mesh0001.obj, ...: quads, no time comments) renders all its
+    frames at --fps (it was refused: "faces should be triangles"); wiggly's own sequence
+    is read as written."""
+    box = trimesh.creation.box()
+    V, quads = np.asarray(box.vertices), [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1],
+                                          [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    for k in range(1, 7):
+        lines = ["# Blender 5.0.1", "mtllib mesh.mtl", "o Cube"]
+        lines += [f"v {x:.6f} {y + 0.1 * k:.6f} {z:.6f}" for x, y, z in V]
+        lines += ["s 0", *("f " + " ".join(f"{i + 1}//1" for i in q) for q in quads)]
+        (tmp_path / f"mesh{k:04d}.obj").write_text("\n".join(lines) + "\n")
+    code, out, err = run_main(capsys, "render", tmp_path / "mesh0001.obj", "-o",
+                              tmp_path / "seq.gif", "--fps", "12", "--size", "160x90")
+    assert code == 0, err
+    assert "read as a driver" in err and "6 frames" in out, (out, err)
+    ours = write_animation(tmp_path / "own" / "ball.obj", small_animation())
+    code, out, err = run_main(capsys, "render", ours, "-o", tmp_path / "own.png")
+    assert code == 0 and "read as a driver" not in err, err
+
+
 def test_render_scene(capsys, tmp_path):
     scene = write_scene(tmp_path, SCENE)
     sheet = tmp_path / "sheet.png"

@@ -23,19 +23,30 @@ examples:
 ANIMATION_EXTENSIONS = (".npz", ".glb", ".gltf", ".usd", ".usda", ".usdc", ".usdz", ".obj")
 
 
-def _read(source: Path):
-    """The animation in ``source``: wiggly's own files as written; a glTF or USD file of
-    another tool as a driver is read (:func:`wiggly.drive.read_driver`: skins, morph targets
-    and node transforms evaluated), which the reader of wiggly's layout would take as one
-    still frame without its transforms."""
+def _read(source: Path, fps: float | None = None):
+    """The animation in ``source``: wiggly's own files as written; a glTF or USD file or an
+    OBJ sequence of another tool as a driver is read (:func:`wiggly.drive.read_driver`:
+    skins, morph targets and node transforms evaluated; Blender's ``mesh0001.obj`` numbering,
+    polygons; frame N at N / ``fps`` (default 24) without wiggly's time comments), which the
+    readers of wiggly's layout would refuse or take as one still frame."""
     from wiggly.drive import read_driver
+    from wiggly.drive.sequence import sequence_files
     from wiggly.export import SurfaceAnimation, read_animation
     from wiggly.export.formats import written_by_wiggly
+    from wiggly.export.obj import existing_frames, written_by_wiggly_obj
     from wiggly.progress import say
 
-    if source.suffix.lower() in (".npz", ".obj") or written_by_wiggly(source):
+    ext = source.suffix.lower()
+    if ext == ".obj":
+        own = existing_frames(source) or {0: source}
+        foreign = sequence_files(source) if not written_by_wiggly_obj(own[min(own)]) else []
+        if not foreign:
+            return read_animation(source)
+        driver = read_driver(source, frame_rate=fps or 24.0)
+    elif ext == ".npz" or written_by_wiggly(source):
         return read_animation(source)
-    driver = read_driver(source)
+    else:
+        driver = read_driver(source)
     say(f"{source.name} is not wiggly's: read as a driver ({driver.kind}, "
         f"{len(driver.times)} frames)")
     return SurfaceAnimation(driver.times, driver.positions, driver.faces,
@@ -121,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
 
     overwrite = bool(args.overwrite)
     check_outputs(outputs, overwrite)
-    anim = _read(source)
+    anim = _read(source, args.fps)
     shown = without_seam(anim)  # a looping video shows the seam's pose once
     spec = OutputSpec(camera=args.camera or "three_quarter")
     if args.size is not None:

@@ -98,7 +98,7 @@ def stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *
     for stale in existing.values():  # frames of an earlier, longer sequence
         if stale in names:
             continue
-        if _written_by_wiggly(stale):
+        if written_by_wiggly_obj(stale):
             outputs.remove_on_commit(stale)
         else:
             foreign.append(stale.name)
@@ -110,7 +110,7 @@ def stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *
             "them for frames", stacklevel=2)
 
 
-def _written_by_wiggly(path: Path) -> bool:
+def written_by_wiggly_obj(path: Path) -> bool:
     """Whether an OBJ file starts with the header wiggly writes on every frame."""
     try:
         with open(path, "rb") as f:
