@@ -58,6 +58,19 @@ def test_theorem1_smoothness_at_nodes(bar, velocity):
         assert max(jumps[0.5][:3]) < 1e-9 and jumps[0.5][3] > 1e-3
 
 
+def test_modes_satisfy_the_fourth_order_equation_between_nodes(bar):
+    """Between nodes every mode solves the wiggly-spline equation q^(4) + 2 (lam - 2
+    delta^2) q'' + lam (lam q + g) = 0, delta = (alpha + beta lam) / 2 (Theorem 1; the
+    module doc of wiggly.splines), read through Animation.modal's 4th derivative."""
+    anim = solve(bar, sparse_keys(bar, True), warp=False, end=1.5)
+    q = anim.modal([0.2, 0.7, 1.3], 4)
+    lam, d, g = bar.eigenvalues, bar.delta, bar.modal_gravity
+    terms = np.stack([q[4], 2 * (lam - 2 * d**2) * q[2], lam * (lam * q[0] + g)])
+    residual = np.abs(terms.sum(axis=0)) / np.abs(terms).sum(axis=0).clip(1e-300)
+    assert residual.max() < 1e-8, residual.max()
+    assert np.abs(q[4]).max() > 0  # the check is not of zeros
+
+
 @pytest.mark.parametrize("velocity", [False, True])
 def test_matches_frame_based_solution_with_first_order_convergence(bar, velocity):
     """An independent discretization of the same functional converges to our solution.

@@ -101,14 +101,15 @@ class Animation:
 
     # --- modal trajectories ------------------------------------------------------------
     def modal(self, times: ArrayLike, n_derivatives: int = 0, side: str = "right") -> np.ndarray:
-        """q(t) and its time derivatives for all modes: shape (n_derivatives + 1, F, r).
+        """q(t) and its time derivatives for all modes: shape (n_derivatives + 1, F, r),
+        up to the 4th (the order of the wiggly splines' equation, Theorem 1).
 
         At a node the spline of the interval to the ``side`` of it is used (the one-sided
         limits differ in derivatives of order 2 or 3, Theorem 1).
         """
         if side not in ("left", "right"):
             raise WigglyInputError(f"side should be 'left' or 'right'; got {side!r}")
-        _order(n_derivatives, "n_derivatives", 3)
+        _order(n_derivatives, "n_derivatives", 4)
         t = np.atleast_1d(np.asarray(times, dtype=float))
         tol = 1e-9 * max(1.0, self.duration)
         if t.ndim != 1 or t.size == 0:
