@@ -107,6 +107,7 @@ class Body:
     modes : Modes
         Phi (3n, r) M-orthonormal, lambda (r,), rigid modes first.
     cache_dir : where derived meshes (the coarse warp's) are cached, as in :func:`prepare`.
+    young : (m,) Young's modulus per tet where it varies (``prepare(young=...)``), else None.
     """
 
     model: Model
@@ -119,6 +120,7 @@ class Body:
     modes: Modes
     lumped: bool = False
     cache_dir: str | os.PathLike[str] | Literal[False] | None = field(default=None, repr=False)
+    young: np.ndarray | None = field(default=None, repr=False)
     # vertex groups seen on the warp levels, kept by value (vertex indices) for every solve;
     # not a field of __init__, so that dataclasses.replace (other modes) starts it empty
     _groups: Memo = field(default_factory=lambda: Memo(limit=512), repr=False, init=False)
@@ -427,7 +429,8 @@ def prepare(
             f"{n_modes - split} modes (without the group) or more (all of it)", stacklevel=2)
     if model.embedding is None:  # a new model: the caller's is not changed
         model = replace(model, embedding=embed(model.surface.vertices, model.tets))
-    return Body(model, material, damping, gravity, fixed, M, K, modes, lumped, cache_dir)
+    return Body(model, material, damping, gravity, fixed, M, K, modes, lumped, cache_dir,
+                None if young is None else np.asarray(young, np.float64))
 
 
 def _checked(value, kind: type, name: str, example: str):

@@ -298,6 +298,41 @@ def stiffness_matrix(
     return _assemble_blocks(T, V.shape[0], blocks)
 
 
+def geometric_stiffness(V: np.ndarray, T: np.ndarray, stress: np.ndarray) -> sp.csr_matrix:
+    """Geometric (stress) stiffness of P1 tets under a per-tet Cauchy stress ``stress``
+    (m, 3, 3): the second variation of ``int sigma : E(u)`` with the Green strain's
+    quadratic part ``1/2 grad u^T grad u``, per tet and vertex pair the 3x3 block
+
+        K_sigma_ab = vol (g_a^T sigma g_b) I
+
+    (Bathe, Finite Element Procedures, sec. 6.3): tension stiffens (a hanging rope swings
+    back like a pendulum), compression softens (a column's self-weight buckling)."""
+    V, T = _check_mesh(V, T)
+    grads, vol = tet_gradients(V, T)
+    S = np.asarray(stress, dtype=np.float64)
+    if S.shape != (len(T), 3, 3):
+        raise WigglyInputError(f"stress should have shape ({len(T)}, 3, 3); shape is {S.shape}")
+    scalar = vol[:, None, None] * np.einsum("mai,mij,mbj->mab", grads, S, grads)
+    blocks = np.zeros((9, *scalar.shape))
+    blocks[[0, 4, 8]] = scalar
+    return _assemble_blocks(T, V.shape[0], blocks)
+
+
+def linear_stress(V: np.ndarray, T: np.ndarray, u: np.ndarray, young: float | np.ndarray,
+                  poisson: float) -> np.ndarray:
+    """Per-tet Cauchy stress ``lambda tr(eps) I + 2 mu eps`` of the displacement ``u`` (n, 3)
+    or (3n,), ``eps = sym(grad u)`` (Schulz et al. 2014, eq. (1)): (m, 3, 3)."""
+    V, T = _check_mesh(V, T)
+    grads, _ = tet_gradients(V, T)
+    U = np.asarray(u, dtype=np.float64).reshape(-1, 3)
+    A = np.einsum("mki,mkj->mij", U[T], grads)  # A_ij = d u_i / d X_j
+    eps = 0.5 * (A + A.transpose(0, 2, 1))
+    lam, mu = lame_parameters(1.0, poisson)
+    E = np.broadcast_to(np.asarray(young, dtype=np.float64), (len(T),))[:, None, None]
+    trace = np.trace(eps, axis1=1, axis2=2)[:, None, None]
+    return E * (lam * trace * np.eye(3) + 2.0 * mu * eps)
+
+
 def gravity_term(
     M: sp.spmatrix, gravity: tuple[float, float, float] = DEFAULT_GRAVITY
 ) -> np.ndarray:

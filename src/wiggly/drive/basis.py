@@ -181,7 +181,7 @@ def enrich(body: Body, driver: Driver, vertices: ArrayLike, *, warped: bool = Tr
                 modes.n_rigid, modes.fixed_vertices)
     return Body(model=body.model, material=body.material, damping=body.damping,
                 gravity=body.gravity, fixed_vertices=body.fixed_vertices, M=M, K=K,
-                modes=new, lumped=body.lumped, cache_dir=body.cache_dir)
+                modes=new, lumped=body.lumped, cache_dir=body.cache_dir, young=body.young)
 
 
 def _spanning(U: np.ndarray, M: sp.spmatrix, count: int) -> np.ndarray:

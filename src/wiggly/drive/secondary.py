@@ -64,6 +64,7 @@ from wiggly.drive.carried import (
     frame_forces,
     frame_rates,
     free_parts,
+    gravity_stiffness,
     turned_forces,
 )
 from wiggly.drive.driver import Driver, keyed_frames
@@ -104,21 +105,40 @@ def held_vertices(body: Body, driven: np.ndarray) -> np.ndarray:
     return np.union1d(fixed_from_surface(body.model, driven), body.fixed_vertices)
 
 
-def free_modes(body: Body, driven: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+def free_modes(body: Body, driven: np.ndarray, count: int, stressed: bool = False,
+               ) -> tuple[np.ndarray, np.ndarray]:
     """The lowest ``count`` modes of the body with :func:`held_vertices` held: (Psi (3n, r),
     lambda (r,)), Psi^T M Psi = I, Psi^T K Psi = diag(lambda), Psi zero on the held
-    vertices."""
+    vertices.  ``stressed``: of K plus gravity's geometric stiffness K_s
+    (:func:`wiggly.drive.carried.gravity_stiffness`), the small vibrations about the sagged
+    pose, by Rayleigh-Ritz in twice as many modes of K; where K + K_s is not positive
+    definite there (gravity's stress would buckle a free part: a soft part standing up, or
+    sagging further than linear elasticity holds), K alone, and a warning says so."""
     held = held_vertices(body, driven)
     free_dofs = 3 * (body.tets.n_vertices - len(held))
     if free_dofs <= 0:
         raise WigglyInputError("the driven groups hold every vertex of the body: nothing is "
                                "left free to move on its own; drive fewer vertices")
     count = min(int(count), free_dofs - 1)
+    stress = gravity_stiffness(body, held) if stressed else None
+    wanted = count if stress is None else min(2 * count, free_dofs - 1)
     with reporting(False):  # a step of the caller's stage, not a stage of its own
-        modes = compute_modes(body.K, body.M, count, vertices=body.tets.vertices,
+        modes = compute_modes(body.K, body.M, wanted, vertices=body.tets.vertices,
                               fixed_vertices=held, cache_dir=body.cache_dir)
-    lam = np.maximum(np.asarray(modes.eigenvalues, float), 0.0)
-    return np.asarray(modes.vectors), lam
+    psi, lam = np.asarray(modes.vectors), np.asarray(modes.eigenvalues, float)
+    if stress is not None:  # Ritz: Psi^T (K + K_s) Psi = diag(lambda) + Psi^T K_s Psi
+        ritz = np.diag(lam) + psi.T @ (stress @ psi)
+        mu, Y = np.linalg.eigh(0.5 * (ritz + ritz.T))
+        if mu[0] > 0:
+            psi, lam = psi @ Y[:, :count], mu[:count]
+        else:
+            warnings.warn(
+                "a free part would buckle under its own weight (a soft part standing up, or "
+                "sagging further than linear elasticity holds): its stiffening and softening "
+                "by gravity are left out, and it moves as linear elasticity alone makes it; "
+                "a stiffer material for it (or driving more of it) brings them back",
+                stacklevel=3)
+    return psi[:, :count], np.maximum(lam[:count], 0.0)
 
 
 def _particular(lam: np.ndarray, delta: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -479,7 +499,7 @@ def secondary_motion(
     rig_seconds = _time.perf_counter() - t0
     # the free parts' modes and their forcing
     t1 = _time.perf_counter()
-    psi, lam = free_modes(body, v, free_mode_count)
+    psi, lam = free_modes(body, v, free_mode_count, stressed=True)
     modes_seconds = _time.perf_counter() - t1
     if not warped:  # linear: the rest pose's axes, whatever the turn rate
         warn_turn(driver.source, surface.vertices[v], path, path_times)
