@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from tests.editor_ui import (
+    LOADED,
     bar_project,
     box_select,
     click_time,
@@ -750,3 +751,42 @@ def test_the_cycle_checkbox_makes_the_shot_a_loop(bar_editor):
     toast_saying(page, "whole number of frames")
     page.wait_for_function("!document.querySelector('[data-set=\"time.loop\"]').checked")
     assert not server.session.scene.time.loop
+
+
+def test_a_duplicated_tab_gets_a_history_of_its_own(chromium, tmp_path):
+    """A tab duplicated from another (window.open of its page copies sessionStorage, with its
+    tab id) takes an id of its own: undo in the original undoes the original's edit, not the
+    copy's (they shared one history); a reload keeps its tab's id."""
+    path = bar_project(tmp_path, MORE_KEYS, warp=False)
+    server = serve(path)
+    alpha = "[data-set='damping.alpha']"
+    try:
+        with editor_page(chromium, server.url) as (a, errors):
+            a.fill(alpha, "0.7")
+            a.press(alpha, "Enter")
+            a.wait_for_function("window.wiggly.S.desc.scene.damping.alpha === 0.7 && "
+                                "window.wiggly.S.desc.can_undo")
+            tab = a.evaluate("() => import('./core.js').then(m => m.TAB)")
+            with a.context.expect_page() as opened:
+                a.evaluate("window.open(location.href)")
+            d = opened.value
+            d.wait_for_function("window.wiggly && window.wiggly.ready && window.wiggly.S.desc",
+                                timeout=LOADED)
+            assert d.evaluate("() => import('./core.js').then(m => m.TAB)") != tab
+            assert not d.evaluate("window.wiggly.S.desc.can_undo")
+            beta = "[data-set='damping.beta']"
+            d.fill(beta, "0.0071")
+            d.press(beta, "Enter")
+            d.wait_for_function("window.wiggly.S.desc.scene.damping.beta === 0.0071")
+            version = server.session.version
+            a.keyboard.press("Control+z")
+            a.wait_for_function(f"window.wiggly.S.desc.version > {version}")
+            scene = server.session.scene
+            assert scene.damping.alpha != 0.7 and scene.damping.beta == 0.0071
+            a.reload()
+            a.wait_for_function("window.wiggly && window.wiggly.ready && window.wiggly.S.desc")
+            assert a.evaluate("() => import('./core.js').then(m => m.TAB)") == tab
+            assert a.evaluate("window.wiggly.S.desc.can_redo")
+            assert not errors, errors
+    finally:
+        server.stop()

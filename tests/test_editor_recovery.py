@@ -332,3 +332,19 @@ def test_a_saved_scene_is_on_the_disk_before_it_replaces_the_file(tmp_path, monk
     save_scene(scene, path, overwrite=True)
     assert len(synced) == 2 and synced[1] == (tmp_path.name, None)
     assert synced[0][0] != path.name and synced[0][1] == path.read_text()
+
+
+def test_a_preview_from_a_page_that_has_closed_is_ignored(tmp_path):
+    """A drag's preview sent before its page closed and arriving after the page's event
+    stream ended (an in-flight request) is ignored: no tab would ever see that drag end,
+    and the others kept showing it until their next edit."""
+    path = bar_project(tmp_path, KEYS, warp=False)
+    s, _ = _open(tmp_path, path.name)
+    try:
+        op = {"op": "set", "section": "damping", "values": {"alpha": 1.3}}
+        assert s.preview(op, page="live")["seq"] is not None
+        s.page_closed("gone", "a")
+        assert s.preview(op, page="gone") == {"seq": None}
+        assert s.cancel_preview("live")["seq"] is not None  # the live page's drag was on
+    finally:
+        s.close()

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import Counter
+from collections import Counter, OrderedDict
 
 __all__ = ["TAB_GRACE", "Presence"]
 
@@ -27,6 +27,19 @@ class Presence:
         self._streams: Counter[str] = Counter()
         self._left: dict[str, float] = {}
         self._since = time.monotonic()
+        self._ended: OrderedDict[str, None] = OrderedDict()  # page loads whose stream ended
+
+    def page_ended(self, page: str) -> None:
+        """The event stream of the page load ``page`` ended: a page never comes back (a reload
+        is a new page), so what it still sends (a drag's last preview) is stale."""
+        with self._lock:
+            self._ended[page] = None
+            while len(self._ended) > 1024:
+                self._ended.popitem(last=False)
+
+    def ended(self, page: str | None) -> bool:
+        with self._lock:
+            return page is not None and page in self._ended
 
     def opened(self, tab: str) -> None:
         with self._lock:

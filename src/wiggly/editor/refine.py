@@ -191,11 +191,12 @@ def _notes(scene, anim, times, checked, groups) -> dict:  # pragma: no cover - s
     """A final motion's notices, as ``wiggly animate`` warns: its folds (``checked``:
     ``anim.folds(times)``, None: not checked) with the spans the page tints, and the keys it
     misses (the residual rows are kept in ``anim.info`` for :func:`residual_max`)."""
-    from wiggly.scene.run import fold_highlights, missed_note
+    from wiggly.scene.run import fold_highlights, fold_remedy, missed_note
     from wiggly.solve import fold_note
 
     out = {"folds": None if checked is None
-           else fold_note(anim, api=False, groups=groups, checked=checked),
+           else fold_note(anim, api=False, groups=groups, checked=checked,
+                          remedy=fold_remedy(scene)),
            "missed": missed_note(scene, anim), "source": scene.source}
     if out["folds"] is not None:  # and where: the page tints them as previews do
         out["fold_spans"] = [{"from": h.time, "until": h.until, "vertices": h.vertices.tolist()}

@@ -467,6 +467,8 @@ class Session(Exports):
         """Solve the state an edit would give, without logging it (linear: gizmo drags).
         ``page`` names the page load that drags (see :meth:`page_closed`)."""
         with self._lock:
+            if self.presence.ended(page):  # sent before its page closed, arrived after it:
+                return {"seq": None}  # no tab would ever see that drag end
             state = apply_edit(self.state, self._expand(op), self._n_vertices(), self.diagonal)
             self._dragging = page
             return {"seq": self.playback.request(state, self.version, "drag")}
@@ -492,8 +494,10 @@ class Session(Exports):
         left mid-way is abandoned, so the other tabs stop showing its preview; ``tab`` has
         one page fewer."""
         with self._lock:
-            if page is not None and self._dragging == page:
-                self.cancel_preview(page)
+            if page is not None:
+                self.presence.page_ended(page)
+                if self._dragging == page:
+                    self.cancel_preview(page)
         if tab is not None and self.presence.closed(tab):
             self._offer_history()
 

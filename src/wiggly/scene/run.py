@@ -267,11 +267,8 @@ def check_motion(scene: Scene, body, anim, groups: dict[str, np.ndarray],
     _warn_missed(scene, anim)
     highlights = keyframe_highlights(scene, body, anim.keyframes, groups)
     if scene.simulation.warp:
-        remedy = ("A stiffer material, heavier damping, a larger driven group or a lower "
-                  "drive.intensity may help" if scene.secondary_motion else
-                  "Keying more of the body near the fold, or a stiffer material, may help")
         folding = warn_folded(anim, f"{scene.where()}: the warped motion", api=False,
-                              groups=surface_groups(scene, groups), remedy=remedy)
+                              groups=surface_groups(scene, groups), remedy=fold_remedy(scene))
         previews = [p.name for p in paths if p.suffix.lower() in PREVIEW_EXTENSIONS]
         if folding is not None and previews:
             highlights += fold_highlights(anim, anim.frame_times(scene.time.fps))
@@ -531,6 +528,15 @@ def _warn_unfollowed(scene: Scene, report: dict | None, body) -> None:
         f"{scene.where()}: the driven vertices ({group}) stray up to "
         f"{1e3 * report['max']:.3g} mm from the driver (at t = {report['worst_time']:g} s), "
         f"{100 * report['max'] / size:.1f} % of the body's size: {why}", stacklevel=2)
+
+
+def fold_remedy(scene: Scene) -> str:
+    """What may unfold a scene's warped motion: its own keys, or for secondary motion the
+    driver's push (the editor's notice says the same as ``wiggly animate``)."""
+    if scene.secondary_motion:
+        return ("A stiffer material, heavier damping, a larger driven group or a lower "
+                "drive.intensity may help")
+    return "Keying more of the body near the fold, or a stiffer material, may help"
 
 
 def _check_glb_size(scene: Scene, paths: list[Path], n_vertices: int) -> None:

@@ -7,13 +7,18 @@ import { OrbitControls } from './vendor/OrbitControls.js';
 export const $ = (id) => document.getElementById(id);
 
 // Each tab has its own undo history on the server, named by an id kept in sessionStorage (a
-// reload keeps it; a new tab gets a new one).
+// reload keeps it; a new tab gets a new one).  A duplicated tab copies sessionStorage while
+// the original is open: the 'live' mark, set while a page of the tab is shown and cleared as
+// it goes (a reload), tells the copy to take an id of its own.
 export const TAB = (() => {
   let t = sessionStorage.getItem('wiggly-tab');
-  if (!t || !/^[A-Za-z0-9_-]{1,64}$/.test(t)) {
+  if (!t || !/^[A-Za-z0-9_-]{1,64}$/.test(t) || sessionStorage.getItem('wiggly-tab-live')) {
     t = (crypto.randomUUID ? crypto.randomUUID() : `${Date.now()}-${Math.random()}`).replace(/[^A-Za-z0-9_-]/g, '');
     sessionStorage.setItem('wiggly-tab', t);
   }
+  sessionStorage.setItem('wiggly-tab-live', '1');
+  addEventListener('pagehide', () => sessionStorage.removeItem('wiggly-tab-live'));
+  addEventListener('pageshow', () => sessionStorage.setItem('wiggly-tab-live', '1'));
   return t;
 })();
 // Each page load has its own id (a reload is a new page): the server abandons the drag of a
