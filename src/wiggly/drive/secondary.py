@@ -501,12 +501,12 @@ def secondary_motion(
     t1 = _time.perf_counter()
     psi, lam = free_modes(body, v, free_mode_count, stressed=True)
     modes_seconds = _time.perf_counter() - t1
+    steps = step_turns(path)
     if not warped:  # linear: the rest pose's axes, whatever the turn rate
         warn_turn(driver.source, surface.vertices[v], path, path_times)
-    else:  # warped: the turning frame's centrifugal force, and the frames' spacing
-        steps = step_turns(path)
+    else:  # warped: the turning frame's centrifugal force
         warn_spin(driver.source, steps, path_times, lam)
-        warn_sparse_turn(driver.source, steps, path_times)
+    warn_sparse_turn(driver.source, steps, path_times)  # the driver's own arc, either way
     held_warp = HeldWarp(body, held_vertices(body, v)) if warped else None
     r = psi.shape[1]
     alpha, beta = body.damping.alpha, body.damping.beta
