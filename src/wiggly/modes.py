@@ -451,8 +451,7 @@ def compute_modes(
     if r > MAX_MODES:
         raise WigglyInputError(
             f"{called} (number of modes) should be at most {MAX_MODES} (wiggly.limits.MAX_MODES, "
-            "as in "
-            f"scene files); got {r}"
+            f"as in scene files); got {r}"
         )
     if nf == 0:
         raise WigglyInputError(

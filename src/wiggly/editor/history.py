@@ -262,8 +262,7 @@ class Histories:
         own = self.tabs.get(tab)
         if tab == DEFAULT_TAB or (own is not None and (own.undo or own.redo)):
             return
-        left = [t for t, h in self.tabs.items()
-                if t not in (tab, DEFAULT_TAB) and (h.undo or h.redo) and gone(t)]
+        left = self._left_by(gone, but=tab)
         if not left:
             return
         try:
@@ -275,8 +274,12 @@ class Histories:
 
     def orphaned(self, gone: Callable[[str], bool]) -> bool:
         """Whether a tab that is ``gone`` left a history that another tab could take over."""
-        return any(t != DEFAULT_TAB and (h.undo or h.redo) and gone(t)
-                   for t, h in self.tabs.items())
+        return bool(self._left_by(gone))
+
+    def _left_by(self, gone: Callable[[str], bool], but: str = DEFAULT_TAB) -> list[str]:
+        """The tabs that are ``gone`` and left a history (not ``but``, nor the API's)."""
+        return [t for t, h in self.tabs.items()
+                if t not in (but, DEFAULT_TAB) and (h.undo or h.redo) and gone(t)]
 
     def describe(self, tab: str) -> dict:
         t = self.tabs.get(tab) or _Tab()

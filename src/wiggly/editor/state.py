@@ -38,7 +38,6 @@ Positions are those of the scene format: ``"rest"``, ``{"offset": [...]}``,
 
 from __future__ import annotations
 
-import math
 import os
 import re
 from dataclasses import dataclass, replace
@@ -159,9 +158,9 @@ def check_limits(scene: Scene, diagonal: float | None = None) -> None:
                         f"longest shot is {limits.MAX_DURATION:g} s")
     elif t.fps > limits.MAX_FPS:
         problems.append(f"time.fps = {t.fps:g}: at most {limits.MAX_FPS:g} frames per second")
-    elif math.floor((end - start) * t.fps) + 1 > limits.MAX_FRAMES:
+    elif limits.frame_count(end - start, t.fps) > limits.MAX_FRAMES:
         problems.append(f"{end - start:g} s at {t.fps:g} fps is "
-                        f"{math.floor((end - start) * t.fps) + 1} frames; at most "
+                        f"{limits.frame_count(end - start, t.fps)} frames; at most "
                         f"{limits.MAX_FRAMES} (shorten the shot or lower the fps)")
     if scene.simulation.modes > limits.MAX_MODES:
         problems.append(f"simulation.modes = {scene.simulation.modes}: at most "

@@ -381,9 +381,7 @@ def _without_flat(tv: np.ndarray, tt: np.ndarray) -> tuple[np.ndarray, np.ndarra
     T = np.asarray(tt, dtype=np.int64).reshape(-1, 4)
     if not len(T):
         return V, T
-    used = V[np.unique(T)]
-    diag = float(np.linalg.norm(used.max(axis=0) - used.min(axis=0)))
-    flat = np.abs(tet_volumes(V, T)) <= DEGENERATE_VOLUME * diag**3
+    flat = np.abs(tet_volumes(V, T)) <= DEGENERATE_VOLUME * diagonal(V[np.unique(T)]) ** 3
     if flat.any():
         flats = counted(int(flat.sum()), "flat tetrahedron", "flat tetrahedra")
         log.info(f"fTetWild left {flats} of {len(T)}; dropped")

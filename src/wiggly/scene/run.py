@@ -3,7 +3,6 @@ all or nothing."""
 
 from __future__ import annotations
 
-import math
 import time as _time
 import warnings
 from dataclasses import replace
@@ -20,6 +19,7 @@ from wiggly.export import stage_animation, surface_animation
 from wiggly.export.animation import frame_codes, gltf_times, without_seam
 from wiggly.export.gltf import frames_bytes, too_big
 from wiggly.files import OutputSet, check_writable
+from wiggly.limits import frame_count
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
 from wiggly.render import Highlight
@@ -545,7 +545,7 @@ def _check_glb_size(scene: Scene, paths: list[Path], n_vertices: int) -> None:
     if scene.output.gltf_targets == "modes":
         return
     start, end = scene.time_range()
-    frames = math.floor((end - start) * scene.time.fps + 1e-9) + 1
+    frames = frame_count(end - start, scene.time.fps)
     for path in paths:
         if path.suffix.lower() == ".glb":
             too_big(path, frames_bytes(n_vertices, frames))
