@@ -632,10 +632,12 @@ def test_the_free_parts_sag_turns_with_the_body(axis, degrees):
     """The critter's tail and ears, under gravity, on a driver that turns the body by half a
     turn about the vertical, turns it upside down, or tips it on its side, then holds: they
     settle on the full-space static sag (every free tet vertex, the driven ones held) under
-    gravity turned into the body's frame, within 3 % of its size, as they start on the
-    unturned one (1 % measured either way).  Warping the sum of the rig's and the free
-    parts' rotation vectors instead left 22-119 % (the sag gone at half a turn, pointing up
-    upside down)."""
+    gravity turned into the body's frame, with the stiffness K + K_s of its own stress
+    there, within 2.5 % of its size, as they start on the unturned one (1.0-1.6 % on 13 of
+    fTetWild's meshes either way: the warp's arcs where the linear sag is straight).
+    Warping the sum of the rig's and the free parts' rotation vectors instead left 22-119 %
+    (the sag gone at half a turn, pointing up upside down); keeping the rest pose's K_s
+    upside down or on the side left 3.4-3.8 %."""
     from scipy.spatial.transform import Rotation
 
     from wiggly.drive.secondary import held_vertices
@@ -646,13 +648,12 @@ def test_the_free_parts_sag_turns_with_the_body(axis, degrees):
     free = np.setdiff1d(np.arange(len(S)), driven)
     n = body.tets.n_vertices
     held = held_vertices(body, driven)
-    f = np.ones(3 * n, bool)
-    f[(3 * held[:, None] + np.arange(3)).ravel()] = False
-    solve = factorize_spd(body.K.tocsr()[f][:, f])
 
     def static_sag(R: np.ndarray) -> np.ndarray:
+        g = R.T @ np.asarray(body.gravity)
+        A, f = _held_stiffness(body, held, g)
         w = np.zeros(3 * n)
-        w[f] = solve((body.M @ np.tile(R.T @ np.asarray(body.gravity), n))[f])
+        w[f] = factorize_spd(A[f][:, f])((body.M @ np.tile(g, n))[f])
         return (body.surface_embedding @ w.reshape(n, 3))[free]
 
     times = np.arange(121) / 30.0
@@ -669,7 +670,7 @@ def test_the_free_parts_sag_turns_with_the_body(axis, degrees):
         ref = static_sag(R.as_matrix())
         size = np.linalg.norm(ref, axis=1).max()
         assert size > 1e-3  # a sag of millimetres
-        assert np.linalg.norm(sag - ref, axis=1).max() < 0.03 * size
+        assert np.linalg.norm(sag - ref, axis=1).max() < 0.025 * size
 
 
 @pytest.mark.parametrize("degrees, said", [(30.0, False), (90.0, True)])
@@ -1176,3 +1177,69 @@ def test_gravity_pulls_a_hanging_part_back_and_buckles_a_standing_one(tmp_path):
     with pytest.warns(UserWarning, match="a free part would buckle under its own weight"):
         _, kept = free_modes(standing, driven, 4, stressed=True)
     np.testing.assert_allclose(kept, free_modes(standing, driven, 4)[1], rtol=1e-9)
+
+
+def _held_stiffness(body, held, g):
+    """The full-space K + K_s of the body held at the tet vertices ``held`` under gravity g
+    (m/s^2, in the body's axes), K_s the geometric stiffness of its linear static sag's
+    stress, and the mask of the free dofs."""
+    from wiggly.fem import geometric_stiffness, linear_stress
+
+    V, T, n = body.tets.vertices, body.tets.tets, body.tets.n_vertices
+    f = np.ones(3 * n, bool)
+    f[(3 * np.asarray(held)[:, None] + np.arange(3)).ravel()] = False
+    K = body.K.tocsr()
+    u = np.zeros(3 * n)
+    u[f] = factorize_spd(K[f][:, f])((body.M @ np.tile(g, n))[f])
+    young = body.material.young if body.young is None else body.young
+    sigma = linear_stress(V, T, u, young, body.material.poisson)
+    return (K + geometric_stiffness(V, T, sigma)).tocsr(), f
+
+
+def test_a_hanging_rod_turned_upside_down_sways_as_a_standing_one(tmp_path):
+    """A rod hanging from a block that the driver turns upside down (half a turn about z in
+    2 s, then a nudge sideways by 5 mm) stands on the block and sways at a standing rod's
+    frequency: its own weight, now compressing it, softens it where hanging stretched and
+    stiffened it (5.3 against 9.3 rad/s).  Measured from the tip's zero crossings over the
+    3 s after the nudge, against the lowest frequency of the full-space K + K_s (every free
+    tet vertex, the block held, K_s the geometric stiffness of the static sag's stress under
+    gravity in the turned body's axes), damped by the body's Rayleigh damping: within 5 %
+    (0.4 % measured).  Keeping the hanging rod's stress after the turn swayed 1.8 times too
+    fast."""
+    from scipy.sparse.linalg import eigsh
+    from scipy.spatial.transform import Rotation
+
+    from wiggly.drive.secondary import held_vertices
+
+    young, a, length, top = 1.3e6, 0.04, 0.5, 0.1
+    body = _bar_of(tmp_path, "rod", (2, 30, 2), (a, length + top, a), young)
+    S = body.surface.vertices
+    driven = np.flatnonzero(S[:, 1] > length)
+    held = held_vertices(body, driven)
+    g = np.asarray(body.gravity, float)
+
+    def damped(gravity):  # rad/s, the full-space lowest mode under gravity in the body's axes
+        A, f = _held_stiffness(body, held, gravity)
+        lam = eigsh(A[f][:, f], k=1, M=body.M.tocsr()[f][:, f], sigma=0.0, which="LM")[0][0]
+        delta = 0.5 * (body.damping.alpha + body.damping.beta * lam)
+        return np.sqrt(lam - delta**2)
+
+    standing, hanging = damped(-g), damped(g)
+    assert standing < 0.6 * hanging  # 5.3 and 9.3 rad/s
+    centre = S[driven].mean(axis=0)
+    times = np.arange(91) / 30.0
+    s = np.clip(times / 2.0, 0.0, 1.0)  # a slow turn, then a nudge sideways by 5 mm
+    turns = Rotation.from_euler("z", 180.0 * (3 * s**2 - 2 * s**3)[:, None], degrees=True)
+    nudge = np.clip((times - 2.5) / 0.1, 0.0, 1.0)[:, None] * [0.005, 0.0, 0.0]
+    poses = np.array([R.apply(S - centre) + centre + d for R, d in
+                      zip(turns, nudge, strict=True)])
+    driver = Driver(times, poses, body.surface.faces, np.zeros((0, 2)), "flip.npz", "test")
+    anim = secondary_motion(body, driver, driven, start=0.0, end=6.0)
+    tip = np.flatnonzero(S[:, 1] < 1e-9)
+    t = np.arange(3.0, 6.0, 1.0 / 480.0)
+    x = (anim.positions(t)[:, tip] - poses[-1][tip]).mean(axis=1)[:, 0]  # sideways sway
+    assert np.abs(x).max() > 1e-3, np.abs(x).max()  # the nudge set it swaying by millimetres
+    k = np.flatnonzero(np.sign(x[:-1]) != np.sign(x[1:]))
+    crossings = t[k] - x[k] * (t[k + 1] - t[k]) / (x[k + 1] - x[k])
+    measured = np.pi / np.diff(crossings).mean()
+    assert abs(measured / standing - 1) < 0.05, (measured, standing, hanging)

@@ -22,6 +22,8 @@ faster than the free parts' lowest frequency overcomes their stiffness
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
@@ -33,17 +35,21 @@ from wiggly.linalg import factorize_spd
 from wiggly.warp import Warp
 
 __all__ = ["HeldWarp", "frame_couplings", "frame_forces", "frame_rates", "free_parts",
-           "gravity_stiffness", "turned_forces"]
+           "gravity_stiffnesses", "stress_couplings", "turned_forces", "turned_stiffest",
+           "turned_stress"]
 
 
-def gravity_stiffness(body: Body, held: np.ndarray) -> sp.csr_matrix | None:
+def gravity_stiffnesses(body: Body, held: np.ndarray,
+                        ) -> tuple[sp.csr_matrix, sp.csr_matrix, sp.csr_matrix] | None:
     """The geometric stiffness of the stress that gravity puts in the body held at the tet
-    vertices ``held``, in the rest pose's orientation (:func:`wiggly.fem.geometric_stiffness`
-    of the linear static solution): a hanging part's own weight pulls it back to hanging like
-    a pendulum, a standing one's softens it.  Linear elasticity alone has neither (a review's
-    hanging appendage swung 125 ms late, 1.27 Hz against 1.68 Hz, and a pair of standing
-    ears 0.67 times too little, against a corotational simulation).  None without gravity,
-    or when the held vertices lie on a line (a frame's rotation about it stays free)."""
+    vertices ``held``, per unit of gravity along the body's x, y and z axes (m/s^2): gravity
+    b in the body's axes gives ``K_s(b) = sum_a b_a K_a`` (the static solution, its stress
+    and :func:`wiggly.fem.geometric_stiffness` of it are each linear in b).  A hanging part's
+    own weight pulls it back to hanging like a pendulum, a standing one's softens it; linear
+    elasticity alone has neither (a review's hanging appendage swung 125 ms late, 1.27 Hz
+    against 1.68 Hz, and a pair of standing ears 0.67 times too little, against a
+    corotational simulation).  None without gravity, or when the held vertices lie on a
+    line (a frame's rotation about it stays free)."""
     V, T = body.tets.vertices, body.tets.tets
     held = np.asarray(held, np.int64)
     if not np.any(body.gravity) or len(held) < 3:
@@ -54,11 +60,80 @@ def gravity_stiffness(body: Body, held: np.ndarray) -> sp.csr_matrix | None:
     used = np.asarray(body.M.diagonal()).reshape(-1, 3).min(axis=1) > 0
     free = np.setdiff1d(np.flatnonzero(used), held)
     dofs = (3 * free[:, None] + np.arange(3)).ravel()
-    u = np.zeros(3 * len(V))
-    u[dofs] = factorize_spd(body.K[dofs][:, dofs].tocsr())(-body.gravity_vector[dofs])
+    solve = factorize_spd(body.K[dofs][:, dofs].tocsr())
     young = body.material.young if body.young is None else body.young
-    sigma = linear_stress(V, T, u, young, body.material.poisson)
-    return geometric_stiffness(V, T, sigma)
+    out = []
+    for axis in np.eye(3):  # K u = M b, the static sag under a unit gravity b
+        u = np.zeros(3 * len(V))
+        u[dofs] = solve((body.M @ np.tile(axis, len(V)))[dofs])
+        out.append(geometric_stiffness(V, T, linear_stress(V, T, u, young,
+                                                           body.material.poisson)))
+    return out[0], out[1], out[2]
+
+
+#: A turn that changes the free parts' stiffness by less than this share of the lowest
+#: eigenvalue is left out.
+NEGLIGIBLE = 1e-3
+
+
+def stress_couplings(psi: np.ndarray, part: np.ndarray, axes: tuple) -> np.ndarray:
+    """``Gamma_a = Psi^T P K_a Psi`` (3, r, r): the modal stiffness of gravity's stress per
+    unit gravity along axis a (``axes``, :func:`gravity_stiffnesses`) on one free part's
+    tet vertices ``part`` (P its rows; its tets join it to held vertices only, where Psi is
+    zero, so Gamma_a is symmetric)."""
+    dofs = (3 * np.asarray(part)[:, None] + np.arange(3)).ravel()
+    return np.stack([psi[dofs].T @ (K_a[dofs] @ psi) for K_a in axes])
+
+
+def _stress_change(stress: list[np.ndarray], turns: list[np.ndarray],
+                   gravity: np.ndarray) -> np.ndarray:
+    """``sum_parts sum_a (R(t)^T gravity - gravity)_a Gamma_a`` (T, r, r)."""
+    gravity = np.array(gravity, float)
+    out = 0.0
+    for Gamma, turn in zip(stress, turns, strict=True):
+        b = Rotation.from_rotvec(turn).inv().apply(gravity) - gravity  # (T, 3), body axes
+        out = out + np.einsum("ta,aij->tij", b, Gamma)
+    return np.asarray(out)
+
+
+def _lowest(lam: np.ndarray, change: np.ndarray) -> np.ndarray:
+    """The lowest eigenvalue (T,) of ``diag(lambda) + change`` per time."""
+    sym = 0.5 * (change + change.transpose(0, 2, 1))
+    return np.linalg.eigvalsh(np.diag(lam)[None] + sym)[:, 0]
+
+
+def turned_stiffest(stress: list[np.ndarray], turns: list[np.ndarray], gravity: np.ndarray,
+                    lam: np.ndarray) -> float | None:
+    """The largest that the free parts' lowest eigenvalue becomes as gravity's stress turns
+    with them (:func:`turned_stress`; ``turns`` their frames' rotation vectors at the
+    driver's frames), or None where the turn changes their stiffness by less than
+    :data:`NEGLIGIBLE` of it."""
+    change = _stress_change(stress, turns, gravity)
+    floor = max(float(lam[0]), 1e-300)
+    if np.linalg.norm(change, 2, axis=(1, 2)).max(initial=0.0) <= NEGLIGIBLE * floor:
+        return None
+    return max(floor, float(_lowest(lam, change).max()))
+
+
+def turned_stress(stress: list[np.ndarray], turns: list[np.ndarray], gravity: np.ndarray,
+                  lam: np.ndarray) -> np.ndarray:
+    """The modal stiffness (T, r, r) that gravity's stress adds to the free parts as their
+    frames turn, beyond that of the rest pose's orientation (in the modes' ``lam``): ``sum_a
+    (R(t)^T gravity - gravity)_a Gamma_a`` summed over the parts, Gamma from
+    :func:`stress_couplings` and R(t) the part's frame's rotation (``turns``, (T, 3) rotation
+    vectors each): a part the driver turns upside down stands on its root and is softened
+    where hanging stretched and stiffened it.  Where that would buckle a part (diag(lambda)
+    plus it not positive definite at some time: a soft hanging part stood on its root),
+    nothing, and a warning says so."""
+    change = _stress_change(stress, turns, gravity)
+    if _lowest(lam, change).min() > 0:
+        return change
+    warnings.warn(
+        "the driver turns a free part so that it would buckle under its own weight (a soft "
+        "hanging part stood on its root): its stiffening by gravity stays that of the rest "
+        "pose's orientation; a stiffer material for it (or driving more of it) brings back "
+        "the turned one", stacklevel=4)
+    return np.zeros_like(change)
 
 
 class HeldWarp:
@@ -159,13 +234,14 @@ def _turned_back(w: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def frame_rates(X: np.ndarray, mass: np.ndarray, D: np.ndarray, V: np.ndarray,
-                A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The angular velocity and acceleration (T, 3 each) of the frame that carries points X
-    (p, 3) of masses ``mass`` (p,), in that frame's own axes, from their displacements D,
-    velocities V and accelerations A (T, p, 3) on the rig: the rigid fits ``omega = I^-1 sum m
+                A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The angular velocity, angular acceleration and rotation vector (T, 3 each) of the
+    frame that carries points X (p, 3) of masses ``mass`` (p,), the first two in that
+    frame's own axes, from their displacements D, velocities V and accelerations A (T, p, 3)
+    on the rig: the rigid fits ``omega = I^-1 sum m
     r x (v - v_c)`` and ``omega' = I^-1 (sum m r x (a - a_c) - omega x I omega)`` (r = x - x_c
     about the mass centre, I the inertia tensor at x = X + D; exact for a rigid motion),
-    turned into the frame of the points' best-fit rotation."""
+    turned into the frame, which is the points' best-fit rotation."""
     from wiggly.drive.unwarp import frame_rotations
 
     m = mass / mass.sum()
@@ -183,7 +259,7 @@ def frame_rates(X: np.ndarray, mass: np.ndarray, D: np.ndarray, V: np.ndarray,
     omega = np.linalg.solve(inertia, moment(V)[..., None])[..., 0]
     spin = np.cross(omega, np.einsum("tij,tj->ti", inertia, omega))
     domega = np.linalg.solve(inertia, (moment(A) - spin)[..., None])[..., 0]
-    return turn.inv().apply(omega), turn.inv().apply(domega)
+    return turn.inv().apply(omega), turn.inv().apply(domega), turn.as_rotvec()
 
 
 def frame_couplings(C: np.ndarray, psi: np.ndarray,

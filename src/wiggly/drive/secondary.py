@@ -64,8 +64,11 @@ from wiggly.drive.carried import (
     frame_forces,
     frame_rates,
     free_parts,
-    gravity_stiffness,
+    gravity_stiffnesses,
+    stress_couplings,
     turned_forces,
+    turned_stiffest,
+    turned_stress,
 )
 from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.drive.driver_checks import (
@@ -77,7 +80,7 @@ from wiggly.drive.driver_checks import (
     warn_turn,
 )
 from wiggly.drive.frame_spline import FrameSpline
-from wiggly.drive.unwarp import Unwarp
+from wiggly.drive.unwarp import Unwarp, frame_rotations
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread, factorize_spd, one_blas_thread
@@ -85,7 +88,7 @@ from wiggly.mesh.defects import diagonal
 from wiggly.modes import compute_modes
 from wiggly.progress import deprecated_progress, reporting
 from wiggly.solve.animation import Animation
-from wiggly.solve.nodes import node_index, node_times
+from wiggly.solve.nodes import node_index, node_times, refine_nodes
 from wiggly.splines import energy_form, evaluate, wiggly_basis
 
 __all__ = ["DEFAULT_FREE_MODES", "FrameSpline", "HeldWarp", "SecondaryMotion", "free_modes",
@@ -97,6 +100,9 @@ DEFAULT_FREE_MODES = 24
 #: Gauss-Newton on warped keyframes of the free parts: iteration budget and the relative
 #: decrease of the key objective below which the iteration has converged.
 _GN_ITERATIONS, _GN_TOLERANCE = 30, 1e-10
+#: Nodes per period of the free parts' lowest mode, at least, in a warped secondary motion:
+#: the turning frames' forces on them are interpolated linearly between nodes.
+NODES_PER_PERIOD = 16
 
 
 def held_vertices(body: Body, driven: np.ndarray) -> np.ndarray:
@@ -109,28 +115,39 @@ def free_modes(body: Body, driven: np.ndarray, count: int, stressed: bool = Fals
                ) -> tuple[np.ndarray, np.ndarray]:
     """The lowest ``count`` modes of the body with :func:`held_vertices` held: (Psi (3n, r),
     lambda (r,)), Psi^T M Psi = I, Psi^T K Psi = diag(lambda), Psi zero on the held
-    vertices.  ``stressed``: of K plus gravity's geometric stiffness K_s
-    (:func:`wiggly.drive.carried.gravity_stiffness`), the small vibrations about the sagged
-    pose, by Rayleigh-Ritz in twice as many modes of K; where K + K_s is not positive
-    definite there (gravity's stress would buckle a free part: a soft part standing up, or
-    sagging further than linear elasticity holds), K alone, and a warning says so."""
+    vertices.  ``stressed``: of K plus gravity's geometric stiffness K_s in the rest pose's
+    orientation (:func:`wiggly.drive.carried.gravity_stiffnesses`), the small vibrations
+    about the sagged pose, by Rayleigh-Ritz in twice as many modes of K; where K + K_s is
+    not positive definite there (gravity's stress would buckle a free part: a soft part
+    standing up, or sagging further than linear elasticity holds), K alone, and a warning
+    says so."""
     held = held_vertices(body, driven)
+    axes = gravity_stiffnesses(body, held) if stressed else None
+    psi, lam, _ = _held_modes(body, held, count, axes)
+    return psi, lam
+
+
+def _held_modes(body: Body, held: np.ndarray, count: int, axes: tuple | None,
+                ) -> tuple[np.ndarray, np.ndarray, bool]:
+    """:func:`free_modes` for the held tet vertices and gravity's stiffness per axis (or
+    None), and whether that stiffness is in them (False where it would buckle a part)."""
     free_dofs = 3 * (body.tets.n_vertices - len(held))
     if free_dofs <= 0:
         raise WigglyInputError("the driven groups hold every vertex of the body: nothing is "
                                "left free to move on its own; drive fewer vertices")
     count = min(int(count), free_dofs - 1)
-    stress = gravity_stiffness(body, held) if stressed else None
-    wanted = count if stress is None else min(2 * count, free_dofs - 1)
+    wanted = count if axes is None else min(2 * count, free_dofs - 1)
     with reporting(False):  # a step of the caller's stage, not a stage of its own
         modes = compute_modes(body.K, body.M, wanted, vertices=body.tets.vertices,
                               fixed_vertices=held, cache_dir=body.cache_dir)
     psi, lam = np.asarray(modes.vectors), np.asarray(modes.eigenvalues, float)
-    if stress is not None:  # Ritz: Psi^T (K + K_s) Psi = diag(lambda) + Psi^T K_s Psi
+    stressed = False
+    if axes is not None:  # Ritz: Psi^T (K + K_s) Psi = diag(lambda) + Psi^T K_s Psi
+        stress = sum(float(b) * K_a for b, K_a in zip(body.gravity, axes, strict=True))
         ritz = np.diag(lam) + psi.T @ (stress @ psi)
         mu, Y = np.linalg.eigh(0.5 * (ritz + ritz.T))
         if mu[0] > 0:
-            psi, lam = psi @ Y[:, :count], mu[:count]
+            psi, lam, stressed = psi @ Y[:, :count], mu[:count], True
         else:
             warnings.warn(
                 "a free part would buckle under its own weight (a soft part standing up, or "
@@ -138,7 +155,7 @@ def free_modes(body: Body, driven: np.ndarray, count: int, stressed: bool = Fals
                 "by gravity are left out, and it moves as linear elasticity alone makes it; "
                 "a stiffer material for it (or driving more of it) brings them back",
                 stacklevel=3)
-    return psi[:, :count], np.maximum(lam[:count], 0.0)
+    return psi[:, :count], np.maximum(lam[:count], 0.0), stressed
 
 
 def _particular(lam: np.ndarray, delta: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -499,7 +516,9 @@ def secondary_motion(
     rig_seconds = _time.perf_counter() - t0
     # the free parts' modes and their forcing
     t1 = _time.perf_counter()
-    psi, lam = free_modes(body, v, free_mode_count, stressed=True)
+    held = held_vertices(body, v)
+    axes = gravity_stiffnesses(body, held)
+    psi, lam, stressed = _held_modes(body, held, free_mode_count, axes)
     modes_seconds = _time.perf_counter() - t1
     steps = step_turns(path)
     if not warped:  # linear: the rest pose's axes, whatever the turn rate
@@ -507,13 +526,34 @@ def secondary_motion(
     else:  # warped: the turning frame's centrifugal force
         warn_spin(driver.source, steps, path_times, lam)
     warn_sparse_turn(driver.source, steps, path_times)  # the driver's own arc, either way
-    held_warp = HeldWarp(body, held_vertices(body, v)) if warped else None
+    held_warp = HeldWarp(body, held) if warped else None
     r = psi.shape[1]
     alpha, beta = body.damping.alpha, body.damping.beta
     delta = 0.5 * (alpha + beta * lam)
     C = np.ascontiguousarray((body.M @ psi).T)  # Psi^T M, (r, 3n)
     own = [k for k in keyframes if k.spec.get("kind") != "drive"]
     nodes = node_times(start, end, list(times) + [k.time for k in own])
+    gravity = np.asarray(body.gravity, float)
+    stress = []  # gravity's stress per free part (its Psi^T P K_a Psi), turned with it
+    if warped:
+        loose = ~held_warp.held
+        everything = np.flatnonzero(loose)
+        fits = [(part, part if len(part) >= 4 else everything)  # a stray vertex: no frame
+                for part in free_parts(body.tets.tets, loose)]
+        stiffest = float(lam[0])
+        if stressed:
+            stress = [stress_couplings(psi, part, axes) for part, _ in fits]
+            at_frames = linear_rig(times).reshape(len(times), -1, 3)
+            peak = turned_stiffest(stress, [frame_rotations(
+                body.tets.vertices[fit], at_frames[:, fit].reshape(len(times), -1).T,
+                mass[fit]) for _, fit in fits], gravity, lam)
+            if peak is None:  # turned by too little to change the parts' stiffness
+                stress = []
+            else:
+                stiffest = max(stiffest, peak)
+        # the turning frames' forces are interpolated linearly between nodes: resolve the
+        # lowest mode's swing
+        nodes = refine_nodes(nodes, 2 * np.pi / np.sqrt(stiffest) / NODES_PER_PERIOD)
     m = len(nodes) - 1
     h = np.diff(nodes)
     g = psi.T @ body.gravity_vector  # gravity's g_i = psi_i^T g (the sag: -g / lambda)
@@ -521,8 +561,6 @@ def secondary_motion(
     g0 = g
     if warped:  # the forces turned into the rig's frame (wiggly.drive.carried)
         t1 = _time.perf_counter()
-        loose = ~held_warp.held
-        gravity = np.asarray(body.gravity, float)
         turned = turned_forces(held_warp.warp, body.tets.tets, rig.values.T, C,
                                intensity * (linear_rig(times, 2) + alpha * linear_rig(times, 1)),
                                gravity)
@@ -537,21 +575,26 @@ def secondary_motion(
     blocks = m if loop else m + 1
     N = 2 * r * blocks
     coupling = None
+    at_start = np.diag(lam)  # the free parts' stiffness at the start (their sag: -g0 by it)
     if warped:  # the turning frames' forces on Psi q, part by part (wiggly.drive.carried)
-        parts = []
-        everything = np.flatnonzero(loose)
+        parts, turns = [], []
         rig_at = [linear_rig(nodes, d).reshape(len(nodes), -1, 3) for d in range(3)]
-        for part in free_parts(body.tets.tets, loose):
-            fit = part if len(part) >= 4 else everything  # a stray vertex has no frame
-            parts.append((*frame_couplings(C, psi, part), *frame_rates(
-                body.tets.vertices[fit], mass[fit], *(R[:, fit] for R in rig_at))))
-        coupling = frame_forces(parts, alpha)
+        for part, fit in fits:
+            omega, domega, turn = frame_rates(body.tets.vertices[fit], mass[fit],
+                                              *(R[:, fit] for R in rig_at))
+            parts.append((*frame_couplings(C, psi, part), omega, domega))
+            turns.append(turn)
+        G, Nq = frame_forces(parts, alpha)
+        if stress:
+            change = turned_stress(stress, turns, gravity, lam)
+            Nq, at_start = Nq + change, at_start + change[0]
+        coupling = G, Nq
     H0, b0, forcing = _energy_system(Q, lam, delta, h, c, blocks, coupling)
     fixed = np.zeros(N, bool)
     z = np.zeros(N)
     if not loop:  # at rest relative to the driver, sagging under gravity
         fixed[:2 * r] = True
-        z[:r], z[r:2 * r] = -g0 / lam, 0.0
+        z[:r], z[r:2 * r] = np.linalg.solve(at_start, -g0), 0.0
     # the user's keys on the free parts
     keys = []
     for kf in own:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["NodeLayout", "merge_tolerance", "node_index", "node_times"]
+__all__ = ["NodeLayout", "merge_tolerance", "node_index", "node_times", "refine_nodes"]
 
 
 def merge_tolerance(start: float, end: float) -> float:
@@ -27,6 +27,16 @@ def node_times(start: float, end: float, times: list[float]) -> np.ndarray:
     t = t[keep]
     t[-1] = end
     return t
+
+
+def refine_nodes(nodes: np.ndarray, longest: float) -> np.ndarray:
+    """``nodes`` with every interval longer than ``longest`` split into equal ones."""
+    pieces = np.maximum(1, np.ceil(np.diff(nodes) / longest - 1e-9).astype(int))
+    if pieces.max() == 1:
+        return nodes
+    inner = [a + (b - a) * np.arange(k) / k
+             for a, b, k in zip(nodes[:-1], nodes[1:], pieces, strict=True)]
+    return np.r_[np.concatenate(inner), nodes[-1]]
 
 
 def node_index(nodes: np.ndarray, t: float) -> int:
