@@ -364,3 +364,56 @@ def test_assembly_matches_naive_loop():
     np.testing.assert_allclose(
         mass_matrix(V, T, rho).toarray(), M_ref, atol=1e-13 * abs(M_ref).max()
     )
+
+
+def _edge_gradients(V, T, U):
+    """Per tet the displacement gradient F_kj = d u_k / d X_j from edge vectors, and the
+    volume: independent of wiggly.fem's shape-function gradients."""
+    Dm = np.stack([V[T[:, i]] - V[T[:, 0]] for i in (1, 2, 3)], axis=2)  # columns: edges
+    Ds = np.stack([U[T[:, i]] - U[T[:, 0]] for i in (1, 2, 3)], axis=2)
+    return Ds @ np.linalg.inv(Dm), np.abs(np.linalg.det(Dm)) / 6.0
+
+
+def test_linear_stress_of_an_affine_displacement_is_hookes_law():
+    """u = A X on a box: every tet carries sigma = lambda tr(eps) I + 2 mu eps with eps =
+    sym(A) and the Lame parameters of (young, poisson) (Schulz et al. 2014, eq. (1));
+    per-tet Young's moduli scale it tet by tet."""
+    from wiggly.fem import linear_stress
+
+    V, T = box_mesh((3, 2, 2), (1.0, 0.6, 0.4))
+    A = np.random.default_rng(3).normal(size=(3, 3))
+    young, nu = 2e5, 0.3
+    lam = young * nu / ((1 + nu) * (1 - 2 * nu))
+    mu = young / (2 * (1 + nu))
+    eps = 0.5 * (A + A.T)
+    expected = lam * np.trace(eps) * np.eye(3) + 2 * mu * eps
+    got = linear_stress(V, T, V @ A.T, young, nu)
+    np.testing.assert_allclose(got, np.broadcast_to(expected, got.shape), rtol=1e-10,
+                               atol=1e-9 * np.abs(expected).max())
+    per_tet = np.linspace(1.0, 2.0, len(T)) * young
+    scaled = linear_stress(V, T, V @ A.T, per_tet, nu)
+    np.testing.assert_allclose(scaled, got * (per_tet / young)[:, None, None], rtol=1e-10,
+                               atol=1e-9 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_geometric_stiffness_is_the_second_variation_of_the_stress_work(seed):
+    """u^T K_sigma u = sum over tets vol sigma_ij F_ki F_kj (F = grad u from edge vectors;
+    the second variation of int sigma : 1/2 grad u^T grad u), for random per-tet stresses and
+    displacements; symmetric; translations cost nothing."""
+    from wiggly.fem import geometric_stiffness
+
+    rng = np.random.default_rng(seed)
+    V, T = box_mesh((3, 3, 2), (1.0, 0.8, 0.5))
+    V = V + 0.02 * rng.normal(size=V.shape)  # not a lattice
+    S = rng.normal(size=(len(T), 3, 3))
+    S = S + S.transpose(0, 2, 1)
+    Ks = geometric_stiffness(V, T, S)
+    for _ in range(3):
+        U = rng.normal(size=V.shape)
+        F, vol = _edge_gradients(V, T, U)
+        expected = np.einsum("m,mij,mki,mkj->", vol, S, F, F)
+        assert U.ravel() @ (Ks @ U.ravel()) == pytest.approx(expected, rel=1e-10)
+    assert abs(Ks - Ks.T).max() <= 1e-12 * abs(Ks).max()
+    shift = np.tile(rng.normal(size=3), len(V))
+    assert np.abs(Ks @ shift).max() <= 1e-10 * abs(Ks).max() * np.abs(shift).max()

@@ -505,3 +505,17 @@ def test_python_api_mistakes_are_named(tmp_path_factory):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # several turns in radians: no warning
         Keyframe.rigid(body, 1.0, [0, 1, 2], rotation=(0, 0, 4 * np.pi + 0.3))
+
+
+def test_refined_nodes_keep_every_node_and_split_long_steps_evenly():
+    """Every original node stays; no step is longer than asked; a long interval is split
+    into equal steps; nothing changes where every step is short enough."""
+    from wiggly.solve.nodes import refine_nodes
+
+    nodes = np.array([0.0, 0.1, 1.0, 1.05, 3.0])
+    out = refine_nodes(nodes, 0.25)
+    assert np.isin(nodes, out).all()
+    assert np.diff(out).max() <= 0.25 + 1e-12 and np.all(np.diff(out) > 0)
+    inside = out[(out >= 1.05) & (out <= 3.0)]
+    np.testing.assert_allclose(np.diff(inside), (3.0 - 1.05) / 8)
+    assert refine_nodes(nodes, 5.0) is nodes

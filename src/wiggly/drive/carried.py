@@ -13,8 +13,11 @@ with R_v(t) the rig's rotation at each vertex (:func:`turned_forces`), and the t
 frame's own forces on Psi q act too: Coriolis ``2 W x q'``, Euler ``W' x q``, centrifugal
 ``W x (W x q)`` and the mass damping of the frame's motion ``alpha W x q``, with W the frame's
 angular velocity, fitted over each free part (:func:`free_parts`, :func:`frame_rates`), in
-the frame's axes.  They couple the modes; :func:`frame_forces` gives them as modal matrices, and
-the solve interpolates them linearly between nodes (:mod:`wiggly.drive.secondary`).  This is
+the frame's axes.  Gravity's stress in the free parts (their geometric stiffness, in the
+modes' lambda for the rest pose's orientation) turns with each part's frame too
+(:func:`gravity_stiffnesses`, :func:`turned_stress`).  These couple the modes;
+:func:`frame_forces` and :func:`turned_stress` give them as modal matrices, and the solve
+interpolates them linearly between nodes (:mod:`wiggly.drive.secondary`).  This is
 linear elasticity in a floating frame (exact for a rigid rig and small strains in it); a spin
 faster than the free parts' lowest frequency overcomes their stiffness
 (:func:`wiggly.drive.driver_checks.warn_spin`).
