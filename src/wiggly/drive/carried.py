@@ -13,19 +13,15 @@ with R_v(t) the rig's rotation at each vertex (:func:`turned_forces`), and the t
 frame's own forces on Psi q act too: Coriolis ``2 W x q'``, Euler ``W' x q``, centrifugal
 ``W x (W x q)`` and the mass damping of the frame's motion ``alpha W x q``, with W the frame's
 angular velocity, fitted over each free part (:func:`free_parts`, :func:`frame_rates`), in
-the frame's axes.  Gravity's stress in the free parts (their geometric stiffness, in the
-modes' lambda for the rest pose's orientation) turns with each part's frame too
-(:func:`gravity_stiffnesses`, :func:`turned_stress`).  These couple the modes;
-:func:`frame_forces` and :func:`turned_stress` give them as modal matrices, and the solve
-interpolates them linearly between nodes (:mod:`wiggly.drive.secondary`).  This is
-linear elasticity in a floating frame (exact for a rigid rig and small strains in it); a spin
-faster than the free parts' lowest frequency overcomes their stiffness
-(:func:`wiggly.drive.driver_checks.warn_spin`).
+the frame's axes, and the stress that the loads in that frame put in the free parts
+stiffens them (:mod:`wiggly.drive.stress`).  These couple the modes; :func:`frame_forces`
+gives the frame's as modal matrices, and the solve interpolates them linearly between nodes
+(:mod:`wiggly.drive.secondary`).  This is
+linear elasticity in a floating frame, with the stress stiffening of its loads (exact for a
+rigid rig and small strains in it).
 """
 
 from __future__ import annotations
-
-import warnings
 
 import numpy as np
 import scipy.sparse as sp
@@ -33,110 +29,11 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial.transform import Rotation
 
 from wiggly.body import Body
-from wiggly.fem import geometric_stiffness, linear_stress
-from wiggly.linalg import factorize_spd
+from wiggly.drive.stress import load_coefficients, stress_change
 from wiggly.warp import Warp
 
-__all__ = ["HeldWarp", "frame_couplings", "frame_forces", "frame_rates", "free_parts",
-           "gravity_stiffnesses", "stress_couplings", "turned_forces", "turned_stiffest",
-           "turned_stress"]
-
-
-def gravity_stiffnesses(body: Body, held: np.ndarray,
-                        ) -> tuple[sp.csr_matrix, sp.csr_matrix, sp.csr_matrix] | None:
-    """The geometric stiffness of the stress that gravity puts in the body held at the tet
-    vertices ``held``, per unit of gravity along the body's x, y and z axes (m/s^2): gravity
-    b in the body's axes gives ``K_s(b) = sum_a b_a K_a`` (the static solution, its stress
-    and :func:`wiggly.fem.geometric_stiffness` of it are each linear in b).  A hanging part's
-    own weight pulls it back to hanging like a pendulum, a standing one's softens it; linear
-    elasticity alone has neither (a review's hanging appendage swung 125 ms late, 1.27 Hz
-    against 1.68 Hz, and a pair of standing ears 0.67 times too little, against a
-    corotational simulation).  None without gravity, or when the held vertices lie on a
-    line (a frame's rotation about it stays free)."""
-    V, T = body.tets.vertices, body.tets.tets
-    held = np.asarray(held, np.int64)
-    if not np.any(body.gravity) or len(held) < 3:
-        return None
-    P = V[held] - V[held].mean(axis=0)
-    if np.linalg.matrix_rank(P, tol=1e-9 * max(np.abs(P).max(), 1e-300)) < 2:
-        return None
-    used = np.asarray(body.M.diagonal()).reshape(-1, 3).min(axis=1) > 0
-    free = np.setdiff1d(np.flatnonzero(used), held)
-    dofs = (3 * free[:, None] + np.arange(3)).ravel()
-    solve = factorize_spd(body.K[dofs][:, dofs].tocsr())
-    young = body.material.young if body.young is None else body.young
-    out = []
-    for axis in np.eye(3):  # K u = M b, the static sag under a unit gravity b
-        u = np.zeros(3 * len(V))
-        u[dofs] = solve((body.M @ np.tile(axis, len(V)))[dofs])
-        out.append(geometric_stiffness(V, T, linear_stress(V, T, u, young,
-                                                           body.material.poisson)))
-    return out[0], out[1], out[2]
-
-
-#: A turn that changes the free parts' stiffness by less than this share of the lowest
-#: eigenvalue is left out.
-NEGLIGIBLE = 1e-3
-
-
-def stress_couplings(psi: np.ndarray, part: np.ndarray, axes: tuple) -> np.ndarray:
-    """``Gamma_a = Psi^T P K_a Psi`` (3, r, r): the modal stiffness of gravity's stress per
-    unit gravity along axis a (``axes``, :func:`gravity_stiffnesses`) on one free part's
-    tet vertices ``part`` (P its rows; its tets join it to held vertices only, where Psi is
-    zero, so Gamma_a is symmetric)."""
-    dofs = (3 * np.asarray(part)[:, None] + np.arange(3)).ravel()
-    return np.stack([psi[dofs].T @ (K_a[dofs] @ psi) for K_a in axes])
-
-
-def _stress_change(stress: list[np.ndarray], turns: list[np.ndarray],
-                   gravity: np.ndarray) -> np.ndarray:
-    """``sum_parts sum_a (R(t)^T gravity - gravity)_a Gamma_a`` (T, r, r)."""
-    gravity = np.array(gravity, float)
-    out = 0.0
-    for Gamma, turn in zip(stress, turns, strict=True):
-        b = Rotation.from_rotvec(turn).inv().apply(gravity) - gravity  # (T, 3), body axes
-        out = out + np.einsum("ta,aij->tij", b, Gamma)
-    return np.asarray(out)
-
-
-def _lowest(lam: np.ndarray, change: np.ndarray) -> np.ndarray:
-    """The lowest eigenvalue (T,) of ``diag(lambda) + change`` per time."""
-    sym = 0.5 * (change + change.transpose(0, 2, 1))
-    return np.linalg.eigvalsh(np.diag(lam)[None] + sym)[:, 0]
-
-
-def turned_stiffest(stress: list[np.ndarray], turns: list[np.ndarray], gravity: np.ndarray,
-                    lam: np.ndarray) -> float | None:
-    """The largest that the free parts' lowest eigenvalue becomes as gravity's stress turns
-    with them (:func:`turned_stress`; ``turns`` their frames' rotation vectors at the
-    driver's frames), or None where the turn changes their stiffness by less than
-    :data:`NEGLIGIBLE` of it."""
-    change = _stress_change(stress, turns, gravity)
-    floor = max(float(lam[0]), 1e-300)
-    if np.linalg.norm(change, 2, axis=(1, 2)).max(initial=0.0) <= NEGLIGIBLE * floor:
-        return None
-    return max(floor, float(_lowest(lam, change).max()))
-
-
-def turned_stress(stress: list[np.ndarray], turns: list[np.ndarray], gravity: np.ndarray,
-                  lam: np.ndarray) -> np.ndarray:
-    """The modal stiffness (T, r, r) that gravity's stress adds to the free parts as their
-    frames turn, beyond that of the rest pose's orientation (in the modes' ``lam``): ``sum_a
-    (R(t)^T gravity - gravity)_a Gamma_a`` summed over the parts, Gamma from
-    :func:`stress_couplings` and R(t) the part's frame's rotation (``turns``, (T, 3) rotation
-    vectors each): a part the driver turns upside down stands on its root and is softened
-    where hanging stretched and stiffened it.  Where that would buckle a part (diag(lambda)
-    plus it not positive definite at some time: a soft hanging part stood on its root),
-    nothing, and a warning says so."""
-    change = _stress_change(stress, turns, gravity)
-    if _lowest(lam, change).min() > 0:
-        return change
-    warnings.warn(
-        "the driver turns a free part so that it would buckle under its own weight (a soft "
-        "hanging part stood on its root): its stiffening by gravity stays that of the rest "
-        "pose's orientation; a stiffer material for it (or driving more of it) brings back "
-        "the turned one", stacklevel=4)
-    return np.zeros_like(change)
+__all__ = ["FrameTerms", "HeldWarp", "frame_couplings", "frame_forces", "frame_rates",
+           "free_parts", "moving_mean", "turned_forces"]
 
 
 class HeldWarp:
@@ -237,11 +134,11 @@ def _turned_back(w: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def frame_rates(X: np.ndarray, mass: np.ndarray, D: np.ndarray, V: np.ndarray,
-                A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The angular velocity, angular acceleration and rotation vector (T, 3 each) of the
-    frame that carries points X (p, 3) of masses ``mass`` (p,), the first two in that
-    frame's own axes, from their displacements D, velocities V and accelerations A (T, p, 3)
-    on the rig: the rigid fits ``omega = I^-1 sum m
+                A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The angular velocity, angular acceleration, rotation vector and centre's
+    acceleration (T, 3 each) of the frame that carries points X (p, 3) of masses ``mass``
+    (p,), all but the rotation in that frame's own axes, from their displacements D,
+    velocities V and accelerations A (T, p, 3) on the rig: the rigid fits ``omega = I^-1 sum m
     r x (v - v_c)`` and ``omega' = I^-1 (sum m r x (a - a_c) - omega x I omega)`` (r = x - x_c
     about the mass centre, I the inertia tensor at x = X + D; exact for a rigid motion),
     turned into the frame, which is the points' best-fit rotation."""
@@ -262,7 +159,9 @@ def frame_rates(X: np.ndarray, mass: np.ndarray, D: np.ndarray, V: np.ndarray,
     omega = np.linalg.solve(inertia, moment(V)[..., None])[..., 0]
     spin = np.cross(omega, np.einsum("tij,tj->ti", inertia, omega))
     domega = np.linalg.solve(inertia, (moment(A) - spin)[..., None])[..., 0]
-    return turn.inv().apply(omega), turn.inv().apply(domega), turn.as_rotvec()
+    centre = np.einsum("p,tpj->tj", m, A)
+    back = turn.inv()
+    return back.apply(omega), back.apply(domega), turn.as_rotvec(), back.apply(centre)
 
 
 def frame_couplings(C: np.ndarray, psi: np.ndarray,
@@ -304,3 +203,66 @@ def frame_forces(parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
         N = N + (np.einsum("ta,aij->tij", domega, S) + alpha * cross
                  + np.einsum("tab,abij->tij", square, T))
     return G, N
+
+
+class FrameTerms:
+    """The turning frames' terms of the free parts' modal equations at given times: their
+    forces ``G q' + N q`` (:func:`frame_forces`) and the change of the loads' stress
+    stiffening (:mod:`wiggly.drive.stress`), frame by frame of each free part ``fits``
+    ((part, the tet vertices its frame is fitted over) pairs)."""
+
+    def __init__(self, vertices: np.ndarray, mass: np.ndarray,
+                 fits: list[tuple[np.ndarray, np.ndarray]], C: np.ndarray, psi: np.ndarray,
+                 alpha: float, gravity: np.ndarray, response: float) -> None:
+        self.vertices, self.mass, self.fits = vertices, mass, fits
+        self.alpha, self.gravity, self.response = alpha, gravity, response
+        self.couplings = [frame_couplings(C, psi, part) for part, _ in fits]
+
+    def __call__(self, times: np.ndarray, at: list[np.ndarray], gammas: list[np.ndarray],
+                 base: np.ndarray,
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | float, np.ndarray]:
+        """G and N (T, r, r), the stress change (T, r, r; 0.0 without ``gammas``, the parts'
+        load couplings) beyond ``base`` (:func:`wiggly.drive.stress.stress_change`), and
+        the fastest part's turn rate (T,), from the rig's displacements, velocities and
+        accelerations ``at`` (T, n, 3 each) at ``times``.  The loads' stress follows their
+        mean over ``response`` seconds (the free parts' quarter period): it is quasi-static,
+        and a whip's brief pulse of acceleration is a push, not a load they settle under."""
+        parts, betas = [], []
+        for (_, fit), (S, T) in zip(self.fits, self.couplings, strict=True):
+            omega, domega, turn, centre = frame_rates(self.vertices[fit], self.mass[fit],
+                                                      *(R[:, fit] for R in at))
+            parts.append((S, T, omega, domega))
+            betas.append(moving_mean(times, load_coefficients(
+                self.gravity, turn, centre, omega, domega), self.response))
+        G, N = frame_forces(parts, self.alpha)
+        change = stress_change(gammas, betas, base) if gammas else 0.0
+        rates = np.max([np.linalg.norm(p[2], axis=1) for p in parts], axis=0)
+        return np.asarray(G), np.asarray(N), change, rates
+
+    @staticmethod
+    def step(G: np.ndarray, N: np.ndarray, lowest: float, per_period: int) -> float:
+        """The longest step between nodes that resolves the frames' forces ``G q' + N q``
+        (T, r, r) and the lowest mode (``lowest``, its largest eigenvalue over the shot) by
+        ``per_period`` nodes per period of the fastest of their rates, |G| / 2, sqrt |N|
+        (the turn rate, for a spin: linear interpolation of N q misses about (h rate)^2 / 8
+        of it) and sqrt(lowest)."""
+        rate = np.sqrt(max(float(lowest), 0.0))
+        if np.size(G):
+            rate = max(rate, float(np.sqrt(np.linalg.norm(N, 2, axis=(1, 2)).max())),
+                       0.5 * float(np.linalg.norm(G, 2, axis=(1, 2)).max()))
+        return 2 * np.pi / rate / per_period if rate > 0 else np.inf
+
+
+def moving_mean(times: np.ndarray, values: np.ndarray, window: float) -> np.ndarray:
+    """The mean of piecewise linear ``values`` (T, ...) at ``times`` over the ``window``
+    seconds centred on each time (cut at the ends)."""
+    t = np.asarray(times, float)
+    if window <= 0 or len(t) < 2:
+        return values
+    flat = values.reshape(len(t), -1)
+    area = np.concatenate([np.zeros((1, flat.shape[1])), np.cumsum(
+        0.5 * (flat[1:] + flat[:-1]) * np.diff(t)[:, None], axis=0)])
+    a = np.clip(t - 0.5 * window, t[0], t[-1])
+    b = np.clip(t + 0.5 * window, t[0], t[-1])
+    out = np.stack([np.interp(b, t, col) - np.interp(a, t, col) for col in area.T], axis=1)
+    return (out / np.maximum(b - a, 1e-300)[:, None]).reshape(values.shape)

@@ -13,14 +13,9 @@ from wiggly.body import Body
 from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.mesh.defects import diagonal
 
-__all__ = ["CUT_SIZE", "CUT_STEPS", "SEAM_STEPS", "SPIN", "STEP_TURN", "TURN", "best_turn",
-           "step_turns", "warn_cuts", "warn_seam", "warn_sparse_turn", "warn_spin", "warn_turn"]
-
-
-#: A driver turning faster than SPIN times the free parts' lowest angular frequency is said
-#: to turn fast: the turning frame's centrifugal force is then a sizeable part of the free
-#: parts' stiffness (its relative size grows like (turn rate / frequency)^2).
-SPIN = 0.5
+__all__ = ["CUT_SIZE", "CUT_STEPS", "SEAM_STEPS", "STEP_TURN", "TURN", "best_turn",
+           "step_turns", "warn_cuts", "warn_seam", "warn_sparse_turn", "warn_turn",
+           "warn_unstable"]
 
 
 def best_turn(a: np.ndarray, b: np.ndarray):
@@ -69,45 +64,34 @@ def warn_sparse_turn(source: str, turns: np.ndarray, times: np.ndarray) -> None:
             f"with more frames (at most {STEP_TURN:.0f} degrees apart)", stacklevel=3)
 
 
-def warn_spin(source: str, turns: np.ndarray, times: np.ndarray, lam: np.ndarray) -> None:
-    """Warn when the driven group turns fast against the free parts' lowest frequency: their
-    dynamics are linear elasticity in the driver's turning frame, whose centrifugal force
-    softens them by (turn rate / frequency)^2 of their stiffness; past their lowest frequency
-    that model has no stable motion (a spin at twice it swung a bar's tip erratically by
-    tenths of a metre, at six times by metres), where a real part stiffens as it stretches.
-    ``turns``: the driven group's :func:`step_turns` (F - 1,) at the frames' ``times``;
-    ``lam``: the free modes' eigenvalues.  The rate is the mean over a quarter of the lowest
-    period, the time the softening needs to act: a whip of 0.05 s is a push, not a spin (a
-    review's was told "no stable motion" and stayed bounded)."""
+def warn_unstable(source: str, nodes: np.ndarray, lowest: np.ndarray, rates: np.ndarray,
+                  lam: np.ndarray) -> None:
+    """Warn where the free parts' stiffness in their turning frames is not positive for
+    longer than a quarter of their lowest period: their own stiffness and their loads'
+    stress stiffening (:mod:`wiggly.drive.stress`) less the frame's centrifugal softening,
+    ``lowest`` (nodes,) the lowest eigenvalue of its symmetric part at the ``nodes``.  Their
+    linear motion grows there without bound (a part along the spin axis whirls, as a shaft
+    past its critical speed), where a real one bends out and its nonlinear stiffness holds
+    it; a brief whip is a push, not a spin (a review's 0.05 s whip stayed bounded).
+    ``rates``: the frames' turn rates (rad/s) at the nodes."""
     positive = lam[lam > 1e-9 * max(float(lam.max(initial=0.0)), 1e-300)]
-    if not len(turns) or not len(positive):
+    bad = np.asarray(lowest) <= 0
+    if not bad.any() or not len(positive):
         return
-    lowest = float(np.sqrt(positive.min()))
-    omega = _sustained_rate(turns, np.asarray(times, float), 0.5 * np.pi / lowest)
-    if omega > SPIN * lowest:
-        warnings.warn(
-            f"the driver {source} turns its driven group at up to "
-            f"{omega / (2 * np.pi):.2g} turns per second, fast against the free parts' lowest "
-            f"frequency ({lowest / (2 * np.pi):.2g} Hz): their motion is linear elasticity in "
-            "the turning frame, whose centrifugal force takes "
-            f"{100 * min((omega / lowest) ** 2, 9.99):.0f} % of their stiffness (past 100 % "
-            "that model has no stable motion: they swing erratically, by up to metres, where a "
-            "real part would stiffen as it stretches); a stiffer material for the free parts, "
-            "or a slower turn, keeps this small",
-            stacklevel=3)
-
-
-def _sustained_rate(turns: np.ndarray, times: np.ndarray, window: float) -> float:
-    """The largest mean turn rate (rad/s) over ``window`` seconds (the whole span when it is
-    shorter), from the turns between frames at ``times``."""
-    turned = np.concatenate([[0.0], np.cumsum(turns)])
-    span = times[-1] - times[0]
-    if span <= window:
-        return float(turned[-1] / span) if span > 0 else 0.0
-    ends = np.searchsorted(times, times + window)  # the first frame a window away
-    ok = ends < len(times)
-    k, j = np.flatnonzero(ok), ends[ok]
-    return float(np.max((turned[j] - turned[k]) / (times[j] - times[k])))
+    edges = np.diff(np.r_[0, bad.astype(int), 0])
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    spans = nodes[ends] - nodes[starts]
+    k = int(np.argmax(spans))
+    if spans[k] < 0.5 * np.pi / float(np.sqrt(positive.min())):
+        return
+    rate = float(np.max(rates[starts[k]:ends[k] + 1]))
+    warnings.warn(
+        f"the driver {source} turns the free parts at up to {rate / (2 * np.pi):.2g} turns "
+        f"per second, where the turning frame's centrifugal force overcomes their stiffness "
+        f"(their own and the stretch of their loads) for {spans[k]:.2g} s from "
+        f"t = {nodes[starts[k]]:.3g} s: their motion in linear elasticity grows there without "
+        "bound (they swing erratically, by up to metres); a stiffer material for the free "
+        "parts, or a slower turn, keeps it bounded", stacklevel=3)
 
 
 #: A linear secondary motion whose driver turns the driven group further than this (degrees)

@@ -59,29 +59,25 @@ from numpy.typing import ArrayLike
 
 from wiggly.body import Body, Where, fixed_from_surface
 from wiggly.checks import vertex_indices
-from wiggly.drive.carried import (
-    HeldWarp,
-    frame_couplings,
-    frame_forces,
-    frame_rates,
-    free_parts,
-    gravity_stiffnesses,
-    stress_couplings,
-    turned_forces,
-    turned_stiffest,
-    turned_stress,
-)
+from wiggly.drive.carried import FrameTerms, HeldWarp, free_parts, turned_forces
 from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.drive.driver_checks import (
     step_turns,
     warn_cuts,
     warn_seam,
     warn_sparse_turn,
-    warn_spin,
     warn_turn,
+    warn_unstable,
 )
 from wiggly.drive.frame_spline import FrameSpline
-from wiggly.drive.unwarp import Unwarp, frame_rotations
+from wiggly.drive.stress import (
+    gravity_stiffnesses,
+    load_stiffnesses,
+    pins_the_body,
+    stress_change,
+    stress_matters,
+)
+from wiggly.drive.unwarp import Unwarp
 from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread, factorize_spd, one_blas_thread
@@ -101,9 +97,12 @@ DEFAULT_FREE_MODES = 24
 #: Gauss-Newton on warped keyframes of the free parts: iteration budget and the relative
 #: decrease of the key objective below which the iteration has converged.
 _GN_ITERATIONS, _GN_TOLERANCE = 30, 1e-10
-#: Nodes per period of the free parts' lowest mode, at least, in a warped secondary motion:
-#: the turning frames' forces on them are interpolated linearly between nodes.
+#: Nodes per period of the turning frames' forces, at least, in a warped secondary motion
+#: (:meth:`wiggly.drive.carried.FrameTerms.step`): they are interpolated linearly between
+#: nodes.
 NODES_PER_PERIOD = 16
+#: ... but no more nodes than this in all, so that a long shot stays within memory.
+MAX_NODES = 4000
 
 
 def held_vertices(body: Body, driven: np.ndarray) -> np.ndarray:
@@ -117,7 +116,7 @@ def free_modes(body: Body, driven: np.ndarray, count: int, stressed: bool = Fals
     """The lowest ``count`` modes of the body with :func:`held_vertices` held: (Psi (3n, r),
     lambda (r,)), Psi^T M Psi = I, Psi^T K Psi = diag(lambda), Psi zero on the held
     vertices.  ``stressed``: of K plus gravity's geometric stiffness K_s in the rest pose's
-    orientation (:func:`wiggly.drive.carried.gravity_stiffnesses`), the small vibrations
+    orientation (:func:`wiggly.drive.stress.gravity_stiffnesses`), the small vibrations
     about the sagged pose, by Rayleigh-Ritz in twice as many modes of K; where K + K_s is
     not positive definite there (gravity's stress would buckle a free part: a soft part
     standing up, or sagging further than linear elasticity holds), K alone, and a warning
@@ -305,6 +304,11 @@ class SecondaryMotion(Animation):
         x = (x - _hermite_of(self.particular, h[:, None])).reshape(-1, 4)
         form = energy_form(self.basis, np.zeros(m * r))
         return float(form(x).sum())
+
+
+def _rig_at(rig: FrameSpline, times: np.ndarray) -> list[np.ndarray]:
+    """The rig's displacements, velocities and accelerations (T, n, 3 each) at ``times``."""
+    return [rig(times, d).reshape(len(times), -1, 3) for d in range(3)]
 
 
 def _runaway(source: str, coupling: tuple | None, lam: np.ndarray) -> WigglyInputError:
@@ -518,14 +522,28 @@ def secondary_motion(
     # the free parts' modes and their forcing
     t1 = _time.perf_counter()
     held = held_vertices(body, v)
-    axes = gravity_stiffnesses(body, held)
+    gravity = np.asarray(body.gravity, float)
+    loose = np.ones(body.tets.n_vertices, bool)
+    loose[held] = False
+    fits, loads = [], None  # warped: the free parts, the vertices their frames fit
+    if warped:
+        everything = np.flatnonzero(loose)
+        fits = [(part, part if len(part) >= 4 else everything)  # a stray vertex: no frame
+                for part in free_parts(body.tets.tets, loose)]
+        if pins_the_body(body.tets.vertices, held):  # their loads' stress (drive.stress)
+            centres = np.array([mass[fit] @ body.tets.vertices[fit] / mass[fit].sum()
+                                for _, fit in fits])
+            loads = load_stiffnesses(body, held, [part for part, _ in fits], centres)
+    if loads is not None and np.any(gravity):
+        axes = tuple(sum(blocks) for blocks in zip(*(p.global_axes() for p in loads),
+                                                    strict=True))
+    else:
+        axes = None if loads is not None else gravity_stiffnesses(body, held)
     psi, lam, stressed = _held_modes(body, held, free_mode_count, axes)
     modes_seconds = _time.perf_counter() - t1
     steps = step_turns(path)
     if not warped:  # linear: the rest pose's axes, whatever the turn rate
         warn_turn(driver.source, surface.vertices[v], path, path_times)
-    else:  # warped: the turning frame's centrifugal force
-        warn_spin(driver.source, steps, path_times, lam)
     warn_sparse_turn(driver.source, steps, path_times)  # the driver's own arc, either way
     held_warp = HeldWarp(body, held) if warped else None
     r = psi.shape[1]
@@ -534,27 +552,22 @@ def secondary_motion(
     C = np.ascontiguousarray((body.M @ psi).T)  # Psi^T M, (r, 3n)
     own = [k for k in keyframes if k.spec.get("kind") != "drive"]
     nodes = node_times(start, end, list(times) + [k.time for k in own])
-    gravity = np.asarray(body.gravity, float)
-    stress = []  # gravity's stress per free part (its Psi^T P K_a Psi), turned with it
+    gammas = []  # the loads' modal stiffness per part (drive.stress), when it changes
+    base = np.r_[gravity if stressed else np.zeros(3), np.zeros(9)]  # in the modes' lambda
     if warped:
-        loose = ~held_warp.held
-        everything = np.flatnonzero(loose)
-        fits = [(part, part if len(part) >= 4 else everything)  # a stray vertex: no frame
-                for part in free_parts(body.tets.tets, loose)]
-        stiffest = float(lam[0])
-        if stressed:
-            stress = [stress_couplings(psi, part, axes) for part, _ in fits]
-            at_frames = linear_rig(times).reshape(len(times), -1, 3)
-            peak = turned_stiffest(stress, [frame_rotations(
-                body.tets.vertices[fit], at_frames[:, fit].reshape(len(times), -1).T,
-                mass[fit]) for _, fit in fits], gravity, lam)
-            if peak is None:  # turned by too little to change the parts' stiffness
-                stress = []
-            else:
-                stiffest = max(stiffest, peak)
-        # the turning frames' forces are interpolated linearly between nodes: resolve the
-        # lowest mode's swing
-        nodes = refine_nodes(nodes, 2 * np.pi / np.sqrt(stiffest) / NODES_PER_PERIOD)
+        terms = FrameTerms(body.tets.vertices, mass, fits, C, psi, alpha, gravity,
+                           0.5 * np.pi / np.sqrt(max(float(lam[0]), 1e-300)))
+        if loads is not None:
+            gammas = [p.couplings(psi) for p in loads]
+        G, Nq, change, _ = terms(times, _rig_at(linear_rig, times), gammas, base)
+        if gammas:  # linear elasticity's stiffness, without gravity's stress in lambda
+            plain = np.diag(lam) + stress_change(gammas, [np.zeros((1, 12))] * len(gammas),
+                                                 base)[0]
+        lowest = stress_matters(change, lam, plain, times) if gammas else None
+        gammas = gammas if lowest is not None else []
+        # the frames' forces are interpolated linearly between nodes: resolve their rates
+        longest = terms.step(G, Nq, max(float(lam[0]), lowest or 0.0), NODES_PER_PERIOD)
+        nodes = refine_nodes(nodes, max(longest, (end - start) / MAX_NODES))
     m = len(nodes) - 1
     h = np.diff(nodes)
     g = psi.T @ body.gravity_vector  # gravity's g_i = psi_i^T g (the sag: -g / lambda)
@@ -578,18 +591,12 @@ def secondary_motion(
     coupling = None
     at_start = np.diag(lam)  # the free parts' stiffness at the start (their sag: -g0 by it)
     if warped:  # the turning frames' forces on Psi q, part by part (wiggly.drive.carried)
-        parts, turns = [], []
-        rig_at = [linear_rig(nodes, d).reshape(len(nodes), -1, 3) for d in range(3)]
-        for part, fit in fits:
-            omega, domega, turn = frame_rates(body.tets.vertices[fit], mass[fit],
-                                              *(R[:, fit] for R in rig_at))
-            parts.append((*frame_couplings(C, psi, part), omega, domega))
-            turns.append(turn)
-        G, Nq = frame_forces(parts, alpha)
-        if stress:
-            change = turned_stress(stress, turns, gravity, lam)
+        G, Nq, change, rates = terms(nodes, _rig_at(linear_rig, nodes), gammas, base)
+        if gammas:
             Nq, at_start = Nq + change, at_start + change[0]
         coupling = G, Nq
+        held_still = np.diag(lam)[None] + 0.5 * (Nq + Nq.transpose(0, 2, 1))
+        warn_unstable(driver.source, nodes, np.linalg.eigvalsh(held_still)[:, 0], rates, lam)
     H0, b0, forcing = _energy_system(Q, lam, delta, h, c, blocks, coupling)
     fixed = np.zeros(N, bool)
     z = np.zeros(N)

@@ -31,6 +31,8 @@ def node_times(start: float, end: float, times: list[float]) -> np.ndarray:
 
 def refine_nodes(nodes: np.ndarray, longest: float) -> np.ndarray:
     """``nodes`` with every interval longer than ``longest`` split into equal ones."""
+    if not np.isfinite(longest):
+        return nodes
     pieces = np.maximum(1, np.ceil(np.diff(nodes) / longest - 1e-9).astype(int))
     if pieces.max() == 1:
         return nodes
