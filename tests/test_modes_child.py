@@ -5,6 +5,7 @@ the interpreter lock: in-process, they waited for it, minutes on large bodies)."
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -82,7 +83,10 @@ def test_a_live_line_while_the_child_factorizes_then_its_solves_counted(bar, mon
 
 
 PARENT = """
-import sys, logging
+import signal, sys, logging
+# a user's terminal: Ctrl+C is Python's KeyboardInterrupt, whatever the test runner's worker
+# passed on (an ignored SIGINT is inherited across exec)
+signal.signal(signal.SIGINT, signal.default_int_handler)
 import numpy as np
 logging.basicConfig(level=logging.INFO, stream=sys.stdout, format="%(message)s")
 import wiggly.modes as modes
@@ -122,3 +126,38 @@ def test_ctrl_c_and_kill_end_the_factorization_at_once(signum):
         if parent.poll() is None:
             parent.kill()
             parent.wait()
+
+
+WAITER = """
+import signal, sys, threading, time
+signal.signal(signal.SIGINT, signal.default_int_handler)
+from wiggly.child import python_child
+other = threading.Thread(target=time.sleep, args=(60,), daemon=True)
+other.start()
+
+def interrupt():  # Ctrl+C, caught by a thread that is not the main one
+    time.sleep(1.0)
+    signal.pthread_kill(other.ident, signal.SIGINT)
+
+threading.Thread(target=interrupt, daemon=True).start()
+t0 = time.monotonic()
+try:
+    with python_child("import time; time.sleep(30)", [], ".") as child:
+        for line in child.lines():
+            pass
+        child.wait()
+except KeyboardInterrupt:
+    print(f"interrupted after {time.monotonic() - t0:.1f} s", flush=True)
+"""
+
+
+@pytest.mark.skipif(not hasattr(signal, "pthread_kill"), reason="POSIX threads")
+def test_ctrl_c_caught_by_another_thread_still_ends_the_wait_for_a_child():
+    """A signal to a process lands on any of its threads; one caught by a thread other than
+    the main one, while the main thread waits for a child's output, ends the wait within
+    a second (it waited for the child's next line: 18 s once, mid-factorization)."""
+    done = subprocess.run([sys.executable, "-c", WAITER], capture_output=True, text=True,
+                          timeout=60)
+    said = re.search(r"interrupted after ([\d.]+) s", done.stdout)
+    assert said, done.stdout + done.stderr
+    assert float(said.group(1)) < 2.5

@@ -11,6 +11,7 @@ so that a user's ``random.py`` there cannot shadow a library module.
 from __future__ import annotations
 
 import os
+import queue
 import subprocess
 import sys
 import threading
@@ -21,6 +22,10 @@ from pathlib import Path
 from wiggly.files import terminate_as_exit
 
 __all__ = ["PythonChild", "can_run_child", "python_child"]
+
+#: Seconds the main thread waits at a time for a child's line or exit, so that a signal
+#: that landed on another thread is acted on within it.
+_STEP = 0.1
 
 
 def can_run_child() -> bool:
@@ -38,12 +43,37 @@ class PythonChild:
         self.process, self._errors = process, errors
 
     def lines(self) -> Iterator[str]:
-        """The child's standard output, line by line as it writes them (without newlines)."""
-        for raw in self.process.stdout:
+        """The child's standard output, line by line as it writes them (without newlines).
+        A thread reads the pipe and this waits for its lines in short steps: a signal to
+        this process may land on any of its threads (the reader, a progress line, a BLAS
+        worker), and the main thread blocked in the pipe's read would not see Ctrl+C until
+        the child's next line (18 s once, mid-factorization)."""
+        lines: queue.Queue[bytes | None] = queue.Queue()
+
+        def pump() -> None:
+            try:
+                for raw in self.process.stdout:
+                    lines.put(raw)
+            finally:
+                lines.put(None)
+
+        threading.Thread(target=pump, name="wiggly-child-lines", daemon=True).start()
+        while True:
+            try:
+                raw = lines.get(timeout=_STEP)
+            except queue.Empty:
+                continue
+            if raw is None:
+                return
             yield raw.decode("utf-8", "replace").rstrip("\n")
 
     def wait(self) -> int:
-        return self.process.wait()
+        """The child's exit code, waited for in short steps (as :meth:`lines`)."""
+        while True:
+            try:
+                return self.process.wait(timeout=_STEP)
+            except subprocess.TimeoutExpired:
+                continue
 
     def error_tail(self, n: int = 5) -> str:
         """The last ``n`` lines of the child's standard error, joined by " / " (after the
