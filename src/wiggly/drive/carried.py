@@ -218,16 +218,17 @@ class FrameTerms:
         self.alpha, self.gravity, self.response = alpha, gravity, response
         self.couplings = [frame_couplings(C, psi, part) for part, _ in fits]
 
-    def __call__(self, times: np.ndarray, at: list[np.ndarray], gammas: list[np.ndarray],
-                 base: np.ndarray,
+    def __call__(self, times: np.ndarray, rig, gammas: list[np.ndarray], base: np.ndarray,
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray | float, np.ndarray]:
         """G and N (T, r, r), the stress change (T, r, r; 0.0 without ``gammas``, the parts'
         load couplings) beyond ``base`` (:func:`wiggly.drive.stress.stress_change`), and
-        the fastest part's turn rate (T,), from the rig's displacements, velocities and
-        accelerations ``at`` (T, n, 3 each) at ``times``.  The loads' stress follows their
-        mean over ``response`` seconds (the free parts' quarter period): it is quasi-static,
-        and a whip's brief pulse of acceleration is a push, not a load they settle under."""
+        the fastest part's turn rate (T,), at ``times`` of the ``rig``
+        (:class:`wiggly.drive.frame_spline.FrameSpline` of the tet mesh's displacements).
+        The loads' stress follows their mean over ``response`` seconds (the free parts'
+        quarter period): it is quasi-static, and a whip's brief pulse of acceleration is a
+        push, not a load they settle under."""
         parts, betas = [], []
+        at = [rig(times, d).reshape(len(times), -1, 3) for d in range(3)]
         for (_, fit), (S, T) in zip(self.fits, self.couplings, strict=True):
             omega, domega, turn, centre = frame_rates(self.vertices[fit], self.mass[fit],
                                                       *(R[:, fit] for R in at))

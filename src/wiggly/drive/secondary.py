@@ -306,11 +306,6 @@ class SecondaryMotion(Animation):
         return float(form(x).sum())
 
 
-def _rig_at(rig: FrameSpline, times: np.ndarray) -> list[np.ndarray]:
-    """The rig's displacements, velocities and accelerations (T, n, 3 each) at ``times``."""
-    return [rig(times, d).reshape(len(times), -1, 3) for d in range(3)]
-
-
 def _runaway(source: str, coupling: tuple | None, lam: np.ndarray) -> WigglyInputError:
     """The error of a secondary motion whose spline system is not positive definite: its
     free parts' motion grows without bound (the turning frame's centrifugal force beyond
@@ -557,9 +552,9 @@ def secondary_motion(
     if warped:
         terms = FrameTerms(body.tets.vertices, mass, fits, C, psi, alpha, gravity,
                            0.5 * np.pi / np.sqrt(max(float(lam[0]), 1e-300)))
-        if loads is not None:
+        if loads is not None and (stressed or axes is None):  # (gravity's would buckle)
             gammas = [p.couplings(psi) for p in loads]
-        G, Nq, change, _ = terms(times, _rig_at(linear_rig, times), gammas, base)
+        G, Nq, change, _ = terms(times, linear_rig, gammas, base)
         if gammas:  # linear elasticity's stiffness, without gravity's stress in lambda
             plain = np.diag(lam) + stress_change(gammas, [np.zeros((1, 12))] * len(gammas),
                                                  base)[0]
@@ -591,7 +586,7 @@ def secondary_motion(
     coupling = None
     at_start = np.diag(lam)  # the free parts' stiffness at the start (their sag: -g0 by it)
     if warped:  # the turning frames' forces on Psi q, part by part (wiggly.drive.carried)
-        G, Nq, change, rates = terms(nodes, _rig_at(linear_rig, nodes), gammas, base)
+        G, Nq, change, rates = terms(nodes, linear_rig, gammas, base)
         if gammas:
             Nq, at_start = Nq + change, at_start + change[0]
         coupling = G, Nq
