@@ -34,9 +34,10 @@ free parts' own, less the rig's (W(ubar, Psi q) - W(ubar)), so that the free par
 the rig's pose of them and their bending and sag turn with the body by any angle; the
 driver's inertial forces and gravity above act turned into that frame, rotation by rotation
 at each vertex (what that adds to g + p is a cubic spline through the driver's frames), and
-the frame's own Coriolis, Euler and centrifugal forces and gravity's stress turned with each
-free part act on Psi q, interpolated linearly between nodes (at least
-:data:`NODES_PER_PERIOD` per period of the lowest free mode).
+the frame's own Coriolis, Euler and centrifugal forces and the stress stiffening of the free
+parts' loads there (:mod:`wiggly.drive.stress`) act on Psi q, interpolated linearly between
+nodes (at least :data:`NODES_PER_PERIOD` per period of those forces and the lowest free
+mode).
 
 Without keyframes on the free parts, E = 0 is reached by the forced ODE's solution that
 starts at rest relative to the driver (q' = 0, and q = -g / lambda: in equilibrium under
