@@ -423,3 +423,60 @@ def test_a_value_typed_without_enter_is_kept_on_reload(chromium, tmp_path):
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_a_job_cut_short_does_not_read_a_descriptor_reused_elsewhere():
+    """Closing the editor kills the physics child while a job waits for its reply on
+    another thread.  The child's pipe closes, and the process may reuse its descriptor
+    number at once (a new `wiggly edit` started by a test, a user's subprocess): the job must
+    not read from it.  A closed session's job read a new process's whole stderr that way."""
+    import subprocess
+    import sys
+
+    from wiggly.editor.physics import Preparer
+
+    class Silent(Preparer):  # a child that takes the job and never answers
+        def start(self) -> None:
+            with self._lock:
+                if self._closed or self._proc is not None:
+                    return
+                self._proc = subprocess.Popen(
+                    [sys.executable, "-c", "import time; time.sleep(60)"],
+                    stdin=subprocess.PIPE, stdout=subprocess.PIPE, bufsize=0)
+
+    preparer = Silent()
+    number = preparer._proc.stdout.fileno()
+    waiting, reused = threading.Event(), threading.Event()
+    ended: list = []
+
+    def status(_) -> None:  # busy telling the page while the session closes
+        waiting.set()
+        reused.wait(10)
+
+    def job() -> None:
+        try:
+            preparer.call(("prepare",), status, lambda: False)
+        except Exception as err:  # the child is gone: its error, whichever it is
+            ended.append(err)
+
+    worker = threading.Thread(target=job, daemon=True)
+    worker.start()
+    assert waiting.wait(10)  # the job waits for the child's reply
+    preparer.close()  # kills the child and closes its pipe
+    r, w = os.pipe()  # the same number, now another pipe's, with data in it
+    if w == number:
+        w, first = os.dup(w), w
+        os.close(first)
+    if r != number:
+        os.dup2(r, number)
+        os.close(r)
+    os.write(w, b"0123456789abcdef" * 4)
+    reused.set()
+    worker.join(10)
+    assert not worker.is_alive() and ended
+    os.set_blocking(number, False)
+    try:
+        assert os.read(number, 1024) == b"0123456789abcdef" * 4  # nobody else read it
+    finally:
+        os.close(number)
+        os.close(w)

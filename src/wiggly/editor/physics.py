@@ -187,11 +187,32 @@ class Preparer:
         if proc is None:
             raise Superseded("the editor is closing")
         try:
-            channel.send(proc.stdin.fileno(), msg)
+            out = os.dup(proc.stdin.fileno())  # this call's own (below)
+            try:
+                channel.send(out, msg)
+            finally:
+                os.close(out)
         except (BrokenPipeError, OSError, ValueError):
             self.kill()
             raise RuntimeError("the physics process exited") from None
-        fd = proc.stdout.fileno()
+        # a descriptor of this call's own: kill() on another thread closes the child's
+        # pipe, and the number it had may be reused at once by a file or pipe opened
+        # elsewhere in the process (a later job's child, a user's subprocess), which this
+        # loop would then read from (a closed session's job took a new `wiggly edit`'s
+        # whole stderr in a test)
+        try:
+            fd = os.dup(proc.stdout.fileno())
+        except (OSError, ValueError):
+            raise Superseded("the editor is closing") from None
+        try:
+            return self._replies(fd, proc, msg, on_status, abandon)
+        finally:
+            os.close(fd)
+
+    def _replies(self, fd: int, proc: subprocess.Popen, msg: tuple,
+                 on_status: Callable[[tuple | None], None], abandon: Callable[[], bool],
+                 ) -> tuple:
+        """:meth:`call`'s loop over the child's replies on ``fd``."""
         while True:
             if abandon():
                 self.kill()
