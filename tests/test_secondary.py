@@ -552,15 +552,17 @@ def critter():
 
 
 @pytest.mark.parametrize("degrees", [10.0, 90.0, 180.0])
-def test_the_rig_reproduces_affine_motions_at_every_tet_vertex(critter, degrees):
+def test_the_rig_reproduces_affine_motions_at_every_tet_vertex(degrees):
     """The driver's extension into the tet mesh is exact for affine motions (a turn by any
     angle, a stretch, a shift) at every tet vertex, also those no surface point pins: a
-    harmonic extension alone bent a 90 degree turn there by 72 mm on this 1 m body."""
+    harmonic extension alone bent a 90 degree turn there by 72 mm on this 1 m body.  At
+    resolution 20 fTetWild leaves 26-31 such vertices (at 14, 0-3: a fresh mesh may have
+    none, and this test nothing to check)."""
     from scipy.spatial.transform import Rotation
 
     from wiggly.drive.unwarp import Unwarp
 
-    body, _ = critter
+    body = wiggly.prepare("builtin:critter", n_modes=6, resolution=20, gravity=(0, 0, 0))
     X, S = body.tets.vertices, body.surface.vertices
     pinned = np.asarray(abs(body.surface_embedding).sum(axis=0)).ravel() > 0
     assert not pinned.all()  # the case that was wrong
