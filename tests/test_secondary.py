@@ -544,7 +544,7 @@ def test_a_driver_that_turns_the_body_around_is_followed(tmp_path, degrees):
 @pytest.fixture(scope="module")
 def critter():
     """The bundled critter, tetrahedralized by fTetWild (its tet mesh reaches beyond the
-    surface: some tet vertices carry no surface point), with gravity off."""
+    surface), with gravity off."""
     body = wiggly.prepare("builtin:critter", n_modes=12, resolution=14, gravity=(0, 0, 0))
     X = body.surface.vertices
     driven = np.flatnonzero((X[:, 0] > -0.28) & (X[:, 1] < 0.745))  # all but tail and ears
