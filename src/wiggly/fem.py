@@ -298,7 +298,9 @@ def stiffness_matrix(
     return _assemble_blocks(T, V.shape[0], blocks)
 
 
-def geometric_stiffness(V: np.ndarray, T: np.ndarray, stress: np.ndarray) -> sp.csr_matrix:
+def geometric_stiffness(V: np.ndarray, T: np.ndarray, stress: np.ndarray,
+                        gradients: tuple[np.ndarray, np.ndarray] | None = None,
+                        ) -> sp.csr_matrix:
     """Geometric (stress) stiffness of P1 tets under a per-tet Cauchy stress ``stress``
     (m, 3, 3): the second variation of ``int sigma : E(u)`` with the Green strain's
     quadratic part ``1/2 grad u^T grad u``, per tet and vertex pair the 3x3 block
@@ -306,9 +308,10 @@ def geometric_stiffness(V: np.ndarray, T: np.ndarray, stress: np.ndarray) -> sp.
         K_sigma_ab = vol (g_a^T sigma g_b) I
 
     (Bathe, Finite Element Procedures, sec. 6.3): tension stiffens (a hanging rope swings
-    back like a pendulum), compression softens (a column's self-weight buckling)."""
+    back like a pendulum), compression softens (a column's self-weight buckling).
+    ``gradients``: :func:`tet_gradients` of (V, T), where the caller has them."""
     V, T = _check_mesh(V, T)
-    grads, vol = tet_gradients(V, T)
+    grads, vol = tet_gradients(V, T) if gradients is None else gradients
     S = np.asarray(stress, dtype=np.float64)
     if S.shape != (len(T), 3, 3):
         raise WigglyInputError(f"stress should have shape ({len(T)}, 3, 3); shape is {S.shape}")
@@ -319,11 +322,13 @@ def geometric_stiffness(V: np.ndarray, T: np.ndarray, stress: np.ndarray) -> sp.
 
 
 def linear_stress(V: np.ndarray, T: np.ndarray, u: np.ndarray, young: float | np.ndarray,
-                  poisson: float) -> np.ndarray:
+                  poisson: float, gradients: tuple[np.ndarray, np.ndarray] | None = None,
+                  ) -> np.ndarray:
     """Per-tet Cauchy stress ``lambda tr(eps) I + 2 mu eps`` of the displacement ``u`` (n, 3)
-    or (3n,), ``eps = sym(grad u)`` (Schulz et al. 2014, eq. (1)): (m, 3, 3)."""
+    or (3n,), ``eps = sym(grad u)`` (Schulz et al. 2014, eq. (1)): (m, 3, 3).
+    ``gradients``: :func:`tet_gradients` of (V, T), where the caller has them."""
     V, T = _check_mesh(V, T)
-    grads, _ = tet_gradients(V, T)
+    grads, _ = tet_gradients(V, T) if gradients is None else gradients
     U = np.asarray(u, dtype=np.float64).reshape(-1, 3)
     A = np.einsum("mki,mkj->mij", U[T], grads)  # A_ij = d u_i / d X_j
     eps = 0.5 * (A + A.transpose(0, 2, 1))

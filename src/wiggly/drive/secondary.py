@@ -74,8 +74,8 @@ from wiggly.drive.frame_spline import FrameSpline
 from wiggly.drive.stress import (
     gravity_stiffnesses,
     load_stiffnesses,
+    lowest_eigenvalues,
     pins_the_body,
-    stress_change,
     stress_matters,
 )
 from wiggly.drive.unwarp import Unwarp
@@ -557,8 +557,7 @@ def secondary_motion(
             gammas = [p.couplings(psi) for p in loads]
         G, Nq, change, _ = terms(times, linear_rig, gammas, base)
         if gammas:  # linear elasticity's stiffness, without gravity's stress in lambda
-            plain = np.diag(lam) + stress_change(gammas, [np.zeros((1, 12))] * len(gammas),
-                                                 base)[0]
+            plain = np.diag(lam) - sum(np.einsum("k,kij->ij", base, g) for g in gammas)
         lowest = stress_matters(change, lam, plain, times) if gammas else None
         gammas = gammas if lowest is not None else []
         # the frames' forces are interpolated linearly between nodes: resolve their rates
@@ -591,8 +590,7 @@ def secondary_motion(
         if gammas:
             Nq, at_start = Nq + change, at_start + change[0]
         coupling = G, Nq
-        held_still = np.diag(lam)[None] + 0.5 * (Nq + Nq.transpose(0, 2, 1))
-        warn_unstable(driver.source, nodes, np.linalg.eigvalsh(held_still)[:, 0], rates, lam)
+        warn_unstable(driver.source, nodes, lowest_eigenvalues(lam, Nq), rates, lam)
     H0, b0, forcing = _energy_system(Q, lam, delta, h, c, blocks, coupling)
     fixed = np.zeros(N, bool)
     z = np.zeros(N)

@@ -36,11 +36,12 @@ import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
 from wiggly.body import Body
-from wiggly.fem import geometric_stiffness, linear_stress
+from wiggly.fem import geometric_stiffness, linear_stress, tet_gradients
 from wiggly.linalg import factorize_spd
 
 __all__ = ["NEAR_BUCKLING", "NEGLIGIBLE", "PartLoads", "gravity_stiffnesses", "load_coefficients",
-           "load_stiffnesses", "pins_the_body", "stress_change", "stress_matters"]
+           "load_stiffnesses", "lowest_eigenvalues", "pins_the_body", "stress_change",
+           "stress_matters"]
 
 #: A load change that changes the free parts' stiffness by less than this share of the
 #: lowest eigenvalue anywhere in the shot is left out.
@@ -125,6 +126,7 @@ def load_stiffnesses(body: Body, held: np.ndarray, parts: list[np.ndarray],
         near = inside[T].any(axis=1)
         Tp = T[near]
         Yp = young if np.ndim(young) == 0 else young[near]
+        gradients = tet_gradients(V, Tp)  # once for the part's twelve loads
         offsets = V - c
         fields = [np.broadcast_to(e, (n, 3)) for e in np.eye(3)]
         if not uniform_only:
@@ -133,8 +135,8 @@ def load_stiffnesses(body: Body, held: np.ndarray, parts: list[np.ndarray],
         for phi in fields:
             u = np.zeros(3 * n)
             u[dofs] = solve(mass @ np.ascontiguousarray(phi).ravel())
-            sigma = linear_stress(V, Tp, u, Yp, body.material.poisson)
-            blocks.append(geometric_stiffness(V, Tp, sigma)[dofs][:, dofs].tocsr())
+            sigma = linear_stress(V, Tp, u, Yp, body.material.poisson, gradients)
+            blocks.append(geometric_stiffness(V, Tp, sigma, gradients)[dofs][:, dofs].tocsr())
         out.append(PartLoads(dofs, tuple(blocks), 3 * n))
     return out
 
@@ -169,8 +171,9 @@ def stress_change(gammas: list[np.ndarray], betas: list[np.ndarray],
     return np.asarray(out)
 
 
-def _lowest(lam: np.ndarray, change: np.ndarray) -> np.ndarray:
-    """The lowest eigenvalue (T,) of ``diag(lambda) + change`` per time."""
+def lowest_eigenvalues(lam: np.ndarray, change: np.ndarray) -> np.ndarray:
+    """The lowest eigenvalue (T,) of ``diag(lambda)`` plus the symmetric part of ``change``
+    (T, r, r) per time."""
     sym = 0.5 * (change + change.transpose(0, 2, 1))
     return np.linalg.eigvalsh(np.diag(lam)[None] + sym)[:, 0]
 
@@ -206,4 +209,4 @@ def stress_matters(change: np.ndarray, lam: np.ndarray, plain: np.ndarray,
             "pose; a stiffer material for it (or driving more of it) brings it back",
             stacklevel=4)
         return None
-    return float(_lowest(lam, change).max())
+    return float(lowest_eigenvalues(lam, change).max())
