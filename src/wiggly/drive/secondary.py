@@ -60,7 +60,7 @@ from numpy.typing import ArrayLike
 
 from wiggly.body import Body, Where, fixed_from_surface
 from wiggly.checks import vertex_indices
-from wiggly.drive.carried import FrameTerms, HeldWarp, free_parts, turned_forces
+from wiggly.drive.carried import FrameTerms, HeldWarp, frame_fits, free_parts, turned_forces
 from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.drive.driver_checks import (
     step_turns,
@@ -523,9 +523,7 @@ def secondary_motion(
     loose[held] = False
     fits, loads = [], None  # warped: the free parts, the vertices their frames fit
     if warped:
-        everything = np.flatnonzero(loose)
-        fits = [(part, part if len(part) >= 4 else everything)  # a stray vertex: no frame
-                for part in free_parts(body.tets.tets, loose)]
+        fits = frame_fits(free_parts(body.tets.tets, loose), np.flatnonzero(loose))
         if pins_the_body(body.tets.vertices, held):  # their loads' stress (drive.stress)
             centres = np.array([mass[fit] @ body.tets.vertices[fit] / mass[fit].sum()
                                 for _, fit in fits])
@@ -619,7 +617,7 @@ def secondary_motion(
     iterations, converged, previous = 0, True, None
     n = body.tets.n_vertices
     while True:
-        H, b = H0.tolil(copy=True) if keys else H0, b0.copy()
+        b, added = b0.copy(), []  # the keys' blocks of H: (indices, block) pairs
         value_of_keys = 0.0
         for kf, k, A, c_A, c_B in keys:
             t = np.array([kf.time])
@@ -641,7 +639,7 @@ def secondary_motion(
             blk = np.arange(2 * k * r, (2 * k + 1) * r)
             if kf.position is not None and c_A > 0:
                 target = (kf.position - X).ravel() - base
-                H[np.ix_(blk, blk)] += c_A * (J.T @ J)
+                added.append((blk, c_A * (J.T @ J)))
                 b[blk] += c_A * (J.T @ target)
                 value_of_keys += 0.5 * c_A * float(np.sum((J @ qk - target) ** 2))
             if kf.velocity is not None and c_B > 0:
@@ -654,9 +652,12 @@ def secondary_motion(
                     vbase = _field_rows(body, vel.reshape(n, 3), kf.vertices, kf.on).ravel()
                 vblk = blk + r
                 target = np.broadcast_to(kf.velocity, (len(kf.vertices), 3)).ravel() - vbase
-                H[np.ix_(vblk, vblk)] += c_B * (J.T @ J)
+                added.append((vblk, c_B * (J.T @ J)))
                 b[vblk] += c_B * (J.T @ target)
-        H = sp.csr_matrix(H)
+        H = H0 + sp.csr_matrix((np.concatenate([B.ravel() for _, B in added]), (
+            np.concatenate([np.repeat(i, len(i)) for i, _ in added]),
+            np.concatenate([np.tile(i, len(i)) for i, _ in added]))),
+            shape=H0.shape) if added else H0
         free = ~fixed
         rhs = b[free] - H[free][:, fixed] @ z[fixed]
         new = z.copy()
