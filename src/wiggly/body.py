@@ -340,17 +340,26 @@ class Body:
 
 
 def tets_of(model: Model, vertices: np.ndarray, on: Where = "surface") -> np.ndarray:
-    """Indices of the tets that belong to a vertex group: those whose four corners all carry
-    the group (surface vertices: the corners of the tets that contain them)."""
-    held = fixed_from_surface(model, vertices) if on == "surface" else \
-        np.asarray(vertices, np.int64)
-    mask = np.zeros(model.tets.n_vertices, bool)
-    mask[held] = True
-    return np.flatnonzero(mask[model.tets.tets].all(axis=1))
+    """Indices of the tets that belong to a vertex group.  A group of surface vertices owns
+    the tets whose centre lies nearer to one of its vertices than to any other surface
+    vertex: the groups of a surface share out the solid under it, its inside and the joints
+    between groups included (a stiff antenna on a stiff head is stiff where they meet).  A
+    group of tet vertices owns the tets whose four corners are all in it."""
+    if on != "surface":
+        mask = np.zeros(model.tets.n_vertices, bool)
+        mask[np.asarray(vertices, np.int64)] = True
+        return np.flatnonzero(mask[model.tets.tets].all(axis=1))
+    from scipy.spatial import cKDTree
+
+    mask = np.zeros(model.surface.n_vertices, bool)
+    mask[_surface_indices(model, vertices)] = True
+    centres = model.tets.vertices[model.tets.tets].mean(axis=1)
+    nearest = cKDTree(model.surface.vertices).query(centres)[1]
+    return np.flatnonzero(mask[nearest])
 
 
-def fixed_from_surface(model: Model, surface_vertices: np.ndarray) -> np.ndarray:
-    """Tet vertices carrying the given surface vertices (the corners of their tets)."""
+def _surface_indices(model: Model, surface_vertices: np.ndarray) -> np.ndarray:
+    """Surface vertex indices as int64, each checked to lie on the surface."""
     idx = np.asarray(surface_vertices, np.int64)
     n = model.surface.n_vertices
     bad = idx[(idx < 0) | (idx >= n)]
@@ -359,6 +368,12 @@ def fixed_from_surface(model: Model, surface_vertices: np.ndarray) -> np.ndarray
             f"surface vertex index {int(bad[0])} is out of range: the surface has "
             f"{counted(n, 'vertex')}"
         )
+    return idx
+
+
+def fixed_from_surface(model: Model, surface_vertices: np.ndarray) -> np.ndarray:
+    """Tet vertices carrying the given surface vertices (the corners of their tets)."""
+    idx = _surface_indices(model, surface_vertices)
     emb = model.embedding
     w = emb.barycentric[idx]
     verts = emb.vertex_indices[idx]

@@ -136,9 +136,11 @@ _GROUP = Table(
      "color": String(pattern=r"^#[0-9a-fA-F]{6}$", what='a color "#rrggbb"',
                       doc="color in previews and the editor"),
      "young": Number(unit="Pa", **_YOUNG,
-                      doc="Young's modulus (Pa) of the group's tets (those whose corners all "
-                          "carry the group) in place of [material] young: a softer tail on a "
-                          "stiffer body; later groups win where groups overlap")},
+                      doc="Young's modulus (Pa) of the group's tets (surface groups: the "
+                          "tets nearest their vertices, inside included; on = \"tets\": "
+                          "those whose corners are all in it) in place of [material] young: "
+                          "a softer tail on a stiffer body; later groups win where groups "
+                          "overlap")},
     one_of=tuple(_SELECTOR_SPECS), make=_make_group,
     doc="a named vertex group: exactly one selector")
 
