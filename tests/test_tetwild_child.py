@@ -202,6 +202,28 @@ def test_a_silent_stage_in_a_log_still_says_it_runs(monkeypatch, caplog):
     assert 2 <= len(beats) <= 4 and len(beats) == len(lines) - 1, lines
 
 
+def test_a_library_call_notes_its_step_on_the_activity_around_it(monkeypatch, caplog):
+    """progress.note speaks on the innermost activity a caller opened (a secondary motion's
+    Gauss-Newton iterations ran silent for 10 s inside "secondary motion on ..."), and says
+    nothing outside one or once it has ended."""
+    import time
+
+    monkeypatch.setattr(progress, "on_terminal", lambda: False)
+    monkeypatch.setattr(progress, "NOTE_EVERY", 0.1)
+    with progress.reporting(True), caplog.at_level("INFO", logger="wiggly"):
+        progress.note("before")
+        with progress.activity("secondary motion on walk.glb"):
+            time.sleep(0.15)
+            progress.note("warped keys: Gauss-Newton iteration 3")
+            time.sleep(0.3)
+        progress.note("after")
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines[0] == "secondary motion on walk.glb", lines
+    assert any(m.startswith("secondary motion on walk.glb: warped keys: Gauss-Newton "
+                            "iteration 3 (") for m in lines), lines
+    assert not any("before" in m or "after" in m for m in lines), lines
+
+
 # --------------------------------------------------------------------------- crashes
 
 

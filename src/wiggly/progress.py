@@ -33,7 +33,7 @@ from wiggly.errors import counted
 
 __all__ = [
     "Activity", "Counter", "activity", "bar", "deprecated_progress", "frames", "iterations", "log",
-    "on_terminal", "reporting", "say", "shown",
+    "note", "on_terminal", "reporting", "say", "shown",
 ]
 
 #: The library's logger; modules log on ``logging.getLogger(__name__)`` beneath it.
@@ -42,6 +42,9 @@ log = logging.getLogger("wiggly")
 # None: as the logger's level says; True/False: inside ``reporting(True/False)`` (per thread
 # and per asyncio task: a thread starts with None)
 _reporting: ContextVar[bool | None] = ContextVar("wiggly_reporting", default=None)
+
+# the innermost running activity (per thread and task), which :func:`note` speaks on
+_activity: ContextVar[Activity | None] = ContextVar("wiggly_activity", default=None)
 
 F = TypeVar("F", bound=Callable)
 
@@ -218,13 +221,22 @@ def activity(desc: str, enabled: bool = True) -> Iterator[Activity]:
     one INFO line before it starts (when stages are :func:`shown` and ``enabled``)."""
     if not (enabled and shown()):
         yield Activity()
-    elif on_terminal():
-        with _ticking(desc) as handle:
+        return
+    with _ticking(desc) if on_terminal() else _heartbeat(desc) as handle:
+        token = _activity.set(handle)
+        try:
             yield handle
-    else:
-        log.info(desc)
-        with _heartbeat(desc) as handle:
-            yield handle
+        finally:
+            _activity.reset(token)
+
+
+def note(text: str) -> None:
+    """Say what the innermost running :func:`activity` is doing now (its live line, or the
+    log at most every :data:`NOTE_EVERY` seconds), for a library function that one of its
+    callers wraps in an activity; nothing outside one."""
+    handle = _activity.get()
+    if handle is not None:
+        handle.note(text)
 
 
 @contextmanager
@@ -232,6 +244,7 @@ def _heartbeat(desc: str) -> Iterator[Activity]:
     """The logged :class:`Activity`, which also says every :data:`NOTE_EVERY` seconds that
     it still runs when the call gives no note (fTetWild was silent in a log for two minutes
     while it filled a fine plate)."""
+    log.info(desc)
     handle = Activity(desc, logged=True)
 
     def beat() -> None:

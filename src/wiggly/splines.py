@@ -14,7 +14,9 @@ is fixed by its Hermite data x = (q(0), q'(0), q(h), q'(h)).  This module provid
 
 * :func:`wiggly_basis`: a numerically stable basis of the ODE's kernel, in every regime,
 * :meth:`WigglyBasis.hermite`: the Hermite basis H_j (and derivatives) at any time,
-* :func:`energy_form`: the exact energy of the minimiser as a quadratic form in x.
+* :func:`energy_form`: the exact energy of the minimiser as a quadratic form in x,
+* :func:`particular_cubic`, :func:`cubic_hermite`, :func:`cubic_at`: a particular solution
+  of eq. (4)'s ODE under a cubic forcing (secondary motion's), its Hermite data and values.
 
 Numerics.  Everything is computed in dimensionless time tau = t / h, with Lam = lam h^2 and
 D = delta h; the roots are +-a, +-b with a = D + sigma, b = D - sigma = Lam / a,
@@ -330,3 +332,30 @@ def evaluate(
     out[0] += qp
     out /= h[None, :] ** np.arange(n_derivatives + 1)[:, None]
     return out
+
+
+def particular_cubic(lam: np.ndarray, delta: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Coefficients a (..., 4) of the cubic q_p = a0 + a1 x + a2 x^2 + a3 x^3 with
+    q_p'' + 2 delta q_p' + lambda q_p = -(c0 + c1 x + c2 x^2 + c3 x^3) (lambda > 0): a
+    particular solution of eq. (4)'s ODE under a cubic forcing (secondary motion's)."""
+    a3 = -c[..., 3] / lam
+    a2 = (-c[..., 2] - 6 * delta * a3) / lam
+    a1 = (-c[..., 1] - 4 * delta * a2 - 6 * a3) / lam
+    a0 = (-c[..., 0] - 2 * delta * a1 - 2 * a2) / lam
+    return np.stack([a0, a1, a2, a3], axis=-1)
+
+
+def cubic_at(a: np.ndarray, x: np.ndarray, derivative: int) -> np.ndarray:
+    """The ``derivative``-th derivative of cubics a (..., 4) at x."""
+    if derivative == 0:
+        return a[..., 0] + x * (a[..., 1] + x * (a[..., 2] + x * a[..., 3]))
+    if derivative == 1:
+        return a[..., 1] + x * (2 * a[..., 2] + 3 * x * a[..., 3])
+    if derivative == 2:
+        return 2 * a[..., 2] + 6 * x * a[..., 3]
+    return 6 * a[..., 3] + 0 * x
+
+
+def cubic_hermite(a: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """Hermite data (q(0), q'(0), q(h), q'(h)) of cubics a (..., 4) on intervals h."""
+    return np.stack([a[..., 0], a[..., 1], cubic_at(a, h, 0), cubic_at(a, h, 1)], axis=-1)

@@ -15,7 +15,7 @@ from wiggly.mesh.defects import diagonal
 
 __all__ = ["CUT_SIZE", "CUT_STEPS", "SEAM_STEPS", "STEP_TURN", "TURN", "best_turn",
            "step_turns", "warn_cuts", "warn_seam", "warn_sparse_turn", "warn_turn",
-           "warn_unstable"]
+           "warn_unconverged", "warn_unstable"]
 
 
 def best_turn(a: np.ndarray, b: np.ndarray):
@@ -191,3 +191,17 @@ def warn_cuts(source: str, P: np.ndarray, times: np.ndarray, body: Body) -> None
         "its frames swings before and after such a jump, so the body moves before the driver "
         "does: end the shot at the cut (drive.range, or time.end), or animate the move over "
         "several frames", stacklevel=3)
+
+
+def warn_unconverged(source: str, iterations: int, steps: list[float]) -> None:
+    """Say that the Gauss-Newton iteration on the warped keys of the free parts ran out of
+    iterations, with its last step and contraction (``steps``: the largest change of a node
+    coordinate per iteration)."""
+    rate = steps[-1] / steps[-2] if len(steps) > 1 and steps[-2] > 0 else float("nan")
+    warnings.warn(
+        f"secondary motion on {source}: the warped keys of the free parts did not converge in "
+        f"{iterations} Gauss-Newton iterations (the last moved a modal coordinate by "
+        f"{steps[-1]:.3g}, {rate:.2g} times the step before): the motion is the last "
+        "iterate, which meets the keys as their residuals say, not the energy's minimum; "
+        "keys that pull the free parts far from the driver's pose of them converge slowly "
+        "(a lower key stiffness, or keys nearer that pose, help)", stacklevel=3)
