@@ -13,7 +13,7 @@ from wiggly.body import Body
 from wiggly.drive.driver import Driver, keyed_frames
 from wiggly.mesh.defects import diagonal
 
-__all__ = ["CUT_SIZE", "CUT_STEPS", "SEAM_STEPS", "STEP_TURN", "TURN", "best_turn",
+__all__ = ["CUT_SIZE", "CUT_STEPS", "SEAM_KINK", "SEAM_STEPS", "STEP_TURN", "TURN", "best_turn",
            "step_turns", "warn_cuts", "warn_seam", "warn_sparse_turn", "warn_turn",
            "warn_unconverged", "warn_unstable"]
 
@@ -128,6 +128,25 @@ def warn_turn(source: str, rest: np.ndarray, P: np.ndarray, times: np.ndarray) -
 SEAM_STEPS = 1.5
 
 
+#: ... and when the change of their velocity across the seam is more than SEAM_KINK times its
+#: largest change between two steps elsewhere (a driver that cycles makes the seam one more
+#: such change: a review's trot looped on its own cycle, 0.27 times; on three quarters of it,
+#: with its turn reversed at the seam, 2.25 times).
+SEAM_KINK = 1.5
+
+
+def _seam_kink(P: np.ndarray, times: np.ndarray, step_to_start: bool) -> tuple[float, float]:
+    """The largest change of velocity (m/s) of points P (F, g, 3) at ``times`` across a
+    loop's seam, and the largest between two steps elsewhere: the frames taken cyclically,
+    the last one the first again or (``step_to_start``) one step before it."""
+    if step_to_start:  # ..., P[-1], then P[0] one step later
+        P, times = np.concatenate([P, P[:1]]), np.r_[times, 2 * times[-1] - times[-2]]
+    v = np.diff(P, axis=0) / np.diff(times)[:, None, None]  # per step, the seam between
+    dv = np.linalg.norm(np.diff(v, axis=0), axis=2).max(axis=1)  # the last and the first
+    seam = float(np.linalg.norm(v[0] - v[-1], axis=1).max())
+    return seam, float(dv.max()) if len(dv) else 0.0
+
+
 def warn_seam(driver: Driver, driven: np.ndarray, *, start: float, end: float,
                offset: float, driver_range: tuple[float, float] | None) -> None:
     """Warn when a looped shot's driver does not cycle with the shot: the loop makes its
@@ -152,6 +171,16 @@ def warn_seam(driver: Driver, driven: np.ndarray, *, start: float, end: float,
                 f"{start:g} s (they move at most {1e3 * step:.3g} mm from one frame to the "
                 f"next), and the loop joins the two with a jump at the seam; {remedy}",
                 stacklevel=3)
+            return
+        kink, most = _seam_kink(P, times, end - times[-1] > 0.5 * spacing)
+        if kink > SEAM_KINK * most:
+            warnings.warn(
+                f"the driver {driver.source} does not cycle with the looped shot: its driven "
+                f"vertices meet their start pose again at {times[-1]:g} s, but their velocity "
+                f"changes there by up to {kink:.3g} m/s from the last frame to the first (by at "
+                f"most {most:.3g} m/s from one frame to the next elsewhere: a cycle whose "
+                f"motion reverses, or that is not the driver's), and the loop joins them with "
+                f"a kink, a hitch in every cycle; {remedy}", stacklevel=3)
     else:
         warnings.warn(
             f"the driver {driver.source} ends {end - times[-1]:.3g} s before the looped "
