@@ -440,13 +440,21 @@ def test_a_driver_at_another_scale_is_refused_before_the_solve(shot, capsys):
     assert main(["animate", str(scene), "-q", "-o", str(folder / "cm.npz")]) == 1
     err = capsys.readouterr().err
     assert "0.01 times the size of bar_cm.vtu" in err and "set mesh.scale = 0.01" in err, err
-    # a scale given to a mesh in metres: the remedy is to leave it out
+    # mesh.scale given, the driver's files (no units) read in metres: either the driver is in
+    # the mesh file's units (drive.scale as well: a review's plant in centimetres was told
+    # only to leave mesh.scale out), or the mesh file is in metres (leave it out)
     scene = write(folder, {**data, "mesh": {**data["mesh"], "scale": 0.01},
                            "drive": {"path": "walk.npz", "group": "driven"}}, "scaled.toml")
     assert main(["animate", str(scene), "-q", "-o", str(folder / "s.npz")]) == 1
     err = capsys.readouterr().err
-    assert "mesh.scale = 0.01 makes the mesh 100 times smaller than its file: leave it out" \
-        in err, err
+    assert "mesh.scale = 0.01 makes the mesh 100 times smaller than its file, and the " \
+        "driver's files are read in metres: set drive.scale = 0.01 as well if they are in the " \
+        "mesh file's units, or leave mesh.scale out if the mesh file is in metres" in err, err
+    scene = write(folder, {**data, "mesh": {**data["mesh"], "path": "bar_cm.vtu",
+                                            "scale": 0.01},
+                           "drive": {"path": "walk_cm.npz", "group": "driven",
+                                     "scale": 0.01}}, "both_cm.toml")
+    assert main(["animate", str(scene), "-q", "-o", str(folder / "both.npz")]) == 0
 
 
 def test_a_mesh_in_other_axes_than_its_driver_is_warned_about(shot, capsys):

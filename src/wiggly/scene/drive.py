@@ -221,12 +221,16 @@ def _units_remedy(scene: Scene, ratio: float, size: float) -> str:
                 f"{usd_note}")
     factor = 10.0 ** round(power)
     scale = scene.mesh.metres_per_unit
-    if scale != 1.0 and abs(math.log10(factor * scale)) < 0.05:  # the scale made the ratio
-        return (f"mesh.scale = {scale:g} makes the mesh {1 / scale:g} times "
-                f"{'smaller' if scale < 1 else 'larger'} than its file: leave it out if the "
-                "file is in metres, as the driver is")
     unit_free = Path(scene.drive.path).suffix.lower() in UNIT_FREE
     drive_scale = scene.drive.metres_per_unit
+    if scale != 1.0 and abs(math.log10(factor * scale)) < 0.05:  # the scale made the ratio
+        made = (f"mesh.scale = {scale:g} makes the mesh {1 / scale:g} times "
+                f"{'smaller' if scale < 1 else 'larger'} than its file")
+        if unit_free and drive_scale == 1.0:  # files without units: likely the mesh's
+            return (f"{made}, and the driver's files are read in metres: set drive.scale = "
+                    f"{scale:g} as well if they are in the mesh file's units, or leave "
+                    "mesh.scale out if the mesh file is in metres")
+        return f"{made}: leave it out if the file is in metres, as the driver is"
     if unit_free and drive_scale != 1.0 and abs(math.log10(factor / drive_scale)) < 0.05:
         return (f"drive.scale = {drive_scale:g} makes the driver {1 / drive_scale:g} times "
                 f"{'smaller' if drive_scale < 1 else 'larger'} than its files: leave it out if "
