@@ -790,6 +790,26 @@ def test_a_killed_exports_leftovers_are_removed_by_the_next_export(tmp_path):
     assert kept == {n for n, stays in names.items() if stays} | {"shot.glb"}
 
 
+def test_a_folder_made_for_the_outputs_is_said(tmp_path, caplog, monkeypatch):
+    """Outputs in folders that do not exist yet are written (the folders are made, and
+    removed again when the outputs are not), and the outermost new folder is said: a typo
+    in an output path scattered files in a new folder without a word."""
+    from wiggly import progress
+    from wiggly.files import OutputSet
+
+    monkeypatch.chdir(tmp_path)
+    with progress.reporting(True), caplog.at_level("INFO", logger="wiggly"):
+        with OutputSet() as outputs:
+            outputs.stage(tmp_path / "nope" / "sub" / "shot.glb").write_bytes(b"glb")
+            outputs.stage(tmp_path / "nope" / "other.npz").write_bytes(b"npz")
+    assert (tmp_path / "nope" / "sub" / "shot.glb").read_bytes() == b"glb"
+    assert caplog.messages == ["created the folder nope for the outputs"], caplog.messages
+    with pytest.raises(RuntimeError), OutputSet() as outputs:
+        outputs.stage(tmp_path / "gone" / "shot.glb").write_bytes(b"glb")
+        raise RuntimeError("a failed export")
+    assert not (tmp_path / "gone").exists() and len(caplog.messages) == 1
+
+
 def test_a_solved_animation_is_written_from_python(tmp_path):
     """write_animation takes a solved wiggly.Animation as it is (it failed with an
     AttributeError before): sampled at ``fps`` on the body's surface, and read back the same

@@ -236,6 +236,12 @@ class OutputSet:
         for path in self._remove:
             path.unlink(missing_ok=True)
         self._staged.clear()
+        from wiggly.progress import say
+
+        for folder in self._created:  # the outermost one of each new chain of folders
+            if folder.parent not in self._created:
+                say(f"created the folder {os.path.relpath(folder)} for the outputs")
+        self._created.clear()
 
     def abort(self) -> None:
         """Delete every staged file and the directories created for them (when empty)."""

@@ -158,13 +158,17 @@ def _held_modes(body: Body, held: np.ndarray, count: int, axes: tuple | None,
         mu, Y = np.linalg.eigh(0.5 * (ritz + ritz.T))
         if mu[0] > 0:
             psi, lam, stressed = psi @ Y[:, :count], mu[:count], True
-        else:
+        else:  # K scales with E, K_s does not: s K + K_s is singular at s = the largest
+            ratio = -(ritz + ritz.T - 2 * np.diag(lam)) / (2 * np.sqrt(np.outer(lam, lam)))
+            times = float(np.linalg.eigvalsh(ratio)[-1])  # eigenvalue of -K_s against K
+            where = np.linalg.norm((psi @ Y[:, 0]).reshape(-1, 3), axis=1).argmax()
             warnings.warn(
                 "a free part would buckle under its own weight (a soft part standing up, or "
-                "sagging further than linear elasticity holds): its stiffening and softening "
-                "by gravity are left out, and it moves as linear elasticity alone makes it; "
-                "a stiffer material for it (or driving more of it) brings them back",
-                stacklevel=3)
+                "sagging further than linear elasticity holds), around "
+                f"({', '.join(f'{c:.3g}' for c in body.tets.vertices[where])}) m: its "
+                "stiffening and softening by gravity are left out, and it moves as linear "
+                f"elasticity alone makes it; a material {times:.2g} times as stiff there "
+                "holds it (twice that keeps it well away), or drive more of it", stacklevel=3)
     return psi[:, :count], np.maximum(lam[:count], 0.0), stressed
 
 
