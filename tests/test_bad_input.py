@@ -370,7 +370,9 @@ def test_an_imperfect_surface_is_accepted_with_one_warning(user, capsys):
     warnings = [line for line in err.splitlines() if line.startswith("wiggly: warning:")]
     missed = [w for w in warnings if "missed by more than" in w]  # a 45 degree turn, linear
     assert all("cannot meet turned targets" in w for w in missed), missed
-    warnings = [w for w in warnings if w not in missed]
+    # its 12 triangles cannot show the bending of the linear turn, also said
+    coarse = [w for w in warnings if "long edges" in w]
+    warnings = [w for w in warnings if w not in missed + coarse]
     assert len(warnings) == 1 and "box.obj: the surface has 4 open edges;" in warnings[0]
     assert (folder / "out" / "shot.glb").is_file()
 

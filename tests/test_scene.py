@@ -966,3 +966,39 @@ def test_a_missed_offset_key_of_a_linear_shot_is_not_blamed_on_turns(tmp_path):
         missed = [str(w.message) for w in said if "missed by more than" in str(w.message)]
         assert len(missed) == 1, [str(w.message) for w in said]
         assert ("cannot meet turned targets" in missed[0]) == turned, missed
+
+
+def test_a_surface_too_coarse_to_show_the_bending_is_warned_about(tmp_path):
+    """A soft bar of 12 triangles held at one end sags under its weight: its 1 m edges
+    stay straight while the tets bend (a review's low-poly plant stalk was drawn straight
+    and a leaf parted from it, with no warning), so the gap at an edge's middle is said;
+    the same bar subdivided to the tets' size follows them, silently."""
+    import trimesh
+
+    from wiggly.scene import load_scene, run
+    from wiggly.solve.surface import straight_edges
+
+    box = trimesh.creation.box(extents=(1.0, 0.1, 0.1))
+    box.apply_translation((0.5, 0.0, 0.0))
+    trimesh.Trimesh(box.vertices, box.faces).export(tmp_path / "coarse.obj")
+    V, F = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, 0.03)
+    trimesh.Trimesh(V, F, process=False).export(tmp_path / "fine.obj")
+    data = {"mesh": {"path": "coarse.obj", "resolution": 20},
+            "material": {"young": 3e4, "density": 1000.0},
+            "simulation": {"modes": 12, "warp": False, "fixed": ["root"]},
+            "time": {"end": 1.0, "fps": 10},
+            "groups": {"root": {"box": {"min": [-1, -1, -1], "max": [0.05, 1, 1]}}}}
+    scene = load_scene(write(tmp_path, data, "coarse.toml"))
+    with pytest.warns(UserWarning, match=r"coarse\.toml: the solid bends under \d+ of the "
+                                         r"surface's \d+ long edges .* off the solid it rests "
+                                         r"on"):
+        anim = run(scene, outputs=[])
+    worst = straight_edges(anim, anim.frame_times(10))
+    assert worst["gap"] > 0.01 and worst["longest"] == pytest.approx(np.sqrt(1.01), rel=1e-6)
+    data["mesh"]["path"] = "fine.obj"
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always")
+        fine = run(load_scene(write(tmp_path, data, "fine.toml")), outputs=[])
+    assert not any("long edges" in str(w.message) for w in said), [str(w.message) for w in said]
+    sag = np.abs(fine.positions([1.0])[0][:, 1] - V[:, 1]).max()
+    assert sag > 10 * 0.01 * np.sqrt(1.02)  # it bends: the check has something to see

@@ -39,6 +39,7 @@ from wiggly.scene.spec import (
 )
 from wiggly.scene.validation import input_error, show
 from wiggly.solve import FOLDED, SpacetimeProblem, missed_by, missed_keys, solve, warn_folded
+from wiggly.solve.surface import warn_straight
 from wiggly.warp.kernels import ensure_compiled
 
 
@@ -265,6 +266,7 @@ def check_motion(scene: Scene, body, anim, groups: dict[str, np.ndarray],
     away.  Returns the previews' highlights (the keyed groups, and folds in magenta when
     ``paths`` hold a preview)."""
     _warn_missed(scene, anim)
+    warn_straight(anim, anim.frame_times(scene.time.fps), scene.where(), stacklevel=3)
     highlights = keyframe_highlights(scene, body, anim.keyframes, groups)
     if scene.simulation.warp:
         folding = warn_folded(anim, f"{scene.where()}: the warped motion", api=False,
