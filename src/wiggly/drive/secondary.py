@@ -58,7 +58,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from wiggly.body import Body, Where, fixed_from_surface
+from wiggly.body import Body, Where, fixed_from_surface, tets_of
 from wiggly.checks import vertex_indices
 from wiggly.drive.carried import FrameTerms, HeldWarp, frame_fits, free_parts, turned_forces
 from wiggly.drive.driver import Driver, keyed_frames
@@ -117,8 +117,15 @@ MAX_NODES = 4000
 
 def held_vertices(body: Body, driven: np.ndarray) -> np.ndarray:
     """The tet vertices a driver holds: those that carry the driven surface vertices (the
-    corners of their tets), and the body's fixed vertices."""
-    return np.union1d(fixed_from_surface(body.model, driven), body.fixed_vertices)
+    corners of their tets), those inside the solid under the driven group (no tet of theirs
+    outside it, :func:`wiggly.body.tets_of`), and the body's fixed vertices."""
+    T = body.tets.tets
+    outside = np.ones(len(T), bool)
+    outside[tets_of(body.model, driven)] = False
+    inside = np.ones(body.tets.n_vertices, bool)
+    inside[T[outside].ravel()] = False
+    return np.union1d(np.union1d(fixed_from_surface(body.model, driven),
+                                 np.flatnonzero(inside)), body.fixed_vertices)
 
 
 def free_modes(body: Body, driven: np.ndarray, count: int, stressed: bool = False,
