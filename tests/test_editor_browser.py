@@ -200,6 +200,38 @@ def test_open_dialog_uploads_and_opens_a_mesh(chromium, tmp_path):
         server.stop()
 
 
+def test_an_event_stream_refused_once_is_opened_again(chromium, tmp_path):
+    """A page whose event stream is refused (503: too many streams open) would stay without
+    live events, the browser having given up on it: the page opens it again, less and less
+    often, and gets its events once the server takes it."""
+    from wiggly.editor import serve
+
+    root = tmp_path / "root"
+    root.mkdir()
+    server = serve("builtin:bar", roots=[root])
+    bus = server.session.bus
+    context = chromium.new_context(viewport={"width": 1280, "height": 800})
+    try:
+        server.max_streams = 0
+        page = context.new_page()
+        errors: list[str] = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(server.url, timeout=90_000)
+        page.wait_for_function("document.querySelector('#status-text').textContent"
+                               ".includes('connection to the editor server lost')",
+                               timeout=60_000)
+        time.sleep(1.0)
+        assert bus.n_subscribers == 0
+        server.max_streams = 16  # the page opens its stream again, and loads the scene
+        page.wait_for_function("window.wiggly && window.wiggly.ready && window.wiggly.S.n > 0",
+                               timeout=60_000)
+        assert bus.n_subscribers == 1
+        assert not errors, errors
+    finally:
+        context.close()
+        server.stop()
+
+
 def test_posing_right_after_keying_poses_the_new_key(chromium, tmp_path, monkeypatch):
     """K then W at once: W poses the new key, even when the key's edit is answered after its
     state (and frames) reached the page, as on a loaded machine; here the answer is held back

@@ -94,7 +94,7 @@ window.wiggly = {                 // test and benchmark hooks (read-only use)
 // ------------------------------------------------------------------------------------------
 // events from the server
 
-function connect() {
+function connect(wait = 500) {
   const es = new EventSource(`/api/events?page=${PAGE}&tab=${TAB}`);
   es.onmessage = (m) => {
     const e = JSON.parse(m.data);
@@ -107,8 +107,13 @@ function connect() {
     else if (e.type === 'export') { setStatus(e.message, e.stage === 'error' ? 'err' : e.stage === 'done' ? 'ok' : 'busy'); if (e.stage !== 'running') toast(e.message, e.stage === 'error'); }
     else if (e.type === 'notice' && e.from_tab !== TAB) toast(e.message, e.level === 'error');  // not of this tab's own open or save as
   };
-  es.onerror = () => setStatus('connection to the editor server lost; retrying…', 'err');
-  es.onopen = () => refreshState();
+  es.onerror = () => {
+    setStatus('connection to the editor server lost; retrying…', 'err');
+    // the browser retries a dropped stream itself, but gives up on an answer that is not a
+    // stream (503: too many open; a proxy's error): then the page retries, less and less often
+    if (es.readyState === EventSource.CLOSED) setTimeout(() => connect(Math.min(2 * wait, 10000)), wait);
+  };
+  es.onopen = () => { wait = 500; refreshState(); };
 }
 
 function onSolve(e) {
