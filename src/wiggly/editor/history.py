@@ -241,6 +241,8 @@ class Histories:
         self.write_error: str | None = None
         self.disk: str | None = None  # digest of the scene file as read or saved (a snapshot's)
         self._base: EditorState | None = None  # the snapshot a new journal starts with
+        # taker -> (the tab it took a history from, the stacks' tops and sizes then)
+        self._taken: dict[str, tuple[str, tuple]] = {}
 
     @staticmethod
     def tab_id(value: str | None) -> str:
@@ -262,7 +264,11 @@ class Histories:
         own = self.tabs.get(tab)
         if tab == DEFAULT_TAB or (own is not None and (own.undo or own.redo)):
             return
-        left = self._left_by(gone, but=tab)
+        # back after another tab took its history (a reload slower than the grace period):
+        # it takes it back while that tab has not used it
+        taker = next((t for t, (source, mark) in self._taken.items()
+                      if source == tab and self._mark(t) == mark), None)
+        left = [taker] if taker is not None else self._left_by(gone, but=tab)
         if not left:
             return
         try:
@@ -271,6 +277,15 @@ class Histories:
         except EditError:
             return
         _adopt(self.tabs, tab, left[-1])
+        self._taken.pop(left[-1], None)
+        if taker is None:
+            self._taken[tab] = (left[-1], self._mark(tab))
+
+    def _mark(self, tab: str) -> tuple:
+        """What tells whether ``tab``'s stacks changed: their sizes and top records."""
+        t = self.tabs.get(tab) or _Tab()
+        return (len(t.undo), len(t.redo), t.undo[-1] if t.undo else None,
+                t.redo[-1] if t.redo else None)
 
     def orphaned(self, gone: Callable[[str], bool]) -> bool:
         """Whether a tab that is ``gone`` left a history that another tab could take over."""
