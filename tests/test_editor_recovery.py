@@ -380,3 +380,35 @@ def test_a_preview_from_a_page_that_has_closed_is_ignored(tmp_path):
         assert s.cancel_preview("live")["seq"] is not None  # the live page's drag was on
     finally:
         s.close()
+
+
+def test_notices_show_paths_inside_the_root_as_the_editor_does(tmp_path):
+    """A warning about a file inside the editor's root (a mesh whose triangles face inwards,
+    said by the physics process with the file's absolute path) reaches the page with the
+    path as the editor shows it, relative to the root."""
+    import queue
+    import time
+
+    import trimesh
+
+    root = tmp_path / "shots"
+    (root / "meshes").mkdir(parents=True)
+    box = trimesh.creation.box(extents=(0.4, 0.1, 0.1))
+    trimesh.Trimesh(box.vertices, box.faces[:, ::-1], process=False).export(
+        root / "meshes" / "inward.obj")
+    session = Session(Sandbox([root]))
+    events = session.bus.subscribe()
+    try:
+        session.open("meshes/inward.obj")
+        deadline, said = time.monotonic() + 120, None
+        while said is None and time.monotonic() < deadline:
+            try:
+                e = events.get(timeout=1.0)
+            except queue.Empty:
+                continue
+            if e["type"] == "notice" and "face inwards" in e["message"]:
+                said = e["message"]
+        assert said is not None and said.startswith("meshes/inward.obj: "), said
+        assert str(root) not in said, said
+    finally:
+        session.close()

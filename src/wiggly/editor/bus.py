@@ -6,6 +6,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 __all__ = ["EventBus", "Mailbox"]
@@ -19,11 +20,12 @@ class EventBus:
     opened after an abandoned drag must not show its preview.
     """
 
-    def __init__(self, backlog: int = 256):
+    def __init__(self, backlog: int = 256, shown: Callable[[str], str] | None = None):
         self._lock = threading.Lock()
         self._queues: list[queue.Queue] = []
         self.backlog = backlog
         self.last: dict[str, dict] = {}  # newest sticky event of each type
+        self.shown = shown  # how an event's "message" is shown (the session's own paths)
 
     def subscribe(self) -> queue.Queue:
         q: queue.Queue = queue.Queue(self.backlog)
@@ -44,6 +46,8 @@ class EventBus:
             return len(self._queues)
 
     def publish(self, kind: str, *, sticky: bool = True, **data: Any) -> None:
+        if self.shown is not None and isinstance(data.get("message"), str):
+            data["message"] = self.shown(data["message"])
         event = {"type": kind, "time": time.time(), **data}
         with self._lock:
             if sticky:

@@ -68,6 +68,11 @@ class Sandbox:
         except ValueError:
             return str(path)
 
+    def shown(self, message: str) -> str:
+        """``message`` with the paths inside the first root shown as :meth:`relative` shows
+        them (a notice about ``/home/me/shots/creature.obj`` says ``creature.obj``)."""
+        return message.replace(f"{self.home}{os.sep}", "")
+
     def listing(self, suffixes: tuple[str, ...], limit: int = 2000,
                 max_depth: int = 4) -> list[str]:
         """Files with the given suffixes under the roots (symlinks leaving them skipped)."""

@@ -82,7 +82,7 @@ class Session(Exports):
     def __init__(self, sandbox: Sandbox, *, autosave: bool = True, bus: EventBus | None = None):
         self.sandbox = sandbox
         self.autosave = autosave
-        self.bus = bus or EventBus()
+        self.bus = bus or EventBus(shown=sandbox.shown)
         self.instance = secrets.token_hex(6)  # this process (the browser's frame order)
         self.physics = Physics(self.bus)
         self.playback = Playback(self.bus, self.physics, self.instance)
