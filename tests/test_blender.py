@@ -1,4 +1,4 @@
-"""Landing in Blender: our .glb and .usd files imported by real Blender (PyPI ``bpy``,
+"""Landing in Blender: our .glb, .gltf and .usd files imported by real Blender (PyPI ``bpy``,
 headless), checked as the README's Blender section promises: the Basis shape key is the rest
 mesh, keys and USD samples land on frames frame_start, frame_start + 1, ... at the scene's
 fps (exported at that fps), positions match the animation, the object is named after the
@@ -61,18 +61,19 @@ def test_glb_and_usd_land_in_blender_as_documented(bar, tmp_path, blender_python
     compact = write_animation(tmp_path / "modes.glb", data, frame_start=FRAME_START,
                               gltf_targets="modes")
     usd = write_animation(tmp_path / "bar.usdc", data, frame_start=FRAME_START)
+    text = write_animation(tmp_path / "frames.gltf", data, frame_start=FRAME_START)
     F = len(times)
     frames = [FRAME_START, FRAME_START + F // 3, FRAME_START + F - 1]
-    view = blender_view(blender_python, tmp_path, frames, [glb, compact, usd])
+    view = blender_view(blender_python, tmp_path, frames, [glb, compact, usd, text])
     size = float(np.ptp(X, axis=0).max())
-    for path in (glb, compact, usd):
+    for path in (glb, compact, usd, text):
         seen = view[str(path)]
         assert seen["objects"] == ["bar"], seen["objects"]  # named after the model
         assert seen["fps"] == FPS  # the scene keeps its rate; we exported at it
         for f in frames:
             error = np.abs(np.array(seen["positions"][str(f)]) - z_up(positions[f - FRAME_START]))
             assert error.max() < 1e-6 * size, (path.name, f, error.max())
-    for path in (glb, compact):
+    for path in (glb, compact, text):
         seen = view[str(path)]
         assert seen["shape_keys"][0] == "Basis"
         np.testing.assert_allclose(seen["basis"], z_up(X), atol=1e-6 * size)  # the rest mesh

@@ -169,6 +169,24 @@ def gltf_validator():
     return validate
 
 
+def test_gltf_holds_the_glb_embedded_and_passes_the_validator(tmp_path, gltf_validator):
+    """.gltf is the .glb's JSON with the same data as a base64 data URI: read back, both give
+    the same frames bit for bit, and the Khronos validator finds no error in it."""
+    anim = sphere_animation(normals=True)
+    glb = write_animation(tmp_path / "shot.glb", anim)
+    text = write_animation(tmp_path / "shot.gltf", anim)
+    doc = json.loads(text.read_text(encoding="utf-8"))
+    assert doc["buffers"][0]["uri"].startswith("data:application/octet-stream;base64,")
+    a, b = read_animation(glb), read_animation(text)
+    np.testing.assert_array_equal(a.positions, b.positions)
+    np.testing.assert_array_equal(a.times, b.times)
+    np.testing.assert_array_equal(a.faces, b.faces)
+    report = gltf_validator([text])[0]
+    assert report["issues"]["numErrors"] == 0, report["issues"]["messages"]
+    assert report["info"]["hasMorphTargets"] and report["info"]["animationCount"] == 1
+    assert 1.2 < text.stat().st_size / glb.stat().st_size < 1.4
+
+
 def test_glb_passes_khronos_validator(tmp_path, gltf_validator):
     import pygltflib
 

@@ -29,7 +29,7 @@ for path in files:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     scene.render.fps, scene.render.fps_base = fps, 1.0
-    if path.endswith(".glb"):
+    if path.endswith((".glb", ".gltf")):
         bpy.ops.import_scene.gltf(filepath=path)
     else:
         bpy.ops.wm.usd_import(filepath=path)

@@ -60,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, output_fps=args.fps)
     scene = with_overrides(scene, fps=args.fps, warp=False if args.linear else None,
                            frame_start=args.frame_start, gltf_targets=args.gltf_targets)
-    glb = any(str(p).lower().endswith(".glb") for p in (args.output or scene.output.paths))
+    glb = any(str(p).lower().endswith((".glb", ".gltf"))
+              for p in (args.output or scene.output.paths))
     if args.gltf_targets == "modes" and scene.simulation.warp and glb:  # the flag's request
         raise WigglyInputError(
             f"--gltf-targets modes needs a linear shot, and {args.scene} is warped: a warped "

@@ -17,6 +17,7 @@ from wiggly.progress import frames
 #: Output formats by file extension.
 SUPPORTED = {
     ".glb": "glTF 2.0 binary, one morph target per frame and a weights animation",
+    ".gltf": "glTF 2.0 as JSON, the .glb's data embedded (base64, a third larger)",
     ".usd": "Universal Scene Description (binary crate), time-sampled points",
     ".usda": "Universal Scene Description (text), time-sampled points",
     ".usdc": "Universal Scene Description (binary crate), time-sampled points",
@@ -24,6 +25,8 @@ SUPPORTED = {
     ".npz": "compressed numpy archive (times, positions, faces, uvs, normals)",
 }
 
+#: The glTF formats (binary, and JSON with its data embedded).
+GLTF = (".glb", ".gltf")
 #: glTF morph target layouts: one target per frame, or one per mode (linear motions).
 GLTF_TARGETS = ("frames", "modes")
 #: Version of the npz layout and of the glTF extras written here.

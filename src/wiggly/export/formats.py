@@ -9,6 +9,7 @@ import numpy as np
 
 from wiggly.errors import WigglyInputError
 from wiggly.export.animation import (
+    GLTF,
     GLTF_TARGETS,
     SUPPORTED,
     SurfaceAnimation,
@@ -130,13 +131,13 @@ def stage_animation(
     if gltf_targets not in GLTF_TARGETS:
         raise WigglyInputError(f"cannot write {path}: gltf_targets = {gltf_targets!r}; use one "
                                f"of {', '.join(map(repr, GLTF_TARGETS))}")
-    if gltf_targets == "modes" and ext == ".glb" and anim.mode_shapes is None:
+    if gltf_targets == "modes" and ext in GLTF and anim.mode_shapes is None:
         raise WigglyInputError(f"cannot write {path} with one morph target per mode: the "
                                "animation has no mode shapes (a warped motion is not a linear "
                                "combination of modes); use gltf_targets='frames'")
     if frame_start is not None:
-        frame_codes(anim.times, frame_start, f"cannot write {path}", gltf=ext == ".glb")
-    if ext == ".glb" and np.any(np.diff(gltf_times(anim.times, frame_start, anim.loop)) <= 0):
+        frame_codes(anim.times, frame_start, f"cannot write {path}", gltf=ext in GLTF)
+    if ext in GLTF and np.any(np.diff(gltf_times(anim.times, frame_start, anim.loop)) <= 0):
         raise WigglyInputError(
             f"cannot write {path}: frame times are too close to be distinct in float32, which "
             "glTF uses; use a larger frame interval (or export .usd / .npz)"
@@ -150,8 +151,9 @@ def stage_animation(
         raise WigglyInputError(f"{path} exists; pass overwrite=True / --overwrite to replace it")
     _warn_far(path, anim)
     tmp = outputs.stage(path)
-    if ext == ".glb":
-        write_glb(tmp, anim, frame_start=frame_start, targets=gltf_targets)
+    if ext in GLTF:
+        write_glb(tmp, anim, frame_start=frame_start, targets=gltf_targets,
+                  embedded=ext == ".gltf")
     elif ext == ".npz":
         write_npz(tmp, anim)
     else:
@@ -199,7 +201,7 @@ def read_animation(path) -> SurfaceAnimation:
     else:
         if not path.is_file():
             raise WigglyInputError(f"cannot read {path}: no such file")
-        reader = {".glb": read_glb, ".npz": read_npz}.get(ext, read_usd)
+        reader = {".glb": read_glb, ".gltf": read_glb, ".npz": read_npz}.get(ext, read_usd)
         anim = reader(path)
     return checked_animation(anim, f"{path}")
 

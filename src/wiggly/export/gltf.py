@@ -3,7 +3,10 @@ weights animation."""
 
 from __future__ import annotations
 
+import base64
+import io
 import struct
+import urllib.parse
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -62,8 +65,11 @@ def _write_array(data: np.ndarray) -> Callable[[BinaryIO], None]:
 
 
 def write_glb(path: Path, anim: SurfaceAnimation, *,
-              frame_start: int | None = None, targets: str = "frames") -> None:
-    gl = format_library("pygltflib", "pygltflib", ".glb")
+              frame_start: int | None = None, targets: str = "frames",
+              embedded: bool = False) -> None:
+    """The animation as glTF 2.0 at ``path``: binary (.glb), or with ``embedded`` a .gltf
+    file, its JSON with the same data in a base64 data URI (a third larger)."""
+    gl = format_library("pygltflib", "pygltflib", ".gltf" if embedded else ".glb")
 
     F, n = anim.n_frames, anim.n_vertices
     frame_normals = FrameNormals(anim)
@@ -189,6 +195,14 @@ def write_glb(path: Path, anim: SurfaceAnimation, *,
         bufferViews=views,
         buffers=[gl.Buffer(byteLength=chunk.length)],
     )
+    if embedded:  # the buffer as a data URI (glTF 2.0, sec. 3.6.1.2)
+        data = io.BytesIO()
+        chunk.write(data)
+        gltf.buffers[0].uri = ("data:application/octet-stream;base64,"
+                               + base64.b64encode(data.getbuffer()).decode("ascii"))
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(gltf.gltf_to_json(separators=(",", ":"), indent=None))
+        return
     text = gltf.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8")
     text += b" " * (-len(text) % 4)  # the binary chunk's data starts 4-byte aligned
     too_big(path, 12 + 8 + len(text) + 8 + chunk.length)
@@ -297,6 +311,19 @@ def _read_primitive(gltf, blob: bytes, prim, path: Path, j: int) -> tuple:
     return base, faces, uvs, normals, deltas
 
 
+def _buffer(gltf, path: Path) -> bytes:
+    """A .gltf file's buffer 0: a base64 data URI, or a file beside it."""
+    if not gltf.buffers or not gltf.buffers[0].uri:
+        return b""
+    uri = gltf.buffers[0].uri
+    if uri.startswith("data:"):
+        return base64.b64decode(uri.split(",", 1)[1])
+    source = path.parent / urllib.parse.unquote(uri)
+    if not source.is_file():
+        raise WigglyInputError(f"cannot read {path}: its buffer {uri} is not beside it")
+    return source.read_bytes()
+
+
 def read_glb(path: Path) -> SurfaceAnimation:
     gl = format_library("pygltflib", "pygltflib", ".glb")
 
@@ -304,7 +331,7 @@ def read_glb(path: Path) -> SurfaceAnimation:
         gltf = gl.GLTF2().load(str(path))
     except Exception as e:  # pygltflib raises assorted errors on malformed files
         raise WigglyInputError(f"cannot read {path}: not a valid glTF binary ({e})") from e
-    blob = gltf.binary_blob()
+    blob = gltf.binary_blob() if path.suffix.lower() == ".glb" else _buffer(gltf, path)
     if not gltf.meshes or not gltf.meshes[0].primitives:
         raise WigglyInputError(f"cannot read {path}: the glTF file has no mesh")
     mesh_index = 0

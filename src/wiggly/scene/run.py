@@ -16,7 +16,7 @@ from wiggly.drive import following
 from wiggly.drive.sequence import carries_times
 from wiggly.errors import WigglyInputError, counted
 from wiggly.export import stage_animation, surface_animation
-from wiggly.export.animation import frame_codes, gltf_times, without_seam
+from wiggly.export.animation import GLTF, frame_codes, gltf_times, without_seam
 from wiggly.export.gltf import frames_bytes, too_big
 from wiggly.files import OutputSet, check_writable
 from wiggly.limits import frame_count
@@ -549,14 +549,14 @@ def _check_glb_size(scene: Scene, paths: list[Path], n_vertices: int) -> None:
     start, end = scene.time_range()
     frames = frame_count(end - start, scene.time.fps)
     for path in paths:
-        if path.suffix.lower() == ".glb":
+        if path.suffix.lower() in GLTF:
             too_big(path, frames_bytes(n_vertices, frames))
 
 
 def _check_gltf_targets(scene: Scene, paths: list[Path]) -> None:
     """What a glTF output asks of ``[output]``, checked before anything is computed: morph
     targets per mode need a linear shot, and glTF times cannot be negative."""
-    if not any(p.suffix.lower() == ".glb" for p in paths):
+    if not any(p.suffix.lower() in GLTF for p in paths):
         return
     problems = []
     if scene.output.gltf_targets == "modes" and scene.simulation.warp:
@@ -586,7 +586,7 @@ def _warn_between_frames(scene: Scene, times: np.ndarray, paths: list[Path]) -> 
     fps = scene.time.fps
     if scene.output.frame_start is not None:
         return
-    first = {".glb": float(gltf_times(times, None, scene.time.loop)[0]) * fps,
+    first = {**dict.fromkeys(GLTF, float(gltf_times(times, None, scene.time.loop)[0]) * fps),
              **dict.fromkeys((".usd", ".usda", ".usdc"), float(frame_codes(times, None, "")[1][0]))}
     late = [p.name for p in paths if p.suffix.lower() in first
             and abs(first[p.suffix.lower()] - round(first[p.suffix.lower()])) > 1e-6]
@@ -613,7 +613,7 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
     _warn_between_frames(scene, anim.frame_times(scene.time.fps), paths)
     t = _time.perf_counter()
     targets = scene.output.gltf_targets or "frames"
-    modes = targets == "modes" and any(p.suffix.lower() == ".glb" for p in paths)
+    modes = targets == "modes" and any(p.suffix.lower() in GLTF for p in paths)
     say(f"sampling {counted(len(anim.frame_times(scene.time.fps)), 'frame')} at "
         f"{scene.time.fps:g} fps")
     data = surface_animation(anim, scene.time.fps, scene.mesh_file().stem,

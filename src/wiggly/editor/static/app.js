@@ -173,7 +173,7 @@ $('btn-saveas').onclick = () => promptDialog('Save scene as (.toml)', S.desc.pat
 const lastExport = {};  // scene name -> the paths last exported (the dialog offers them again)
 $('btn-export').onclick = () => {
   const n = scene().name;
-  promptDialog('Export (comma-separated: .glb .usd .usda .usdc .npz .obj .mp4 .gif .png)', lastExport[n] || `out/${n}.glb, out/${n}.mp4`, async (v) => {
+  promptDialog('Export (comma-separated: .glb .gltf .usd .usda .usdc .npz .obj .mp4 .gif .png)', lastExport[n] || `out/${n}.glb, out/${n}.mp4`, async (v) => {
     const paths = v.split(',').map((s) => s.trim()).filter(Boolean);
     lastExport[n] = paths.join(', ');
     let r = null;
