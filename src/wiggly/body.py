@@ -339,23 +339,38 @@ class Body:
         return B @ (m / w)
 
 
-def tets_of(model: Model, vertices: np.ndarray, on: Where = "surface") -> np.ndarray:
+def tets_of(model: Model, vertices: np.ndarray, on: Where = "surface",
+            whole: bool = False) -> np.ndarray:
     """Indices of the tets that belong to a vertex group.  A group of surface vertices owns
-    the tets whose centre lies nearer to one of its vertices than to any other surface
-    vertex: the groups of a surface share out the solid under it, its inside and the joints
-    between groups included (a stiff antenna on a stiff head is stiff where they meet).  A
-    group of tet vertices owns the tets whose four corners are all in it."""
+    the tets whose centre lies nearest to the part of the surface its vertices carry: the
+    closest point of the surface's triangles, weighted by its barycentric coordinates on
+    the group's vertices, at least one half (with ``whole``: a triangle of the group's
+    vertices only).  So the groups of a surface share out the solid under it, its inside and
+    the joints between groups included (a stiff antenna on a stiff head is stiff where they
+    meet); ``whole`` keeps to the solid under the group's own triangles (a driven cap of a
+    low-poly capsule, whose side triangles join it to the far end, holds the cap, not half
+    the body).  A group of tet vertices owns the tets whose four corners are all in it."""
+    T = model.tets.tets
     if on != "surface":
         mask = np.zeros(model.tets.n_vertices, bool)
         mask[np.asarray(vertices, np.int64)] = True
-        return np.flatnonzero(mask[model.tets.tets].all(axis=1))
-    from scipy.spatial import cKDTree
+        return np.flatnonzero(mask[T].all(axis=1))
+    import igl
 
     mask = np.zeros(model.surface.n_vertices, bool)
     mask[_surface_indices(model, vertices)] = True
-    centres = model.tets.vertices[model.tets.tets].mean(axis=1)
-    nearest = cKDTree(model.surface.vertices).query(centres)[1]
-    return np.flatnonzero(mask[nearest])
+    V = np.ascontiguousarray(model.surface.vertices, dtype=np.float64)
+    F = np.ascontiguousarray(model.surface.faces, dtype=np.int64)
+    if not len(F) or not mask.any():
+        return np.zeros(0, np.int64)
+    centres = np.ascontiguousarray(model.tets.vertices[T].mean(axis=1))
+    _, face, closest = igl.point_mesh_squared_distance(centres, V, F)
+    corners = F[face]
+    if whole:
+        return np.flatnonzero(mask[corners].all(axis=1))
+    weights = np.nan_to_num(igl.barycentric_coordinates(
+        closest, V[corners[:, 0]], V[corners[:, 1]], V[corners[:, 2]]))  # 0 on degenerate
+    return np.flatnonzero((weights * mask[corners]).sum(axis=1) >= 0.5)
 
 
 def _surface_indices(model: Model, surface_vertices: np.ndarray) -> np.ndarray:

@@ -51,7 +51,7 @@ from numpy.typing import ArrayLike
 from wiggly.body import Body
 from wiggly.checks import vertex_indices
 from wiggly.drive.driver import Driver, keyed_frames
-from wiggly.drive.secondary import free_modes, held_vertices
+from wiggly.drive.held import free_modes, held_vertices
 from wiggly.drive.unwarp import Unwarp
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import factorize_spd

@@ -58,7 +58,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike
 
-from wiggly.body import Body, Where, fixed_from_surface, tets_of
+from wiggly.body import Body, Where
 from wiggly.checks import vertex_indices
 from wiggly.drive.carried import FrameTerms, HeldWarp, frame_fits, free_parts, turned_forces
 from wiggly.drive.driver import Driver, keyed_frames
@@ -72,6 +72,7 @@ from wiggly.drive.driver_checks import (
     warn_unstable,
 )
 from wiggly.drive.frame_spline import FrameSpline
+from wiggly.drive.held import free_modes, held_modes, held_vertices
 from wiggly.drive.stress import (
     gravity_stiffnesses,
     load_stiffnesses,
@@ -84,8 +85,7 @@ from wiggly.errors import WigglyInputError
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread, factorize_spd, one_blas_thread
 from wiggly.mesh.defects import diagonal
-from wiggly.modes import compute_modes
-from wiggly.progress import deprecated_progress, note, reporting
+from wiggly.progress import deprecated_progress, note
 from wiggly.solve.animation import Animation
 from wiggly.solve.nodes import node_index, node_times, refine_nodes
 from wiggly.splines import (
@@ -113,70 +113,6 @@ _GN_ITERATIONS, _GN_TOLERANCE = 30, 1e-9
 NODES_PER_PERIOD = 16
 #: ... but no more nodes than this in all, so that a long shot stays within memory.
 MAX_NODES = 4000
-
-
-def held_vertices(body: Body, driven: np.ndarray) -> np.ndarray:
-    """The tet vertices a driver holds: those that carry the driven surface vertices (the
-    corners of their tets), those inside the solid under the driven group (no tet of theirs
-    outside it, :func:`wiggly.body.tets_of`), and the body's fixed vertices."""
-    T = body.tets.tets
-    outside = np.ones(len(T), bool)
-    outside[tets_of(body.model, driven)] = False
-    inside = np.ones(body.tets.n_vertices, bool)
-    inside[T[outside].ravel()] = False
-    return np.union1d(np.union1d(fixed_from_surface(body.model, driven),
-                                 np.flatnonzero(inside)), body.fixed_vertices)
-
-
-def free_modes(body: Body, driven: np.ndarray, count: int, stressed: bool = False,
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """The lowest ``count`` modes of the body with :func:`held_vertices` held: (Psi (3n, r),
-    lambda (r,)), Psi^T M Psi = I, Psi^T K Psi = diag(lambda), Psi zero on the held
-    vertices.  ``stressed``: of K plus gravity's geometric stiffness K_s in the rest pose's
-    orientation (:func:`wiggly.drive.stress.gravity_stiffnesses`), the small vibrations
-    about the sagged pose, by Rayleigh-Ritz in twice as many modes of K; where K + K_s is
-    not positive definite there (gravity's stress would buckle a free part: a soft part
-    standing up, or sagging further than linear elasticity holds), K alone, and a warning
-    says so."""
-    held = held_vertices(body, driven)
-    axes = gravity_stiffnesses(body, held) if stressed else None
-    psi, lam, _ = _held_modes(body, held, count, axes)
-    return psi, lam
-
-
-def _held_modes(body: Body, held: np.ndarray, count: int, axes: tuple | None,
-                ) -> tuple[np.ndarray, np.ndarray, bool]:
-    """:func:`free_modes` for the held tet vertices and gravity's stiffness per axis (or
-    None), and whether that stiffness is in them (False where it would buckle a part)."""
-    free_dofs = 3 * (body.tets.n_vertices - len(held))
-    if free_dofs <= 0:
-        raise WigglyInputError("the driven groups hold every vertex of the body: nothing is "
-                               "left free to move on its own; drive fewer vertices")
-    count = min(int(count), free_dofs - 1)
-    wanted = count if axes is None else min(2 * count, free_dofs - 1)
-    with reporting(False):  # a step of the caller's stage, not a stage of its own
-        modes = compute_modes(body.K, body.M, wanted, vertices=body.tets.vertices,
-                              fixed_vertices=held, cache_dir=body.cache_dir)
-    psi, lam = np.asarray(modes.vectors), np.asarray(modes.eigenvalues, float)
-    stressed = False
-    if axes is not None:  # Ritz: Psi^T (K + K_s) Psi = diag(lambda) + Psi^T K_s Psi
-        stress = sum(float(b) * K_a for b, K_a in zip(body.gravity, axes, strict=True))
-        ritz = np.diag(lam) + psi.T @ (stress @ psi)
-        mu, Y = np.linalg.eigh(0.5 * (ritz + ritz.T))
-        if mu[0] > 0:
-            psi, lam, stressed = psi @ Y[:, :count], mu[:count], True
-        else:  # K scales with E, K_s does not: s K + K_s is singular at s = the largest
-            ratio = -(ritz + ritz.T - 2 * np.diag(lam)) / (2 * np.sqrt(np.outer(lam, lam)))
-            times = float(np.linalg.eigvalsh(ratio)[-1])  # eigenvalue of -K_s against K
-            where = np.linalg.norm((psi @ Y[:, 0]).reshape(-1, 3), axis=1).argmax()
-            warnings.warn(
-                "a free part would buckle under its own weight (a soft part standing up, or "
-                "sagging further than linear elasticity holds), around "
-                f"({', '.join(f'{c:.3g}' for c in body.tets.vertices[where])}) m: its "
-                "stiffening and softening by gravity are left out, and it moves as linear "
-                f"elasticity alone makes it; a material {times:.2g} times as stiff there "
-                "holds it (twice that keeps it well away), or drive more of it", stacklevel=3)
-    return psi[:, :count], np.maximum(lam[:count], 0.0), stressed
 
 
 @dataclass(eq=False)
@@ -544,7 +480,7 @@ def secondary_motion(
     else:
         axes = None if loads is not None else gravity_stiffnesses(body, held)
     note("the free parts' modes")
-    psi, lam, stressed = _held_modes(body, held, free_mode_count, axes)
+    psi, lam, stressed = held_modes(body, held, free_mode_count, axes)
     modes_seconds = _time.perf_counter() - t1
     steps = step_turns(path)
     if not warped:  # linear: the rest pose's axes, whatever the turn rate

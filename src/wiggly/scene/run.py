@@ -223,7 +223,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     _check_gltf_targets(scene, paths)
     timings: dict[str, float] = {}
     t = _time.perf_counter()
-    body, keyframes, groups = build_with_groups(scene)
+    body, keyframes, groups = build_with_groups(scene, body_modes=not scene.secondary_motion)
     timings["prepare"] = _time.perf_counter() - t
     _warn_unit_slips(scene, body)
     _check_glb_size(scene, paths, body.model.surface.n_vertices)

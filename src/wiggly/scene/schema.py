@@ -137,7 +137,7 @@ _GROUP = Table(
                       doc="color in previews and the editor"),
      "young": Number(unit="Pa", **_YOUNG,
                       doc="Young's modulus (Pa) of the group's tets (surface groups: the "
-                          "tets nearest their vertices, inside included; on = \"tets\": "
+                          "tets nearest the surface they carry, inside included; on = \"tets\": "
                           "those whose corners are all in it) in place of [material] young: "
                           "a softer tail on a stiffer body; later groups win where groups "
                           "overlap")},
