@@ -272,18 +272,25 @@ def test_a_save_cut_short_by_a_kill_is_the_editors_own(tmp_path):
         s.close()
 
 
+def _two_tabs_after_an_edit_in_a(tmp_path, monkeypatch, other: str) -> tuple[Session, Path]:
+    """A session of the bar with pages of tabs a and ``other`` open, no grace period, and
+    one edit made in a."""
+    monkeypatch.setattr(presence, "TAB_GRACE", 0.0)
+    path = bar_project(tmp_path, KEYS, warp=False)
+    s, _ = _open(tmp_path, path.name)
+    s.page_opened("a")
+    s.page_opened(other)
+    s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
+    return s, path
+
+
 def test_a_new_tab_takes_over_the_history_of_a_tab_that_is_gone(tmp_path, monkeypatch):
     """Edits made in tab a: while a page of a listens, its history is its own; once a is
     gone (closed, its browser crashed, or not back after a restart), a tab without a history
     of its own takes it over, so the edits can still be undone; the take-over is journaled
     and survives a kill."""
-    monkeypatch.setattr(presence, "TAB_GRACE", 0.0)
-    path = bar_project(tmp_path, KEYS, warp=False)
-    s, _ = _open(tmp_path, path.name)
+    s, path = _two_tabs_after_an_edit_in_a(tmp_path, monkeypatch, "b")
     try:
-        s.page_opened("a")
-        s.page_opened("b")
-        s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
         assert not s.describe("b")["can_undo"]  # a is live
         s.page_closed("page-a", "a")
         assert s.describe("b")["undo_label"] == "set damping.alpha"
@@ -307,13 +314,8 @@ def test_a_tab_back_from_a_slow_reload_takes_its_history_back(tmp_path, monkeypa
     review's reload, its stream held back 4.5 s, found its undo handed to the other tab);
     the reloaded tab takes it back at its first request while the other has not used it,
     and the give-back is journaled.  Once the other tab has used it, it keeps it."""
-    monkeypatch.setattr(presence, "TAB_GRACE", 0.0)
-    path = bar_project(tmp_path, KEYS, warp=False)
-    s, _ = _open(tmp_path, path.name)
+    s, path = _two_tabs_after_an_edit_in_a(tmp_path, monkeypatch, "c")
     try:
-        s.page_opened("a")
-        s.page_opened("c")
-        s.edit({"op": "set", "section": "damping", "values": {"alpha": 0.3}}, tab="a")
         s.page_closed("page-a1", "a")  # a reloads, slowly
         assert s.describe("c")["undo_label"] == "set damping.alpha"  # c took it over
         s.page_opened("a")
