@@ -1002,3 +1002,24 @@ def test_a_surface_too_coarse_to_show_the_bending_is_warned_about(tmp_path):
     assert not any("long edges" in str(w.message) for w in said), [str(w.message) for w in said]
     sag = np.abs(fine.positions([1.0])[0][:, 1] - V[:, 1]).max()
     assert sag > 10 * 0.01 * np.sqrt(1.02)  # it bends: the check has something to see
+
+
+def test_two_keys_of_a_group_at_one_time_that_disagree_are_said(tmp_path):
+    """Two keys of one group at one time with other targets cannot both be met (a review
+    keyed a box's top 5 cm left and 5 cm right at 0.5 s and was told only that the keys
+    were missed, and to raise their stiffness): the scene says so when it is read; the same
+    key twice, or keys of other groups or times, are not."""
+    import copy
+
+    data = copy.deepcopy(BASE)
+    data["keyframes"].append({"time": 0.4, "group": "tip",
+                              "position": {"offset": [0.0, -0.1, 0.0]}})
+    with pytest.warns(UserWarning, match=r"shot\.toml: keyframes\[1\] and keyframes\[4\] both "
+                                         r"key group 'tip' at t = 0\.4 s, with another "
+                                         r"position: both cannot be met"):
+        load_scene(write(tmp_path, data))
+    data["keyframes"][4]["position"] = {"offset": [0.0, 0.1, 0.0]}
+    data["keyframes"].append({"time": 0.4, "group": "mid", "position": "rest"})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_scene(write(tmp_path, data, "same.toml"))

@@ -233,8 +233,9 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
         ensure_compiled()
         if _time.perf_counter() - t > 0.5:
             timings["compile"] = _time.perf_counter() - t
-    what = (f"{len(keyframes)} keyframes of the free parts" if scene.secondary_motion
-            else f"{len(keyframes)} keyframes, {body.r} modes")  # the body's: not computed
+    what = (f"{counted(len(keyframes), 'keyframe')} of the free parts"
+            if scene.secondary_motion  # the body's modes are not computed then
+            else f"{counted(len(keyframes), 'keyframe')}, {body.r} modes")
     say(f"{'warped' if scene.simulation.warp else 'linear'} spacetime solve: {what}, "
         f"[{start:g}, {end:g}] s")  # for secondary motion, which uses the free parts' own
     t = _time.perf_counter()

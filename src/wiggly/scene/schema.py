@@ -460,6 +460,25 @@ def _warn_seam_keys(scene: Scene, where: str, t0: float, t1: float) -> None:
                     "target, or keep one of them", stacklevel=5)
 
 
+def _warn_twin_keys(scene: Scene, where: str, span: float) -> None:
+    """Keys of one group at one time that say different things cannot both be met: the
+    motion lands between them, and the missed-keys warning would advise a higher stiffness,
+    which cannot help (a review keyed a box's top 5 cm left and 5 cm right at 0.5 s)."""
+    tol = 1e-9 * max(span, 1.0)
+    keys = list(enumerate(scene.keyframes))
+    for n, (i, a) in enumerate(keys):
+        for j, b in keys[n + 1:]:
+            differ = [what for what, x, y in (("position", a.position, b.position),
+                                              ("velocity", a.velocity, b.velocity))
+                      if x is not None and y is not None and x != y]
+            if a.group == b.group and abs(a.time - b.time) <= tol and differ:
+                warnings.warn(
+                    f"{where}: keyframes[{i}] and keyframes[{j}] both key group {a.group!r} at "
+                    f"t = {a.time:g} s, with another {' and '.join(differ)}: both cannot be "
+                    "met, and the motion lands between them; give them the same target, or "
+                    "keep one of them", stacklevel=5)
+
+
 def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> None:
     """Checks between keys: group names, key times in the shot's time range; the frame
     counts at ``output_fps`` when given (see :func:`load_scene`)."""
@@ -509,6 +528,7 @@ def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> 
               "looped shot (time.loop = true): a loop has no before; leave it out")
     if scene.time.loop:
         _warn_seam_keys(scene, p.where, t0, t1)
+    _warn_twin_keys(scene, p.where, t1 - t0)
     if frames > MAX_FRAMES and t1 - t0 <= MAX_DURATION:
         which = f"time.fps = {show(scene.time.fps)}" if output_fps is None else f"--fps {fps:g}"
         p.add(f"{which} makes {frames} frames of a {t1 - t0:g} s "

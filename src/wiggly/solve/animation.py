@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike
 
 from wiggly import checks, limits
 from wiggly.body import Body, Where
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, counted
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import one_blas_thread
 from wiggly.splines import WigglyBasis, energy_form, evaluate
@@ -70,7 +70,7 @@ class Animation:
             how += f", {done} in {self.info['iterations']} iterations"
         loop = ", looped" if self.loop else ""
         return (f"Animation({how}, [{self.nodes[0]:g}, {self.nodes[-1]:g}] s, "
-                f"{len(self.keyframes)} keyframes, {self.body.r} modes{loop})")
+                f"{counted(len(self.keyframes), 'keyframe')}, {self.body.r} modes{loop})")
 
     @property
     def start(self) -> float:
