@@ -374,8 +374,8 @@ def test_a_driven_body_too_soft_for_its_size_is_noted(shot):
     import scipy.sparse.linalg as spla
 
     from wiggly.drive.secondary import held_vertices
+    from wiggly.scene.body_notes import soft_note, static_sag
     from wiggly.scene.drive import driven_vertices
-    from wiggly.scene.run import soft_note, static_sag
 
     folder, data = shot
     soft = {**data, "material": {"young": 2e3, "poisson": 0.3, "density": 1000.0}}

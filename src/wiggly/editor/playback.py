@@ -313,8 +313,8 @@ class Playback:
     def _solve_linear(self, req: Request, box: Mailbox, problems, body, scene) -> None:
         """:meth:`_solve` once the body is ready."""
         from wiggly.scene import keyframes_of, problem_of, scene_to_dict
+        from wiggly.scene.body_notes import soft_note, thin_joint
         from wiggly.scene.drive import check_driver_against, secondary_of
-        from wiggly.scene.run import soft_note, thin_joint
         from wiggly.scene.validation import Problems
 
         if scene.drive is not None:  # the driver's scale and axes, as `wiggly animate` checks
