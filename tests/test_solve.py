@@ -349,6 +349,14 @@ def test_unknown_vertex_index(bar):
         solve(bar, [Keyframe(0.5, [1, n + 5], np.zeros((2, 3)))], warp=False, end=1.0)
     with pytest.raises(WigglyInputError, match="vertex index -1"):
         Keyframe.rest(bar, 0.0, [-1])
+    # an empty selection names the keyframe being made (it said "keyframe: selects no
+    # vertices", while errors at the solve name "keyframe #0 at t=...")
+    for made in (lambda: Keyframe.rest(bar, 0.5, [], name="feet"),
+                 lambda: Keyframe.offset(bar, 0.5, [], (0, 0.1, 0), name="feet"),
+                 lambda: Keyframe.rigid(bar, 0.5, [], (0, 0.1, 0), name="feet")):
+        with pytest.raises(WigglyInputError, match=r"Keyframe\.(rest|offset|rigid) at t = "
+                                                   r"0\.5 s \('feet'\): selects no vertices"):
+            made()
 
 
 def test_a_keyframe_built_on_another_body_is_refused(bar, cantilever, tmp_path_factory):

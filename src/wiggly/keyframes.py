@@ -114,7 +114,7 @@ class Keyframe:
     ) -> Keyframe:
         """Vertices at their rest positions (and at zero velocity if ``still``)."""
         on = kw.pop("on", "surface")
-        v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
+        v = vertex_indices(vertices, body.n_vertices(on), on, _named("rest", time, kw))
         X = body.rest_positions(on)[v]
         if still and kw.get("velocity") is not None:
             raise WigglyInputError("Keyframe.rest: give still=True (zero velocity) or a "
@@ -130,7 +130,7 @@ class Keyframe:
     ) -> Keyframe:
         """Vertices displaced from rest by ``offset`` ((3,) or (k, 3) metres)."""
         on = kw.pop("on", "surface")
-        v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
+        v = vertex_indices(vertices, body.n_vertices(on), on, _named("offset", time, kw))
         d = _vector_or_rows(offset, len(v), "Keyframe.offset: offset")
         X = body.rest_positions(on)[v]
         return cls(
@@ -160,7 +160,7 @@ class Keyframe:
         ``(0, np.radians(90), 0)``; scene files take Euler angles in degrees instead) or a
         3x3 rotation matrix (e.g. ``scipy.spatial.transform.Rotation.as_matrix()``)."""
         on = kw.pop("on", "surface")
-        v = vertex_indices(vertices, body.n_vertices(on), on, "keyframe")
+        v = vertex_indices(vertices, body.n_vertices(on), on, _named("rigid", time, kw))
         X = body.rest_positions(on)[v]
         R = _rotation(rotation)
         c = (X.mean(axis=0) if center is None
@@ -321,3 +321,10 @@ def _finite(a: np.ndarray, what: str) -> None:
             f"{what} of vertex #{i} (component {'xyz'[c]}) is {a[i, c]}; "
             "targets must be finite numbers"
         )
+
+
+def _named(kind: str, time: float, kw: dict) -> str:
+    """How a constructor's messages name the keyframe being made: ``Keyframe.rest at t =
+    0.5 s ('feet')``."""
+    name = kw.get("name")
+    return f"Keyframe.{kind} at t = {time:g} s" + (f" ({name!r})" if name else "")
