@@ -118,9 +118,11 @@ def soft_note(scene: Scene, body,
     young = scene.material.young
     own = ", and the groups' own" if any(g.young is not None for g in scene.groups.values()) \
         else ""
+    warped = (" (warped, it keeps its length and hangs instead, but bent further than the "
+              "model holds)" if scene.simulation.warp else "")
     return (
-        f"under gravity alone the body would sag by {sag:.3g} m "
-        f"({100 * sag / size:.0f} % of its size) where {held_by} it, more than "
-        f"linear elasticity models well: the material is soft for a body of {size:.3g} m. "
+        f"under gravity alone linear elasticity would sag the body by {sag:.3g} m "
+        f"({100 * sag / size:.0f} % of its size) where {held_by} it, more than it models "
+        f"well{warped}: the material is soft for a body of {size:.3g} m. "
         f"Raise material.young ({young:g} Pa{own}; {young * sag / (0.05 * size):.2g} Pa sags "
         "about 5 %), or lower simulation.gravity")
