@@ -52,7 +52,7 @@ def free_modes(body: Body, driven: np.ndarray, count: int, stressed: bool = Fals
 
 
 def held_modes(body: Body, held: np.ndarray, count: int, axes: tuple | None,
-                ) -> tuple[np.ndarray, np.ndarray, bool]:
+               ) -> tuple[np.ndarray, np.ndarray, bool]:
     """:func:`free_modes` for the held tet vertices and gravity's stiffness per axis (or
     None), and whether that stiffness is in them (False where it would buckle a part)."""
     free_dofs = 3 * (body.tets.n_vertices - len(held))
