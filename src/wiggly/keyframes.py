@@ -22,6 +22,7 @@ its modes' eigenvalues), so keys on stiff bodies need a higher ``stiffness``.
 
 from __future__ import annotations
 
+import numbers
 import warnings
 from dataclasses import dataclass, field, replace
 
@@ -327,4 +328,6 @@ def _named(kind: str, time: float, kw: dict) -> str:
     """How a constructor's messages name the keyframe being made: ``Keyframe.rest at t =
     0.5 s ('feet')``."""
     name = kw.get("name")
-    return f"Keyframe.{kind} at t = {time:g} s" + (f" ({name!r})" if name else "")
+    when = f"{float(time):g} s" if isinstance(time, numbers.Real) and not isinstance(
+        time, bool) else repr(time)  # a time that is no number is refused after, as it is
+    return f"Keyframe.{kind} at t = {when}" + (f" ({name!r})" if name else "")
