@@ -255,6 +255,19 @@ class FrameTerms:
         rates = np.max([np.linalg.norm(p[2], axis=1) for p in parts], axis=0)
         return np.asarray(G), np.asarray(N), change, rates
 
+    def resting(self, time: float, rig, gammas: list[np.ndarray], base: np.ndarray,
+                ) -> np.ndarray:
+        """The stress change (r, r) of gravity alone at ``time``, turned with each part's
+        frame: the loads the free parts rest under before a shot whose driver holds its
+        first pose (the loads' mean at the start looked ahead into the shot's first
+        accelerations: a turn that starts at 2 g left the start's sag 1.3-2.6 % off)."""
+        at = [rig(np.array([time]), d).reshape(1, -1, 3) for d in range(3)]
+        still = np.zeros((1, 3))
+        betas = [load_coefficients(self.gravity, frame_rates(
+            self.vertices[fit], self.mass[fit], *(R[:, fit] for R in at))[2], still, still,
+            still) for _, fit in self.fits]
+        return stress_change(gammas, betas, base)[0]
+
     @staticmethod
     def step(G: np.ndarray, N: np.ndarray, lowest: float, per_period: int) -> float:
         """The longest step between nodes that resolves the frames' forces ``G q' + N q``

@@ -534,7 +534,8 @@ def secondary_motion(
     if warped:  # the turning frames' forces on Psi q, part by part (wiggly.drive.carried)
         G, Nq, change, rates = terms(nodes, linear_rig, gammas, base)
         if gammas:
-            Nq, at_start = Nq + change, at_start + change[0]
+            Nq = Nq + change  # resting before the shot: gravity's stress alone
+            at_start = at_start + terms.resting(start, linear_rig, gammas, base)
         coupling = G, Nq
         warn_unstable(driver.source, nodes, lowest_eigenvalues(lam, Nq), rates, lam)
     H0, b0, forcing = _energy_system(Q, lam, delta, h, c, blocks, coupling)
