@@ -261,11 +261,13 @@ class FrameTerms:
         frame: the loads the free parts rest under before a shot whose driver holds its
         first pose (the loads' mean at the start looked ahead into the shot's first
         accelerations: a turn that starts at 2 g left the start's sag 1.3-2.6 % off)."""
-        at = [rig(np.array([time]), d).reshape(1, -1, 3) for d in range(3)]
+        from wiggly.drive.unwarp import frame_rotations
+
+        D = rig(np.array([time])).reshape(-1, 3)  # the frames' turns: no rates needed
         still = np.zeros((1, 3))
-        betas = [load_coefficients(self.gravity, frame_rates(
-            self.vertices[fit], self.mass[fit], *(R[:, fit] for R in at))[2], still, still,
-            still) for _, fit in self.fits]
+        betas = [load_coefficients(self.gravity, frame_rotations(
+            self.vertices[fit], D[fit].reshape(-1, 1), self.mass[fit]), still, still, still)
+            for _, fit in self.fits]
         return stress_change(gammas, betas, base)[0]
 
     @staticmethod

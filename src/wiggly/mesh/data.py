@@ -100,6 +100,12 @@ class TetMesh:
         """
         return tet_volumes(self.vertices, self.tets)
 
+    def edge_lengths(self) -> np.ndarray:
+        """Length of each tet's six edges, (m, 6) (an edge shared by tets once per tet)."""
+        V, T = self.vertices, self.tets
+        return np.linalg.norm(V[T[:, [0, 0, 0, 1, 1, 2]]] - V[T[:, [1, 2, 3, 2, 3, 3]]],
+                              axis=-1)
+
     def boundary_faces(self) -> np.ndarray:
         """Triangles used by exactly one tet, oriented outwards.
 

@@ -505,8 +505,7 @@ def coarse_mesh(
     :func:`tetrahedralize`.
     """
     V, T = mesh.vertices, mesh.tets
-    edges = V[T[:, [0, 0, 0, 1, 1, 2]]] - V[T[:, [1, 2, 3, 2, 3, 3]]]
-    edge = float(np.mean(np.linalg.norm(edges, axis=-1))) * (len(T) / n_tets) ** (1 / 3)
+    edge = float(np.mean(mesh.edge_lengths())) * (len(T) / n_tets) ** (1 / 3)
     B = mesh.boundary_faces()
     area = 0.5 * float(np.linalg.norm(np.cross(V[B[:, 1]] - V[B[:, 0]],
                                                V[B[:, 2]] - V[B[:, 0]]), axis=1).sum())

@@ -55,7 +55,8 @@ def thin_joint(scene: Scene, body,
     ``JOINT_SHARE`` of the tets that move (two parts meeting at an edge, which the tets join
     by a sliver), so that the parts hinge on it almost freely; None otherwise.  Counted
     among the moving tets, not all: a cantilevered tail holds half its energy near its root,
-    a few per cent of a big held body's tets."""
+    a few per cent of a big held body's tets.  A body nothing holds is judged by its softest
+    mode instead, when that is far the softest (:func:`_hinge_mode`)."""
     from wiggly.fem import lame_parameters, tet_gradients
 
     u, what = _sag_field(body, held), "its sag under gravity"

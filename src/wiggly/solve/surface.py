@@ -44,9 +44,7 @@ def straight_edges(anim, times: np.ndarray) -> dict | None:
                                               faces[:, [2, 0]]]), axis=1), axis=0)
     V = surface.vertices
     length = np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)
-    X, T = tets.vertices, tets.tets
-    h = float(np.median(np.linalg.norm(X[T[:, [0, 0, 0, 1, 1, 2]]] - X[T[:, [1, 2, 3, 2, 3, 3]]],
-                                       axis=2)))
+    h = float(np.median(tets.edge_lengths()))
     long = np.flatnonzero(length > LONG_EDGE * h)
     if not len(long):
         return None
