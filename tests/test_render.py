@@ -389,3 +389,46 @@ def test_a_preview_without_a_clock_draws_no_time():
         with Preview([0.0, 5.0], still, F, size=(320, 180), clock=clock) as preview:
             a, b = preview.render(0.0), preview.render(5.0)
         assert np.array_equal(a, b) == same, clock
+
+
+
+def test_a_scene_with_z_up_gravity_is_previewed_with_z_up(offscreen, tmp_path):
+    """A shot whose gravity points along -z is previewed as its own motion turned to y up:
+    the preview's up is against gravity, not the y axis."""
+    from wiggly.export import read_animation
+    from wiggly.scene import load_scene, render_preview
+    from wiggly.scene import run as run_scene
+
+    box = trimesh.creation.box(extents=(1.0, 0.1, 0.1))
+    box.apply_translation((0.5, 0.0, 0.0))
+    box = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(box.vertices, box.faces, 0.05))
+    box.export(tmp_path / "bar.obj")
+    (tmp_path / "bar.toml").write_text("""
+[mesh]
+path = "bar.obj"
+resolution = 8
+[material]
+young = 1e6
+[simulation]
+gravity = [0.0, 0.0, -9.81]
+modes = 6
+warp = false
+fixed = ["left"]
+[groups.left]
+box = { min = [-0.01, -1.0, -1.0], max = [0.01, 1.0, 1.0] }
+[time]
+end = 0.5
+fps = 8
+[output]
+size = [192, 108]
+""")
+    scene = load_scene(tmp_path / "bar.toml")
+    run_scene(scene, outputs=[tmp_path / "bar.png", tmp_path / "bar.npz"])
+    anim = read_animation(tmp_path / "bar.npz")
+    z_to_y = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # z -> y
+    render_preview(tmp_path / "turned.png", anim.times, anim.positions @ z_to_y.T, anim.faces,
+                   output=scene.output, title=scene.name)
+    shown, turned = (np.asarray(Image.open(tmp_path / f"{name}.png"), dtype=np.float64)
+                     for name in ("bar", "turned"))
+    assert shown.shape == turned.shape
+    assert np.abs(shown - turned).mean() < 0.5

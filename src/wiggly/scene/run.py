@@ -540,18 +540,26 @@ def write_outputs(scene: Scene, anim, paths: list[Path], *, overwrite: bool,
                 shown = without_seam(data)  # a looping video shows the seam's pose once
                 render_preview(outputs.stage(path), shown.times, shown.positions, shown.faces,
                                highlights=highlights, output=scene.output, title=scene.name,
-                               overwrite=True)
+                               overwrite=True, up=preview_up(scene.simulation.gravity))
             timings[f"write {path.name}"] = _time.perf_counter() - t
             written.append(path)
     return written
 
 
+def preview_up(gravity) -> tuple[float, float, float]:
+    """A preview's up direction: against gravity, or y where there is none."""
+    g = np.asarray(gravity, dtype=np.float64)
+    norm = float(np.linalg.norm(g))
+    return (0.0, 1.0, 0.0) if norm == 0.0 else tuple(float(x) for x in -g / norm)
+
+
 @deprecated_progress
 def render_preview(path: Path, times, positions, faces, *, highlights=(),
                    output: OutputSpec | None = None, title: str | None = None,
-                   overwrite: bool = False, fps: float | None = None) -> Path:
+                   overwrite: bool = False, fps: float | None = None,
+                   up=(0.0, 1.0, 0.0)) -> Path:
     """An .mp4/.gif video (at ``fps``, default: the frames' rate) or a .png contact sheet of
-    an animated surface."""
+    an animated surface, seen with ``up`` up (its ground plane across it)."""
 
     output = output or OutputSpec()
     camera = output.camera if isinstance(output.camera, str) else tuple(output.camera)
@@ -559,10 +567,10 @@ def render_preview(path: Path, times, positions, faces, *, highlights=(),
         tile = (max(16, output.size[0] // 2), max(16, output.size[1] // 2))
         return render.render_contact_sheet(path, times, positions, faces, n_frames=8, columns=4,
                                            highlights=highlights, tile_size=tile, camera=camera,
-                                           title=title, overwrite=overwrite)
+                                           title=title, overwrite=overwrite, up=up)
     return render.render_video(path, times, positions, faces, highlights=highlights,
                                fps=fps, size=output.size, camera=camera, title=title,
-                               overwrite=overwrite)
+                               overwrite=overwrite, up=up)
 
 
 def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None = None,
