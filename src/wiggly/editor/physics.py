@@ -76,6 +76,15 @@ def model_key(scene: Scene) -> tuple:
     return (str(f), mtime, m.resolution, m.edge_length, m.repair, m.metres_per_unit, m.up)
 
 
+def modes_status(scene: Scene, model) -> str:
+    """What the body's preparation says while it works: a secondary motion's body has only
+    its rigid modes (its free parts' modes come with each solve)."""
+    n = model.tets.n_tets
+    if scene.secondary_motion:
+        return f"preparing the body's {n} tets for secondary motion"
+    return f"computing {scene.simulation.modes} modes of {n} tets (E = {scene.material.young:g} Pa)"
+
+
 def modes_key(scene: Scene) -> tuple:
     """What M, K and the modes depend on: the model and :func:`wiggly.scene.modes_key`."""
     return (model_key(scene), *scene_modes_key(scene))
@@ -138,9 +147,9 @@ def _child_job(msg: tuple, models: Memo, status) -> tuple[tuple, tuple | None]: 
             raise RuntimeError("the physics process does not hold the model")
         scene = scene_from_dict(data)
         scene.source = source
-        status("modes", f"computing {scene.simulation.modes} modes of "
-               f"{model.tets.n_tets} tets (E = {scene.material.young:g} Pa)", 0.4)
-        body = body_of(scene, model, resolve_groups(scene, model), dynamics=False)
+        status("modes", modes_status(scene, model), 0.4)
+        body = body_of(scene, model, resolve_groups(scene, model), dynamics=False,
+                       body_modes=not scene.secondary_motion)
         return ("modes", body), (key, model)
     except WigglyInputError as err:
         return ("error", str(err), True), None
@@ -350,7 +359,7 @@ class Physics:
                 model_fut = self.model_future(scene)
                 fut = self._pool.submit(self._prepare, scene, key, model_fut)
             elif fut.done():  # a body made before (an undo): the page's heading says it again
-                self._ready(fut.result(), time.perf_counter())
+                self._ready(fut.result(), time.perf_counter(), scene.secondary_motion)
             self._bodies.put(key, fut)
             return fut
 
@@ -359,12 +368,10 @@ class Physics:
         model = model_fut.result()
         if self._unwanted(key):
             raise Superseded("superseded by a newer edit")
-        s, m = scene.simulation, scene.material
         mkey = key[0]
         try:
             resolve_groups(scene, model)  # a group that does not fit the mesh: say so here
-            first = ("modes", f"computing {s.modes} modes of {model.tets.n_tets} tets "
-                     f"(E = {m.young:g} Pa)", 0.4)
+            first = ("modes", modes_status(scene, model), 0.4)
             sent = None if self.preparer.knows(mkey) else model
             _, body = self._run(("modes", mkey, sent, scene_to_dict(scene), scene.source), key,
                                 t0, first)
@@ -375,12 +382,14 @@ class Physics:
         except Exception as err:
             self._status("error", f"cannot compute the modes: {err}", 0.0, t0)
             raise
-        self._ready(body, t0)
+        self._ready(body, t0, scene.secondary_motion)
         return body
 
-    def _ready(self, body, t0: float) -> None:
+    def _ready(self, body, t0: float, secondary: bool) -> None:
         n = body.tets.n_tets
-        self._status("ready", f"{body.r} modes ready ({n} tets)", 1.0, t0, modes=body.r,
+        said = (f"body ready for secondary motion ({n} tets)" if secondary
+                else f"{body.r} modes ready ({n} tets)")
+        self._status("ready", said, 1.0, t0, modes=body.r,
                      tets=n,
                      frequencies=[round(float(x), 4) for x in body.modes.frequencies_hz()[:12]])
 

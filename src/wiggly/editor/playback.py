@@ -327,7 +327,6 @@ class Playback:
         start, end = scene.time_range()
         pkey = (modes_key(scene), scene.damping, scene.simulation.gravity, start, end,
                 scene.simulation.preroll, scene.time.loop)
-        problem = problems.get(pkey, lambda: problem_of(scene, body))
         drag = req.kind == "drag"
         t0 = time.perf_counter()
         self.bus.publish("solve", sticky=not drag, seq=req.seq, version=req.version,
@@ -337,7 +336,7 @@ class Playback:
             linear = replace(scene, simulation=replace(scene.simulation, warp=False))
             anim = secondary_of(linear, body, groups, keys)
         else:
-            anim = problem.solve(keys, warped=False)
+            anim = problems.get(pkey, lambda: problem_of(scene, body)).solve(keys, warped=False)
         if drag and box.pending():
             return  # a newer request waits: skip this stale preview's playback frames
         fps = playback_fps(scene.time.fps, start, end, body.surface.n_vertices)

@@ -136,7 +136,7 @@ def child_main() -> None:  # pragma: no cover - runs in the subprocess (tested e
             bkey = (model_key, *modes_key(scene), scene.damping, s.gravity)
             body = bodies.get(bkey)
             if body is None:
-                body = body_of(scene, model, groups)
+                body = body_of(scene, model, groups, body_modes=not scene.secondary_motion)
                 bodies.clear()
                 problems.clear()
                 previous.clear()

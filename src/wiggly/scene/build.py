@@ -170,7 +170,8 @@ def modes_key(scene: Scene) -> tuple:
     value key)."""
     s = scene.simulation
     key = (scene.material, s.modes, s.lumped_mass, tuple((g, scene.groups[g]) for g in s.fixed),
-           tuple((g, spec) for g, spec in scene.groups.items() if spec.young is not None))
+           tuple((g, spec) for g, spec in scene.groups.items() if spec.young is not None),
+           scene.secondary_motion)  # a secondary motion's body: rigid modes only
     if scene.drive is not None and scene.drive.adds_shapes:
         key += (scene.drive, tuple((g, scene.groups[g]) for g in scene.drive.groups), s.warp)
     return key
