@@ -38,7 +38,7 @@ import pytest
 
 from tests.editor_ui import bar_project
 from wiggly.editor import Sandbox, Session
-from wiggly.editor.history import history_path
+from wiggly.editor.history import DEFAULT_TAB, history_path
 from wiggly.editor.session import autosave_path
 from wiggly.editor.state import EditError, EditorState, apply_edit, state_to_json
 from wiggly.scene import load_scene
@@ -414,9 +414,10 @@ def test_a_scene_never_saved_comes_back_from_its_journal_alone(tmp_path):
 
 
 def test_a_file_changed_on_disk_after_a_crash_keeps_the_old_journal(tmp_path):
-    """Edits journaled but not saved, the editor killed, then the scene file changed in
-    another program: it opens as it is on disk, the notice says the unsaved edits are not
-    applied, and the old journal is kept beside it (not deleted) with them in it."""
+    """Edits journaled but not saved, the editor killed before its autosave, then the scene
+    file changed in another program: it opens as it is on disk, the notice says the unsaved
+    edits are not applied, and they are kept as a scene of their own, the old journal (not
+    deleted) as its undo history, as when the autosave exists."""
     path = bar_project(tmp_path, KEYS, warp=False)
     s1 = Session(Sandbox([tmp_path]))
     s1.open(path.name)
@@ -431,12 +432,18 @@ def test_a_file_changed_on_disk_after_a_crash_keeps_the_old_journal(tmp_path):
         assert s2.scene == load_scene(path) and s2.scene.damping.alpha != 0.7
         notice = " ".join(opened["notices"])
         assert "changed outside the editor" in notice and "without them" in notice, notice
-        kept = [p for p in tmp_path.iterdir()
-                if p.name.startswith(history_path(path).stem + "-")]
-        assert len(kept) == 1
-        assert kept[0].read_text() == journal
+        kept = [p for p in tmp_path.iterdir() if p.name.startswith("shot.unsaved-")]
+        assert len(kept) == 1 and kept[0].name in notice
+        assert load_scene(kept[0]).damping.alpha == 0.7
+        assert history_path(kept[0]).read_text() == journal
     finally:
         s2.close()
+    s3 = Session(Sandbox([tmp_path]))
+    try:  # the edits open with their undo step
+        s3.open(kept[0].name)
+        assert s3.scene.damping.alpha == 0.7 and s3.histories.describe(DEFAULT_TAB)["can_undo"]
+    finally:
+        s3.close()
 
 
 def test_a_file_changed_on_disk_after_an_autosave_is_not_overwritten(tmp_path):

@@ -28,7 +28,7 @@ def test_ctrl_c_with_unsaved_edits_says_they_are_kept_and_how_to_get_them(tmp_pa
             assert answer.status == 200
     finally:
         said = _ctrl_c(proc)
-    assert "the unsaved edits of my shot.toml are kept beside it (.my shot.autosave.toml)" \
+    assert "the unsaved edits of my shot.toml are kept beside it (.my shot.autosave.toml, " \
         in said, said
     assert "`wiggly edit 'my shot.toml'` opens it with them" in said
     session = Session(Sandbox([tmp_path]))

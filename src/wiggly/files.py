@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import re
 import signal
+import stat
 import tempfile
 import threading
 import time
@@ -77,11 +78,20 @@ def remove_stale(path: str | os.PathLike[str], age: float) -> bool:
     return False
 
 
-def fix_mode(path: str | os.PathLike[str]) -> None:
-    """Give a ``mkstemp`` file (mode 0600) the mode a plain ``open`` would have given it."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(path, 0o666 & ~umask)
+def fix_mode(path: str | os.PathLike[str], like: str | os.PathLike[str] | None = None) -> None:
+    """Give a ``mkstemp`` file (mode 0600) the mode of the file ``like`` it replaces, or
+    where there is none the mode a plain ``open`` would have given it."""
+    mode = None
+    if like is not None:
+        try:
+            mode = stat.S_IMODE(os.stat(like).st_mode)
+        except OSError:  # no file to replace (or not ours to read): a new one
+            mode = None
+    if mode is None:
+        umask = os.umask(0)
+        os.umask(umask)
+        mode = 0o666 & ~umask
+    os.chmod(path, mode)
 
 
 @contextmanager
@@ -101,7 +111,7 @@ def atomic_file(path: str | os.PathLike[str], replace: bool = True,
     tmp = _temporary(path)
     try:
         yield tmp
-        fix_mode(tmp)
+        fix_mode(tmp, path if replace else None)  # a replaced file keeps its permissions
         if durable:
             sync_file(tmp)
         if replace:
@@ -215,7 +225,7 @@ class OutputSet:
         moved: list[tuple[Path, Path | None]] = []  # (output, its old file moved aside)
         try:
             for tmp, path in self._staged:
-                fix_mode(tmp)
+                fix_mode(tmp, path)  # a replaced file keeps its permissions
                 aside = None
                 if path.exists() or path.is_symlink():
                     aside = _temporary(path, old=True)

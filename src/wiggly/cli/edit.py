@@ -145,6 +145,7 @@ def stop_messages(session, autosave: bool = True) -> list[str]:
     import shlex
 
     from wiggly.editor.autosave import autosave_path
+    from wiggly.editor.history import history_path
     from wiggly.editor.state import EditError
 
     out = []
@@ -166,6 +167,13 @@ def stop_messages(session, autosave: bool = True) -> list[str]:
     if not autosave:
         return [*out, f"wiggly edit: stopped; the unsaved edits of {source.name} are lost "
                       "(--no-autosave)"]
-    return [*out, f"wiggly edit: stopped; the unsaved edits of {source.name} are kept beside "
-                  f"it ({autosave_path(source).name}): `wiggly edit {shlex.quote(shown)}` "
-                  "opens it with them, and Save writes them to the file"]
+    kept = (f"the unsaved edits of {source.name} are kept beside it "
+            f"({autosave_path(source).name}, {history_path(source).name})")
+    if session.changed_on_disk:  # the next open keeps the other program's version
+        stem = source.name.removesuffix(source.suffix)
+        return [*out, f"wiggly edit: stopped; {kept}. {source.name} was changed on disk by "
+                      f"another program: `wiggly edit {shlex.quote(shown)}` opens the disk's "
+                      f"version and keeps these edits as the scene {stem}.unsaved-<date>-"
+                      "<time>.toml beside it"]
+    return [*out, f"wiggly edit: stopped; {kept}: `wiggly edit {shlex.quote(shown)}` opens "
+                  "it with them, and Save writes them to the file"]

@@ -46,11 +46,14 @@ def autosave_base(path: Path) -> str | None:
 def write_durably(target: Path, text: str) -> None:
     """Replace ``target`` with ``text`` atomically, flushed to the disk before the rename."""
     tmp = target.with_name(target.name + ".part")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, target)
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    finally:
+        tmp.unlink(missing_ok=True)  # a write cut short (a full disk) leaves no part behind
     sync_file(target.parent)
 
 

@@ -417,13 +417,20 @@ class Histories:
             if fresh is None or not any("hash" in line for line in lines):
                 self._discard(fresh)
                 return fresh, None
-            self._discard(fresh, keep=True)
             if autosaved:  # the unsaved scene stands; only its steps are lost
+                self._discard(fresh, keep=True)
                 return fresh, (f"the undo history kept for {name} does not match its "
                                "unsaved edits: they are recovered, but undo starts afresh")
+            if source is not None and self.unsaved(scene, source, disk) is None:
+                # nothing beyond the file's last save here: only the steps to it are old
+                self._discard(fresh)
+                return fresh, (f"{name} was changed outside the editor since it was last "
+                               "saved here: it opens as it is on disk; undo starts afresh")
+            kept = self._discard(fresh, keep=True)  # edits not saved (not set aside as a scene)
+            where = f"; they are kept in {kept.name}" if kept is not None else ""
             return fresh, (f"{name} was changed outside the editor after edits that were not "
-                           "saved: it opens as it is on disk, without them; undo starts "
-                           "afresh")
+                           f"saved: it opens as it is on disk, without them{where}; undo "
+                           "starts afresh")
         self.tabs = tabs
         if compact:
             self.compact(state)
@@ -443,6 +450,35 @@ class Histories:
             state.scene.source = source
         return state
 
+    def unsaved(self, scene: Scene | None, source: Path, disk: str | None, *,
+                replayable: bool = True) -> EditorState | None:
+        """The scene the journal's steps lead to when it is not the scene file ``scene``
+        (its digest ``disk``; None: no file): replayed over the file where they can be,
+        else from the journal's snapshot (made ``source``'s).  None: the journal holds no
+        edits beyond the file, nor beyond the snapshot's own save; with ``replayable``
+        false, also when its steps replay over the file (the file is unchanged since, and
+        an ordinary recovery brings them back)."""
+        if self.path is None or not self.path.is_file():
+            return None
+        try:
+            lines = _read_lines(self.path)
+            state = None
+            if scene is not None:
+                state, _ = _replay(lines, scene, source, disk or "none")
+                if state is not None and not replayable:
+                    return None
+            if state is None:
+                state, _ = _replay(lines, None, source)
+                if state is not None and lines[0].get("file", "none") != "none" \
+                        and scene_hash(state) == lines[0]["hash"]:
+                    return None  # the snapshot's own save, as it was: nothing unsaved
+        except (OSError, ValueError, KeyError, TypeError, IndexError, EditError,
+                WigglyInputError):
+            return None
+        if state is None or (scene is not None and state.scene == scene):
+            return None
+        return state
+
     def compact(self, state: EditorState, strict: bool = False) -> None:
         """Rewrite the journal as one snapshot line (with the scene), atomically.  A failure
         is kept in :attr:`write_error` (``strict``: raised as :class:`EditError`, 507)."""
@@ -455,11 +491,14 @@ class Histories:
             for tab, t in self.tabs.items()}}
         tmp = self.path.with_name(self.path.name + ".part")
         try:
-            with open(tmp, "w", encoding="utf-8") as f:
-                f.write(self._line(line, state))
-                f.flush()
-                os.fsync(f.fileno())
-            tmp.replace(self.path)
+            try:
+                with open(tmp, "w", encoding="utf-8") as f:
+                    f.write(self._line(line, state))
+                    f.flush()
+                    os.fsync(f.fileno())
+                tmp.replace(self.path)
+            finally:
+                tmp.unlink(missing_ok=True)  # a write cut short leaves no part behind
             sync_file(self.path.parent)
             self._base = None
         except OSError as err:

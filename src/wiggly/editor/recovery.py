@@ -22,7 +22,7 @@ from wiggly.editor.state import EditError, EditorState
 from wiggly.files import remove_stale
 from wiggly.scene import Scene, scene_to_toml
 
-__all__ = ["recover"]
+__all__ = ["recover", "set_aside_unsaved"]
 
 
 def recover(path: str, real: Path, histories: Histories, notices: list[str],
@@ -44,6 +44,10 @@ def recover(path: str, real: Path, histories: Histories, notices: list[str],
         changed = False
     if changed:
         _set_aside(real, histories, notices)
+    elif not auto.is_file() and disk is not None:  # the journal alone may hold the edits
+        stranded = histories.unsaved(file_scene, real, disk, replayable=False)
+        if stranded is not None:  # ... and the file was changed in another program since
+            _set_aside(real, histories, notices, stranded)
     elif auto.is_file():
         try:
             auto_scene = load_checked(auto)
@@ -63,6 +67,11 @@ def recover(path: str, real: Path, histories: Histories, notices: list[str],
         _write_back(auto, state, file_scene, auto_scene, disk, histories)
     if state.scene != file_scene:
         notices.append(_recovered(real, file_scene, state.scene))
+    if histories.path is None and Histories(history_path(real)).unsaved(
+            state.scene, real, disk) is not None:  # autosave off: the journal is not read
+        notices.append(f"the undo journal beside {real.name} ({history_path(real).name}) "
+                       "holds edits that are not shown: this editor runs without autosave "
+                       f"(--no-autosave); `wiggly edit {real.name}` without it recovers them")
     return state, file_scene
 
 
@@ -107,23 +116,48 @@ def _saved_edits(real: Path, auto: Path, file_scene: Scene | None,
     return (state.scene if state is not None else scene) == file_scene
 
 
-def _set_aside(real: Path, histories: Histories, notices: list[str]) -> None:
+def set_aside_unsaved(real: Path, notices: list[str]) -> None:
+    """Before another scene is saved as ``real``: the edits of ``real``'s own that were never
+    saved (its autosave, or its journal beyond the file; an earlier session's) are kept as
+    the scene ``NAME.unsaved-<date>-<time>.toml`` with their undo history, not overwritten,
+    and a notice says so."""
+    histories = Histories(history_path(real))
+    try:
+        file_scene = load_checked(real) if real.is_file() else None
+    except EditError:  # not a scene the editor reads: its journal cannot be its edits
+        file_scene = None
+    state = None
+    if not autosave_path(real).is_file():
+        state = histories.unsaved(file_scene, real, file_digest(real))
+        if state is None:
+            return
+    _set_aside(real, histories, notices, state,
+               why=f"{real.name} had edits of its own that were never saved (an earlier "
+                   "session's), and another scene is saved as it now")
+
+
+def _set_aside(real: Path, histories: Histories, notices: list[str],
+               state: EditorState | None = None, why: str | None = None) -> None:
     """The scene file ``real`` was changed in another program after edits that were not
-    saved (its autosave was made from another version of it): they must not overwrite that
-    change unasked.  They are kept as the scene ``NAME.unsaved-<date>-<time>.toml``, the
-    journal's tail replayed over the autosave (every answered edit), with the journal as its
-    undo history; the file then opens as it is on disk, and a notice says so."""
+    saved (its autosave was made from another version of it, or only its journal holds
+    them: ``state``): they must not overwrite that change unasked.  They are kept as the
+    scene ``NAME.unsaved-<date>-<time>.toml``, the journal's tail replayed over the autosave
+    (every answered edit), with the journal as its undo history; the file then opens as it
+    is on disk, and a notice says so (``why`` in place of its first words)."""
     auto = autosave_path(real)
     kept = real.with_name(f"{real.stem}.unsaved-{time.strftime('%Y%m%d-%H%M%S')}.toml")
-    state = None
     try:
-        scene = load_checked(auto)
-        scene.source = kept
-        state = histories.peek(scene, kept)
+        if state is None:
+            scene = load_checked(auto)
+            scene.source = kept
+            state = histories.peek(scene, kept)  # None: the journal is not of these edits
+        else:
+            scene = state.scene
         write_durably(kept, scene_to_toml(state.scene if state is not None else scene))
-        auto.unlink()
+        auto.unlink(missing_ok=True)
         where = f"; they are kept as the scene {kept.name} (Open shows it)"
     except (EditError, OSError):  # unreadable: kept as it is
+        state = None
         try:
             os.replace(auto, kept)
             where = f"; they are kept as the scene {kept.name} (Open shows it)"
@@ -135,5 +169,8 @@ def _set_aside(real: Path, histories: Histories, notices: list[str]) -> None:
             where = where.replace("(Open shows it)", "(Open shows it, with their undo steps)")
         except OSError:
             pass
+    if why is not None:
+        notices.append(f"{why}{where or ': they could not be kept as a scene'}")
+        return
     notices.append(f"{real.name} was changed outside the editor after edits that were not "
                    f"saved: it opens as it is on disk, without them{where}")

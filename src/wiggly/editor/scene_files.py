@@ -17,7 +17,7 @@ from wiggly.errors import WigglyInputError
 from wiggly.scene import MeshSpec, Scene, TimeSpec, load_scene, resolve_groups
 
 __all__ = ["MESH_SUFFIXES", "SCENE_SUFFIX", "display_groups", "driver_stamp", "export_written",
-           "file_digest", "free_name", "load_checked", "new_scene", "surface_of"]
+           "file_digest", "free_name", "load_checked", "never_saved", "new_scene", "surface_of"]
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".msh", ".vtu", ".vtk",
                  ".mesh")
@@ -126,3 +126,16 @@ def display_groups(scene: Scene, surface, model) -> dict[str, np.ndarray]:
             idx = np.unique(idx)
         out[name] = np.asarray(idx, np.int64)
     return out
+
+
+def never_saved(sandbox) -> list[str]:
+    """Scenes never saved whose autosave or undo journal exists in ``sandbox``'s roots
+    (edited before a crash), relative to the sandbox."""
+    out: set[str] = set()
+    for root in sandbox.roots:
+        for suffix in (".autosave.toml", ".history.jsonl"):
+            for kept in root.glob(f".*{suffix}"):
+                scene = kept.with_name(kept.name[1:].removesuffix(suffix) + SCENE_SUFFIX)
+                if not scene.exists() and sandbox.contains(kept):
+                    out.add(sandbox.relative(scene))
+    return sorted(out)

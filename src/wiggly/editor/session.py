@@ -42,7 +42,7 @@ from wiggly.editor.history import (
 from wiggly.editor.physics import Physics
 from wiggly.editor.playback import FrameSet, Playback
 from wiggly.editor.presence import TAB_GRACE, Presence
-from wiggly.editor.recovery import recover
+from wiggly.editor.recovery import recover, set_aside_unsaved
 from wiggly.editor.sandbox import Sandbox
 from wiggly.editor.scene_files import (
     MESH_SUFFIXES,
@@ -51,6 +51,7 @@ from wiggly.editor.scene_files import (
     driver_stamp,
     file_digest,
     free_name,
+    never_saved,
     new_scene,
     surface_of,
 )
@@ -348,6 +349,9 @@ class Session(Exports):
                                     "last saved it: overwrite that change with the scene as "
                                     "edited here, or Save as another file (opening "
                                     f"{name} again shows the disk's version)", 409)
+            said: list[str] = []
+            if target != scene.source:  # the target's own unsaved edits are kept, not lost
+                set_aside_unsaved(target, said)
             try:
                 save_scene(out, target, overwrite=True)
             except WigglyInputError as err:
@@ -362,11 +366,11 @@ class Session(Exports):
             if out is not scene or old_source != target:
                 state = EditorState(out, state.keyframe_ids, state.next_id)
                 self._state = state
-                if self.histories.path is not None:  # the history moves to the new name
-                    old_journal, self.histories.path = self.histories.path, history_path(target)
-                    self.histories.compact(state)
-                    if old_journal != self.histories.path:  # the old file reopens clean
-                        old_journal.unlink(missing_ok=True)
+            if self.histories.path is not None:  # one snapshot: the save, with its undo steps
+                old_journal, self.histories.path = self.histories.path, history_path(target)
+                self.histories.compact(state)
+                if old_journal != self.histories.path:  # the old file reopens clean
+                    old_journal.unlink(missing_ok=True)
             self._saved = out
             # what was recovered is saved now: the page stops saying so
             self.notices = [n for n in self.notices if not n.startswith("recovered")]
@@ -375,7 +379,9 @@ class Session(Exports):
                     self.autosaver.put(autosave_path(Path(src)), None)
             self.autosaver.flush()
             self.bus.publish("state", version=self.version, dirty=False)
-            return {"path": self.sandbox.relative(target)}
+            for message in said:
+                self.bus.publish("notice", level="warning", message=message)
+            return {"path": self.sandbox.relative(target), "notices": said}
 
     # --- edits ----------------------------------------------------------------------------
     def edit(self, op: Any, tab: str = DEFAULT_TAB) -> dict:
@@ -628,16 +634,14 @@ class Session(Exports):
             }
 
     def recoverable(self) -> list[str]:
-        """Scenes never saved whose autosave or undo journal exists (edited before a
-        crash)."""
-        out: set[str] = set()
-        for root in self.sandbox.roots:
-            for suffix in (".autosave.toml", ".history.jsonl"):
-                for kept in root.glob(f".*{suffix}"):
-                    scene = kept.with_name(kept.name[1:].removesuffix(suffix) + SCENE_SUFFIX)
-                    if not scene.exists() and self.sandbox.contains(kept):
-                        out.add(self.sandbox.relative(scene))
-        return sorted(out)
+        """Scenes never saved whose autosave or undo journal exists (edited before a crash)."""
+        return never_saved(self.sandbox)
+
+    @property
+    def changed_on_disk(self) -> bool:
+        """Whether another program changed the scene file since it was read or saved."""
+        path = self._state.scene.source if self._state is not None else None
+        return path is not None and file_digest(path) not in (None, self._disk)
 
     def mesh_bytes(self) -> bytes:
         """The rest surface: uint32 n, uint32 m, float32 vertices (n, 3), uint32 faces (m, 3)."""

@@ -55,7 +55,11 @@ export const api = {
       'Content-Type': 'application/json', 'X-Wiggly-Tab': TAB, 'X-Wiggly-Page': PAGE } }).catch(() => {});
   },
   async bin(p) {
-    const res = await fetch(p);
+    let res;
+    try { res = await fetch(p); }
+    catch {  // no answer at all: the frames come again when the server is back
+      throw new Error('the editor server did not answer (stopped or restarting?): the motion is shown again when it is back');
+    }
     if (!res.ok) throw new Error(`${p}: ${res.status}`);
     return { buf: await res.arrayBuffer(), meta: res.headers.get('X-Wiggly-Frames') };
   },
