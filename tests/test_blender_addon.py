@@ -170,6 +170,11 @@ def test_driven_by_armature_equals_wiggly_animate(blender_python, tmp_path):
     assert np.linalg.norm(cli_keys[:, body] - original[:, body], axis=-1).max() < 5e-3 * size
     assert (np.abs(cli_keys[:, free] - original[:, free]).max()
             < np.abs(baked[:, free] - original[:, free]).max())
+    # no animation: the driven group would be held still, and the report says so
+    still = [w for w in seen["still_rig"] if "leaves it at rest" in w]
+    assert len(still) == 1 and "driven group 'body'" in still[0], seen["still_rig"]
+    assert not [w for w in seen["warnings"] if "leaves it at rest" in w]
+    assert any("its handle 'stray handle' is not used" in w for w in seen["still_rig"])
 
 
 def test_a_fast_turn_is_sampled_between_frames(blender_python, tmp_path):
@@ -205,6 +210,8 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
         "driver vertex count": ("Object 'Tail', driven group 'body': its animation has",
                                 "vertices at frame 1 but the mesh has"),
         "no wiggly command": ("the wiggly command", "was not found", "Preferences"),
+        "a folder as wiggly command": ("is a folder, not a program", "Preferences"),
+        "a text file as wiggly command": ("is a file that cannot be run", "Preferences"),
         "wiggly refuses": ("wiggly could not solve the shot of 'Tail'", "Modes = 500"),
         "unsaved blend": ("Object 'Tail': the cache folder //wiggly/ is relative to the "
                           ".blend file",),
@@ -229,7 +236,9 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
         "lower the scene's Gravity; Resolution",
         "the animation jumps: its driven vertices move 0.3 m",
         "[wiggly] secondary motion on the animation (24 modes of the free parts)",
-        "the bake", "a larger driven group or a lower Intensity may help"]
+        "the bake", "a larger driven group or a lower Intensity may help",
+        "the Fixed role (groups 'bottom', 'all') holds every vertex of the mesh's tet mesh",
+        "raise Resolution"]  # the scene file's advice on its driver file: not in Blender
     # times as the scene's frames, places in the object's own axes, groups as named there
     assert errors.pop("blender terms") == [
         "turns by up to 22 degrees from one frame to the next (frames 1016 to 1017): export",
@@ -271,8 +280,13 @@ def test_bakes_keep_to_their_object(blender_python, tmp_path):
     assert seen["moved"] > 1e-3  # the bake plays on the edited mesh
     assert seen["keys_bake"]["result"] == ["FINISHED"], seen["keys_bake"]
     assert seen["keys_baked"] > 2
+    # a shape-key bake is fresh once made, and again after a re-bake; a change is seen
+    assert seen["keys_rebake"]["result"] == ["FINISHED"], seen["keys_rebake"]
+    assert seen["keys_outdated"] == [False, False, True]
+    assert seen["keys_actions"] == 2  # the handle's and one of the bake's, not one per bake
     assert seen["keys_remove"]["result"] == ["FINISHED"]
     assert not seen["keys_after"]  # the mesh as it was: no shape keys at all
+    assert seen["actions_after"] == 1  # no action of the bake's left behind
 
 
 @pytest.mark.skipif(os.name != "posix", reason="checks the process group with os.killpg")
@@ -295,6 +309,17 @@ def test_modal_bake_escape_and_finish(blender_python, tmp_path):
     assert done["result"] == ["FINISHED"] and done["events"] > 1 and done["returncode"] == 0
     assert done["modifiers"] == ["own smooth", "Wiggly bake"]
     assert done["reports"][-1][0] == "INFO" and "Baked 25 frames" in done["reports"][-1][1]
+    # the object deleted, or its mesh edited, while wiggly solves: an error, nothing baked,
+    # and the next bake may start
+    gone, edited = seen["deleted"], seen["edited"]
+    for run in (gone, edited):
+        assert run["result"] == ["CANCELLED"] and not run["running"] and not run["folder_left"]
+        assert run["reports"][-1][0] == "ERROR", run["reports"]
+    assert "was deleted while wiggly solved" in gone["reports"][-1][1]
+    with pytest.raises(ProcessLookupError):
+        os.killpg(gone["pid"], 0)
+    assert "its mesh was edited while wiggly solved" in edited["reports"][-1][1]
+    assert edited["modifiers"] == ["own smooth"] and edited["poll_after"]
 
 
 def test_extension_zip_builds(tmp_path):
@@ -336,9 +361,10 @@ def test_what_animators_also_do(blender_python, tmp_path):
     assert "vertices are held by the fixed vertices, so it cannot be met" in bake["printed"], \
         bake["printed"]
     assert "missed by more than" not in bake["printed"]  # said once, as held
-    relayed = [line for line in bake["printed"].splitlines()
-               if line.startswith("Warning: Object 'Bar': ")]  # wiggly's, not the add-on's
-    assert f"{len(relayed)} warning(s) above" in bake["printed"]  # 1 or 2, by the tet mesh
+    said = [line for line in bake["printed"].splitlines() if line.startswith("Warning: ")]
+    relayed = [line for line in said if line.startswith("Warning: Object 'Bar': ")]
+    assert relayed and len(said) > len(relayed)  # wiggly's, and the add-on's own (a key
+    assert f"{len(said)} warning(s) above" in bake["printed"]  # outside the range): all
     assert "wiggly-blender-" not in bake["printed"]  # the add-on's temporary folder
     assert seen["shape_keys"] == ["Basis", "own", "wiggly.sag"]
     first, second, *exist = seen["bake_files"]  # an undo of the re-bake finds the first

@@ -15,6 +15,7 @@ import numpy as np
 
 from .blender_data import fcurves_of, new_fcurve, remove_fcurves
 from .shot import (
+    BAKE_ACTION,
     BAKE_NAME,
     DEFORMING,
     DRIVER_STACK,
@@ -80,6 +81,10 @@ def remove_bake(obj) -> int:
         remove_fcurves(keys, lambda path: not (
             path.startswith('key_blocks["') and path.endswith('"].value')
             and is_bake_key(path[len('key_blocks["'):-len('"].value')])))
+        action = keys.animation_data.action if keys.animation_data is not None else None
+        if action is not None and action.get(BAKE_ACTION) and not fcurves_of(keys):
+            keys.animation_data.action = None  # the bake's own action, now empty: gone
+            bpy.data.actions.remove(action)
         for block in [k for k in keys.key_blocks if is_bake_key(k.name)]:
             obj.shape_key_remove(block)
             gone += 1
@@ -203,6 +208,7 @@ def bake_shape_keys(obj, shot: Shot, local: np.ndarray) -> int:
         obj.shape_key_add(name="Basis", from_mix=False)
         obj.data.shape_keys[MADE_BASIS] = True
     keys = obj.data.shape_keys
+    made = keys.animation_data is None or keys.animation_data.action is None
     fs, fe = shot.frame_start, shot.frame_end
     for i, frame in enumerate(shot.frames):
         name = f"{SHAPE_PREFIX}{frame:04d}"
@@ -216,6 +222,8 @@ def bake_shape_keys(obj, shot: Shot, local: np.ndarray) -> int:
         for p in curve.keyframe_points:
             p.interpolation = "LINEAR"
         curve.update()
+    if made and keys.animation_data is not None and keys.animation_data.action is not None:
+        keys.animation_data.action[BAKE_ACTION] = True  # the bake's: Remove Bake removes it
     return len(shot.frames)
 
 

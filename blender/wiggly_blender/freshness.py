@@ -16,7 +16,7 @@ import hashlib
 import numpy as np
 
 from .blender_data import fcurves_of
-from .shot import BAKE_NAME, SHAPE_PREFIX
+from .shot import BAKE_ACTION, BAKE_NAME, SHAPE_PREFIX, is_bake_key
 
 #: the object's ID property holding the fingerprint of its bake's inputs
 FINGERPRINT = "wiggly_bake_inputs"
@@ -39,8 +39,9 @@ def _ids(obj) -> list:
             add(getattr(mod, "object", None))
     for item in obj.wiggly.groups:
         add(item.handle)
-    if obj.data.shape_keys is not None:
-        out.append(obj.data.shape_keys)
+    keys = obj.data.shape_keys
+    if keys is not None and any(not is_bake_key(k.name) for k in keys.key_blocks[1:]):
+        out.append(keys)  # the mesh's own shape keys (not only a bake's and its Basis)
     return out
 
 
@@ -69,7 +70,9 @@ def _animation(h, block) -> None:
         h.update(repr([p.interpolation for p in points]).encode())
     data = getattr(block, "animation_data", None)
     if data is not None:
-        h.update(repr(getattr(data.action, "name", None)).encode())
+        action = data.action
+        ours = action is not None and action.get(BAKE_ACTION)  # a shape-key bake's own
+        h.update(repr(None if ours else getattr(action, "name", None)).encode())
         for track in data.nla_tracks:
             h.update(repr((track.name, track.mute, track.is_solo)).encode())
             for strip in track.strips:

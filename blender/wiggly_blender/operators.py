@@ -37,6 +37,13 @@ def _command(context) -> str:
     return prefs.command if prefs is not None else "wiggly"
 
 
+def _vertices(obj) -> np.ndarray:
+    """The object's mesh vertices (V, 3), object-local."""
+    co = np.empty(3 * len(obj.data.vertices))
+    obj.data.vertices.foreach_get("co", co)
+    return co.reshape(-1, 3)
+
+
 def _report_warnings(op, shot) -> None:
     for w in shot.warnings:
         op.report({"WARNING"}, w)
@@ -64,13 +71,16 @@ class WIGGLY_OT_bake(bpy.types.Operator):
 
     def _prepare(self, context) -> bool:
         self.obj = context.active_object
+        self.bake_as = self.obj.wiggly.bake_as  # as checked now: a change waits for the next
+        self.warned = 0
         self.times = {}
         t = time.perf_counter()
         try:
             self.shot = gather(context, self.obj)
+            self.rest = _vertices(self.obj)  # the mesh as solved (gather left Edit Mode's)
             self.inputs = freshness.fingerprint(context.scene, self.obj)
             self.times["gather"] = time.perf_counter() - t
-            if self.obj.wiggly.bake_as == "MESH_CACHE":
+            if self.bake_as == "MESH_CACHE":
                 bake.cache_path(self.obj)  # a cache folder that cannot be, before the solve
             else:
                 bake.refuse_driven(self.obj, self.shot)  # bakes that cannot be: now, not
@@ -83,8 +93,33 @@ class WIGGLY_OT_bake(bpy.types.Operator):
             return False
         self.times["write"] = time.perf_counter() - t
         _report_warnings(self, self.shot)
+        self.warned += len(self.shot.warnings)
         self.solve.start()
         return True
+
+    def _target(self):
+        """The object being baked (an undo during the solve replaces its Python wrapper:
+        found by name), or None when it was deleted."""
+        found = bpy.data.objects.get(self.shot.name)
+        if found is not None:
+            return found
+        try:
+            self.obj.name  # noqa: B018 - still there, renamed
+        except ReferenceError:
+            return None
+        return self.obj
+
+    def _check_unchanged(self, obj) -> None:
+        """ShotError when the mesh was edited during the solve: the bake would not fit it."""
+        if obj.mode == "EDIT":
+            obj.update_from_editmode()
+        co = _vertices(obj)
+        if co.shape == self.rest.shape and np.array_equal(co, self.rest):
+            return
+        raise ShotError(f"Object '{obj.name}': its mesh was edited while wiggly solved "
+                        f"({len(co)} vertices now, {len(self.rest)} when the bake started, or "
+                        "moved ones), so the result does not fit it; nothing was baked: bake "
+                        "again")
 
     def _check_stack(self, context) -> None:
         """A shape-key bake under modifiers that move the vertices would be moved again."""
@@ -102,18 +137,22 @@ class WIGGLY_OT_bake(bpy.types.Operator):
 
     def _finish(self, context, code: int) -> set[str]:
         self.times["wiggly"] = time.perf_counter() - self.solve.started
-        # an undo during the solve replaces the object's Python wrapper: find it by name
-        self.obj = bpy.data.objects.get(self.shot.name) or self.obj
+        obj = self._target()
         try:
+            if obj is None:
+                raise ShotError(f"Object '{self.shot.name}' was deleted while wiggly solved: "
+                                "nothing was baked")
+            self.obj = obj
             if code != 0:
                 raise ShotError(f"wiggly could not solve the shot of '{self.obj.name}': "
                                 f"{self.solve.failure()}")
+            self._check_unchanged(self.obj)
             t = time.perf_counter()
             local = bake.read_result(self.solve.result, self.shot)
-            s = self.obj.wiggly
-            if s.bake_as == "SHAPE_KEYS":
+            if self.bake_as == "SHAPE_KEYS":
                 others = bake.shape_keys_at_work(self.obj)
                 if others:
+                    self.warned += 1
                     self.report({"WARNING"}, f"Object '{self.obj.name}': its own shape keys "
                                 f"{', '.join(others)} add to the baked ones (mute them, or "
                                 "bake as Mesh Cache)")
@@ -127,7 +166,7 @@ class WIGGLY_OT_bake(bpy.types.Operator):
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
         except OSError as e:  # a cache file that could not be written after all
-            self.report({"ERROR"}, f"Object '{self.obj.name}': cannot write "
+            self.report({"ERROR"}, f"Object '{self.shot.name}': cannot write "
                         f"{e.filename or 'the bake'}: {e.strerror}")
             return {"CANCELLED"}
         finally:
@@ -135,9 +174,10 @@ class WIGGLY_OT_bake(bpy.types.Operator):
             self.solve.cleanup()
         for w in said:  # the bake is done; what wiggly warned of is the user's to see
             self.report({"WARNING"}, f"Object '{self.obj.name}': {w}")
+        self.warned += len(said)
         context.scene.frame_set(context.scene.frame_current)
         sizes = ", ".join(f"{k} {v:.2f} s" for k, v in self.times.items())
-        warned = f"; {len(said)} warning(s) above" if said else ""
+        warned = f"; {self.warned} warning(s) above" if self.warned else ""
         self.report({"INFO"}, f"Baked {len(self.shot.frames)} frames ({self.shot.frame_start}-"
                     f"{self.shot.frame_end} at {self.shot.fps:g} fps) of '{self.obj.name}' "
                     f"into {where} ({sizes}){warned}")
@@ -163,7 +203,7 @@ class WIGGLY_OT_bake(bpy.types.Operator):
         elapsed = time.perf_counter() - self.solve.started
         if context.workspace is not None:
             context.workspace.status_text_set(
-                f"wiggly: {self.obj.name}: {text} ({elapsed:.0f} s) | Esc: cancel")
+                f"wiggly: {self.shot.name}: {text} ({elapsed:.0f} s) | Esc: cancel")
 
     def _end(self, context) -> None:
         context.window_manager.event_timer_remove(self.timer)
@@ -176,11 +216,18 @@ class WIGGLY_OT_bake(bpy.types.Operator):
             self.solve.cancel()
             self.solve.cleanup()
             self._end(context)
-            self.report({"WARNING"}, f"wiggly bake of '{self.obj.name}' cancelled; nothing "
+            self.report({"WARNING"}, f"wiggly bake of '{self.shot.name}' cancelled; nothing "
                         "changed")
             return {"CANCELLED"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
+        if self._target() is None:  # deleted during the solve: stop wiggly, bake nothing
+            self.solve.cancel()
+            self.solve.cleanup()
+            self._end(context)
+            self.report({"ERROR"}, f"Object '{self.shot.name}' was deleted while wiggly "
+                        "solved: the bake is cancelled, nothing was baked")
+            return {"CANCELLED"}
         code = self.solve.poll()
         if code is None:
             self._status(context, self.solve.status())

@@ -28,6 +28,7 @@ from .blender_data import fcurves_of
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 BAKE_NAME = "Wiggly bake"  # the Mesh Cache modifier a bake adds (and a re-bake replaces)
 SHAPE_PREFIX = "wiggly."  # the shape keys a bake adds: wiggly.0001, wiggly.0002, ...
+BAKE_ACTION = "wiggly_bake"  # an ID property on the shape keys' action a bake made
 DRIVE_STIFFNESS = 1e12  # wiggly's default for driven keys
 # modifiers that move vertices but keep them (the driver may come from these)
 DEFORMING = {
@@ -229,6 +230,10 @@ def gather(context, obj) -> Shot:
                 fixed.append(name)
             elif item.role == "DRIVEN":
                 driven.append(name)
+                if item.handle is not None:
+                    warnings.append(f"{at}: its handle '{item.handle.name}' is not used: a "
+                                    "Driven group follows the object's own animation (set "
+                                    "the role to Handle to key it with the handle)")
             else:
                 keys = _handle_keys(context, item, at, name, rest[idx], unit, size, fs, fe,
                                     fps, warnings)
@@ -239,6 +244,14 @@ def gather(context, obj) -> Shot:
                             + not_evaluated("the object"))
         driver, driver_frames = (_driver(context, obj, driven, groups, labels, to_wiggly, fs,
                                          fe) if driven else (None, None))
+        if driver is not None:
+            idx = np.unique(np.concatenate([groups[d] for d in driven]))
+            if float(np.abs(driver[:, idx] - rest[idx]).max()) <= 1e-6 * size:
+                warnings.append(
+                    f"{where}, driven group {', '.join(repr(labels[d]) for d in driven)}: "
+                    f"the object's animation leaves it at rest over frames {fs}-{fe}, so it "
+                    "is held still, as a Fixed group would be: animate the object (an "
+                    "Armature modifier, shape keys), or set the role to Fixed")
         for mod in obj.modifiers:
             if mod.type in COPYING and mod.show_viewport:
                 warnings.append(

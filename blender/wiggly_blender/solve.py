@@ -30,16 +30,28 @@ def wiggly_command(command: str) -> str:
     """The wiggly program of the preferences as a path; ShotError when it is not there."""
     path = os.path.expanduser(command.strip() or "wiggly")
     found = shutil.which(path)
-    if found is None:
-        raise ShotError(f"the wiggly command '{command}' was not found: install wiggly in a "
-                        "Python environment and set the path of its wiggly command in Edit > "
-                        "Preferences > Add-ons > wiggly")
-    return found
+    if found is not None:
+        return found
+    where = ("set the path of the wiggly command of the Python environment where wiggly is "
+             "installed (e.g. .venv/bin/wiggly) in Edit > Preferences > Add-ons > wiggly")
+    if os.path.isdir(path):
+        raise ShotError(f"the wiggly command '{command}' is a folder, not a program: {where}")
+    if os.path.isfile(path):
+        raise ShotError(f"the wiggly command '{command}' is a file that cannot be run (not "
+                        f"executable, or not a program): {where}")
+    raise ShotError(f"the wiggly command '{command}' was not found: install wiggly in a "
+                    f"Python environment and {where}")
 
 
 #: scene-file settings (regular expressions) as the Wiggly panel names them, for wiggly's
 #: messages shown in Blender
 PANEL_NAMES = (
+    # advice for scene files the user writes; the add-on writes the mesh and driver itself
+    (r"; and check that mesh\.path is the driver's mesh at its rest pose \([^)]*\), not "
+     r"another scale or pose of it", ""),
+    (r"\bsimulation\.fixed = \[([^\]]*)\]", r"the Fixed role (groups \1)"),
+    (r"\bsimulation\.fixed\b", "the Fixed role"),
+    (r"\bmesh\.path\b", "the mesh"),
     (r"\bmaterial\.young\b", "Young's modulus"),
     (r"\bmaterial\.poisson\b", "Poisson ratio"),
     (r"\bmaterial\.density\b", "Density"),

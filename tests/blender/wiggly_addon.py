@@ -227,6 +227,7 @@ def case_driven() -> None:
     report["modifiers"] = [(m.name, m.type) for m in obj.modifiers]
     report["positions"] = evaluated(obj, range(scene.frame_start, scene.frame_end + 1))
     report["body"] = [v.index for v in obj.data.vertices if v.co.x < 0.7]
+    report["warnings"] = shot.gather(bpy.context, obj).warnings
     # the bake goes out of date when the animation or a setting changes, not on playback
     fresh_now = [freshness.outdated(scene, obj)]
     scene.frame_set(scene.frame_start + 3)
@@ -256,6 +257,15 @@ def case_driven() -> None:
     s.drive_physics = "KEYS"
     report["export_keys"] = run(bpy.ops.wiggly.export_scene,
                                 filepath=str(workdir / "shot_keys.toml"))
+    from mathutils import Matrix  # the rig left at rest: the driven group is held still
+
+    rig.animation_data_clear()
+    for bone in rig.pose.bones:
+        bone.matrix_basis = Matrix()
+    empty = bpy.data.objects.new("stray handle", None)  # a handle left on a Driven group
+    bpy.context.scene.collection.objects.link(empty)
+    s.groups[0].handle = empty
+    report["still_rig"] = shot.gather(bpy.context, obj).warnings
 
 
 def case_turning() -> None:
@@ -330,7 +340,11 @@ def case_errors() -> None:
         "material.young, or lower simulation.gravity; mesh.resolution",
         "the driver shot_drive.npz jumps: its driven vertices move 0.3 m",
         "[wiggly] secondary motion on shot_drive.npz (24 modes of the free parts)",
-        "result.npz", "a larger driven group or a lower drive.intensity may help")]
+        "result.npz", "a larger driven group or a lower drive.intensity may help",
+        "shot.toml: simulation.fixed = ['bottom', 'all'] holds every vertex of "
+        "shot_rest.obj's tet mesh",
+        "raise mesh.resolution; and check that mesh.path is the driver's mesh at its rest pose "
+        "(for glTF, the same file; for USD, an OBJ of it), not another scale or pose of it")]
     from types import SimpleNamespace  # a shot from frame 1001 at 30 fps, y up -> z up
 
     probe.shot = SimpleNamespace(frame_start=1001, fps=30.0,
@@ -379,6 +393,12 @@ def case_errors() -> None:
     bpy.context.preferences.addons["wiggly_blender"].preferences.command = str(
         workdir / "no-such-wiggly")
     attempt("no wiggly command")
+    bpy.context.preferences.addons["wiggly_blender"].preferences.command = str(workdir)
+    attempt("a folder as wiggly command")
+    (workdir / "notes.txt").write_text("not a program\n")
+    bpy.context.preferences.addons["wiggly_blender"].preferences.command = str(
+        workdir / "notes.txt")
+    attempt("a text file as wiggly command")
     bpy.context.preferences.addons["wiggly_blender"].preferences.command = command
     obj.wiggly.modes = 500  # more modes than the coarse tet mesh has: wiggly refuses
     obj.wiggly.resolution = 2
@@ -455,8 +475,15 @@ def case_housekeeping() -> None:
     obj.shape_key_clear()  # a mesh with no shape keys of its own
     report["keys_bake"] = run(bpy.ops.wiggly.bake)
     report["keys_baked"] = len(obj.data.shape_keys.key_blocks)
+    report["keys_outdated"] = [freshness.outdated(bpy.context.scene, obj)]
+    report["keys_rebake"] = run(bpy.ops.wiggly.bake)
+    report["keys_outdated"].append(freshness.outdated(bpy.context.scene, obj))
+    obj.wiggly.young *= 2  # a real change is still seen
+    report["keys_outdated"].append(freshness.outdated(bpy.context.scene, obj))
+    report["keys_actions"] = len(bpy.data.actions)  # the handle's and the bake's
     report["keys_remove"] = run(bpy.ops.wiggly.remove_bake)
     report["keys_after"] = obj.data.shape_keys is not None
+    report["actions_after"] = len(bpy.data.actions)  # the handle's: none left behind
 
 
 def case_modal() -> None:
@@ -467,7 +494,7 @@ def case_modal() -> None:
     from wiggly_blender import operators
 
     context = bpy.context
-    for scenario in ("escape", "finish"):
+    for scenario in ("escape", "finish", "deleted", "edited"):
         fresh(24, 1.0, (1, 25))
         obj = handles_scene("MESH_CACHE")
         if scenario == "escape":
@@ -478,7 +505,8 @@ def case_modal() -> None:
             out.append([sorted(kind)[0], text])
 
         op = SimpleNamespace(report=note)
-        for name in ("_prepare", "_finish", "_status", "_end", "modal"):
+        for name in ("_prepare", "_finish", "_status", "_end", "modal", "_target",
+                     "_check_unchanged"):
             setattr(op, name, MethodType(getattr(operators.WIGGLY_OT_bake, name), op))
         assert op._prepare(context)
         operators._running["op"] = op  # what invoke() does besides the event handler
@@ -493,15 +521,29 @@ def case_modal() -> None:
                 result = op.modal(context, SimpleNamespace(type="ESC"))
                 seen["cancel_seconds"] = time.perf_counter() - t
                 break
+            if seen["events"] == 1 and scenario == "deleted":  # while wiggly solves
+                bpy.data.objects.remove(obj)
+            if seen["events"] == 1 and scenario == "edited":  # a vertex fewer
+                import bmesh
+
+                bm = bmesh.new()
+                bm.from_mesh(obj.data)
+                bm.verts.ensure_lookup_table()
+                bmesh.ops.delete(bm, geom=[bm.verts[0]], context="VERTS")
+                bm.to_mesh(obj.data)
+                bm.free()
             result = op.modal(context, SimpleNamespace(type="TIMER"))
             seen["events"] += 1
             if result != {"PASS_THROUGH"}:
                 break
+        alive = scenario != "deleted"
+        if op.solve.process.poll() is None:
+            op.solve.process.wait(timeout=5)
         seen.update(result=sorted(result), reports=reports, running=bool(operators._running),
                     returncode=op.solve.process.returncode, pid=op.solve.process.pid,
                     folder_left=op.solve.folder.exists(),
-                    modifiers=[m.name for m in obj.modifiers],
-                    poll_after=operators.WIGGLY_OT_bake.poll(context))
+                    modifiers=[m.name for m in obj.modifiers] if alive else None,
+                    poll_after=operators.WIGGLY_OT_bake.poll(context) if alive else True)
         report[scenario] = seen
 
 
