@@ -47,11 +47,11 @@ def test_compiling_is_announced_before_it_starts(monkeypatch, caplog):
     with caplog.at_level(logging.INFO, logger="wiggly"):
         logging.getLogger("wiggly").addHandler(_Recorder(events))
         try:
-            kernels.ensure_compiled()
-            kernels.ensure_compiled()  # once per process
+            said = [kernels.ensure_compiled(), kernels.ensure_compiled()]  # once per process
         finally:
             logging.getLogger("wiggly").handlers.pop()
     assert events == [kernels.COMPILING, "compiled"]
+    assert said == [True, False]  # the summary says "compiling" for the first only
     assert kernels.COMPILING.startswith("compiling the warp kernels, once after an install: "
                                         "about a minute")
 
@@ -61,8 +61,9 @@ def test_a_warm_cache_compiles_silently(monkeypatch, caplog):
     monkeypatch.setattr(kernels, "_ready", False)
     monkeypatch.setattr(kernels, "cache_is_cold", lambda: False)
     with caplog.at_level(logging.DEBUG, logger="wiggly"):
-        kernels.ensure_compiled()
+        loaded = kernels.ensure_compiled()
     assert caplog.records == []
+    assert loaded is False  # loaded from the cache: the summary says "loading", not "compiling"
 
 
 @needs_numba

@@ -242,6 +242,8 @@ def test_fold_highlights_cover_the_folding_frames_and_the_surface_there(bar):
         gap = np.linalg.norm(bar.surface.vertices[h.vertices][:, None] - centres[None], axis=2)
         assert gap.min(axis=1).max() < 0.2
         assert h.label.startswith("folded: ")
+        if first > 0:  # the frame before a span shows no fold (a review saw one early)
+            assert h.weight(float(times[first - 1])) == 0.0
     assert covered[folding].all()  # no folding frame is left out
     mild, _ = _solve(bar, _push(bar, -0.3), warp=True)
     assert fold_highlights(mild, times) == []

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import math
 import os
@@ -651,6 +652,30 @@ def test_group_errors(bar_model, group, keyframe, message):
     assert message in str(err.value)
 
 
+def test_an_empty_box_on_a_z_up_file_read_y_up_says_so():
+    """A column 0.2 m wide, 0.1 m deep and 1 m tall along z (a Z-up file read as y up, the
+    default): a box around its top as the user sees it (y = 0.9 .. 1.1) selects nothing,
+    and the message says that read Z-up it would select vertices; not when the scene names
+    its up axis, nor when a Z-up reading selects nothing either."""
+    from types import SimpleNamespace
+
+    import trimesh
+
+    column = trimesh.creation.box(extents=(0.2, 0.1, 1.0))
+    column.apply_translation((0.0, 0.0, 0.5))
+    surface = SimpleNamespace(vertices=np.asarray(column.vertices), groups={})
+    for box, up, hinted in (((-1.0, 0.9, -1.0), None, True),
+                            ((-1.0, 0.9, -1.0), "y", False),
+                            ((-1.0, 2.0, -1.0), None, False)):
+        top = GroupSpec(Box(box, (1.0, box[1] + 0.2, 1.0)))
+        scene = scene_with({"top": top}, [])
+        scene = dataclasses.replace(scene, mesh=dataclasses.replace(scene.mesh, up_axis=up))
+        with pytest.raises(WigglyInputError) as err:
+            resolve_groups(scene, surface=surface)
+        said = 'read as a Z-up file (mesh.up_axis = "z": its z axis up), it would select 4'
+        assert (said in str(err.value)) == hinted, str(err.value)
+
+
 def test_nearest_counts_positions_so_an_stl_corner_is_one(tmp_path):
     """An STL file stores each triangle's corners apart: `nearest` with count 4 took four
     copies of one corner (a "fixed base" of a single point). It counts positions, and takes
@@ -1057,3 +1082,44 @@ def test_two_keys_of_a_group_at_one_time_that_disagree_are_said(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_scene(write(tmp_path, data, "same.toml"))
+
+
+def test_a_missed_keys_stiffness_advice_starts_from_the_stiffness_in_use(tmp_path):
+    """A key on a stiff clamped bar missed at stiffness 1e9: the advice names 1e9 as the
+    stiffness now and suggests more (a review was told "e.g. 1e9" at 1e9); at the default it
+    names the default."""
+    from wiggly.scene import run as run_scene
+
+    for stiffness, advice in ((None, "the default is 1e6; e.g. 1e+09"),
+                              (1e9, "now 1e+09; e.g. 1e+12")):
+        key = {"time": 0.5, "group": "tip", "position": {"offset": [0.0, 0.03, 0.0]}}
+        if stiffness is not None:
+            key["stiffness"] = stiffness
+        data = {"mesh": {"path": "builtin:bar", "resolution": 6},
+                "material": {"young": 2e11, "density": 7800.0},
+                "simulation": {"gravity": [0.0, 0.0, 0.0], "modes": 8, "fixed": ["left"],
+                               "warp": False},
+                "time": {"end": 1.0, "fps": 10},
+                "groups": BASE["groups"], "keyframes": [key]}
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            run_scene(load_scene(write(tmp_path, data)), outputs=[])
+        texts = [str(w.message) for w in said if "raise their stiffness" in str(w.message)]
+        assert len(texts) == 1 and f"raise their stiffness ({advice})" in texts[0], texts
+
+
+def test_paths_through_a_parent_folder_are_said_tidily(tmp_path):
+    """``mesh.path = "../meshes/x.ply"`` names ``meshes/x.ply`` in messages, not
+    ``scenes/../meshes/x.ply``; a path through a symbolic link keeps its ``..``."""
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "x.ply").write_text("ply\n")
+    scene = Scene(MeshSpec("../meshes/x.ply"))
+    scene.source = tmp_path / "scenes" / "shot.toml"
+    assert scene.mesh_file() == tmp_path / "meshes" / "x.ply"
+    assert scene.resolve("../meshes/missing.ply") == tmp_path / "meshes" / "missing.ply"
+    (tmp_path / "deep" / "er").mkdir(parents=True)
+    (tmp_path / "scenes" / "link").symlink_to(tmp_path / "deep" / "er")
+    (tmp_path / "deep" / "y.ply").write_text("ply\n")  # link/.. is deep/, not scenes/
+    assert scene.resolve("link/../y.ply") == tmp_path / "scenes" / "link" / ".." / "y.ply"
+    assert scene.resolve("link/../y.ply").is_file()

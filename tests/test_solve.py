@@ -508,8 +508,9 @@ def test_python_api_mistakes_are_named(tmp_path_factory):
             call()
         assert says in str(err.value), (label, str(err.value))
     assert body.with_dynamics(damping=Damping(0.1, 0.001)).damping.alpha == 0.1
-    with pytest.warns(UserWarning, match="in radians"):  # degrees given as radians
+    with pytest.warns(UserWarning, match="in radians") as said:  # degrees given as radians
         Keyframe.rigid(body, 1.0, [0, 1, 2], rotation=(0, 90, 0))
+    assert [w.filename for w in said] == [__file__]  # the user's line, not wiggly's
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # several turns in radians: no warning
         Keyframe.rigid(body, 1.0, [0, 1, 2], rotation=(0, 0, 4 * np.pi + 0.3))

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import math
 import os
-import warnings
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -27,7 +26,7 @@ import scipy.sparse as sp
 
 from wiggly import checks
 from wiggly.checks import vertex_set
-from wiggly.errors import WigglyInputError, counted
+from wiggly.errors import WigglyInputError, counted, warn
 from wiggly.fem import DEFAULT_GRAVITY, Material, gravity_term, mass_matrix, stiffness_matrix
 from wiggly.linalg import SPDSolver, factorize_spd
 from wiggly.memo import Memo, value_key
@@ -451,12 +450,12 @@ def prepare(
     split = modes.split_group()
     if split:
         hz = math.sqrt(modes.next_eigenvalue) / (2 * math.pi)
-        warnings.warn(
+        warn(
             f"n_modes = {n_modes} (simulation.modes in a scene) ends inside a group of modes "
             f"of equal frequency ({hz:.4g} Hz; this body is symmetric): its last {split} and "
             "at least one more share it, and which of them the basis holds is the "
             "eigensolver's pick, so symmetric keys get unequal answers; use "
-            f"{n_modes - split} modes (without the group) or more (all of it)", stacklevel=2)
+            f"{n_modes - split} modes (without the group) or more (all of it)")
     if model.embedding is None:  # a new model: the caller's is not changed
         model = replace(model, embedding=embed(model.surface.vertices, model.tets))
     return Body(model, material, damping, gravity, fixed, M, K, modes, lumped, cache_dir,

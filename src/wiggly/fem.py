@@ -19,14 +19,13 @@ vectorized over elements (element blocks are summed by a COO -> CSR conversion).
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
 from wiggly.checks import mesh_arrays
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 
 __all__ = [
     "Material",
@@ -64,14 +63,14 @@ PLAUSIBLE_DENSITY = 5.0
 def _warn_units(young: float, density: float) -> None:
     """Warn of a Young's modulus or density that reads as another unit than wiggly's SI."""
     if young < PLAUSIBLE_YOUNG:
-        warnings.warn(
+        warn(
             f"young = {young:g} Pa is softer than any solid (gels are about 1e2 to 1e4 Pa, "
             f"rubber about 1e6): wiggly takes pascals; {young:g} MPa would be "
-            f"{young * 1e6:g}", stacklevel=4)
+            f"{young * 1e6:g}")
     if density < PLAUSIBLE_DENSITY:
-        warnings.warn(
+        warn(
             f"density = {density:g} kg/m^3 is lighter than any foam (water is 1000): wiggly "
-            f"takes kg/m^3; {density:g} g/cm^3 would be {density * 1e3:g}", stacklevel=4)
+            f"takes kg/m^3; {density:g} g/cm^3 would be {density * 1e3:g}")
 
 
 def _check_young(young: float) -> float:

@@ -23,7 +23,6 @@ its modes' eigenvalues), so keys on stiff bodies need a higher ``stiffness``.
 from __future__ import annotations
 
 import numbers
-import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -31,7 +30,7 @@ from numpy.typing import ArrayLike
 
 from wiggly.body import Body, Where
 from wiggly.checks import vertex_indices
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 
 DEFAULT_STIFFNESS = 1e6
 
@@ -46,10 +45,10 @@ def _rotation(rotation: ArrayLike) -> np.ndarray:
         if not np.isfinite(theta):
             raise WigglyInputError(f"rotation = {R.tolist()} must be 3 finite numbers")
         if theta > 2 * np.pi and np.all(R == np.round(R)):
-            warnings.warn(
+            warn(
                 f"rotation = {R.tolist()} turns by {theta:g} rad ({np.degrees(theta):g} deg): a "
                 "rotation vector is axis x angle in radians (scene files take Euler degrees); "
-                "a 90 degree turn about y is (0, np.radians(90), 0)", stacklevel=3)
+                "a 90 degree turn about y is (0, np.radians(90), 0)")
         if theta == 0:
             return np.eye(3)
         k = R / theta
@@ -309,9 +308,9 @@ def _warn_if_held(body: Body, what: str, v: np.ndarray, on: str, pos: np.ndarray
     size = float(np.ptp(body.rest_positions(on), axis=0).max())
     away = pos is not None and np.abs(pos - rest).max(initial=0.0) > 1e-9 * size
     if away or (vel is not None and np.any(vel != 0.0)):
-        warnings.warn(f"{what}: all {len(v)} of its vertices are held by the fixed vertices, "
+        warn(f"{what}: all {len(v)} of its vertices are held by the fixed vertices, "
                       "so it cannot be met and moves nothing (key vertices that are free, or "
-                      "remove it)", stacklevel=4)
+                      "remove it)")
 
 
 def _finite(a: np.ndarray, what: str) -> None:

@@ -28,7 +28,6 @@ import hashlib
 import logging
 import os
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,7 +40,7 @@ import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
 from wiggly.checks import vertex_set
-from wiggly.errors import WigglyInputError, counted
+from wiggly.errors import WigglyInputError, counted, warn
 from wiggly.files import atomic_file, default_cache_dir
 from wiggly.limits import MAX_MODES
 from wiggly.linalg import blas_single_thread, factorize_spd
@@ -262,7 +261,7 @@ def _save_cache(path: Path, key: str, modes: Modes) -> None:
                                          else modes.next_eigenvalue),
             )
     except OSError as err:
-        warnings.warn(f"could not write the modes cache {path}: {err}", stacklevel=3)
+        warn(f"could not write the modes cache {path}: {err}")
 
 
 def _rigid_basis(V: np.ndarray, fixed: np.ndarray, free_dofs: np.ndarray, Mf: sp.csr_matrix):

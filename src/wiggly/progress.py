@@ -21,7 +21,6 @@ import shutil
 import sys
 import threading
 import time
-import warnings
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from contextvars import ContextVar
@@ -29,7 +28,7 @@ from typing import TypeVar
 
 from tqdm import tqdm
 
-from wiggly.errors import counted
+from wiggly.errors import counted, warn
 
 __all__ = [
     "Activity", "Counter", "activity", "bar", "deprecated_progress", "frames", "iterations", "log",
@@ -81,10 +80,10 @@ def deprecated_progress(function: F) -> F:
         if "progress" not in kwargs:
             return function(*args, **kwargs)
         on = kwargs.pop("progress")
-        warnings.warn(
+        warn(
             f"{function.__module__}.{function.__qualname__}(progress=...) is deprecated: "
             "stages are reported when the 'wiggly' logger is enabled for INFO, or inside "
-            "wiggly.progress.reporting(True)", DeprecationWarning, stacklevel=2)
+            "wiggly.progress.reporting(True)", DeprecationWarning)
         with reporting(bool(on)):
             return function(*args, **kwargs)
 

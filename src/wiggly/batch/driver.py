@@ -11,7 +11,6 @@ import shutil
 import sys
 import time
 import uuid
-import warnings
 from collections import deque
 from collections.abc import Sequence
 from contextlib import contextmanager
@@ -25,7 +24,7 @@ from wiggly.batch.backends import LocalPool, RayCluster, WorkerDied, cpu_count
 from wiggly.batch.shots import Digests, Shot, body_scene, collect, keyed, saved_scene
 from wiggly.batch.sweep import Sweep
 from wiggly.batch.worker import THUMBNAIL, ShotJob
-from wiggly.errors import WigglyInputError, counted
+from wiggly.errors import WigglyInputError, counted, warn
 from wiggly.files import atomic_file, check_writable
 from wiggly.progress import (
     Counter,
@@ -546,7 +545,7 @@ class _Driver:
             return
         self.warned.add(message)
         with tqdm.external_write_mode(file=sys.stderr):  # above a live bar
-            warnings.warn(message, stacklevel=3)
+            warn(message)
 
     def _say_failed(self, record: dict) -> None:
         if self.shown:

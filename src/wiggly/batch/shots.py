@@ -16,7 +16,7 @@ from typing import Any
 
 from wiggly.batch.sweep import RESERVED_NAMES, Sweep, is_sweep, read_toml, sweep_from_dict
 from wiggly.body import Body
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.limits import MAX_SHOTS
 from wiggly.progress import activity
 from wiggly.scene import Scene, SimulationSpec, scene_from_dict, scene_to_dict
@@ -84,7 +84,7 @@ def collect(inputs: Sequence, write: Sequence[str] | None = None) -> tuple[list[
     for item in inputs:
         if isinstance(item, str | os.PathLike):
             if Path(item).resolve() in given:
-                warnings.warn(f"{item} is given more than once; it runs once", stacklevel=2)
+                warn(f"{item} is given more than once; it runs once")
                 continue
             given.add(Path(item).resolve())
         if isinstance(item, Sweep):

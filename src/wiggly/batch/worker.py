@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.files import atomic_file
 from wiggly.memo import Memo
 
@@ -375,9 +375,9 @@ def _thumbnail(path: Path, scene, anim, at: float | None) -> float:
         at = float(times[int(np.argmax(np.sqrt((d ** 2).sum(axis=2).mean(axis=1))))])
     elif not times[0] - 1e-9 <= at <= times[-1] + 1e-9:
         shown = float(times[0] if at < times[0] else times[-1])
-        warnings.warn(f"the thumbnail time {at:g} s (--thumbnail-time) lies outside the shot's "
+        warn(f"the thumbnail time {at:g} s (--thumbnail-time) lies outside the shot's "
                       f"frames [{times[0]:g}, {times[-1]:g}] s: its thumbnail shows the frame at "
-                      f"{shown:g} s", stacklevel=2)
+                      f"{shown:g} s")
     at = min(max(at, float(times[0])), float(times[-1]))
     camera = scene.output.camera if isinstance(scene.output.camera, str) else \
         tuple(scene.output.camera)

@@ -113,7 +113,9 @@ def summary(scene, anim) -> str:
     if seconds:
         write = sum(v for k, v in seconds.items() if k.startswith(("write", "sample")))
         compiled = (f"compiling the warp's kernels (once) {seconds['compile']:.1f} s, "
-                    if "compile" in seconds else "")
+                    if "compile" in seconds else
+                    f"loading the warp's kernels {seconds['load']:.1f} s, "
+                    if "load" in seconds else "")
         lines.append(f"time       mesh and modes {seconds.get('prepare', 0):.1f} s, {compiled}"
                      f"solve {seconds.get('solve', 0):.1f} s, outputs {write:.1f} s, total "
                      f"{sum(seconds.values()):.1f} s")

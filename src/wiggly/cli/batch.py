@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from wiggly.errors import counted
+from wiggly.errors import counted, warn
 
 HELP = "run many shots: scene files or a sweep, locally or on a Ray cluster"
 DESCRIPTION = """\
@@ -175,11 +175,10 @@ def _out_dir(args: argparse.Namespace) -> Path:
     out = default_out_dir(args.inputs, sweeps)
     ignored = [s.where() for s in sweeps if s.out_dir is not None and s.out_dir != out]
     if ignored:
-        import warnings
 
-        warnings.warn(f"{', '.join(ignored)}: a sweep's [output] dir applies when the sweep is "
+        warn(f"{', '.join(ignored)}: a sweep's [output] dir applies when the sweep is "
                       f"the only input; with {len(args.inputs)} inputs the batch goes to {out} "
-                      "(-o names the folder)", stacklevel=2)
+                      "(-o names the folder)")
     return out
 
 

@@ -26,7 +26,7 @@ second `wiggly edit` on it is refused, naming the first one's process and addres
 EPILOG = """\
 examples:
   wiggly edit shot.toml
-  wiggly edit critter.obj                  # new scene critter.toml beside the mesh
+  wiggly edit critter.obj                  # a new scene (Save writes critter.toml beside it)
   wiggly edit builtin:plant --port 8800 --no-browser
   wiggly edit shot.toml --host 0.0.0.0     # reachable from the network: see the warning"""
 

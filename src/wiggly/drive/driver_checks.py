@@ -11,6 +11,7 @@ import numpy as np
 
 from wiggly.body import Body
 from wiggly.drive.driver import Driver, keyed_frames
+from wiggly.errors import warn
 from wiggly.mesh.defects import diagonal
 
 __all__ = ["CUT_SIZE", "CUT_STEPS", "SEAM_KINK", "SEAM_STEPS", "STEP_TURN", "TURN", "best_turn",
@@ -55,13 +56,13 @@ def warn_sparse_turn(source: str, turns: np.ndarray, times: np.ndarray) -> None:
     steps = np.degrees(turns)
     k = int(np.argmax(steps))
     if steps[k] > STEP_TURN:
-        warnings.warn(
+        warn(
             f"the driver {source} turns its driven group by up to {steps[k]:.0f} degrees from "
             f"one frame to the next (t = {times[k]:g} to {times[k + 1]:g} s): between frames "
             "its motion is a cubic through the positions, which cuts the turn's arc, and the "
             "free parts' swing comes out wrong (by about 10 % at 15 degrees per frame, up to "
             "80 % in a fast whip at 20 and more); export the driver "
-            f"with more frames (at most {STEP_TURN:.0f} degrees apart)", stacklevel=3)
+            f"with more frames (at most {STEP_TURN:.0f} degrees apart)")
 
 
 def warn_unstable(source: str, nodes: np.ndarray, lowest: np.ndarray, rates: np.ndarray,
@@ -85,13 +86,13 @@ def warn_unstable(source: str, nodes: np.ndarray, lowest: np.ndarray, rates: np.
     if spans[k] < 0.5 * np.pi / float(np.sqrt(positive.min())):
         return
     rate = float(np.max(rates[starts[k]:ends[k] + 1]))
-    warnings.warn(
+    warn(
         f"the driver {source} turns the free parts at up to {rate / (2 * np.pi):.2g} turns "
         f"per second, where the turning frame's centrifugal force overcomes their stiffness "
         f"(their own and the stretch of their loads) for {spans[k]:.2g} s from "
         f"t = {nodes[starts[k]]:.3g} s: their motion in linear elasticity grows there without "
         "bound (they swing erratically, by up to metres); a stiffer material for the free "
-        "parts, or a slower turn, keeps it bounded", stacklevel=3)
+        "parts, or a slower turn, keeps it bounded")
 
 
 #: A linear secondary motion whose driver turns the driven group further than this (degrees)
@@ -115,12 +116,12 @@ def warn_turn(source: str, rest: np.ndarray, P: np.ndarray, times: np.ndarray) -
     k = int(np.argmax(angles))
     if angles[k] <= TURN:
         return
-    warnings.warn(
+    warn(
         f"the driver {source} turns its driven group by up to {angles[k]:.0f} degrees from "
         f"its rest pose (at t = {times[k]:g} s): a linear secondary motion "
         "(simulation.warp = false) keeps the free parts' swing and sag in the rest pose's "
         "axes instead of turning them with the body; the warped motion (the default) turns "
-        "them", stacklevel=3)
+        "them")
 
 
 #: A looped shot's driver is said not to cycle with it when its driven vertices at the shot's
@@ -165,28 +166,27 @@ def warn_seam(driver: Driver, driven: np.ndarray, *, start: float, end: float,
               "(drive.range)")
     if end - times[-1] <= 1.5 * spacing:  # the seam is one step: the last frame at the end,
         if gap > SEAM_STEPS * step:  # or a frame before it (a cycle of frames 1..N)
-            warnings.warn(
+            warn(
                 f"the driver {driver.source} does not cycle with the looped shot: its driven "
                 f"vertices at {times[-1]:g} s lie up to {1e3 * gap:.3g} mm from their pose at "
                 f"{start:g} s (they move at most {1e3 * step:.3g} mm from one frame to the "
-                f"next), and the loop joins the two with a jump at the seam; {remedy}",
-                stacklevel=3)
+                f"next), and the loop joins the two with a jump at the seam; {remedy}")
             return
         kink, most = _seam_kink(P, times, end - times[-1] > 0.5 * spacing)
         if kink > SEAM_KINK * most:
-            warnings.warn(
+            warn(
                 f"the driver {driver.source} does not cycle with the looped shot: its driven "
                 f"vertices meet their start pose again at {times[-1]:g} s, but their velocity "
                 f"changes there by up to {kink:.3g} m/s from the last frame to the first (by at "
                 f"most {most:.3g} m/s from one frame to the next elsewhere: a cycle whose "
                 f"motion reverses, or that is not the driver's), and the loop joins them with "
-                f"a kink, a hitch in every cycle; {remedy}", stacklevel=3)
+                f"a kink, a hitch in every cycle; {remedy}")
     else:
-        warnings.warn(
+        warn(
             f"the driver {driver.source} ends {end - times[-1]:.3g} s before the looped "
             f"shot's end ({times[-1]:g} s of [{start:g}, {end:g}] s): the loop joins its last "
             f"frame to its first by a curve over that time, which stretches the driver's "
-            f"cycle to the shot's; {remedy}", stacklevel=3)
+            f"cycle to the shot's; {remedy}")
 
 
 #: A driver step between two frames is called a cut when its driven vertices move further
@@ -214,12 +214,12 @@ def warn_cuts(source: str, P: np.ndarray, times: np.ndarray, body: Body) -> None
     than = (f"{step[k] / around[k]:.0f} times the steps beside it" if around[k] > 1e-9 * size
             else "the frames beside it hold still")
     more = f", and at {len(cuts) - 1} more steps" if len(cuts) > 1 else ""
-    warnings.warn(
+    warn(
         f"the driver {source} jumps: its driven vertices move {step[k]:.3g} m between "
         f"t = {times[k]:g} and {times[k + 1]:g} s ({than}){more}; the smooth curve through "
         "its frames swings before and after such a jump, so the body moves before the driver "
         "does: end the shot at the cut (drive.range, or time.end), or animate the move over "
-        "several frames", stacklevel=3)
+        "several frames")
 
 
 def warn_unconverged(source: str, iterations: int, steps: list[float]) -> None:
@@ -227,10 +227,10 @@ def warn_unconverged(source: str, iterations: int, steps: list[float]) -> None:
     iterations, with its last step and contraction (``steps``: the largest change of a node
     coordinate per iteration)."""
     rate = steps[-1] / steps[-2] if len(steps) > 1 and steps[-2] > 0 else float("nan")
-    warnings.warn(
+    warn(
         f"secondary motion on {source}: the warped keys of the free parts did not converge in "
         f"{iterations} Gauss-Newton iterations (the last moved a modal coordinate by "
         f"{steps[-1]:.3g}, {rate:.2g} times the step before): the motion is the last "
         "iterate, which meets the keys as their residuals say, not the energy's minimum; "
         "keys that pull the free parts far from the driver's pose of them converge slowly "
-        "(a lower key stiffness, or keys nearer that pose, help)", stacklevel=3)
+        "(a lower key stiffness, or keys nearer that pose, help)")

@@ -28,7 +28,6 @@ specification defines them (sections 3.7 "Concepts: Geometry" and 3.11 "Animatio
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,6 +36,7 @@ import numpy as np
 
 from wiggly.drive.driver import Driver, filled_times, polygon_edges
 from wiggly.drive.gltf_file import GltfFile
+from wiggly.errors import warn
 
 __all__ = ["RestPose", "read_gltf", "rest_pose", "sample", "slerp", "trs_matrix"]
 
@@ -157,11 +157,11 @@ def _channels(f: GltfFile, animation: AnimationChoice) -> list[_Channel]:
     if animation is None:
         index = 0
         if len(animations) > 1:
-            warnings.warn(
+            warn(
                 f"{f.path}: it has {len(animations)} animations, and the driver plays only the "
                 f"first; the others are left out: {listing}. Name one with drive.animation, "
                 "or several to play together (drive.animation = [\"walk\", \"breathe\"]; "
-                "a rig's action and a shape-key action)", stacklevel=2)
+                "a rig's action and a shape-key action)")
     else:
         index = _animation_index(f, animation, names, listing)
     return _animation_channels(f, animations[index], names[index])

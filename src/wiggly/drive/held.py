@@ -8,13 +8,11 @@ geometric stiffness where it does not buckle a part (:mod:`wiggly.drive.stress`)
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from wiggly.body import Body, fixed_from_surface, tets_of
 from wiggly.drive.stress import gravity_stiffnesses
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.modes import compute_modes
 from wiggly.progress import reporting
 
@@ -76,11 +74,11 @@ def held_modes(body: Body, held: np.ndarray, count: int, axes: tuple | None,
             ratio = -(ritz + ritz.T - 2 * np.diag(lam)) / (2 * np.sqrt(np.outer(lam, lam)))
             times = float(np.linalg.eigvalsh(ratio)[-1])  # eigenvalue of -K_s against K
             where = np.linalg.norm((psi @ Y[:, 0]).reshape(-1, 3), axis=1).argmax()
-            warnings.warn(
+            warn(
                 "a free part would buckle under its own weight (a soft part standing up, or "
                 "sagging further than linear elasticity holds), around "
                 f"({', '.join(f'{c:.3g}' for c in body.tets.vertices[where])}) m: its "
                 "stiffening and softening by gravity are left out, and it moves as linear "
                 f"elasticity alone makes it; a material {times:.2g} times as stiff there "
-                "holds it (twice that keeps it well away), or drive more of it", stacklevel=3)
+                "holds it (twice that keeps it well away), or drive more of it")
     return psi[:, :count], np.maximum(lam[:count], 0.0), stressed

@@ -51,7 +51,6 @@ nodes (Theorem 2: the minimiser is still a wiggly spline in every mode).  Linear
 from __future__ import annotations
 
 import time as _time
-import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -81,7 +80,7 @@ from wiggly.drive.stress import (
     stress_matters,
 )
 from wiggly.drive.unwarp import Unwarp
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.keyframes import Keyframe
 from wiggly.linalg import blas_single_thread, factorize_spd, one_blas_thread
 from wiggly.mesh.defects import diagonal
@@ -550,9 +549,9 @@ def secondary_motion(
         k = node_index(nodes, kf.time) % blocks
         A = _rows(body, psi, kf.vertices, kf.on)
         if not np.any(A):  # the driver owns every vertex it keys
-            warnings.warn(f"keyframe {kf.name or ''} at {kf.time:g} s keys only vertices that "
+            warn(f"keyframe {kf.name or ''} at {kf.time:g} s keys only vertices that "
                           "the driver moves; it does not enter the secondary motion (key the "
-                          "free parts, or remove it)", stacklevel=2)
+                          "free parts, or remove it)")
             continue
         c_A, c_B = kf.weights(body, duration)
         keys.append((kf, k, A, c_A, c_B))

@@ -18,13 +18,12 @@ from __future__ import annotations
 
 import itertools
 import re
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 from wiggly.drive.driver import Driver, fan_triangles, polygon_edges
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.progress import frames
 
 __all__ = ["read_npz", "read_obj_sequence", "sequence_files"]
@@ -140,11 +139,11 @@ def read_obj_sequence(path: Path, *, frame_rate: float | None = None) -> Driver:
         if gaps:
             listed = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in gaps[:4])
             one = len(gaps) == 1 and gaps[0][0] == gaps[0][1]
-            warnings.warn(
+            warn(
                 f"the OBJ sequence {path} has no files for {'frame' if one else 'frames'} "
                 f"{listed}{' and more' if len(gaps) > 4 else ''}: the driver is interpolated "
                 f"across {'it' if one else 'them'} (as a smooth curve, which a jerk or a cut "
-                "there would not be)", stacklevel=2)
+                "there would not be)")
     counts = np.array([len(p) for p in polys], np.int64)
     faces, _ = fan_triangles(counts, np.concatenate(polys) if polys else np.zeros(0, np.int64))
     return Driver(times, np.stack(positions), faces, polygon_edges(polys), str(path),

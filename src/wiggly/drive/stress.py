@@ -28,7 +28,6 @@ followed (warned).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +35,7 @@ import scipy.sparse as sp
 from scipy.spatial.transform import Rotation
 
 from wiggly.body import Body
+from wiggly.errors import warn
 from wiggly.fem import geometric_stiffness, linear_stress, tet_gradients
 from wiggly.linalg import factorize_spd
 
@@ -200,13 +200,12 @@ def stress_matters(change: np.ndarray, lam: np.ndarray, plain: np.ndarray,
     relative = np.linalg.eigvalsh(scale.T @ sym @ scale)[:, 0]
     k = int(np.argmin(relative))
     if relative[k] < NEAR_BUCKLING:
-        warnings.warn(
+        warn(
             "the driver's loads on a free part (gravity turned with it, the driver's "
             f"accelerations) soften it to {max(relative[k], 0.0):.0%} of its stiffness at "
             f"t = {times[k]:.3g} s, near buckling (a soft hanging part stood on its root, or "
             "a soft part whipped sideways), where its sag would grow past what linear "
             "elasticity holds: its stiffening by its loads stays that of gravity in the rest "
-            "pose; a stiffer material for it (or driving more of it) brings it back",
-            stacklevel=4)
+            "pose; a stiffer material for it (or driving more of it) brings it back")
         return None
     return float(lowest_eigenvalues(lam, change).max())

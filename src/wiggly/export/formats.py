@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
 
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.export.animation import (
     GLTF,
     GLTF_TARGETS,
@@ -173,11 +172,11 @@ def _warn_far(path: Path, anim: SurfaceAnimation) -> None:
     size = float(np.linalg.norm(np.ptp(X[0], axis=0))) if X.shape[1] else 0.0
     step = far * np.finfo(np.float32).eps
     if size > 0 and step > FLOAT32_STEP * size:
-        warnings.warn(
+        warn(
             f"{shown_name(path)}: the body lies {far:.3g} m from the origin, and the file's "
             f"float32 positions round it to steps of about {1e3 * step:.2g} mm ({step / size:.1e} "
             "of its size): move it near the origin for wiggly, and place it in your scene "
-            "afterwards", stacklevel=3)
+            "afterwards")
 
 
 def read_animation(path) -> SurfaceAnimation:

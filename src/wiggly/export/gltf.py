@@ -7,14 +7,13 @@ import base64
 import io
 import struct
 import urllib.parse
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import BinaryIO
 
 import numpy as np
 
-from wiggly.errors import WigglyInputError, counted
+from wiggly.errors import WigglyInputError, counted, warn
 from wiggly.export.animation import (
     FORMAT_VERSION,
     FrameNormals,
@@ -336,9 +335,8 @@ def read_glb(path: Path) -> SurfaceAnimation:
         raise WigglyInputError(f"cannot read {path}: the glTF file has no mesh")
     mesh_index = 0
     if len(gltf.meshes) > 1:
-        warnings.warn(f"{path}: only its first mesh ({gltf.meshes[0].name or 'unnamed'}) is "
-                      f"read; left out: {counted(len(gltf.meshes) - 1, 'other mesh')}",
-                      stacklevel=3)
+        warn(f"{path}: only its first mesh ({gltf.meshes[0].name or 'unnamed'}) is "
+                      f"read; left out: {counted(len(gltf.meshes) - 1, 'other mesh')}")
     parts = [_read_primitive(gltf, blob, prim, path, j)
              for j, prim in enumerate(gltf.meshes[mesh_index].primitives)]
     offsets = np.cumsum([0] + [len(part[0]) for part in parts])

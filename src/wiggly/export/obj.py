@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import re
-import warnings
 from pathlib import Path
 
 import numpy as np
 
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.export.animation import (
     OBJ_DEFAULT_FPS,
     POSITION_FORMAT,
@@ -103,11 +102,11 @@ def stage_obj_sequence(outputs: OutputSet, path: Path, anim: SurfaceAnimation, *
         else:
             foreign.append(stale.name)
     if foreign:
-        warnings.warn(
+        warn(
             f"{path.parent}: left {len(foreign)} file(s) that wiggly did not write although "
             f"their names continue the OBJ sequence {path.name} ({', '.join(sorted(foreign)[:3])}"
             f"{', ...' if len(foreign) > 3 else ''}); a program reading the sequence would take "
-            "them for frames", stacklevel=2)
+            "them for frames")
 
 
 def written_by_wiggly_obj(path: Path) -> bool:
@@ -182,9 +181,9 @@ def read_obj_sequence(path: Path) -> SurfaceAnimation:
         sequence = path.with_name(m.group(1) + path.suffix) if m else None
         count = len(existing_frames(sequence)) if sequence is not None else 0
         if count > 1:
-            warnings.warn(f"{path.name} is one frame of the OBJ sequence {sequence.name} "
+            warn(f"{path.name} is one frame of the OBJ sequence {sequence.name} "
                           f"({count} frames in {path.parent}): read as one frame; give "
-                          f"{sequence} for the whole sequence", stacklevel=2)
+                          f"{sequence} for the whole sequence")
     else:
         raise WigglyInputError(
             f"cannot read {path}: no file and no OBJ sequence {path.stem}_0000{path.suffix} in "

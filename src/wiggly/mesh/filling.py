@@ -8,7 +8,6 @@ import os
 import signal
 import tempfile
 import threading
-import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -16,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from wiggly.child import can_run_child
-from wiggly.errors import WigglyInputError, counted
+from wiggly.errors import WigglyInputError, counted, warn
 from wiggly.files import atomic_file, default_cache_dir
 from wiggly.limits import MAX_RESOLUTION, MAX_TETS, MIN_RESOLUTION
 from wiggly.mesh import defects as mesh_checks
@@ -193,7 +192,7 @@ def tetrahedralize(
         surface, edge_length=edge_length, resolution=resolution, repair=repair,
         source=source, cache_dir=cache_dir)
     if not report.clean:
-        warnings.warn(repair_note(source, report), MeshRepairWarning, stacklevel=2)
+        warn(repair_note(source, report), MeshRepairWarning)
     return mesh
 
 

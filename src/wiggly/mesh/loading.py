@@ -3,7 +3,6 @@ tet meshes (MSH, VTU, MESH, ...: meshio), with their vertex groups; the bundled 
 
 from __future__ import annotations
 
-import warnings
 from importlib import resources
 from pathlib import Path
 
@@ -11,7 +10,7 @@ import meshio
 import numpy as np
 
 from wiggly import checks
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.mesh.data import (
     CELL_DIMENSION,
     SURFACE_EXTENSIONS,
@@ -318,12 +317,12 @@ def _warn_posed(path: Path, bind: list[tuple[slice, np.ndarray]], posed: np.ndar
         fit, *_ = np.linalg.lstsq(A, posed[where], rcond=None)
         off = max(off, float(np.linalg.norm(A @ fit - posed[where], axis=1).max()))
     if off > 1e-3 * size:
-        warnings.warn(
+        warn(
             f"{path}: its skeleton is not at its bind pose (the pose moves vertices up to "
             f"{off:.3g} m, {100 * off / size:.2g} % of the mesh's size, beyond one rigid or "
             "affine motion), so the rest mesh is the posed mesh a viewer shows, bent as the "
             "pose bends it. For the undeformed mesh, export at the rest pose (Blender's glTF "
-            "export: Data > Armature > Use Rest Position).", stacklevel=3)
+            "export: Data > Armature > Use Rest Position).")
 
 
 #: The surface formats' names in messages, by extension.

@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import os
-import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from wiggly.checks import mesh_arrays
-from wiggly.errors import counted
+from wiggly.errors import counted, warn
 from wiggly.mesh.data import Embedding, Model, Surface, TetMesh, embed, without_small_pieces
 from wiggly.mesh.defects import (
     CheckedSurface,
@@ -113,9 +112,9 @@ def build_model(
         far = outside > FAR_OUTSIDE
         filled = float(tets.volumes().sum())
         if not report.clean or far.any() or dropped or volume_lost(report, filled):
-            warnings.warn(repair_note(source, report, int(far.sum()), float(outside.max()),
+            warn(repair_note(source, report, int(far.sum()), float(outside.max()),
                                       dropped, share, filled, info["edge_length"]),
-                          MeshRepairWarning, stacklevel=2)
+                          MeshRepairWarning)
         return Model(loaded, tets, embedding, source)
     mesh_arrays(loaded.vertices, loaded.tets, source)  # indices in range, tets present
     tets = loaded
@@ -146,10 +145,10 @@ def _outward(surface: Surface, source: str) -> Surface:
     volume = enclosed_volume(V, F)
     if not volume < 0:
         return surface
-    warnings.warn(
+    warn(
         f"{source}: the surface's triangles face inwards (they enclose a volume of "
         f"{volume:.3g} m^3); wiggly flipped them all, so that its outputs face outwards",
-        MeshRepairWarning, stacklevel=3)
+        MeshRepairWarning)
     return replace(surface, faces=np.ascontiguousarray(F[:, ::-1]), normals=None)
 
 
@@ -170,9 +169,8 @@ def _warn_units(vertices: np.ndarray, source: str) -> None:
         return  # (non-finite coordinates are refused with their own message)
     hint = ("millimetres or centimetres, scale it by 0.001 or 0.01" if size > high
             else "kilometres, scale it by 1000")
-    warnings.warn(
+    warn(
         f"{source}: the mesh is {size:.3g} m across; wiggly reads its coordinates as metres "
         f"(SI units throughout). If the file is in {hint} (a scene file's mesh.scale, the "
         "scale= of wiggly.prepare and load_model; or in Blender, the object's applied scale "
-        "or the exporter's Scale); if the body is that large, nothing needs doing",
-        stacklevel=3)
+        "or the exporter's Scale); if the body is that large, nothing needs doing")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wiggly.errors import WigglyInputError, counted
+from wiggly.errors import WigglyInputError, counted, warn
 from wiggly.mesh.data import Surface
 
 __all__ = ["read_obj"]
@@ -80,11 +80,10 @@ def read_obj(path: Path) -> Surface:
         uv = _numbers(values[b"vt"], 2, b"vt", path)
         uvs = _per_vertex(uv[C[:, :, 1]], F, len(V))
         if uvs is None:
-            warnings.warn(
+            warn(
                 f"{path}: some vertices have several texture coordinates (UV seams); "
                 "per-vertex UVs cannot represent that, so the surface has no UVs. The "
-                "vertex order is the file's, so the animation still applies to it.",
-                stacklevel=4)
+                "vertex order is the file's, so the animation still applies to it.")
     if (C[:, :, 2] >= 0).all():
         normals = _per_vertex(_numbers(values[b"vn"], 3, b"vn", path)[C[:, :, 2]], F, len(V))
     return Surface(V, F, uvs=uvs, normals=normals)

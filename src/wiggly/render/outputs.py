@@ -4,7 +4,6 @@ plots."""
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -12,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from wiggly.checks import pixel_size
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.files import atomic_file, shown_name
 from wiggly.progress import deprecated_progress, frames
 from wiggly.render.preview import Preview
@@ -115,8 +114,8 @@ def render_video(path, times, positions, faces, *, highlights: Sequence[Highligh
     if gif:
         anti_aliasing = anti_aliasing and GIF_MAX_SIDE / max(w, h) > 0.67
     elif w % 2 or h % 2:
-        warnings.warn(f"{shown_name(path)}: an H.264 video needs an even width and height: the "
-                      f"size {w} x {h} is written as {w - w % 2} x {h - h % 2}", stacklevel=2)
+        warn(f"{shown_name(path)}: an H.264 video needs an even width and height: the "
+                      f"size {w} x {h} is written as {w - w % 2} x {h - h % 2}")
         w, h = w - w % 2, h - h % 2
     with Preview(times, positions, faces, highlights=highlights, size=(w, h), up=up,
                  ground=ground, camera=camera, title=title,

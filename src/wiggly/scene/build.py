@@ -121,7 +121,8 @@ def _check_modes_for_scene(scene: Scene, model, fixed_vertices) -> None:
         raise input_error(scene.where(), [
             f"simulation.modes = {modes} is fewer than the {rigid} rigid modes that the fixed "
             f"groups leave free (they are {'collinear' if len(fixed) > 1 else 'one point'}), "
-            f"which the basis must contain; use at least {rigid + 1}"])
+            f"which the basis must contain; use at least {rigid} ({rigid} moves it rigidly "
+            "only; each mode more bends it)"])
 
 
 def _rigid_mode_count(points: np.ndarray) -> int:

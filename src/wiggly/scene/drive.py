@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import threading
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -25,7 +24,7 @@ from wiggly.drive import (
 from wiggly.drive.driver_checks import best_turn
 from wiggly.drive.secondary import secondary_frames, secondary_motion
 from wiggly.drive.sequence import sequence_files
-from wiggly.errors import WigglyInputError, counted
+from wiggly.errors import WigglyInputError, counted, warn
 from wiggly.keyframes import Keyframe
 from wiggly.memo import Memo
 from wiggly.mesh.defects import diagonal
@@ -197,11 +196,11 @@ def _warn_up_axes(scene: Scene, rest: np.ndarray, posed: np.ndarray, mesh: str) 
     else:
         remedy = ("export the mesh and the driver with the same up axis (y, or mesh.up_axis = "
                   '"z" for a Z-up mesh)')
-    warnings.warn(
+    warn(
         f"{scene.where()}: drive.path = {show(scene.drive.path)}: its first pose is {mesh} "
         f"turned by {turn:.0f} degrees from its up axis: the two are likely in other axes "
         f"(gravity would pull the free parts sideways); {remedy}, unless the driver starts "
-        "with the body on its side", stacklevel=3)
+        "with the body on its side")
 
 
 def _units_remedy(scene: Scene, ratio: float, size: float) -> str:

@@ -7,6 +7,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wiggly.errors import counted
+from wiggly.mesh.loading import z_up_to_y_up
 from wiggly.scene.spec import (
     SELECTOR_KEYS,
     Absolute,
@@ -23,17 +24,24 @@ from wiggly.scene.validation import Problems, did_you_mean, show
 # groups (checked against the mesh)
 
 
+def _placed(sel, X: np.ndarray) -> np.ndarray:
+    """The vertices a box or sphere selector selects among positions ``X``."""
+    if isinstance(sel, Box):
+        return np.flatnonzero(np.all((X >= np.asarray(sel.min)) & (X <= np.asarray(sel.max)),
+                                     axis=1))
+    return np.flatnonzero(np.linalg.norm(X - np.asarray(sel.center), axis=1) <= sel.radius)
+
+
 def _select(name: str, group: GroupSpec, X: np.ndarray, mesh_groups: dict[str, np.ndarray],
-            what: str, p: Problems) -> np.ndarray | None:
-    """Vertex indices of one group among the rest positions ``X``; None (and a problem)."""
+            what: str, p: Problems, y_up: bool = False) -> np.ndarray | None:
+    """Vertex indices of one group among the rest positions ``X``; None (and a problem).
+    ``y_up``: the file was read y up by default, so an empty box or sphere that would select
+    vertices of a Z-up reading says so."""
     sel = group.selector
     path = f"groups.{name}"
     n = len(X)
-    if isinstance(sel, Box):
-        lo, hi = np.asarray(sel.min), np.asarray(sel.max)
-        idx = np.flatnonzero(np.all((X >= lo) & (X <= hi), axis=1))
-    elif isinstance(sel, Sphere):
-        idx = np.flatnonzero(np.linalg.norm(X - np.asarray(sel.center), axis=1) <= sel.radius)
+    if isinstance(sel, (Box, Sphere)):
+        idx = _placed(sel, X)
     elif isinstance(sel, Nearest):
         # positions, not vertices: coincident copies (an STL's corners) count once, all taken
         places, place_of = np.unique(X, axis=0, return_inverse=True)
@@ -60,8 +68,13 @@ def _select(name: str, group: GroupSpec, X: np.ndarray, mesh_groups: dict[str, n
         idx = np.asarray(mesh_groups[sel.name], dtype=np.int64)
     if idx.size == 0:
         lo, hi = X.min(axis=0), X.max(axis=0)
+        turned = (len(_placed(sel, z_up_to_y_up(X))) if y_up and isinstance(sel, (Box, Sphere))
+                  else 0)
+        hint = (f"; read as a Z-up file (mesh.up_axis = \"z\": its z axis up), it would "
+                f"select {counted(turned, 'vertex')}" if turned else "")
         p.add(f"{path} ({SELECTOR_KEYS[type(sel)]}) selects no vertex of the {what}; its "
-              f"bounding box is {show(lo.round(4).tolist())} .. {show(hi.round(4).tolist())}")
+              f"bounding box is {show(lo.round(4).tolist())} .. {show(hi.round(4).tolist())}"
+              + hint)
         return None
     return idx
 
@@ -88,13 +101,14 @@ def resolve_group_arrays(scene: Scene, surface_X, surface_groups, tet_X, tet_gro
     """The groups of ``scene`` on the given vertex arrays (``tet_X`` None: surface groups
     only), adding every mistake to ``p``."""
     out = {}
+    y_up = scene.mesh.up_axis is None  # the default: a Z-up file would lie on its side
     for name, g in scene.groups.items():
         if g.on == "tets":
             if tet_X is None:
                 continue
-            idx = _select(name, g, tet_X, tet_groups, "tet mesh", p)
+            idx = _select(name, g, tet_X, tet_groups, "tet mesh", p, y_up)
         else:
-            idx = _select(name, g, surface_X, surface_groups, "surface", p)
+            idx = _select(name, g, surface_X, surface_groups, "surface", p, y_up)
         if idx is not None:
             out[name] = idx
     for j, kf in enumerate(scene.keyframes):

@@ -14,11 +14,12 @@ from scipy.spatial import cKDTree
 from wiggly import render
 from wiggly.drive import following
 from wiggly.drive.sequence import carries_times
-from wiggly.errors import WigglyInputError, counted
+from wiggly.errors import WigglyInputError, counted, warn
 from wiggly.export import stage_animation, surface_animation
 from wiggly.export.animation import GLTF, frame_codes, gltf_times, without_seam
 from wiggly.export.gltf import frames_bytes, too_big
 from wiggly.files import OutputSet, check_writable
+from wiggly.keyframes import DEFAULT_STIFFNESS
 from wiggly.limits import frame_count
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
@@ -135,8 +136,11 @@ def fold_highlights(anim, times, checked: list[dict] | None = None) -> list:
     frames (frames less than two highlight windows apart make one span, since their
     highlights would overlap anyway), over the surface vertices that folded tets carry and
     those nearest to folded tets inside the body, labelled with the most tets folded at a
-    frame of the span."""
+    frame of the span.  It fades in and out over one checked frame, not a key's window: a
+    frame before the first folded one shows no fold."""
     checked = anim.folds(np.asarray(times, dtype=np.float64)) if checked is None else checked
+    steps = np.diff([row["time"] for row in checked])
+    window = min(HIGHLIGHT_WINDOW, float(steps.min())) if len(steps) else HIGHLIGHT_WINDOW
     rows = [row for row in checked if row["share"] > FOLDED]
     if not rows:
         return []
@@ -159,7 +163,7 @@ def fold_highlights(anim, times, checked: list[dict] | None = None) -> list:
         label = (f"folded: {'up to ' if len(span) > 1 else ''}{worst['folded']} tets "
                  f"({100 * worst['share']:.2g} %) turned inside out")
         out.append(Highlight(vertices.astype(np.int64), span[0]["time"], FOLD_COLOR, label,
-                             until=span[-1]["time"]))  # fading in and out as keys do
+                             window=window, until=span[-1]["time"]))
     return out
 
 
@@ -231,9 +235,9 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     start, end = scene.time_range()
     if scene.simulation.warp:  # the warp's kernels, compiled once after an install: their
         t = _time.perf_counter()  # own line in the summary, not the solve's seconds
-        ensure_compiled()
-        if _time.perf_counter() - t > 0.5:
-            timings["compile"] = _time.perf_counter() - t
+        compiled_now = ensure_compiled()
+        if _time.perf_counter() - t > 0.5:  # compiled, or loaded from their cache
+            timings["compile" if compiled_now else "load"] = _time.perf_counter() - t
     what = (f"{counted(len(keyframes), 'keyframe')} of the free parts"
             if scene.secondary_motion  # the body's modes are not computed then
             else f"{counted(len(keyframes), 'keyframe')}, {body.r} modes")
@@ -248,7 +252,7 @@ def run(scene: Scene, *, outputs=None, overwrite: bool | None = None):
     held = anim.held_modes if scene.secondary_motion else None
     joint = thin_joint(scene, body, held)
     if joint is not None:
-        warnings.warn(f"{scene.where()}: {joint}", stacklevel=2)
+        warn(f"{scene.where()}: {joint}")
     else:  # the joint, not the material, when there is one
         note = soft_note(scene, body, held)
         if note is not None:
@@ -268,7 +272,7 @@ def check_motion(scene: Scene, body, anim, groups: dict[str, np.ndarray],
     away.  Returns the previews' highlights (the keyed groups, and folds in magenta when
     ``paths`` hold a preview)."""
     _warn_missed(scene, anim)
-    warn_straight(anim, anim.frame_times(scene.time.fps), scene.where(), stacklevel=3)
+    warn_straight(anim, anim.frame_times(scene.time.fps), scene.where())
     highlights = keyframe_highlights(scene, body, anim.keyframes, groups)
     if scene.simulation.warp:
         folding = warn_folded(anim, f"{scene.where()}: the warped motion", api=False,
@@ -316,8 +320,8 @@ def _warn_unit_slips(scene: Scene, body) -> None:
     slips = unit_slips(scene, diagonal(body.rest_positions()))
     if slips:
         listed = "; ".join(slips[:3]) + (f"; and {len(slips) - 3} more" if len(slips) > 3 else "")
-        warnings.warn(f"{scene.where()}: {listed}: check the units (m/s, m/s^2); the solve "
-                      "will take long and miss such targets", stacklevel=2)
+        warn(f"{scene.where()}: {listed}: check the units (m/s, m/s^2); the solve "
+                      "will take long and miss such targets")
 
 
 def _said_of(scene: Scene, said: list) -> None:
@@ -326,15 +330,15 @@ def _said_of(scene: Scene, said: list) -> None:
     or the solve, not the file)."""
     where = scene.where()
     for message, category in dict.fromkeys((str(w.message), w.category) for w in said):
-        warnings.warn(message if message.startswith(f"{where}: ") else f"{where}: {message}",
-                      category, stacklevel=3)
+        warn(message if message.startswith(f"{where}: ") else f"{where}: {message}",
+                      category)
 
 
 def _warn_missed(scene: Scene, anim) -> None:
     """Warn what :func:`missed_note` says of ``anim``, if anything."""
     note = missed_note(scene, anim)
     if note is not None:
-        warnings.warn(note, stacklevel=2)
+        warn(note)
 
 
 def missed_note(scene: Scene, anim) -> str | None:
@@ -358,7 +362,9 @@ def missed_note(scene: Scene, anim) -> str | None:
                        f"{scene.keyframes[m.index].time:g} s) by {m.how}" for m in missed[:4])
     more = f"; and {len(missed) - 4} more" if len(missed) > 4 else ""
     explicit = any(scene.keyframes[m.index].c_A is not None for m in missed)
-    why = ("raise their stiffness (the default is 1e6; e.g. 1e9)"
+    used = max(own.keyframes[m.index].stiffness for m in missed)
+    now = "the default is 1e6" if used == DEFAULT_STIFFNESS else f"now {used:.3g}"
+    why = (f"raise their stiffness ({now}; e.g. {1e3 * used:.3g})"
            + (", or their c_A, which replaces it where given" if explicit else "")
            + (" (a stiff material resists keys: the default weighs a key against the body's "
               "mass, not its Young's modulus)" if any("offset" in m.how for m in missed) else ""))
@@ -402,12 +408,12 @@ def _warn_strayed(scene: Scene, report: dict | None, body) -> None:
     linear = ("" if scene.simulation.warp else
               "turn warping on (simulation.warp = true: a linear motion grows where it turns), "
               "or ")
-    warnings.warn(
+    warn(
         f"{scene.where()}: the free parts swing up to {report['free_max']:.3g} m from the "
         f"driver's pose of them (at t = {report['free_worst_time']:g} s), "
         f"{report['free_max'] / size:.2g} times the body's size: the driver moves faster or "
         f"harder than this body can follow; {linear}stiffen the material, add damping, or "
-        "lower drive.intensity", stacklevel=2)
+        "lower drive.intensity")
 
 
 def _warn_unfollowed(scene: Scene, report: dict | None, body) -> None:
@@ -431,10 +437,10 @@ def _warn_unfollowed(scene: Scene, report: dict | None, body) -> None:
         why = ('physics = "keys" meets the driver only as closely as the modes can: keep '
                "drive.enrich on, raise simulation.modes or drive.stiffness, or use "
                'physics = "secondary"')
-    warnings.warn(
+    warn(
         f"{scene.where()}: the driven vertices ({group}) stray up to "
         f"{1e3 * report['max']:.3g} mm from the driver (at t = {report['worst_time']:g} s), "
-        f"{100 * report['max'] / size:.1f} % of the body's size: {why}", stacklevel=2)
+        f"{100 * report['max'] / size:.1f} % of the body's size: {why}")
 
 
 def fold_remedy(scene: Scene) -> str:
@@ -497,11 +503,11 @@ def _warn_between_frames(scene: Scene, times: np.ndarray, paths: list[Path]) -> 
             and abs(first[p.suffix.lower()] - round(first[p.suffix.lower()])) > 1e-6]
     if late:
         start = float(times[0])
-        warnings.warn(
+        warn(
             f"{scene.where()}: the shot starts at {start:g} s, frame {start * fps:g} at {fps:g} "
             f"fps, so the frames of {', '.join(late)} land between the timeline's frames (an "
             "application showing whole frames blends or skips them); set output.frame_start "
-            "(or --frame-start; Blender: 1) to put frame k on frame_start + k", stacklevel=3)
+            "(or --frame-start; Blender: 1) to put frame k on frame_start + k")
 
 
 @deprecated_progress
@@ -588,12 +594,12 @@ def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None 
             # an OBJ sequence's frames are timed by the scene's fps unless frame_rate says
             # otherwise: the output's rate must not retime the driver (and its physics)
             if float(fps) != s.time.fps and not carries_times(s.resolve(s.drive.path)):
-                warnings.warn(
+                warn(
                     f"{s.where()}: drive.path = {show(s.drive.path)} is an OBJ sequence timed "
                     f"by the scene's {s.time.fps:g} fps (its file N at N / {s.time.fps:g} s), "
                     f"not by --fps {float(fps):g}, which sets only the outputs' rate; if the "
                     f"sequence was made at {float(fps):g} fps, set drive.frame_rate = "
-                    f"{float(fps):g} (or time.fps) in the scene", stacklevel=2)
+                    f"{float(fps):g} (or time.fps) in the scene")
             s = replace(s, drive=replace(s.drive, frame_rate=s.time.fps))
         s = replace(s, time=replace(s.time, fps=float(fps)))
         cycle = loop_cycle_problem(s, f" (from --fps {float(fps):g})")
@@ -601,7 +607,7 @@ def with_overrides(scene: Scene, *, fps: float | None = None, warp: bool | None 
             raise WigglyInputError(f"{s.where()}: {cycle}")
         note = partial_frame_note(s, f" (from --fps {float(fps):g})")
         if note is not None:  # as the file's own fps is checked when it is read
-            warnings.warn(f"{s.where()}: {note}", stacklevel=2)
+            warn(f"{s.where()}: {note}")
     if warp is not None:
         s = replace(s, simulation=replace(s.simulation, warp=warp))
     if modes is not None:

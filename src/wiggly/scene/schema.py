@@ -8,11 +8,10 @@ import math
 import os
 import re
 import tomllib
-import warnings
 from pathlib import Path
 
 from wiggly.drive import DRIVER_EXTENSIONS
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.export import GLTF_TARGETS
 from wiggly.fem import DENSITY_RANGE, YOUNG_RANGE
 from wiggly.limits import (
@@ -453,11 +452,11 @@ def _warn_seam_keys(scene: Scene, where: str, t0: float, t1: float) -> None:
                                               ("velocity", a.velocity, b.velocity))
                       if x is not None and y is not None and x != y]
             if a.group == b.group and differ:
-                warnings.warn(
+                warn(
                     f"{where}: keyframes[{i}] (t = {t0:g} s) and keyframes[{j}] (t = {t1:g} s) "
                     f"key group {a.group!r} with another {' and '.join(differ)}, but in a loop "
                     f"t = {t1:g} s is t = {t0:g} s: both cannot be met; give them the same "
-                    "target, or keep one of them", stacklevel=5)
+                    "target, or keep one of them")
 
 
 def _warn_twin_keys(scene: Scene, where: str, span: float) -> None:
@@ -472,11 +471,11 @@ def _warn_twin_keys(scene: Scene, where: str, span: float) -> None:
                                               ("velocity", a.velocity, b.velocity))
                       if x is not None and y is not None and x != y]
             if a.group == b.group and abs(a.time - b.time) <= tol and differ:
-                warnings.warn(
+                warn(
                     f"{where}: keyframes[{i}] and keyframes[{j}] both key group {a.group!r} at "
                     f"t = {a.time:g} s, with another {' and '.join(differ)}: both cannot be "
                     "met, and the motion lands between them; give them the same target, or "
-                    "keep one of them", stacklevel=5)
+                    "keep one of them")
 
 
 def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> None:
@@ -514,7 +513,7 @@ def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> 
     if frames <= MAX_FRAMES and output_fps is None:
         note = partial_frame_note(scene)
         if note is not None:
-            warnings.warn(f"{p.where}: {note}", stacklevel=4)
+            warn(f"{p.where}: {note}")
     if scene.time.loop and not scene.simulation.fixed and scene.drive is None and not any(
             kf.position is not None for kf in scene.keyframes):
         what = ("velocity keys do not say where it is" if scene.keyframes else
@@ -540,19 +539,18 @@ def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> 
                     (("c_A", kf.c_A, kf.position), ("c_B", kf.c_B, kf.velocity))
                     if v is not None and target is not None]
         if kf.stiffness is not None and replaced:
-            warnings.warn(f"{p.where}: keyframes[{j}]: {' and '.join(replaced)} replace"
+            warn(f"{p.where}: keyframes[{j}]: {' and '.join(replaced)} replace"
                           f"{'s' if len(replaced) == 1 else ''} stiffness = "
                           f"{show(kf.stiffness)} (stiffness sets only the weights not given "
-                          "explicitly); give one of them", stacklevel=4)
+                          "explicitly); give one of them")
         turn = kf.position.rotation if isinstance(kf.position, Rigid) else ()
         if any(abs(a) >= 180.0 for a in turn):
             wrapped = [(a + 180.0) % 360.0 - 180.0 for a in turn]
-            warnings.warn(
+            warn(
                 f"{p.where}: keyframes[{j}].position.rotation = {show(list(turn))}: a key is a "
                 "placement, so a turn of 180 degrees or more is taken the short way (here "
                 f"{show([round(a, 6) for a in wrapped])}) and a whole turn is no turn; to spin "
-                "further, key the turn in steps under 180 degrees (e.g. a key every 90)",
-                stacklevel=4)
+                "further, key the turn in steps under 180 degrees (e.g. a key every 90)")
     if not scene.simulation.fixed and scene.simulation.modes < RIGID_MODES:
         p.add(f"simulation.modes = {scene.simulation.modes} is fewer than the {RIGID_MODES} "
               "rigid modes of a free body (simulation.fixed holds no group), which the basis "

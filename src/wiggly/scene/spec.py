@@ -397,9 +397,18 @@ class Scene:
         return self.resolve(p)
 
     def resolve(self, path: str | os.PathLike[str]) -> Path:
-        """``path`` relative to the scene file's directory (``~`` expanded)."""
+        """``path`` relative to the scene file's directory (``~`` expanded), with ``a/../b``
+        written ``b`` where that names the same file (not through a symbolic link)."""
         p = Path(path).expanduser()
-        return p if p.is_absolute() else self.base_dir / p
+        joined = p if p.is_absolute() else self.base_dir / p
+        tidy = Path(os.path.normpath(joined))
+        if tidy == joined:
+            return joined
+        try:
+            same = os.path.samefile(tidy, joined) if joined.exists() else not tidy.exists()
+        except OSError:
+            same = False
+        return tidy if same else joined
 
     def time_range(self) -> tuple[float, float]:
         """(start, end) in seconds: ``end``, ``start + duration``, or the last keyframe time

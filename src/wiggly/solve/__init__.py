@@ -17,13 +17,12 @@ Modules, in the order data flows:
 
 from __future__ import annotations
 
-import warnings
 from typing import NamedTuple
 
 import numpy as np
 
 from wiggly.body import Body
-from wiggly.errors import WigglyInputError
+from wiggly.errors import WigglyInputError, warn
 from wiggly.keyframes import Keyframe, held
 from wiggly.mesh.defects import diagonal
 from wiggly.progress import deprecated_progress, say
@@ -111,9 +110,9 @@ def solve(
         f"unknowns in {anim.info['solve_seconds'] * 1e3:.1f} ms{extra}")
     # the warnings name the caller's line: past warn_*, this function and its decorator
     if check_keys:
-        warn_missed(anim, stacklevel=4)
+        warn_missed(anim)
         if warp:
-            warn_folded(anim, stacklevel=4)
+            warn_folded(anim)
     return anim
 
 
@@ -189,10 +188,10 @@ def missed_by(missed: list[Miss]) -> str:
     return text
 
 
-def warn_missed(anim: Animation, stacklevel: int = 2) -> None:
+def warn_missed(anim: Animation) -> None:
     """One warning naming the keyframes whose targets ``anim`` misses by more than
-    :data:`MISSED`, with the likely causes (attributed to the line ``stacklevel`` frames up, as
-    :func:`warnings.warn` counts them: 2 is the caller's)."""
+    :data:`MISSED`, with the likely causes (attributed to the user's line:
+    :func:`wiggly.errors.warn`)."""
     if not anim.keyframes:
         return
     rows, missed, _ = missed_keys(anim)
@@ -208,11 +207,11 @@ def warn_missed(anim: Animation, stacklevel: int = 2) -> None:
               "targets (it stretches them): solve with warp=True; or ")
     stiff = (" (a stiff material resists keys: the default weighs a key against the body's "
              "mass, not its Young's modulus)" if any("offset" in m.how for m in missed) else "")
-    warnings.warn(
+    warn(
         f"{len(missed)} of {len(rows)} keyframes {missed_by(missed)} ({listed}): {linear}raise "
         f"their stiffness (default 1e6){stiff}, or check that the targets can be reached (fixed "
         "vertices, contradictory keys, velocities in m/s, gravity over a long shot); "
-        "anim.constraint_residuals() lists every key", stacklevel=stacklevel)
+        "anim.constraint_residuals() lists every key")
 
 
 #: Warped motions that turn more than this share of the tets inside out at a keyframe time
@@ -274,7 +273,6 @@ def fold_note(
 def warn_folded(
     anim: Animation,
     where: str = "the warped motion",
-    stacklevel: int = 2,
     api: bool = True,
     groups: dict[str, np.ndarray] | None = None,
     **kw,
@@ -285,7 +283,7 @@ def warn_folded(
     :func:`warn_missed`); returns its text.  ``kw``: :func:`fold_note`'s ``remedy``."""
     note = fold_note(anim, where, api, groups, **kw)
     if note is not None:
-        warnings.warn(note, stacklevel=stacklevel)
+        warn(note)
     return note
 
 

@@ -59,14 +59,13 @@ is widened to the move along the Newton direction whose decrement equals that le
 from __future__ import annotations
 
 import time
-import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
 import numpy as np
 
-from wiggly.errors import counted
+from wiggly.errors import counted, warn
 from wiggly.solve.banded import BandedCholesky, band_matvec
 
 __all__ = ["SolveOptions", "SolveReport", "WarpedSolveWarning", "minimize"]
@@ -595,10 +594,9 @@ def warn_unconverged(report: SolveReport, level: str = "") -> None:
                  if np.isfinite(report.newton_decrement) else
                  "no Newton decrement (the last Newton matrix was not positive definite: the "
                  "iterate is not near a minimum)")
-    warnings.warn(
+    warn(
         f"warped solve{level} did not converge in {counted(report.iterations, 'iteration')} "
         f"({report.stop}): objective {report.objective:.6g} (start "
         f"{report.objective_start:.6g}), {decrement}; the result is the best iterate",
         WarpedSolveWarning,
-        stacklevel=4,
     )

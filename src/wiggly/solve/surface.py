@@ -13,10 +13,9 @@ embedding reproduces affine maps), so the gap is the bending within the edge's s
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
+from wiggly.errors import warn
 from wiggly.mesh.data import embed
 from wiggly.mesh.defects import diagonal
 
@@ -66,7 +65,7 @@ def straight_edges(anim, times: np.ndarray) -> dict | None:
             "parted": int((gap.max(axis=1) > BENT * diagonal(V)).sum()), "tet_edge": h}
 
 
-def warn_straight(anim, times: np.ndarray, where: str, stacklevel: int = 2) -> str | None:
+def warn_straight(anim, times: np.ndarray, where: str) -> str | None:
     """One warning when long surface edges part from the solid by more than :data:`BENT` of
     the body's size (:func:`straight_edges`), saying where, when and how far; its text."""
     worst = straight_edges(anim, times)
@@ -83,5 +82,5 @@ def warn_straight(anim, times: np.ndarray, where: str, stacklevel: int = 2) -> s
             "body's size) off the solid it rests on, and what is attached along such an "
             "edge (a leaf on a stalk) parts from it; subdivide the surface where it bends "
             "(Blender: Subdivide or Remesh)")
-    warnings.warn(note, stacklevel=stacklevel)
+    warn(note)
     return note

@@ -210,16 +210,19 @@ def cache_is_cold() -> bool:
     return False
 
 
-def ensure_compiled() -> None:
+def ensure_compiled() -> bool:
     """Compile or load every kernel once per process, announcing a compilation first (on the
     ``wiggly`` logger, and as a live line on a terminal), so a first run never looks hung.
-    Batches call it before starting their workers, so that workers load, never compile."""
+    Batches call it before starting their workers, so that workers load, never compile.
+    Whether this call compiled them (False: loaded from the on-disk cache, or ready)."""
     global _ready
     if _ready or not compiled.AVAILABLE:
-        return
-    if cache_is_cold():
+        return False
+    cold = cache_is_cold()
+    if cold:
         with activity(COMPILING):
             compile_all()
     else:
         compile_all()
     _ready = True
+    return cold
