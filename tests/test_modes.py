@@ -358,6 +358,27 @@ def test_factorize_spd_backends_agree(small_body, backend):
     )
 
 
+@pytest.mark.skipif("cholespy" not in available_backends(), reason="cholespy not installed")
+def test_a_factor_alive_at_exit_is_not_reported_as_a_leak(tmp_path):
+    """A cholespy factor still held at the interpreter's exit (by a daemon thread, as the
+    editor's are) is released first: nanobind printed "leaked instance" warnings on the
+    terminal of an editor stopped with Ctrl+C."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "held.py"
+    script.write_text(
+        "import threading, time\n"
+        "import scipy.sparse as sp\n"
+        "from wiggly.linalg import factorize_spd\n"
+        "f = factorize_spd(sp.diags([2.0] * 50).tocsr(), backend='cholespy')\n"
+        "threading.Thread(target=lambda x=f: time.sleep(60), daemon=True).start()\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "leaked" not in done.stderr, done.stderr
+
+
 def test_factorize_spd_errors():
     with pytest.raises(WigglyInputError, match="backend"):
         factorize_spd(sp.eye(3), backend="magic")

@@ -16,7 +16,9 @@ Backends, in order of preference when ``backend=None``:
 
 from __future__ import annotations
 
+import atexit
 import importlib.util
+import weakref
 from collections.abc import Callable
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
@@ -132,21 +134,43 @@ def _factor_cholmod(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
     return _into(lambda b: np.asarray(factor(b)))
 
 
+class _Held:
+    """A cholespy factor, released at the interpreter's exit (:func:`_release`) before its
+    module is torn down: nanobind otherwise reports every factor still alive then as a
+    leak, on the user's terminal (an editor stopped with Ctrl+C held two)."""
+
+    __slots__ = ("__weakref__", "solver")
+
+    def __init__(self, solver):
+        self.solver = solver
+
+
+_HELD: weakref.WeakSet[_Held] = weakref.WeakSet()
+
+
+@atexit.register
+def _release() -> None:
+    for held in list(_HELD):
+        held.solver = None
+
+
 def _factor_cholespy(A: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
     import cholespy
 
     try:
-        solver = cholespy.CholeskySolverD(
+        held = _Held(cholespy.CholeskySolverD(
             A.shape[0],
             A.indptr.astype(np.int32),
             A.indices.astype(np.int32),
             A.data.astype(np.float64),
             cholespy.MatrixType.CSR,
-        )
+        ))
     except ValueError as err:  # "Matrix is not positive definite!"
         raise np.linalg.LinAlgError(f"matrix is not positive definite ({err})") from err
+    _HELD.add(held)
 
     def solve(b: np.ndarray, out: np.ndarray | None) -> np.ndarray:
+        solver = held.solver
         rhs = np.ascontiguousarray(b)  # (n,) or (n, k), C order, float64
         x = np.empty_like(rhs) if out is None else out
         if rhs.ndim == 1 or rhs.shape[1] <= 2 * CHOLESPY_COLUMNS:
