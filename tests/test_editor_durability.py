@@ -129,3 +129,24 @@ def test_ctrl_c_after_an_outside_change_says_where_the_edits_will_be(tmp_path):
         s.close()
     assert "changed on disk by another program" in said, said
     assert "opens the disk's version" in said and "shot.unsaved-" in said
+
+
+def test_a_failed_autosave_is_said_on_the_terminal_once(tmp_path, caplog):
+    """With no page open, nobody would hear of a failed autosave: it is also logged, once
+    per cause, not once per edit."""
+    import logging
+
+    from wiggly.editor.autosave import Autosaver
+    from wiggly.scene import Scene
+    from wiggly.scene.spec import MeshSpec
+
+    told: list[str] = []
+    saver = Autosaver(told.append)
+    target = tmp_path / "gone" / ".shot.autosave.toml"  # its folder does not exist
+    with caplog.at_level(logging.WARNING, logger="wiggly"):
+        for _ in range(3):
+            saver.put(target, Scene(MeshSpec("builtin:bar")), None)
+            saver.flush()
+    saver.close()
+    said = [r.getMessage() for r in caplog.records if "autosave failed" in r.getMessage()]
+    assert len(told) == 3 and len(said) == 1, (told, said)

@@ -13,6 +13,7 @@ the autosave stale, and recovery then opens the file as it is on disk."""
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 from collections.abc import Callable
@@ -21,6 +22,8 @@ from pathlib import Path
 from wiggly.errors import WigglyInputError
 from wiggly.files import sync_file
 from wiggly.scene import Scene, scene_to_toml
+
+_log = logging.getLogger("wiggly.editor")
 
 __all__ = ["Autosaver", "autosave_base", "autosave_path", "write_autosave", "write_durably"]
 
@@ -69,6 +72,7 @@ class Autosaver:
 
     def __init__(self, on_error: Callable[[str], None]):
         self._on_error = on_error
+        self._said: str | None = None  # the last failure said on the terminal
         self._cv = threading.Condition()
         self._pending: dict[Path, tuple[Scene, str | None] | None] = {}
         self._busy = False
@@ -110,7 +114,11 @@ class Autosaver:
                 else:
                     write_autosave(target, *item)
             except (OSError, WigglyInputError) as err:
-                self._on_error(f"autosave failed: {err}")
+                message = f"autosave failed: {err}"
+                if message != self._said:  # the terminal too (no page may be open), once
+                    self._said = message
+                    _log.warning("%s (the undo journal keeps the answered edits)", message)
+                self._on_error(message)
             finally:
                 with self._cv:
                     self._busy = False
