@@ -448,9 +448,11 @@ def test_a_dying_worker_fails_its_shot_only(tmp_path, monkeypatch):
     assert seen[first - 1] == 2 and seen[first + 1:first + 4] == [1, "restart", 1], seen
 
 
-def test_an_interrupted_batch_leaves_whole_folders(tmp_path, monkeypatch):
-    """Ctrl-C: the shots done keep their folders, the summary says which did not run, nothing
-    is half-written; the next run does the rest."""
+@pytest.mark.parametrize("stop", [KeyboardInterrupt, SystemExit(143)], ids=["ctrl-c", "sigterm"])
+def test_an_interrupted_batch_leaves_whole_folders(tmp_path, monkeypatch, stop):
+    """Ctrl-C, or SIGTERM (a farm's scheduler, ``timeout``: an exit with 143): the shots done
+    keep their folders, the summary says which did not run, nothing is half-written; the
+    next run does the rest. (SIGTERM's summary left out the shots not run.)"""
     import wiggly.batch.driver as driver
 
     waits = []
@@ -458,12 +460,12 @@ def test_an_interrupted_batch_leaves_whole_folders(tmp_path, monkeypatch):
     def interrupt(names):
         waits.append(names)
         if len(waits) == 3:  # the body, two shots, then Ctrl-C
-            raise KeyboardInterrupt
+            raise stop
 
     monkeypatch.setattr(InProcessPool, "hook", staticmethod(interrupt))
     monkeypatch.setattr(driver, "LocalPool", InProcessPool)
     out = tmp_path / "out"
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(KeyboardInterrupt if stop is KeyboardInterrupt else SystemExit):
         run(write_sweep(tmp_path), out, contact_sheet=False)
     records = json.loads((out / "summary.json").read_text())["shots"]
     assert [r["status"] for r in records] == ["done", "not run", "done", "not run"]
@@ -492,6 +494,44 @@ def test_scene_files_of_the_same_name(tmp_path):
     assert all(s.scene == scene and s.outputs == ("x.glb", "x.gif") for s in shots)
     with pytest.raises(WigglyInputError, match=r"--write: 'out/x\.glb' has folders"):
         collect([scene], write=["out/x.glb"])
+
+
+def test_a_shot_done_keeps_its_folder_when_a_twin_is_given_before_it(tmp_path):
+    """b/shot.toml runs alone (folder shot); then a/shot.toml and b/shot.toml together: the
+    new a/shot takes another name and b/shot resumes from its folder (before, a/shot took
+    the name, and the batch stopped saying that the folder's scene had changed)."""
+    for d, alpha in (("a", 0.5), ("b", 2.0)):
+        (tmp_path / d).mkdir()
+        data = copy.deepcopy(SCENE)
+        data["damping"] = {"alpha": alpha}
+        (tmp_path / d / "shot.toml").write_text(tomli_w.dumps(data))
+    out = tmp_path / "out"
+    first = run([tmp_path / "b" / "shot.toml"], out, contact_sheet=False)
+    assert [r["shot"] for r in first] == ["shot"]
+    both = run([tmp_path / "a" / "shot.toml", tmp_path / "b" / "shot.toml"], out,
+               contact_sheet=False)
+    by_name = {r["shot"]: r for r in both}
+    assert set(by_name) == {"shot", "shot-2"}, by_name
+    assert by_name["shot"]["resumed"] and not by_name["shot-2"].get("resumed")
+    assert load_scene(out / "shot-2" / "scene.toml").damping.alpha == 0.5  # a's, new
+    assert load_scene(out / "shot" / "scene.toml").damping.alpha == 2.0  # b's, kept
+
+
+def test_shots_run_again_for_their_thumbnails_say_so(tmp_path, monkeypatch, caplog):
+    """A batch without sheets, then with them: the shots done run again to render their
+    thumbnails (their files are written again), and the log says so (it was silent)."""
+    import logging
+
+    import wiggly.batch.driver as driver
+
+    monkeypatch.setattr(driver, "LocalPool", InProcessPool)
+    out = tmp_path / "out"
+    run(write_sweep(tmp_path), out, contact_sheet=False)
+    with caplog.at_level(logging.INFO, logger="wiggly"):
+        records = run(write_sweep(tmp_path), out)
+    assert not any(r.get("resumed") for r in records)
+    said = [r.getMessage() for r in caplog.records if "for the thumbnail" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("4 shots done before"), said
 
 
 def test_an_unreadable_prepared_body_is_prepared_again(tmp_path, monkeypatch):

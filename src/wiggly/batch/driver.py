@@ -21,7 +21,15 @@ from tqdm import tqdm
 
 from wiggly.batch import summary as summary_files
 from wiggly.batch.backends import LocalPool, RayCluster, WorkerDied, cpu_count
-from wiggly.batch.shots import Digests, Shot, body_scene, collect, keyed, saved_scene
+from wiggly.batch.shots import (
+    TOP_LEVEL,
+    Digests,
+    Shot,
+    body_scene,
+    collect,
+    keyed,
+    saved_scene,
+)
 from wiggly.batch.sweep import Sweep
 from wiggly.batch.worker import THUMBNAIL, ShotJob
 from wiggly.errors import WigglyInputError, counted, warn
@@ -100,6 +108,7 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
         keyed(shots, Digests())
     request = {"contact_sheet": contact_sheet, "thumbnail_time": thumbnail_time}
     with _batch_folder(out) as token:
+        _resume_names(out, shots)
         records, todo, replace = _scan(out, shots, overwrite, request)
         render_checked = False
         if contact_sheet and todo:
@@ -207,6 +216,37 @@ def _still_there(path: Path, lock) -> bool:
         return False
 
 
+def _resume_names(out: Path, shots: list[Shot]) -> None:
+    """Shots done before in ``out`` keep their folders' names, whatever other scene files
+    are given now: a shot whose content key a finished folder holds takes that folder's name
+    (the first such shot), and a shot whose name that takes is renamed as
+    :func:`wiggly.batch.shots.collect` renames twins (``-2``, ``-3``, ...)."""
+    found: dict[str, str] = {}  # content key -> the finished folder holding it
+    if out.is_dir():
+        for folder in sorted(out.iterdir()):
+            old = read_result(folder) if folder.is_dir() else None
+            if old is not None and old.get("status") == "done" and old.get("key"):
+                found.setdefault(old["key"], folder.name)
+    claimed: dict[str, int] = {}  # folder name -> the shot (its index) that takes it back
+    for i, s in enumerate(shots):
+        name = found.get(s.key) if s.scene is not None else None
+        if name is not None and name not in claimed:
+            claimed[name] = i
+    if all(shots[i].name == name for name, i in claimed.items()):
+        return
+    for name, i in claimed.items():
+        shots[i].name = name
+    taken = set(TOP_LEVEL) | set(claimed)
+    back = set(claimed.values())
+    for i, s in enumerate(shots):
+        if i in back:
+            continue
+        base, k = s.name, 2
+        while s.name in taken:
+            s.name, k = f"{base}-{k}", k + 1
+        taken.add(s.name)
+
+
 def _scan(out: Path, shots: list[Shot], overwrite: bool, request: dict):
     """Records of the shots done before (skipped), the shots to run, and the names whose
     folders may be replaced.  A shot done before runs again when its files are missing or
@@ -215,7 +255,7 @@ def _scan(out: Path, shots: list[Shot], overwrite: bool, request: dict):
     records: dict[str, dict] = {}
     todo: list[Shot] = []
     replace: set[str] = set()
-    changed, strangers, foreign, others = [], [], [], []
+    changed, strangers, foreign, others, pictured = [], [], [], [], []
     for s in shots:
         folder = out / s.name
         if s.scene is None:
@@ -238,6 +278,8 @@ def _scan(out: Path, shots: list[Shot], overwrite: bool, request: dict):
                 continue
             if broken is not None:
                 say(f"{s.name}: {broken}; it runs again")
+            else:
+                pictured.append(s.name)
         elif not overwrite:
             changed.append(s.name)
             continue
@@ -249,6 +291,10 @@ def _scan(out: Path, shots: list[Shot], overwrite: bool, request: dict):
             continue
         replace.add(s.name)  # another shot, or this one again (broken, or a thumbnail asked)
         todo.append(s)
+    if pictured:  # a solve makes the thumbnail: said, since its files are written again
+        say(f"{counted(len(pictured), 'shot')} done before ({_listed(pictured)}) run again "
+            "for the thumbnail the contact sheet asks (missing, or at another time), and their "
+            "files are written again; --no-sheet keeps them as they are")
     problems = []
     if strangers:
         problems.append(f"{out} holds {counted(len(strangers), 'folder')} where shots go that "
@@ -355,7 +401,7 @@ class _Driver:
                 self._say_failed(r)
         try:
             self._loop(todo)
-        except KeyboardInterrupt:
+        except (KeyboardInterrupt, SystemExit):  # Ctrl+C, or SIGTERM (a farm, `timeout`)
             self.interrupted = True
             for s in todo:
                 self.records.setdefault(s.name, {**_base_record(s), "status": "not run",

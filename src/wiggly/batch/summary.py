@@ -198,7 +198,8 @@ def _write_png(out: Path, records: list[dict], varied: list[str]) -> None:
 
     from wiggly.batch.worker import THUMBNAIL_SIZE
 
-    if not records:
+    if not records:  # an earlier batch's sheet would contradict this summary
+        (out / SHEETS[1]).unlink(missing_ok=True)
         return
     tw, th = THUMBNAIL_SIZE
     gap = 6

@@ -113,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
                             write=args.write, overwrite=args.overwrite,
                             contact_sheet=not args.no_sheet,
                             thumbnail_time=args.thumbnail_time, warm_start=not args.cold)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemExit):  # Ctrl+C, or SIGTERM (terminate_as_exit)
         print(interrupted(out, started), file=sys.stderr)
         raise
     print(report(records, out, args))
