@@ -266,3 +266,26 @@ def test_posing_right_after_keying_poses_the_new_key(chromium, tmp_path, monkeyp
             assert not errors, errors
     finally:
         server.stop()
+
+
+def test_the_floor_goes_under_a_body_that_sags_below_its_rest_pose(chromium, tmp_path):
+    """A soft bar fixed at one end sags far below its rest pose: the floor, first at the rest
+    pose's lowest point, moves under the lowest point of the motion, so no part of the body
+    is hidden under it (a review's worm hung half below the floor)."""
+    from tests.editor_ui import bar_project
+    from wiggly.editor import serve
+
+    scene = bar_project(tmp_path, warp=False)
+    server = serve(str(scene), roots=[tmp_path])
+    try:
+        with editor_page(chromium, server.url) as (page, errors):
+            _wait_final(page)
+            page.wait_for_function("window.wiggly.groundY() !== null")
+            low = page.evaluate("""() => { const d = window.wiggly.S.frames.data;
+                let low = Infinity; for (let i = 1; i < d.length; i += 3) low = Math.min(low, d[i]);
+                return low; }""")
+            assert low < -0.1  # it sags well below its rest pose's bottom (y = -0.05)
+            page.wait_for_function(f"window.wiggly.groundY() <= {low + 1e-6}", timeout=20_000)
+            assert not errors, errors
+    finally:
+        server.stop()

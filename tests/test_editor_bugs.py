@@ -480,3 +480,34 @@ def test_a_job_cut_short_does_not_read_a_descriptor_reused_elsewhere():
     finally:
         os.close(number)
         os.close(w)
+
+
+@pytest.mark.parametrize("warp", [False, True])
+def test_a_surface_that_stays_straight_is_a_notice_as_in_the_cli(tmp_path, warp):
+    """A box of 12 triangles fixed at one end bends under gravity while its long surface
+    edges stay straight: wiggly animate warns of it, and the editor now says it too, for
+    linear and warped scenes (a review's worm, silent in the editor)."""
+    import trimesh
+
+    from tests.test_editor_drive import _notices
+
+    trimesh.creation.box(extents=(1.0, 0.1, 0.1)).apply_translation((0.5, 0.0, 0.0)).export(
+        tmp_path / "slab.obj")
+    said, seen = _notices(tmp_path / "shot.toml", f"""
+[mesh]
+path = "slab.obj"
+resolution = 8
+[material]
+young = 2e5
+[simulation]
+modes = 6
+warp = {str(warp).lower()}
+fixed = ["left"]
+[groups.left]
+box = {{ min = [-0.01, -1.0, -1.0], max = [0.01, 1.0, 1.0] }}
+[time]
+end = 0.5
+fps = 10
+""", "which stay straight")
+    assert said is not None, seen
+    assert "subdivide the surface where it bends" in said["message"]

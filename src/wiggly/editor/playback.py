@@ -316,6 +316,7 @@ class Playback:
         from wiggly.scene.body_notes import soft_note, thin_joint
         from wiggly.scene.drive import check_driver_against, secondary_of
         from wiggly.scene.validation import Problems
+        from wiggly.solve.surface import warn_straight
 
         if scene.drive is not None:  # the driver's scale and axes, as `wiggly animate` checks
             p = Problems(scene.where())
@@ -353,6 +354,8 @@ class Playback:
                 "residual_max": residual_max(anim) if final else None}
         self._publish(FrameSet(0, req.seq, req.version, "linear", final, float(times[0]), fps,
                                positions, req.kind, info))
+        if req.kind == "final" and not warp:  # as `wiggly animate` checks (warped: refine)
+            warn_straight(anim, times, scene.where())
         if req.kind == "final":
             held = anim.held_modes if scene.secondary_motion else None
             self._tell_once(scene, thin_joint(scene, body, held) or soft_note(scene, body, held))

@@ -182,7 +182,7 @@ def _secondary(seq, version, scene, body, groups, keys, out,
             "converged": bool(anim.info.get("converged", True)),
             "objective": float(anim.energy()),
             "seconds": time.perf_counter() - t0, "residual_max": residual_max(anim), **notes,
-            "said": list(dict.fromkeys(str(w.message) for w in caught))}
+            "said": list(dict.fromkeys([*(str(w.message) for w in caught), *notes["said"]]))}
     positions = anim.positions(times, dtype=np.float32)
     channel.send(out, ("frames", seq, version, True, float(times[0]), fps, positions, info))
 
@@ -193,11 +193,14 @@ def _notes(scene, anim, times, checked, groups) -> dict:  # pragma: no cover - s
     misses (the residual rows are kept in ``anim.info`` for :func:`residual_max`)."""
     from wiggly.scene.run import fold_highlights, fold_remedy, missed_note
     from wiggly.solve import fold_note
+    from wiggly.solve.surface import straight_note
 
+    straight = straight_note(anim, times, scene.where())  # long edges that stay straight
     out = {"folds": None if checked is None
            else fold_note(anim, api=False, groups=groups, checked=checked,
                           remedy=fold_remedy(scene)),
-           "missed": missed_note(scene, anim), "source": scene.source}
+           "missed": missed_note(scene, anim), "source": scene.source,
+           "said": [straight] if straight else []}
     if out["folds"] is not None:  # and where: the page tints them as previews do
         out["fold_spans"] = [{"from": h.time, "until": h.until, "vertices": h.vertices.tolist()}
                              for h in fold_highlights(anim, times, checked)]
@@ -254,7 +257,8 @@ def _refine(seq, version, scene, problem, keys, previous, pkey, out, inbox,
     # creases and missed keys of the final motion, explained (before residual_max: it reads
     # the missed-key check's rows)
     notes = (_notes(scene, anim, times, anim.folds(times, displacements=moved), groups)
-             if kind == "final" else {"folds": None, "missed": None, "source": scene.source})
+             if kind == "final" else {"folds": None, "missed": None, "source": scene.source,
+                                      "said": []})
     info = {"iterations": int(anim.info.get("iterations", 0)),
             "converged": bool(anim.info.get("converged")),
             "objective": float(anim.info.get("objective", np.nan)),

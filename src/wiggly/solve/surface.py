@@ -68,6 +68,14 @@ def straight_edges(anim, times: np.ndarray) -> dict | None:
 def warn_straight(anim, times: np.ndarray, where: str) -> str | None:
     """One warning when long surface edges part from the solid by more than :data:`BENT` of
     the body's size (:func:`straight_edges`), saying where, when and how far; its text."""
+    note = straight_note(anim, times, where)
+    if note is not None:
+        warn(note)
+    return note
+
+
+def straight_note(anim, times: np.ndarray, where: str) -> str | None:
+    """The text of :func:`warn_straight`'s warning (None: no edge parts), not warned."""
     worst = straight_edges(anim, times)
     if worst is None or not worst["parted"]:
         return None
@@ -82,5 +90,4 @@ def warn_straight(anim, times: np.ndarray, where: str) -> str | None:
             "body's size) off the solid it rests on, and what is attached along such an "
             "edge (a leaf on a stalk) parts from it; subdivide the surface where it bends "
             "(Blender: Subdivide or Remesh)")
-    warn(note)
     return note

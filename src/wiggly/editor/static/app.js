@@ -43,8 +43,20 @@ function makeGround() {
   grid.position.y = y;
   ground.add(plane, grid);
   ground.name = 'ground';
+  ground.userData.restY = y;
   scene3.add(ground);
   redraw();
+}
+// The floor stays under the whole motion: a body that sags or hangs below its rest pose
+// (a tail fixed up high, a soft body under gravity) would be hidden by an opaque floor.
+function lowerGround() {
+  if (!ground || !S.frames) return;
+  const d = S.frames.data;
+  let low = Infinity;
+  for (let i = 1; i < d.length; i += 3) if (d[i] < low) low = d[i];
+  const size = geometry.boundingBox.getSize(new THREE.Vector3()).length();
+  const y = Math.min(ground.userData.restY, low) - ground.userData.restY;
+  if (Math.abs(ground.position.y - y) > 1e-6 * size) { ground.position.y = y; redraw(); }
 }
 function frameCamera() {
   const bb = geometry.boundingBox;
@@ -71,11 +83,12 @@ Object.assign(hooks, {
   updatePaths() { updatePaths(); updateOnion(); },   // the selected groups changed, too
   timeChanged() { drawTimeCursor(); updateOnion(); updatePathMarker(); updateDriverGhost(); },
   syncDriver,
-  framesChanged() { updatePaths(); updateOnion(); },
+  framesChanged() { updatePaths(); updateOnion(); lowerGround(); },
 });
 
 window.wiggly = {                 // test and benchmark hooks (read-only use)
   S, latencies: [], framesApplied: 0,
+  groundY: () => (ground ? ground.userData.restY + ground.position.y : null),
   gizmoHandle, gizmoRing, screenBox, redraw, onionInfo, driverInfo,
   projectGroup: (name) => screenBox(S.groupVerts[name] || []),
   rigidOfPose: () => poseTarget(),
