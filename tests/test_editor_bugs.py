@@ -511,3 +511,22 @@ fps = 10
 """, "which stay straight")
     assert said is not None, seen
     assert "subdivide the surface where it bends" in said["message"]
+
+
+def test_a_mesh_warning_stays_in_the_notices_bar(tmp_path):
+    """A mesh in millimetres read as metres is warned about while it is tetrahedralized: a
+    toast of 3.5 s during a long wait was easy to miss (a review did), so the warning is
+    also kept in the notices a page shows, also a page opened later."""
+    import trimesh
+
+    from tests.test_editor_drive import _session_final
+
+    trimesh.creation.box(extents=(300.0, 40.0, 40.0)).export(tmp_path / "part.obj")
+    session = Session(Sandbox([tmp_path]))
+    try:
+        session.open("part.obj")
+        _session_final(session)
+        notes = session.describe()["notices"]
+        assert any("the mesh is 30" in n and "scale it by 0.001" in n for n in notes), notes
+    finally:
+        session.close()

@@ -536,8 +536,16 @@ def test_editing_the_mesh_again_after_a_crash_points_to_its_unsaved_scene(tmp_pa
                    "Open bar.toml" in n for n in opened["notices"]), opened["notices"]
         s2.open("bar.toml")
         assert s2.scene == end
+        s2.save()
     finally:
         s2.close()
+    s3 = Session(Sandbox([tmp_path]))
+    try:  # saved, no edits since: the mesh opened again points to it as well (it did not)
+        notices = s3.open("bar.vtu")["notices"]
+        assert any("already has a scene bar.toml;" in n and "Open bar.toml" in n
+                   for n in notices), notices
+    finally:
+        s3.close()
 
 
 def test_a_journal_that_cannot_be_replayed_is_dropped_with_a_notice(tmp_path):

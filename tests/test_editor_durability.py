@@ -150,3 +150,17 @@ def test_a_failed_autosave_is_said_on_the_terminal_once(tmp_path, caplog):
     saver.close()
     said = [r.getMessage() for r in caplog.records if "autosave failed" in r.getMessage()]
     assert len(told) == 3 and len(said) == 1, (told, said)
+
+
+def test_ctrl_c_on_a_new_scene_without_edits_promises_nothing(tmp_path):
+    """A mesh opened as a new scene and left as it was: Ctrl+C says it was not saved and had
+    no edits, not that unsaved edits are kept in files that do not exist."""
+    bar_project(tmp_path, warp=False)
+    s = Session(Sandbox([tmp_path]))
+    try:
+        s.open("bar.vtu")
+        said = stop_messages(s)[-1]
+    finally:
+        s.close()
+    assert "was not saved (it had no edits to keep)" in said, said
+    assert "kept beside it" not in said

@@ -164,6 +164,10 @@ def stop_messages(session, autosave: bool = True) -> list[str]:
     except ValueError:  # another drive
         shown = str(source)
     shown = shown if not shown.startswith("..") else str(source)
+    if not source.exists() and not (autosave_path(source).exists() or
+                                    history_path(source).exists()):
+        return [*out, f"wiggly edit: stopped; the new scene {source.name} was not saved "
+                      "(it had no edits to keep)"]
     if not autosave:
         return [*out, f"wiggly edit: stopped; the unsaved edits of {source.name} are lost "
                       "(--no-autosave)"]

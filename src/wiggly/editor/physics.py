@@ -277,10 +277,10 @@ class Physics:
     """Models and bodies by setting, prepared by the child process one job at a time, with
     stage events.  Jobs for settings that nobody wants any more are abandoned."""
 
-    def __init__(self, bus: EventBus):
+    def __init__(self, bus: EventBus, on_warning: Callable[[str], None] | None = None):
         self.bus = bus
-        self.preparer = Preparer(lambda message: bus.publish(
-            "notice", sticky=False, level="warning", message=message))
+        self.preparer = Preparer(on_warning or (lambda message: bus.publish(
+            "notice", sticky=False, level="warning", message=message)))
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="wiggly-physics")
         self._lock = threading.RLock()
         # futures by model_key / modes_key, and bodies with dynamics by (modes_key, damping,

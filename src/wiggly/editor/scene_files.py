@@ -16,8 +16,20 @@ from wiggly.editor.state import EditError, check_limits
 from wiggly.errors import WigglyInputError
 from wiggly.scene import MeshSpec, Scene, TimeSpec, load_scene, resolve_groups
 
-__all__ = ["MESH_SUFFIXES", "SCENE_SUFFIX", "display_groups", "driver_stamp", "export_written",
-           "file_digest", "free_name", "load_checked", "never_saved", "new_scene", "surface_of"]
+__all__ = [
+    "MESH_SUFFIXES",
+    "SCENE_SUFFIX",
+    "display_groups",
+    "driver_ghost",
+    "driver_stamp",
+    "export_written",
+    "file_digest",
+    "free_name",
+    "load_checked",
+    "never_saved",
+    "new_scene",
+    "surface_of",
+]
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf", ".msh", ".vtu", ".vtk",
                  ".mesh")
@@ -139,3 +151,35 @@ def never_saved(sandbox) -> list[str]:
                 if not scene.exists() and sandbox.contains(kept):
                     out.add(sandbox.relative(scene))
     return sorted(out)
+
+
+def driver_ghost(scene: Scene, surface) -> tuple[bytes, dict]:
+    """The scene's driver (``[drive]``) as the editor's ghost: float32 positions (F, n, 3)
+    of the driver frames that key the driven groups (:func:`wiggly.drive.keyed_frames`),
+    and their meta: shot times, the driven groups, the file and its kind.  A scene without
+    ``[drive]`` answers 404, a mesh not loaded yet (``surface`` None) 409; a driver that
+    cannot be read, or animates another surface, 400 with the reader's message."""
+    from wiggly.drive import keyed_frames
+    from wiggly.progress import reporting
+    from wiggly.scene.drive import scene_driver
+
+    if scene.drive is None:
+        raise EditError("the scene has no [drive]", 404)
+    if surface is None:
+        raise EditError("the mesh is not loaded yet", 409)
+    drive = scene.drive
+    try:
+        with reporting(False):  # the page shows the driver, the terminal stays quiet
+            driver = scene_driver(scene)
+        why = driver.mismatch(surface.n_vertices, surface.faces, scene.mesh.path)
+        if why is not None:
+            raise WigglyInputError(f"{scene.where()}: drive.path = {drive.path!r}: {why}")
+        start, end = scene.time_range()
+        frames, times = keyed_frames(driver, offset=drive.offset, driver_range=drive.range,
+                                     start=start, end=end)
+    except WigglyInputError as err:
+        raise EditError(str(err)) from None
+    meta = {"n_frames": len(frames), "n_vertices": driver.n_vertices,
+            "times": times.tolist(), "groups": list(drive.groups),
+            "source": drive.path, "kind": driver.kind}
+    return driver.positions[frames].astype("<f4").tobytes(), meta

@@ -48,6 +48,7 @@ from wiggly.editor.scene_files import (
     MESH_SUFFIXES,
     SCENE_SUFFIX,
     display_groups,
+    driver_ghost,
     driver_stamp,
     file_digest,
     free_name,
@@ -67,7 +68,6 @@ from wiggly.editor.state import (
 )
 from wiggly.errors import WigglyInputError
 from wiggly.mesh import DEFAULT_RESOLUTION, VOLUME_EXTENSIONS
-from wiggly.progress import reporting
 from wiggly.scene import (
     BUILTIN_MODELS,
     Scene,
@@ -85,7 +85,7 @@ class Session(Exports):
         self.autosave = autosave
         self.bus = bus or EventBus(shown=sandbox.shown)
         self.instance = secrets.token_hex(6)  # this process (the browser's frame order)
-        self.physics = Physics(self.bus)
+        self.physics = Physics(self.bus, on_warning=self._prepared_note)
         self.playback = Playback(self.bus, self.physics, self.instance)
         self._lock = threading.RLock()
         self.version = 0
@@ -254,15 +254,18 @@ class Session(Exports):
                 self._claim(scene.source, taken)
                 histories = self._histories(scene.source)
                 state, _ = histories.load(scene)
-                # a never-saved scene of this mesh with edits (a crash, or another editor
-                # still at work on it): a new name, and the page says where the edits are
+                # a scene of this mesh already (saved, or with edits never saved: a crash,
+                # another editor at work on it): a new name, and the page says where it is
                 unsaved = real.with_name(f"{real.stem}{SCENE_SUFFIX}")
-                if scene.source != unsaved and not unsaved.exists() and (
-                        autosave_path(unsaved).exists() or history_path(unsaved).exists()):
+                edited = autosave_path(unsaved).exists() or (  # a save drops the autosave
+                    not unsaved.exists() and history_path(unsaved).exists())
+                if scene.source != unsaved and (unsaved.exists() or edited):
+                    what = ("with unsaved edits, " if edited else "") + unsaved.name + (
+                        "" if unsaved.exists() else " (never saved)")
                     notices.append(
-                        f"{real.name} already has a scene with unsaved edits, {unsaved.name} "
-                        f"(never saved); this is a new one, {scene.source.name}: to go on "
-                        f"with those edits, Open {unsaved.name}")
+                        f"{real.name} already has a scene {what}; this is a new one, "
+                        f"{scene.source.name}: to go on with that scene, Open {unsaved.name} "
+                        f"(wiggly edit {unsaved.name})")
             else:
                 raise EditError(f"{path}: no such file", 404)
             assert state is not None
@@ -633,6 +636,16 @@ class Session(Exports):
                 "default_resolution": DEFAULT_RESOLUTION,
             }
 
+    def _prepared_note(self, message: str) -> None:
+        """A warning of the mesh's preparation (its units, a repair): a toast, and kept in
+        the notices bar, which a page opened or reloaded later shows too."""
+        with self._lock:
+            if message not in self.notices:
+                self.notices = [*self.notices, message]
+            dirty = self._state is not None and self.dirty
+        self.bus.publish("notice", sticky=False, level="warning", message=message)
+        self.bus.publish("state", version=self.version, dirty=dirty)
+
     def recoverable(self) -> list[str]:
         """Scenes never saved whose autosave or undo journal exists (edited before a crash)."""
         return never_saved(self.sandbox)
@@ -652,36 +665,10 @@ class Session(Exports):
         return head + s.vertices.astype("<f4").tobytes() + s.faces.astype("<u4").tobytes()
 
     def driver_frames(self) -> tuple[bytes, dict]:
-        """The scene's driver (``[drive]``) as the editor's ghost: float32 positions (F, n, 3)
-        of the driver frames that key the driven groups (:func:`wiggly.drive.keyed_frames`),
-        and their meta: shot times, the driven groups, the file and its kind.  A scene
-        without ``[drive]`` answers 404; a driver that cannot be read, or animates another
-        surface, 400 with the reader's message."""
-        from wiggly.drive import keyed_frames
-        from wiggly.scene.drive import scene_driver
-
+        """The scene's driver as the editor's ghost (:func:`driver_ghost`)."""
         with self._lock:
             scene, surface = self.scene, self.surface
-        if scene.drive is None:
-            raise EditError("the scene has no [drive]", 404)
-        if surface is None:
-            raise EditError("the mesh is not loaded yet", 409)
-        drive = scene.drive
-        try:
-            with reporting(False):  # the page shows the driver, the terminal stays quiet
-                driver = scene_driver(scene)
-            why = driver.mismatch(surface.n_vertices, surface.faces, scene.mesh.path)
-            if why is not None:
-                raise WigglyInputError(f"{scene.where()}: drive.path = {drive.path!r}: {why}")
-            start, end = scene.time_range()
-            frames, times = keyed_frames(driver, offset=drive.offset, driver_range=drive.range,
-                                         start=start, end=end)
-        except WigglyInputError as err:
-            raise EditError(str(err)) from None
-        meta = {"n_frames": len(frames), "n_vertices": driver.n_vertices,
-                "times": times.tolist(), "groups": list(drive.groups),
-                "source": drive.path, "kind": driver.kind}
-        return driver.positions[frames].astype("<f4").tobytes(), meta
+        return driver_ghost(scene, surface)
 
     def frames(self, frame_id: int) -> FrameSet:
         fs = self.playback.frames(frame_id)

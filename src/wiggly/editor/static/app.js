@@ -260,7 +260,9 @@ for (const id of ['range-from', 'range-to']) {
     const a = parseFloat($('range-from').value), b = parseFloat($('range-to').value);
     const [lo, hi] = range();
     if (Number.isNaN(a) && Number.isNaN(b)) { setPreviewRange(null); return; }
-    setPreviewRange([Number.isNaN(a) ? lo : a, Number.isNaN(b) ? hi : b]);
+    const from = Math.max(lo, Math.min(hi, Number.isNaN(a) ? lo : a));
+    const to = Math.max(lo, Math.min(hi, Number.isNaN(b) ? hi : b));
+    setPreviewRange(from <= to ? [from, to] : [to, from]);  // typed the wrong way round
   };
 }
 $('btn-range-clear').onclick = () => setPreviewRange(null);

@@ -175,6 +175,7 @@ export function toast(text, err = false) {
 export function clearError() {
   const el = $('toast');
   if (!el.hidden && el.className === 'err') { el.hidden = true; clearTimeout(toastTimer); }
+  if ($('status-text').className === 'err') setStatus('', '');  // an edit since stands over it
 }
 // Run a request; errors (the server's 4xx message) go to the toast and the status line.
 export async function act(fn) {

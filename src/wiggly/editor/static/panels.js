@@ -91,6 +91,8 @@ export function showNotices(d) {
 // ------------------------------------------------------------------------------------------
 // panels
 
+// A number short enough for a narrow field: 1e+8, not 100000000 (cut off at 72 px).
+function shortNumber(x) { return Math.abs(x) >= 1e5 || (x !== 0 && Math.abs(x) < 1e-3) ? x.toExponential() : String(x); }
 function keyKind(k) {
   const p = k.position;
   if (p === undefined) return 'velocity only';
@@ -138,7 +140,7 @@ export function renderPanels() {
     fixed.append(cb, ' fixed');
     const young = document.createElement('input');  // a softer (or stiffer) group
     young.type = 'number'; young.step = 'any'; young.min = '0'; young.className = 'young';
-    young.placeholder = 'E'; young.value = g.young === undefined ? '' : g.young;
+    young.placeholder = 'E'; young.value = g.young === undefined ? '' : shortNumber(g.young);
     young.title = "this group's Young's modulus (Pa); empty: the material's";
     young.onchange = () => {
       const v = young.value === '' ? null : Number(young.value);
@@ -212,7 +214,7 @@ export function renderKeyPanel() {
   if (!k) return;
   const sel = $('key-group');
   sel.replaceChildren(...Object.keys(scene().groups).map((g) => new Option(g, g, false, g === k.group)));
-  if (document.activeElement !== $('key-time')) $('key-time').value = k.time;
+  if (document.activeElement !== $('key-time')) $('key-time').value = +k.time.toFixed(6);  // a dragged key's float
   if (document.activeElement !== $('key-stiffness')) $('key-stiffness').value = k.stiffness ?? '';
   if (document.activeElement !== $('key-name')) $('key-name').value = k.name || '';
   $('key-kind').textContent = keyKind(k);
