@@ -305,6 +305,38 @@ def test_glb_normals_follow_a_rigid_motion(tmp_path):
         assert np.einsum("ij,ij->i", n_k, radial).min() > 0.999
 
 
+@pytest.mark.parametrize("ext", [".usda", ".usdc"])
+def test_usd_normals_follow_a_rigid_motion_without_rest_normals(tmp_path, ext):
+    """A surface without normals of its own gets each frame's recomputed normals in USD, as
+    in glTF (a review saw USD without normals shade unlike the glTF of the same shot)."""
+    from pxr import Usd, UsdGeom
+
+    anim = sphere_animation(F=6, subdivisions=4, uvs=False, rigid=True)
+    stage = Usd.Stage.Open(str(write_animation(tmp_path / f"a{ext}", anim)))
+    mesh = next(UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh))
+    assert mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex
+    codes = mesh.GetPointsAttr().GetTimeSamples()
+    assert len(codes) == anim.n_frames
+    for k, code in enumerate(codes):
+        n_k = np.asarray(mesh.GetNormalsAttr().Get(code), np.float64)
+        P = anim.positions[k]
+        radial = P - P.mean(axis=0)
+        radial /= np.linalg.norm(radial, axis=1, keepdims=True)
+        assert np.einsum("ij,ij->i", n_k, radial).min() > 0.999
+
+
+def test_gltf_says_its_frame_rate(tmp_path):
+    """glTF keeps seconds only: a uniform animation's rate is in extras.wiggly (25 fps shots
+    landed between frames in a scene at 24 fps, with nothing in the file to say 25)."""
+    import pygltflib
+
+    for times, rate in ((np.arange(6) / 25.0, 25.0), (np.array([0.0, 0.1, 0.35]), None)):
+        anim = sphere_animation(F=len(times), times=times)
+        gltf = pygltflib.GLTF2().load(str(write_animation(tmp_path / "a.glb", anim,
+                                                          overwrite=True)))
+        assert gltf.animations[0].extras["wiggly"].get("frames_per_second") == rate
+
+
 def test_rest_normals_are_transported_by_the_smallest_rotation():
     """Frame normals keep the angle between the rest normal and the recomputed normal, are
     the rest normals at frame 0, and become the recomputed normals when they coincide."""

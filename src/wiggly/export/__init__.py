@@ -32,7 +32,10 @@ Formats
     0`` the clip is shifted to start at 0; with ``frame_start`` frame k is at ``(frame_start +
     k) / fps`` s (Blender puts a key at t s on frame ``t * fps`` of its scene, so at the same
     fps keys land on frames ``frame_start``, ``frame_start + 1``, ...); the exact times in
-    seconds are kept in the animation's ``extras.wiggly.times`` (and read back from there).
+    seconds are kept in the animation's ``extras.wiggly.times`` (and read back from there),
+    and for uniform frames their rate in ``extras.wiggly.frames_per_second`` (glTF itself
+    has none: set the importing scene's rate to it, as Blender's importer maps seconds to
+    frames at the scene's rate).
     Size is about ``F * n * 24`` bytes (position and normal deltas per frame): 300 frames of 20k
     vertices take 147 MB.
 ``.usd``, ``.usda``, ``.usdc``

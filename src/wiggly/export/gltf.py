@@ -167,6 +167,9 @@ def write_glb(path: Path, anim: SurfaceAnimation, *,
         weight_accessor = add_accessor(add_data(flat), len(flat), _GL_FLOAT, "SCALAR")
     extras = {"format_version": FORMAT_VERSION, "times": anim.times.tolist(),
               "targets": targets, "loop": bool(anim.loop)}
+    dt = np.diff(anim.times)
+    if len(dt) and np.all(np.abs(dt - dt.mean()) <= 1e-6 * dt.mean()):  # glTF has only
+        extras["frames_per_second"] = _rate(dt.mean())  # seconds: set a scene's rate
     if frame_start is not None:
         extras["frame_start"] = int(frame_start)
 
@@ -383,3 +386,9 @@ def read_glb(path: Path) -> SurfaceAnimation:
     return SurfaceAnimation(times, positions.astype(np.float32), faces, uvs, normals,
                             gltf.meshes[0].name or path.stem,
                             loop=bool((extras or {}).get("loop", False)))
+
+
+def _rate(dt: float) -> float:
+    """The frame rate of frames ``dt`` seconds apart, a whole number when it is one."""
+    fps = 1.0 / dt
+    return float(round(fps)) if abs(fps - round(fps)) <= 1e-6 * fps else fps

@@ -51,20 +51,19 @@ def write_usd(path: Path, anim: SurfaceAnimation, *,
             "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
         st.Set(Vt.Vec2fArray.FromNumpy(anim.uvs.astype(np.float32)))
     points, extent = mesh.CreatePointsAttr(), mesh.CreateExtentAttr()
-    normals = None
-    if anim.normals is not None:
-        normals = mesh.CreateNormalsAttr()
-        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-        frame_normals = FrameNormals(anim)
+    # per-vertex normals of every frame, as the glTF and OBJ outputs carry (the input's turned
+    # with the surface, else computed): the same shot shades alike in each format
+    normals = mesh.CreateNormalsAttr()
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    frame_normals = FrameNormals(anim)
     for k in frame_progress(range(anim.n_frames), anim.n_frames, path):
         t = Usd.TimeCode(float(codes[k]))
         p = anim.positions[k].astype(np.float32)
         points.Set(Vt.Vec3fArray.FromNumpy(p), t)
         lo, hi = p.min(axis=0).tolist(), p.max(axis=0).tolist()
         extent.Set(Vt.Vec3fArray([Gf.Vec3f(*lo), Gf.Vec3f(*hi)]), t)
-        if normals is not None:
-            nk = frame_normals(anim.positions[k]).astype(np.float32)
-            normals.Set(Vt.Vec3fArray.FromNumpy(nk), t)
+        nk = frame_normals(anim.positions[k]).astype(np.float32)
+        normals.Set(Vt.Vec3fArray.FromNumpy(nk), t)
     stage.GetRootLayer().customLayerData = {"wiggly": {
         "format_version": FORMAT_VERSION, "start_time": float(anim.times[0]),
         "frame_start": int(codes[0]), "frames_per_second": float(fps),
