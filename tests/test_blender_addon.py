@@ -212,6 +212,8 @@ def test_mistakes_are_reports_naming_object_and_group(blender_python, tmp_path):
         "no wiggly command": ("the wiggly command", "was not found", "Preferences"),
         "a folder as wiggly command": ("is a folder, not a program", "Preferences"),
         "a text file as wiggly command": ("is a file that cannot be run", "Preferences"),
+        "a blend-relative wiggly command": ("is relative to a .blend file (//)",
+                                            "give an absolute path"),
         "wiggly refuses": ("wiggly could not solve the shot of 'Tail'", "Modes = 500"),
         "unsaved blend": ("Object 'Tail': the cache folder //wiggly/ is relative to the "
                           ".blend file",),

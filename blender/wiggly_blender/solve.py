@@ -28,12 +28,15 @@ _NUMBER = r"-?\d+(?:\.\d*)?(?:e[-+]?\d+)?"
 
 def wiggly_command(command: str) -> str:
     """The wiggly program of the preferences as a path; ShotError when it is not there."""
+    where = ("set the path of the wiggly command of the Python environment where wiggly is "
+             "installed (e.g. .venv/bin/wiggly) in Edit > Preferences > Add-ons > wiggly")
+    if command.strip().startswith("//"):  # a preference serves every .blend file
+        raise ShotError(f"the wiggly command '{command}' is relative to a .blend file (//), "
+                        f"but the preference serves them all: give an absolute path: {where}")
     path = os.path.expanduser(command.strip() or "wiggly")
     found = shutil.which(path)
     if found is not None:
         return found
-    where = ("set the path of the wiggly command of the Python environment where wiggly is "
-             "installed (e.g. .venv/bin/wiggly) in Edit > Preferences > Add-ons > wiggly")
     if os.path.isdir(path):
         raise ShotError(f"the wiggly command '{command}' is a folder, not a program: {where}")
     if os.path.isfile(path):

@@ -399,6 +399,8 @@ def case_errors() -> None:
     bpy.context.preferences.addons["wiggly_blender"].preferences.command = str(
         workdir / "notes.txt")
     attempt("a text file as wiggly command")
+    bpy.context.preferences.addons["wiggly_blender"].preferences.command = "//bin/wiggly"
+    attempt("a blend-relative wiggly command")
     bpy.context.preferences.addons["wiggly_blender"].preferences.command = command
     obj.wiggly.modes = 500  # more modes than the coarse tet mesh has: wiggly refuses
     obj.wiggly.resolution = 2
