@@ -211,23 +211,23 @@ class WIGGLY_OT_bake(bpy.types.Operator):
             context.workspace.status_text_set(None)
         _running.clear()
 
+    def _stop(self, context, level: str, message: str) -> set[str]:
+        """Stop wiggly and the modal run, bake nothing, and say ``message``."""
+        self.solve.cancel()
+        self.solve.cleanup()
+        self._end(context)
+        self.report({level}, message)
+        return {"CANCELLED"}
+
     def modal(self, context, event):
         if event.type == "ESC":
-            self.solve.cancel()
-            self.solve.cleanup()
-            self._end(context)
-            self.report({"WARNING"}, f"wiggly bake of '{self.shot.name}' cancelled; nothing "
-                        "changed")
-            return {"CANCELLED"}
+            return self._stop(context, "WARNING", f"wiggly bake of '{self.shot.name}' "
+                              "cancelled; nothing changed")
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         if self._target() is None:  # deleted during the solve: stop wiggly, bake nothing
-            self.solve.cancel()
-            self.solve.cleanup()
-            self._end(context)
-            self.report({"ERROR"}, f"Object '{self.shot.name}' was deleted while wiggly "
-                        "solved: the bake is cancelled, nothing was baked")
-            return {"CANCELLED"}
+            return self._stop(context, "ERROR", f"Object '{self.shot.name}' was deleted while "
+                              "wiggly solved: the bake is cancelled, nothing was baked")
         code = self.solve.poll()
         if code is None:
             self._status(context, self.solve.status())

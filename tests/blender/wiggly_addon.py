@@ -508,7 +508,7 @@ def case_modal() -> None:
 
         op = SimpleNamespace(report=note)
         for name in ("_prepare", "_finish", "_status", "_end", "modal", "_target",
-                     "_check_unchanged"):
+                     "_check_unchanged", "_stop"):
             setattr(op, name, MethodType(getattr(operators.WIGGLY_OT_bake, name), op))
         assert op._prepare(context)
         operators._running["op"] = op  # what invoke() does besides the event handler
