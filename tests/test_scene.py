@@ -1123,3 +1123,17 @@ def test_paths_through_a_parent_folder_are_said_tidily(tmp_path):
     (tmp_path / "deep" / "y.ply").write_text("ply\n")  # link/.. is deep/, not scenes/
     assert scene.resolve("link/../y.ply") == tmp_path / "scenes" / "link" / ".." / "y.ply"
     assert scene.resolve("link/../y.ply").is_file()
+
+
+def test_a_long_index_group_is_written_in_a_few_lines():
+    """A group of 200 indices (a brush selection) is written packed, not one index per line
+    (a review's two groups took 258 lines, hard to read in a diff), and reads back equal."""
+    from wiggly.scene.spec import Indices
+
+    scene = Scene(MeshSpec("builtin:bar"),
+                  groups={"g": GroupSpec(Indices(tuple(range(0, 600, 3))))})
+    text = scene_to_toml(scene)
+    start = text.index("indices = [")
+    block = text[start:text.index("]", start) + 1].splitlines()
+    assert len(block) <= 14 and max(map(len, block)) <= 100, block  # 11 of numbers
+    assert tomllib.loads(text)["groups"]["g"]["indices"] == list(range(0, 600, 3))

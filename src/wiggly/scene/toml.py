@@ -129,8 +129,9 @@ def _toml_value(v: Any) -> str:
 
 
 def _toml_lines(table: dict, header: str) -> list[str]:
-    """``header`` and ``key = value`` lines; long inline tables become sub-tables and long
-    arrays are wrapped one item per line."""
+    """``header`` and ``key = value`` lines; long inline tables become sub-tables, and long
+    arrays are wrapped: numbers packed into lines of 100 characters, other items one per
+    line."""
     lines, subtables = [header] if header else [], []
     for k, v in table.items():
         text = f"{k} = {_toml_value(v)}"
@@ -140,7 +141,17 @@ def _toml_lines(table: dict, header: str) -> list[str]:
             subtables.append((k, v))
         elif isinstance(v, list):
             lines.append(f"{k} = [")
-            lines += [f"    {_toml_value(x)}," for x in v]
+            if all(isinstance(x, int | float) and not isinstance(x, bool) for x in v):
+                row = ""  # numbers (a group's indices): packed into lines of 100 characters
+                for x in v:
+                    item = f"{_toml_value(x)},"
+                    if row and len(row) + len(item) + 1 > 100:
+                        lines.append(row)
+                        row = ""
+                    row = f"{row} {item}" if row else f"    {item}"
+                lines.append(row)
+            else:
+                lines += [f"    {_toml_value(x)}," for x in v]
             lines.append("]")
         else:
             lines.append(text)
