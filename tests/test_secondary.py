@@ -1521,3 +1521,42 @@ def test_stray_free_vertices_share_one_frame_with_the_same_forces_and_stress(tmp
     assert min(np.abs(x).max() for x in out[1][:2]) > 0.1 * scale
     for merged, each in zip(out[0][:3], out[1][:3], strict=True):
         np.testing.assert_allclose(merged, each, rtol=1e-9, atol=1e-12 * scale)
+
+
+def test_an_end_a_hair_off_the_frame_grid_samples_its_frames(bar):
+    """``end = 0.96666666`` at 30 fps is 29 frames less 2e-7 of one: the last frame is the
+    end itself, and the motion plays there (it failed with "times must lie in the
+    animation's range" after the whole solve, 7e-9 s past the end)."""
+    body, driven = bar
+    end = 0.96666666
+    anim = secondary_motion(body, bob_driver(body, 30.0), driven, start=0.0, end=end,
+                            warped=False)
+    times = anim.frame_times(30.0)
+    assert len(times) == 30 and times[-1] == end
+    assert np.isfinite(anim.positions(times)).all()
+
+
+def test_a_runaway_on_a_loop_that_does_not_cycle_names_the_seam(bar, monkeypatch):
+    """A looped shot on a driver that does not cycle (a walk that travels) jumps at the seam,
+    which turns the free parts without bound: the error names the seam and its remedies,
+    not a turn rate of the rig (a review's walk was told 2.2e6 turns per second). The
+    system's failure is stood in for; on a driver that cycles, the error stays the turn's."""
+    import wiggly.drive.secondary as secondary
+
+    body, driven = bar
+
+    def refuse(*_args, **_kwargs):
+        raise np.linalg.LinAlgError("matrix is not positive definite")
+
+    monkeypatch.setattr(secondary, "factorize_spd", refuse)
+    X = body.surface.vertices
+    times = np.arange(31) / 30.0
+    travel = Driver(times, X[None] + np.outer(times, [0.8, 0.0, 0.0])[:, None, :],
+                    body.surface.faces, np.zeros((0, 2)), "walk.npz", "test")
+    for driver, seam in ((travel, True), (bob_driver(body, 30.0), False)):
+        with pytest.raises(WigglyInputError) as err, warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            secondary_motion(body, driver, driven, start=0.0, end=T_END, warped=True, loop=True)
+        said = str(err.value)
+        assert ("across the seam (warned above)" in said) == seam, said
+        assert ("turn time.loop off" in said) == seam, said

@@ -149,15 +149,16 @@ def _seam_kink(P: np.ndarray, times: np.ndarray, step_to_start: bool) -> tuple[f
 
 
 def warn_seam(driver: Driver, driven: np.ndarray, *, start: float, end: float,
-               offset: float, driver_range: tuple[float, float] | None) -> None:
+               offset: float, driver_range: tuple[float, float] | None) -> bool:
     """Warn when a looped shot's driver does not cycle with the shot: the loop makes its
     pose at the end its pose at the start (:func:`wiggly.drive.secondary.secondary_frames`),
     a jump at the seam when the two differ, or a curve over the time after its last frame in
-    the shot when it ends early, which stretches its cycle to the shot's."""
+    the shot when it ends early, which stretches its cycle to the shot's.  Whether it
+    warned."""
     frames, times = keyed_frames(driver, offset=offset, driver_range=driver_range,
                                  start=start, end=end)
     if len(frames) < 3:
-        return
+        return False
     P = driver.positions[frames][:, driven]
     step = float(np.linalg.norm(np.diff(P, axis=0), axis=2).max())
     gap = float(np.linalg.norm(P[-1] - P[0], axis=1).max())
@@ -171,7 +172,7 @@ def warn_seam(driver: Driver, driven: np.ndarray, *, start: float, end: float,
                 f"vertices at {times[-1]:g} s lie up to {1e3 * gap:.3g} mm from their pose at "
                 f"{start:g} s (they move at most {1e3 * step:.3g} mm from one frame to the "
                 f"next), and the loop joins the two with a jump at the seam; {remedy}")
-            return
+            return True
         kink, most = _seam_kink(P, times, end - times[-1] > 0.5 * spacing)
         if kink > SEAM_KINK * most:
             warn(
@@ -181,12 +182,14 @@ def warn_seam(driver: Driver, driven: np.ndarray, *, start: float, end: float,
                 f"most {most:.3g} m/s from one frame to the next elsewhere: a cycle whose "
                 f"motion reverses, or that is not the driver's), and the loop joins them with "
                 f"a kink, a hitch in every cycle; {remedy}")
-    else:
-        warn(
-            f"the driver {driver.source} ends {end - times[-1]:.3g} s before the looped "
-            f"shot's end ({times[-1]:g} s of [{start:g}, {end:g}] s): the loop joins its last "
-            f"frame to its first by a curve over that time, which stretches the driver's "
-            f"cycle to the shot's; {remedy}")
+            return True
+        return False
+    warn(
+        f"the driver {driver.source} ends {end - times[-1]:.3g} s before the looped "
+        f"shot's end ({times[-1]:g} s of [{start:g}, {end:g}] s): the loop joins its last "
+        f"frame to its first by a curve over that time, which stretches the driver's "
+        f"cycle to the shot's; {remedy}")
+    return True
 
 
 #: A driver step between two frames is called a cut when its driven vertices move further

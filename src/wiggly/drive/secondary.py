@@ -250,13 +250,22 @@ def _gn_distance(steps: list[float]) -> float:
     return steps[-1] * rho / (1.0 - rho) if rho < 1.0 else np.inf
 
 
-def _runaway(source: str, coupling: tuple | None, lam: np.ndarray) -> WigglyInputError:
+def _runaway(source: str, coupling: tuple | None, lam: np.ndarray,
+             seam: bool = False) -> WigglyInputError:
     """The error of a secondary motion whose spline system is not positive definite: its
     free parts' motion grows without bound (the turning frame's centrifugal force beyond
-    their stiffness), and its numbers lose all precision."""
+    their stiffness), and its numbers lose all precision.  ``seam``: the shot loops on a
+    driver that does not cycle with it (warned), whose jump at the seam makes the turn."""
     rate = 0.0
     if coupling is not None:  # |G| = 2 |W| (Psi^T M Psi = I)
         rate = 0.5 * float(max(np.linalg.norm(G, 2) for G in coupling[0])) / (2 * np.pi)
+    if seam:
+        return WigglyInputError(
+            f"the secondary motion on the driver {source} has no bounded solution: the loop "
+            "joins the driver's last pose to its first across the seam (warned above), and "
+            "that jump turns the free parts faster than their stiffness holds them; end the "
+            "shot on the driver's cycle (time.end), keep one cycle of it (drive.range), or "
+            "turn time.loop off")
     return WigglyInputError(
         f"the secondary motion on the driver {source} has no bounded solution: the driver "
         f"turns the free parts at up to {rate:.2g} turns per second, past their lowest "
@@ -436,8 +445,8 @@ def secondary_motion(
     driven_path = driver.positions[frames][:, v]  # the driven vertices at the frames
     # a loop's last step, back to its first frame, is the seam: warn_seam's, not a cut's
     path, path_times = (driven_path[:-1], times[:-1]) if loop else (driven_path, times)
-    if loop:
-        warn_seam(driver, v, start=start, end=end, offset=offset, driver_range=driver_range)
+    seam = loop and warn_seam(driver, v, start=start, end=end, offset=offset,
+                              driver_range=driver_range)  # a loop the driver does not cycle
     warn_cuts(driver.source, path, path_times, body)
     duration = end - start
     tol = 1e-9 * duration
@@ -610,7 +619,7 @@ def secondary_motion(
         try:
             new[free] = factorize_spd(H[free][:, free])(rhs)
         except np.linalg.LinAlgError as error:  # E is a sum of squares: only a runaway
-            raise _runaway(driver.source, coupling, lam) from error
+            raise _runaway(driver.source, coupling, lam, seam) from error
         step = float(np.max(np.abs(new - z))) if keys else 0.0
         z = new
         if not (warped and keys):

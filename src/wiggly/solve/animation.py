@@ -97,7 +97,9 @@ class Animation:
             raise WigglyInputError(
                 f"{self.duration:g} s at {fps:g} fps is {n} frames, more than "
                 f"{limits.MAX_FRAMES} (wiggly.limits.MAX_FRAMES): lower fps")
-        return self.start + np.arange(n) / fps
+        # an end within a hair of the grid (0.96666666 s at 30 fps) ends on the end itself,
+        # not 7e-9 s past it
+        return np.minimum(self.start + np.arange(n) / fps, self.end)
 
     # --- modal trajectories ------------------------------------------------------------
     def modal(self, times: ArrayLike, n_derivatives: int = 0, side: str = "right") -> np.ndarray:
