@@ -1560,3 +1560,22 @@ def test_a_runaway_on_a_loop_that_does_not_cycle_names_the_seam(bar, monkeypatch
         said = str(err.value)
         assert ("across the seam (warned above)" in said) == seam, said
         assert ("turn time.loop off" in said) == seam, said
+
+
+def test_a_driver_that_stops_dead_inside_the_shot_is_warned_about(bar):
+    """A travelling driver kept to its first half (as drive.range cuts a walk) stops its
+    driven group dead and holds it to the shot's end: warned, with the speed; a bob that
+    comes to rest before the shot's end is not (a review's walk stopped from 0.75 m/s in
+    one frame, silently)."""
+    body, driven = bar
+    X = body.surface.vertices
+    times = np.arange(16) / 30.0  # 0 .. 0.5 s of a 1 s shot
+    travel = Driver(times, X[None] + np.outer(times, [0.8, 0.0, 0.0])[:, None, :],
+                    body.surface.faces, np.zeros((0, 2)), "walk.npz", "test")
+    for driver, end, warned in ((travel, 1.0, True), (bob_driver(body, 30.0), 1.5, False)):
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            secondary_motion(body, driver, driven, start=0.0, end=end, warped=False)
+        stops = [str(w.message) for w in said if "stop dead" in str(w.message)]
+        assert bool(stops) == warned, stops
+    assert "ends at 0.5 s of the shot's 1 s" in stops[0] if warned else True

@@ -15,7 +15,7 @@ from wiggly.errors import warn
 from wiggly.mesh.defects import diagonal
 
 __all__ = ["CUT_SIZE", "CUT_STEPS", "SEAM_KINK", "SEAM_STEPS", "STEP_TURN", "TURN", "best_turn",
-           "step_turns", "warn_cuts", "warn_seam", "warn_sparse_turn", "warn_turn",
+           "step_turns", "warn_cuts", "warn_seam", "warn_sparse_turn", "warn_stop", "warn_turn",
            "warn_unconverged", "warn_unstable"]
 
 
@@ -223,6 +223,27 @@ def warn_cuts(source: str, P: np.ndarray, times: np.ndarray, body: Body) -> None
         "its frames swings before and after such a jump, so the body moves before the driver "
         "does: end the shot at the cut (drive.range, or time.end), or animate the move over "
         "several frames")
+
+
+#: A driver that ends inside the shot is said to stop its driven group dead when their speed
+#: over its last step is above this many body sizes per second.
+STOP_SPEED = 0.05
+
+
+def warn_stop(source: str, P: np.ndarray, times: np.ndarray, end: float, body: Body) -> None:
+    """Warn when the driver's frames end inside the shot (its last frame, or drive.range)
+    while its driven vertices still move: the driven group then stops dead and holds that
+    pose to the shot's end, an unbounded deceleration.  ``P``: the driven vertices at the
+    frames (F, g, 3), at shot ``times``."""
+    if len(P) < 2 or times[-1] >= end - 1e-9 * max(1.0, end):
+        return
+    speed = float(np.linalg.norm(P[-1] - P[-2], axis=1).max()) / float(times[-1] - times[-2])
+    if speed <= STOP_SPEED * diagonal(body.surface.vertices):
+        return
+    warn(f"the driver {source} ends at {times[-1]:g} s of the shot's {end:g} s while its "
+         f"driven vertices move at up to {speed:.3g} m/s: they stop dead there and hold that "
+         "pose to the end, which jolts the free parts; end the shot there (time.end), keep "
+         "more of the driver (drive.range), or let it come to rest")
 
 
 def warn_unconverged(source: str, iterations: int, steps: list[float]) -> None:

@@ -66,6 +66,7 @@ from wiggly.drive.driver_checks import (
     warn_cuts,
     warn_seam,
     warn_sparse_turn,
+    warn_stop,
     warn_turn,
     warn_unconverged,
     warn_unstable,
@@ -448,6 +449,8 @@ def secondary_motion(
     seam = loop and warn_seam(driver, v, start=start, end=end, offset=offset,
                               driver_range=driver_range)  # a loop the driver does not cycle
     warn_cuts(driver.source, path, path_times, body)
+    if not loop:
+        warn_stop(driver.source, driven_path, times, end, body)
     duration = end - start
     tol = 1e-9 * duration
     # the rig: the driver extended into the tet mesh (unwarped for warped playback)
