@@ -276,13 +276,50 @@ def equilibrium(lam: ArrayLike, g: ArrayLike) -> NDArray[np.float64]:
     return np.where(lam > 0, -g / safe, 0.0)
 
 
+#: Below this lam h^2, a mode's energy shifts by the response to its gravity from rest
+#: (:func:`_rest_response`), not by the static solution -g / lam, whose size (3e9 at lam =
+#: 1e-8, g = 30) cancelled the energy's terms into nonsense (a negative energy).
+SLOW_MODE = 0.1
+
+
+def _rest_response(lam: np.ndarray, delta: np.ndarray, h: np.ndarray, tau: ArrayLike = 1.0,
+                   n_derivatives: int = 1) -> np.ndarray:
+    """psi and its time derivatives at t = tau h, where psi'' + 2 delta psi' + lam psi = 1
+    from rest (psi and its derivative 0 at t = 0): the exponential of the forced system's
+    matrix in tau = t / h (scaling and squaring: accurate for small lam h^2 and any damping),
+    then the equation for the higher derivatives; shape (n_derivatives + 1, ...)."""
+    from scipy.linalg import expm
+
+    tau = np.broadcast_to(np.asarray(tau, float), lam.shape)
+    A = np.zeros((*lam.shape, 3, 3))  # state (psi, h dpsi/dt, h^2): its d/dtau
+    A[..., 0, 1] = 1.0
+    A[..., 1, 0] = -lam * h * h
+    A[..., 1, 1] = -2 * delta * h
+    A[..., 1, 2] = 1.0
+    E = expm((A * tau[..., None, None]).reshape(-1, 3, 3)).reshape(A.shape)
+    out = [E[..., 0, 2] * h * h, E[..., 1, 2] * h]
+    for d in range(2, n_derivatives + 1):  # psi'' = 1 - 2 delta psi' - lam psi, and on
+        out.append((1.0 if d == 2 else 0.0) - 2 * delta * out[d - 1] - lam * out[d - 2])
+    return np.stack(out[:n_derivatives + 1])
+
+
+def _slow(basis: WigglyBasis, g: np.ndarray) -> np.ndarray:
+    """The modes whose particular solution is the response to g from rest (module const
+    :data:`SLOW_MODE`), not the static -g / lam."""
+    return (basis.lam > 0) & (basis.lam * basis.h**2 < SLOW_MODE) & (g != 0)
+
+
 def energy_form(basis: WigglyBasis, g: ArrayLike) -> EnergyForm:
     """Exact energy 1/2 int (q'' + 2 delta q' + lam q + g)^2 dt of the Hermite interpolant.
 
     With w = q - q_p and r = L w (+ g if lam = 0) in the kernel of the adjoint
     L* = d^2 - 2 delta d + lam, Lagrange's identity gives, in tau units,
     int_0^1 r^2 = [r w' - r' w + 2D r w]_0^1 + c int_0^1 r, c = lam q_p + g,
-    so the 4 x 4 Gram matrix G needs only H'', H''' at the ends (no quadrature).
+    so the 4 x 4 Gram matrix G needs only H'', H''' at the ends (no quadrature).  q_p is the
+    static solution -g / lam, or for slow modes (lam h^2 below :data:`SLOW_MODE`) the
+    response to g from rest, -g psi(t), which stays bounded as lam -> 0: any exact
+    particular solution leaves w in the interval's basis (Theorem 1's equation is
+    L*(L q + g) = 0).
     """
     g = np.broadcast_to(np.asarray(g, float), basis.lam.shape)
     h = basis.h
@@ -303,6 +340,11 @@ def energy_form(basis: WigglyBasis, g: ArrayLike) -> EnergyForm:
     Gp = G * S[:, :, None] * S[:, None, :] * scale[:, None, None]
     ellp = ell * S * scale[:, None]
     p = np.stack([qp, np.zeros_like(qp), qp, np.zeros_like(qp)], axis=1)
+    slow = _slow(basis, g)
+    if slow.any():  # p: the Hermite data of -g psi, (0, 0, -g psi(h), -g dpsi/dt(h))
+        psi = -g[slow] * _rest_response(basis.lam[slow], basis.delta[slow], h[slow])
+        zero = np.zeros(slow.sum())
+        p[slow] = np.stack([zero, zero, psi[0], psi[1]], axis=1)
     # 1/2 [(x-p)^T Gp (x-p) + 2 c ellp^T (x-p) + c^2 / h^3]
     Gp_p = np.einsum("pij,pj->pi", Gp, p)
     Q = Gp
@@ -324,13 +366,24 @@ def evaluate(
     """
     data = np.asarray(data, float)
     h = basis.h
-    qp = equilibrium(basis.lam, np.broadcast_to(np.asarray(g, float), h.shape))
+    g = np.broadcast_to(np.asarray(g, float), h.shape)
+    qp = equilibrium(basis.lam, g)
+    slow = _slow(basis, g)
+    qp = np.where(slow, 0.0, qp)  # slow modes: the response from rest instead (energy_form)
     xhat = data * np.stack([np.ones_like(h), h, np.ones_like(h), h], axis=1)
     xhat = xhat - np.stack([qp, np.zeros_like(qp), qp, np.zeros_like(qp)], axis=1)
+    if slow.any():
+        end = -g[slow] * _rest_response(basis.lam[slow], basis.delta[slow], h[slow])
+        xhat[slow, 2] -= end[0]
+        xhat[slow, 3] -= end[1] * h[slow]
     H = basis.hermite(tau, n_derivatives)
     out = np.einsum("dpj,pj->dp", H, xhat)
     out[0] += qp
     out /= h[None, :] ** np.arange(n_derivatives + 1)[:, None]
+    if slow.any():
+        at = np.broadcast_to(np.asarray(tau, float), h.shape)[slow]
+        out[:, slow] -= g[slow] * _rest_response(basis.lam[slow], basis.delta[slow],
+                                                 h[slow], at, n_derivatives)
     return out
 
 
