@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import warnings
+from pathlib import Path
 
 import meshio
 import numpy as np
@@ -448,7 +449,7 @@ def test_a_driver_at_another_scale_is_refused_before_the_solve(shot, capsys):
     assert main(["animate", str(scene), "-q", "-o", str(folder / "s.npz")]) == 1
     err = capsys.readouterr().err
     assert "mesh.scale = 0.01 makes the mesh 100 times smaller than its file, and the " \
-        "driver's files are read in metres: set drive.scale = 0.01 as well if they are in the " \
+        "driver is read in metres: set drive.scale = 0.01 as well if it is in the " \
         "mesh file's units, or leave mesh.scale out if the mesh file is in metres" in err, err
     scene = write(folder, {**data, "mesh": {**data["mesh"], "path": "bar_cm.vtu",
                                             "scale": 0.01},
@@ -516,19 +517,24 @@ def test_a_mesh_in_other_axes_than_its_driver_is_warned_about(shot, capsys):
 
 
 def test_driver_units_and_axes_apply_to_files_without_their_own(shot, tmp_path):
-    """drive.scale and drive.up_axis are for OBJ sequences and npz: a glTF or USD driver
-    carries its own units and axes, and the keys are refused there, saying so."""
+    """drive.up_axis is for OBJ sequences and npz: a glTF or USD driver carries its own axes,
+    and the key is refused there, saying so. drive.scale multiplies a glTF's or USD's metres
+    too (Blender writes its units as metres: a review's centimetre scene could not be
+    brought to size)."""
     folder, data = shot
     scene = write(folder, {**data, "drive": {"path": "walk.glb", "group": "driven",
                                              "scale": 0.01, "up_axis": "z"}}, "glb.toml")
     with pytest.raises(WigglyInputError) as err:
         load_scene(scene)
     text = str(err.value)
-    assert 'drive.scale = 0.01 applies to OBJ-sequence and npz drivers only; drive.path = ' \
+    assert 'drive.up_axis = "z" applies to OBJ-sequence and npz drivers only; drive.path = ' \
         '"walk.glb" is not one (a glTF driver is in metres, y up, by its specification' in text
-    assert 'drive.up_axis = "z" applies to OBJ-sequence and npz drivers only' in text
-    with pytest.raises(WigglyInputError, match=r"scale and up apply to OBJ sequences and \.npz"):
-        read_driver(tmp_path / "walk.glb", scale=0.01)
+    assert "drive.scale" not in text
+    with pytest.raises(WigglyInputError, match=r"up applies to OBJ sequences and \.npz"):
+        read_driver(tmp_path / "walk.glb", up="z")
+    walk = Path(__file__).resolve().parents[1] / "examples" / "critter_walk.glb"
+    np.testing.assert_allclose(read_driver(walk, scale=0.01).positions,
+                               0.01 * read_driver(walk).positions, rtol=1e-12)
     with pytest.raises(WigglyInputError, match="up = 'x' is not an up axis"):
         read_driver(folder / "walk.npz", up="x")
     with pytest.raises(WigglyInputError, match="scale should be a number > 0"):

@@ -104,7 +104,9 @@ def read_driver(path: str | os.PathLike[str], *,
     file) and ``up`` (its up axis, "y" or "z") bring an OBJ sequence or an npz written in
     other units or axes to wiggly's metres, y up, as :func:`wiggly.mesh.load_mesh` does for
     the mesh; glTF (metres, y up by its specification) and USD (its stage's
-    ``metersPerUnit`` and ``upAxis``) carry their own, and refuse them.  Raises
+    ``metersPerUnit`` and ``upAxis``) carry their own axes and refuse ``up``, and ``scale``
+    multiplies their metres (Blender writes its units as metres, so a scene in centimetres
+    exports a body 100 times too large: ``scale = 0.01``).  Raises
     :class:`WigglyInputError` naming the file for anything it cannot read.
     """
     path = Path(path).expanduser()
@@ -118,10 +120,9 @@ def read_driver(path: str | os.PathLike[str], *,
     scale = positive_number(scale, "scale", "metres per unit of the driver file")
     if up not in UP_AXES:
         raise WigglyInputError(f"up = {up!r} is not an up axis; use one of {', '.join(UP_AXES)}")
-    if (scale != 1.0 or up != "y") and ext not in UNIT_FREE:
+    if up != "y" and ext not in UNIT_FREE:
         raise WigglyInputError(
-            f"{path}: scale and up apply to OBJ sequences and .npz drivers only; "
-            f"{UNIT_FREE_NOTE}")
+            f"{path}: up applies to OBJ sequences and .npz drivers only; {UNIT_FREE_NOTE}")
     if ext == ".obj":
         from wiggly.drive.sequence import read_obj_sequence
 
@@ -132,11 +133,11 @@ def read_driver(path: str | os.PathLike[str], *,
     if ext in (".glb", ".gltf"):
         from wiggly.drive.gltf import read_gltf
 
-        return read_gltf(path, animation=animation, object=object)
+        return _in_metres(read_gltf(path, animation=animation, object=object), scale, "y")
     if ext == ".npz":
         from wiggly.drive.sequence import read_npz
 
         return _in_metres(read_npz(path), scale, up)
     from wiggly.drive.usd import read_usd
 
-    return read_usd(path, object=object)
+    return _in_metres(read_usd(path, object=object), scale, "y")

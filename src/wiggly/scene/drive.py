@@ -63,7 +63,6 @@ def check_drive(scene: Scene, p: Problems) -> None:
     for key, formats, what in (("animation", _GLTF, "glTF"), ("object", _GLTF + _USD,
                                                                "glTF and USD"),
                                ("frame_rate", (".obj",), "OBJ sequence"),
-                               ("scale", UNIT_FREE, "OBJ-sequence and npz"),
                                ("up_axis", UNIT_FREE, "OBJ-sequence and npz")):
         if getattr(drive, key) is not None and ext not in formats:
             why = f" ({UNIT_FREE_NOTE})" if formats is UNIT_FREE else ""
@@ -222,25 +221,25 @@ def _units_remedy(scene: Scene, ratio: float, size: float) -> str:
     scale = scene.mesh.metres_per_unit
     unit_free = Path(scene.drive.path).suffix.lower() in UNIT_FREE
     drive_scale = scene.drive.metres_per_unit
+    # glTF and USD are read in metres by their own units; Blender writes its units as metres
+    blender = "" if unit_free else " (Blender writes its scene's units as the file's metres)"
     if scale != 1.0 and abs(math.log10(factor * scale)) < 0.05:  # the scale made the ratio
         made = (f"mesh.scale = {scale:g} makes the mesh {1 / scale:g} times "
                 f"{'smaller' if scale < 1 else 'larger'} than its file")
-        if unit_free and drive_scale == 1.0:  # files without units: likely the mesh's
-            return (f"{made}, and the driver's files are read in metres: set drive.scale = "
-                    f"{scale:g} as well if they are in the mesh file's units, or leave "
+        if drive_scale == 1.0:  # the driver was likely written in the mesh file's units
+            return (f"{made}, and the driver is read in metres{blender}: set drive.scale = "
+                    f"{scale:g} as well if it is in the mesh file's units, or leave "
                     "mesh.scale out if the mesh file is in metres")
         return f"{made}: leave it out if the file is in metres, as the driver is"
-    if unit_free and drive_scale != 1.0 and abs(math.log10(factor / drive_scale)) < 0.05:
+    if drive_scale != 1.0 and abs(math.log10(factor / drive_scale)) < 0.05:
         return (f"drive.scale = {drive_scale:g} makes the driver {1 / drive_scale:g} times "
                 f"{'smaller' if drive_scale < 1 else 'larger'} than its files: leave it out if "
                 "they are in metres, as the mesh is")
     if not PLAUSIBLE_SIZE[0] <= size <= PLAUSIBLE_SIZE[1]:
         return (f"the mesh, {size:.3g} m across, is likely in other units: set mesh.scale = "
                 f"{factor * scene.mesh.metres_per_unit:g}")
-    if unit_free:
-        return (f"the driver is likely in other units: set drive.scale = "
-                f"{drive_scale / factor:g}")
-    return f"the driver is likely in other units: export it in metres{usd_note}"
+    return (f"the driver is likely in other units{blender}: set drive.scale = "
+            f"{drive_scale / factor:g}, or export it in metres{usd_note}")
 
 
 def check_driver_against(scene: Scene, vertices: int, faces: np.ndarray, mesh: str,

@@ -218,9 +218,10 @@ _DRIVE = Table(
                            doc="OBJ sequences without wiggly's # time comments: frame N is at "
                                "N / frame_rate s (default: time.fps)"),
      "scale": Number(gt=0.0, le=1e6,
-                     doc="OBJ sequences and npz: metres per unit of the driver files (0.01 "
-                         "for centimetres; default 1), as mesh.scale is for the mesh; glTF "
-                         "and USD drivers carry their own units"),
+                     doc="metres per unit of the driver files (0.01 for centimetres; "
+                         "default 1), as mesh.scale is for the mesh; for glTF and USD, which "
+                         "carry their own units, a factor on their metres (a Blender scene in "
+                         "centimetres writes them 100 times too large)"),
      "up_axis": String(enum=UP_AXES,
                        doc='OBJ sequences and npz: the driver files\' up axis, "y" (default) '
                            'or "z" (turned to y up when read), as mesh.up_axis is for the '

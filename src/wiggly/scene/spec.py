@@ -274,7 +274,8 @@ class DriveSpec(_FileUnits):
     driver time in ``range`` (inclusive) are keyed.  ``animation`` picks a glTF animation
     (name or index), ``object`` the glTF mesh node / USD prim to read, ``frame_rate`` times an
     OBJ sequence without time comments (default: ``time.fps``), ``scale`` and ``up_axis``
-    bring an OBJ sequence or an npz in other units or axes to metres, y up.
+    bring an OBJ sequence or an npz in other units or axes to metres, y up (``scale`` also
+    multiplies a glTF's or USD's own metres).
     ``physics = "secondary"`` (default) makes the driver a moving rest state and moves the
     free parts by physics (:func:`wiggly.drive.secondary_motion`, with ``free_modes`` and
     ``intensity``); ``physics = "keys"`` keys the driven group at every frame instead, with
@@ -293,7 +294,7 @@ class DriveSpec(_FileUnits):
     physics: str = "secondary"
     free_modes: int = 24
     intensity: float = 1.0
-    scale: float | None = None  # OBJ sequences and npz: metres per unit of the file; None: 1
+    scale: float | None = None  # metres per unit of the file (glTF, USD: on theirs); None: 1
     up_axis: str | None = None  # OBJ sequences and npz: the file's up axis; None: "y"
 
     def __post_init__(self) -> None:
