@@ -181,18 +181,23 @@ def test_usd_holds_between_sparse_samples_are_read_as_usd_plays_them(tmp_path):
     np.testing.assert_allclose(frames[13], P[2] + 0.5 * (P[4] - P[2]), atol=1e-6)  # frame 14
 
 
-@pytest.mark.parametrize("rate", [24, 30])
-def test_usd_skinning_driver_lands_on_its_time_codes(tmp_path, rate):
+@pytest.mark.parametrize("rate, fps", [(24, 24), (30, 30), (30, 24)])
+def test_usd_skinning_driver_lands_on_its_time_codes(tmp_path, rate, fps):
     """UsdSkel skinning (one joint, turned and moved at time codes 1-5) at the stage's own
     rate: the cube is posed by the joint at code k and lands at time k / rate.  The baked
     points were off between the codes 1 and 5 at 30 codes per second (USD's session layer
-    keeps 24 unless told; Blender writes its scene's rate)."""
+    keeps 24 unless told; Blender writes its scene's rate).  Blender 5 writes 24 frames per
+    second beside 30 time codes per second: the driver has the time codes' frames only (the
+    bake added samples at 2.25, 3.5, ...)."""
     from pxr import Gf, Usd, UsdGeom, UsdSkel, Vt
 
     stage = Usd.Stage.CreateNew(str(tmp_path / "rig.usda"))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
     stage.SetTimeCodesPerSecond(rate)
+    stage.SetFramesPerSecond(fps)
+    stage.SetStartTimeCode(1)  # as Blender writes the scene's frame range
+    stage.SetEndTimeCode(FRAMES)
     UsdSkel.Root.Define(stage, "/rig")
     skel = UsdSkel.Skeleton.Define(stage, "/rig/skel")
     identity = Vt.Matrix4dArray([Gf.Matrix4d(1.0)])
@@ -223,6 +228,7 @@ def test_usd_skinning_driver_lands_on_its_time_codes(tmp_path, rate):
     stage.GetRootLayer().Save()
     d = read_driver(tmp_path / "rig.usda")
     assert d.kind == "USD skinning"
+    np.testing.assert_allclose(d.times * rate, codes, atol=1e-9)  # no frame between codes
     for k, code in enumerate(codes):
         t = code / rate
         row = int(np.argmin(np.abs(d.times - t)))

@@ -97,7 +97,10 @@ def _bake_skinning(stage) -> bool:
     # Blender plant): author them at the stage's rate
     session = stage.GetSessionLayer()
     session.timeCodesPerSecond = stage.GetTimeCodesPerSecond()
-    session.framesPerSecond = stage.GetFramesPerSecond()
+    # and one baked sample per time code: at the stage's framesPerSecond, where it differs
+    # (Blender 5 writes 24 beside a 30 fps scene's 30 time codes per second), the bake adds
+    # samples between the codes (2.25, 3.5, ...), frames the scene does not have
+    session.framesPerSecond = stage.GetTimeCodesPerSecond()
     stage.SetEditTarget(Usd.EditTarget(session))
     for root in roots:
         if not UsdSkel.BakeSkinning(UsdSkel.Root(root)):
