@@ -476,6 +476,37 @@ def test_an_interrupted_batch_leaves_whole_folders(tmp_path, monkeypatch, stop):
     assert [r["resumed"] for r in records] == [True, False, True, False]
 
 
+def test_a_second_ctrl_c_does_not_cut_the_summary_short(tmp_path, monkeypatch):
+    """Ctrl+C twice (the second while the workers are closed): the summary still lists every
+    shot, the ones not run marked, and Ctrl+C works again afterwards (the second one cut the
+    cleanup short, and no summary was written)."""
+    import os
+    import signal
+
+    import wiggly.batch.driver as driver
+
+    waits = []
+
+    def interrupt(names):
+        waits.append(names)
+        if len(waits) == 3:
+            raise KeyboardInterrupt
+
+    def close_again(self, cancel=False):  # the second Ctrl+C, while the workers close
+        os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(InProcessPool, "hook", staticmethod(interrupt))
+    monkeypatch.setattr(InProcessPool, "close", close_again)
+    monkeypatch.setattr(driver, "LocalPool", InProcessPool)
+    out = tmp_path / "out"
+    before = signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt):
+        run(write_sweep(tmp_path), out, contact_sheet=False)
+    records = json.loads((out / "summary.json").read_text())["shots"]
+    assert [r["status"] for r in records] == ["done", "not run", "done", "not run"]
+    assert signal.getsignal(signal.SIGINT) is before
+
+
 def test_scene_files_of_the_same_name(tmp_path):
     from wiggly.batch.shots import collect
 

@@ -8,7 +8,9 @@ import json
 import math
 import os
 import shutil
+import signal
 import sys
+import threading
 import time
 import uuid
 from collections import deque
@@ -132,23 +134,40 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
                        if ray not in (None, False) else
                        LocalPool(min(workers or cpu_count(), len(todo)), render_checked))
         driver = _Driver(out, token, backend, records, replace, request, warm_start)
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.getsignal(signal.SIGINT) if main else None
         try:
             driver.run(shots, todo)
         finally:
-            if backend is not None:
-                backend.close(cancel=driver.interrupted)
-            meta = {"backend": backend.describe() if backend else "none (nothing to run)",
-                    "wall_seconds": time.perf_counter() - t_start, "bodies": driver.bodies,
-                    "inputs": [str(i) if not isinstance(i, Scene | Sweep) else i.where()
-                               for i in inputs]}
-            ordered = [records[s.name] for s in shots if s.name in records]
-            summary_files.write_summary(out, ordered, meta)
-            if contact_sheet:
-                with activity("writing the contact sheets", len(ordered) > 100):
-                    summary_files.write_contact_sheets(out, ordered)
-            else:  # an earlier batch's sheets would contradict this summary
-                for name in summary_files.SHEETS:
-                    (out / name).unlink(missing_ok=True)
+            try:
+                ordered = _finish(out, shots, records, backend, driver, contact_sheet,
+                                  {"wall_seconds": time.perf_counter() - t_start,
+                                   "inputs": [str(i) if not isinstance(i, Scene | Sweep)
+                                              else i.where() for i in inputs]})
+            finally:
+                if main and driver.interrupted:  # Ctrl+C works again once the summary is out
+                    signal.signal(signal.SIGINT, previous if previous is not None
+                                  else signal.default_int_handler)
+    return ordered
+
+
+def _finish(out: Path, shots: list[Shot], records: dict, backend, driver, contact_sheet: bool,
+            meta: dict) -> list[dict]:
+    """After the shots (or an interruption): close the workers (cancelling what runs when
+    interrupted), write the summary and the contact sheets; the records in shot order."""
+    if backend is not None:
+        backend.close(cancel=driver.interrupted)
+    meta = {"backend": backend.describe() if backend else "none (nothing to run)",
+            "wall_seconds": meta["wall_seconds"], "bodies": driver.bodies,
+            "inputs": meta["inputs"]}
+    ordered = [records[s.name] for s in shots if s.name in records]
+    summary_files.write_summary(out, ordered, meta)
+    if contact_sheet:
+        with activity("writing the contact sheets", len(ordered) > 100):
+            summary_files.write_contact_sheets(out, ordered)
+    else:  # an earlier batch's sheets would contradict this summary
+        for name in summary_files.SHEETS:
+            (out / name).unlink(missing_ok=True)
     return ordered
 
 
@@ -403,6 +422,10 @@ class _Driver:
             self._loop(todo)
         except (KeyboardInterrupt, SystemExit):  # Ctrl+C, or SIGTERM (a farm, `timeout`)
             self.interrupted = True
+            if threading.current_thread() is threading.main_thread():
+                # an impatient second Ctrl+C would cut the summary of the shots not run
+                # short (the workers' cleanup takes a second or two): batch.run restores it
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
             for s in todo:
                 self.records.setdefault(s.name, {**_base_record(s), "status": "not run",
                                                  "error": "interrupted"})
