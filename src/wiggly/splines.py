@@ -304,9 +304,21 @@ def _rest_response(lam: np.ndarray, delta: np.ndarray, h: np.ndarray, tau: Array
 
 
 def _slow(basis: WigglyBasis, g: np.ndarray) -> np.ndarray:
-    """The modes whose particular solution is the response to g from rest (module const
+    """The modes whose particular solution is the response to g from rest (lam h^2 below
     :data:`SLOW_MODE`), not the static -g / lam."""
     return (basis.lam > 0) & (basis.lam * basis.h**2 < SLOW_MODE) & (g != 0)
+
+
+def _particular_data(basis: WigglyBasis, g: np.ndarray, slow: np.ndarray) -> np.ndarray:
+    """The physical Hermite data (P, 4) of each mode's particular solution q_p on its
+    interval: (qp, 0, qp, 0) of the static -g / lam, or for ``slow`` modes (0, 0, -g psi(h),
+    -g dpsi/dt(h)) of the response from rest (:func:`_rest_response`)."""
+    qp = np.where(slow, 0.0, equilibrium(basis.lam, g))
+    p = np.stack([qp, np.zeros_like(qp), qp, np.zeros_like(qp)], axis=1)
+    if slow.any():
+        end = -g[slow] * _rest_response(basis.lam[slow], basis.delta[slow], basis.h[slow])
+        p[slow, 2:] = end.T
+    return p
 
 
 def energy_form(basis: WigglyBasis, g: ArrayLike) -> EnergyForm:
@@ -331,20 +343,14 @@ def energy_form(basis: WigglyBasis, g: ArrayLike) -> EnergyForm:
     G = 0.5 * (G + G.transpose(0, 2, 1))
     # energy (tau units): (x-p)^T G (x-p) + 2 c ell^T (x-p) + c^2, ell = (-2D, -1, 2D, 1)
     g_hat = g * h**2
-    qp = equilibrium(basis.lam, g)
     c = np.where(basis.lam > 0, 0.0, g_hat)
     ell = np.stack([-2 * D, -np.ones_like(D), 2 * D, np.ones_like(D)], axis=1)
-    # physical data x = S^-1 x_hat with S = diag(1, h, 1, h); p = (qp, 0, qp, 0)
+    # physical data x = S^-1 x_hat with S = diag(1, h, 1, h); p: q_p's data
     S = np.stack([np.ones_like(h), h, np.ones_like(h), h], axis=1)
     scale = 1.0 / h**3  # int_0^h (Lq)^2 dt = h^-3 int_0^1 (L_hat q)^2 dtau
     Gp = G * S[:, :, None] * S[:, None, :] * scale[:, None, None]
     ellp = ell * S * scale[:, None]
-    p = np.stack([qp, np.zeros_like(qp), qp, np.zeros_like(qp)], axis=1)
-    slow = _slow(basis, g)
-    if slow.any():  # p: the Hermite data of -g psi, (0, 0, -g psi(h), -g dpsi/dt(h))
-        psi = -g[slow] * _rest_response(basis.lam[slow], basis.delta[slow], h[slow])
-        zero = np.zeros(slow.sum())
-        p[slow] = np.stack([zero, zero, psi[0], psi[1]], axis=1)
+    p = _particular_data(basis, g, _slow(basis, g))
     # 1/2 [(x-p)^T Gp (x-p) + 2 c ellp^T (x-p) + c^2 / h^3]
     Gp_p = np.einsum("pij,pj->pi", Gp, p)
     Q = Gp
@@ -367,18 +373,12 @@ def evaluate(
     data = np.asarray(data, float)
     h = basis.h
     g = np.broadcast_to(np.asarray(g, float), h.shape)
-    qp = equilibrium(basis.lam, g)
     slow = _slow(basis, g)
-    qp = np.where(slow, 0.0, qp)  # slow modes: the response from rest instead (energy_form)
-    xhat = data * np.stack([np.ones_like(h), h, np.ones_like(h), h], axis=1)
-    xhat = xhat - np.stack([qp, np.zeros_like(qp), qp, np.zeros_like(qp)], axis=1)
-    if slow.any():
-        end = -g[slow] * _rest_response(basis.lam[slow], basis.delta[slow], h[slow])
-        xhat[slow, 2] -= end[0]
-        xhat[slow, 3] -= end[1] * h[slow]
+    p = _particular_data(basis, g, slow)  # q = q_p + the Hermite interpolant of data - p
+    xhat = (data - p) * np.stack([np.ones_like(h), h, np.ones_like(h), h], axis=1)
     H = basis.hermite(tau, n_derivatives)
     out = np.einsum("dpj,pj->dp", H, xhat)
-    out[0] += qp
+    out[0] += p[:, 0]  # the static q_p (0 for slow modes, added below)
     out /= h[None, :] ** np.arange(n_derivatives + 1)[:, None]
     if slow.any():
         at = np.broadcast_to(np.asarray(tau, float), h.shape)[slow]
