@@ -309,8 +309,8 @@ def _warn_if_held(body: Body, what: str, v: np.ndarray, on: str, pos: np.ndarray
     away = pos is not None and np.abs(pos - rest).max(initial=0.0) > 1e-9 * size
     if away or (vel is not None and np.any(vel != 0.0)):
         warn(f"{what}: all {len(v)} of its vertices are held by the fixed vertices, "
-                      "so it cannot be met and moves nothing (key vertices that are free, or "
-                      "remove it)")
+             "so it cannot be met and moves nothing (key vertices that are free, or "
+             "remove it)")
 
 
 def _finite(a: np.ndarray, what: str) -> None:

@@ -376,8 +376,8 @@ def _thumbnail(path: Path, scene, anim, at: float | None) -> float:
     elif not times[0] - 1e-9 <= at <= times[-1] + 1e-9:
         shown = float(times[0] if at < times[0] else times[-1])
         warn(f"the thumbnail time {at:g} s (--thumbnail-time) lies outside the shot's "
-                      f"frames [{times[0]:g}, {times[-1]:g}] s: its thumbnail shows the frame at "
-                      f"{shown:g} s")
+             f"frames [{times[0]:g}, {times[-1]:g}] s: its thumbnail shows the frame at "
+             f"{shown:g} s")
     at = min(max(at, float(times[0])), float(times[-1]))
     camera = scene.output.camera if isinstance(scene.output.camera, str) else \
         tuple(scene.output.camera)

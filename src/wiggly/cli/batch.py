@@ -177,8 +177,8 @@ def _out_dir(args: argparse.Namespace) -> Path:
     if ignored:
 
         warn(f"{', '.join(ignored)}: a sweep's [output] dir applies when the sweep is "
-                      f"the only input; with {len(args.inputs)} inputs the batch goes to {out} "
-                      "(-o names the folder)")
+             f"the only input; with {len(args.inputs)} inputs the batch goes to {out} "
+             "(-o names the folder)")
     return out
 
 

@@ -562,8 +562,8 @@ def secondary_motion(
         A = _rows(body, psi, kf.vertices, kf.on)
         if not np.any(A):  # the driver owns every vertex it keys
             warn(f"keyframe {kf.name or ''} at {kf.time:g} s keys only vertices that "
-                          "the driver moves; it does not enter the secondary motion (key the "
-                          "free parts, or remove it)")
+                 "the driver moves; it does not enter the secondary motion (key the "
+                 "free parts, or remove it)")
             continue
         c_A, c_B = kf.weights(body, duration)
         keys.append((kf, k, A, c_A, c_B))

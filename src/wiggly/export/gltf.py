@@ -339,7 +339,7 @@ def read_glb(path: Path) -> SurfaceAnimation:
     mesh_index = 0
     if len(gltf.meshes) > 1:
         warn(f"{path}: only its first mesh ({gltf.meshes[0].name or 'unnamed'}) is "
-                      f"read; left out: {counted(len(gltf.meshes) - 1, 'other mesh')}")
+             f"read; left out: {counted(len(gltf.meshes) - 1, 'other mesh')}")
     parts = [_read_primitive(gltf, blob, prim, path, j)
              for j, prim in enumerate(gltf.meshes[mesh_index].primitives)]
     offsets = np.cumsum([0] + [len(part[0]) for part in parts])

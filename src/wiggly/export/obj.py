@@ -182,8 +182,8 @@ def read_obj_sequence(path: Path) -> SurfaceAnimation:
         count = len(existing_frames(sequence)) if sequence is not None else 0
         if count > 1:
             warn(f"{path.name} is one frame of the OBJ sequence {sequence.name} "
-                          f"({count} frames in {path.parent}): read as one frame; give "
-                          f"{sequence} for the whole sequence")
+                 f"({count} frames in {path.parent}): read as one frame; give "
+                 f"{sequence} for the whole sequence")
     else:
         raise WigglyInputError(
             f"cannot read {path}: no file and no OBJ sequence {path.stem}_0000{path.suffix} in "

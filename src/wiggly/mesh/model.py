@@ -114,7 +114,7 @@ def build_model(
         if not report.clean or far.any() or dropped or volume_lost(report, filled):
             warn(repair_note(source, report, int(far.sum()), float(outside.max()),
                                       dropped, share, filled, info["edge_length"]),
-                          MeshRepairWarning)
+                 MeshRepairWarning)
         return Model(loaded, tets, embedding, source)
     mesh_arrays(loaded.vertices, loaded.tets, source)  # indices in range, tets present
     tets = loaded

@@ -115,7 +115,7 @@ def render_video(path, times, positions, faces, *, highlights: Sequence[Highligh
         anti_aliasing = anti_aliasing and GIF_MAX_SIDE / max(w, h) > 0.67
     elif w % 2 or h % 2:
         warn(f"{shown_name(path)}: an H.264 video needs an even width and height: the "
-                      f"size {w} x {h} is written as {w - w % 2} x {h - h % 2}")
+             f"size {w} x {h} is written as {w - w % 2} x {h - h % 2}")
         w, h = w - w % 2, h - h % 2
     with Preview(times, positions, faces, highlights=highlights, size=(w, h), up=up,
                  ground=ground, camera=camera, title=title,

@@ -321,7 +321,7 @@ def _warn_unit_slips(scene: Scene, body) -> None:
     if slips:
         listed = "; ".join(slips[:3]) + (f"; and {len(slips) - 3} more" if len(slips) > 3 else "")
         warn(f"{scene.where()}: {listed}: check the units (m/s, m/s^2); the solve "
-                      "will take long and miss such targets")
+             "will take long and miss such targets")
 
 
 def _said_of(scene: Scene, said: list) -> None:
@@ -331,7 +331,7 @@ def _said_of(scene: Scene, said: list) -> None:
     where = scene.where()
     for message, category in dict.fromkeys((str(w.message), w.category) for w in said):
         warn(message if message.startswith(f"{where}: ") else f"{where}: {message}",
-                      category)
+             category)
 
 
 def _warn_missed(scene: Scene, anim) -> None:

@@ -541,9 +541,9 @@ def _cross_check(scene: Scene, p: Problems, output_fps: float | None = None) -> 
                     if v is not None and target is not None]
         if kf.stiffness is not None and replaced:
             warn(f"{p.where}: keyframes[{j}]: {' and '.join(replaced)} replace"
-                          f"{'s' if len(replaced) == 1 else ''} stiffness = "
-                          f"{show(kf.stiffness)} (stiffness sets only the weights not given "
-                          "explicitly); give one of them")
+                 f"{'s' if len(replaced) == 1 else ''} stiffness = "
+                 f"{show(kf.stiffness)} (stiffness sets only the weights not given "
+                 "explicitly); give one of them")
         turn = kf.position.rotation if isinstance(kf.position, Rigid) else ()
         if any(abs(a) >= 180.0 for a in turn):
             wrapped = [(a + 180.0) % 360.0 - 180.0 for a in turn]
