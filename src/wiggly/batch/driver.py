@@ -140,10 +140,8 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
             driver.run(shots, todo)
         finally:
             try:
-                ordered = _finish(out, shots, records, backend, driver, contact_sheet,
-                                  {"wall_seconds": time.perf_counter() - t_start,
-                                   "inputs": [str(i) if not isinstance(i, Scene | Sweep)
-                                              else i.where() for i in inputs]})
+                ordered = _finish(out, inputs, shots, records, backend, driver, contact_sheet,
+                                  t_start)
             finally:
                 if main and driver.interrupted:  # Ctrl+C works again once the summary is out
                     signal.signal(signal.SIGINT, previous if previous is not None
@@ -151,15 +149,16 @@ def run(inputs, out_dir: str | os.PathLike[str] | None = None, *, workers: int |
     return ordered
 
 
-def _finish(out: Path, shots: list[Shot], records: dict, backend, driver, contact_sheet: bool,
-            meta: dict) -> list[dict]:
+def _finish(out: Path, inputs, shots: list[Shot], records: dict, backend, driver,
+            contact_sheet: bool, t_start: float) -> list[dict]:
     """After the shots (or an interruption): close the workers (cancelling what runs when
     interrupted), write the summary and the contact sheets; the records in shot order."""
     if backend is not None:
         backend.close(cancel=driver.interrupted)
     meta = {"backend": backend.describe() if backend else "none (nothing to run)",
-            "wall_seconds": meta["wall_seconds"], "bodies": driver.bodies,
-            "inputs": meta["inputs"]}
+            "wall_seconds": time.perf_counter() - t_start, "bodies": driver.bodies,
+            "inputs": [str(i) if not isinstance(i, Scene | Sweep) else i.where()
+                       for i in inputs]}
     ordered = [records[s.name] for s in shots if s.name in records]
     summary_files.write_summary(out, ordered, meta)
     if contact_sheet:
