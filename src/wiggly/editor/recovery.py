@@ -121,6 +121,8 @@ def set_aside_unsaved(real: Path, notices: list[str]) -> None:
     saved (its autosave, or its journal beyond the file; an earlier session's) are kept as
     the scene ``NAME.unsaved-<date>-<time>.toml`` with their undo history, not overwritten,
     and a notice says so."""
+    if not (autosave_path(real).is_file() or history_path(real).is_file()):
+        return  # nothing of an earlier session's: the usual Save as
     histories = Histories(history_path(real))
     try:
         file_scene = load_checked(real) if real.is_file() else None
